@@ -1,0 +1,40 @@
+//! Subcommands of the `demsketch` binary and the mapping of errors to exit codes.
+
+pub mod info;
+
+use clap::{Parser, Subcommand};
+
+/// Correct real digital elevation models (GeoTIFF, tile directories, VRT) by
+/// sketching the silhouettes the terrain should show from a viewpoint.
+#[derive(Parser, Debug)]
+#[command(name = "demsketch", version, about, long_about = None)]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+pub enum Command {
+    /// Describe a DEM: size, tiles, CRS, geotransform, bounds, nodata, encoding, min/max.
+    Info(info::InfoArgs),
+}
+
+pub fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
+        Command::Info(a) => info::run(a),
+    }
+}
+
+/// An error that is the program's fault rather than the input's (exit code 2).
+#[derive(Debug, thiserror::Error)]
+#[error("internal error: {0}")]
+pub struct InternalError(pub String);
+
+/// 2 for internal errors, 1 for everything caused by the input.
+pub fn exit_code(e: &anyhow::Error) -> i32 {
+    if e.chain().any(|c| c.downcast_ref::<InternalError>().is_some()) {
+        2
+    } else {
+        1
+    }
+}

@@ -1,0 +1,1 @@
+//! Multigrid solver for the diffusion of displacements (placeholder).

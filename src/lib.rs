@@ -1,0 +1,22 @@
+//! demsketch: correct real digital elevation models (DEMs) by sketching the
+//! silhouettes the terrain should show from ground-level viewpoints.
+//!
+//! The modules follow the pipeline of `DESIGN.md`:
+//!
+//! - [`raster`]: GeoTIFF decoding, georeferencing, the tile layer that gives
+//!   seamless windows across tiles, and atomic write-back of corrected tiles.
+//! - [`view`]: viewpoints (lon/lat through PROJ to the DEM's CRS) and the
+//!   pinhole camera with earth curvature and refraction.
+//! - [`render`]: first-person depth buffer, shaded images, viewsheds.
+//! - [`features`]: the terrain features a sketch is matched to: visible
+//!   silhouettes and ridge lines.
+//! - [`sketch`]: sketch files, stroke depth ordering and stroke-feature matching.
+//! - [`deform`]: displacement constraints, the multigrid diffusion solver and
+//!   lowering of protruding silhouettes.
+
+pub mod deform;
+pub mod features;
+pub mod raster;
+pub mod render;
+pub mod sketch;
+pub mod view;

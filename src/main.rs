@@ -1,0 +1,43 @@
+//! The `demsketch` command line: a thin layer over the library. Each
+//! subcommand lives in `cli/` and only parses flags, calls the library and
+//! prints. Exit codes: 0 success, 1 user error (one line naming the file and
+//! the problem), 2 internal error.
+
+mod cli;
+
+use clap::Parser;
+
+fn main() {
+    // A panic is an internal error: report it in one line and exit 2.
+    std::panic::set_hook(Box::new(|info| {
+        let msg = info
+            .payload()
+            .downcast_ref::<&str>()
+            .map(|s| s.to_string())
+            .or_else(|| info.payload().downcast_ref::<String>().cloned())
+            .unwrap_or_else(|| "unknown panic".into());
+        let loc = info
+            .location()
+            .map(|l| format!(" at {}:{}", l.file(), l.line()))
+            .unwrap_or_default();
+        eprintln!("demsketch: internal error: {msg}{loc}");
+        std::process::exit(2);
+    }));
+    let args = cli::Cli::parse();
+    match cli::run(args) {
+        Ok(()) => {}
+        Err(e) => {
+            let code = cli::exit_code(&e);
+            let mut msg = e.to_string();
+            for cause in e.chain().skip(1) {
+                let c = cause.to_string();
+                if !msg.contains(&c) {
+                    msg.push_str(": ");
+                    msg.push_str(&c);
+                }
+            }
+            eprintln!("demsketch: {}", msg.replace('\n', " "));
+            std::process::exit(code);
+        }
+    }
+}

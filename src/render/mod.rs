@@ -1,0 +1,1 @@
+//! First-person rendering of a DEM: depth buffer, shaded image and viewshed.
