@@ -1,1 +1,0 @@
-//! Multigrid solver for the diffusion of displacements (placeholder).

@@ -1,0 +1,483 @@
+//! Native GeoTIFF decoding on the `tiff` crate: the header and image file
+//! directories are parsed once at open; blocks (strips or tiles) are decoded
+//! on demand, in parallel, from a memory map, each worker with its own
+//! `tiff::Decoder` over the shared bytes. Georeferencing follows GDAL:
+//! ModelTiepoint + ModelPixelScale or ModelTransformation, PixelIsPoint
+//! shifted by half a pixel, `GDAL_NODATA` and `GDAL_METADATA` kept.
+//! Reduced-resolution IFDs (overviews) and masks are recognised and skipped.
+
+mod geokeys;
+
+pub use geokeys::{GeoKeys, RasterType};
+
+use std::io::Cursor;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use memmap2::Mmap;
+use tiff::decoder::{ChunkType, Decoder, DecodingResult, Limits};
+use tiff::tags::{CompressionMethod, Predictor, SampleFormat, Tag};
+
+use super::{Crs, GeoTransform, RasterError, SampleType};
+
+const TAG_GDAL_METADATA: u16 = 42112;
+const TAG_GDAL_NODATA: u16 = 42113;
+
+/// How a TIFF's pixels are cut into blocks.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct BlockLayout {
+    pub tiled: bool,
+    pub block_width: u32,
+    pub block_height: u32,
+    pub blocks_across: u32,
+    pub blocks_down: u32,
+}
+
+impl BlockLayout {
+    pub fn count(&self) -> u32 {
+        self.blocks_across * self.blocks_down
+    }
+}
+
+/// Compression and predictor of the image, with GDAL's names.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Encoding {
+    pub compression: &'static str,
+    pub predictor: u16,
+}
+
+/// An open GeoTIFF: parsed metadata and the bytes of the file.
+#[derive(Debug)]
+pub struct GeoTiff {
+    pub path: PathBuf,
+    bytes: Arc<Mmap>,
+    /// Index of the full-resolution IFD.
+    ifd_index: usize,
+    pub width: u32,
+    pub height: u32,
+    pub sample_type: SampleType,
+    pub layout: BlockLayout,
+    pub encoding: Encoding,
+    pub geotransform: GeoTransform,
+    pub raster_type: RasterType,
+    pub crs: Crs,
+    /// `GDAL_NODATA`, parsed (NaN where the tag says "nan").
+    pub nodata: Option<f64>,
+    /// The `GDAL_METADATA` XML, kept for write-back.
+    pub gdal_metadata: Option<String>,
+    /// Sizes of the reduced-resolution images (overviews).
+    pub overviews: Vec<(u32, u32)>,
+}
+
+fn tiff_err(path: &Path, e: tiff::TiffError) -> RasterError {
+    use tiff::TiffError as T;
+    match e {
+        T::FormatError(tiff::TiffFormatError::TiffSignatureNotFound)
+        | T::FormatError(tiff::TiffFormatError::TiffSignatureInvalid) => RasterError::NotTiff {
+            path: path.to_path_buf(),
+            detail: "no TIFF signature".into(),
+        },
+        T::UnsupportedError(u) => RasterError::Unsupported {
+            path: path.to_path_buf(),
+            what: format!("TIFF feature: {u}"),
+        },
+        T::IoError(io) => RasterError::Corrupt {
+            path: path.to_path_buf(),
+            detail: io.to_string(),
+        },
+        other => RasterError::Corrupt {
+            path: path.to_path_buf(),
+            detail: other.to_string(),
+        },
+    }
+}
+
+/// The memory budget for one decoded window or block, in bytes
+/// (`DEMSKETCH_MEMORY_BUDGET_MB`, default 8192).
+pub fn memory_budget() -> u64 {
+    std::env::var("DEMSKETCH_MEMORY_BUDGET_MB")
+        .ok()
+        .and_then(|s| s.parse::<u64>().ok())
+        .unwrap_or(8192)
+        * 1024
+        * 1024
+}
+
+impl GeoTiff {
+    /// Open and parse a GeoTIFF. Fails with a one-line error for files that
+    /// are not TIFF, are truncated, lack a georeference or use an encoding
+    /// this reader does not decode.
+    pub fn open(path: &Path) -> Result<GeoTiff, RasterError> {
+        let file = std::fs::File::open(path).map_err(|e| RasterError::io(path, e))?;
+        // SAFETY: the map is read-only; a file truncated by another process
+        // while mapped is outside what any GIS reader can guard against.
+        let bytes = unsafe { Mmap::map(&file) }.map_err(|e| RasterError::io(path, e))?;
+        if bytes.len() < 8 || !(bytes.starts_with(b"II") || bytes.starts_with(b"MM")) {
+            return Err(RasterError::NotTiff {
+                path: path.to_path_buf(),
+                detail: if bytes.len() < 8 {
+                    format!("only {} bytes", bytes.len())
+                } else {
+                    "no TIFF signature".into()
+                },
+            });
+        }
+        let bytes = Arc::new(bytes);
+        let mut dec = Decoder::new(Cursor::new(&bytes[..]))
+            .map_err(|e| tiff_err(path, e))?
+            .with_limits(Limits::unlimited());
+
+        // Walk the IFD chain: the first full-resolution, non-mask image is
+        // the DEM; reduced-resolution images are its overviews.
+        let mut ifd_index = None;
+        let mut overviews = Vec::new();
+        let mut index = 0usize;
+        loop {
+            let subfile = dec
+                .find_tag_unsigned::<u32>(Tag::NewSubfileType)
+                .map_err(|e| tiff_err(path, e))?
+                .unwrap_or(0);
+            let is_mask = subfile & 4 != 0;
+            let reduced = subfile & 1 != 0;
+            if !is_mask {
+                if reduced {
+                    let dims = dec.dimensions().map_err(|e| tiff_err(path, e))?;
+                    overviews.push(dims);
+                } else if ifd_index.is_none() {
+                    ifd_index = Some(index);
+                }
+            }
+            if !dec.more_images() {
+                break;
+            }
+            index += 1;
+            if dec.next_image().is_err() {
+                // An IFD the decoder cannot describe (e.g. a JPEG mask) is not
+                // the DEM; stop the walk there.
+                break;
+            }
+        }
+        let ifd_index = ifd_index.ok_or_else(|| RasterError::Corrupt {
+            path: path.to_path_buf(),
+            detail: "no full-resolution image in the file".into(),
+        })?;
+        dec.seek_to_image(ifd_index).map_err(|e| tiff_err(path, e))?;
+        Self::describe(path, bytes.clone(), dec, ifd_index, overviews)
+    }
+
+    fn describe(
+        path: &Path,
+        bytes: Arc<Mmap>,
+        mut dec: Decoder<Cursor<&[u8]>>,
+        ifd_index: usize,
+        overviews: Vec<(u32, u32)>,
+    ) -> Result<GeoTiff, RasterError> {
+        let p = path;
+        let unsupported = |what: String| RasterError::Unsupported {
+            path: p.to_path_buf(),
+            what,
+        };
+        let (width, height) = dec.dimensions().map_err(|e| tiff_err(p, e))?;
+        let samples = dec
+            .find_tag_unsigned::<u16>(Tag::SamplesPerPixel)
+            .map_err(|e| tiff_err(p, e))?
+            .unwrap_or(1);
+        if samples != 1 {
+            return Err(unsupported(format!(
+                "{samples} samples per pixel (a DEM has one band)"
+            )));
+        }
+        let bits = dec
+            .find_tag_unsigned_vec::<u16>(Tag::BitsPerSample)
+            .map_err(|e| tiff_err(p, e))?
+            .and_then(|v| v.first().copied())
+            .unwrap_or(1);
+        let format = dec
+            .find_tag_unsigned_vec::<u16>(Tag::SampleFormat)
+            .map_err(|e| tiff_err(p, e))?
+            .and_then(|v| v.first().copied())
+            .map(SampleFormat::from_u16_exhaustive)
+            .unwrap_or(SampleFormat::Uint);
+        let sample_type = match (format, bits) {
+            (SampleFormat::Uint, 8) => SampleType::UInt8,
+            (SampleFormat::Int, 8) => SampleType::Int8,
+            (SampleFormat::Uint, 16) => SampleType::UInt16,
+            (SampleFormat::Int, 16) => SampleType::Int16,
+            (SampleFormat::Uint, 32) => SampleType::UInt32,
+            (SampleFormat::Int, 32) => SampleType::Int32,
+            (SampleFormat::IEEEFP, 32) => SampleType::Float32,
+            (SampleFormat::IEEEFP, 64) => SampleType::Float64,
+            (f, b) => return Err(unsupported(format!("sample type {b}-bit {f:?}"))),
+        };
+        let compression = match dec
+            .find_tag_unsigned::<u16>(Tag::Compression)
+            .map_err(|e| tiff_err(p, e))?
+            .unwrap_or(1)
+        {
+            1 => "NONE",
+            5 => "LZW",
+            8 | 32946 => "DEFLATE",
+            32773 => "PACKBITS",
+            50000 => "ZSTD",
+            c => {
+                let name = match CompressionMethod::from_u16_exhaustive(c) {
+                    CompressionMethod::Unknown(_) => format!("code {c}"),
+                    m => format!("{m:?}"),
+                };
+                return Err(unsupported(format!("compression {name}")));
+            }
+        };
+        let predictor = dec
+            .find_tag_unsigned::<u16>(Tag::Predictor)
+            .map_err(|e| tiff_err(p, e))?
+            .unwrap_or(1);
+        match (predictor, sample_type.is_integer()) {
+            (1, _) | (2, true) | (3, false) => {}
+            (2, false) => {} // horizontal differencing of floats is legal, if rare
+            (pr, _) => {
+                return Err(unsupported(format!(
+                    "predictor {pr} ({:?}) for {sample_type}",
+                    Predictor::from_u16(pr)
+                )))
+            }
+        }
+        let planar = dec
+            .find_tag_unsigned::<u16>(Tag::PlanarConfiguration)
+            .map_err(|e| tiff_err(p, e))?
+            .unwrap_or(1);
+        let _ = planar; // one sample per pixel: both configurations are equal
+
+        let tiled = matches!(dec.get_chunk_type(), ChunkType::Tile);
+        let (bw, bh) = dec.chunk_dimensions();
+        if bw == 0 || bh == 0 {
+            return Err(RasterError::Corrupt {
+                path: p.to_path_buf(),
+                detail: "zero block size".into(),
+            });
+        }
+        let layout = BlockLayout {
+            tiled,
+            block_width: bw,
+            block_height: bh,
+            blocks_across: width.div_ceil(bw),
+            blocks_down: height.div_ceil(bh),
+        };
+        let block_bytes = bw as u64 * bh as u64 * sample_type.bytes() as u64;
+        let budget = memory_budget();
+        if block_bytes > budget {
+            return Err(RasterError::TooLarge {
+                path: p.to_path_buf(),
+                width: width as u64,
+                height: height as u64,
+                sample: sample_type.to_string(),
+                bytes: block_bytes,
+                budget,
+            });
+        }
+        // Every block must lie inside the file: a truncated file is caught
+        // here, at open, not half-way through a read.
+        let (offsets_tag, counts_tag) = if tiled {
+            (Tag::TileOffsets, Tag::TileByteCounts)
+        } else {
+            (Tag::StripOffsets, Tag::StripByteCounts)
+        };
+        let offsets = dec.get_tag_u64_vec(offsets_tag).map_err(|e| tiff_err(p, e))?;
+        let counts = dec.get_tag_u64_vec(counts_tag).map_err(|e| tiff_err(p, e))?;
+        let expected = layout.count() as usize;
+        if offsets.len() < expected || counts.len() < expected {
+            return Err(RasterError::Corrupt {
+                path: p.to_path_buf(),
+                detail: format!(
+                    "{} x {} pixels need {expected} blocks but the file lists {}",
+                    width,
+                    height,
+                    offsets.len().min(counts.len())
+                ),
+            });
+        }
+        let file_len = bytes.len() as u64;
+        for (i, (&o, &c)) in offsets.iter().zip(&counts).enumerate().take(expected) {
+            if o.checked_add(c).is_none_or(|end| end > file_len) {
+                return Err(RasterError::Corrupt {
+                    path: p.to_path_buf(),
+                    detail: format!(
+                        "block {i} ends at byte {} past the end of the file ({file_len} bytes)",
+                        o.saturating_add(c)
+                    ),
+                });
+            }
+        }
+
+        // Georeference.
+        let f64s = |dec: &mut Decoder<Cursor<&[u8]>>, tag: u16| -> Result<Option<Vec<f64>>, RasterError> {
+            match dec.find_tag(Tag::Unknown(tag)).map_err(|e| tiff_err(p, e))? {
+                None => Ok(None),
+                Some(v) => v.into_f64_vec().map(Some).map_err(|e| tiff_err(p, e)),
+            }
+        };
+        let scale = f64s(&mut dec, 33550)?;
+        let tiepoint = f64s(&mut dec, 33922)?;
+        let transform = f64s(&mut dec, 34264)?;
+        let keys = match dec
+            .find_tag(Tag::GeoKeyDirectoryTag)
+            .map_err(|e| tiff_err(p, e))?
+        {
+            None => None,
+            Some(v) => {
+                let dir: Vec<u16> = v
+                    .into_u16_vec()
+                    .map_err(|e| tiff_err(p, e))?;
+                let doubles = f64s(&mut dec, 34736)?.unwrap_or_default();
+                let ascii = match dec
+                    .find_tag(Tag::GeoAsciiParamsTag)
+                    .map_err(|e| tiff_err(p, e))?
+                {
+                    Some(v) => v.into_string().unwrap_or_default(),
+                    None => String::new(),
+                };
+                Some(GeoKeys::parse(p, &dir, &doubles, &ascii)?)
+            }
+        };
+        let raster_type = keys
+            .as_ref()
+            .map(|k| k.raster_type())
+            .unwrap_or(RasterType::PixelIsArea);
+        let mut gt = match (&transform, &scale, &tiepoint) {
+            (Some(m), _, _) if m.len() >= 16 => GeoTransform([m[3], m[0], m[1], m[7], m[4], m[5]]),
+            (_, Some(s), Some(t)) if s.len() >= 2 && t.len() >= 6 => GeoTransform([
+                t[3] - t[0] * s[0],
+                s[0],
+                0.0,
+                t[4] + t[1] * s[1],
+                0.0,
+                -s[1],
+            ]),
+            _ => return Err(RasterError::NoGeoreference { path: p.to_path_buf() }),
+        };
+        if raster_type == RasterType::PixelIsPoint {
+            // GDAL's default (GTIFF_POINT_GEO_IGNORE=FALSE): the tiepoint is
+            // the centre of the pixel, so the corner is half a pixel off.
+            let g = gt.0;
+            gt = GeoTransform([
+                g[0] - 0.5 * g[1] - 0.5 * g[2],
+                g[1],
+                g[2],
+                g[3] - 0.5 * g[4] - 0.5 * g[5],
+                g[4],
+                g[5],
+            ]);
+        }
+        if gt.0.iter().any(|v| !v.is_finite()) || gt.crs_to_pixel(0.0, 0.0).is_none() {
+            return Err(RasterError::Corrupt {
+                path: p.to_path_buf(),
+                detail: format!("degenerate geotransform {:?}", gt.0),
+            });
+        }
+        let crs = match &keys {
+            Some(k) => k.crs(p)?,
+            None => Crs {
+                epsg: None,
+                wkt: String::new(),
+                proj: None,
+                geographic: false,
+            },
+        };
+        let ascii_tag = |dec: &mut Decoder<Cursor<&[u8]>>, tag: u16| -> Option<String> {
+            dec.find_tag(Tag::Unknown(tag))
+                .ok()
+                .flatten()
+                .and_then(|v| v.into_string().ok())
+                .map(|s| s.trim_end_matches('\0').to_string())
+        };
+        let nodata = match ascii_tag(&mut dec, TAG_GDAL_NODATA) {
+            None => None,
+            Some(s) => Some(parse_nodata(&s).ok_or_else(|| RasterError::Corrupt {
+                path: p.to_path_buf(),
+                detail: format!("GDAL_NODATA '{s}' is not a number"),
+            })?),
+        };
+        let gdal_metadata = ascii_tag(&mut dec, TAG_GDAL_METADATA);
+
+        Ok(GeoTiff {
+            path: p.to_path_buf(),
+            bytes,
+            ifd_index,
+            width,
+            height,
+            sample_type,
+            layout,
+            encoding: Encoding {
+                compression,
+                predictor,
+            },
+            geotransform: gt,
+            raster_type,
+            crs,
+            nodata,
+            gdal_metadata,
+            overviews,
+        })
+    }
+
+    /// A decoder positioned on the full-resolution image, for one worker.
+    pub fn decoder(&self) -> Result<Decoder<Cursor<&[u8]>>, RasterError> {
+        let mut dec = Decoder::new(Cursor::new(&self.bytes[..]))
+            .map_err(|e| tiff_err(&self.path, e))?
+            .with_limits(Limits::unlimited());
+        if self.ifd_index != 0 {
+            dec.seek_to_image(self.ifd_index)
+                .map_err(|e| tiff_err(&self.path, e))?;
+        }
+        Ok(dec)
+    }
+
+    /// Decode block `index` (row-major over the block grid). Edge blocks are
+    /// returned with their valid width and height (`block_extent`).
+    pub fn decode_block(
+        &self,
+        dec: &mut Decoder<Cursor<&[u8]>>,
+        index: u32,
+    ) -> Result<DecodingResult, RasterError> {
+        dec.read_chunk(index).map_err(|e| match tiff_err(&self.path, e) {
+            RasterError::Corrupt { path, detail } => RasterError::Corrupt {
+                path,
+                detail: format!("block {index}: {detail}"),
+            },
+            other => other,
+        })
+    }
+
+    /// Pixel rectangle `(col, row, width, height)` covered by block `index`
+    /// (clipped to the image). Strips are blocks one strip high and the full
+    /// image wide.
+    pub fn block_extent(&self, index: u32) -> (u32, u32, u32, u32) {
+        let l = &self.layout;
+        let bx = index % l.blocks_across;
+        let by = index / l.blocks_across;
+        let col = bx * l.block_width;
+        let row = by * l.block_height;
+        (
+            col,
+            row,
+            l.block_width.min(self.width - col),
+            l.block_height.min(self.height - row),
+        )
+    }
+
+    /// The width of a decoded block's rows (tiles are padded only on the
+    /// right/bottom edges; the decoder returns the clipped data).
+    pub fn decoded_row_len(&self, index: u32) -> usize {
+        self.block_extent(index).2 as usize
+    }
+}
+
+/// Parse a `GDAL_NODATA` string the way GDAL does ("nan", "-inf", numbers).
+pub fn parse_nodata(s: &str) -> Option<f64> {
+    let t = s.trim();
+    match t.to_ascii_lowercase().as_str() {
+        "nan" | "-nan" | "1.#qnan" | "-1.#ind" => Some(f64::NAN),
+        "inf" | "+inf" => Some(f64::INFINITY),
+        "-inf" => Some(f64::NEG_INFINITY),
+        _ => t.parse::<f64>().ok(),
+    }
+}

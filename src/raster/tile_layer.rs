@@ -1,0 +1,488 @@
+//! The tile layer: one DEM made of one GeoTIFF, a directory of GeoTIFF tiles
+//! on a common grid, or any raster GDAL opens (VRT included). It presents the
+//! whole DEM as one pixel grid and reads any window of it as one seamless
+//! array with a nodata mask. Reading is lazy (only the blocks a window
+//! touches are decoded), decoded blocks are cached under a memory bound, and
+//! decoding runs in parallel on rayon.
+
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+
+use rayon::prelude::*;
+
+use super::block_cache::BlockCache;
+use super::geotiff::{memory_budget, GeoTiff};
+use super::{Crs, GeoTransform, HeightMap, RasterError, Sample, SampleType, Window, WindowData};
+
+/// Where a tile's pixels come from.
+pub enum TileSource {
+    /// Decoded natively (GeoTIFF).
+    Tiff(GeoTiff),
+    /// Read through GDAL (VRT and every other format GDAL opens).
+    Gdal(Mutex<gdal::Dataset>),
+}
+
+/// One file of the layer and where it sits in the layer's grid.
+pub struct Tile {
+    pub path: PathBuf,
+    pub source: TileSource,
+    /// The tile's pixels in the layer grid.
+    pub extent: Window,
+    pub sample_type: SampleType,
+    pub nodata: Option<f64>,
+    pub geotransform: GeoTransform,
+}
+
+/// What kind of input the layer was opened from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LayerKind {
+    GeoTiff,
+    TileDirectory,
+    Gdal,
+}
+
+/// A tile as opened, before it is placed on the layer grid.
+struct Part {
+    tile: Tile,
+    crs: Crs,
+}
+
+/// A DEM as one grid over all its tiles.
+pub struct Dem {
+    pub path: PathBuf,
+    pub kind: LayerKind,
+    pub tiles: Vec<Tile>,
+    pub width: usize,
+    pub height: usize,
+    pub geotransform: GeoTransform,
+    pub crs: Crs,
+    pub nodata: Option<f64>,
+    pub sample_type: SampleType,
+    cache: BlockCache,
+}
+
+fn is_tiff_name(p: &Path) -> bool {
+    matches!(
+        p.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase()).as_deref(),
+        Some("tif" | "tiff" | "gtiff")
+    )
+}
+
+/// True when `a` and `b` agree to `rel` relative precision.
+fn close(a: f64, b: f64, rel: f64) -> bool {
+    (a - b).abs() <= rel * a.abs().max(b.abs()).max(1e-300)
+}
+
+fn nodata_eq(a: Option<f64>, b: Option<f64>) -> bool {
+    match (a, b) {
+        (None, None) => true,
+        (Some(x), Some(y)) => x == y || (x.is_nan() && y.is_nan()),
+        _ => false,
+    }
+}
+
+impl Dem {
+    /// Open a GeoTIFF, a directory of GeoTIFF tiles, or a raster GDAL opens.
+    pub fn open(path: &Path) -> Result<Dem, RasterError> {
+        let meta = std::fs::metadata(path).map_err(|e| RasterError::io(path, e))?;
+        if meta.is_dir() {
+            let mut files: Vec<PathBuf> = std::fs::read_dir(path)
+                .map_err(|e| RasterError::io(path, e))?
+                .filter_map(|e| e.ok().map(|e| e.path()))
+                .filter(|p| p.is_file() && is_tiff_name(p))
+                .collect();
+            files.sort();
+            if files.is_empty() {
+                return Err(RasterError::EmptyDirectory {
+                    path: path.to_path_buf(),
+                });
+            }
+            let tiles = files
+                .par_iter()
+                .map(|f| Self::open_tile(f))
+                .collect::<Result<Vec<_>, _>>()?;
+            Self::mosaic(path, LayerKind::TileDirectory, tiles)
+        } else if is_tiff_name(path) || Self::sniff_tiff(path) {
+            let tile = Self::open_tile(path)?;
+            Self::mosaic(path, LayerKind::GeoTiff, vec![tile])
+        } else {
+            let tile = Self::open_gdal(path)?;
+            Self::mosaic(path, LayerKind::Gdal, vec![tile])
+        }
+    }
+
+    fn sniff_tiff(path: &Path) -> bool {
+        use std::io::Read;
+        let mut b = [0u8; 4];
+        std::fs::File::open(path)
+            .and_then(|mut f| f.read_exact(&mut b))
+            .map(|_| matches!(&b, b"II*\0" | b"MM\0*" | b"II+\0" | b"MM\0+"))
+            .unwrap_or(false)
+    }
+
+    fn open_tile(path: &Path) -> Result<Part, RasterError> {
+        let t = GeoTiff::open(path)?;
+        Ok(Part {
+            crs: t.crs.clone(),
+            tile: Tile {
+                path: path.to_path_buf(),
+                extent: Window::new(0, 0, t.width as usize, t.height as usize),
+                sample_type: t.sample_type,
+                nodata: t.nodata,
+                geotransform: t.geotransform,
+                source: TileSource::Tiff(t),
+            },
+        })
+    }
+
+    fn open_gdal(path: &Path) -> Result<Part, RasterError> {
+        let ds = gdal::Dataset::open(path).map_err(|e| RasterError::gdal(path, e))?;
+        let (w, h) = ds.raster_size();
+        let gt = ds
+            .geo_transform()
+            .map_err(|_| RasterError::NoGeoreference { path: path.to_path_buf() })?;
+        let band = ds.rasterband(1).map_err(|e| RasterError::gdal(path, e))?;
+        let sample_type = SampleType::from_gdal(band.band_type()).ok_or_else(|| RasterError::Unsupported {
+            path: path.to_path_buf(),
+            what: format!("band type {:?}", band.band_type()),
+        })?;
+        let nodata = band.no_data_value();
+        drop(band);
+        let srs = ds.spatial_ref().ok();
+        let crs = Crs {
+            epsg: srs
+                .as_ref()
+                .filter(|s| s.auth_name().as_deref() == Some("EPSG"))
+                .and_then(|s| s.auth_code().ok())
+                .map(|c| c as u32),
+            wkt: ds.projection(),
+            proj: srs.as_ref().and_then(|s| s.to_proj4().ok()),
+            geographic: srs.as_ref().map(|s| s.is_geographic()).unwrap_or(false),
+        };
+        Ok(Part {
+            crs,
+            tile: Tile {
+                path: path.to_path_buf(),
+                extent: Window::new(0, 0, w, h),
+                sample_type,
+                nodata,
+                geotransform: GeoTransform(gt),
+                source: TileSource::Gdal(Mutex::new(ds)),
+            },
+        })
+    }
+
+    /// Place tiles on one grid, checking CRS, pixel size, alignment, sample
+    /// type and nodata against the first tile.
+    fn mosaic(path: &Path, kind: LayerKind, parts: Vec<Part>) -> Result<Dem, RasterError> {
+        let first = &parts[0];
+        let (ref_path, ref_gt, ref_crs, ref_nodata, ref_type) = (
+            first.tile.path.clone(),
+            first.tile.geotransform,
+            first.crs.clone(),
+            first.tile.nodata,
+            first.tile.sample_type,
+        );
+        let g = ref_gt.0;
+        let mismatch = |p: &Path, what: String| RasterError::TileMismatch {
+            path: p.to_path_buf(),
+            reference: ref_path.clone(),
+            what,
+        };
+        // Pixel offsets of each tile relative to the first.
+        let mut placed = Vec::with_capacity(parts.len());
+        for Part { tile, crs } in &parts {
+            let (p, t) = (&tile.path, tile.geotransform.0);
+            if !crs.same_as(&ref_crs) {
+                return Err(mismatch(p, "different CRS".into()));
+            }
+            if !(close(t[1], g[1], 1e-9) && close(t[5], g[5], 1e-9) && t[2] == g[2] && t[4] == g[4]) {
+                return Err(mismatch(
+                    p,
+                    format!("pixel size {} x {} differs from {} x {}", t[1], t[5], g[1], g[5]),
+                ));
+            }
+            let (px, py) = ref_gt
+                .crs_to_pixel(t[0], t[3])
+                .ok_or_else(|| mismatch(p, "singular geotransform".into()))?;
+            let (cx, cy) = (px.round(), py.round());
+            if (px - cx).abs() > 1e-6 || (py - cy).abs() > 1e-6 {
+                return Err(mismatch(
+                    p,
+                    format!("not aligned on the pixel grid (offset {px:.6}, {py:.6} pixels)"),
+                ));
+            }
+            if tile.sample_type != ref_type {
+                return Err(mismatch(p, format!("sample type {} differs from {ref_type}", tile.sample_type)));
+            }
+            if !nodata_eq(tile.nodata, ref_nodata) {
+                return Err(mismatch(p, format!("nodata {:?} differs from {ref_nodata:?}", tile.nodata)));
+            }
+            placed.push((cx as i64, cy as i64));
+        }
+        let c0 = placed.iter().map(|t| t.0).min().unwrap_or(0);
+        let r0 = placed.iter().map(|t| t.1).min().unwrap_or(0);
+        let mut tiles: Vec<Tile> = Vec::with_capacity(parts.len());
+        for (Part { mut tile, .. }, (c, r)) in parts.into_iter().zip(placed) {
+            tile.extent = Window::new(c - c0, r - r0, tile.extent.width, tile.extent.height);
+            if let Some(other) = tiles.iter().find(|t| t.extent.intersect(&tile.extent).is_some()) {
+                return Err(mismatch(&tile.path, format!("overlaps tile {}", other.path.display())));
+            }
+            tiles.push(tile);
+        }
+        let width = tiles.iter().map(|t| t.extent.col_end()).max().unwrap_or(0) as usize;
+        let height = tiles.iter().map(|t| t.extent.row_end()).max().unwrap_or(0) as usize;
+        let cache_budget = (memory_budget() / 4).min(usize::MAX as u64) as usize;
+        Ok(Dem {
+            path: path.to_path_buf(),
+            kind,
+            geotransform: ref_gt.offset(c0 as f64, r0 as f64),
+            crs: ref_crs,
+            nodata: ref_nodata,
+            sample_type: ref_type,
+            tiles,
+            width,
+            height,
+            cache: BlockCache::new(cache_budget),
+        })
+    }
+
+    /// The window covering the whole DEM.
+    pub fn full_window(&self) -> Window {
+        Window::new(0, 0, self.width, self.height)
+    }
+
+    /// The smallest window that covers the CRS rectangle
+    /// `[xmin, ymin, xmax, ymax]`, clipped to the DEM.
+    pub fn window_for_bounds(&self, b: [f64; 4]) -> Option<Window> {
+        let corners = [(b[0], b[1]), (b[0], b[3]), (b[2], b[1]), (b[2], b[3])];
+        let mut c = [f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY];
+        for (x, y) in corners {
+            let (px, py) = self.geotransform.crs_to_pixel(x, y)?;
+            c = [c[0].min(px), c[1].min(py), c[2].max(px), c[3].max(py)];
+        }
+        let w = Window::new(
+            c[0].floor() as i64,
+            c[1].floor() as i64,
+            (c[2].ceil() - c[0].floor()).max(0.0) as usize,
+            (c[3].ceil() - c[1].floor()).max(0.0) as usize,
+        );
+        w.intersect(&self.full_window())
+    }
+
+    /// Nodata test in the precision of the sample type, as GDAL does (a
+    /// Float32 file's nodata of -3.4e38 is the f32 nearest to it).
+    fn is_nodata(&self, v: f64) -> bool {
+        v.is_nan() || self.nodata.is_some_and(|n| v == self.sample_type.quantize(n))
+    }
+
+    /// Read a window as one seamless array across tiles. Cells outside every
+    /// tile, and nodata cells, are invalid (their value is NaN).
+    pub fn read_window<T: Sample>(&self, win: Window) -> Result<WindowData<T>, RasterError> {
+        let n = win.len();
+        let bytes = (n as u64).saturating_mul(std::mem::size_of::<T>() as u64 + 1);
+        let budget = memory_budget();
+        if bytes > budget {
+            return Err(RasterError::TooLarge {
+                path: self.path.clone(),
+                width: win.width as u64,
+                height: win.height as u64,
+                sample: std::any::type_name::<T>().into(),
+                bytes,
+                budget,
+            });
+        }
+        let mut data = vec![T::nan(); n];
+        let out = SharedOut {
+            ptr: data.as_mut_ptr(),
+            len: n,
+        };
+        // Jobs: (tile, block) pairs for native tiles; whole overlaps for GDAL ones.
+        let mut jobs: Vec<(usize, Option<u32>)> = Vec::new();
+        for (ti, tile) in self.tiles.iter().enumerate() {
+            let Some(ov) = tile.extent.intersect(&win) else { continue };
+            match &tile.source {
+                TileSource::Tiff(tiff) => {
+                    let l = &tiff.layout;
+                    let lc0 = (ov.col - tile.extent.col) as u32;
+                    let lr0 = (ov.row - tile.extent.row) as u32;
+                    let lc1 = lc0 + ov.width as u32 - 1;
+                    let lr1 = lr0 + ov.height as u32 - 1;
+                    for by in lr0 / l.block_height..=lr1 / l.block_height {
+                        for bx in lc0 / l.block_width..=lc1 / l.block_width {
+                            jobs.push((ti, Some(by * l.blocks_across + bx)));
+                        }
+                    }
+                }
+                TileSource::Gdal(_) => jobs.push((ti, None)),
+            }
+        }
+        jobs.par_iter()
+            .map_init(
+                || std::collections::HashMap::new(),
+                |decoders, &(ti, block)| -> Result<(), RasterError> {
+                    let tile = &self.tiles[ti];
+                    match (&tile.source, block) {
+                        (TileSource::Tiff(tiff), Some(bi)) => {
+                            let key = (ti, bi);
+                            let decoded = match self.cache.get(key) {
+                                Some(b) => b,
+                                None => {
+                                    if !decoders.contains_key(&ti) {
+                                        decoders.insert(ti, tiff.decoder()?);
+                                    }
+                                    let dec = decoders.get_mut(&ti).ok_or_else(|| RasterError::Corrupt {
+                                        path: tiff.path.clone(),
+                                        detail: "decoder unavailable".into(),
+                                    })?;
+                                    let b = Arc::new(tiff.decode_block(dec, bi)?);
+                                    self.cache.insert(key, b.clone());
+                                    b
+                                }
+                            };
+                            let (bc, br, bw, bh) = tiff.block_extent(bi);
+                            let bwin = Window::new(
+                                tile.extent.col + bc as i64,
+                                tile.extent.row + br as i64,
+                                bw as usize,
+                                bh as usize,
+                            );
+                            let Some(ov) = bwin.intersect(&win) else { return Ok(()) };
+                            let row_len = tiff.decoded_row_len(bi);
+                            if super::sample_type::decoded_bytes(&decoded) < row_len * bh as usize * tiff.sample_type.bytes() {
+                                return Err(RasterError::Corrupt {
+                                    path: tiff.path.clone(),
+                                    detail: format!("block {bi} decodes to too few samples"),
+                                });
+                            }
+                            for r in 0..ov.height {
+                                let src_row = (ov.row - bwin.row) as usize + r;
+                                let src = src_row * row_len + (ov.col - bwin.col) as usize;
+                                let dst = (ov.row - win.row) as usize + r;
+                                let dst = dst * win.width + (ov.col - win.col) as usize;
+                                // SAFETY: blocks are disjoint rectangles of the
+                                // window, so no two jobs write the same cells.
+                                let out = unsafe { out.slice(dst, ov.width) };
+                                T::copy_from_block(&decoded, src, out);
+                            }
+                            Ok(())
+                        }
+                        (TileSource::Gdal(ds), _) => {
+                            let Some(ov) = tile.extent.intersect(&win) else { return Ok(()) };
+                            let mut buf = vec![0f64; ov.len()];
+                            {
+                                let ds = ds.lock().map_err(|_| RasterError::gdal(&tile.path, "dataset lock poisoned"))?;
+                                let band = ds.rasterband(1).map_err(|e| RasterError::gdal(&tile.path, e))?;
+                                band.read_into_slice::<f64>(
+                                    ((ov.col - tile.extent.col) as isize, (ov.row - tile.extent.row) as isize),
+                                    (ov.width, ov.height),
+                                    (ov.width, ov.height),
+                                    &mut buf,
+                                    None,
+                                )
+                                .map_err(|e| RasterError::gdal(&tile.path, e))?;
+                            }
+                            for r in 0..ov.height {
+                                let dst = ((ov.row - win.row) as usize + r) * win.width + (ov.col - win.col) as usize;
+                                // SAFETY: tiles do not overlap (checked at open).
+                                let out = unsafe { out.slice(dst, ov.width) };
+                                for (o, v) in out.iter_mut().zip(&buf[r * ov.width..(r + 1) * ov.width]) {
+                                    *o = T::from_f64(*v);
+                                }
+                            }
+                            Ok(())
+                        }
+                        (TileSource::Tiff(_), None) => Ok(()),
+                    }
+                },
+            )
+            .collect::<Result<Vec<()>, _>>()?;
+        let mut valid = vec![false; n];
+        data.par_chunks_mut(win.width.max(1))
+            .zip(valid.par_chunks_mut(win.width.max(1)))
+            .for_each(|(d, v)| {
+                for (x, ok) in d.iter_mut().zip(v.iter_mut()) {
+                    let f = x.to_f64();
+                    if self.is_nodata(f) {
+                        *x = T::nan();
+                    } else {
+                        *ok = true;
+                    }
+                }
+            });
+        Ok(WindowData {
+            window: win,
+            data,
+            valid,
+        })
+    }
+
+    /// Read a window as a [`HeightMap`] (f32, NaN = nodata).
+    pub fn read_height_map(&self, win: Window) -> Result<HeightMap, RasterError> {
+        let w = self.read_window::<f32>(win)?;
+        Ok(HeightMap {
+            width: win.width,
+            height: win.height,
+            data: w.data,
+            geotransform: self.geotransform.offset(win.col as f64, win.row as f64),
+            crs: self.crs.clone(),
+        })
+    }
+
+    /// Smallest and largest valid value, streaming over bands of rows so that
+    /// memory stays bounded on large DEMs.
+    pub fn min_max(&self) -> Result<Option<(f64, f64)>, RasterError> {
+        let rows = ((64 << 20) / self.width.max(1)).clamp(1, self.height.max(1));
+        let mut acc: Option<(f64, f64)> = None;
+        let mut row = 0;
+        while row < self.height {
+            let h = rows.min(self.height - row);
+            let w = self.read_window::<f64>(Window::new(0, row as i64, self.width, h))?;
+            for (v, ok) in w.data.iter().zip(&w.valid) {
+                if *ok {
+                    acc = Some(match acc {
+                        None => (*v, *v),
+                        Some((lo, hi)) => (lo.min(*v), hi.max(*v)),
+                    });
+                }
+            }
+            row += h;
+        }
+        Ok(acc)
+    }
+
+    /// Indices of the tiles a window touches.
+    pub fn tiles_touching(&self, win: &Window) -> Vec<usize> {
+        (0..self.tiles.len())
+            .filter(|&i| self.tiles[i].extent.intersect(win).is_some())
+            .collect()
+    }
+
+    pub(crate) fn invalidate_tile(&self, tile: usize) {
+        self.cache.invalidate_tile(tile)
+    }
+}
+
+/// Disjoint mutable access to the output of a parallel window read.
+struct SharedOut<T> {
+    ptr: *mut T,
+    len: usize,
+}
+unsafe impl<T: Send> Sync for SharedOut<T> {}
+unsafe impl<T: Send> Send for SharedOut<T> {}
+impl<T> SharedOut<T> {
+    /// # Safety
+    /// Callers must not hand out overlapping ranges concurrently.
+    #[allow(clippy::mut_from_ref)]
+    unsafe fn slice(&self, start: usize, len: usize) -> &mut [T] {
+        assert!(start + len <= self.len, "window slice out of range");
+        std::slice::from_raw_parts_mut(self.ptr.add(start), len)
+    }
+}
+
+/// Read a whole DEM (file, tile directory or GDAL raster) as a [`HeightMap`].
+pub fn read_height_map(path: &Path) -> Result<HeightMap, RasterError> {
+    let dem = Dem::open(path)?;
+    dem.read_height_map(dem.full_window())
+}
