@@ -1,2 +1,26 @@
 //! Terrain features that strokes are matched to: the visible silhouettes of a
 //! view and the ridge lines of the terrain (section 5.1 of Tassé et al.).
+//!
+//! - [`ridges`]: ridge network of the DEM by PPA with a maximum-height spanning
+//!   forest, as 3D polylines in the DEM's CRS.
+//! - [`geojson`]: export of features as GeoJSON LineStrings (lon, lat, z).
+
+pub mod geojson;
+pub mod ridges;
+
+pub use ridges::{detect_ridges, RidgeLine, RidgeNetwork, RidgeNode, RidgeParams};
+
+/// Errors of feature extraction and export.
+#[derive(Debug, thiserror::Error)]
+pub enum FeatureError {
+    #[error("invalid parameter: {0}")]
+    InvalidParameter(String),
+    #[error("invalid input: {0}")]
+    InvalidInput(String),
+    #[error("too large: {0}")]
+    TooLarge(String),
+    #[error("coordinate transformation: {0}")]
+    Projection(String),
+    #[error("{path}: {message}")]
+    Write { path: std::path::PathBuf, message: String },
+}
