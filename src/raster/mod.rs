@@ -19,3 +19,5 @@ pub use tile_layer::{read_height_map, Dem, LayerKind, Tile, TileSource};
 pub use window::{Window, WindowData};
 mod lonlat_bounds;
 pub use lonlat_bounds::lonlat_bounds;
+mod write_back;
+pub use write_back::{rfc3339_now, Destination, Provenance, WriteReport, PROVENANCE_KEY};

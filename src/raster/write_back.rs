@@ -1,0 +1,432 @@
+//! Write-back of corrected heights: only the tiles an edit changes are
+//! rewritten, each with its own layout (tiled or striped, block size),
+//! compression, predictor, sample type, georeference, CRS, nodata and
+//! metadata, plus a provenance item that `gdalinfo` shows. Overviews in the
+//! input are rebuilt. Unchanged tiles are hard-linked (or copied) byte for
+//! byte, never re-encoded.
+//!
+//! Every write is atomic: tiles are encoded to temporary files in the target
+//! directory and renamed into place only once all of them are complete; a
+//! tile directory output is staged beside `OUT` and renamed to `OUT` at the
+//! end. An interruption leaves each file either old or new, and a failure
+//! leaves nothing behind.
+
+use std::path::{Path, PathBuf};
+use std::time::{SystemTime, UNIX_EPOCH};
+
+use gdal::raster::{Buffer, RasterCreationOptions};
+use gdal::{DriverManager, Metadata};
+use rayon::prelude::*;
+
+use super::{Dem, LayerKind, RasterError, SampleType, Tile, TileSource, Window};
+
+/// The metadata item written into every rewritten tile.
+pub const PROVENANCE_KEY: &str = "DEMSKETCH_PROVENANCE";
+
+/// Who changed a tile, and when.
+#[derive(Debug, Clone)]
+pub struct Provenance {
+    /// Identifies the edit (e.g. the sketch file's name and a hash).
+    pub edit_id: String,
+}
+
+impl Provenance {
+    fn item(&self, changed_cells: usize) -> String {
+        format!(
+            "tool=demsketch {}; edit={}; time={}; changed_cells={changed_cells}",
+            env!("CARGO_PKG_VERSION"),
+            self.edit_id,
+            rfc3339_now()
+        )
+    }
+}
+
+/// Where corrected tiles go.
+#[derive(Debug, Clone)]
+pub enum Destination {
+    /// Replace the changed tiles of the input (atomically, tile by tile).
+    InPlace,
+    /// A new GeoTIFF (single-file input) or a new directory receiving the
+    /// full tile set (tile-directory input).
+    Path(PathBuf),
+}
+
+/// What a write-back did.
+#[derive(Debug, Clone, Default, serde::Serialize)]
+pub struct WriteReport {
+    /// Files that were rewritten (their final paths).
+    pub tiles_written: Vec<PathBuf>,
+    /// Files hard-linked or copied unchanged into the output directory.
+    pub tiles_unchanged: Vec<PathBuf>,
+    /// Cells whose stored value changed.
+    pub changed_cells: usize,
+}
+
+/// Civil UTC time in RFC 3339, from the system clock.
+pub fn rfc3339_now() -> String {
+    let secs = SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map(|d| d.as_secs() as i64)
+        .unwrap_or(0);
+    let (days, rem) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
+    // Days since 1970-01-01 to a civil date (H. Hinnant's algorithm).
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = doy - (153 * mp + 2) / 5 + 1;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 };
+    let y = yoe + era * 400 + i64::from(m <= 2);
+    format!(
+        "{y:04}-{m:02}-{d:02}T{:02}:{:02}:{:02}Z",
+        rem / 3600,
+        rem % 3600 / 60,
+        rem % 60
+    )
+}
+
+fn write_err(path: &Path, message: impl std::fmt::Display) -> RasterError {
+    RasterError::Write {
+        path: path.to_path_buf(),
+        message: message.to_string(),
+    }
+}
+
+/// A temporary path beside `target`, unique to this process.
+fn temp_beside(target: &Path) -> PathBuf {
+    let name = target
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "tile".into());
+    target.with_file_name(format!(".{name}.demsketch-{}.tmp", std::process::id()))
+}
+
+/// The new values of one tile: its full extent, quantized to its type.
+struct TileEdit {
+    tile: usize,
+    /// Window in tile pixel coordinates that holds changes.
+    local: Window,
+    /// Quantized new values over `local` (row-major).
+    values: Vec<f64>,
+    changed: usize,
+}
+
+impl Dem {
+    /// Write new heights for `window` (row-major `values`, NaN = keep) back
+    /// to the tiles. Nodata cells of the input stay nodata; values are rounded
+    /// and clamped into integer types. Returns what was written.
+    pub fn write_back(
+        &self,
+        window: Window,
+        values: &[f64],
+        dest: &Destination,
+        provenance: &Provenance,
+    ) -> Result<WriteReport, RasterError> {
+        if values.len() != window.len() {
+            return Err(write_err(
+                &self.path,
+                format!("{} values for a window of {} cells", values.len(), window.len()),
+            ));
+        }
+        self.check_destination(dest)?;
+        let window = window
+            .intersect(&self.full_window())
+            .ok_or_else(|| RasterError::OutOfBounds {
+                path: self.path.clone(),
+                what: format!("{window:?}"),
+                width: self.width,
+                height: self.height,
+            })?;
+        let original = self.read_window::<f64>(window)?;
+        // Per tile: which cells change once quantized.
+        let edits: Vec<TileEdit> = self
+            .tiles_touching(&window)
+            .into_par_iter()
+            .filter_map(|ti| {
+                let tile = &self.tiles[ti];
+                let ov = tile.extent.intersect(&window)?;
+                let mut vals = vec![0.0; ov.len()];
+                let mut changed = 0;
+                for r in 0..ov.height {
+                    for c in 0..ov.width {
+                        let wi = ((ov.row - window.row) as usize + r) * window.width
+                            + (ov.col - window.col) as usize
+                            + c;
+                        let old = original.data[wi];
+                        let new = values[wi];
+                        let v = if !original.valid[wi] || new.is_nan() {
+                            old
+                        } else {
+                            tile.sample_type.quantize(new)
+                        };
+                        if original.valid[wi] && v != old {
+                            changed += 1;
+                        }
+                        vals[r * ov.width + c] = v;
+                    }
+                }
+                (changed > 0).then(|| TileEdit {
+                    tile: ti,
+                    local: Window::new(
+                        ov.col - tile.extent.col,
+                        ov.row - tile.extent.row,
+                        ov.width,
+                        ov.height,
+                    ),
+                    values: vals,
+                    changed,
+                })
+            })
+            .collect();
+        let changed_cells = edits.iter().map(|e| e.changed).sum();
+        match (dest, self.kind) {
+            (Destination::InPlace, LayerKind::Gdal) => Err(RasterError::Unsupported {
+                path: self.path.clone(),
+                what: "in-place write to a non-GeoTIFF raster; give an output GeoTIFF with --out".into(),
+            }),
+            (Destination::InPlace, _) => {
+                let targets: Vec<PathBuf> = edits.iter().map(|e| self.tiles[e.tile].path.clone()).collect();
+                self.encode_and_commit(&edits, &targets, provenance)?;
+                for e in &edits {
+                    self.invalidate_tile(e.tile);
+                }
+                Ok(WriteReport {
+                    tiles_written: targets,
+                    tiles_unchanged: vec![],
+                    changed_cells,
+                })
+            }
+            (Destination::Path(out), LayerKind::GeoTiff | LayerKind::Gdal) => {
+                let targets = vec![out.clone()];
+                if edits.is_empty() {
+                    // Nothing changed: the output is a byte copy of the input.
+                    let tmp = temp_beside(out);
+                    std::fs::copy(&self.tiles[0].path, &tmp).map_err(|e| RasterError::io(out, e))?;
+                    std::fs::rename(&tmp, out).map_err(|e| RasterError::io(out, e))?;
+                    return Ok(WriteReport {
+                        tiles_written: vec![],
+                        tiles_unchanged: targets,
+                        changed_cells,
+                    });
+                }
+                self.encode_and_commit(&edits, &targets, provenance)?;
+                Ok(WriteReport {
+                    tiles_written: targets,
+                    tiles_unchanged: vec![],
+                    changed_cells,
+                })
+            }
+            (Destination::Path(out), LayerKind::TileDirectory) => {
+                self.write_directory(out, &edits, provenance, changed_cells)
+            }
+        }
+    }
+
+    /// Refuse destinations that would overwrite the input or a non-empty
+    /// directory, before anything is written.
+    fn check_destination(&self, dest: &Destination) -> Result<(), RasterError> {
+        let Destination::Path(out) = dest else { return Ok(()) };
+        let same = |a: &Path, b: &Path| match (a.canonicalize(), b.canonicalize()) {
+            (Ok(x), Ok(y)) => x == y,
+            _ => false,
+        };
+        if same(out, &self.path) {
+            return Err(write_err(out, "is the input; use --in-place to rewrite the input"));
+        }
+        match self.kind {
+            LayerKind::TileDirectory => {
+                if out.is_file() {
+                    return Err(write_err(out, "is a file; a tile directory needs an output directory"));
+                }
+                if out.is_dir()
+                    && std::fs::read_dir(out)
+                        .map_err(|e| RasterError::io(out, e))?
+                        .next()
+                        .is_some()
+                {
+                    return Err(write_err(out, "already exists and is not empty"));
+                }
+                let parent = out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+                if !parent.is_dir() {
+                    return Err(write_err(out, "its parent directory does not exist"));
+                }
+            }
+            _ => {
+                if out.is_dir() {
+                    return Err(write_err(out, "is a directory; give the path of the output GeoTIFF"));
+                }
+                let parent = out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+                if !parent.is_dir() {
+                    return Err(write_err(out, "its parent directory does not exist"));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Encode every edited tile to a temporary file beside its target, then,
+    /// once all succeeded, rename them into place.
+    fn encode_and_commit(
+        &self,
+        edits: &[TileEdit],
+        targets: &[PathBuf],
+        provenance: &Provenance,
+    ) -> Result<(), RasterError> {
+        let temps: Vec<PathBuf> = targets.iter().map(|t| temp_beside(t)).collect();
+        let result = edits
+            .par_iter()
+            .zip(temps.par_iter())
+            .try_for_each(|(e, tmp)| encode_tile(&self.tiles[e.tile], e, tmp, provenance));
+        if let Err(err) = result {
+            for t in &temps {
+                let _ = std::fs::remove_file(t);
+            }
+            return Err(err);
+        }
+        for (tmp, target) in temps.iter().zip(targets) {
+            if let Err(e) = std::fs::rename(tmp, target) {
+                for t in &temps {
+                    let _ = std::fs::remove_file(t);
+                }
+                return Err(RasterError::io(target, e));
+            }
+        }
+        Ok(())
+    }
+
+    fn write_directory(
+        &self,
+        out: &Path,
+        edits: &[TileEdit],
+        provenance: &Provenance,
+        changed_cells: usize,
+    ) -> Result<WriteReport, RasterError> {
+        let stage = temp_beside(out);
+        if stage.exists() {
+            let _ = std::fs::remove_dir_all(&stage);
+        }
+        std::fs::create_dir(&stage).map_err(|e| RasterError::io(&stage, e))?;
+        let run = || -> Result<WriteReport, RasterError> {
+            let mut report = WriteReport {
+                changed_cells,
+                ..Default::default()
+            };
+            let edited: std::collections::HashSet<usize> = edits.iter().map(|e| e.tile).collect();
+            for (ti, tile) in self.tiles.iter().enumerate() {
+                if edited.contains(&ti) {
+                    continue;
+                }
+                let name = tile.path.file_name().unwrap_or_default();
+                let target = stage.join(name);
+                if std::fs::hard_link(&tile.path, &target).is_err() {
+                    std::fs::copy(&tile.path, &target).map_err(|e| RasterError::io(&target, e))?;
+                }
+                report.tiles_unchanged.push(out.join(name));
+            }
+            let targets: Vec<PathBuf> = edits
+                .iter()
+                .map(|e| stage.join(self.tiles[e.tile].path.file_name().unwrap_or_default()))
+                .collect();
+            self.encode_and_commit(edits, &targets, provenance)?;
+            report.tiles_written = edits
+                .iter()
+                .map(|e| out.join(self.tiles[e.tile].path.file_name().unwrap_or_default()))
+                .collect();
+            if out.is_dir() {
+                std::fs::remove_dir(out).map_err(|e| RasterError::io(out, e))?;
+            }
+            std::fs::rename(&stage, out).map_err(|e| RasterError::io(out, e))?;
+            Ok(report)
+        };
+        let r = run();
+        if r.is_err() {
+            let _ = std::fs::remove_dir_all(&stage);
+        }
+        r
+    }
+}
+
+/// GDAL creation options that reproduce a GeoTIFF's layout and encoding.
+fn creation_options(tile: &Tile, cog: bool) -> Vec<String> {
+    let mut o = vec!["NUM_THREADS=ALL_CPUS".to_string()];
+    if let TileSource::Tiff(t) = &tile.source {
+        o.push(format!("COMPRESS={}", t.encoding.compression));
+        if t.encoding.compression != "NONE" && t.encoding.predictor != 1 {
+            o.push(format!("PREDICTOR={}", t.encoding.predictor));
+        }
+        if cog {
+            o.push(format!("BLOCKSIZE={}", t.layout.block_width));
+        } else {
+            if t.layout.tiled {
+                o.push("TILED=YES".into());
+                o.push(format!("BLOCKXSIZE={}", t.layout.block_width));
+            }
+            o.push(format!("BLOCKYSIZE={}", t.layout.block_height));
+            o.push("BIGTIFF=IF_SAFER".into());
+            if !t.overviews.is_empty() {
+                o.push("COPY_SRC_OVERVIEWS=YES".into());
+            }
+        }
+    } else {
+        o.extend(["TILED=YES", "COMPRESS=DEFLATE", "BIGTIFF=IF_SAFER"].map(String::from));
+    }
+    if tile.sample_type == SampleType::Int8 {
+        o.push("PIXELTYPE=SIGNEDBYTE".into());
+    }
+    o
+}
+
+/// Encode one edited tile into `tmp` through GDAL: the source is copied to
+/// memory with all its metadata, the edit applied, overviews rebuilt, and
+/// the result written with the source's creation options.
+fn encode_tile(tile: &Tile, edit: &TileEdit, tmp: &Path, provenance: &Provenance) -> Result<(), RasterError> {
+    let gerr = |e: gdal::errors::GdalError| RasterError::gdal(&tile.path, e);
+    let src = gdal::Dataset::open(&tile.path).map_err(gerr)?;
+    let mem_driver = DriverManager::get_driver_by_name("MEM").map_err(gerr)?;
+    let mut mem = src
+        .create_copy(&mem_driver, "", &RasterCreationOptions::default())
+        .map_err(gerr)?;
+    {
+        let mut band = mem.rasterband(1).map_err(gerr)?;
+        let mut buf = Buffer::new((edit.local.width, edit.local.height), edit.values.clone());
+        band.write(
+            (edit.local.col as isize, edit.local.row as isize),
+            (edit.local.width, edit.local.height),
+            &mut buf,
+        )
+        .map_err(gerr)?;
+    }
+    mem.set_metadata_item(PROVENANCE_KEY, &provenance.item(edit.changed), "")
+        .map_err(gerr)?;
+    let cog = src.metadata_item("LAYOUT", "IMAGE_STRUCTURE").as_deref() == Some("COG");
+    if let TileSource::Tiff(t) = &tile.source {
+        if !t.overviews.is_empty() && !cog {
+            let factors: Vec<i32> = t
+                .overviews
+                .iter()
+                .map(|(w, _)| ((t.width as f64 / *w as f64).round() as i32).max(2))
+                .collect();
+            let resampling = if tile.sample_type.is_integer() { "NEAREST" } else { "AVERAGE" };
+            mem.build_overviews(resampling, &factors, &[]).map_err(gerr)?;
+        }
+    }
+    let driver = DriverManager::get_driver_by_name(if cog { "COG" } else { "GTiff" }).map_err(gerr)?;
+    let opts = RasterCreationOptions::from_iter(creation_options(tile, cog));
+    let out = mem
+        .create_copy(&driver, tmp, &opts)
+        .map_err(|e| write_err(tmp, format!("GDAL could not write the tile: {e}")));
+    match out {
+        Ok(ds) => ds.close().map_err(|e| write_err(tmp, e))?,
+        Err(e) => {
+            let _ = std::fs::remove_file(tmp);
+            return Err(e);
+        }
+    }
+    // Make the bytes durable before the rename makes them visible.
+    std::fs::File::open(tmp)
+        .and_then(|f| f.sync_all())
+        .map_err(|e| RasterError::io(tmp, e))?;
+    Ok(())
+}

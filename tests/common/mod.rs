@@ -1,0 +1,87 @@
+//! Helpers shared by the integration tests: fixtures, GDAL command-line
+//! references and the `demsketch` binary.
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+pub fn fixture(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures").join(name)
+}
+
+pub const FIXTURES: [&str; 6] = [
+    "arenal_aster30m_epsg4326.tif",
+    "zion_srtm90m_epsg4326.tif",
+    "zion_srtm_utm12n.tif",
+    "vinschgau_250m_utm32n.tif",
+    "texas_srtm90m_tiled_int16.tif",
+    "nz_1km_nan_nodata.tif",
+];
+
+/// Run a command and fail the test with its stderr if it fails.
+pub fn run(cmd: &str, args: &[&str]) -> Output {
+    let out = Command::new(cmd)
+        .args(args)
+        .env("GDAL_PAM_ENABLED", "NO")
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run {cmd}: {e}"));
+    assert!(
+        out.status.success(),
+        "{cmd} {args:?} failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
+}
+
+/// `gdal_translate` with extra arguments, quietly.
+pub fn gdal_translate(src: &Path, dst: &Path, extra: &[&str]) {
+    let mut args: Vec<&str> = vec!["-q"];
+    args.extend_from_slice(extra);
+    let (s, d) = (src.to_string_lossy(), dst.to_string_lossy());
+    args.push(&s);
+    args.push(&d);
+    run("gdal_translate", &args);
+}
+
+/// `gdalinfo -json` of a file, parsed.
+pub fn gdalinfo(path: &Path) -> serde_json::Value {
+    let out = run("gdalinfo", &["-json", &path.to_string_lossy()]);
+    serde_json::from_slice(&out.stdout).expect("gdalinfo -json output is JSON")
+}
+
+/// The demsketch binary built for these tests.
+pub fn demsketch(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_demsketch"))
+        .args(args)
+        .env("GDAL_PAM_ENABLED", "NO")
+        .output()
+        .expect("run demsketch")
+}
+
+/// Every file under `dir` with its bytes, for "nothing changed" checks.
+pub fn snapshot(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
+    let mut v = Vec::new();
+    if let Ok(rd) = std::fs::read_dir(dir) {
+        for e in rd.flatten() {
+            let p = e.path();
+            if p.is_dir() {
+                v.extend(snapshot(&p));
+            } else if let Ok(b) = std::fs::read(&p) {
+                v.push((p, b));
+            }
+        }
+    }
+    v.sort_by(|a, b| a.0.cmp(&b.0));
+    v
+}
+
+/// Band 1 of a raster read by GDAL as f64, row-major.
+pub fn gdal_values(path: &Path) -> (usize, usize, Vec<f64>, Option<f64>) {
+    let ds = gdal::Dataset::open(path).expect("GDAL opens the file");
+    let band = ds.rasterband(1).expect("band 1");
+    let (w, h) = band.size();
+    let buf = band
+        .read_as::<f64>((0, 0), (w, h), (w, h), None)
+        .expect("GDAL reads the band");
+    (w, h, buf.data().to_vec(), band.no_data_value())
+}
