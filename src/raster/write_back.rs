@@ -365,9 +365,6 @@ fn creation_options(tile: &Tile, cog: bool) -> Vec<String> {
             }
             o.push(format!("BLOCKYSIZE={}", t.layout.block_height));
             o.push("BIGTIFF=IF_SAFER".into());
-            if !t.overviews.is_empty() {
-                o.push("COPY_SRC_OVERVIEWS=YES".into());
-            }
         }
     } else {
         o.extend(["TILED=YES", "COMPRESS=DEFLATE", "BIGTIFF=IF_SAFER"].map(String::from));
@@ -401,28 +398,31 @@ fn encode_tile(tile: &Tile, edit: &TileEdit, tmp: &Path, provenance: &Provenance
     mem.set_metadata_item(PROVENANCE_KEY, &provenance.item(edit.changed), "")
         .map_err(gerr)?;
     let cog = src.metadata_item("LAYOUT", "IMAGE_STRUCTURE").as_deref() == Some("COG");
-    if let TileSource::Tiff(t) = &tile.source {
-        if !t.overviews.is_empty() && !cog {
-            let factors: Vec<i32> = t
-                .overviews
-                .iter()
-                .map(|(w, _)| ((t.width as f64 / *w as f64).round() as i32).max(2))
-                .collect();
-            let resampling = if tile.sample_type.is_integer() { "NEAREST" } else { "AVERAGE" };
-            mem.build_overviews(resampling, &factors, &[]).map_err(gerr)?;
-        }
-    }
     let driver = DriverManager::get_driver_by_name(if cog { "COG" } else { "GTiff" }).map_err(gerr)?;
     let opts = RasterCreationOptions::from_iter(creation_options(tile, cog));
-    let out = mem
+    let written = mem
         .create_copy(&driver, tmp, &opts)
-        .map_err(|e| write_err(tmp, format!("GDAL could not write the tile: {e}")));
-    match out {
-        Ok(ds) => ds.close().map_err(|e| write_err(tmp, e))?,
-        Err(e) => {
-            let _ = std::fs::remove_file(tmp);
-            return Err(e);
-        }
+        .map_err(|e| write_err(tmp, format!("GDAL could not write the tile: {e}")))
+        .and_then(|mut ds| {
+            // Overviews go where gdaladdo puts them, after the full-resolution
+            // image (the COG driver builds its own).
+            if let TileSource::Tiff(t) = &tile.source {
+                if !t.overviews.is_empty() && !cog {
+                    let factors: Vec<i32> = t
+                        .overviews
+                        .iter()
+                        .map(|(w, _)| ((t.width as f64 / *w as f64).round() as i32).max(2))
+                        .collect();
+                    let resampling = if tile.sample_type.is_integer() { "NEAREST" } else { "AVERAGE" };
+                    ds.build_overviews(resampling, &factors, &[])
+                        .map_err(|e| write_err(tmp, format!("GDAL could not rebuild overviews: {e}")))?;
+                }
+            }
+            ds.close().map_err(|e| write_err(tmp, e))
+        });
+    if let Err(e) = written {
+        let _ = std::fs::remove_file(tmp);
+        return Err(e);
     }
     // Make the bytes durable before the rename makes them visible.
     std::fs::File::open(tmp)
