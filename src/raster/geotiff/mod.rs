@@ -220,9 +220,18 @@ impl GeoTiff {
             32773 => "PACKBITS",
             50000 => "ZSTD",
             c => {
-                let name = match CompressionMethod::from_u16_exhaustive(c) {
-                    CompressionMethod::Unknown(_) => format!("code {c}"),
-                    m => format!("{m:?}"),
+                let name = match c {
+                    6 => "old-style JPEG".to_string(),
+                    7 => "JPEG".to_string(),
+                    34712 => "JPEG 2000".to_string(),
+                    34887 => "LERC".to_string(),
+                    34925 => "LZMA".to_string(),
+                    50001 => "WEBP".to_string(),
+                    50002 => "JPEG XL".to_string(),
+                    _ => match CompressionMethod::from_u16_exhaustive(c) {
+                        CompressionMethod::Unknown(_) => format!("code {c}"),
+                        m => format!("{m:?}"),
+                    },
                 };
                 return Err(unsupported(format!("compression {name}")));
             }
