@@ -1,0 +1,18 @@
+#!/usr/bin/env bash
+# Installs what demsketch needs on a fresh Debian machine (GDAL, PROJ, clang
+# for the bindings, pkg-config, the GDAL command-line tools the tests compare
+# against), only where it is missing. Needs root for apt-get.
+set -euo pipefail
+pkgs=(libgdal-dev libproj-dev libclang-dev pkg-config gdal-bin proj-bin)
+missing=()
+for p in "${pkgs[@]}"; do
+  dpkg -s "$p" >/dev/null 2>&1 || missing+=("$p")
+done
+if [ ${#missing[@]} -gt 0 ]; then
+  echo "setup: installing ${missing[*]}" >&2
+  SUDO=""
+  [ "$(id -u)" -eq 0 ] || SUDO="sudo"
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq "${missing[@]}" >/dev/null
+fi
+command -v cargo >/dev/null || { echo "setup: cargo (Rust) is required: https://rustup.rs" >&2; exit 1; }
