@@ -87,7 +87,12 @@ fn gaussian_ridge_is_found_within_one_cell_of_its_crest() {
     for line in &net.lines {
         for p in &line.pixels {
             let d = dist(p[0], p[1]).abs();
-            assert!(d <= 1.0, "line {} vertex {:?} is {d} cells off the crest", line.id, p);
+            assert!(
+                d <= 1.0,
+                "line {} vertex {:?} is {d} cells off the crest",
+                line.id,
+                p
+            );
         }
     }
     // CRS coordinates and heights agree with the pixel positions.
@@ -101,9 +106,15 @@ fn gaussian_ridge_is_found_within_one_cell_of_its_crest() {
 #[test]
 fn flat_and_tilted_planes_have_no_ridges() {
     let flat = synthetic(64, 64, |_, _| 100.0);
-    assert!(detect_ridges(&flat, &RidgeParams::default()).expect("ok").lines.is_empty());
+    assert!(detect_ridges(&flat, &RidgeParams::default())
+        .expect("ok")
+        .lines
+        .is_empty());
     let tilt = synthetic(64, 64, |x, y| 3.0 * x + 1.5 * y);
-    assert!(detect_ridges(&tilt, &RidgeParams::default()).expect("ok").lines.is_empty());
+    assert!(detect_ridges(&tilt, &RidgeParams::default())
+        .expect("ok")
+        .lines
+        .is_empty());
 }
 
 #[test]
@@ -172,7 +183,10 @@ fn check_main_network(map: &HeightMap, net: &demsketch::features::RidgeNetwork, 
     );
     assert!(total_km > min_km, "ridge network only {total_km} km");
     let share = share_on_high_ground(map, net);
-    assert!(share > 0.95, "only {share} of ridge vertices on high ground");
+    assert!(
+        share > 0.95,
+        "only {share} of ridge vertices on high ground"
+    );
     let (imax, _) = map
         .data
         .iter()
@@ -180,14 +194,20 @@ fn check_main_network(map: &HeightMap, net: &demsketch::features::RidgeNetwork, 
         .filter(|(_, v)| !v.is_nan())
         .max_by(|a, b| a.1.total_cmp(b.1))
         .expect("data");
-    let (cx, cy) = ((imax % map.width) as f64 + 0.5, (imax / map.width) as f64 + 0.5);
+    let (cx, cy) = (
+        (imax % map.width) as f64 + 0.5,
+        (imax / map.width) as f64 + 0.5,
+    );
     let near = net
         .lines
         .iter()
         .flat_map(|l| l.pixels.iter())
         .map(|p| (p[0] - cx).hypot(p[1] - cy))
         .fold(f64::INFINITY, f64::min);
-    assert!(near <= 2.0, "summit ({cx}, {cy}) is {near} cells from the network");
+    assert!(
+        near <= 2.0,
+        "summit ({cx}, {cy}) is {near} cells from the network"
+    );
     // The longest connected lines are long: the main ridges are not chopped up.
     let mut lens: Vec<f64> = net.lines.iter().map(|l| l.length_m).collect();
     lens.sort_by(|a, b| b.total_cmp(a));
@@ -207,4 +227,68 @@ fn vinschgau_main_ridge_network() {
     let map = load("vinschgau_250m_utm32n.tif");
     let net = detect_ridges(&map, &RidgeParams::default()).expect("ridges");
     check_main_network(&map, &net, 300.0);
+}
+
+/// Draw the ridge network over a hillshade (run with `--ignored` and
+/// `DEMSKETCH_RIDGE_PNG=dir` to look at it).
+#[test]
+#[ignore]
+fn draw_fixture_ridges() {
+    let dir = std::env::var("DEMSKETCH_RIDGE_PNG").unwrap_or_else(|_| "/tmp".into());
+    for name in ["zion_srtm_utm12n.tif", "vinschgau_250m_utm32n.tif"] {
+        let map = load(name);
+        let net = detect_ridges(&map, &RidgeParams::default()).expect("ridges");
+        let (w, h) = (map.width, map.height);
+        let s = 3usize;
+        let mut img = vec![0u8; w * s * h * s * 3];
+        let cell = map.geotransform.pixel_size().0;
+        for r in 0..h {
+            for c in 0..w {
+                let z = |cc: usize, rr: usize| {
+                    map.get(cc.min(w - 1), rr.min(h - 1)).unwrap_or(0.0) as f64
+                };
+                let dx = (z(c + 1, r) - z(c.saturating_sub(1), r)) / (2.0 * cell);
+                let dy = (z(c, r + 1) - z(c, r.saturating_sub(1))) / (2.0 * cell);
+                let n = (dx * dx + dy * dy + 1.0).sqrt();
+                let v = ((-dx + dy + 1.0) / (n * 3f64.sqrt())).clamp(0.0, 1.0);
+                for yy in 0..s {
+                    for xx in 0..s {
+                        let i = ((r * s + yy) * w * s + c * s + xx) * 3;
+                        img[i..i + 3].fill((40.0 + 200.0 * v) as u8);
+                    }
+                }
+            }
+        }
+        for l in &net.lines {
+            for seg in l.pixels.windows(2) {
+                for k in 0..=8 {
+                    let t = k as f64 / 8.0;
+                    let px = seg[0][0] + t * (seg[1][0] - seg[0][0]);
+                    let py = seg[0][1] + t * (seg[1][1] - seg[0][1]);
+                    let (x, y) = ((px * s as f64) as usize, (py * s as f64) as usize);
+                    for (x, y) in [(x, y), (x + 1, y), (x, y + 1)] {
+                        if x < w * s && y < h * s {
+                            let i = (y * w * s + x) * 3;
+                            img[i..i + 3].copy_from_slice(&[255, 40, 20]);
+                        }
+                    }
+                }
+            }
+            for n in &l.nodes {
+                if let Some(n) = net.nodes.get(*n as usize) {
+                    let (x, y) = (n.cell[0] as usize * s + 1, n.cell[1] as usize * s + 1);
+                    let i = (y * w * s + x) * 3;
+                    img[i..i + 3].copy_from_slice(&[30, 120, 255]);
+                }
+            }
+        }
+        let f = std::fs::File::create(format!("{dir}/ridges_{name}.png")).expect("png");
+        let mut enc = png::Encoder::new(std::io::BufWriter::new(f), (w * s) as u32, (h * s) as u32);
+        enc.set_color(png::ColorType::Rgb);
+        enc.set_depth(png::BitDepth::Eight);
+        enc.write_header()
+            .expect("header")
+            .write_image_data(&img)
+            .expect("data");
+    }
 }

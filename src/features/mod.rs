@@ -3,12 +3,20 @@
 //!
 //! - [`ridges`]: ridge network of the DEM by PPA with a maximum-height spanning
 //!   forest, as 3D polylines in the DEM's CRS.
+//! - [`silhouettes`]: visible occlusion boundaries of a rendered view, linked
+//!   into polylines with T-junctions, each sample carrying its pixel, depth
+//!   and 3D terrain point.
 //! - [`geojson`]: export of features as GeoJSON LineStrings (lon, lat, z).
 
 pub mod geojson;
 pub mod ridges;
+pub mod silhouettes;
 
 pub use ridges::{detect_ridges, RidgeLine, RidgeNetwork, RidgeNode, RidgeParams};
+pub use silhouettes::{
+    extract_silhouettes, CurveEnd, Silhouette, SilhouetteParams, SilhouetteSample, Silhouettes,
+    TJunction,
+};
 
 /// Errors of feature extraction and export.
 #[derive(Debug, thiserror::Error)]
@@ -22,5 +30,8 @@ pub enum FeatureError {
     #[error("coordinate transformation: {0}")]
     Projection(String),
     #[error("{path}: {message}")]
-    Write { path: std::path::PathBuf, message: String },
+    Write {
+        path: std::path::PathBuf,
+        message: String,
+    },
 }

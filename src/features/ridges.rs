@@ -402,7 +402,11 @@ fn prune(mask: &mut [u8], w: usize, metric: &Metric, min_branch: f64, min_line: 
         }
         let (path, len) = walk(mask, w, metric, leaf, m.trailing_zeros() as usize);
         let end = mask[*path.last().unwrap_or(&leaf)].count_ones();
-        let too_short = if end >= 3 { len < min_branch } else { len < min_line };
+        let too_short = if end >= 3 {
+            len < min_branch
+        } else {
+            len < min_line
+        };
         if too_short {
             remove_path(mask, w, &path);
         }

@@ -1,0 +1,555 @@
+//! View silhouettes: the visible occlusion boundaries of the terrain seen from
+//! a viewpoint (section 5.1 of Tassé et al.), i.e. the skyline and every depth
+//! discontinuity, where the visible surface passes from a front-facing to a
+//! back-facing triangle of the height-field mesh and the view continues onto
+//! terrain farther away (or the sky).
+//!
+//! The extractor works on a rendered [`DepthBuffer`] and the exact
+//! [`LocalTerrain`] it was rendered from:
+//!
+//! 1. Every image column is scanned for pixel pairs where the upper pixel is
+//!    much farther than a continuation of the surface below it would be
+//!    (inverse camera depth is affine on planar triangles, so a continuous
+//!    surface is extrapolated exactly and only real jumps and strong creases
+//!    remain as candidates).
+//! 2. Each candidate is refined on the column's centre line by bisection with
+//!    exact ray casts towards the largest depth gap: a crease closes up
+//!    (rejected), an occlusion boundary converges to the grazing ray, giving
+//!    the silhouette's sub-pixel position and the 3D terrain point that forms
+//!    it (the tangent point on the front-facing/back-facing edge).
+//! 3. Samples of neighbouring columns are linked into polylines ordered along
+//!    image x when their depths agree and the pixels between them belong to
+//!    the occluding surface.
+//! 4. Where a polyline ends against a nearer one it disappears behind it: a
+//!    T-junction, recorded with which silhouette occludes which.
+//!
+//! Samples carry pixel, depth, local-frame point, CRS point and DEM cell, so
+//! the sketch matcher can use them directly (see [`SilhouetteSample`]).
+
+use rayon::prelude::*;
+
+use super::FeatureError;
+use crate::render::{DepthBuffer, LocalTerrain};
+use crate::view::CameraModel;
+
+/// Parameters of silhouette extraction.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SilhouetteParams {
+    /// Relative depth gap left after refinement for a boundary to count as an
+    /// occlusion (0.005: the far side is at least 0.5 % farther).
+    pub min_jump: f64,
+    /// Pre-filter: relative shortfall of the upper pixel's inverse depth
+    /// below the linear continuation of the two pixels under it.
+    pub prefilter: f64,
+    /// Bisection steps per candidate (each step halves the bracket, from one pixel).
+    pub refine_iterations: u32,
+    /// Samples in neighbouring columns are linked when their depths differ by
+    /// less than this fraction.
+    pub link_depth: f64,
+    /// ... and their rows by at most this many pixels.
+    pub max_link_dy: f64,
+    /// A polyline end is a T-junction when a nearer silhouette passes within
+    /// this many pixels.
+    pub junction_radius_px: f64,
+    /// Polylines with fewer samples are dropped.
+    pub min_samples: usize,
+}
+
+impl Default for SilhouetteParams {
+    fn default() -> Self {
+        SilhouetteParams {
+            min_jump: 0.005,
+            prefilter: 0.01,
+            refine_iterations: 10,
+            link_depth: 0.08,
+            max_link_dy: 48.0,
+            junction_radius_px: 3.0,
+            min_samples: 2,
+        }
+    }
+}
+
+/// One point of a silhouette: where, in the image and on the terrain.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SilhouetteSample {
+    /// Image position (pixel coordinates, x on the column centre).
+    pub pixel: [f64; 2],
+    /// Distance from the eye to the terrain point, metres.
+    pub depth: f64,
+    /// The terrain point forming the silhouette in the viewpoint's local frame
+    /// (ENU metres at the eye, apparent height).
+    pub local: [f64; 3],
+    /// The same point in the DEM's CRS with its true height: `[x, y, z]`.
+    pub world: [f64; 3],
+    /// DEM cell `(col, row)` of the triangle the point lies on.
+    pub cell: [u32; 2],
+    /// Distance to what is seen just beyond the silhouette (infinite: sky).
+    pub depth_behind: f64,
+}
+
+/// A silhouette polyline, ordered by increasing image x.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Silhouette {
+    pub id: u32,
+    pub samples: Vec<SilhouetteSample>,
+    /// True when most of it has sky behind it (part of the skyline).
+    pub skyline: bool,
+}
+
+impl Silhouette {
+    /// 3D length in metres of the terrain curve (CRS coordinates; horizontal
+    /// units must be metres, i.e. a projected CRS; for geographic DEMs use the
+    /// local-frame length [`Silhouette::local_length_m`]).
+    pub fn local_length_m(&self) -> f64 {
+        self.samples
+            .windows(2)
+            .map(|w| {
+                let (a, b) = (w[0].local, w[1].local);
+                ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+            })
+            .sum()
+    }
+
+    /// Length of the image polyline in pixels.
+    pub fn pixel_length(&self) -> f64 {
+        self.samples
+            .windows(2)
+            .map(|w| (w[0].pixel[0] - w[1].pixel[0]).hypot(w[0].pixel[1] - w[1].pixel[1]))
+            .sum()
+    }
+
+    /// The image polyline.
+    pub fn pixels(&self) -> Vec<[f64; 2]> {
+        self.samples.iter().map(|s| s.pixel).collect()
+    }
+}
+
+/// Which end of a silhouette a junction is at.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CurveEnd {
+    /// The first (leftmost) sample.
+    Start,
+    /// The last (rightmost) sample.
+    End,
+}
+
+/// A T-junction: silhouette `occluded` ends where it passes behind the nearer
+/// silhouette `occluder`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TJunction {
+    /// Image position of the junction (on the occluder's polyline).
+    pub pixel: [f64; 2],
+    pub occluded: u32,
+    pub occluder: u32,
+    pub end: CurveEnd,
+}
+
+/// The silhouettes of one view.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Silhouettes {
+    pub curves: Vec<Silhouette>,
+    pub junctions: Vec<TJunction>,
+}
+
+impl Silhouettes {
+    /// Total number of samples.
+    pub fn sample_count(&self) -> usize {
+        self.curves.iter().map(|c| c.samples.len()).sum()
+    }
+
+    /// The topmost silhouette sample of image column `x` (the skyline there),
+    /// if any.
+    pub fn skyline_at(&self, x: usize) -> Option<&SilhouetteSample> {
+        self.curves
+            .iter()
+            .flat_map(|c| c.samples.iter())
+            .filter(|s| s.pixel[0] as usize == x)
+            .min_by(|a, b| a.pixel[1].total_cmp(&b.pixel[1]))
+    }
+}
+
+/// Extract the silhouettes of the view `depth` rendered from `terrain`.
+pub fn extract_silhouettes(
+    terrain: &LocalTerrain,
+    depth: &DepthBuffer,
+    params: &SilhouetteParams,
+) -> Result<Silhouettes, FeatureError> {
+    let (w, h) = (depth.width, depth.height);
+    if depth.depth.len() != w * h || depth.triangle.len() != w * h {
+        return Err(FeatureError::InvalidInput(format!(
+            "depth buffer holds {} depths for a {w} x {h} image",
+            depth.depth.len()
+        )));
+    }
+    if !(params.min_jump > 0.0 && params.link_depth > 0.0 && params.max_link_dy >= 1.0) {
+        return Err(FeatureError::InvalidParameter(
+            "silhouette min_jump and link_depth must be > 0 and max_link_dy >= 1".into(),
+        ));
+    }
+    let columns: Vec<Vec<SilhouetteSample>> = (0..w)
+        .into_par_iter()
+        .map(|x| column_samples(terrain, depth, params, x))
+        .collect();
+    let (curves, where_) = link(depth, params, &columns);
+    let junctions = find_junctions(&curves, &where_, params);
+    Ok(Silhouettes { curves, junctions })
+}
+
+/// Camera-axis factor of pixel `(x, y)`: camera depth = distance * factor.
+#[inline]
+fn axis_factor(f: f64, u: f64, v: f64) -> f64 {
+    f / (f * f + u * u + v * v).sqrt()
+}
+
+/// Candidates and refined samples of one image column.
+fn column_samples(
+    terrain: &LocalTerrain,
+    db: &DepthBuffer,
+    p: &SilhouetteParams,
+    x: usize,
+) -> Vec<SilhouetteSample> {
+    let (w, h) = (db.width, db.height);
+    let cam = &db.camera;
+    let f = cam.focal_px;
+    let u = x as f64 + 0.5 - w as f64 / 2.0;
+    // inverse camera depth of row y (0 for sky)
+    let inv = |y: usize| -> f64 {
+        let d = db.depth[y * w + x];
+        if d.is_finite() {
+            let v = h as f64 / 2.0 - (y as f64 + 0.5);
+            1.0 / (d as f64 * axis_factor(f, u, v))
+        } else {
+            0.0
+        }
+    };
+    let mut out = Vec::new();
+    for y in 1..h {
+        let near = db.depth[y * w + x];
+        if !near.is_finite() {
+            continue;
+        }
+        let far = db.depth[(y - 1) * w + x];
+        if far.is_finite() && far as f64 <= near as f64 * (1.0 + p.min_jump) {
+            continue;
+        }
+        if far.is_finite() {
+            let (wq, wp) = (inv(y - 1), inv(y));
+            let pred = if y + 1 < h && db.depth[(y + 1) * w + x].is_finite() {
+                (2.0 * wp - inv(y + 1)).min(wp)
+            } else {
+                wp
+            };
+            if wq > pred - p.prefilter * wp {
+                continue;
+            }
+        }
+        refine(terrain, db, p, x, y, &mut out);
+    }
+    out.sort_by(|a, b| a.pixel[1].total_cmp(&b.pixel[1]));
+    out
+}
+
+/// One side of a bisection bracket: row coordinate, hit distance (infinite
+/// for sky) and triangle hit.
+#[derive(Clone, Copy)]
+struct Side {
+    y: f64,
+    t: f64,
+    tri: u32,
+}
+
+/// Bisect between the centres of rows `y` (near) and `y - 1` (far) of column
+/// `x` towards the largest depth gap; a gap that closes is a crease and gives
+/// nothing. When the bracket holds several boundaries (two silhouettes within
+/// one pixel, as at a T-junction) the remaining sub-brackets are searched too.
+fn refine(
+    terrain: &LocalTerrain,
+    db: &DepthBuffer,
+    p: &SilhouetteParams,
+    x: usize,
+    y: usize,
+    out: &mut Vec<SilhouetteSample>,
+) {
+    let w = db.width;
+    let near = Side {
+        y: y as f64 + 0.5,
+        t: db.depth[y * w + x] as f64,
+        tri: db.triangle[y * w + x],
+    };
+    let fb = db.depth[(y - 1) * w + x];
+    let far = Side {
+        y: y as f64 - 0.5,
+        t: if fb.is_finite() {
+            fb as f64
+        } else {
+            f64::INFINITY
+        },
+        tri: db.triangle[(y - 1) * w + x],
+    };
+    refine_bracket(terrain, db, p, x, near, far, 2, out);
+}
+
+#[allow(clippy::too_many_arguments)]
+fn refine_bracket(
+    terrain: &LocalTerrain,
+    db: &DepthBuffer,
+    p: &SilhouetteParams,
+    x: usize,
+    near0: Side,
+    far0: Side,
+    depth_left: u32,
+    out: &mut Vec<SilhouetteSample>,
+) {
+    let cam = &db.camera;
+    let px = x as f64 + 0.5;
+    let (mut a, mut b) = (near0, far0);
+    for _ in 0..p.refine_iterations {
+        let ym = 0.5 * (a.y + b.y);
+        let d = cam.unproject([px, ym]);
+        match terrain.cast(d, f64::INFINITY) {
+            Some(hit) if (hit.t / a.t).ln() < (b.t / hit.t).ln() => {
+                a = Side {
+                    y: ym,
+                    t: hit.t,
+                    tri: hit.triangle,
+                };
+            }
+            Some(hit) => {
+                b = Side {
+                    y: ym,
+                    t: hit.t,
+                    tri: hit.triangle,
+                }
+            }
+            None => {
+                b = Side {
+                    y: ym,
+                    t: f64::INFINITY,
+                    tri: u32::MAX,
+                }
+            }
+        }
+    }
+    if b.t.is_finite() && b.t <= a.t * (1.0 + p.min_jump) {
+        return;
+    }
+    let da = cam.unproject([px, a.y]);
+    let local = [da[0] * a.t, da[1] * a.t, da[2] * a.t];
+    let (cx, cy, cz) = terrain.frame.local_to_crs(local);
+    let (c, r, _) = terrain.triangle_cell(a.tri);
+    out.push(SilhouetteSample {
+        pixel: [px, 0.5 * (a.y + b.y)],
+        depth: a.t,
+        local,
+        world: [cx, cy, cz],
+        cell: [c as u32, r as u32],
+        depth_behind: b.t,
+    });
+    if depth_left == 0 {
+        return;
+    }
+    if a.t > near0.t * (1.0 + p.min_jump) {
+        refine_bracket(terrain, db, p, x, near0, a, depth_left - 1, out);
+    }
+    if b.t.is_finite() && far0.t > b.t * (1.0 + p.min_jump) {
+        refine_bracket(terrain, db, p, x, b, far0, depth_left - 1, out);
+    }
+}
+
+/// Can sample `a` of column `x` be linked to sample `b` of column `x + 1`?
+/// Returns the link cost.
+fn link_cost(
+    db: &DepthBuffer,
+    p: &SilhouetteParams,
+    x: usize,
+    a: &SilhouetteSample,
+    b: &SilhouetteSample,
+) -> Option<f64> {
+    let dy = b.pixel[1] - a.pixel[1];
+    if dy.abs() > p.max_link_dy {
+        return None;
+    }
+    let ratio = (b.depth / a.depth).ln().abs();
+    if ratio > (1.0 + p.link_depth).ln() {
+        return None;
+    }
+    // Pixels between the two samples must show the occluding surface, not
+    // what lies behind it.
+    if dy.abs() > 1.0 {
+        let limit = a.depth.max(b.depth) * (1.0 + p.link_depth);
+        let (col, y0, y1) = if dy < 0.0 {
+            (x + 1, b.pixel[1], a.pixel[1])
+        } else {
+            (x, a.pixel[1], b.pixel[1])
+        };
+        let r0 = (y0 - 0.5).ceil().max(0.0) as usize;
+        let r1 = ((y1 - 0.5).floor().max(0.0) as usize).min(db.height - 1);
+        for r in r0..=r1 {
+            if db.depth_at(col, r) as f64 > limit {
+                return None;
+            }
+        }
+    }
+    Some(dy.abs() + 20.0 * ratio)
+}
+
+/// Link column samples into polylines. Returns the curves and, per column,
+/// the (curve, index) of each sample kept.
+#[allow(clippy::type_complexity)]
+fn link(
+    db: &DepthBuffer,
+    p: &SilhouetteParams,
+    columns: &[Vec<SilhouetteSample>],
+) -> (Vec<Silhouette>, Vec<Vec<(u32, u32)>>) {
+    let w = columns.len();
+    // curve of each sample, per column
+    let mut owner: Vec<Vec<usize>> = Vec::with_capacity(w);
+    let mut chains: Vec<Vec<(usize, usize)>> = Vec::new();
+    for x in 0..w {
+        let mut own = vec![usize::MAX; columns[x].len()];
+        if x > 0 {
+            let prev = &columns[x - 1];
+            let mut pairs = Vec::new();
+            for (i, a) in prev.iter().enumerate() {
+                for (j, b) in columns[x].iter().enumerate() {
+                    if let Some(c) = link_cost(db, p, x - 1, a, b) {
+                        pairs.push((c, i, j));
+                    }
+                }
+            }
+            pairs.sort_by(|a, b| a.0.total_cmp(&b.0));
+            let mut used_prev = vec![false; prev.len()];
+            for (_, i, j) in pairs {
+                if used_prev[i] || own[j] != usize::MAX {
+                    continue;
+                }
+                used_prev[i] = true;
+                own[j] = owner[x - 1][i];
+                chains[own[j]].push((x, j));
+            }
+        }
+        for (j, o) in own.iter_mut().enumerate() {
+            if *o == usize::MAX {
+                *o = chains.len();
+                chains.push(vec![(x, j)]);
+            }
+        }
+        owner.push(own);
+    }
+    let mut where_: Vec<Vec<(u32, u32)>> = columns.iter().map(|_| Vec::new()).collect();
+    let mut curves = Vec::new();
+    for chain in chains {
+        if chain.len() < p.min_samples.max(1) {
+            continue;
+        }
+        let id = curves.len() as u32;
+        let samples: Vec<SilhouetteSample> = chain.iter().map(|&(x, j)| columns[x][j]).collect();
+        for (k, &(x, _)) in chain.iter().enumerate() {
+            where_[x].push((id, k as u32));
+        }
+        let sky = samples
+            .iter()
+            .filter(|s| s.depth_behind.is_infinite())
+            .count();
+        curves.push(Silhouette {
+            id,
+            skyline: 2 * sky > samples.len(),
+            samples,
+        });
+    }
+    (curves, where_)
+}
+
+/// T-junctions at the ends of polylines that meet a nearer silhouette.
+fn find_junctions(
+    curves: &[Silhouette],
+    where_: &[Vec<(u32, u32)>],
+    p: &SilhouetteParams,
+) -> Vec<TJunction> {
+    let mut out = Vec::new();
+    let w = where_.len();
+    for c in curves {
+        for end in [CurveEnd::Start, CurveEnd::End] {
+            let n = c.samples.len();
+            let (s, inner, cols): (&SilhouetteSample, &SilhouetteSample, [isize; 2]) = match end {
+                CurveEnd::Start => {
+                    let x = c.samples[0].pixel[0] as isize;
+                    (&c.samples[0], &c.samples[1.min(n - 1)], [x, x - 1])
+                }
+                CurveEnd::End => {
+                    let x = c.samples[n - 1].pixel[0] as isize;
+                    (
+                        &c.samples[n - 1],
+                        &c.samples[n.saturating_sub(2)],
+                        [x, x + 1],
+                    )
+                }
+            };
+            let mut best: Option<(f64, u32, usize)> = None;
+            for &col in &cols {
+                if col < 0 || col as usize >= w {
+                    continue;
+                }
+                for &(id, k) in &where_[col as usize] {
+                    if id == c.id {
+                        continue;
+                    }
+                    let o = &curves[id as usize].samples[k as usize];
+                    let dy = (o.pixel[1] - s.pixel[1]).abs();
+                    if dy <= p.junction_radius_px
+                        && o.depth * (1.0 + p.link_depth) < s.depth
+                        && best.is_none_or(|b| dy < b.0)
+                    {
+                        best = Some((dy, id, k as usize));
+                    }
+                }
+            }
+            let Some((_, occ, k)) = best else { continue };
+            let pixel = junction_point(s, inner, &curves[occ as usize], k).unwrap_or(s.pixel);
+            out.push(TJunction {
+                pixel,
+                occluded: c.id,
+                occluder: occ,
+                end,
+            });
+        }
+    }
+    out
+}
+
+/// Intersection of the extension of the occluded polyline's end segment
+/// (`inner` -> `end`) with the occluder's segments around its sample `k`.
+fn junction_point(
+    end: &SilhouetteSample,
+    inner: &SilhouetteSample,
+    occluder: &Silhouette,
+    k: usize,
+) -> Option<[f64; 2]> {
+    let (p0, p1) = (inner.pixel, end.pixel);
+    let d = [p1[0] - p0[0], p1[1] - p0[1]];
+    if d[0] == 0.0 && d[1] == 0.0 {
+        return None;
+    }
+    let lo = k.saturating_sub(2);
+    let hi = (k + 3).min(occluder.samples.len());
+    let mut best: Option<(f64, [f64; 2])> = None;
+    for i in lo..hi.saturating_sub(1) {
+        let (q0, q1) = (occluder.samples[i].pixel, occluder.samples[i + 1].pixel);
+        let e = [q1[0] - q0[0], q1[1] - q0[1]];
+        let den = d[0] * e[1] - d[1] * e[0];
+        if den.abs() < 1e-12 {
+            continue;
+        }
+        let r = [q0[0] - p0[0], q0[1] - p0[1]];
+        let t = (r[0] * e[1] - r[1] * e[0]) / den;
+        let s = (r[0] * d[1] - r[1] * d[0]) / den;
+        if (-1e-9..=1.0 + 1e-9).contains(&s) && t >= 0.0 {
+            let pt = [p0[0] + t * d[0], p0[1] + t * d[1]];
+            let dist = (pt[0] - p1[0]).hypot(pt[1] - p1[1]);
+            if dist <= 3.0 && best.is_none_or(|b| dist < b.0) {
+                best = Some((dist, pt));
+            }
+        }
+    }
+    best.map(|b| b.1)
+}
