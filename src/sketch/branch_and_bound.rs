@@ -1,0 +1,273 @@
+//! Energy minimisation of stroke-feature matching (section 5.2.2 of Tassé
+//! et al.): choose one candidate from each stroke's priority list so that
+//! the total cost is minimal, a feature is used by at most one stroke, and a
+//! feature assigned to a nearer stroke is not hidden by one assigned to a
+//! farther stroke.
+//!
+//! Strokes are processed from front to back. Choosing a feature for stroke
+//! `i` removes from the lists of the strokes after it the same feature and
+//! the candidates incompatible with it (the caller's `conflicts` predicate:
+//! occlusion within a view, and across views for multi-view sketches). A
+//! stroke whose list has been emptied gets no feature (it will be embedded
+//! by the fallback) at the cost [`EMPTY_LIST_COST`], the paper's "very high
+//! cost": a configuration that keeps every list non-empty wins whenever one
+//! exists.
+//!
+//! [`branch_and_bound`] explores that tree depth first, candidates in
+//! priority order, and prunes a branch as soon as its cost can no longer
+//! beat the best complete solution found ([`Bound::PartialCost`], the
+//! paper's bound); [`Bound::LowerBound`] (the default) also adds, for the
+//! strokes not yet assigned, the cheapest cost they could get, which prunes
+//! earlier and is still exact. [`brute_force`] enumerates every combination
+//! and is the reference the tests compare against.
+//!
+//! ```
+//! use demsketch::sketch::{branch_and_bound, brute_force, Bound, Choice};
+//! let lists = vec![
+//!     vec![Choice { feature: 0, cost: 1.0 }, Choice { feature: 1, cost: 2.0 }],
+//!     vec![Choice { feature: 0, cost: 0.5 }, Choice { feature: 2, cost: 5.0 }],
+//! ];
+//! let none = |_: usize, _: usize, _: usize, _: usize| false;
+//! let bb = branch_and_bound(&lists, &none, Bound::LowerBound);
+//! let bf = brute_force(&lists, &none);
+//! assert_eq!(bb.choice, vec![Some(1), Some(0)]); // features 1 and 0: cost 2.5
+//! assert!((bb.cost - bf.cost).abs() < 1e-12);
+//! ```
+
+/// Cost of a stroke left with an empty priority list (effectively infinite,
+/// but finite so that solutions with fewer empty lists are preferred).
+pub const EMPTY_LIST_COST: f64 = 1.0e9;
+
+/// One entry of a priority list.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Choice {
+    /// Feature id (a feature is used at most once).
+    pub feature: usize,
+    pub cost: f64,
+}
+
+/// Which bound prunes the search.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Bound {
+    /// Partial cost against the best solution (the paper).
+    PartialCost,
+    /// Partial cost plus the cheapest possible cost of the remaining strokes.
+    #[default]
+    LowerBound,
+    /// No pruning: exhaustive search of the feasible tree.
+    None,
+}
+
+/// An assignment: for each stroke (front to back), the index of the chosen
+/// candidate in its list, or `None` when its list was emptied.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Solution {
+    pub choice: Vec<Option<usize>>,
+    pub cost: f64,
+    /// Search nodes visited (partial assignments created).
+    pub nodes: u64,
+    /// Strokes left without a feature.
+    pub empty: usize,
+}
+
+/// Minimises the total cost by branch-and-bound. `lists[i]` is stroke i's
+/// priority list (strokes front to back; lists need not be sorted);
+/// `conflicts(i, a, j, b)` with `i < j` says that candidate `a` of stroke `i`
+/// and candidate `b` of stroke `j` cannot both be chosen.
+pub fn branch_and_bound<F>(lists: &[Vec<Choice>], conflicts: &F, bound: Bound) -> Solution
+where
+    F: Fn(usize, usize, usize, usize) -> bool + ?Sized,
+{
+    let n = lists.len();
+    // Candidate indices of each list by increasing cost.
+    let sorted: Vec<Vec<usize>> = lists
+        .iter()
+        .map(|l| {
+            let mut idx: Vec<usize> = (0..l.len()).collect();
+            idx.sort_by(|&a, &b| l[a].cost.total_cmp(&l[b].cost).then(a.cmp(&b)));
+            idx
+        })
+        .collect();
+    // suffix[i]: lower bound of the cost of strokes i.. .
+    let mut suffix = vec![0.0; n + 1];
+    if bound == Bound::LowerBound {
+        for i in (0..n).rev() {
+            let best = lists[i]
+                .iter()
+                .map(|c| c.cost)
+                .fold(EMPTY_LIST_COST, f64::min);
+            suffix[i] = suffix[i + 1] + best;
+        }
+    }
+    let mut st = Search {
+        lists,
+        sorted: &sorted,
+        conflicts,
+        suffix: &suffix,
+        prune: bound != Bound::None,
+        current: vec![None; n],
+        best: vec![None; n],
+        best_cost: f64::INFINITY,
+        nodes: 0,
+    };
+    st.visit(0, 0.0);
+    let empty = st.best.iter().filter(|c| c.is_none()).count();
+    Solution {
+        choice: st.best,
+        cost: st.best_cost,
+        nodes: st.nodes,
+        empty,
+    }
+}
+
+struct Search<'a, F: ?Sized> {
+    lists: &'a [Vec<Choice>],
+    sorted: &'a [Vec<usize>],
+    conflicts: &'a F,
+    suffix: &'a [f64],
+    prune: bool,
+    current: Vec<Option<usize>>,
+    best: Vec<Option<usize>>,
+    best_cost: f64,
+    nodes: u64,
+}
+
+impl<F> Search<'_, F>
+where
+    F: Fn(usize, usize, usize, usize) -> bool + ?Sized,
+{
+    fn visit(&mut self, depth: usize, cost: f64) {
+        let n = self.lists.len();
+        if depth == n {
+            if cost < self.best_cost {
+                self.best_cost = cost;
+                self.best.clone_from(&self.current);
+            }
+            return;
+        }
+        let mut any = false;
+        for k in 0..self.sorted[depth].len() {
+            let b = self.sorted[depth][k];
+            if !self.available(depth, b) {
+                continue;
+            }
+            any = true;
+            let c = cost + self.lists[depth][b].cost;
+            if self.prune && c + self.suffix[depth + 1] >= self.best_cost {
+                // Lists are visited by increasing cost: the rest is worse.
+                break;
+            }
+            self.nodes += 1;
+            self.current[depth] = Some(b);
+            self.visit(depth + 1, c);
+            self.current[depth] = None;
+        }
+        if !any {
+            let c = cost + EMPTY_LIST_COST;
+            if self.prune && c + self.suffix[depth + 1] >= self.best_cost {
+                return;
+            }
+            self.nodes += 1;
+            self.visit(depth + 1, c);
+        }
+    }
+
+    /// Is candidate `b` of stroke `j` still in its list given the choices of
+    /// the strokes in front?
+    fn available(&self, j: usize, b: usize) -> bool {
+        let fb = self.lists[j][b].feature;
+        (0..j).all(|i| match self.current[i] {
+            Some(a) => self.lists[i][a].feature != fb && !(self.conflicts)(i, a, j, b),
+            None => true,
+        })
+    }
+}
+
+/// Reference solver: enumerates every combination of one entry (or none)
+/// per list and keeps the cheapest valid one. Valid: features distinct,
+/// chosen pairs not in conflict, and a stroke has no feature only when every
+/// entry of its list is taken or in conflict with the strokes in front.
+/// `nodes` counts the nodes of the full enumeration tree.
+pub fn brute_force<F>(lists: &[Vec<Choice>], conflicts: &F) -> Solution
+where
+    F: Fn(usize, usize, usize, usize) -> bool + ?Sized,
+{
+    let n = lists.len();
+    let mut idx = vec![0usize; n]; // 0 = none, k = entry k-1
+    let mut best: Option<(f64, Vec<Option<usize>>)> = None;
+    let mut nodes: u64 = 0;
+    let mut prod: u64 = 1;
+    for l in lists {
+        prod = prod.saturating_mul(l.len() as u64 + 1);
+        nodes = nodes.saturating_add(prod);
+    }
+    loop {
+        let choice: Vec<Option<usize>> = idx.iter().map(|&k| k.checked_sub(1)).collect();
+        if valid(lists, conflicts, &choice) {
+            let cost: f64 = choice
+                .iter()
+                .enumerate()
+                .map(|(i, c)| c.map_or(EMPTY_LIST_COST, |a| lists[i][a].cost))
+                .sum();
+            if best.as_ref().is_none_or(|b| cost < b.0) {
+                best = Some((cost, choice));
+            }
+        }
+        // Odometer.
+        let mut i = 0;
+        loop {
+            if i == n {
+                let (cost, choice) = best.unwrap_or((f64::INFINITY, vec![None; n]));
+                let empty = choice.iter().filter(|c| c.is_none()).count();
+                return Solution {
+                    choice,
+                    cost,
+                    nodes,
+                    empty,
+                };
+            }
+            idx[i] += 1;
+            if idx[i] <= lists[i].len() {
+                break;
+            }
+            idx[i] = 0;
+            i += 1;
+        }
+    }
+}
+
+/// Checks the constraints of an assignment (see [`brute_force`]).
+pub fn valid<F>(lists: &[Vec<Choice>], conflicts: &F, choice: &[Option<usize>]) -> bool
+where
+    F: Fn(usize, usize, usize, usize) -> bool + ?Sized,
+{
+    let n = lists.len();
+    for j in 0..n {
+        match choice[j] {
+            Some(b) => {
+                for i in 0..j {
+                    if let Some(a) = choice[i] {
+                        if lists[i][a].feature == lists[j][b].feature || conflicts(i, a, j, b) {
+                            return false;
+                        }
+                    }
+                }
+            }
+            None => {
+                // Every entry must be blocked by a stroke in front.
+                let blocked = (0..lists[j].len()).all(|b| {
+                    (0..j).any(|i| match choice[i] {
+                        Some(a) => {
+                            lists[i][a].feature == lists[j][b].feature || conflicts(i, a, j, b)
+                        }
+                        None => false,
+                    })
+                });
+                if !blocked {
+                    return false;
+                }
+            }
+        }
+    }
+    true
+}

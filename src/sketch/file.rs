@@ -1,0 +1,513 @@
+//! The sketch file: what `edit` and `view` read (format in `DESIGN.md`).
+//!
+//! A sketch file holds one or more views (a viewpoint, a camera and the
+//! strokes drawn over that view) and options for matching and deformation.
+//! Several views make a multi-view sketch, matched jointly. This module only
+//! parses and validates: every problem becomes a [`SketchError`] value whose
+//! one-line message names the file, the view, the stroke and the problem.
+//!
+//! ```
+//! use demsketch::sketch::SketchFile;
+//! let text = r#"{"views": [{"name": "rim",
+//!   "viewpoint": {"lon": 6.5, "lat": 45.9},
+//!   "camera": {"heading_deg": 180.0, "hfov_deg": 50.0, "width": 800, "height": 600},
+//!   "strokes": [{"id": "dome", "points": [[10.0, 300.0], [200.0, 250.5]]}]}]}"#;
+//! let sketch = SketchFile::from_json_str(text, "demo.json").unwrap();
+//! assert_eq!(sketch.views[0].strokes[0].id, "dome");
+//! assert_eq!(sketch.options.weights.dissimilarity, 1.0);
+//!
+//! let bad = text.replace("200.0, 250.5", "900.0, 250.5");
+//! let err = SketchFile::from_json_str(&bad, "demo.json").unwrap_err();
+//! assert!(err.to_string().starts_with("demo.json: view \"rim\" stroke \"dome\" point 2"));
+//! ```
+
+use serde::{Deserialize, Serialize};
+use std::collections::HashSet;
+use std::path::Path;
+
+/// Errors of reading and validating a sketch file (one line each).
+#[derive(Debug, thiserror::Error)]
+pub enum SketchError {
+    #[error("{path}: cannot read sketch file: {source}")]
+    Io {
+        path: String,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{path}: not a valid sketch file (line {line}, column {column}): {message}")]
+    Json {
+        path: String,
+        line: usize,
+        column: usize,
+        message: String,
+    },
+    #[error("{path}: {location}: {problem}")]
+    Invalid {
+        path: String,
+        location: String,
+        problem: String,
+    },
+}
+
+/// A whole sketch file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SketchFile {
+    pub views: Vec<ViewSpec>,
+    #[serde(default)]
+    pub options: SketchOptions,
+}
+
+/// One view of a sketch: where the eye is, the camera, the strokes.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ViewSpec {
+    pub name: String,
+    pub viewpoint: ViewpointSpec,
+    pub camera: CameraSpec,
+    #[serde(default)]
+    pub strokes: Vec<StrokeSpec>,
+}
+
+/// Viewpoint: lon/lat in degrees WGS84 and either a height above the DEM
+/// surface (`eye_height_m`, default 1.7) or an absolute altitude (`alt_m`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ViewpointSpec {
+    pub lon: f64,
+    pub lat: f64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub eye_height_m: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub alt_m: Option<f64>,
+}
+
+/// How high the eye is.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum EyeHeightSpec {
+    /// Metres above the DEM surface at the viewpoint.
+    AboveSurface(f64),
+    /// Absolute altitude in the DEM's vertical datum.
+    Absolute(f64),
+}
+
+impl ViewpointSpec {
+    /// The eye height, resolving the default (1.7 m above the surface).
+    pub fn height(&self) -> EyeHeightSpec {
+        match (self.alt_m, self.eye_height_m) {
+            (Some(a), _) => EyeHeightSpec::Absolute(a),
+            (None, Some(h)) => EyeHeightSpec::AboveSurface(h),
+            (None, None) => EyeHeightSpec::AboveSurface(1.7),
+        }
+    }
+}
+
+/// Camera of a view (defaults as the command line's camera flags).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraSpec {
+    #[serde(default)]
+    pub heading_deg: f64,
+    #[serde(default)]
+    pub pitch_deg: f64,
+    #[serde(default)]
+    pub roll_deg: f64,
+    #[serde(default = "default_hfov")]
+    pub hfov_deg: f64,
+    #[serde(default = "default_width")]
+    pub width: u32,
+    #[serde(default = "default_height")]
+    pub height: u32,
+}
+
+fn default_hfov() -> f64 {
+    60.0
+}
+fn default_width() -> u32 {
+    1600
+}
+fn default_height() -> u32 {
+    900
+}
+
+/// One stroke: an id unique within its view and a polyline in pixels.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StrokeSpec {
+    pub id: String,
+    pub points: Vec<[f64; 2]>,
+}
+
+/// Weights w1..w4 of the four matching cost terms (section 5.2.1); the paper
+/// uses 1 for all.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CostWeights {
+    #[serde(default = "one")]
+    pub dissimilarity: f64,
+    #[serde(default = "one")]
+    pub deformation: f64,
+    #[serde(default = "one")]
+    pub sampling: f64,
+    #[serde(default = "one")]
+    pub extension: f64,
+}
+
+fn one() -> f64 {
+    1.0
+}
+
+impl Default for CostWeights {
+    fn default() -> Self {
+        CostWeights {
+            dissimilarity: 1.0,
+            deformation: 1.0,
+            sampling: 1.0,
+            extension: 1.0,
+        }
+    }
+}
+
+/// What to do with a stroke that folds back in x.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum FoldBackPolicy {
+    /// Split it into x-monotone pieces, each matched as a stroke (reported).
+    #[default]
+    Split,
+    /// Reject the sketch with a message.
+    Reject,
+}
+
+/// Options of a sketch. Unknown keys are kept in `extra` for other stages.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SketchOptions {
+    /// Radius of influence of the deformation, metres (read by `deform`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub influence_m: Option<f64>,
+    /// Weights of the matching cost terms.
+    #[serde(default)]
+    pub weights: CostWeights,
+    /// Distance under which a stroke end touching another stroke is a
+    /// T-junction, pixels.
+    #[serde(default = "default_t_junction")]
+    pub t_junction_px: f64,
+    /// Stroke resampling step, pixels.
+    #[serde(default = "default_resample")]
+    pub resample_px: f64,
+    /// Back-steps in x smaller than this are drawing jitter, pixels.
+    #[serde(default = "default_fold_tolerance")]
+    pub fold_back_tolerance_px: f64,
+    /// Policy for strokes that fold back in x.
+    #[serde(default)]
+    pub fold_back: FoldBackPolicy,
+    /// A feature is a candidate for a stroke when its projection covers at
+    /// least this fraction of the stroke's x extent (the rest is extended).
+    #[serde(default = "default_min_coverage")]
+    pub min_coverage: f64,
+    /// Length of each stroke's priority list after sorting by cost.
+    #[serde(default = "default_max_candidates")]
+    pub max_candidates: usize,
+    /// Fallback embedding without a neighbour on one side: depth ratio to the
+    /// neighbour on the other side.
+    #[serde(default = "default_fallback_ratio")]
+    pub fallback_depth_ratio: f64,
+    /// Extend matched features down to the terrain (section 5.3).
+    #[serde(default = "default_true")]
+    pub feature_completion: bool,
+    /// Step of feature completion, metres.
+    #[serde(default = "default_completion_step")]
+    pub completion_step_m: f64,
+    /// Longest completion at each end, metres.
+    #[serde(default = "default_completion_max")]
+    pub completion_max_m: f64,
+    /// Other stages' options.
+    #[serde(flatten)]
+    pub extra: serde_json::Map<String, serde_json::Value>,
+}
+
+fn default_t_junction() -> f64 {
+    6.0
+}
+fn default_resample() -> f64 {
+    2.0
+}
+fn default_fold_tolerance() -> f64 {
+    3.0
+}
+fn default_min_coverage() -> f64 {
+    0.5
+}
+fn default_max_candidates() -> usize {
+    32
+}
+fn default_fallback_ratio() -> f64 {
+    1.25
+}
+fn default_true() -> bool {
+    true
+}
+fn default_completion_step() -> f64 {
+    5.0
+}
+fn default_completion_max() -> f64 {
+    3000.0
+}
+
+impl Default for SketchOptions {
+    fn default() -> Self {
+        SketchOptions {
+            influence_m: None,
+            weights: CostWeights::default(),
+            t_junction_px: default_t_junction(),
+            resample_px: default_resample(),
+            fold_back_tolerance_px: default_fold_tolerance(),
+            fold_back: FoldBackPolicy::Split,
+            min_coverage: default_min_coverage(),
+            max_candidates: default_max_candidates(),
+            fallback_depth_ratio: default_fallback_ratio(),
+            feature_completion: true,
+            completion_step_m: default_completion_step(),
+            completion_max_m: default_completion_max(),
+            extra: serde_json::Map::new(),
+        }
+    }
+}
+
+impl SketchFile {
+    /// Reads, parses and validates a sketch file.
+    pub fn from_path(path: &Path) -> Result<SketchFile, SketchError> {
+        let label = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|source| SketchError::Io {
+            path: label.clone(),
+            source,
+        })?;
+        Self::from_json_str(&text, &label)
+    }
+
+    /// Parses and validates sketch JSON; `path` names it in messages.
+    pub fn from_json_str(text: &str, path: &str) -> Result<SketchFile, SketchError> {
+        let file: SketchFile = serde_json::from_str(text).map_err(|e| SketchError::Json {
+            path: path.to_string(),
+            line: e.line(),
+            column: e.column(),
+            message: strip_position(&e.to_string()),
+        })?;
+        file.validate(path)?;
+        Ok(file)
+    }
+
+    /// Checks everything matching relies on; the first problem is returned.
+    pub fn validate(&self, path: &str) -> Result<(), SketchError> {
+        let err = |location: String, problem: String| SketchError::Invalid {
+            path: path.to_string(),
+            location,
+            problem,
+        };
+        if self.views.is_empty() {
+            return Err(err("views".into(), "the sketch has no views".into()));
+        }
+        validate_options(&self.options).map_err(|p| err("options".into(), p))?;
+        let mut names = HashSet::new();
+        for (vi, view) in self.views.iter().enumerate() {
+            if view.name.trim().is_empty() {
+                return Err(err(format!("view {}", vi + 1), "view name is empty".into()));
+            }
+            let vloc = format!("view \"{}\"", view.name);
+            if !names.insert(view.name.as_str()) {
+                return Err(err(vloc, "view name is used twice".into()));
+            }
+            validate_viewpoint(&view.viewpoint).map_err(|p| err(vloc.clone(), p))?;
+            validate_camera(&view.camera).map_err(|p| err(vloc.clone(), p))?;
+            let (w, h) = (view.camera.width as f64, view.camera.height as f64);
+            let mut ids = HashSet::new();
+            for (si, stroke) in view.strokes.iter().enumerate() {
+                if stroke.id.trim().is_empty() {
+                    return Err(err(
+                        format!("{vloc} stroke {}", si + 1),
+                        "stroke id is empty".into(),
+                    ));
+                }
+                let sloc = format!("{vloc} stroke \"{}\"", stroke.id);
+                if !ids.insert(stroke.id.as_str()) {
+                    return Err(err(sloc, "stroke id is used twice in this view".into()));
+                }
+                if stroke.points.len() < 2 {
+                    return Err(err(
+                        sloc,
+                        format!("has {} point(s), needs at least 2", stroke.points.len()),
+                    ));
+                }
+                for (pi, p) in stroke.points.iter().enumerate() {
+                    let ploc = format!("{sloc} point {}", pi + 1);
+                    if !p[0].is_finite() || !p[1].is_finite() {
+                        return Err(err(ploc, "coordinates are not finite numbers".into()));
+                    }
+                    if p[0] < 0.0 || p[0] > w || p[1] < 0.0 || p[1] > h {
+                        return Err(err(
+                            ploc,
+                            format!(
+                                "({}, {}) lies outside the {}x{} image",
+                                p[0], p[1], view.camera.width, view.camera.height
+                            ),
+                        ));
+                    }
+                }
+                let (x0, x1) = stroke
+                    .points
+                    .iter()
+                    .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
+                        (a.min(p[0]), b.max(p[0]))
+                    });
+                if x1 - x0 <= 0.0 {
+                    return Err(err(
+                        sloc,
+                        "spans no horizontal extent (a silhouette runs across the image)".into(),
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+fn strip_position(msg: &str) -> String {
+    match msg.rfind(" at line ") {
+        Some(i) => msg[..i].to_string(),
+        None => msg.to_string(),
+    }
+}
+
+fn validate_viewpoint(v: &ViewpointSpec) -> Result<(), String> {
+    if !v.lon.is_finite() || !(-180.0..=180.0).contains(&v.lon) {
+        return Err(format!("viewpoint lon {} is not in [-180, 180]", v.lon));
+    }
+    if !v.lat.is_finite() || !(-90.0..=90.0).contains(&v.lat) {
+        return Err(format!("viewpoint lat {} is not in [-90, 90]", v.lat));
+    }
+    if v.eye_height_m.is_some() && v.alt_m.is_some() {
+        return Err("viewpoint gives both eye_height_m and alt_m; give one".into());
+    }
+    if let Some(h) = v.eye_height_m {
+        if !h.is_finite() {
+            return Err("viewpoint eye_height_m is not a finite number".into());
+        }
+    }
+    if let Some(a) = v.alt_m {
+        if !a.is_finite() {
+            return Err("viewpoint alt_m is not a finite number".into());
+        }
+    }
+    Ok(())
+}
+
+fn validate_camera(c: &CameraSpec) -> Result<(), String> {
+    for (name, v) in [
+        ("heading_deg", c.heading_deg),
+        ("pitch_deg", c.pitch_deg),
+        ("roll_deg", c.roll_deg),
+        ("hfov_deg", c.hfov_deg),
+    ] {
+        if !v.is_finite() {
+            return Err(format!("camera {name} is not a finite number"));
+        }
+    }
+    if !(c.hfov_deg > 0.0 && c.hfov_deg < 180.0) {
+        return Err(format!("camera hfov_deg {} is not in (0, 180)", c.hfov_deg));
+    }
+    if !(-90.0..=90.0).contains(&c.pitch_deg) {
+        return Err(format!(
+            "camera pitch_deg {} is not in [-90, 90]",
+            c.pitch_deg
+        ));
+    }
+    if c.width == 0 || c.height == 0 {
+        return Err(format!("camera size {}x{} is empty", c.width, c.height));
+    }
+    Ok(())
+}
+
+fn validate_options(o: &SketchOptions) -> Result<(), String> {
+    if let Some(r) = o.influence_m {
+        if !(r.is_finite() && r > 0.0) {
+            return Err(format!("influence_m {r} is not a positive number"));
+        }
+    }
+    let w = &o.weights;
+    for (name, v) in [
+        ("dissimilarity", w.dissimilarity),
+        ("deformation", w.deformation),
+        ("sampling", w.sampling),
+        ("extension", w.extension),
+    ] {
+        if !(v.is_finite() && v >= 0.0) {
+            return Err(format!("weight {name} = {v} is not a non-negative number"));
+        }
+    }
+    for (name, v) in [
+        ("t_junction_px", o.t_junction_px),
+        ("resample_px", o.resample_px),
+        ("fallback_depth_ratio", o.fallback_depth_ratio),
+        ("completion_step_m", o.completion_step_m),
+    ] {
+        if !(v.is_finite() && v > 0.0) {
+            return Err(format!("{name} = {v} is not a positive number"));
+        }
+    }
+    if !(o.fold_back_tolerance_px.is_finite() && o.fold_back_tolerance_px >= 0.0) {
+        return Err("fold_back_tolerance_px is not a non-negative number".into());
+    }
+    if !(o.completion_max_m.is_finite() && o.completion_max_m >= 0.0) {
+        return Err("completion_max_m is not a non-negative number".into());
+    }
+    if !(o.min_coverage > 0.0 && o.min_coverage <= 1.0) {
+        return Err(format!("min_coverage {} is not in (0, 1]", o.min_coverage));
+    }
+    if o.max_candidates == 0 {
+        return Err("max_candidates must be at least 1".into());
+    }
+    if o.fallback_depth_ratio <= 1.0 {
+        return Err("fallback_depth_ratio must be greater than 1".into());
+    }
+    Ok(())
+}
+
+impl ViewSpec {
+    /// Prepares this view's strokes (orientation, fold-back handling,
+    /// resampling, tangents) with the sketch's options. Returns the strokes
+    /// and notes about split strokes; a rejected fold-back is an error that
+    /// names the file, view and stroke.
+    pub fn prepared_strokes(
+        &self,
+        options: &SketchOptions,
+        path: &str,
+    ) -> Result<(Vec<super::Stroke>, Vec<String>), SketchError> {
+        let mut strokes = Vec::new();
+        let mut notes = Vec::new();
+        for (i, s) in self.strokes.iter().enumerate() {
+            let pieces = super::prepare_stroke(
+                &s.id,
+                i,
+                &s.points,
+                options.resample_px,
+                options.fold_back_tolerance_px,
+                options.fold_back,
+            )
+            .map_err(|e| SketchError::Invalid {
+                path: path.to_string(),
+                location: format!("view \"{}\" stroke \"{}\"", self.name, s.id),
+                problem: e.problem,
+            })?;
+            if pieces.len() > 1 {
+                notes.push(format!(
+                    "view \"{}\" stroke \"{}\" folds back in x: split into {} pieces",
+                    self.name,
+                    s.id,
+                    pieces.len()
+                ));
+            }
+            strokes.extend(pieces);
+        }
+        Ok((strokes, notes))
+    }
+}

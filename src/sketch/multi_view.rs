@@ -1,0 +1,399 @@
+//! Matching a whole sketch, one view or several jointly (sections 5.2 and 7
+//! of Tassé et al.): the entry point of the sketch module.
+//!
+//! For each view: the strokes are ordered in depth ([`order_strokes`]) and
+//! each gets its priority list from the view's own features
+//! ([`priority_list`]). The strokes of all views are then put in one list,
+//! view after view (in file order) and front to back within a view, and a
+//! single branch-and-bound ([`branch_and_bound`]) chooses all features at
+//! once under two constraints:
+//!
+//! - within a view, a feature assigned to a nearer stroke is not hidden by
+//!   the feature assigned to a farther stroke ([`occludes_within_view`]);
+//! - across views, no feature assigned in one view lies between another
+//!   view's camera and the feature assigned there ([`occludes_across_views`]).
+//!
+//! A feature (by id) is used at most once in the whole sketch. The strokes
+//! are then placed in world space, unmatched ones embedded by the fallback,
+//! and features completed down to the terrain. Finally, sketches that
+//! intersect (a placed stroke of one view, seen from another view, crosses a
+//! stroke of that view in front of it) are reported as an error: the paper
+//! does not support them, and no deformation could satisfy both.
+
+use std::cell::RefCell;
+use std::collections::HashMap;
+
+use super::branch_and_bound::{branch_and_bound, Bound, Choice};
+use super::candidates::{priority_list, Candidate, CandidateOptions, CostTerms, PriorityList};
+use super::depth_order::{order_strokes, DepthOrdering};
+use super::fallback::{embed_unmatched, placed_depth_at};
+use super::file::SketchOptions;
+use super::placement::{complete_feature, place_on_candidate, PlacedPoint, PointSource};
+use super::projection::{FeatureKind, ViewFeature, ViewProjection};
+use super::stroke::Stroke;
+
+/// Distance used by the fallback when the terrain offers nothing, metres.
+pub const DEFAULT_FALLBACK_DISTANCE_M: f64 = 1000.0;
+
+/// One view to match: its prepared strokes, its features, its camera.
+pub struct ViewInput<'a> {
+    pub name: String,
+    pub strokes: Vec<Stroke>,
+    pub features: &'a [ViewFeature],
+    pub projection: &'a dyn ViewProjection,
+}
+
+/// How a stroke was placed (the report's `match.kind`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum MatchKind {
+    Silhouette,
+    Ridge,
+    /// No feature: fallback 3D embedding.
+    Embedded,
+}
+
+/// The result for one stroke.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct StrokeMatch {
+    pub id: String,
+    pub source_id: String,
+    /// Position in the view's depth order (0 = nearest).
+    pub depth_rank: usize,
+    pub kind: MatchKind,
+    pub feature_id: Option<usize>,
+    pub costs: Option<CostTerms>,
+    /// Length of the priority list used, and candidates before truncation.
+    pub candidates: usize,
+    pub considered: usize,
+    /// The stroke in world space (with completion points at both ends when
+    /// feature completion is on).
+    pub points: Vec<PlacedPoint>,
+}
+
+/// The result for one view.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct ViewMatch {
+    pub name: String,
+    pub ordering: DepthOrdering,
+    /// In the order of the view's strokes.
+    pub strokes: Vec<StrokeMatch>,
+    #[serde(skip)]
+    pub lists: Vec<PriorityList>,
+}
+
+/// The result of matching a sketch.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct SketchMatch {
+    pub views: Vec<ViewMatch>,
+    /// Total cost of the assignment (each stroke without a feature counts
+    /// [`super::EMPTY_LIST_COST`]).
+    pub total_cost: f64,
+    /// Branch-and-bound nodes visited.
+    pub nodes: u64,
+}
+
+/// Errors of matching.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum MatchError {
+    #[error("sketches of views \"{view_a}\" and \"{view_b}\" intersect: stroke \"{stroke_a}\" of \"{view_a}\", seen from \"{view_b}\", crosses stroke \"{stroke_b}\" in front of it near pixel ({x:.0}, {y:.0}); multi-view sketches must not cross (edit one view at a time instead)")]
+    IntersectingSketches {
+        view_a: String,
+        stroke_a: String,
+        view_b: String,
+        stroke_b: String,
+        x: f64,
+        y: f64,
+    },
+}
+
+/// Pixel step of the occlusion tests.
+const OCCLUSION_STEP_PX: f64 = 2.0;
+/// Tolerance on screen height in the occlusion tests, pixels.
+const OCCLUSION_TOL_PX: f64 = 0.5;
+
+/// Within one view: does candidate `back` of the farther stroke `s_back`
+/// hide candidate `front` of the nearer stroke `s_front`? True when, on a
+/// common pixel column, `back` is nearer to the eye than `front` while its
+/// stroke is drawn at or above `s_front` (after deformation each candidate
+/// lies on its stroke).
+pub fn occludes_within_view(
+    s_front: &Stroke,
+    front: &Candidate,
+    s_back: &Stroke,
+    back: &Candidate,
+) -> bool {
+    let (a0, a1) = front.x_range();
+    let (b0, b1) = back.x_range();
+    let (lo, hi) = (a0.max(b0), a1.min(b1));
+    if !(hi >= lo) {
+        return false;
+    }
+    let n = ((hi - lo) / OCCLUSION_STEP_PX).ceil() as usize;
+    for k in 0..=n {
+        let x = (lo + k as f64 * OCCLUSION_STEP_PX).min(hi);
+        let (Some(da), Some(db)) = (front.depth_at(x), back.depth_at(x)) else {
+            continue;
+        };
+        let (Some(ya), Some(yb)) = (s_front.y_at(x), s_back.y_at(x)) else {
+            continue;
+        };
+        if db < da * (1.0 - 1e-9) - 1e-6 && yb <= ya + OCCLUSION_TOL_PX {
+            return true;
+        }
+    }
+    false
+}
+
+/// Across views: does `other` (a deformed candidate of another view, given
+/// by its deformed world points) lie between the eye of `proj` and
+/// candidate `cand` of stroke `s` of that view? True when a point of `other`
+/// projects onto the column range of `cand`, nearer than it, at or above
+/// the stroke.
+pub fn occludes_across_views(
+    s: &Stroke,
+    cand: &Candidate,
+    proj: &dyn ViewProjection,
+    other: &[[f64; 3]],
+) -> bool {
+    let projected: Vec<Option<([f64; 2], f64)>> = other.iter().map(|&w| proj.project(w)).collect();
+    occludes_projected(s, cand, &projected)
+}
+
+fn occludes_projected(s: &Stroke, cand: &Candidate, projected: &[Option<([f64; 2], f64)>]) -> bool {
+    let (a0, a1) = cand.x_range();
+    projected.iter().flatten().any(|&(p, d)| {
+        if !(p[0] >= a0 && p[0] <= a1) {
+            return false;
+        }
+        match (cand.depth_at(p[0]), s.y_at(p[0])) {
+            (Some(da), Some(ys)) => d < da * (1.0 - 1e-9) - 1e-6 && p[1] <= ys + OCCLUSION_TOL_PX,
+            _ => false,
+        }
+    })
+}
+
+/// Matches one view (see [`match_sketch`]).
+pub fn match_view(view: &ViewInput, opts: &SketchOptions) -> Result<ViewMatch, MatchError> {
+    let mut m = match_sketch(std::slice::from_ref(view), opts)?;
+    Ok(m.views.remove(0))
+}
+
+/// Matches all views of a sketch jointly; see the module documentation.
+pub fn match_sketch(views: &[ViewInput], opts: &SketchOptions) -> Result<SketchMatch, MatchError> {
+    let copts = CandidateOptions {
+        weights: opts.weights,
+        min_coverage: opts.min_coverage,
+        max_candidates: opts.max_candidates,
+        ..CandidateOptions::default()
+    };
+    // Per view: depth order and priority lists.
+    let orderings: Vec<DepthOrdering> = views
+        .iter()
+        .map(|v| order_strokes(&v.strokes, opts.t_junction_px))
+        .collect();
+    let lists: Vec<Vec<PriorityList>> = views
+        .iter()
+        .map(|v| {
+            v.strokes
+                .iter()
+                .map(|s| priority_list(s, v.features, v.projection, &copts))
+                .collect()
+        })
+        .collect();
+    // Global stroke list: (view, stroke), view by view, front to back.
+    let global: Vec<(usize, usize)> = orderings
+        .iter()
+        .enumerate()
+        .flat_map(|(t, o)| o.order.iter().map(move |&s| (t, s)))
+        .collect();
+    let choices: Vec<Vec<Choice>> = global
+        .iter()
+        .map(|&(t, s)| {
+            lists[t][s]
+                .candidates
+                .iter()
+                .map(|c| Choice {
+                    feature: c.feature_id,
+                    cost: c.costs.total,
+                })
+                .collect()
+        })
+        .collect();
+    // Cross-view projections, computed lazily: (global stroke, cand, view).
+    type ProjKey = (usize, usize, usize);
+    let proj_cache: RefCell<HashMap<ProjKey, Vec<Option<([f64; 2], f64)>>>> =
+        RefCell::new(HashMap::new());
+    let projected_into = |g: usize, a: usize, u: usize| -> Vec<Option<([f64; 2], f64)>> {
+        if let Some(v) = proj_cache.borrow().get(&(g, a, u)) {
+            return v.clone();
+        }
+        let (t, s) = global[g];
+        let pts: Vec<Option<([f64; 2], f64)>> = lists[t][s].candidates[a]
+            .points
+            .iter()
+            .map(|p| views[u].projection.project(p.deformed))
+            .collect();
+        proj_cache.borrow_mut().insert((g, a, u), pts.clone());
+        pts
+    };
+    let cache: RefCell<HashMap<(usize, usize, usize, usize), bool>> = RefCell::new(HashMap::new());
+    let conflicts = |i: usize, a: usize, j: usize, b: usize| -> bool {
+        if let Some(&c) = cache.borrow().get(&(i, a, j, b)) {
+            return c;
+        }
+        let (ti, si) = global[i];
+        let (tj, sj) = global[j];
+        let ca = &lists[ti][si].candidates[a];
+        let cb = &lists[tj][sj].candidates[b];
+        let c = if ti == tj {
+            occludes_within_view(&views[ti].strokes[si], ca, &views[tj].strokes[sj], cb)
+        } else {
+            occludes_projected(&views[ti].strokes[si], ca, &projected_into(j, b, ti))
+                || occludes_projected(&views[tj].strokes[sj], cb, &projected_into(i, a, tj))
+        };
+        cache.borrow_mut().insert((i, a, j, b), c);
+        c
+    };
+    let sol = branch_and_bound(&choices, &conflicts, Bound::LowerBound);
+
+    // Placement.
+    let mut out_views = Vec::with_capacity(views.len());
+    let mut assigned: Vec<Vec<Option<usize>>> =
+        views.iter().map(|v| vec![None; v.strokes.len()]).collect();
+    for (g, &(t, s)) in global.iter().enumerate() {
+        assigned[t][s] = sol.choice[g];
+    }
+    for (t, view) in views.iter().enumerate() {
+        let proj = view.projection;
+        let mut placed: Vec<Option<Vec<PlacedPoint>>> = view
+            .strokes
+            .iter()
+            .enumerate()
+            .map(|(s, st)| {
+                assigned[t][s].map(|a| place_on_candidate(st, &lists[t][s].candidates[a], proj))
+            })
+            .collect();
+        // A placement that failed (no depth anywhere) falls back too.
+        for p in placed.iter_mut() {
+            if p.as_ref().is_some_and(|v| v.is_empty()) {
+                *p = None;
+            }
+        }
+        let matched: Vec<bool> = placed.iter().map(|p| p.is_some()).collect();
+        embed_unmatched(
+            &view.strokes,
+            &orderings[t].order,
+            &mut placed,
+            proj,
+            opts.fallback_depth_ratio,
+            DEFAULT_FALLBACK_DISTANCE_M,
+        );
+        let strokes = view
+            .strokes
+            .iter()
+            .enumerate()
+            .map(|(s, st)| {
+                let mut pts = placed[s].take().unwrap_or_default();
+                if opts.feature_completion {
+                    pts = complete_feature(
+                        &pts,
+                        proj,
+                        opts.completion_step_m,
+                        opts.completion_max_m,
+                        0.25,
+                    );
+                }
+                let cand = assigned[t][s]
+                    .filter(|_| matched[s])
+                    .map(|a| &lists[t][s].candidates[a]);
+                StrokeMatch {
+                    id: st.id.clone(),
+                    source_id: st.source_id.clone(),
+                    depth_rank: orderings[t].rank[s],
+                    kind: match cand.map(|c| c.kind) {
+                        Some(FeatureKind::Silhouette) => MatchKind::Silhouette,
+                        Some(FeatureKind::Ridge) => MatchKind::Ridge,
+                        None => MatchKind::Embedded,
+                    },
+                    feature_id: cand.map(|c| c.feature_id),
+                    costs: cand.map(|c| c.costs),
+                    candidates: lists[t][s].candidates.len(),
+                    considered: lists[t][s].considered,
+                    points: pts,
+                }
+            })
+            .collect();
+        out_views.push(ViewMatch {
+            name: view.name.clone(),
+            ordering: orderings[t].clone(),
+            strokes,
+            lists: Vec::new(),
+        });
+    }
+    for (t, l) in lists.into_iter().enumerate() {
+        out_views[t].lists = l;
+    }
+    let result = SketchMatch {
+        views: out_views,
+        total_cost: sol.cost,
+        nodes: sol.nodes,
+    };
+    check_intersections(views, &result)?;
+    Ok(result)
+}
+
+/// Reports the first pair of sketches that intersect (see the module
+/// documentation).
+pub fn check_intersections(views: &[ViewInput], m: &SketchMatch) -> Result<(), MatchError> {
+    for (t, vt) in m.views.iter().enumerate() {
+        for (u, vu) in m.views.iter().enumerate() {
+            if t == u {
+                continue;
+            }
+            let proj = views[u].projection;
+            for st in &vt.strokes {
+                let pr: Vec<([f64; 2], f64)> = st
+                    .points
+                    .iter()
+                    .filter(|p| p.source != PointSource::Completion)
+                    .filter_map(|p| proj.project(p.world))
+                    .collect();
+                for (r, su) in vu.strokes.iter().enumerate() {
+                    let stroke_r = &views[u].strokes[r];
+                    let (x0, x1) = stroke_r.x_range();
+                    let mut prev: Option<(f64, [f64; 2], f64)> = None;
+                    for &(p, d) in &pr {
+                        let cur = if p[0] >= x0 && p[0] <= x1 {
+                            stroke_r.y_at(p[0]).map(|y| (p[1] - y, p, d))
+                        } else {
+                            None
+                        };
+                        if let (Some((da, pa, depa)), Some((db, pb, depb))) = (prev, cur) {
+                            if (da > 0.0) != (db > 0.0) && da != db {
+                                let w = da / (da - db);
+                                let x = pa[0] + w * (pb[0] - pa[0]);
+                                let y = pa[1] + w * (pb[1] - pa[1]);
+                                let dep = depa + w * (depb - depa);
+                                if let Some(dr) = placed_depth_at(&su.points, x) {
+                                    if dep < dr * 0.99 {
+                                        return Err(MatchError::IntersectingSketches {
+                                            view_a: vt.name.clone(),
+                                            stroke_a: st.id.clone(),
+                                            view_b: vu.name.clone(),
+                                            stroke_b: su.id.clone(),
+                                            x,
+                                            y,
+                                        });
+                                    }
+                                }
+                            }
+                        }
+                        prev = cur;
+                    }
+                }
+            }
+        }
+    }
+    Ok(())
+}
