@@ -1,1 +1,201 @@
-//! GeoJSON export (placeholder).
+//! GeoJSON export of terrain features, for `demsketch view --features` and for
+//! looking at features in a GIS: every silhouette and ridge line becomes a
+//! `LineString` feature with `[lon, lat, z]` positions (WGS84 degrees, z the
+//! true terrain height in the DEM's vertical datum), and properties `kind`
+//! (`"silhouette"` or `"ridge"`), `id` and `length` (metres along the 3D
+//! curve). Silhouettes also carry their image polyline (`pixels`), whether they
+//! are part of the skyline, and their depth range; T-junctions become `Point`
+//! features of kind `"t_junction"` naming the occluded and occluding
+//! silhouette.
+//!
+//! The CRS-to-WGS84 mapping is passed in as a closure, so that the caller can
+//! use the view module's PROJ transformation ([`crate::view::Georef`]) or any
+//! other; [`to_lonlat_with_georef`] wraps the former.
+
+use std::io::Write;
+use std::path::Path;
+
+use serde_json::{json, Map, Value};
+
+use super::{FeatureError, RidgeNetwork, Silhouettes};
+use crate::view::Georef;
+
+/// Maps a CRS point `(x, y)` to WGS84 `(lon, lat)` in degrees.
+pub type ToLonLat<'a> = dyn Fn(f64, f64) -> Result<(f64, f64), String> + 'a;
+
+/// A [`ToLonLat`] closure using the view module's PROJ transformation.
+pub fn to_lonlat_with_georef(
+    georef: &Georef,
+) -> impl Fn(f64, f64) -> Result<(f64, f64), String> + '_ {
+    move |x, y| georef.crs_to_lonlat(x, y).map_err(|e| e.to_string())
+}
+
+fn round(v: f64, digits: i32) -> f64 {
+    let s = 10f64.powi(digits);
+    (v * s).round() / s
+}
+
+fn position(to_lonlat: &ToLonLat, p: [f64; 3]) -> Result<Value, FeatureError> {
+    let (lon, lat) = to_lonlat(p[0], p[1]).map_err(FeatureError::Projection)?;
+    if !(lon.is_finite() && lat.is_finite()) {
+        return Err(FeatureError::Projection(format!(
+            "no lon/lat for CRS point ({}, {})",
+            p[0], p[1]
+        )));
+    }
+    Ok(json!([round(lon, 8), round(lat, 8), round(p[2], 3)]))
+}
+
+fn feature(geometry: Value, properties: Map<String, Value>) -> Value {
+    json!({"type": "Feature", "geometry": geometry, "properties": properties})
+}
+
+/// GeoJSON features of the silhouettes of one view (`view` names the view in
+/// the properties when given).
+pub fn silhouette_features(
+    sil: &Silhouettes,
+    view: Option<&str>,
+    to_lonlat: &ToLonLat,
+) -> Result<Vec<Value>, FeatureError> {
+    let mut out = Vec::with_capacity(sil.curves.len() + sil.junctions.len());
+    for c in &sil.curves {
+        let coords = c
+            .samples
+            .iter()
+            .map(|s| position(to_lonlat, s.world))
+            .collect::<Result<Vec<_>, _>>()?;
+        let pixels: Vec<Value> = c
+            .samples
+            .iter()
+            .map(|s| json!([round(s.pixel[0], 3), round(s.pixel[1], 3)]))
+            .collect();
+        let (dmin, dmax) = c.samples.iter().fold((f64::INFINITY, 0f64), |(a, b), s| {
+            (a.min(s.depth), b.max(s.depth))
+        });
+        let mut props = Map::new();
+        props.insert("kind".into(), json!("silhouette"));
+        props.insert("id".into(), json!(c.id));
+        props.insert("length".into(), json!(round(c.local_length_m(), 2)));
+        props.insert("length_px".into(), json!(round(c.pixel_length(), 2)));
+        props.insert("skyline".into(), json!(c.skyline));
+        props.insert("depth_min".into(), json!(round(dmin, 2)));
+        props.insert("depth_max".into(), json!(round(dmax, 2)));
+        props.insert("pixels".into(), Value::Array(pixels));
+        if let Some(v) = view {
+            props.insert("view".into(), json!(v));
+        }
+        out.push(feature(
+            json!({"type": "LineString", "coordinates": coords}),
+            props,
+        ));
+    }
+    for j in &sil.junctions {
+        // The junction's terrain point: the occluded silhouette's end sample.
+        let Some(c) = sil.curves.get(j.occluded as usize) else {
+            continue;
+        };
+        let s = match j.end {
+            super::CurveEnd::Start => c.samples.first(),
+            super::CurveEnd::End => c.samples.last(),
+        };
+        let Some(s) = s else { continue };
+        let mut props = Map::new();
+        props.insert("kind".into(), json!("t_junction"));
+        props.insert("occluded".into(), json!(j.occluded));
+        props.insert("occluder".into(), json!(j.occluder));
+        props.insert(
+            "pixel".into(),
+            json!([round(j.pixel[0], 3), round(j.pixel[1], 3)]),
+        );
+        if let Some(v) = view {
+            props.insert("view".into(), json!(v));
+        }
+        out.push(feature(
+            json!({"type": "Point", "coordinates": position(to_lonlat, s.world)?}),
+            props,
+        ));
+    }
+    Ok(out)
+}
+
+/// GeoJSON features of a ridge network.
+pub fn ridge_features(
+    net: &RidgeNetwork,
+    to_lonlat: &ToLonLat,
+) -> Result<Vec<Value>, FeatureError> {
+    net.lines
+        .iter()
+        .map(|l| {
+            let coords = l
+                .points
+                .iter()
+                .map(|&p| position(to_lonlat, p))
+                .collect::<Result<Vec<_>, _>>()?;
+            let mut props = Map::new();
+            props.insert("kind".into(), json!("ridge"));
+            props.insert("id".into(), json!(l.id));
+            props.insert("length".into(), json!(round(l.length_m, 2)));
+            props.insert("nodes".into(), json!(l.nodes));
+            Ok(feature(
+                json!({"type": "LineString", "coordinates": coords}),
+                props,
+            ))
+        })
+        .collect()
+}
+
+/// A `FeatureCollection` of the given silhouettes and ridges.
+pub fn feature_collection(
+    silhouettes: Option<&Silhouettes>,
+    ridges: Option<&RidgeNetwork>,
+    to_lonlat: &ToLonLat,
+) -> Result<Value, FeatureError> {
+    let mut features = Vec::new();
+    if let Some(s) = silhouettes {
+        features.extend(silhouette_features(s, None, to_lonlat)?);
+    }
+    if let Some(r) = ridges {
+        features.extend(ridge_features(r, to_lonlat)?);
+    }
+    Ok(json!({"type": "FeatureCollection", "features": features}))
+}
+
+/// Write `value` to `path` atomically (a temporary file beside it, renamed).
+pub fn write_geojson(path: &Path, value: &Value) -> Result<(), FeatureError> {
+    let err = |e: &dyn std::fmt::Display| FeatureError::Write {
+        path: path.to_path_buf(),
+        message: e.to_string().lines().next().unwrap_or("").to_string(),
+    };
+    let dir = path
+        .parent()
+        .filter(|d| !d.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let mut tmp = tempfile_in(dir).map_err(|e| err(&e))?;
+    serde_json::to_writer(&mut tmp.1, value).map_err(|e| err(&e))?;
+    tmp.1.flush().map_err(|e| err(&e))?;
+    drop(tmp.1);
+    std::fs::rename(&tmp.0, path).map_err(|e| {
+        let _ = std::fs::remove_file(&tmp.0);
+        err(&e)
+    })
+}
+
+/// A new uniquely named file in `dir`.
+fn tempfile_in(
+    dir: &Path,
+) -> std::io::Result<(std::path::PathBuf, std::io::BufWriter<std::fs::File>)> {
+    let pid = std::process::id();
+    for n in 0..1000u32 {
+        let p = dir.join(format!(".features-{pid}-{n}.geojson.tmp"));
+        match std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&p)
+        {
+            Ok(f) => return Ok((p, std::io::BufWriter::new(f))),
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
+            Err(e) => return Err(e),
+        }
+    }
+    Err(std::io::Error::other("no free temporary file name"))
+}

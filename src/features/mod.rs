@@ -6,7 +6,8 @@
 //! - [`silhouettes`]: visible occlusion boundaries of a rendered view, linked
 //!   into polylines with T-junctions, each sample carrying its pixel, depth
 //!   and 3D terrain point.
-//! - [`geojson`]: export of features as GeoJSON LineStrings (lon, lat, z).
+//! - [`geojson`]: export of features as GeoJSON LineStrings (lon, lat, z)
+//!   with kind, id, length and, for silhouettes, the image polyline.
 
 pub mod geojson;
 pub mod ridges;
