@@ -16,8 +16,10 @@
 //!    is higher on screen is behind.
 //! 3. **Sweep** ([`order_strokes`]): the extremities are visited from left to
 //!    right; opening a stroke inserts it into the sorting structure
-//!    ([`SortingStructure`]) with the cues relating it to the strokes already
-//!    there, closing it adds its end junction. The structure keeps a
+//!    ([`SortingStructure`]) with its start junction and, for each stroke
+//!    already there with no junction met so far, the containment or height
+//!    cue; closing it adds its end junction (which overrides an earlier
+//!    containment or height cue that says otherwise). The structure keeps a
 //!    front-to-back order consistent with the accepted cues, changing the
 //!    existing order as little as possible.
 //!
@@ -318,11 +320,8 @@ fn topo_order(prev: &[usize], cues: &[Cue]) -> Vec<usize> {
 pub fn order_strokes(strokes: &[Stroke], threshold: f64) -> DepthOrdering {
     let junctions = label_junctions(strokes, threshold);
     let n = strokes.len();
-    let mut has_junction = vec![vec![false; n]; n];
-    for j in &junctions {
-        has_junction[j.stroke][j.other] = true;
-        has_junction[j.other][j.stroke] = true;
-    }
+    // Junctions met so far by the sweep, per pair.
+    let mut known = vec![vec![false; n]; n];
     // Events: (x, close?, stroke).
     let mut events: Vec<(f64, bool, usize)> = Vec::with_capacity(2 * n);
     for (i, s) in strokes.iter().enumerate() {
@@ -350,12 +349,14 @@ pub fn order_strokes(strokes: &[Stroke], threshold: f64) -> DepthOrdering {
                 JunctionLabel::InFrontOf => (j.other, s, "in front of"),
             };
             new_cues.push((behind, front, CueKind::Junction));
+            known[j.stroke][j.other] = true;
+            known[j.other][j.stroke] = true;
             rel.push((CueKind::Junction, format!("{text} {}", strokes[j.other].id)));
         }
         if !close {
             let present: Vec<usize> = st.inserted.iter().copied().filter(|&r| r != s).collect();
             for r in present {
-                if has_junction[s][r] || siblings(&strokes[s], &strokes[r]) {
+                if known[s][r] || siblings(&strokes[s], &strokes[r]) {
                     continue;
                 }
                 if let Some((behind, front, kind)) = weak_cue(&strokes[s], s, &strokes[r], r) {
