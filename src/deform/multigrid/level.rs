@@ -1,0 +1,697 @@
+//! One level of the multigrid hierarchy and the kernels that work on it.
+//!
+//! Storage is *red-black split*: the cells of colour `c = (i + j) & 1` of
+//! row `j` are stored contiguously in `u[c]`, cell `(i, j)` at entry
+//! `k = i >> 1`. A red update then reads only black values (and vice versa),
+//! so every kernel is a contiguous, vectorisable loop, and a colour row can be
+//! written while the other colour is read by other threads. Each colour array
+//! has a ghost row above and below the grid and a ghost entry at both ends of
+//! every row; ghosts (and the padding entry of odd-width rows) are always 0,
+//! which is the boundary condition `M = 0` outside the grid, and are never
+//! free, so no kernel needs a boundary branch.
+//!
+//! Layout of one colour array: row `j` (`-1 ..= ny`) starts at
+//! `(j + 1) * stride`, entry `k` (`-1 ..= w`) is at `+ k + 1`, with
+//! `w = ceil(nx / 2)` and `stride = w + 2`. Within row `j` the colour-`c`
+//! cells sit at `i = 2k + ((j + c) & 1)`; their west and east neighbours
+//! (other colour, same row) are at padded positions `k + s` and `k + s + 1`
+//! with `s = (j + c) & 1`, their north and south neighbours at `k + 1` of
+//! the other colour's rows `j - 1` and `j + 1`.
+
+use rayon::prelude::*;
+
+use super::geometry::Geometry;
+
+/// Below this many cells a level is processed on one thread: the rayon
+/// hand-off costs more than it saves.
+const PARALLEL_MIN_CELLS: usize = 1 << 15;
+
+/// Rows per parallel band of the smoother (at least 3 for the band scheme).
+const MIN_BAND_ROWS: usize = 8;
+
+/// One grid of the hierarchy: the unknown (solution on the finest level,
+/// correction on coarser ones), its right-hand side, the free-cell mask and
+/// the constant 5-point coefficients.
+pub(super) struct Level {
+    pub nx: usize,
+    pub ny: usize,
+    /// Entries per colour row (`ceil(nx / 2)`).
+    pub w: usize,
+    /// Padded colour row length (`w + 2`).
+    pub stride: usize,
+    /// `1 / hx^2` and `1 / hy^2` at this level's cell size.
+    pub ax: f32,
+    pub ay: f32,
+    /// Diagonal `2 ax + 2 ay + c` of a cell away from constraints.
+    pub diag: f32,
+    /// Per-cell diagonal, split by colour, on coarse levels (empty on the
+    /// finest level, where it is the constant `diag`): next to fixed cells it
+    /// carries the true distance to the constraint, see `geometry`.
+    pub diag_cells: [Vec<f32>; 2],
+    /// One padded row filled with `diag`.
+    diag_const_row: Vec<f32>,
+    /// Unknown, split by colour.
+    pub u: [Vec<f32>; 2],
+    /// Right-hand side, split by colour; empty when the level has none
+    /// (the finest level, whose right-hand side is zero), see [`Level::rhs_row`].
+    pub rhs: [Vec<f32>; 2],
+    /// One zero padded row, read instead of `rhs` when `rhs` is empty.
+    zero_row: Vec<f32>,
+    /// 1 where the cell is a free unknown, 0 where it is fixed, padding or ghost.
+    pub mask: [Vec<u8>; 2],
+    /// Number of free cells.
+    pub free_cells: usize,
+    /// Row bands `[r0, r1)` of the parallel smoother.
+    bands: Vec<(usize, usize)>,
+    /// Natural-layout copy of `u` with a zero ghost border,
+    /// `(ny + 2) x (nx + 2)`; filled before prolongation from this level.
+    pub natural: Vec<f32>,
+}
+
+/// Raw pointers to the two colour arrays of a level's unknown, shared by the
+/// smoother's threads.
+///
+/// Soundness: the smoother's band schedule (see [`Level::smooth`]) never
+/// lets one thread write a colour row while another thread reads or writes
+/// that same colour row, and row slices made from these pointers live only
+/// for the update of one row.
+#[derive(Clone, Copy)]
+struct SharedColours {
+    ptr: [*mut f32; 2],
+    stride: usize,
+}
+
+// SAFETY: see the type's documentation; access is row-disjoint by schedule.
+unsafe impl Send for SharedColours {}
+unsafe impl Sync for SharedColours {}
+
+impl SharedColours {
+    /// Colour `c` row `j` (`j` in `-1 ..= ny`), whole padded row.
+    ///
+    /// # Safety
+    /// No other thread may write this colour row while the slice lives.
+    unsafe fn row(&self, c: usize, j: isize) -> &[f32] {
+        let start = ((j + 1) as usize) * self.stride;
+        std::slice::from_raw_parts(self.ptr[c].add(start), self.stride)
+    }
+
+    /// Colour `c` row `j`, whole padded row, mutable.
+    ///
+    /// # Safety
+    /// No other thread may read or write this colour row while the slice lives.
+    #[allow(clippy::mut_from_ref)]
+    unsafe fn row_mut(&self, c: usize, j: isize) -> &mut [f32] {
+        let start = ((j + 1) as usize) * self.stride;
+        std::slice::from_raw_parts_mut(self.ptr[c].add(start), self.stride)
+    }
+}
+
+/// Gauss-Seidel update of one colour row: for every free entry,
+/// `u = (rhs + ax (west + east) + ay (north + south)) / diag`.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn relax_row_kernel(
+    out: &mut [f32],
+    mask: &[u8],
+    rhs: &[f32],
+    same: &[f32],
+    north: &[f32],
+    south: &[f32],
+    diag: &[f32],
+    s: usize,
+    coef: (f32, f32),
+) {
+    let (ax, ay) = coef;
+    let w = out.len();
+    let diag = &diag[..w];
+    let west = &same[s..s + w];
+    let east = &same[s + 1..s + 1 + w];
+    let north = &north[1..1 + w];
+    let south = &south[1..1 + w];
+    let mask = &mask[..w];
+    let rhs = &rhs[..w];
+    for k in 0..w {
+        let new = (rhs[k] + ax * (west[k] + east[k]) + ay * (north[k] + south[k])) / diag[k];
+        out[k] = if mask[k] != 0 { new } else { out[k] };
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[allow(clippy::too_many_arguments)]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn relax_row_avx2(
+    out: &mut [f32],
+    mask: &[u8],
+    rhs: &[f32],
+    same: &[f32],
+    north: &[f32],
+    south: &[f32],
+    diag: &[f32],
+    s: usize,
+    coef: (f32, f32),
+) {
+    relax_row_kernel(out, mask, rhs, same, north, south, diag, s, coef)
+}
+
+/// Residual of one colour row: `rhs + ax (west + east) + ay (north + south)
+/// - diag u` on free entries, 0 elsewhere.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn residual_row_kernel(
+    out: &mut [f32],
+    u: &[f32],
+    mask: &[u8],
+    rhs: &[f32],
+    same: &[f32],
+    north: &[f32],
+    south: &[f32],
+    diag: &[f32],
+    s: usize,
+    coef: (f32, f32),
+) {
+    let (ax, ay) = coef;
+    let w = out.len();
+    let diag = &diag[..w];
+    let west = &same[s..s + w];
+    let east = &same[s + 1..s + 1 + w];
+    let north = &north[1..1 + w];
+    let south = &south[1..1 + w];
+    let u = &u[..w];
+    let mask = &mask[..w];
+    let rhs = &rhs[..w];
+    for k in 0..w {
+        let r = rhs[k] + ax * (west[k] + east[k]) + ay * (north[k] + south[k]) - diag[k] * u[k];
+        out[k] = if mask[k] != 0 { r } else { 0.0 };
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[allow(clippy::too_many_arguments)]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn residual_row_avx2(
+    out: &mut [f32],
+    u: &[f32],
+    mask: &[u8],
+    rhs: &[f32],
+    same: &[f32],
+    north: &[f32],
+    south: &[f32],
+    diag: &[f32],
+    s: usize,
+    coef: (f32, f32),
+) {
+    residual_row_kernel(out, u, mask, rhs, same, north, south, diag, s, coef)
+}
+
+/// Whether the AVX2/FMA versions of the kernels may be used on this CPU.
+#[inline]
+fn have_avx2() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+#[inline]
+fn relax_row(
+    out: &mut [f32],
+    mask: &[u8],
+    rhs: &[f32],
+    same: &[f32],
+    north: &[f32],
+    south: &[f32],
+    diag: &[f32],
+    s: usize,
+    coef: (f32, f32),
+    avx2: bool,
+) {
+    #[cfg(target_arch = "x86_64")]
+    if avx2 {
+        // SAFETY: the CPU supports AVX2 and FMA (checked by `have_avx2`).
+        unsafe { relax_row_avx2(out, mask, rhs, same, north, south, diag, s, coef) };
+        return;
+    }
+    let _ = avx2;
+    relax_row_kernel(out, mask, rhs, same, north, south, diag, s, coef)
+}
+
+#[allow(clippy::too_many_arguments)]
+#[inline]
+fn residual_row(
+    out: &mut [f32],
+    u: &[f32],
+    mask: &[u8],
+    rhs: &[f32],
+    same: &[f32],
+    north: &[f32],
+    south: &[f32],
+    diag: &[f32],
+    s: usize,
+    coef: (f32, f32),
+    avx2: bool,
+) {
+    #[cfg(target_arch = "x86_64")]
+    if avx2 {
+        // SAFETY: the CPU supports AVX2 and FMA (checked by `have_avx2`).
+        unsafe { residual_row_avx2(out, u, mask, rhs, same, north, south, diag, s, coef) };
+        return;
+    }
+    let _ = avx2;
+    residual_row_kernel(out, u, mask, rhs, same, north, south, diag, s, coef)
+}
+
+/// Sum of squares in f64 (four independent accumulators so it vectorises).
+#[inline]
+fn sum_squares(values: &[f32]) -> f64 {
+    let mut acc = [0.0f64; 4];
+    let mut chunks = values.chunks_exact(4);
+    for ch in &mut chunks {
+        for l in 0..4 {
+            let v = ch[l] as f64;
+            acc[l] += v * v;
+        }
+    }
+    let mut total = acc[0] + acc[1] + acc[2] + acc[3];
+    for &v in chunks.remainder() {
+        total += (v as f64) * (v as f64);
+    }
+    total
+}
+
+impl Level {
+    /// An empty level of `nx x ny` cells of size `hx x hy` with screening `c`.
+    /// `with_rhs` false gives a level whose right-hand side is identically
+    /// zero and not stored (the finest level).
+    pub fn new(nx: usize, ny: usize, hx: f64, hy: f64, screening: f64, with_rhs: bool) -> Level {
+        let w = nx.div_ceil(2);
+        let stride = w + 2;
+        let len = (ny + 2) * stride;
+        let ax = 1.0 / (hx * hx);
+        let ay = 1.0 / (hy * hy);
+        let diag = 2.0 * ax + 2.0 * ay + screening;
+        let threads = rayon::current_num_threads().max(1);
+        let bands = if nx * ny < PARALLEL_MIN_CELLS || ny < 2 * MIN_BAND_ROWS {
+            vec![(0, ny)]
+        } else {
+            // A few bands per thread for load balance.
+            let count = (threads * 4).min(ny / MIN_BAND_ROWS).max(1);
+            (0..count)
+                .map(|b| (b * ny / count, (b + 1) * ny / count))
+                .collect()
+        };
+        Level {
+            nx,
+            ny,
+            w,
+            stride,
+            ax: ax as f32,
+            ay: ay as f32,
+            diag: diag as f32,
+            diag_cells: [Vec::new(), Vec::new()],
+            diag_const_row: vec![diag as f32; stride],
+            u: [vec![0.0; len], vec![0.0; len]],
+            rhs: if with_rhs {
+                [vec![0.0; len], vec![0.0; len]]
+            } else {
+                [Vec::new(), Vec::new()]
+            },
+            zero_row: vec![0.0; stride],
+            mask: [vec![0; len], vec![0; len]],
+            free_cells: 0,
+            bands,
+            natural: Vec::new(),
+        }
+    }
+
+    /// Offset of colour row `j` (`-1 ..= ny`) in a colour array.
+    #[inline]
+    pub fn row_start(&self, j: isize) -> usize {
+        ((j + 1) as usize) * self.stride
+    }
+
+    /// Right-hand side of colour `c`, entries `0 .. w` of row `j`.
+    #[inline]
+    pub fn rhs_row(&self, c: usize, j: isize) -> &[f32] {
+        if self.rhs[c].is_empty() {
+            &self.zero_row[..self.w]
+        } else {
+            let start = self.row_start(j) + 1;
+            &self.rhs[c][start..start + self.w]
+        }
+    }
+
+    /// Diagonal of colour `c`, entries `0 .. w` of row `j`.
+    #[inline]
+    pub fn diag_row(&self, c: usize, j: isize) -> &[f32] {
+        if self.diag_cells[c].is_empty() {
+            &self.diag_const_row[..self.w]
+        } else {
+            let start = self.row_start(j) + 1;
+            &self.diag_cells[c][start..start + self.w]
+        }
+    }
+
+    /// Whether this level is large enough to use several threads.
+    #[inline]
+    pub fn parallel(&self) -> bool {
+        self.nx * self.ny >= PARALLEL_MIN_CELLS
+    }
+
+    /// Gauss-Seidel update of colour `c` in row `j`.
+    ///
+    /// # Safety
+    /// The caller guarantees that no other thread touches colour `c` row `j`
+    /// and that no other thread writes colour `1 - c` rows `j - 1 ..= j + 1`.
+    #[inline]
+    unsafe fn relax_colour_row(&self, shared: SharedColours, c: usize, j: usize, avx2: bool) {
+        let jj = j as isize;
+        let s = (j + c) & 1;
+        let other = 1 - c;
+        let start = self.row_start(jj) + 1;
+        let out = &mut shared.row_mut(c, jj)[1..1 + self.w];
+        relax_row(
+            out,
+            &self.mask[c][start..start + self.w],
+            self.rhs_row(c, jj),
+            shared.row(other, jj),
+            shared.row(other, jj - 1),
+            shared.row(other, jj + 1),
+            self.diag_row(c, jj),
+            s,
+            (self.ax, self.ay),
+            avx2,
+        );
+    }
+
+    /// `sweeps` red-black Gauss-Seidel sweeps, parallel over row bands.
+    ///
+    /// One sweep is one pass over memory: within a band, red row `j` is
+    /// updated and then black row `j - 1`, whose red neighbours are final.
+    /// Black rows at band edges need red values of the neighbouring band and
+    /// are updated in a second phase after all bands finished their red rows.
+    /// Phase 1 writes red rows of the band and black rows strictly inside it,
+    /// and reads black rows `r0 - 1 ..= r1`: the edge rows, which nobody
+    /// writes in phase 1. Phase 2 writes only black edge rows and reads red
+    /// rows, which nobody writes in phase 2.
+    pub fn smooth(&mut self, sweeps: usize) {
+        if self.free_cells == 0 || sweeps == 0 {
+            return;
+        }
+        let avx2 = have_avx2();
+        let shared = SharedColours {
+            ptr: [self.u[0].as_mut_ptr(), self.u[1].as_mut_ptr()],
+            stride: self.stride,
+        };
+        let this: &Level = self;
+        let phase1 = |&(r0, r1): &(usize, usize)| {
+            for j in r0..r1 {
+                // SAFETY: band schedule documented above.
+                unsafe { this.relax_colour_row(shared, 0, j, avx2) };
+                if j >= r0 + 2 {
+                    unsafe { this.relax_colour_row(shared, 1, j - 1, avx2) };
+                }
+            }
+        };
+        let phase2 = |&(r0, r1): &(usize, usize)| {
+            // SAFETY: band schedule documented above.
+            unsafe { this.relax_colour_row(shared, 1, r0, avx2) };
+            if r1 - 1 > r0 {
+                unsafe { this.relax_colour_row(shared, 1, r1 - 1, avx2) };
+            }
+        };
+        for _ in 0..sweeps {
+            if this.bands.len() > 1 {
+                this.bands.par_iter().for_each(phase1);
+                this.bands.par_iter().for_each(phase2);
+            } else {
+                this.bands.iter().for_each(phase1);
+                this.bands.iter().for_each(phase2);
+            }
+        }
+    }
+
+    /// Residual of colour `c` row `j` into `out` (length `w`).
+    #[inline]
+    fn residual_colour_row(&self, out: &mut [f32], c: usize, j: usize, avx2: bool) {
+        let jj = j as isize;
+        let other = 1 - c;
+        let start = self.row_start(jj);
+        let up = self.row_start(jj - 1);
+        let down = self.row_start(jj + 1);
+        let st = self.stride;
+        residual_row(
+            out,
+            &self.u[c][start + 1..start + 1 + self.w],
+            &self.mask[c][start + 1..start + 1 + self.w],
+            self.rhs_row(c, jj),
+            &self.u[other][start..start + st],
+            &self.u[other][up..up + st],
+            &self.u[other][down..down + st],
+            self.diag_row(c, jj),
+            (j + c) & 1,
+            (self.ax, self.ay),
+            avx2,
+        );
+    }
+
+    /// Squared 2-norm of the residual over the whole level (f64 sums).
+    pub fn residual_norm_squared(&self) -> f64 {
+        let avx2 = have_avx2();
+        let row_sum = |j: usize, buf: &mut Vec<f32>| {
+            buf.resize(self.w, 0.0);
+            let mut total = 0.0;
+            for c in 0..2 {
+                self.residual_colour_row(buf, c, j, avx2);
+                total += sum_squares(buf);
+            }
+            total
+        };
+        if self.parallel() {
+            (0..self.ny)
+                .into_par_iter()
+                .map_init(Vec::new, |buf, j| row_sum(j, buf))
+                .sum()
+        } else {
+            let mut buf = Vec::new();
+            (0..self.ny).map(|j| row_sum(j, &mut buf)).sum()
+        }
+    }
+
+    /// A coarse level from its [`Geometry`]: free mask and per-cell diagonal
+    /// `ax (w_e + w_w) + ay (w_n + w_s) + c` with the geometry's link weights.
+    pub fn from_geometry(geo: &Geometry, hx: f64, hy: f64, screening: f64) -> Level {
+        let mut level = Level::new(geo.nx, geo.ny, hx, hy, screening, true);
+        let len = level.u[0].len();
+        level.diag_cells = [vec![level.diag; len], vec![level.diag; len]];
+        let (ax, ay) = (level.ax, level.ay);
+        let c = screening as f32;
+        let nx = geo.nx;
+        let mut free = 0;
+        for j in 0..geo.ny {
+            let row = level.row_start(j as isize) + 1;
+            for i in 0..nx {
+                if geo.free[j * nx + i] == 0 {
+                    continue;
+                }
+                free += 1;
+                let colour = (i + j) & 1;
+                let k = row + (i >> 1);
+                let w = geo.weights(i, j);
+                level.mask[colour][k] = 1;
+                level.diag_cells[colour][k] = ax * (w[0] + w[1]) + ay * (w[2] + w[3]) + c;
+            }
+        }
+        level.free_cells = free;
+        level.natural = vec![0.0; (geo.ny + 2) * (nx + 2)];
+        level
+    }
+
+    /// Copies `u` into [`Level::natural`] (natural layout, zero ghost border).
+    pub fn fill_natural(&mut self) {
+        let nxp = self.nx + 2;
+        let nx = self.nx;
+        let w = self.w;
+        let stride = self.stride;
+        let (u0, u1) = (&self.u[0], &self.u[1]);
+        let fill = |(j, row): (usize, &mut [f32])| {
+            let start = (j + 1) * stride + 1;
+            let red = &u0[start..start + w];
+            let black = &u1[start..start + w];
+            // Cell i has colour (i + j) & 1 and entry i >> 1.
+            let (even, odd) = if j & 1 == 0 {
+                (red, black)
+            } else {
+                (black, red)
+            };
+            for i in 0..nx {
+                row[i + 1] = if i & 1 == 0 {
+                    even[i >> 1]
+                } else {
+                    odd[i >> 1]
+                };
+            }
+        };
+        let rows = &mut self.natural[nxp..(self.ny + 1) * nxp];
+        if self.nx * self.ny >= PARALLEL_MIN_CELLS {
+            rows.par_chunks_mut(nxp).enumerate().for_each(fill);
+        } else {
+            rows.chunks_mut(nxp).enumerate().for_each(fill);
+        }
+    }
+}
+
+/// Computes the fine residual and restricts it to the coarse right-hand side
+/// in one pass (the fine residual is never stored): coarse rhs = mean of the
+/// residuals of the four children (fixed children contribute 0). The coarse
+/// unknown is reset to 0. Returns the squared norm of the fine residual.
+pub(super) fn restrict_residual(fine: &Level, coarse: &mut Level) -> f64 {
+    let avx2 = have_avx2();
+    let w = fine.w;
+    let cst = coarse.stride;
+    let cnx = coarse.nx;
+    let cny = coarse.ny;
+    let parallel = fine.parallel();
+    let [crhs0, crhs1] = &mut coarse.rhs;
+    let [cu0, cu1] = &mut coarse.u;
+    let cmask0 = &coarse.mask[0];
+    let cmask1 = &coarse.mask[1];
+    let job = |(cj, (((r0, r1), u0), u1)): (
+        usize,
+        (((&mut [f32], &mut [f32]), &mut [f32]), &mut [f32]),
+    ),
+               buf: &mut Vec<f32>| {
+        buf.resize(4 * w, 0.0);
+        let (top, bottom) = buf.split_at_mut(2 * w);
+        let (t0, t1) = top.split_at_mut(w);
+        let (b0, b1) = bottom.split_at_mut(w);
+        let j0 = 2 * cj;
+        let j1 = 2 * cj + 1;
+        fine.residual_colour_row(t0, 0, j0, avx2);
+        fine.residual_colour_row(t1, 1, j0, avx2);
+        let mut sq = sum_squares(t0) + sum_squares(t1);
+        if j1 < fine.ny {
+            fine.residual_colour_row(b0, 0, j1, avx2);
+            fine.residual_colour_row(b1, 1, j1, avx2);
+            sq += sum_squares(b0) + sum_squares(b1);
+        } else {
+            b0.fill(0.0);
+            b1.fill(0.0);
+        }
+        u0.fill(0.0);
+        u1.fill(0.0);
+        let mstart = (cj + 1) * cst;
+        let m0 = &cmask0[mstart..mstart + cst];
+        let m1 = &cmask1[mstart..mstart + cst];
+        // Children of coarse cell ci are entry ci of both colours of both rows.
+        for ci in 0..cnx {
+            let c = (ci + cj) & 1;
+            let k = (ci >> 1) + 1;
+            let value = 0.25 * (t0[ci] + t1[ci] + b0[ci] + b1[ci]);
+            if c == 0 {
+                r0[k] = if m0[k] != 0 { value } else { 0.0 };
+            } else {
+                r1[k] = if m1[k] != 0 { value } else { 0.0 };
+            }
+        }
+        sq
+    };
+    let end = (cny + 1) * cst;
+    if parallel {
+        crhs0[cst..end]
+            .par_chunks_mut(cst)
+            .zip(crhs1[cst..end].par_chunks_mut(cst))
+            .zip(cu0[cst..end].par_chunks_mut(cst))
+            .zip(cu1[cst..end].par_chunks_mut(cst))
+            .enumerate()
+            .map_init(Vec::new, |buf, item| job(item, buf))
+            .sum()
+    } else {
+        let mut buf = Vec::new();
+        crhs0[cst..end]
+            .chunks_mut(cst)
+            .zip(crhs1[cst..end].chunks_mut(cst))
+            .zip(cu0[cst..end].chunks_mut(cst))
+            .zip(cu1[cst..end].chunks_mut(cst))
+            .enumerate()
+            .map(|item| job(item, &mut buf))
+            .sum()
+    }
+}
+
+/// Adds the bilinear (cell-centred: weights 9/16, 3/16, 3/16, 1/16)
+/// interpolation of the coarse correction to the free fine cells. Fixed
+/// coarse cells hold a zero correction, so the correction fades to zero
+/// towards the constraints. Requires `coarse.natural` to be filled.
+pub(super) fn prolongate_add(coarse: &Level, fine: &mut Level) {
+    let cnx = coarse.nx;
+    let cnxp = cnx + 2;
+    let w = fine.w;
+    let st = fine.stride;
+    let ny = fine.ny;
+    let nat = &coarse.natural;
+    let mask0 = &fine.mask[0];
+    let mask1 = &fine.mask[1];
+    let job = |(cj, (u0, u1)): (usize, (&mut [f32], &mut [f32])), buf: &mut Vec<f32>| {
+        buf.resize(3 * cnxp, 0.0);
+        let (v, rest) = buf.split_at_mut(cnxp);
+        let (even, odd) = rest.split_at_mut(cnxp);
+        let centre = &nat[(cj + 1) * cnxp..(cj + 2) * cnxp];
+        for half in 0..2 {
+            let j = 2 * cj + half;
+            if j >= ny {
+                break;
+            }
+            let other = if half == 0 {
+                &nat[cj * cnxp..(cj + 1) * cnxp]
+            } else {
+                &nat[(cj + 2) * cnxp..(cj + 3) * cnxp]
+            };
+            for ((vv, &c), &o) in v.iter_mut().zip(centre).zip(other) {
+                *vv = 0.75 * c + 0.25 * o;
+            }
+            // even[I]: fine cell 2I, odd[I]: fine cell 2I + 1 (I = 0 .. w).
+            for i in 0..w {
+                even[i] = 0.75 * v[i + 1] + 0.25 * v[i];
+                odd[i] = 0.75 * v[i + 1] + 0.25 * v[i + 2];
+            }
+            // Fine row j: even cells have colour j & 1.
+            let off = half * st + 1;
+            let mstart = (j + 1) * st + 1;
+            let (ue, uo, me, mo) = if j & 1 == 0 {
+                (&mut *u0, &mut *u1, mask0, mask1)
+            } else {
+                (&mut *u1, &mut *u0, mask1, mask0)
+            };
+            let ue = &mut ue[off..off + w];
+            let uo = &mut uo[off..off + w];
+            let me = &me[mstart..mstart + w];
+            let mo = &mo[mstart..mstart + w];
+            for i in 0..w {
+                ue[i] += if me[i] != 0 { even[i] } else { 0.0 };
+                uo[i] += if mo[i] != 0 { odd[i] } else { 0.0 };
+            }
+        }
+    };
+    let parallel = fine.parallel();
+    let [u0, u1] = &mut fine.u;
+    let end = (ny + 1) * st;
+    if parallel {
+        u0[st..end]
+            .par_chunks_mut(2 * st)
+            .zip(u1[st..end].par_chunks_mut(2 * st))
+            .enumerate()
+            .for_each_init(Vec::new, |buf, item| job(item, buf));
+    } else {
+        let mut buf = Vec::new();
+        u0[st..end]
+            .chunks_mut(2 * st)
+            .zip(u1[st..end].chunks_mut(2 * st))
+            .enumerate()
+            .for_each(|item| job(item, &mut buf));
+    }
+}
