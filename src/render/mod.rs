@@ -1,1 +1,29 @@
 //! First-person rendering of a DEM: depth buffer, shaded image and viewshed.
+//!
+//! A [`LocalTerrain`] holds the part of the DEM within the maximum view
+//! distance in a viewpoint's local frame; [`DepthBuffer::render`] casts one
+//! exact ray per pixel against its triangles; [`shade`] turns a depth buffer
+//! into a picture (lighting + distance haze) and [`write_png`] saves it;
+//! [`viewshed`] computes which DEM cells the eye sees and
+//! [`write_viewshed_tiff`] writes it on the DEM's grid like `gdal_viewshed`;
+//! [`locate`] answers "which terrain point is at this pixel" and
+//! [`project_point`] the reverse.
+
+mod depth_buffer;
+mod locate;
+mod shaded_image;
+mod terrain;
+mod viewshed;
+
+pub use depth_buffer::{pick, DepthBuffer, TerrainHit, SKY};
+pub use locate::{locate, project_point, Located};
+pub use shaded_image::{shade, write_depth_tiff, write_png, ShadeOptions};
+pub use terrain::{LocalTerrain, RayHit};
+pub use viewshed::{viewshed, write_viewshed_tiff, Viewshed};
+
+/// Errors of rendering and writing views. One line naming the file and the problem.
+#[derive(Debug, thiserror::Error)]
+pub enum RenderError {
+    #[error("{path}: cannot write: {message}")]
+    Write { path: String, message: String },
+}

@@ -1,2 +1,35 @@
 //! Viewpoints and cameras: lon/lat (WGS84) to the DEM's CRS through PROJ,
 //! heading from true north, and the pinhole camera of `DESIGN.md`.
+//!
+//! Everything the renderer, the feature extractor and the sketch matcher do
+//! in 3D happens in one documented frame, the *local frame* of a viewpoint
+//! ([`LocalFrame`]): east-north-up metres centred at the eye, with the
+//! apparent drop of earth curvature and refraction ([`Curvature`]) already
+//! subtracted from terrain heights, so that lines of sight are straight lines.
+//! A [`Viewpoint`] says where the eye is (lon/lat and a height), a
+//! [`Georef`] resolves it against a DEM (PROJ, meridian convergence, metric
+//! scale, eye altitude) and a [`Camera`] maps rays of that frame to pixels.
+
+mod camera;
+mod curvature;
+mod viewpoint;
+
+pub use camera::{Camera, CameraModel};
+pub use curvature::Curvature;
+pub use viewpoint::{EyeHeight, Georef, LocalFrame, Viewpoint};
+
+/// Errors of resolving a viewpoint or camera against a DEM. Messages are one
+/// line naming the DEM or viewpoint and the problem.
+#[derive(Debug, thiserror::Error)]
+pub enum ViewError {
+    #[error("{dem}: viewpoint lon {lon}, lat {lat} lies outside the DEM")]
+    OutsideDem { dem: String, lon: f64, lat: f64 },
+    #[error("{dem}: viewpoint lon {lon}, lat {lat} lies on nodata")]
+    OnNodata { dem: String, lon: f64, lat: f64 },
+    #[error("{dem}: cannot map lon/lat to the DEM's CRS with PROJ: {message}")]
+    Proj { dem: String, message: String },
+    #[error("viewpoint lon {lon}, lat {lat}: not a valid WGS84 position")]
+    BadViewpoint { lon: f64, lat: f64 },
+    #[error("camera: {0}")]
+    BadCamera(String),
+}

@@ -1,0 +1,134 @@
+//! The depth buffer of a first-person view: for every pixel, the distance
+//! from the eye to the first terrain hit along the ray through the pixel
+//! centre (`f32::INFINITY` for sky) and the id of the triangle hit, computed
+//! exactly on the triangulated height field by [`LocalTerrain::cast`]
+//! (hierarchical max-height grid traversal, rayon over image rows).
+//!
+//! This is what the silhouette extractor and the sketch matcher consume:
+//! [`DepthBuffer::hit`] gives the terrain point a pixel shows in the local
+//! frame and in the DEM's CRS, with its cell and triangle.
+
+use super::terrain::LocalTerrain;
+use crate::view::{Camera, CameraModel};
+use rayon::prelude::*;
+
+/// Sentinel triangle id of sky pixels.
+pub const SKY: u32 = u32::MAX;
+
+/// Per-pixel depth and triangle id of a rendered view.
+#[derive(Debug, Clone)]
+pub struct DepthBuffer {
+    pub camera: Camera,
+    pub width: usize,
+    pub height: usize,
+    /// Distance in metres from the eye to the hit along the pixel-centre ray,
+    /// `f32::INFINITY` for sky. Row-major, row 0 at the top.
+    pub depth: Vec<f32>,
+    /// Triangle id hit (see [`LocalTerrain`]), [`SKY`] for sky.
+    pub triangle: Vec<u32>,
+}
+
+/// What a pixel shows.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TerrainHit {
+    /// Distance from the eye, metres.
+    pub distance: f64,
+    /// Hit point in the local frame (ENU metres at the eye, apparent z).
+    pub local: [f64; 3],
+    /// Hit point in the DEM's CRS and its true height.
+    pub x: f64,
+    pub y: f64,
+    pub z: f64,
+    /// DEM cell (column, row) of the hit triangle and which half (0, 1).
+    pub cell: (usize, usize),
+    pub half: u8,
+    /// Triangle id in the [`LocalTerrain`].
+    pub triangle: u32,
+}
+
+impl DepthBuffer {
+    /// Render the depth buffer of `camera` over `terrain`.
+    pub fn render(terrain: &LocalTerrain, camera: &Camera) -> Self {
+        let (w, h) = (camera.width, camera.height);
+        let mut depth = vec![f32::INFINITY; w * h];
+        let mut triangle = vec![SKY; w * h];
+        depth
+            .par_chunks_mut(w)
+            .zip(triangle.par_chunks_mut(w))
+            .enumerate()
+            .for_each(|(j, (drow, trow))| {
+                for i in 0..w {
+                    let d = camera.unproject([i as f64 + 0.5, j as f64 + 0.5]);
+                    if let Some(hit) = terrain.cast(d, f64::INFINITY) {
+                        drow[i] = hit.t as f32;
+                        trow[i] = hit.triangle;
+                    }
+                }
+            });
+        DepthBuffer {
+            camera: *camera,
+            width: w,
+            height: h,
+            depth,
+            triangle,
+        }
+    }
+
+    /// Depth of pixel `(i, j)` (infinite for sky or outside the image).
+    #[inline]
+    pub fn depth_at(&self, i: usize, j: usize) -> f32 {
+        if i < self.width && j < self.height {
+            self.depth[j * self.width + i]
+        } else {
+            f32::INFINITY
+        }
+    }
+
+    /// The terrain point pixel `(i, j)` shows, `None` for sky.
+    pub fn hit(&self, terrain: &LocalTerrain, i: usize, j: usize) -> Option<TerrainHit> {
+        if i >= self.width || j >= self.height {
+            return None;
+        }
+        let k = j * self.width + i;
+        if self.triangle[k] == SKY {
+            return None;
+        }
+        let d = self.camera.unproject([i as f64 + 0.5, j as f64 + 0.5]);
+        let t = terrain
+            .cast(d, f64::INFINITY)
+            .map(|h| h.t)
+            .unwrap_or(self.depth[k] as f64);
+        Some(make_hit(terrain, d, t, self.triangle[k]))
+    }
+
+    /// Fraction of pixels that show terrain.
+    pub fn terrain_fraction(&self) -> f64 {
+        self.triangle.iter().filter(|&&t| t != SKY).count() as f64
+            / self.triangle.len().max(1) as f64
+    }
+}
+
+/// Build a [`TerrainHit`] from a unit ray, its hit distance and triangle.
+pub(crate) fn make_hit(terrain: &LocalTerrain, d: [f64; 3], t: f64, triangle: u32) -> TerrainHit {
+    let local = [d[0] * t, d[1] * t, d[2] * t];
+    let (x, y, z) = terrain.frame.local_to_crs(local);
+    let (c, r, half) = terrain.triangle_cell(triangle);
+    TerrainHit {
+        distance: t,
+        local,
+        x,
+        y,
+        z,
+        cell: (c, r),
+        half,
+        triangle,
+    }
+}
+
+/// Cast the ray through arbitrary pixel coordinates `(x, y)` of `camera`.
+pub fn pick(terrain: &LocalTerrain, camera: &Camera, x: f64, y: f64) -> Option<TerrainHit> {
+    let d = camera.unproject([x, y]);
+    terrain
+        .cast(d, f64::INFINITY)
+        .map(|h| make_hit(terrain, d, h.t, h.triangle))
+}

@@ -1,0 +1,154 @@
+//! The picture of a first-person view: terrain coloured by height, lit like
+//! a hillshade (Lambert from a sun direction plus sky light), faded into
+//! distance haze (aerial perspective, which is what makes successive ridges
+//! readable), over a sky gradient. Written as 8-bit RGB PNG with the `png`
+//! crate; the depth buffer itself can be written as a Float32 TIFF.
+
+use super::depth_buffer::{DepthBuffer, SKY};
+use super::terrain::LocalTerrain;
+use super::RenderError;
+use crate::view::CameraModel;
+use std::path::Path;
+
+/// Lighting and haze parameters.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ShadeOptions {
+    /// Sun azimuth, degrees clockwise from true north.
+    pub sun_azimuth_deg: f64,
+    /// Sun altitude above the horizon, degrees.
+    pub sun_altitude_deg: f64,
+    /// Distance at which haze covers 63% of the terrain colour; `None`: a
+    /// third of the farthest visible distance.
+    pub haze_distance_m: Option<f64>,
+}
+
+impl Default for ShadeOptions {
+    fn default() -> Self {
+        ShadeOptions {
+            sun_azimuth_deg: 225.0,
+            sun_altitude_deg: 35.0,
+            haze_distance_m: None,
+        }
+    }
+}
+
+fn lerp(a: [f64; 3], b: [f64; 3], t: f64) -> [f64; 3] {
+    let t = t.clamp(0.0, 1.0);
+    [
+        a[0] + (b[0] - a[0]) * t,
+        a[1] + (b[1] - a[1]) * t,
+        a[2] + (b[2] - a[2]) * t,
+    ]
+}
+
+/// Colour ramp by relative height `s` in [0, 1].
+fn ramp(s: f64) -> [f64; 3] {
+    const STOPS: [(f64, [f64; 3]); 5] = [
+        (0.0, [92.0, 118.0, 66.0]),
+        (0.3, [128.0, 132.0, 84.0]),
+        (0.55, [156.0, 138.0, 106.0]),
+        (0.8, [150.0, 146.0, 140.0]),
+        (1.0, [214.0, 212.0, 208.0]),
+    ];
+    let s = s.clamp(0.0, 1.0);
+    for w in STOPS.windows(2) {
+        if s <= w[1].0 {
+            return lerp(w[0].1, w[1].1, (s - w[0].0) / (w[1].0 - w[0].0));
+        }
+    }
+    STOPS[4].1
+}
+
+/// Shade a rendered view: returns RGB bytes, row-major.
+pub fn shade(depth: &DepthBuffer, terrain: &LocalTerrain, opts: &ShadeOptions) -> Vec<u8> {
+    use rayon::prelude::*;
+    let (w, h) = (depth.width, depth.height);
+    let max_depth = depth
+        .depth
+        .iter()
+        .copied()
+        .filter(|d| d.is_finite())
+        .fold(0.0f32, f32::max) as f64;
+    let haze_d = opts.haze_distance_m.unwrap_or((max_depth / 3.0).max(500.0));
+    let (az, alt) = (
+        opts.sun_azimuth_deg.to_radians(),
+        opts.sun_altitude_deg.to_radians(),
+    );
+    let sun = [az.sin() * alt.cos(), az.cos() * alt.cos(), alt.sin()];
+    // Height range of the visible terrain for the colour ramp.
+    let (mut hmin, mut hmax) = (f64::INFINITY, f64::NEG_INFINITY);
+    for &v in &terrain.z {
+        if !v.is_nan() {
+            hmin = hmin.min(v as f64);
+            hmax = hmax.max(v as f64);
+        }
+    }
+    let frame = terrain.frame;
+    let hmin_abs = hmin + frame.eye_alt;
+    let hspan = (hmax - hmin).max(1.0);
+    let haze = [198.0, 212.0, 228.0];
+    let zenith = [88.0, 136.0, 196.0];
+    let cam = depth.camera;
+    let mut out = vec![0u8; w * h * 3];
+    out.par_chunks_mut(w * 3).enumerate().for_each(|(j, row)| {
+        for i in 0..w {
+            let k = j * w + i;
+            let ray = cam.unproject([i as f64 + 0.5, j as f64 + 0.5]);
+            let c = if depth.triangle[k] == SKY {
+                lerp(haze, zenith, (ray[2].max(0.0) * 4.0).powf(0.7))
+            } else {
+                let t = depth.depth[k] as f64;
+                let p = [ray[0] * t, ray[1] * t, ray[2] * t];
+                let habs = p[2] + frame.eye_alt + frame.curvature.drop(p[0].hypot(p[1]));
+                let base = ramp((habs - hmin_abs) / hspan);
+                let n = terrain
+                    .triangle_normal(depth.triangle[k])
+                    .unwrap_or([0.0, 0.0, 1.0]);
+                let lambert = (n[0] * sun[0] + n[1] * sun[1] + n[2] * sun[2]).max(0.0);
+                let sky = 0.5 + 0.5 * n[2];
+                let light = 0.22 * sky + 0.95 * lambert;
+                let lit = [base[0] * light, base[1] * light, base[2] * light];
+                let f = 1.0 - (-t / haze_d).exp();
+                lerp(lit, haze, 0.9 * f)
+            };
+            row[i * 3] = c[0].round().clamp(0.0, 255.0) as u8;
+            row[i * 3 + 1] = c[1].round().clamp(0.0, 255.0) as u8;
+            row[i * 3 + 2] = c[2].round().clamp(0.0, 255.0) as u8;
+        }
+    });
+    out
+}
+
+/// Write RGB bytes as an 8-bit PNG.
+pub fn write_png(path: &Path, width: usize, height: usize, rgb: &[u8]) -> Result<(), RenderError> {
+    let werr = |m: String| RenderError::Write {
+        path: path.display().to_string(),
+        message: m,
+    };
+    let file = std::fs::File::create(path).map_err(|e| werr(e.to_string()))?;
+    let mut enc = png::Encoder::new(std::io::BufWriter::new(file), width as u32, height as u32);
+    enc.set_color(png::ColorType::Rgb);
+    enc.set_depth(png::BitDepth::Eight);
+    let mut wr = enc.write_header().map_err(|e| werr(e.to_string()))?;
+    wr.write_image_data(rgb).map_err(|e| werr(e.to_string()))?;
+    wr.finish().map_err(|e| werr(e.to_string()))?;
+    Ok(())
+}
+
+/// Write the depth buffer as a Float32 TIFF in image space (no
+/// georeference): metres from the eye, `inf` for sky.
+pub fn write_depth_tiff(depth: &DepthBuffer, path: &Path) -> Result<(), RenderError> {
+    let werr = |e: gdal::errors::GdalError| RenderError::Write {
+        path: path.display().to_string(),
+        message: e.to_string().lines().next().unwrap_or("").to_string(),
+    };
+    let driver = gdal::DriverManager::get_driver_by_name("GTiff").map_err(werr)?;
+    let ds = driver
+        .create_with_band_type::<f32, _>(path, depth.width, depth.height, 1)
+        .map_err(werr)?;
+    let mut band = ds.rasterband(1).map_err(werr)?;
+    let mut buf = gdal::raster::Buffer::new((depth.width, depth.height), depth.depth.clone());
+    band.write((0, 0), (depth.width, depth.height), &mut buf)
+        .map_err(werr)?;
+    Ok(())
+}

@@ -1,0 +1,446 @@
+//! The triangulated height field in a viewpoint's local frame, ready for ray
+//! casting: the part of a DEM within the maximum view distance, vertex
+//! heights made apparent (relative to the eye, curvature and refraction
+//! subtracted, see [`crate::view::LocalFrame`]), and a max-height mip pyramid
+//! for empty-space skipping.
+//!
+//! Geometry: the vertices are the DEM's cell centres; vertex `(c, r)` of the
+//! terrain is the centre of DEM cell `(col0 + c, row0 + r)`. Each quad of four
+//! neighbouring vertices is split into two triangles along the diagonal from
+//! `(c, r)` to `(c + 1, r + 1)`: triangle 0 is `(c,r) (c+1,r) (c+1,r+1)`
+//! (the part where `fx >= fy`), triangle 1 is `(c,r) (c,r+1) (c+1,r+1)`.
+//! Triangle ids are `2 * (r * cells_x + c) + t`. Triangles touching a nodata
+//! vertex are holes. Between vertices the surface is exactly these planar
+//! triangles, and [`LocalTerrain::cast`] intersects rays with them exactly.
+
+use crate::raster::HeightMap;
+use crate::view::LocalFrame;
+use rayon::prelude::*;
+
+/// A ray-terrain intersection.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RayHit {
+    /// Distance from the eye along the (unit) ray, metres.
+    pub t: f64,
+    /// Triangle id, `2 * (r * cells_x + c) + t` (see the module docs).
+    pub triangle: u32,
+}
+
+/// The height field around a viewpoint in its local frame.
+#[derive(Debug, Clone)]
+pub struct LocalTerrain {
+    /// The local frame (eye position, CRS mapping, curvature).
+    pub frame: LocalFrame,
+    /// Offset of vertex (0, 0) in cells of the DEM the terrain was built from.
+    pub col0: usize,
+    pub row0: usize,
+    /// Number of vertices across and down (the DEM window's size).
+    pub nx: usize,
+    pub ny: usize,
+    /// Apparent vertex heights relative to the eye (NaN = nodata), row-major.
+    pub z: Vec<f32>,
+    /// Maximum horizontal view distance in metres (infinite: the whole DEM).
+    pub max_distance: f64,
+    /// Eye position in vertex coordinates.
+    eye_v: (f64, f64),
+    /// Local (east, north) metres -> vertex coordinates.
+    en_to_v: [[f64; 2]; 2],
+    /// Max-height pyramid: level l holds the max over blocks of 2^l x 2^l cells.
+    mip: Vec<Vec<f32>>,
+    mip_dims: Vec<(usize, usize)>,
+    zmin: f64,
+    zmax: f64,
+}
+
+impl LocalTerrain {
+    /// Build the terrain of `dem` around the viewpoint of `frame` (resolved on
+    /// `dem`), keeping only the cells within `max_distance` metres (`None`:
+    /// all of `dem`).
+    pub fn new(dem: &HeightMap, frame: &LocalFrame, max_distance: Option<f64>) -> Self {
+        let p = frame.p;
+        let det = p[0][0] * p[1][1] - p[0][1] * p[1][0];
+        let pinv = [
+            [p[1][1] / det, -p[0][1] / det],
+            [-p[1][0] / det, p[0][0] / det],
+        ];
+        let max_d = max_distance.filter(|d| *d > 0.0).unwrap_or(f64::INFINITY);
+        let (ex, ey) = frame.eye_pixel;
+        let (mut c0, mut r0, mut c1, mut r1) = (0usize, 0usize, dem.width, dem.height);
+        if max_d.is_finite() {
+            // Pixel half-extents of a circle of radius max_d.
+            let rx = max_d * pinv[0][0].hypot(pinv[0][1]) + 2.0;
+            let ry = max_d * pinv[1][0].hypot(pinv[1][1]) + 2.0;
+            c0 = (ex - rx).floor().max(0.0) as usize;
+            r0 = (ey - ry).floor().max(0.0) as usize;
+            c1 = ((ex + rx).ceil().max(0.0) as usize).min(dem.width);
+            r1 = ((ey + ry).ceil().max(0.0) as usize).min(dem.height);
+        }
+        let nx = c1.saturating_sub(c0).max(1);
+        let ny = r1.saturating_sub(r0).max(1);
+        let coef = frame.curvature.coefficient();
+        let eye_alt = frame.eye_alt;
+        let mut z = vec![f32::NAN; nx * ny];
+        z.par_chunks_mut(nx).enumerate().for_each(|(r, row)| {
+            let src_r = r0 + r;
+            if src_r >= dem.height {
+                return;
+            }
+            let dy = src_r as f64 + 0.5 - ey;
+            for (c, out) in row.iter_mut().enumerate() {
+                let src_c = c0 + c;
+                if src_c >= dem.width {
+                    continue;
+                }
+                let h = dem.data[src_r * dem.width + src_c];
+                if h.is_nan() {
+                    continue;
+                }
+                let dx = src_c as f64 + 0.5 - ex;
+                let e = p[0][0] * dx + p[0][1] * dy;
+                let n = p[1][0] * dx + p[1][1] * dy;
+                let d2 = e * e + n * n;
+                if d2 > max_d * max_d * 1.0001 + 1.0 {
+                    continue;
+                }
+                *out = (h as f64 - eye_alt - coef * d2) as f32;
+            }
+        });
+        let eye_v = (ex - 0.5 - c0 as f64, ey - 0.5 - r0 as f64);
+        let mut t = LocalTerrain {
+            frame: *frame,
+            col0: c0,
+            row0: r0,
+            nx,
+            ny,
+            z,
+            max_distance: max_d,
+            eye_v,
+            en_to_v: pinv,
+            mip: Vec::new(),
+            mip_dims: Vec::new(),
+            zmin: 0.0,
+            zmax: 0.0,
+        };
+        t.build_mip();
+        t
+    }
+
+    fn build_mip(&mut self) {
+        let (cx, cy) = (
+            self.nx.saturating_sub(1).max(1),
+            self.ny.saturating_sub(1).max(1),
+        );
+        let nx = self.nx;
+        let z = &self.z;
+        let mut l0 = vec![f32::NEG_INFINITY; cx * cy];
+        l0.par_chunks_mut(cx).enumerate().for_each(|(r, row)| {
+            if r + 1 >= self.ny {
+                return;
+            }
+            for (c, out) in row.iter_mut().enumerate() {
+                if c + 1 >= nx {
+                    continue;
+                }
+                let i = r * nx + c;
+                let m = z[i].max(z[i + 1]).max(z[i + nx]).max(z[i + nx + 1]);
+                // f32::max ignores NaN unless all are NaN.
+                *out = if m.is_nan() { f32::NEG_INFINITY } else { m };
+            }
+        });
+        let (mut zmin, mut zmax) = (f64::INFINITY, f64::NEG_INFINITY);
+        for &v in &self.z {
+            if !v.is_nan() {
+                zmin = zmin.min(v as f64);
+                zmax = zmax.max(v as f64);
+            }
+        }
+        self.zmin = zmin;
+        self.zmax = zmax;
+        let mut mip = vec![l0];
+        let mut dims = vec![(cx, cy)];
+        while {
+            let (w, h) = dims[dims.len() - 1];
+            w > 1 || h > 1
+        } {
+            let (w, h) = dims[dims.len() - 1];
+            let (w2, h2) = (w.div_ceil(2), h.div_ceil(2));
+            let prev = &mip[mip.len() - 1];
+            let mut next = vec![f32::NEG_INFINITY; w2 * h2];
+            for r in 0..h2 {
+                for c in 0..w2 {
+                    let mut m = f32::NEG_INFINITY;
+                    for (dc, dr) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                        let (sc, sr) = (2 * c + dc, 2 * r + dr);
+                        if sc < w && sr < h {
+                            m = m.max(prev[sr * w + sc]);
+                        }
+                    }
+                    next[r * w2 + c] = m;
+                }
+            }
+            mip.push(next);
+            dims.push((w2, h2));
+        }
+        self.mip = mip;
+        self.mip_dims = dims;
+    }
+
+    /// Number of cells across (`nx - 1`).
+    pub fn cells_x(&self) -> usize {
+        self.nx.saturating_sub(1)
+    }
+
+    /// Apparent height (local frame) of vertex `(c, r)`, `None` for nodata.
+    #[inline]
+    pub fn vertex_z(&self, c: usize, r: usize) -> Option<f64> {
+        if c >= self.nx || r >= self.ny {
+            return None;
+        }
+        let v = self.z[r * self.nx + c];
+        (!v.is_nan()).then_some(v as f64)
+    }
+
+    /// Local point (ENU metres, apparent z) of vertex `(c, r)`, `None` for nodata.
+    #[inline]
+    pub fn vertex_local(&self, c: usize, r: usize) -> Option<[f64; 3]> {
+        let z = self.vertex_z(c, r)?;
+        let (e, n) = self.v_to_en(c as f64, r as f64);
+        Some([e, n, z])
+    }
+
+    /// Local (east, north) of vertex coordinates `(vx, vy)`.
+    #[inline]
+    pub fn v_to_en(&self, vx: f64, vy: f64) -> (f64, f64) {
+        self.frame
+            .pixel_to_en(vx + 0.5 + self.col0 as f64, vy + 0.5 + self.row0 as f64)
+    }
+
+    /// Vertex coordinates of local (east, north).
+    #[inline]
+    pub fn en_to_v(&self, e: f64, n: f64) -> (f64, f64) {
+        let m = self.en_to_v;
+        (
+            self.eye_v.0 + m[0][0] * e + m[0][1] * n,
+            self.eye_v.1 + m[1][0] * e + m[1][1] * n,
+        )
+    }
+
+    /// The three local vertices of triangle `id`, `None` when it is a hole.
+    pub fn triangle_vertices(&self, id: u32) -> Option<[[f64; 3]; 3]> {
+        let cx = self.cells_x().max(1);
+        let cell = (id / 2) as usize;
+        let (c, r) = (cell % cx, cell / cx);
+        let a = self.vertex_local(c, r)?;
+        let d = self.vertex_local(c + 1, r + 1)?;
+        if id % 2 == 0 {
+            Some([a, self.vertex_local(c + 1, r)?, d])
+        } else {
+            Some([a, self.vertex_local(c, r + 1)?, d])
+        }
+    }
+
+    /// Cell `(col, row)` of the source DEM (pixel space of the `HeightMap`
+    /// the terrain was built from) of triangle `id`, and which half (0 or 1).
+    pub fn triangle_cell(&self, id: u32) -> (usize, usize, u8) {
+        let cx = self.cells_x().max(1);
+        let cell = (id / 2) as usize;
+        (self.col0 + cell % cx, self.row0 + cell / cx, (id % 2) as u8)
+    }
+
+    /// Upward unit normal of triangle `id` in the local frame.
+    pub fn triangle_normal(&self, id: u32) -> Option<[f64; 3]> {
+        let [a, b, c] = self.triangle_vertices(id)?;
+        let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
+        let v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
+        let mut n = [
+            u[1] * v[2] - u[2] * v[1],
+            u[2] * v[0] - u[0] * v[2],
+            u[0] * v[1] - u[1] * v[0],
+        ];
+        if n[2] < 0.0 {
+            n = [-n[0], -n[1], -n[2]];
+        }
+        let l = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+        (l > 0.0).then(|| [n[0] / l, n[1] / l, n[2] / l])
+    }
+
+    /// The first intersection of the ray from the eye along unit direction
+    /// `d` (local frame) with the triangulated terrain, within distance
+    /// `t_limit` and the maximum view distance. `None`: the ray escapes (sky).
+    pub fn cast(&self, d: [f64; 3], t_limit: f64) -> Option<RayHit> {
+        let m = self.en_to_v;
+        let gx = m[0][0] * d[0] + m[0][1] * d[1];
+        let gy = m[1][0] * d[0] + m[1][1] * d[1];
+        let dz = d[2];
+        let (ox, oy) = self.eye_v;
+        if self.nx < 2 || self.ny < 2 || !self.zmax.is_finite() {
+            return None;
+        }
+        let (wx, wy) = ((self.nx - 1) as f64, (self.ny - 1) as f64);
+        let mut t0 = 0.0f64;
+        let mut t1 = t_limit;
+        let dh = d[0].hypot(d[1]);
+        if self.max_distance.is_finite() && dh > 0.0 {
+            t1 = t1.min(self.max_distance / dh);
+        }
+        for (o, g, w) in [(ox, gx, wx), (oy, gy, wy)] {
+            if g == 0.0 {
+                if o < 0.0 || o > w {
+                    return None;
+                }
+            } else {
+                let (a, b) = ((0.0 - o) / g, (w - o) / g);
+                t0 = t0.max(a.min(b));
+                t1 = t1.min(a.max(b));
+            }
+        }
+        if dz > 0.0 {
+            t1 = t1.min(self.zmax / dz + 1e-6);
+        } else if dz < 0.0 {
+            t1 = t1.min(self.zmin / dz + 1e-6);
+        }
+        if !(t1 > t0) {
+            return None;
+        }
+        let top = self.mip.len() - 1;
+        let mut level = top.min(3);
+        let mut t = t0;
+        let eps = 1e-7 * (1.0 + t1.min(1e7));
+        while t < t1 {
+            let tp = t + eps;
+            let (px, py) = (ox + gx * tp, oy + gy * tp);
+            let s = (1usize << level) as f64;
+            let (mw, mh) = self.mip_dims[level];
+            let (Some((bx, tx)), Some((by, ty))) = (
+                axis_block(ox, gx, px, s, wx, mw, tp),
+                axis_block(oy, gy, py, s, wy, mh, tp),
+            ) else {
+                break;
+            };
+            let te = tx.min(ty).min(t1).max(tp);
+            let ray_min = dz * if dz < 0.0 { te } else { t };
+            if ray_min > self.mip[level][by * mw + bx] as f64 {
+                t = te;
+                if level < top {
+                    level += 1;
+                }
+                continue;
+            }
+            if level > 0 {
+                level -= 1;
+                continue;
+            }
+            if let Some(hit) = self.cell_hit(bx, by, t, te, (ox, oy, gx, gy, dz)) {
+                return Some(hit);
+            }
+            t = te;
+            // Ascend when leaving the parent block.
+            if level < top {
+                let tq = t + eps;
+                let (qx, qy) = (ox + gx * tq, oy + gy * tq);
+                if (qx.floor().max(0.0) as usize) >> 1 != bx >> 1
+                    || (qy.floor().max(0.0) as usize) >> 1 != by >> 1
+                {
+                    level += 1;
+                }
+            }
+        }
+        None
+    }
+
+    /// Exact intersection of the ray segment `[ta, tb]` with the two
+    /// triangles of cell `(c, r)`.
+    #[inline]
+    fn cell_hit(
+        &self,
+        c: usize,
+        r: usize,
+        ta: f64,
+        tb: f64,
+        ray: (f64, f64, f64, f64, f64),
+    ) -> Option<RayHit> {
+        let (ox, oy, gx, gy, dz) = ray;
+        let nx = self.nx;
+        let i = r * nx + c;
+        let h00 = self.z[i] as f64;
+        let h10 = self.z[i + 1] as f64;
+        let h01 = self.z[i + nx] as f64;
+        let h11 = self.z[i + nx + 1] as f64;
+        let (bx, by) = (ox - c as f64, oy - r as f64);
+        let u = |t: f64| (bx + gx * t) - (by + gy * t);
+        let (ua, ub) = (u(ta), u(tb));
+        let mut pieces = [(ta, tb, 0u8); 2];
+        let n = if (ua >= 0.0) == (ub >= 0.0) || ua == ub {
+            pieces[0].2 = if ua + ub >= 0.0 { 0 } else { 1 };
+            1
+        } else {
+            let td = ta + (tb - ta) * ua / (ua - ub);
+            pieces[0] = (ta, td, if ua >= 0.0 { 0 } else { 1 });
+            pieces[1] = (td, tb, if ub >= 0.0 { 0 } else { 1 });
+            2
+        };
+        let cell_id = (r * (nx - 1) + c) as u32 * 2;
+        for &(t1, t2, tri) in &pieces[..n] {
+            let (a, b) = if tri == 0 {
+                (h10 - h00, h11 - h10)
+            } else {
+                (h11 - h01, h01 - h00)
+            };
+            let other = if tri == 0 { h10 } else { h01 };
+            if h00.is_nan() || h11.is_nan() || other.is_nan() {
+                continue;
+            }
+            let f = |t: f64| dz * t - (h00 + a * (bx + gx * t) + b * (by + gy * t));
+            let f1 = f(t1);
+            if f1 <= 0.0 {
+                return Some(RayHit {
+                    t: t1,
+                    triangle: cell_id + tri as u32,
+                });
+            }
+            let f2 = f(t2);
+            if f2 <= 0.0 {
+                return Some(RayHit {
+                    t: t1 + (t2 - t1) * f1 / (f1 - f2),
+                    triangle: cell_id + tri as u32,
+                });
+            }
+        }
+        None
+    }
+}
+
+/// Block index along one axis of the point `p = o + g * tp` at block size `s`
+/// (`w`: extent of the cells, `n`: number of blocks) and the ray parameter at
+/// which the ray leaves that block. Robust to points lying numerically on a
+/// block boundary: the block is the one the ray is entering, so the exit lies
+/// beyond `tp`. `None` when the ray has left the grid along this axis.
+#[inline]
+fn axis_block(o: f64, g: f64, p: f64, s: f64, w: f64, n: usize, tp: f64) -> Option<(usize, f64)> {
+    let exit = |b: usize| {
+        if g > 0.0 {
+            (((b + 1) as f64 * s).min(w) - o) / g
+        } else if g < 0.0 {
+            (b as f64 * s - o) / g
+        } else {
+            f64::INFINITY
+        }
+    };
+    let mut b = ((p / s).floor().max(0.0) as usize).min(n - 1);
+    let mut te = exit(b);
+    if te <= tp {
+        if g > 0.0 {
+            if b + 1 >= n {
+                return None;
+            }
+            b += 1;
+        } else {
+            if b == 0 {
+                return None;
+            }
+            b -= 1;
+        }
+        te = exit(b);
+    }
+    Some((b, te))
+}

@@ -1,0 +1,379 @@
+//! Viewpoint mapping: a lon/lat (WGS84) position and an eye height resolved
+//! against a DEM with PROJ, giving the eye's position in the DEM's CRS and
+//! the *local frame* everything 3D is computed in.
+//!
+//! The local frame is east-north-up metres centred at the eye, with `z`
+//! the apparent height relative to the eye: `z = h - eye_alt - drop(d)`
+//! where `drop` is the curvature-and-refraction drop of [`Curvature`] at the
+//! horizontal distance `d` from the eye. In this frame lines of sight are
+//! straight, so ray casting, projection and visibility are plain geometry.
+//! The horizontal part is the tangent plane of the WGS84 ellipsoid at the
+//! eye: the DEM CRS is mapped to it by the Jacobian of CRS -> (east, north)
+//! at the eye, taken through PROJ. That one affine map applies meridian
+//! convergence (heading from true north) and the projection's scale factor
+//! for projected CRSs, and the metric size of a degree (`N cos(lat)`, `M`)
+//! for geographic CRSs, so both kinds of DEM get correct metric geometry.
+
+use super::{Curvature, ViewError};
+use crate::raster::HeightMap;
+use proj::Proj;
+
+/// How high the eye is.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum EyeHeight {
+    /// Metres above the DEM surface (bilinear) at the viewpoint.
+    AboveSurface(f64),
+    /// Absolute altitude in the DEM's vertical datum.
+    Absolute(f64),
+}
+
+impl Default for EyeHeight {
+    fn default() -> Self {
+        EyeHeight::AboveSurface(1.7)
+    }
+}
+
+/// A viewpoint as `DESIGN.md` defines it: lon/lat in degrees WGS84 and a height.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Viewpoint {
+    pub lon: f64,
+    pub lat: f64,
+    pub height: EyeHeight,
+}
+
+impl Viewpoint {
+    /// A viewpoint `eye_height_m` above the surface.
+    pub fn above_surface(lon: f64, lat: f64, eye_height_m: f64) -> Self {
+        Viewpoint {
+            lon,
+            lat,
+            height: EyeHeight::AboveSurface(eye_height_m),
+        }
+    }
+}
+
+/// PROJ transformations between WGS84 lon/lat and a DEM's CRS. Not `Send`
+/// (PROJ contexts are per thread); resolve a [`LocalFrame`] from it and share
+/// that instead.
+pub struct Georef {
+    to_crs: Proj,
+    to_lonlat: Proj,
+    geographic: bool,
+    dem: String,
+}
+
+impl std::fmt::Debug for Georef {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Georef").field("dem", &self.dem).finish()
+    }
+}
+
+impl Georef {
+    /// Transformations for the CRS of `dem`; `dem_name` names the DEM in errors.
+    pub fn new(dem: &HeightMap, dem_name: &str) -> Result<Self, ViewError> {
+        let def = dem.crs.proj_definition();
+        let perr = |e: &dyn std::fmt::Display| ViewError::Proj {
+            dem: dem_name.to_string(),
+            message: e.to_string().lines().next().unwrap_or("").to_string(),
+        };
+        if def.trim().is_empty() {
+            return Err(perr(&"the DEM has no CRS"));
+        }
+        let to_crs = Proj::new_known_crs("EPSG:4326", &def, None).map_err(|e| perr(&e))?;
+        let to_lonlat = Proj::new_known_crs(&def, "EPSG:4326", None).map_err(|e| perr(&e))?;
+        Ok(Georef {
+            to_crs,
+            to_lonlat,
+            geographic: dem.crs.geographic,
+            dem: dem_name.to_string(),
+        })
+    }
+
+    fn err(&self, e: impl std::fmt::Display) -> ViewError {
+        ViewError::Proj {
+            dem: self.dem.clone(),
+            message: e.to_string().lines().next().unwrap_or("").to_string(),
+        }
+    }
+
+    /// DEM CRS coordinates of WGS84 `(lon, lat)` in degrees.
+    pub fn lonlat_to_crs(&self, lon: f64, lat: f64) -> Result<(f64, f64), ViewError> {
+        if !(lon.is_finite() && lat.is_finite() && lat.abs() <= 90.0) {
+            return Err(ViewError::BadViewpoint { lon, lat });
+        }
+        let p = self.to_crs.convert((lon, lat)).map_err(|e| self.err(e))?;
+        if !(p.0.is_finite() && p.1.is_finite()) {
+            return Err(self.err(format!("no finite position for lon {lon}, lat {lat}")));
+        }
+        Ok(p)
+    }
+
+    /// WGS84 `(lon, lat)` in degrees of DEM CRS coordinates `(x, y)`.
+    pub fn crs_to_lonlat(&self, x: f64, y: f64) -> Result<(f64, f64), ViewError> {
+        self.to_lonlat.convert((x, y)).map_err(|e| self.err(e))
+    }
+
+    /// Jacobian `d(x, y) / d(lon, lat)` (CRS units per degree) at a point,
+    /// columns lon and lat: `[[dx/dlon, dx/dlat], [dy/dlon, dy/dlat]]`.
+    pub fn jacobian(&self, lon: f64, lat: f64) -> Result<[[f64; 2]; 2], ViewError> {
+        if self.geographic {
+            // Check the axis order PROJ gives back (normalised: lon, lat).
+            return Ok([[1.0, 0.0], [0.0, 1.0]]);
+        }
+        let h = 1e-5;
+        let (xe, ye) = self.lonlat_to_crs(lon + h, lat)?;
+        let (xw, yw) = self.lonlat_to_crs(lon - h, lat)?;
+        let (xn, yn) = self.lonlat_to_crs(lon, lat + h)?;
+        let (xs, ys) = self.lonlat_to_crs(lon, lat - h)?;
+        Ok([
+            [(xe - xw) / (2.0 * h), (xn - xs) / (2.0 * h)],
+            [(ye - yw) / (2.0 * h), (yn - ys) / (2.0 * h)],
+        ])
+    }
+
+    /// Meridian convergence in degrees at `(lon, lat)` with PROJ's sign (the
+    /// value `proj -V` prints): true north points at grid bearing
+    /// `-convergence`. Zero for geographic CRSs.
+    pub fn meridian_convergence_deg(&self, lon: f64, lat: f64) -> Result<f64, ViewError> {
+        let j = self.jacobian(lon, lat)?;
+        // Direction of true north in grid coordinates: (dx/dlat, dy/dlat).
+        Ok(-j[0][1].atan2(j[1][1]).to_degrees())
+    }
+
+    /// Resolve `vp` against `dem` (whose CRS this `Georef` was built for).
+    /// Errors when the viewpoint lies outside the DEM or on nodata.
+    pub fn local_frame(
+        &self,
+        vp: &Viewpoint,
+        dem: &HeightMap,
+        refraction_k: f64,
+    ) -> Result<LocalFrame, ViewError> {
+        let (x, y) = self.lonlat_to_crs(vp.lon, vp.lat)?;
+        let outside = || ViewError::OutsideDem {
+            dem: self.dem.clone(),
+            lon: vp.lon,
+            lat: vp.lat,
+        };
+        let (px, py) = dem.geotransform.crs_to_pixel(x, y).ok_or_else(outside)?;
+        if !(px >= 0.0 && py >= 0.0 && px < dem.width as f64 && py < dem.height as f64) {
+            return Err(outside());
+        }
+        // Bilinear surface; in the outer half cell clamp to the cell centres.
+        let cx = px.clamp(0.5, dem.width as f64 - 0.5);
+        let cy = py.clamp(0.5, dem.height as f64 - 0.5);
+        let ground = dem.bilinear(cx, cy).ok_or_else(|| ViewError::OnNodata {
+            dem: self.dem.clone(),
+            lon: vp.lon,
+            lat: vp.lat,
+        })?;
+        let eye_alt = match vp.height {
+            EyeHeight::AboveSurface(h) => ground + h,
+            EyeHeight::Absolute(a) => a,
+        };
+        if !eye_alt.is_finite() {
+            return Err(ViewError::BadViewpoint {
+                lon: vp.lon,
+                lat: vp.lat,
+            });
+        }
+        let j = self.jacobian(vp.lon, vp.lat)?;
+        let (m_rad, n_rad) = super::curvature::radii_of_curvature(vp.lat);
+        let deg = std::f64::consts::PI / 180.0;
+        let d = [n_rad * vp.lat.to_radians().cos() * deg, m_rad * deg];
+        // (e, n) = D J^-1 (dx, dy)
+        let det = j[0][0] * j[1][1] - j[0][1] * j[1][0];
+        if !(det.is_finite() && det != 0.0) {
+            return Err(self.err("singular projection at the viewpoint"));
+        }
+        let ji = [
+            [j[1][1] / det, -j[0][1] / det],
+            [-j[1][0] / det, j[0][0] / det],
+        ];
+        let m = [
+            [d[0] * ji[0][0], d[0] * ji[0][1]],
+            [d[1] * ji[1][0], d[1] * ji[1][1]],
+        ];
+        Ok(LocalFrame::new(
+            vp.lon,
+            vp.lat,
+            (x, y),
+            (px, py),
+            ground,
+            eye_alt,
+            m,
+            Curvature::at_latitude(vp.lat, refraction_k),
+            dem,
+        ))
+    }
+}
+
+/// The local frame of a resolved viewpoint: east-north-up metres centred at
+/// the eye, `z` apparent (curvature and refraction subtracted). Plain data,
+/// `Copy + Send + Sync`, shared by the renderer, features and sketch code.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LocalFrame {
+    /// Viewpoint longitude and latitude (degrees WGS84).
+    pub lon: f64,
+    pub lat: f64,
+    /// Eye position in the DEM's CRS.
+    pub eye_crs: (f64, f64),
+    /// Eye position in pixel space of the DEM the frame was resolved on.
+    pub eye_pixel: (f64, f64),
+    /// DEM surface height (bilinear) below the eye.
+    pub ground: f64,
+    /// Absolute eye altitude in the DEM's vertical datum.
+    pub eye_alt: f64,
+    /// `(east, north) = m * (x - x_eye, y - y_eye)`.
+    pub m: [[f64; 2]; 2],
+    /// Inverse of `m`.
+    pub m_inv: [[f64; 2]; 2],
+    /// `(east, north) = p * (px - px_eye, py - py_eye)` for pixel space of
+    /// the DEM the frame was resolved on (geotransform composed with `m`).
+    pub p: [[f64; 2]; 2],
+    pub curvature: Curvature,
+}
+
+fn mat_inv(a: [[f64; 2]; 2]) -> [[f64; 2]; 2] {
+    let det = a[0][0] * a[1][1] - a[0][1] * a[1][0];
+    [
+        [a[1][1] / det, -a[0][1] / det],
+        [-a[1][0] / det, a[0][0] / det],
+    ]
+}
+
+fn mat_mul(a: [[f64; 2]; 2], b: [[f64; 2]; 2]) -> [[f64; 2]; 2] {
+    [
+        [
+            a[0][0] * b[0][0] + a[0][1] * b[1][0],
+            a[0][0] * b[0][1] + a[0][1] * b[1][1],
+        ],
+        [
+            a[1][0] * b[0][0] + a[1][1] * b[1][0],
+            a[1][0] * b[0][1] + a[1][1] * b[1][1],
+        ],
+    ]
+}
+
+impl LocalFrame {
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        lon: f64,
+        lat: f64,
+        eye_crs: (f64, f64),
+        eye_pixel: (f64, f64),
+        ground: f64,
+        eye_alt: f64,
+        m: [[f64; 2]; 2],
+        curvature: Curvature,
+        dem: &HeightMap,
+    ) -> Self {
+        let g = dem.geotransform.0;
+        let gt = [[g[1], g[2]], [g[4], g[5]]];
+        LocalFrame {
+            lon,
+            lat,
+            eye_crs,
+            eye_pixel,
+            ground,
+            eye_alt,
+            m,
+            m_inv: mat_inv(m),
+            p: mat_mul(m, gt),
+            curvature,
+        }
+    }
+
+    /// A frame for synthetic tests on a north-up metric grid without PROJ:
+    /// CRS units are metres, grid north is true north.
+    pub fn planar(
+        dem: &HeightMap,
+        eye_crs: (f64, f64),
+        eye_alt: f64,
+        curvature: Curvature,
+    ) -> Self {
+        let (px, py) = dem
+            .geotransform
+            .crs_to_pixel(eye_crs.0, eye_crs.1)
+            .unwrap_or((f64::NAN, f64::NAN));
+        let ground = dem.bilinear(px, py).unwrap_or(f64::NAN);
+        LocalFrame::new(
+            f64::NAN,
+            f64::NAN,
+            eye_crs,
+            (px, py),
+            ground,
+            eye_alt,
+            [[1.0, 0.0], [0.0, 1.0]],
+            curvature,
+            dem,
+        )
+    }
+
+    /// Same frame, expressed for another window of the same DEM (its pixel
+    /// space differs by an offset; `m` is unchanged).
+    pub fn for_window(&self, window: &HeightMap) -> Self {
+        let mut f = *self;
+        let g = window.geotransform.0;
+        f.p = mat_mul(self.m, [[g[1], g[2]], [g[4], g[5]]]);
+        f.eye_pixel = window
+            .geotransform
+            .crs_to_pixel(self.eye_crs.0, self.eye_crs.1)
+            .unwrap_or((f64::NAN, f64::NAN));
+        f
+    }
+
+    /// Local `(east, north)` metres of CRS point `(x, y)`.
+    #[inline]
+    pub fn crs_to_en(&self, x: f64, y: f64) -> (f64, f64) {
+        let (dx, dy) = (x - self.eye_crs.0, y - self.eye_crs.1);
+        (
+            self.m[0][0] * dx + self.m[0][1] * dy,
+            self.m[1][0] * dx + self.m[1][1] * dy,
+        )
+    }
+
+    /// CRS point of local `(east, north)`.
+    #[inline]
+    pub fn en_to_crs(&self, e: f64, n: f64) -> (f64, f64) {
+        (
+            self.eye_crs.0 + self.m_inv[0][0] * e + self.m_inv[0][1] * n,
+            self.eye_crs.1 + self.m_inv[1][0] * e + self.m_inv[1][1] * n,
+        )
+    }
+
+    /// Local point (apparent `z`) of a CRS point with absolute height `h`.
+    #[inline]
+    pub fn crs_to_local(&self, x: f64, y: f64, h: f64) -> [f64; 3] {
+        let (e, n) = self.crs_to_en(x, y);
+        [e, n, h - self.eye_alt - self.curvature.drop(e.hypot(n))]
+    }
+
+    /// CRS point and absolute height of a local point.
+    #[inline]
+    pub fn local_to_crs(&self, p: [f64; 3]) -> (f64, f64, f64) {
+        let (x, y) = self.en_to_crs(p[0], p[1]);
+        (
+            x,
+            y,
+            p[2] + self.eye_alt + self.curvature.drop(p[0].hypot(p[1])),
+        )
+    }
+
+    /// Local `(east, north)` of pixel-space point `(px, py)` of the DEM (or
+    /// window) this frame was resolved for.
+    #[inline]
+    pub fn pixel_to_en(&self, px: f64, py: f64) -> (f64, f64) {
+        let (dx, dy) = (px - self.eye_pixel.0, py - self.eye_pixel.1);
+        (
+            self.p[0][0] * dx + self.p[0][1] * dy,
+            self.p[1][0] * dx + self.p[1][1] * dy,
+        )
+    }
+
+    /// Heading of grid north (the DEM's `-row` direction) in degrees
+    /// clockwise from true north, for display.
+    pub fn grid_north_bearing_deg(&self) -> f64 {
+        // Grid north is CRS +y: (e, n) = m * (0, 1).
+        self.m[0][1].atan2(self.m[1][1]).to_degrees()
+    }
+}
