@@ -132,7 +132,8 @@ impl Georef {
     }
 
     /// Meridian convergence in degrees at `(lon, lat)` with PROJ's sign (the
-    /// value `proj -V` prints): true north points at grid bearing
+    /// value `proj -V` prints): grid north lies at bearing `convergence`
+    /// (clockwise from true north), so true north is at grid bearing
     /// `-convergence`. Zero for geographic CRSs.
     pub fn meridian_convergence_deg(&self, lon: f64, lat: f64) -> Result<f64, ViewError> {
         let j = self.jacobian(lon, lat)?;

@@ -1,0 +1,182 @@
+//! Rendering: the depth buffer is exact for the triangulated height field
+//! (checked against brute force over every triangle and against an analytic
+//! plane), `locate` and projection are inverse on a real DEM, and the shaded
+//! image and depth file are written.
+
+mod view_support;
+
+use demsketch::render::{pick, shade, write_png, DepthBuffer, LocalTerrain, ShadeOptions};
+use demsketch::view::{Camera, CameraModel, Curvature, Georef, LocalFrame, Viewpoint};
+use view_support::*;
+
+/// Deterministic pseudo-random numbers in [0, 1).
+struct Lcg(u64);
+impl Lcg {
+    fn next(&mut self) -> f64 {
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (self.0 >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
+/// Möller-Trumbore ray-triangle distance.
+fn tri_hit(d: [f64; 3], t: [[f64; 3]; 3]) -> Option<f64> {
+    let sub = |a: [f64; 3], b: [f64; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+    let cross = |a: [f64; 3], b: [f64; 3]| {
+        [
+            a[1] * b[2] - a[2] * b[1],
+            a[2] * b[0] - a[0] * b[2],
+            a[0] * b[1] - a[1] * b[0],
+        ]
+    };
+    let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    let (e1, e2) = (sub(t[1], t[0]), sub(t[2], t[0]));
+    let p = cross(d, e2);
+    let det = dot(e1, p);
+    if det.abs() < 1e-14 {
+        return None;
+    }
+    let s = [-t[0][0], -t[0][1], -t[0][2]];
+    let u = dot(s, p) / det;
+    let q = cross(s, e1);
+    let v = dot(d, q) / det;
+    let tt = dot(e2, q) / det;
+    (u >= -1e-9 && v >= -1e-9 && u + v <= 1.0 + 1e-9 && tt > 0.0).then_some(tt)
+}
+
+#[test]
+fn ray_casting_is_exact_on_the_triangulated_height_field() {
+    let mut rng = Lcg(7);
+    let noise: Vec<f64> = (0..48 * 48).map(|_| rng.next() * 40.0).collect();
+    let mut dem = synthetic(48, 48, 25.0, |x, y| {
+        100.0 + 30.0 * ((x / 200.0).sin() + (y / 150.0).cos())
+    });
+    for (v, n) in dem.data.iter_mut().zip(&noise) {
+        *v += *n as f32;
+    }
+    dem.data[20 * 48 + 30] = f32::NAN; // a hole
+    let (ex, ey) = dem.geotransform.pixel_to_crs(10.3, 12.7);
+    let ground = dem.bilinear(10.3, 12.7).unwrap();
+    let frame = LocalFrame::planar(&dem, (ex, ey), ground + 2.0, Curvature::default());
+    let terrain = LocalTerrain::new(&dem, &frame, None);
+    let ntri = 2 * 47 * 47;
+    let mut checked = 0;
+    let mut worst: f64 = 0.0;
+    for _ in 0..400 {
+        let az = rng.next() * std::f64::consts::TAU;
+        let el = (rng.next() - 0.7) * 0.6;
+        let d = [az.sin() * el.cos(), az.cos() * el.cos(), el.sin()];
+        let fast = terrain.cast(d, f64::INFINITY);
+        let mut best: Option<(f64, u32)> = None;
+        for id in 0..ntri as u32 {
+            if let Some(t) = terrain.triangle_vertices(id).and_then(|tv| tri_hit(d, tv)) {
+                if best.is_none_or(|b| t < b.0) {
+                    best = Some((t, id));
+                }
+            }
+        }
+        match (fast, best) {
+            (None, None) => {}
+            (Some(f), Some(b)) => {
+                let err = (f.t - b.0).abs();
+                worst = worst.max(err);
+                assert!(err < 1e-6 * b.0.max(1.0), "t {} vs brute {}", f.t, b.0);
+                checked += 1;
+            }
+            (f, b) => panic!("fast {f:?} vs brute {b:?} for {d:?}"),
+        }
+    }
+    eprintln!("{checked} hits checked against brute force, worst |dt| {worst:.2e} m");
+    assert!(checked > 100);
+}
+
+#[test]
+fn depth_of_a_flat_plane_is_analytic() {
+    let dem = synthetic(400, 400, 10.0, |_, _| 50.0);
+    let (ex, ey) = dem.geotransform.pixel_to_crs(200.0, 200.0);
+    let frame = LocalFrame::planar(&dem, (ex, ey), 60.0, Curvature::flat());
+    let terrain = LocalTerrain::new(&dem, &frame, None);
+    let cam = Camera::new(320, 180, 30.0, -10.0, 5.0, 60.0).unwrap();
+    let db = DepthBuffer::render(&terrain, &cam);
+    let mut worst: f64 = 0.0;
+    for j in 0..180 {
+        for i in 0..320 {
+            let d = cam.unproject([i as f64 + 0.5, j as f64 + 0.5]);
+            let depth = db.depth_at(i, j) as f64;
+            if d[2] < 0.0 {
+                let t = 10.0 / -d[2];
+                let (hx, hy) = (d[0] * t, d[1] * t);
+                if hx.abs() < 1990.0 && hy.abs() < 1990.0 {
+                    worst = worst.max((depth - t).abs() / t);
+                }
+            } else {
+                assert!(depth.is_infinite());
+            }
+        }
+    }
+    eprintln!("flat plane: worst relative depth error {worst:.2e}");
+    assert!(worst < 1e-5);
+}
+
+#[test]
+fn locate_and_project_are_inverse_for_1000_pixels() {
+    let name = "zion_srtm_utm12n.tif";
+    let dem = load(&fixture(name));
+    let georef = Georef::new(&dem, name).unwrap();
+    let (x, y) = dem.geotransform.pixel_to_crs(200.5, 300.5);
+    let (lon, lat) = georef.crs_to_lonlat(x, y).unwrap();
+    let frame = georef
+        .local_frame(&Viewpoint::above_surface(lon, lat, 1.7), &dem, 1.0 / 7.0)
+        .unwrap();
+    let terrain = LocalTerrain::new(&dem, &frame, None);
+    let cam = Camera::new(1600, 900, 20.0, -2.0, 3.0, 70.0).unwrap();
+    let mut rng = Lcg(42);
+    let (mut n, mut tries, mut worst) = (0, 0, 0.0f64);
+    while n < 1000 {
+        tries += 1;
+        assert!(tries < 100_000, "too few terrain pixels");
+        let (px, py) = (rng.next() * 1600.0, rng.next() * 900.0);
+        let Some(loc) = demsketch::render::locate(&terrain, &cam, &georef, px, py).unwrap() else {
+            continue;
+        };
+        // Back from lon/lat through PROJ to the CRS and the camera.
+        let (cx, cy) = georef.lonlat_to_crs(loc.lon, loc.lat).unwrap();
+        let p = demsketch::render::project_point(&frame, &cam, cx, cy, loc.height).unwrap();
+        let err = (p[0] - px).hypot(p[1] - py);
+        worst = worst.max(err);
+        assert!(err < 0.5, "pixel ({px},{py}) -> {loc:?} -> {p:?}");
+        // The located height is the DEM surface there.
+        let h = pick(&terrain, &cam, px, py).unwrap();
+        assert!((h.z - loc.height).abs() < 1e-9);
+        n += 1;
+    }
+    eprintln!("1000 located pixels reproject within {worst:.2e} px ({tries} tries)");
+}
+
+#[test]
+fn shaded_view_of_zion_is_written() {
+    let name = "zion_srtm_utm12n.tif";
+    let dem = load(&fixture(name));
+    let georef = Georef::new(&dem, name).unwrap();
+    let (x, y) = dem.geotransform.pixel_to_crs(200.5, 300.5);
+    let (lon, lat) = georef.crs_to_lonlat(x, y).unwrap();
+    let frame = georef
+        .local_frame(&Viewpoint::above_surface(lon, lat, 1.7), &dem, 1.0 / 7.0)
+        .unwrap();
+    let terrain = LocalTerrain::new(&dem, &frame, Some(15_000.0));
+    let cam = Camera::new(400, 225, 0.0, 0.0, 0.0, 60.0).unwrap();
+    let db = DepthBuffer::render(&terrain, &cam);
+    let f = db.terrain_fraction();
+    assert!(f > 0.3 && f < 1.0, "terrain fraction {f}");
+    let rgb = shade(&db, &terrain, &ShadeOptions::default());
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("v.png");
+    write_png(&p, 400, 225, &rgb).unwrap();
+    let dp = dir.path().join("d.tif");
+    demsketch::render::write_depth_tiff(&db, &dp).unwrap();
+    assert!(std::fs::metadata(&p).unwrap().len() > 1000);
+    // Max distance: nothing beyond 15 km.
+    assert!(db.depth.iter().all(|d| !d.is_finite() || *d < 15_100.0));
+}
