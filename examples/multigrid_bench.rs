@@ -1,0 +1,59 @@
+//! Times the multigrid solver on the synthetic scattered-curve layout and
+//! prints one JSON object; optionally writes the layout for
+//! `tools/compare_pyamg.py` so pyamg solves the identical problem.
+//!
+//! ```text
+//! cargo run --release --example multigrid_bench -- N [SEED] [TOL] [LAYOUT_DIR] [REPEATS]
+//! ```
+//! `LAYOUT_DIR` receives `fixed.u8` (1 byte per cell, 1 = fixed) and
+//! `values.f32` (little-endian f32), row-major `i + N * j`, cell size 30 m.
+
+use demsketch::deform::multigrid::{solve, synthetic::scattered_constraints, MultigridOptions};
+use std::time::Instant;
+
+fn main() -> anyhow::Result<()> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let n: usize = args.first().map(|s| s.parse()).transpose()?.unwrap_or(4096);
+    let seed: u64 = args.get(1).map(|s| s.parse()).transpose()?.unwrap_or(42);
+    let tolerance: f64 = args.get(2).map(|s| s.parse()).transpose()?.unwrap_or(1e-4);
+    let layout_dir = args.get(3).filter(|s| !s.is_empty() && *s != "-");
+    let repeats: usize = args.get(4).map(|s| s.parse()).transpose()?.unwrap_or(3);
+    let layout = scattered_constraints(n, n, 8, 20, 4, seed);
+    if let Some(dir) = layout_dir {
+        std::fs::create_dir_all(dir)?;
+        let fixed: Vec<u8> = layout.fixed.iter().map(|&f| u8::from(f)).collect();
+        std::fs::write(format!("{dir}/fixed.u8"), fixed)?;
+        let bytes: Vec<u8> = layout.values.iter().flat_map(|v| v.to_le_bytes()).collect();
+        std::fs::write(format!("{dir}/values.f32"), bytes)?;
+    }
+    let opts = MultigridOptions {
+        tolerance,
+        ..Default::default()
+    };
+    let mut times = Vec::new();
+    let mut last = None;
+    for _ in 0..repeats.max(1) {
+        let mut values = layout.values.clone();
+        let start = Instant::now();
+        let stats = solve(n, n, 30.0, 30.0, &layout.fixed, &mut values, &opts)?;
+        times.push(start.elapsed().as_secs_f64());
+        last = Some(stats);
+    }
+    let stats = last.ok_or_else(|| anyhow::anyhow!("no run"))?;
+    let best = times.iter().cloned().fold(f64::INFINITY, f64::min);
+    let json = serde_json::json!({
+        "solver": "demsketch multigrid V(2,2) red-black GS",
+        "n": n,
+        "seed": seed,
+        "tolerance": tolerance,
+        "threads": rayon::current_num_threads(),
+        "seconds_best": best,
+        "seconds_all": times,
+        "cycles": stats.cycles,
+        "levels": stats.levels,
+        "relative_residual": stats.relative_residual,
+        "residual_history": stats.residual_history,
+    });
+    println!("{json}");
+    Ok(())
+}
