@@ -132,3 +132,75 @@ fn vinschgau_view_features_and_geojson() {
 fn zion_view_features_and_geojson() {
     check_view("zion_srtm_utm12n.tif", -113.0463, 37.3225, 30.0);
 }
+
+/// Draw a view with its silhouettes (red) and T-junctions (blue) to
+/// `$DEMSKETCH_VIEW_PNG/` (run with `--ignored` to look at them).
+#[test]
+#[ignore]
+fn draw_views() {
+    let dir = std::env::var("DEMSKETCH_VIEW_PNG").unwrap_or_else(|_| "/tmp".into());
+    for (name, lon, lat, heading) in [
+        ("vinschgau_250m_utm32n.tif", 10.6959, 46.6597, 200.0),
+        ("zion_srtm_utm12n.tif", -113.0463, 37.3225, 30.0),
+    ] {
+        let map = read_height_map(&fixture(name)).expect("read fixture");
+        let georef = Georef::new(&map, name).expect("georef");
+        let frame = georef
+            .local_frame(&Viewpoint::above_surface(lon, lat, 1.7), &map, 1.0 / 7.0)
+            .expect("viewpoint");
+        let terrain = LocalTerrain::new(&map, &frame, None);
+        let camera = Camera::new(1600, 900, heading, 2.0, 0.0, 60.0).expect("camera");
+        let db = DepthBuffer::render(&terrain, &camera);
+        let sil = extract_silhouettes(&terrain, &db, &SilhouetteParams::default()).expect("sil");
+        let (w, h) = (db.width, db.height);
+        let mut img = vec![0u8; w * h * 3];
+        for (i, d) in db.depth.iter().enumerate() {
+            let v = if d.is_finite() {
+                (255.0 * (1.0 - (*d as f64 / 30_000.0).min(1.0)).powf(0.5)) as u8
+            } else {
+                0
+            };
+            let c = if d.is_finite() {
+                [v / 2 + 40, v / 2 + 60, v / 3 + 30]
+            } else {
+                [150, 190, 235]
+            };
+            img[i * 3..i * 3 + 3].copy_from_slice(&c);
+        }
+        let mut put = |x: f64, y: f64, c: [u8; 3]| {
+            if x >= 0.0 && y >= 0.0 && (x as usize) < w && (y as usize) < h {
+                let i = (y as usize * w + x as usize) * 3;
+                img[i..i + 3].copy_from_slice(&c);
+            }
+        };
+        for c in &sil.curves {
+            for s in c.samples.windows(2) {
+                for k in 0..=10 {
+                    let t = k as f64 / 10.0;
+                    let x = s[0].pixel[0] + t * (s[1].pixel[0] - s[0].pixel[0]);
+                    let y = s[0].pixel[1] + t * (s[1].pixel[1] - s[0].pixel[1]);
+                    put(x, y, [255, 30, 30]);
+                }
+            }
+        }
+        for j in &sil.junctions {
+            for dx in -3..=3 {
+                for dy in -3..=3 {
+                    put(
+                        j.pixel[0] + dx as f64,
+                        j.pixel[1] + dy as f64,
+                        [30, 60, 255],
+                    );
+                }
+            }
+        }
+        let f = std::fs::File::create(format!("{dir}/view_{name}.png")).expect("png");
+        let mut enc = png::Encoder::new(std::io::BufWriter::new(f), w as u32, h as u32);
+        enc.set_color(png::ColorType::Rgb);
+        enc.set_depth(png::BitDepth::Eight);
+        enc.write_header()
+            .expect("header")
+            .write_image_data(&img)
+            .expect("data");
+    }
+}

@@ -13,12 +13,27 @@ fn expect_user_error(dir: &Path, args: &[&str], expect_in_message: &[&str]) -> S
     let before = snapshot(dir);
     let out = demsketch(args);
     let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
-    assert_eq!(out.status.code(), Some(1), "{args:?}: exit code; stderr: {stderr}");
-    assert_eq!(stderr.trim_end().lines().count(), 1, "{args:?}: one line, got: {stderr}");
+    assert_eq!(
+        out.status.code(),
+        Some(1),
+        "{args:?}: exit code; stderr: {stderr}"
+    );
+    assert_eq!(
+        stderr.trim_end().lines().count(),
+        1,
+        "{args:?}: one line, got: {stderr}"
+    );
     for needle in expect_in_message {
-        assert!(stderr.contains(needle), "{args:?}: '{needle}' not in: {stderr}");
+        assert!(
+            stderr.contains(needle),
+            "{args:?}: '{needle}' not in: {stderr}"
+        );
     }
-    assert_eq!(before, snapshot(dir), "{args:?}: nothing may be created or modified");
+    assert_eq!(
+        before,
+        snapshot(dir),
+        "{args:?}: nothing may be created or modified"
+    );
     stderr
 }
 
@@ -26,16 +41,16 @@ fn expect_user_error(dir: &Path, args: &[&str], expect_in_message: &[&str]) -> S
 /// in one strip, with a georeference.
 fn huge_header_tiff(path: &Path, w: u32, h: u32) {
     let mut entries: Vec<(u16, u16, u32, u32)> = vec![
-        (256, 4, 1, w),       // ImageWidth
-        (257, 4, 1, h),       // ImageLength
-        (258, 3, 1, 32),      // BitsPerSample
-        (259, 3, 1, 1),       // Compression none
-        (262, 3, 1, 1),       // Photometric
-        (273, 4, 1, 8),       // StripOffsets
-        (277, 3, 1, 1),       // SamplesPerPixel
-        (278, 4, 1, h),       // RowsPerStrip
-        (279, 4, 1, 16),      // StripByteCounts
-        (339, 3, 1, 3),       // SampleFormat float
+        (256, 4, 1, w),  // ImageWidth
+        (257, 4, 1, h),  // ImageLength
+        (258, 3, 1, 32), // BitsPerSample
+        (259, 3, 1, 1),  // Compression none
+        (262, 3, 1, 1),  // Photometric
+        (273, 4, 1, 8),  // StripOffsets
+        (277, 3, 1, 1),  // SamplesPerPixel
+        (278, 4, 1, h),  // RowsPerStrip
+        (279, 4, 1, 16), // StripByteCounts
+        (339, 3, 1, 3),  // SampleFormat float
     ];
     entries.sort();
     let mut b: Vec<u8> = b"II*\0".to_vec();
@@ -79,7 +94,11 @@ fn broken_files_fail_cleanly() {
     let truncated = d.join("truncated.tif");
     let bytes = std::fs::read(&zion).expect("read fixture");
     std::fs::write(&truncated, &bytes[..bytes.len() / 2]).expect("write");
-    expect_user_error(d, &["info", &s(&truncated)], &["truncated.tif", "truncated"]);
+    expect_user_error(
+        d,
+        &["info", &s(&truncated)],
+        &["truncated.tif", "truncated"],
+    );
 
     // Corrupt: the IFD offset points nowhere.
     let corrupt = d.join("corrupt.tif");
@@ -117,18 +136,34 @@ fn missing_georeference_and_unsupported_encodings_fail_cleanly() {
     expect_user_error(d, &["info", &s(&plain)], &["plain.tif", "no georeference"]);
 
     let jpeg = d.join("jpeg.tif");
-    gdal_translate(&zion, &jpeg, &["-ot", "Byte", "-scale", "-co", "COMPRESS=JPEG"]);
-    expect_user_error(d, &["info", &s(&jpeg)], &["jpeg.tif", "unsupported", "JPEG"]);
+    gdal_translate(
+        &zion,
+        &jpeg,
+        &["-ot", "Byte", "-scale", "-co", "COMPRESS=JPEG"],
+    );
+    expect_user_error(
+        d,
+        &["info", &s(&jpeg)],
+        &["jpeg.tif", "unsupported", "JPEG"],
+    );
 
     let rgb = d.join("rgb.tif");
     gdal_translate(&zion, &rgb, &["-b", "1", "-b", "1", "-b", "1"]);
-    expect_user_error(d, &["info", &s(&rgb)], &["rgb.tif", "unsupported", "3 samples"]);
+    expect_user_error(
+        d,
+        &["info", &s(&rgb)],
+        &["rgb.tif", "unsupported", "3 samples"],
+    );
 }
 
 fn tile_dir_with(d: &Path, name: &str, second: impl FnOnce(&Path)) -> PathBuf {
     let tiles = d.join(name);
     std::fs::create_dir(&tiles).expect("mkdir");
-    gdal_translate(&fixture("zion_srtm_utm12n.tif"), &tiles.join("a.tif"), &["-srcwin", "0", "0", "200", "200"]);
+    gdal_translate(
+        &fixture("zion_srtm_utm12n.tif"),
+        &tiles.join("a.tif"),
+        &["-srcwin", "0", "0", "200", "200"],
+    );
     second(&tiles.join("b.tif"));
     tiles
 }
@@ -139,12 +174,22 @@ fn mismatched_tiles_fail_cleanly() {
     let d = dir.path();
     let zion = fixture("zion_srtm_utm12n.tif");
     let crs = tile_dir_with(d, "crs", |b| {
-        gdal_translate(&zion, b, &["-srcwin", "200", "0", "200", "200", "-a_srs", "EPSG:32613"])
+        gdal_translate(
+            &zion,
+            b,
+            &["-srcwin", "200", "0", "200", "200", "-a_srs", "EPSG:32613"],
+        )
     });
     expect_user_error(d, &["info", &s(&crs)], &["b.tif", "different CRS"]);
 
     let size = tile_dir_with(d, "pixel_size", |b| {
-        gdal_translate(&zion, b, &["-srcwin", "200", "0", "200", "200", "-outsize", "50%", "50%"])
+        gdal_translate(
+            &zion,
+            b,
+            &[
+                "-srcwin", "200", "0", "200", "200", "-outsize", "50%", "50%",
+            ],
+        )
     });
     expect_user_error(d, &["info", &s(&size)], &["b.tif", "pixel size"]);
 
@@ -154,7 +199,14 @@ fn mismatched_tiles_fail_cleanly() {
     let dx = gt[1].as_f64().expect("gt");
     let ullr = [x0, y0, x0 + 200.0 * dx, y0 - 200.0 * dx].map(|v| v.to_string());
     let misaligned = tile_dir_with(d, "misaligned", |b| {
-        gdal_translate(&zion, b, &["-srcwin", "200", "0", "200", "200", "-a_ullr", &ullr[0], &ullr[1], &ullr[2], &ullr[3]])
+        gdal_translate(
+            &zion,
+            b,
+            &[
+                "-srcwin", "200", "0", "200", "200", "-a_ullr", &ullr[0], &ullr[1], &ullr[2],
+                &ullr[3],
+            ],
+        )
     });
     expect_user_error(d, &["info", &s(&misaligned)], &["b.tif", "not aligned"]);
 

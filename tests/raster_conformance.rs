@@ -66,7 +66,10 @@ fn check_against_gdal(path: &Path) {
             mismatches += 1;
         }
     }
-    assert_eq!(mismatches, 0, "{name}: {mismatches} values differ from GDAL");
+    assert_eq!(
+        mismatches, 0,
+        "{name}: {mismatches} values differ from GDAL"
+    );
 }
 
 #[test]
@@ -82,17 +85,117 @@ fn encoding_variants_agree_with_gdal() {
     let zion = fixture("zion_srtm_utm12n.tif");
     let nz = fixture("nz_1km_nan_nodata.tif");
     let variants: &[(&str, &Path, &[&str])] = &[
-        ("deflate_pred3_f32.tif", &zion, &["-ot", "Float32", "-co", "TILED=YES", "-co", "COMPRESS=DEFLATE", "-co", "PREDICTOR=3"]),
-        ("zstd.tif", &zion, &["-co", "TILED=YES", "-co", "COMPRESS=ZSTD"]),
-        ("zstd_pred3_f64.tif", &nz, &["-ot", "Float64", "-co", "COMPRESS=ZSTD", "-co", "PREDICTOR=3"]),
-        ("lzw_pred2_i16.tif", &zion, &["-ot", "Int16", "-co", "COMPRESS=LZW", "-co", "PREDICTOR=2"]),
+        (
+            "deflate_pred3_f32.tif",
+            &zion,
+            &[
+                "-ot",
+                "Float32",
+                "-co",
+                "TILED=YES",
+                "-co",
+                "COMPRESS=DEFLATE",
+                "-co",
+                "PREDICTOR=3",
+            ],
+        ),
+        (
+            "zstd.tif",
+            &zion,
+            &["-co", "TILED=YES", "-co", "COMPRESS=ZSTD"],
+        ),
+        (
+            "zstd_pred3_f64.tif",
+            &nz,
+            &[
+                "-ot",
+                "Float64",
+                "-co",
+                "COMPRESS=ZSTD",
+                "-co",
+                "PREDICTOR=3",
+            ],
+        ),
+        (
+            "lzw_pred2_i16.tif",
+            &zion,
+            &["-ot", "Int16", "-co", "COMPRESS=LZW", "-co", "PREDICTOR=2"],
+        ),
         ("pixel_is_point.tif", &zion, &["-mo", "AREA_OR_POINT=Point"]),
-        ("cog.tif", &nz, &["-of", "COG", "-co", "BLOCKSIZE=256", "-co", "COMPRESS=DEFLATE", "-co", "PREDICTOR=YES"]),
-        ("packbits_i32.tif", &zion, &["-ot", "Int32", "-co", "COMPRESS=PACKBITS"]),
-        ("u32_tiled.tif", &zion, &["-ot", "UInt32", "-co", "TILED=YES", "-co", "BLOCKXSIZE=32", "-co", "BLOCKYSIZE=48"]),
-        ("f64_deflate_pred2.tif", &zion, &["-ot", "Float64", "-co", "COMPRESS=DEFLATE", "-co", "PREDICTOR=2"]),
-        ("byte.tif", &fixture("texas_srtm90m_tiled_int16.tif"), &["-ot", "Byte", "-scale", "140", "300", "0", "254", "-a_nodata", "255"]),
-        ("geographic_deflate.tif", &fixture("arenal_aster30m_epsg4326.tif"), &["-co", "COMPRESS=DEFLATE", "-co", "TILED=YES", "-co", "BLOCKXSIZE=64", "-co", "BLOCKYSIZE=64"]),
+        (
+            "cog.tif",
+            &nz,
+            &[
+                "-of",
+                "COG",
+                "-co",
+                "BLOCKSIZE=256",
+                "-co",
+                "COMPRESS=DEFLATE",
+                "-co",
+                "PREDICTOR=YES",
+            ],
+        ),
+        (
+            "packbits_i32.tif",
+            &zion,
+            &["-ot", "Int32", "-co", "COMPRESS=PACKBITS"],
+        ),
+        (
+            "u32_tiled.tif",
+            &zion,
+            &[
+                "-ot",
+                "UInt32",
+                "-co",
+                "TILED=YES",
+                "-co",
+                "BLOCKXSIZE=32",
+                "-co",
+                "BLOCKYSIZE=48",
+            ],
+        ),
+        (
+            "f64_deflate_pred2.tif",
+            &zion,
+            &[
+                "-ot",
+                "Float64",
+                "-co",
+                "COMPRESS=DEFLATE",
+                "-co",
+                "PREDICTOR=2",
+            ],
+        ),
+        (
+            "byte.tif",
+            &fixture("texas_srtm90m_tiled_int16.tif"),
+            &[
+                "-ot",
+                "Byte",
+                "-scale",
+                "140",
+                "300",
+                "0",
+                "254",
+                "-a_nodata",
+                "255",
+            ],
+        ),
+        (
+            "geographic_deflate.tif",
+            &fixture("arenal_aster30m_epsg4326.tif"),
+            &[
+                "-co",
+                "COMPRESS=DEFLATE",
+                "-co",
+                "TILED=YES",
+                "-co",
+                "BLOCKXSIZE=64",
+                "-co",
+                "BLOCKYSIZE=64",
+            ],
+        ),
     ];
     for (name, src, extra) in variants {
         let dst = dir.path().join(name);
@@ -102,7 +205,9 @@ fn encoding_variants_agree_with_gdal() {
     // The COG's overviews are recognised, and not mistaken for the image.
     let dem = Dem::open(&dir.path().join("cog.tif")).expect("open COG");
     match &dem.tiles[0].source {
-        demsketch::raster::TileSource::Tiff(t) => assert!(!t.overviews.is_empty(), "COG overviews found"),
+        demsketch::raster::TileSource::Tiff(t) => {
+            assert!(!t.overviews.is_empty(), "COG overviews found")
+        }
         _ => panic!("COG read natively"),
     }
     assert_eq!(dem.sample_type, SampleType::Float32);
@@ -125,7 +230,10 @@ fn vrt_reads_through_gdal() {
     let dir = tempfile::tempdir().expect("tempdir");
     let vrt = dir.path().join("zion.vrt");
     let src = fixture("zion_srtm_utm12n.tif");
-    run("gdalbuildvrt", &["-q", &vrt.to_string_lossy(), &src.to_string_lossy()]);
+    run(
+        "gdalbuildvrt",
+        &["-q", &vrt.to_string_lossy(), &src.to_string_lossy()],
+    );
     let a = Dem::open(&vrt).expect("open VRT");
     let b = Dem::open(&src).expect("open TIFF");
     assert_eq!(a.kind, demsketch::raster::LayerKind::Gdal);

@@ -30,10 +30,28 @@ fn split(src: &Path, dir: &Path, n: usize, extra: &[&str]) -> Vec<PathBuf> {
 
 #[test]
 fn three_by_three_tiles_read_back_identical() {
-    for name in ["zion_srtm_utm12n.tif", "nz_1km_nan_nodata.tif", "arenal_aster30m_epsg4326.tif"] {
+    for name in [
+        "zion_srtm_utm12n.tif",
+        "nz_1km_nan_nodata.tif",
+        "arenal_aster30m_epsg4326.tif",
+    ] {
         let src = fixture(name);
         let dir = tempfile::tempdir().expect("tempdir");
-        split(&src, dir.path(), 3, &["-co", "TILED=YES", "-co", "BLOCKXSIZE=32", "-co", "BLOCKYSIZE=32", "-co", "COMPRESS=DEFLATE"]);
+        split(
+            &src,
+            dir.path(),
+            3,
+            &[
+                "-co",
+                "TILED=YES",
+                "-co",
+                "BLOCKXSIZE=32",
+                "-co",
+                "BLOCKYSIZE=32",
+                "-co",
+                "COMPRESS=DEFLATE",
+            ],
+        );
         let whole = Dem::open(&src).expect("open original");
         let tiled = Dem::open(dir.path()).expect("open tile directory");
         assert_eq!(tiled.kind, LayerKind::TileDirectory);
@@ -56,7 +74,11 @@ fn three_by_three_tiles_read_back_identical() {
             assert_eq!(a.valid, b.valid, "{name} {win:?}: masks differ");
             for i in 0..a.data.len() {
                 if a.valid[i] {
-                    assert_eq!(a.data[i].to_bits(), b.data[i].to_bits(), "{name} {win:?} cell {i}");
+                    assert_eq!(
+                        a.data[i].to_bits(),
+                        b.data[i].to_bits(),
+                        "{name} {win:?} cell {i}"
+                    );
                 }
             }
         }
@@ -71,7 +93,18 @@ fn write_back_rewrites_only_the_four_touched_tiles() {
         &src,
         input.path(),
         3,
-        &["-co", "TILED=YES", "-co", "BLOCKXSIZE=64", "-co", "BLOCKYSIZE=32", "-co", "COMPRESS=DEFLATE", "-co", "PREDICTOR=2"],
+        &[
+            "-co",
+            "TILED=YES",
+            "-co",
+            "BLOCKXSIZE=64",
+            "-co",
+            "BLOCKYSIZE=32",
+            "-co",
+            "COMPRESS=DEFLATE",
+            "-co",
+            "PREDICTOR=2",
+        ],
     );
     let before = snapshot(input.path());
     let dem = Dem::open(input.path()).expect("open tiles");
@@ -83,12 +116,25 @@ fn write_back_rewrites_only_the_four_touched_tiles() {
         .data
         .iter()
         .enumerate()
-        .map(|(i, v)| if old.valid[i] { v + 100.4 + (i % 7) as f64 * 0.25 } else { f64::NAN })
+        .map(|(i, v)| {
+            if old.valid[i] {
+                v + 100.4 + (i % 7) as f64 * 0.25
+            } else {
+                f64::NAN
+            }
+        })
         .collect();
     let out_parent = tempfile::tempdir().expect("tempdir");
     let out = out_parent.path().join("edited");
     let report = dem
-        .write_back(win, &new, &Destination::Path(out.clone()), &Provenance { edit_id: "test-edit".into() })
+        .write_back(
+            win,
+            &new,
+            &Destination::Path(out.clone()),
+            &Provenance {
+                edit_id: "test-edit".into(),
+            },
+        )
         .expect("write back");
     assert_eq!(report.tiles_written.len(), 4, "{report:?}");
     assert_eq!(report.tiles_unchanged.len(), 5);
@@ -97,24 +143,49 @@ fn write_back_rewrites_only_the_four_touched_tiles() {
     // The 5 untouched tiles are byte-identical.
     for t in &tiles {
         let name = t.file_name().expect("name");
-        let written = report.tiles_written.iter().any(|w| w.file_name() == Some(name));
+        let written = report
+            .tiles_written
+            .iter()
+            .any(|w| w.file_name() == Some(name));
         let a = std::fs::read(t).expect("read input tile");
         let b = std::fs::read(out.join(name)).expect("read output tile");
-        assert_eq!(a == b, !written, "{}: byte-identical iff untouched", name.to_string_lossy());
+        assert_eq!(
+            a == b,
+            !written,
+            "{}: byte-identical iff untouched",
+            name.to_string_lossy()
+        );
     }
     // GDAL sees the same layout, encoding, CRS, nodata, and the new values.
     for w in &report.tiles_written {
         let orig = input.path().join(w.file_name().expect("name"));
         let (gi, go) = (gdalinfo(w), gdalinfo(&orig));
-        assert_eq!(gi["bands"][0]["block"], go["bands"][0]["block"], "block size");
-        assert_eq!(gi["bands"][0]["type"], go["bands"][0]["type"], "sample type");
-        assert_eq!(gi["bands"][0]["noDataValue"], go["bands"][0]["noDataValue"], "nodata");
+        assert_eq!(
+            gi["bands"][0]["block"], go["bands"][0]["block"],
+            "block size"
+        );
+        assert_eq!(
+            gi["bands"][0]["type"], go["bands"][0]["type"],
+            "sample type"
+        );
+        assert_eq!(
+            gi["bands"][0]["noDataValue"], go["bands"][0]["noDataValue"],
+            "nodata"
+        );
         assert_eq!(gi["metadata"]["IMAGE_STRUCTURE"]["COMPRESSION"], "DEFLATE");
         assert_eq!(gi["metadata"]["IMAGE_STRUCTURE"]["PREDICTOR"], "2");
-        assert_eq!(gi["coordinateSystem"]["wkt"], go["coordinateSystem"]["wkt"], "CRS");
+        assert_eq!(
+            gi["coordinateSystem"]["wkt"], go["coordinateSystem"]["wkt"],
+            "CRS"
+        );
         assert_eq!(gi["geoTransform"], go["geoTransform"], "geotransform");
-        let prov = gi["metadata"][""][PROVENANCE_KEY].as_str().expect("provenance item shows in gdalinfo");
-        assert!(prov.contains("edit=test-edit") && prov.contains("tool=demsketch"), "{prov}");
+        let prov = gi["metadata"][""][PROVENANCE_KEY]
+            .as_str()
+            .expect("provenance item shows in gdalinfo");
+        assert!(
+            prov.contains("edit=test-edit") && prov.contains("tool=demsketch"),
+            "{prov}"
+        );
     }
     // Values: rounded to the UInt16 grid, through GDAL.
     let edited = Dem::open(&out).expect("open output");
@@ -126,7 +197,10 @@ fn write_back_rewrites_only_the_four_touched_tiles() {
         }
     }
     // Outside the window nothing changed.
-    let all_in = Dem::open(input.path()).expect("open").read_window::<f64>(dem.full_window()).expect("read");
+    let all_in = Dem::open(input.path())
+        .expect("open")
+        .read_window::<f64>(dem.full_window())
+        .expect("read");
     let all_out = edited.read_window::<f64>(dem.full_window()).expect("read");
     for r in 0..dem.height as i64 {
         for c in 0..dem.width as i64 {
@@ -143,17 +217,44 @@ fn write_back_rewrites_only_the_four_touched_tiles() {
 fn write_back_in_place_and_single_file_with_overviews() {
     let dir = tempfile::tempdir().expect("tempdir");
     let cog = dir.path().join("dem_cog.tif");
-    gdal_translate(&fixture("nz_1km_nan_nodata.tif"), &cog, &["-of", "COG", "-co", "BLOCKSIZE=256", "-co", "COMPRESS=DEFLATE", "-co", "PREDICTOR=YES"]);
+    gdal_translate(
+        &fixture("nz_1km_nan_nodata.tif"),
+        &cog,
+        &[
+            "-of",
+            "COG",
+            "-co",
+            "BLOCKSIZE=256",
+            "-co",
+            "COMPRESS=DEFLATE",
+            "-co",
+            "PREDICTOR=YES",
+        ],
+    );
     let striped = dir.path().join("dem_striped.tif");
-    gdal_translate(&fixture("vinschgau_250m_utm32n.tif"), &striped, &["-co", "COMPRESS=LZW", "-co", "BLOCKYSIZE=8"]);
+    gdal_translate(
+        &fixture("vinschgau_250m_utm32n.tif"),
+        &striped,
+        &["-co", "COMPRESS=LZW", "-co", "BLOCKYSIZE=8"],
+    );
     run("gdaladdo", &["-q", &striped.to_string_lossy(), "2", "4"]);
-    for (path, win) in [(&cog, Window::new(600, 700, 60, 40)), (&striped, Window::new(100, 100, 50, 40))] {
+    for (path, win) in [
+        (&cog, Window::new(600, 700, 60, 40)),
+        (&striped, Window::new(100, 100, 50, 40)),
+    ] {
         let dem = Dem::open(path).expect("open");
         let old = dem.read_window::<f64>(win).expect("read");
         let new: Vec<f64> = old.data.iter().map(|v| v + 250.0).collect();
         let info_before = gdalinfo(path);
         let report = dem
-            .write_back(win, &new, &Destination::InPlace, &Provenance { edit_id: "in-place".into() })
+            .write_back(
+                win,
+                &new,
+                &Destination::InPlace,
+                &Provenance {
+                    edit_id: "in-place".into(),
+                },
+            )
             .expect("write back in place");
         assert_eq!(report.tiles_written.len(), 1);
         assert!(report.changed_cells > 100, "{report:?}");
@@ -161,10 +262,15 @@ fn write_back_in_place_and_single_file_with_overviews() {
         assert_eq!(info["bands"][0]["block"], info_before["bands"][0]["block"]);
         assert_eq!(
             info["bands"][0]["overviews"].as_array().map(|a| a.len()),
-            info_before["bands"][0]["overviews"].as_array().map(|a| a.len()),
+            info_before["bands"][0]["overviews"]
+                .as_array()
+                .map(|a| a.len()),
             "overviews rebuilt"
         );
-        assert_eq!(info["metadata"]["IMAGE_STRUCTURE"], info_before["metadata"]["IMAGE_STRUCTURE"]);
+        assert_eq!(
+            info["metadata"]["IMAGE_STRUCTURE"],
+            info_before["metadata"]["IMAGE_STRUCTURE"]
+        );
         let again = Dem::open(path).expect("reopen");
         let got = again.read_window::<f64>(win).expect("read");
         for i in 0..got.data.len() {

@@ -10,9 +10,16 @@ fn strokes(defs: &[&[[f64; 2]]]) -> Vec<Stroke> {
     defs.iter()
         .enumerate()
         .map(|(i, p)| {
-            prepare_stroke(&format!("{}", i + 1), i, p, 2.0, 3.0, FoldBackPolicy::Reject)
-                .unwrap()
-                .remove(0)
+            prepare_stroke(
+                &format!("{}", i + 1),
+                i,
+                p,
+                2.0,
+                3.0,
+                FoldBackPolicy::Reject,
+            )
+            .unwrap()
+            .remove(0)
         })
         .collect()
 }
@@ -27,7 +34,12 @@ fn figure3() -> Vec<Vec<[f64; 2]>> {
     let y2 = |x: f64| 250.0 + 50.0 * (x - 500.0) / 300.0;
     vec![
         vec![[0.0, 300.0], [200.0, 200.0], [400.0, 350.0]],
-        vec![[300.0, 450.0], [500.0, 250.0], [800.0, 300.0], [1000.0, 450.0]],
+        vec![
+            [300.0, 450.0],
+            [500.0, 250.0],
+            [800.0, 300.0],
+            [1000.0, 450.0],
+        ],
         vec![[600.0, y2(600.0)], [675.0, 350.0], [750.0, y2(750.0)]],
     ]
 }
@@ -67,7 +79,10 @@ fn figure3_order_and_sweep() {
 fn height_cue_without_junction() {
     // Far ridge above, near ridge below, overlapping in x, no containment.
     assert_eq!(
-        order(&[&[[0.0, 200.0], [600.0, 150.0]], &[[300.0, 450.0], [900.0, 400.0]]]),
+        order(&[
+            &[[0.0, 200.0], [600.0, 150.0]],
+            &[[300.0, 450.0], [900.0, 400.0]]
+        ]),
         vec![1, 0]
     );
 }
@@ -77,7 +92,10 @@ fn containment_beats_height() {
     // The wide stroke contains the narrow one in x: it is behind, although
     // the narrow one's endpoints are higher on screen.
     assert_eq!(
-        order(&[&[[0.0, 400.0], [500.0, 100.0], [1000.0, 400.0]], &[[400.0, 300.0], [500.0, 280.0], [600.0, 300.0]]]),
+        order(&[
+            &[[0.0, 400.0], [500.0, 100.0], [1000.0, 400.0]],
+            &[[400.0, 300.0], [500.0, 280.0], [600.0, 300.0]]
+        ]),
         vec![1, 0]
     );
 }
@@ -137,7 +155,10 @@ fn occluded_at_start() {
 fn in_front_at_end_from_below() {
     // A rises from below and ends on the far ridge B: A in front.
     assert_eq!(
-        order(&[&[[100.0, 500.0], [300.0, 300.0]], &[[0.0, 250.0], [300.0, 300.0], [600.0, 250.0]]]),
+        order(&[
+            &[[100.0, 500.0], [300.0, 300.0]],
+            &[[0.0, 250.0], [300.0, 300.0], [600.0, 250.0]]
+        ]),
         vec![0, 1]
     );
 }
@@ -155,7 +176,11 @@ fn junction_beats_height() {
     );
     assert_eq!(o.order, vec![0, 1]);
     assert!(o.conflicts.is_empty());
-    assert_eq!(o.overridden.len(), 1, "the height cue is overridden: {o:#?}");
+    assert_eq!(
+        o.overridden.len(),
+        1,
+        "the height cue is overridden: {o:#?}"
+    );
 }
 
 #[test]
@@ -173,7 +198,10 @@ fn disjoint_strokes_by_height() {
 #[test]
 fn no_cue_keeps_sweep_order() {
     assert_eq!(
-        order(&[&[[600.0, 300.0], [800.0, 300.0]], &[[0.0, 300.0], [200.0, 300.0]]]),
+        order(&[
+            &[[600.0, 300.0], [800.0, 300.0]],
+            &[[0.0, 300.0], [200.0, 300.0]]
+        ]),
         vec![1, 0]
     );
 }
@@ -184,7 +212,12 @@ fn contradictory_junctions_are_reported() {
     // (occluded by B): the first cue of the sweep wins, the other is reported.
     let o = order_strokes(
         &strokes(&[
-            &[[200.0, 300.0], [300.0, 400.0], [400.0, 200.0], [600.0, 300.0]],
+            &[
+                [200.0, 300.0],
+                [300.0, 400.0],
+                [400.0, 200.0],
+                [600.0, 300.0],
+            ],
             &[[0.0, 300.0], [1000.0, 300.0]],
         ]),
         T,
@@ -195,7 +228,12 @@ fn contradictory_junctions_are_reported() {
     // Deterministic.
     let again = order_strokes(
         &strokes(&[
-            &[[200.0, 300.0], [300.0, 400.0], [400.0, 200.0], [600.0, 300.0]],
+            &[
+                [200.0, 300.0],
+                [300.0, 400.0],
+                [400.0, 200.0],
+                [600.0, 300.0],
+            ],
             &[[0.0, 300.0], [1000.0, 300.0]],
         ]),
         T,

@@ -31,14 +31,7 @@ fn compare(name: &str, col: usize, row: usize, oz: f64) -> f64 {
     let frame = georef.local_frame(&vp, &dem, 1.0 / 7.0).unwrap();
     let terrain = LocalTerrain::new(&dem, &frame, None);
     let t = std::time::Instant::now();
-    let ours = viewshed(
-        &terrain,
-        dem.width,
-        dem.height,
-        dem.geotransform,
-        &dem.crs,
-        0.0,
-    );
+    let ours = viewshed(&terrain, &dem, 0.0);
     let ours_s = t.elapsed().as_secs_f64();
 
     let dir = tempfile::tempdir().unwrap();
@@ -117,14 +110,7 @@ fn viewshed_of_a_tilted_plane_is_everything() {
         .local_frame(&Viewpoint::above_surface(lon, lat, 1.7), &dem, 1.0)
         .unwrap();
     let terrain = LocalTerrain::new(&dem, &frame, None);
-    let vs = viewshed(
-        &terrain,
-        dem.width,
-        dem.height,
-        dem.geotransform,
-        &dem.crs,
-        0.0,
-    );
+    let vs = viewshed(&terrain, &dem, 0.0);
     assert_eq!(vs.visible_count(), 41 * 41);
 }
 
@@ -144,14 +130,7 @@ fn viewshed_respects_max_distance_and_writes_geotiff() {
         terrain.nx,
         terrain.ny
     );
-    let vs = viewshed(
-        &terrain,
-        dem.width,
-        dem.height,
-        dem.geotransform,
-        &dem.crs,
-        0.0,
-    );
+    let vs = viewshed(&terrain, &dem, 0.0);
     for r in 0..dem.height {
         for c in 0..dem.width {
             if vs.data[r * dem.width + c] == 255 {

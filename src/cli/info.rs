@@ -33,7 +33,8 @@ pub fn run(args: InfoArgs) -> anyhow::Result<()> {
     let min_max = if args.no_stats {
         None
     } else {
-        dem.min_max().with_context(|| "reading values for min/max")?
+        dem.min_max()
+            .with_context(|| "reading values for min/max")?
     };
     let tiles: Vec<_> = dem
         .tiles
@@ -81,14 +82,33 @@ pub fn run(args: InfoArgs) -> anyhow::Result<()> {
     println!("Size:         {} x {} pixels", dem.width, dem.height);
     println!("Sample type:  {}", dem.sample_type);
     match dem.crs.epsg {
-        Some(c) => println!("CRS:          EPSG:{c}{}", if dem.crs.geographic { " (geographic)" } else { "" }),
-        None => println!("CRS:          {}", dem.crs.proj.as_deref().unwrap_or("user-defined (see --json for WKT)")),
+        Some(c) => println!(
+            "CRS:          EPSG:{c}{}",
+            if dem.crs.geographic {
+                " (geographic)"
+            } else {
+                ""
+            }
+        ),
+        None => println!(
+            "CRS:          {}",
+            dem.crs
+                .proj
+                .as_deref()
+                .unwrap_or("user-defined (see --json for WKT)")
+        ),
     }
     println!("Geotransform: {:?}", gt.0);
     println!("Pixel size:   {px} x {py}");
-    println!("Bounds:       x {} .. {}, y {} .. {}", bounds[0], bounds[2], bounds[1], bounds[3]);
+    println!(
+        "Bounds:       x {} .. {}, y {} .. {}",
+        bounds[0], bounds[2], bounds[1], bounds[3]
+    );
     if let Some(b) = ll {
-        println!("Lon/lat:      W {:.6} S {:.6} E {:.6} N {:.6}", b[0], b[1], b[2], b[3]);
+        println!(
+            "Lon/lat:      W {:.6} S {:.6} E {:.6} N {:.6}",
+            b[0], b[1], b[2], b[3]
+        );
     }
     println!(
         "Nodata:       {}",
@@ -105,7 +125,11 @@ pub fn run(args: InfoArgs) -> anyhow::Result<()> {
             g.layout.block_height,
             g.encoding.compression,
             g.encoding.predictor,
-            if g.overviews.is_empty() { String::new() } else { format!(", {} overview(s)", g.overviews.len()) }
+            if g.overviews.is_empty() {
+                String::new()
+            } else {
+                format!(", {} overview(s)", g.overviews.len())
+            }
         );
     }
     if let Some((lo, hi)) = min_max {

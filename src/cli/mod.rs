@@ -1,6 +1,8 @@
 //! Subcommands of the `demsketch` binary and the mapping of errors to exit codes.
 
 pub mod info;
+pub mod locate;
+pub mod view;
 
 use clap::{Parser, Subcommand};
 
@@ -17,11 +19,17 @@ pub struct Cli {
 pub enum Command {
     /// Describe a DEM: size, tiles, CRS, geotransform, bounds, nodata, encoding, min/max.
     Info(info::InfoArgs),
+    /// Render what a person standing at a viewpoint sees (PNG), optionally the depth buffer and viewshed.
+    View(view::ViewArgs),
+    /// Print the terrain point (lon, lat, height, distance) seen at a pixel of a view, as JSON.
+    Locate(locate::LocateArgs),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Info(a) => info::run(a),
+        Command::View(a) => view::run(a),
+        Command::Locate(a) => locate::run(a),
     }
 }
 
@@ -32,7 +40,9 @@ pub struct InternalError(pub String);
 
 /// 2 for internal errors, 1 for everything caused by the input.
 pub fn exit_code(e: &anyhow::Error) -> i32 {
-    if e.chain().any(|c| c.downcast_ref::<InternalError>().is_some()) {
+    if e.chain()
+        .any(|c| c.downcast_ref::<InternalError>().is_some())
+    {
         2
     } else {
         1

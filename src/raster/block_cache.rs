@@ -67,7 +67,9 @@ impl BlockCache {
         g.order.insert(now, key);
         g.bytes += size;
         while g.bytes > self.budget {
-            let Some((&t, &k)) = g.order.iter().next() else { break };
+            let Some((&t, &k)) = g.order.iter().next() else {
+                break;
+            };
             g.order.remove(&t);
             if let Some((_, _, s)) = g.map.remove(&k) {
                 g.bytes -= s;

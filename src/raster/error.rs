@@ -18,7 +18,9 @@ pub enum RasterError {
     Corrupt { path: PathBuf, detail: String },
     #[error("{path}: unsupported {what}")]
     Unsupported { path: PathBuf, what: String },
-    #[error("{path}: no georeference (no ModelTiepoint/ModelPixelScale or ModelTransformation tag)")]
+    #[error(
+        "{path}: no georeference (no ModelTiepoint/ModelPixelScale or ModelTransformation tag)"
+    )]
     NoGeoreference { path: PathBuf },
     #[error("{path}: {width} x {height} {sample} pixels need {bytes} bytes, more than the memory budget of {budget} bytes")]
     TooLarge {

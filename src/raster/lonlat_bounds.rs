@@ -5,14 +5,24 @@ use super::{Crs, GeoTransform};
 
 /// `[west, south, east, north]` in degrees WGS84 of a `width` x `height`
 /// raster, or `None` when the CRS is unknown to PROJ.
-pub fn lonlat_bounds(crs: &Crs, gt: &GeoTransform, width: usize, height: usize) -> Option<[f64; 4]> {
+pub fn lonlat_bounds(
+    crs: &Crs,
+    gt: &GeoTransform,
+    width: usize,
+    height: usize,
+) -> Option<[f64; 4]> {
     let def = crs.proj_definition();
     if def.is_empty() {
         return None;
     }
     let to_ll = proj::Proj::new_known_crs(&def, "EPSG:4326", None).ok()?;
     let n = 20;
-    let mut b = [f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY];
+    let mut b = [
+        f64::INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::NEG_INFINITY,
+    ];
     for i in 0..=n {
         let t = i as f64 / n as f64;
         let (w, h) = (width as f64, height as f64);

@@ -64,7 +64,10 @@ pub struct Dem {
 
 fn is_tiff_name(p: &Path) -> bool {
     matches!(
-        p.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase()).as_deref(),
+        p.extension()
+            .and_then(|e| e.to_str())
+            .map(|e| e.to_ascii_lowercase())
+            .as_deref(),
         Some("tif" | "tiff" | "gtiff")
     )
 }
@@ -141,12 +144,15 @@ impl Dem {
         let (w, h) = ds.raster_size();
         let gt = ds
             .geo_transform()
-            .map_err(|_| RasterError::NoGeoreference { path: path.to_path_buf() })?;
+            .map_err(|_| RasterError::NoGeoreference {
+                path: path.to_path_buf(),
+            })?;
         let band = ds.rasterband(1).map_err(|e| RasterError::gdal(path, e))?;
-        let sample_type = SampleType::from_gdal(band.band_type()).ok_or_else(|| RasterError::Unsupported {
-            path: path.to_path_buf(),
-            what: format!("band type {:?}", band.band_type()),
-        })?;
+        let sample_type =
+            SampleType::from_gdal(band.band_type()).ok_or_else(|| RasterError::Unsupported {
+                path: path.to_path_buf(),
+                what: format!("band type {:?}", band.band_type()),
+            })?;
         let nodata = band.no_data_value();
         drop(band);
         let srs = ds.spatial_ref().ok();
@@ -197,10 +203,14 @@ impl Dem {
             if !crs.same_as(&ref_crs) {
                 return Err(mismatch(p, "different CRS".into()));
             }
-            if !(close(t[1], g[1], 1e-9) && close(t[5], g[5], 1e-9) && t[2] == g[2] && t[4] == g[4]) {
+            if !(close(t[1], g[1], 1e-9) && close(t[5], g[5], 1e-9) && t[2] == g[2] && t[4] == g[4])
+            {
                 return Err(mismatch(
                     p,
-                    format!("pixel size {} x {} differs from {} x {}", t[1], t[5], g[1], g[5]),
+                    format!(
+                        "pixel size {} x {} differs from {} x {}",
+                        t[1], t[5], g[1], g[5]
+                    ),
                 ));
             }
             let (px, py) = ref_gt
@@ -214,10 +224,16 @@ impl Dem {
                 ));
             }
             if tile.sample_type != ref_type {
-                return Err(mismatch(p, format!("sample type {} differs from {ref_type}", tile.sample_type)));
+                return Err(mismatch(
+                    p,
+                    format!("sample type {} differs from {ref_type}", tile.sample_type),
+                ));
             }
             if !nodata_eq(tile.nodata, ref_nodata) {
-                return Err(mismatch(p, format!("nodata {:?} differs from {ref_nodata:?}", tile.nodata)));
+                return Err(mismatch(
+                    p,
+                    format!("nodata {:?} differs from {ref_nodata:?}", tile.nodata),
+                ));
             }
             placed.push((cx as i64, cy as i64));
         }
@@ -226,8 +242,14 @@ impl Dem {
         let mut tiles: Vec<Tile> = Vec::with_capacity(parts.len());
         for (Part { mut tile, .. }, (c, r)) in parts.into_iter().zip(placed) {
             tile.extent = Window::new(c - c0, r - r0, tile.extent.width, tile.extent.height);
-            if let Some(other) = tiles.iter().find(|t| t.extent.intersect(&tile.extent).is_some()) {
-                return Err(mismatch(&tile.path, format!("overlaps tile {}", other.path.display())));
+            if let Some(other) = tiles
+                .iter()
+                .find(|t| t.extent.intersect(&tile.extent).is_some())
+            {
+                return Err(mismatch(
+                    &tile.path,
+                    format!("overlaps tile {}", other.path.display()),
+                ));
             }
             tiles.push(tile);
         }
@@ -257,7 +279,12 @@ impl Dem {
     /// `[xmin, ymin, xmax, ymax]`, clipped to the DEM.
     pub fn window_for_bounds(&self, b: [f64; 4]) -> Option<Window> {
         let corners = [(b[0], b[1]), (b[0], b[3]), (b[2], b[1]), (b[2], b[3])];
-        let mut c = [f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY];
+        let mut c = [
+            f64::INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NEG_INFINITY,
+        ];
         for (x, y) in corners {
             let (px, py) = self.geotransform.crs_to_pixel(x, y)?;
             c = [c[0].min(px), c[1].min(py), c[2].max(px), c[3].max(py)];
@@ -274,7 +301,10 @@ impl Dem {
     /// Nodata test in the precision of the sample type, as GDAL does (a
     /// Float32 file's nodata of -3.4e38 is the f32 nearest to it).
     fn is_nodata(&self, v: f64) -> bool {
-        v.is_nan() || self.nodata.is_some_and(|n| v == self.sample_type.quantize(n))
+        v.is_nan()
+            || self
+                .nodata
+                .is_some_and(|n| v == self.sample_type.quantize(n))
     }
 
     /// Read a window as one seamless array across tiles. Cells outside every
@@ -301,7 +331,9 @@ impl Dem {
         // Jobs: (tile, block) pairs for native tiles; whole overlaps for GDAL ones.
         let mut jobs: Vec<(usize, Option<u32>)> = Vec::new();
         for (ti, tile) in self.tiles.iter().enumerate() {
-            let Some(ov) = tile.extent.intersect(&win) else { continue };
+            let Some(ov) = tile.extent.intersect(&win) else {
+                continue;
+            };
             match &tile.source {
                 TileSource::Tiff(tiff) => {
                     let l = &tiff.layout;
@@ -319,92 +351,100 @@ impl Dem {
             }
         }
         jobs.par_iter()
-            .map_init(
-                || std::collections::HashMap::new(),
-                |decoders, &(ti, block)| -> Result<(), RasterError> {
-                    let tile = &self.tiles[ti];
-                    match (&tile.source, block) {
-                        (TileSource::Tiff(tiff), Some(bi)) => {
-                            let key = (ti, bi);
-                            let decoded = match self.cache.get(key) {
-                                Some(b) => b,
-                                None => {
-                                    if !decoders.contains_key(&ti) {
-                                        decoders.insert(ti, tiff.decoder()?);
-                                    }
-                                    let dec = decoders.get_mut(&ti).ok_or_else(|| RasterError::Corrupt {
-                                        path: tiff.path.clone(),
-                                        detail: "decoder unavailable".into(),
-                                    })?;
-                                    let b = Arc::new(tiff.decode_block(dec, bi)?);
-                                    self.cache.insert(key, b.clone());
-                                    b
-                                }
-                            };
-                            let (bc, br, bw, bh) = tiff.block_extent(bi);
-                            let bwin = Window::new(
-                                tile.extent.col + bc as i64,
-                                tile.extent.row + br as i64,
-                                bw as usize,
-                                bh as usize,
-                            );
-                            let Some(ov) = bwin.intersect(&win) else { return Ok(()) };
-                            let row_len = tiff.decoded_row_len(bi);
-                            if super::sample_type::decoded_bytes(&decoded) < row_len * bh as usize * tiff.sample_type.bytes() {
-                                return Err(RasterError::Corrupt {
-                                    path: tiff.path.clone(),
-                                    detail: format!("block {bi} decodes to too few samples"),
-                                });
+            .map(|&(ti, block)| -> Result<(), RasterError> {
+                let tile = &self.tiles[ti];
+                match (&tile.source, block) {
+                    (TileSource::Tiff(tiff), Some(bi)) => {
+                        let key = (ti, bi);
+                        let decoded = match self.cache.get(key) {
+                            Some(b) => b,
+                            None => {
+                                let b = Arc::new(tiff.decode_block(bi)?);
+                                self.cache.insert(key, b.clone());
+                                b
                             }
-                            for r in 0..ov.height {
-                                let src_row = (ov.row - bwin.row) as usize + r;
-                                let src = src_row * row_len + (ov.col - bwin.col) as usize;
-                                let dst = (ov.row - win.row) as usize + r;
-                                let dst = dst * win.width + (ov.col - win.col) as usize;
-                                // SAFETY: blocks are disjoint rectangles of the
-                                // window, so no two jobs write the same cells.
-                                let out = unsafe { out.slice(dst, ov.width) };
-                                T::copy_from_block(&decoded, src, out);
-                            }
-                            Ok(())
+                        };
+                        let (bc, br, bw, bh) = tiff.block_extent(bi);
+                        let bwin = Window::new(
+                            tile.extent.col + bc as i64,
+                            tile.extent.row + br as i64,
+                            bw as usize,
+                            bh as usize,
+                        );
+                        let Some(ov) = bwin.intersect(&win) else {
+                            return Ok(());
+                        };
+                        let row_len = tiff.decoded_row_len(bi);
+                        if super::sample_type::decoded_bytes(&decoded)
+                            < row_len * bh as usize * tiff.sample_type.bytes()
+                        {
+                            return Err(RasterError::Corrupt {
+                                path: tiff.path.clone(),
+                                detail: format!("block {bi} decodes to too few samples"),
+                            });
                         }
-                        (TileSource::Gdal(ds), _) => {
-                            let Some(ov) = tile.extent.intersect(&win) else { return Ok(()) };
-                            let mut buf = vec![0f64; ov.len()];
-                            {
-                                let ds = ds.lock().map_err(|_| RasterError::gdal(&tile.path, "dataset lock poisoned"))?;
-                                let band = ds.rasterband(1).map_err(|e| RasterError::gdal(&tile.path, e))?;
-                                band.read_into_slice::<f64>(
-                                    ((ov.col - tile.extent.col) as isize, (ov.row - tile.extent.row) as isize),
-                                    (ov.width, ov.height),
-                                    (ov.width, ov.height),
-                                    &mut buf,
-                                    None,
-                                )
-                                .map_err(|e| RasterError::gdal(&tile.path, e))?;
-                            }
-                            for r in 0..ov.height {
-                                let dst = ((ov.row - win.row) as usize + r) * win.width + (ov.col - win.col) as usize;
-                                // SAFETY: tiles do not overlap (checked at open).
-                                let out = unsafe { out.slice(dst, ov.width) };
-                                for (o, v) in out.iter_mut().zip(&buf[r * ov.width..(r + 1) * ov.width]) {
-                                    *o = T::from_f64(*v);
-                                }
-                            }
-                            Ok(())
+                        for r in 0..ov.height {
+                            let src_row = (ov.row - bwin.row) as usize + r;
+                            let src = src_row * row_len + (ov.col - bwin.col) as usize;
+                            let dst = (ov.row - win.row) as usize + r;
+                            let dst = dst * win.width + (ov.col - win.col) as usize;
+                            // SAFETY: blocks are disjoint rectangles of the
+                            // window, so no two jobs write the same cells.
+                            let out = unsafe { out.slice(dst, ov.width) };
+                            T::copy_from_block(&decoded, src, out);
                         }
-                        (TileSource::Tiff(_), None) => Ok(()),
+                        Ok(())
                     }
-                },
-            )
+                    (TileSource::Gdal(ds), _) => {
+                        let Some(ov) = tile.extent.intersect(&win) else {
+                            return Ok(());
+                        };
+                        let mut buf = vec![0f64; ov.len()];
+                        {
+                            let ds = ds.lock().map_err(|_| {
+                                RasterError::gdal(&tile.path, "dataset lock poisoned")
+                            })?;
+                            let band = ds
+                                .rasterband(1)
+                                .map_err(|e| RasterError::gdal(&tile.path, e))?;
+                            band.read_into_slice::<f64>(
+                                (
+                                    (ov.col - tile.extent.col) as isize,
+                                    (ov.row - tile.extent.row) as isize,
+                                ),
+                                (ov.width, ov.height),
+                                (ov.width, ov.height),
+                                &mut buf,
+                                None,
+                            )
+                            .map_err(|e| RasterError::gdal(&tile.path, e))?;
+                        }
+                        for r in 0..ov.height {
+                            let dst = ((ov.row - win.row) as usize + r) * win.width
+                                + (ov.col - win.col) as usize;
+                            // SAFETY: tiles do not overlap (checked at open).
+                            let out = unsafe { out.slice(dst, ov.width) };
+                            for (o, v) in out.iter_mut().zip(&buf[r * ov.width..(r + 1) * ov.width])
+                            {
+                                *o = T::from_f64(*v);
+                            }
+                        }
+                        Ok(())
+                    }
+                    (TileSource::Tiff(_), None) => Ok(()),
+                }
+            })
             .collect::<Result<Vec<()>, _>>()?;
+        // Nodata is compared in the precision of the sample type, as GDAL
+        // does (a Float32 file's nodata of -3.4e38 is the f32 nearest to it).
         let mut valid = vec![false; n];
+        let nodata = self.nodata.map(|v| self.sample_type.quantize(v));
         data.par_chunks_mut(win.width.max(1))
             .zip(valid.par_chunks_mut(win.width.max(1)))
             .for_each(|(d, v)| {
                 for (x, ok) in d.iter_mut().zip(v.iter_mut()) {
                     let f = x.to_f64();
-                    if self.is_nodata(f) {
+                    if f.is_nan() || Some(f) == nodata {
                         *x = T::nan();
                     } else {
                         *ok = true;

@@ -127,18 +127,23 @@ impl Dem {
         if values.len() != window.len() {
             return Err(write_err(
                 &self.path,
-                format!("{} values for a window of {} cells", values.len(), window.len()),
+                format!(
+                    "{} values for a window of {} cells",
+                    values.len(),
+                    window.len()
+                ),
             ));
         }
         self.check_destination(dest)?;
-        let window = window
-            .intersect(&self.full_window())
-            .ok_or_else(|| RasterError::OutOfBounds {
-                path: self.path.clone(),
-                what: format!("{window:?}"),
-                width: self.width,
-                height: self.height,
-            })?;
+        let window =
+            window
+                .intersect(&self.full_window())
+                .ok_or_else(|| RasterError::OutOfBounds {
+                    path: self.path.clone(),
+                    what: format!("{window:?}"),
+                    width: self.width,
+                    height: self.height,
+                })?;
         let original = self.read_window::<f64>(window)?;
         // Per tile: which cells change once quantized.
         let edits: Vec<TileEdit> = self
@@ -184,10 +189,14 @@ impl Dem {
         match (dest, self.kind) {
             (Destination::InPlace, LayerKind::Gdal) => Err(RasterError::Unsupported {
                 path: self.path.clone(),
-                what: "in-place write to a non-GeoTIFF raster; give an output GeoTIFF with --out".into(),
+                what: "in-place write to a non-GeoTIFF raster; give an output GeoTIFF with --out"
+                    .into(),
             }),
             (Destination::InPlace, _) => {
-                let targets: Vec<PathBuf> = edits.iter().map(|e| self.tiles[e.tile].path.clone()).collect();
+                let targets: Vec<PathBuf> = edits
+                    .iter()
+                    .map(|e| self.tiles[e.tile].path.clone())
+                    .collect();
                 self.encode_and_commit(&edits, &targets, provenance)?;
                 for e in &edits {
                     self.invalidate_tile(e.tile);
@@ -203,7 +212,8 @@ impl Dem {
                 if edits.is_empty() {
                     // Nothing changed: the output is a byte copy of the input.
                     let tmp = temp_beside(out);
-                    std::fs::copy(&self.tiles[0].path, &tmp).map_err(|e| RasterError::io(out, e))?;
+                    std::fs::copy(&self.tiles[0].path, &tmp)
+                        .map_err(|e| RasterError::io(out, e))?;
                     std::fs::rename(&tmp, out).map_err(|e| RasterError::io(out, e))?;
                     return Ok(WriteReport {
                         tiles_written: vec![],
@@ -227,18 +237,26 @@ impl Dem {
     /// Refuse destinations that would overwrite the input or a non-empty
     /// directory, before anything is written.
     fn check_destination(&self, dest: &Destination) -> Result<(), RasterError> {
-        let Destination::Path(out) = dest else { return Ok(()) };
+        let Destination::Path(out) = dest else {
+            return Ok(());
+        };
         let same = |a: &Path, b: &Path| match (a.canonicalize(), b.canonicalize()) {
             (Ok(x), Ok(y)) => x == y,
             _ => false,
         };
         if same(out, &self.path) {
-            return Err(write_err(out, "is the input; use --in-place to rewrite the input"));
+            return Err(write_err(
+                out,
+                "is the input; use --in-place to rewrite the input",
+            ));
         }
         match self.kind {
             LayerKind::TileDirectory => {
                 if out.is_file() {
-                    return Err(write_err(out, "is a file; a tile directory needs an output directory"));
+                    return Err(write_err(
+                        out,
+                        "is a file; a tile directory needs an output directory",
+                    ));
                 }
                 if out.is_dir()
                     && std::fs::read_dir(out)
@@ -248,16 +266,25 @@ impl Dem {
                 {
                     return Err(write_err(out, "already exists and is not empty"));
                 }
-                let parent = out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+                let parent = out
+                    .parent()
+                    .filter(|p| !p.as_os_str().is_empty())
+                    .unwrap_or(Path::new("."));
                 if !parent.is_dir() {
                     return Err(write_err(out, "its parent directory does not exist"));
                 }
             }
             _ => {
                 if out.is_dir() {
-                    return Err(write_err(out, "is a directory; give the path of the output GeoTIFF"));
+                    return Err(write_err(
+                        out,
+                        "is a directory; give the path of the output GeoTIFF",
+                    ));
                 }
-                let parent = out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+                let parent = out
+                    .parent()
+                    .filter(|p| !p.as_os_str().is_empty())
+                    .unwrap_or(Path::new("."));
                 if !parent.is_dir() {
                     return Err(write_err(out, "its parent directory does not exist"));
                 }
@@ -378,7 +405,12 @@ fn creation_options(tile: &Tile, cog: bool) -> Vec<String> {
 /// Encode one edited tile into `tmp` through GDAL: the source is copied to
 /// memory with all its metadata, the edit applied, overviews rebuilt, and
 /// the result written with the source's creation options.
-fn encode_tile(tile: &Tile, edit: &TileEdit, tmp: &Path, provenance: &Provenance) -> Result<(), RasterError> {
+fn encode_tile(
+    tile: &Tile,
+    edit: &TileEdit,
+    tmp: &Path,
+    provenance: &Provenance,
+) -> Result<(), RasterError> {
     let gerr = |e: gdal::errors::GdalError| RasterError::gdal(&tile.path, e);
     let src = gdal::Dataset::open(&tile.path).map_err(gerr)?;
     let mem_driver = DriverManager::get_driver_by_name("MEM").map_err(gerr)?;
@@ -398,7 +430,8 @@ fn encode_tile(tile: &Tile, edit: &TileEdit, tmp: &Path, provenance: &Provenance
     mem.set_metadata_item(PROVENANCE_KEY, &provenance.item(edit.changed), "")
         .map_err(gerr)?;
     let cog = src.metadata_item("LAYOUT", "IMAGE_STRUCTURE").as_deref() == Some("COG");
-    let driver = DriverManager::get_driver_by_name(if cog { "COG" } else { "GTiff" }).map_err(gerr)?;
+    let driver =
+        DriverManager::get_driver_by_name(if cog { "COG" } else { "GTiff" }).map_err(gerr)?;
     let opts = RasterCreationOptions::from_iter(creation_options(tile, cog));
     let written = mem
         .create_copy(&driver, tmp, &opts)
@@ -413,9 +446,14 @@ fn encode_tile(tile: &Tile, edit: &TileEdit, tmp: &Path, provenance: &Provenance
                         .iter()
                         .map(|(w, _)| ((t.width as f64 / *w as f64).round() as i32).max(2))
                         .collect();
-                    let resampling = if tile.sample_type.is_integer() { "NEAREST" } else { "AVERAGE" };
-                    ds.build_overviews(resampling, &factors, &[])
-                        .map_err(|e| write_err(tmp, format!("GDAL could not rebuild overviews: {e}")))?;
+                    let resampling = if tile.sample_type.is_integer() {
+                        "NEAREST"
+                    } else {
+                        "AVERAGE"
+                    };
+                    ds.build_overviews(resampling, &factors, &[]).map_err(|e| {
+                        write_err(tmp, format!("GDAL could not rebuild overviews: {e}"))
+                    })?;
                 }
             }
             ds.close().map_err(|e| write_err(tmp, e))

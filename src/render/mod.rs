@@ -7,23 +7,30 @@
 //! [`viewshed`] computes which DEM cells the eye sees and
 //! [`write_viewshed_tiff`] writes it on the DEM's grid like `gdal_viewshed`;
 //! [`locate`] answers "which terrain point is at this pixel" and
-//! [`project_point`] the reverse.
+//! [`project_point`] the reverse. [`Scene`] sets all of this up on a tiled
+//! DEM of any size, reading only the window within the maximum view distance.
 
 mod depth_buffer;
 mod locate;
+mod scene;
 mod shaded_image;
 mod terrain;
 mod viewshed;
 
 pub use depth_buffer::{pick, DepthBuffer, TerrainHit, SKY};
 pub use locate::{locate, project_point, Located};
-pub use shaded_image::{shade, write_depth_tiff, write_png, ShadeOptions};
+pub use scene::Scene;
+pub use shaded_image::{draw_polyline, shade, write_depth_tiff, write_png, ShadeOptions};
 pub use terrain::{LocalTerrain, RayHit};
 pub use viewshed::{viewshed, write_viewshed_tiff, Viewshed};
 
 /// Errors of rendering and writing views. One line naming the file and the problem.
 #[derive(Debug, thiserror::Error)]
 pub enum RenderError {
+    #[error(transparent)]
+    View(#[from] crate::view::ViewError),
+    #[error(transparent)]
+    Raster(#[from] crate::raster::RasterError),
     #[error("{path}: cannot write: {message}")]
     Write { path: String, message: String },
 }

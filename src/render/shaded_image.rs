@@ -152,3 +152,46 @@ pub fn write_depth_tiff(depth: &DepthBuffer, path: &Path) -> Result<(), RenderEr
         .map_err(werr)?;
     Ok(())
 }
+
+/// Draw a polyline of pixel coordinates (DESIGN.md convention: pixel `(i, j)`
+/// covers `[i, i+1) x [j, j+1)`) into RGB bytes, `thickness` pixels wide.
+/// For overlays: sketch strokes, silhouettes, ridges.
+pub fn draw_polyline(
+    rgb: &mut [u8],
+    width: usize,
+    height: usize,
+    points: &[[f64; 2]],
+    color: [u8; 3],
+    thickness: f64,
+) {
+    let r = (thickness / 2.0).max(0.5);
+    let mut plot = |x: f64, y: f64| {
+        let (x0, x1) = ((x - r).floor() as i64, (x + r).ceil() as i64);
+        let (y0, y1) = ((y - r).floor() as i64, (y + r).ceil() as i64);
+        for j in y0.max(0)..y1.min(height as i64) {
+            for i in x0.max(0)..x1.min(width as i64) {
+                let (cx, cy) = (i as f64 + 0.5 - x, j as f64 + 0.5 - y);
+                if cx * cx + cy * cy <= r * r {
+                    let k = (j as usize * width + i as usize) * 3;
+                    rgb[k..k + 3].copy_from_slice(&color);
+                }
+            }
+        }
+    };
+    for w in points.windows(2) {
+        let (a, b) = (w[0], w[1]);
+        let n = ((b[0] - a[0]).abs().max((b[1] - a[1]).abs()) * 2.0)
+            .ceil()
+            .max(1.0) as usize;
+        if n > 1_000_000 {
+            continue;
+        }
+        for s in 0..=n {
+            let t = s as f64 / n as f64;
+            plot(a[0] + (b[0] - a[0]) * t, a[1] + (b[1] - a[1]) * t);
+        }
+    }
+    if points.len() == 1 {
+        plot(points[0][0], points[0][1]);
+    }
+}

@@ -10,7 +10,7 @@
 
 use super::terrain::LocalTerrain;
 use super::RenderError;
-use crate::raster::{Crs, GeoTransform};
+use crate::raster::{Crs, GeoTransform, HeightMap};
 use rayon::prelude::*;
 use std::path::Path;
 
@@ -32,17 +32,12 @@ impl Viewshed {
     }
 }
 
-/// Viewshed of `terrain` (built on a DEM of `width` x `height` cells with
-/// `geotransform` and `crs`) for a target `target_height` metres above the
-/// surface.
-pub fn viewshed(
-    terrain: &LocalTerrain,
-    width: usize,
-    height: usize,
-    geotransform: GeoTransform,
-    crs: &Crs,
-    target_height: f64,
-) -> Viewshed {
+/// Viewshed of `terrain` on the grid of `dem` (the height map the terrain
+/// was built from: the whole DEM or the window within the maximum view
+/// distance, like gdal_viewshed's `-md` output extent) for a target
+/// `target_height` metres above the surface.
+pub fn viewshed(terrain: &LocalTerrain, dem: &HeightMap, target_height: f64) -> Viewshed {
+    let (width, height) = (dem.width, dem.height);
     let mut data = vec![0u8; width * height];
     data.par_chunks_mut(width.max(1))
         .enumerate()
@@ -77,8 +72,8 @@ pub fn viewshed(
         width,
         height,
         data,
-        geotransform,
-        crs: crs.clone(),
+        geotransform: dem.geotransform,
+        crs: dem.crs.clone(),
     }
 }
 

@@ -186,14 +186,14 @@ mod tests {
             let p = c.project([d[0] * 1e4, d[1] * 1e4, d[2] * 1e4]).unwrap();
             assert!((p[0] - x).abs() < 1e-6 && (p[1] - y).abs() < 1e-6);
         }
-        // Clockwise roll: a point straight ahead-right appears lower.
-        let p = c.project(c.right).map(|_| ());
-        assert!(p.is_none());
+        // Clockwise roll of the camera (seen from behind it): the horizon
+        // turns counter-clockwise in the image, so a point ahead-right at
+        // the height of the optical axis appears above the centre row.
         let q = c.project([
             c.forward[0] + 0.1 * (33f64.to_radians().cos()),
             c.forward[1] - 0.1 * (33f64.to_radians().sin()),
             c.forward[2],
         ]);
-        assert!(q.unwrap()[1] > 450.0);
+        assert!(q.unwrap()[1] < 450.0);
     }
 }

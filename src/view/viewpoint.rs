@@ -15,7 +15,7 @@
 //! for geographic CRSs, so both kinds of DEM get correct metric geometry.
 
 use super::{Curvature, ViewError};
-use crate::raster::HeightMap;
+use crate::raster::{Crs, HeightMap};
 use proj::Proj;
 
 /// How high the eye is.
@@ -71,7 +71,12 @@ impl std::fmt::Debug for Georef {
 impl Georef {
     /// Transformations for the CRS of `dem`; `dem_name` names the DEM in errors.
     pub fn new(dem: &HeightMap, dem_name: &str) -> Result<Self, ViewError> {
-        let def = dem.crs.proj_definition();
+        Self::for_crs(&dem.crs, dem_name)
+    }
+
+    /// Transformations for `crs`; `dem_name` names the DEM in errors.
+    pub fn for_crs(crs: &Crs, dem_name: &str) -> Result<Self, ViewError> {
+        let def = crs.proj_definition();
         let perr = |e: &dyn std::fmt::Display| ViewError::Proj {
             dem: dem_name.to_string(),
             message: e.to_string().lines().next().unwrap_or("").to_string(),
@@ -84,7 +89,7 @@ impl Georef {
         Ok(Georef {
             to_crs,
             to_lonlat,
-            geographic: dem.crs.geographic,
+            geographic: crs.geographic,
             dem: dem_name.to_string(),
         })
     }
@@ -141,6 +146,28 @@ impl Georef {
         Ok(-j[0][1].atan2(j[1][1]).to_degrees())
     }
 
+    /// The matrix `m` with `(east, north) = m * (dx, dy)` for CRS offsets
+    /// `(dx, dy)` around `(lon, lat)`: the inverse Jacobian of the CRS in
+    /// metres of the WGS84 tangent plane (`N cos(lat)`, `M` per radian).
+    pub fn metric_matrix(&self, lon: f64, lat: f64) -> Result<[[f64; 2]; 2], ViewError> {
+        let j = self.jacobian(lon, lat)?;
+        let (m_rad, n_rad) = super::curvature::radii_of_curvature(lat);
+        let deg = std::f64::consts::PI / 180.0;
+        let d = [n_rad * lat.to_radians().cos() * deg, m_rad * deg];
+        let det = j[0][0] * j[1][1] - j[0][1] * j[1][0];
+        if !(det.is_finite() && det != 0.0) {
+            return Err(self.err("singular projection at the viewpoint"));
+        }
+        let ji = [
+            [j[1][1] / det, -j[0][1] / det],
+            [-j[1][0] / det, j[0][0] / det],
+        ];
+        Ok([
+            [d[0] * ji[0][0], d[0] * ji[0][1]],
+            [d[1] * ji[1][0], d[1] * ji[1][1]],
+        ])
+    }
+
     /// Resolve `vp` against `dem` (whose CRS this `Georef` was built for).
     /// Errors when the viewpoint lies outside the DEM or on nodata.
     pub fn local_frame(
@@ -177,23 +204,7 @@ impl Georef {
                 lat: vp.lat,
             });
         }
-        let j = self.jacobian(vp.lon, vp.lat)?;
-        let (m_rad, n_rad) = super::curvature::radii_of_curvature(vp.lat);
-        let deg = std::f64::consts::PI / 180.0;
-        let d = [n_rad * vp.lat.to_radians().cos() * deg, m_rad * deg];
-        // (e, n) = D J^-1 (dx, dy)
-        let det = j[0][0] * j[1][1] - j[0][1] * j[1][0];
-        if !(det.is_finite() && det != 0.0) {
-            return Err(self.err("singular projection at the viewpoint"));
-        }
-        let ji = [
-            [j[1][1] / det, -j[0][1] / det],
-            [-j[1][0] / det, j[0][0] / det],
-        ];
-        let m = [
-            [d[0] * ji[0][0], d[0] * ji[0][1]],
-            [d[1] * ji[1][0], d[1] * ji[1][1]],
-        ];
+        let m = self.metric_matrix(vp.lon, vp.lat)?;
         Ok(LocalFrame::new(
             vp.lon,
             vp.lat,

@@ -138,7 +138,9 @@ impl GeoKeys {
                 .or_else(|| {
                     // Geographic files that omit the model type.
                     self.short(GEOGRAPHIC_TYPE)
-                        .filter(|&c| c != USER_DEFINED && c != 0 && self.short(PROJECTED_CS_TYPE).is_none())
+                        .filter(|&c| {
+                            c != USER_DEFINED && c != 0 && self.short(PROJECTED_CS_TYPE).is_none()
+                        })
                         .map(u32::from)
                 }),
         }
@@ -149,7 +151,9 @@ impl GeoKeys {
         match self.short(GT_MODEL_TYPE) {
             Some(2) => true,
             Some(_) => false,
-            None => self.short(PROJECTED_CS_TYPE).is_none() && self.short(GEOGRAPHIC_TYPE).is_some(),
+            None => {
+                self.short(PROJECTED_CS_TYPE).is_none() && self.short(GEOGRAPHIC_TYPE).is_some()
+            }
         }
     }
 
@@ -192,11 +196,18 @@ impl GeoKeys {
     pub fn user_defined_proj(&self) -> Option<String> {
         let d = |id: u16| self.double(id);
         let p0 = |ids: &[u16]| ids.iter().find_map(|&i| d(i)).unwrap_or(0.0);
-        let lon0 = p0(&[PROJ_NAT_ORIGIN_LONG, PROJ_CENTER_LONG, PROJ_FALSE_ORIGIN_LONG, PROJ_STRAIGHT_VERT_POLE_LONG]);
+        let lon0 = p0(&[
+            PROJ_NAT_ORIGIN_LONG,
+            PROJ_CENTER_LONG,
+            PROJ_FALSE_ORIGIN_LONG,
+            PROJ_STRAIGHT_VERT_POLE_LONG,
+        ]);
         let lat0 = p0(&[PROJ_NAT_ORIGIN_LAT, PROJ_CENTER_LAT, PROJ_FALSE_ORIGIN_LAT]);
         let fe = p0(&[PROJ_FALSE_EASTING, PROJ_FALSE_ORIGIN_EASTING]);
         let fnn = p0(&[PROJ_FALSE_NORTHING, PROJ_FALSE_ORIGIN_NORTHING]);
-        let k = d(PROJ_SCALE_AT_NAT_ORIGIN).or(d(PROJ_SCALE_AT_CENTER)).unwrap_or(1.0);
+        let k = d(PROJ_SCALE_AT_NAT_ORIGIN)
+            .or(d(PROJ_SCALE_AT_CENTER))
+            .unwrap_or(1.0);
         let method = match self.short(PROJ_COORD_TRANS)? {
             1 => format!("+proj=tmerc +lat_0={lat0} +lon_0={lon0} +k={k}"),
             7 => format!("+proj=merc +lon_0={lon0} +k={k}"),
@@ -213,9 +224,15 @@ impl GeoKeys {
                 d(PROJ_STD_PARALLEL2)?
             ),
             12 => format!("+proj=aeqd +lat_0={lat0} +lon_0={lon0}"),
-            15 => format!("+proj=stere +lat_0={} +lat_ts={lat0} +lon_0={lon0} +k={k}", if lat0 >= 0.0 { 90 } else { -90 }),
+            15 => format!(
+                "+proj=stere +lat_0={} +lat_ts={lat0} +lon_0={lon0} +k={k}",
+                if lat0 >= 0.0 { 90 } else { -90 }
+            ),
             16 => format!("+proj=sterea +lat_0={lat0} +lon_0={lon0} +k={k}"),
-            17 => format!("+proj=eqc +lat_ts={} +lon_0={lon0}", d(PROJ_STD_PARALLEL1).unwrap_or(lat0)),
+            17 => format!(
+                "+proj=eqc +lat_ts={} +lon_0={lon0}",
+                d(PROJ_STD_PARALLEL1).unwrap_or(lat0)
+            ),
             3 => format!(
                 "+proj=omerc +lat_0={lat0} +lonc={lon0} +alpha={} +k={k}",
                 d(PROJ_AZIMUTH_ANGLE)?
@@ -274,8 +291,11 @@ impl GeoKeys {
                 }
             }
         };
-        proj::Proj::new(&definition)
-            .map_err(|e| crs_err(format!("PROJ rejects the CRS built from the GeoKeys '{definition}': {e}")))?;
+        proj::Proj::new(&definition).map_err(|e| {
+            crs_err(format!(
+                "PROJ rejects the CRS built from the GeoKeys '{definition}': {e}"
+            ))
+        })?;
         let wkt = gdal::spatial_ref::SpatialRef::from_proj4(&definition)
             .and_then(|s| s.to_wkt())
             .unwrap_or_default();

@@ -6,7 +6,10 @@
 //! shifted by half a pixel, `GDAL_NODATA` and `GDAL_METADATA` kept.
 //! Reduced-resolution IFDs (overviews) and masks are recognised and skipped.
 
+mod block_decode;
 mod geokeys;
+
+use block_decode::BlockCodec;
 
 pub use geokeys::{GeoKeys, RasterType};
 
@@ -67,6 +70,9 @@ pub struct GeoTiff {
     pub gdal_metadata: Option<String>,
     /// Sizes of the reduced-resolution images (overviews).
     pub overviews: Vec<(u32, u32)>,
+    codec: BlockCodec,
+    offsets: Vec<u64>,
+    counts: Vec<u64>,
 }
 
 fn tiff_err(path: &Path, e: tiff::TiffError) -> RasterError {
@@ -161,7 +167,8 @@ impl GeoTiff {
             path: path.to_path_buf(),
             detail: "no full-resolution image in the file".into(),
         })?;
-        dec.seek_to_image(ifd_index).map_err(|e| tiff_err(path, e))?;
+        dec.seek_to_image(ifd_index)
+            .map_err(|e| tiff_err(path, e))?;
         Self::describe(path, bytes.clone(), dec, ifd_index, overviews)
     }
 
@@ -290,8 +297,12 @@ impl GeoTiff {
         } else {
             (Tag::StripOffsets, Tag::StripByteCounts)
         };
-        let offsets = dec.get_tag_u64_vec(offsets_tag).map_err(|e| tiff_err(p, e))?;
-        let counts = dec.get_tag_u64_vec(counts_tag).map_err(|e| tiff_err(p, e))?;
+        let offsets = dec
+            .get_tag_u64_vec(offsets_tag)
+            .map_err(|e| tiff_err(p, e))?;
+        let counts = dec
+            .get_tag_u64_vec(counts_tag)
+            .map_err(|e| tiff_err(p, e))?;
         let expected = layout.count() as usize;
         if offsets.len() < expected || counts.len() < expected {
             return Err(RasterError::Corrupt {
@@ -318,12 +329,16 @@ impl GeoTiff {
         }
 
         // Georeference.
-        let f64s = |dec: &mut Decoder<Cursor<&[u8]>>, tag: u16| -> Result<Option<Vec<f64>>, RasterError> {
-            match dec.find_tag(Tag::Unknown(tag)).map_err(|e| tiff_err(p, e))? {
-                None => Ok(None),
-                Some(v) => v.into_f64_vec().map(Some).map_err(|e| tiff_err(p, e)),
-            }
-        };
+        let f64s =
+            |dec: &mut Decoder<Cursor<&[u8]>>, tag: u16| -> Result<Option<Vec<f64>>, RasterError> {
+                match dec
+                    .find_tag(Tag::Unknown(tag))
+                    .map_err(|e| tiff_err(p, e))?
+                {
+                    None => Ok(None),
+                    Some(v) => v.into_f64_vec().map(Some).map_err(|e| tiff_err(p, e)),
+                }
+            };
         let scale = f64s(&mut dec, 33550)?;
         let tiepoint = f64s(&mut dec, 33922)?;
         let transform = f64s(&mut dec, 34264)?;
@@ -333,9 +348,7 @@ impl GeoTiff {
         {
             None => None,
             Some(v) => {
-                let dir: Vec<u16> = v
-                    .into_u16_vec()
-                    .map_err(|e| tiff_err(p, e))?;
+                let dir: Vec<u16> = v.into_u16_vec().map_err(|e| tiff_err(p, e))?;
                 let doubles = f64s(&mut dec, 34736)?.unwrap_or_default();
                 let ascii = match dec
                     .find_tag(Tag::GeoAsciiParamsTag)
@@ -361,7 +374,11 @@ impl GeoTiff {
                 0.0,
                 -s[1],
             ]),
-            _ => return Err(RasterError::NoGeoreference { path: p.to_path_buf() }),
+            _ => {
+                return Err(RasterError::NoGeoreference {
+                    path: p.to_path_buf(),
+                })
+            }
         };
         if raster_type == RasterType::PixelIsPoint {
             // GDAL's default (GTIFF_POINT_GEO_IGNORE=FALSE): the tiepoint is
@@ -406,6 +423,15 @@ impl GeoTiff {
             })?),
         };
         let gdal_metadata = ascii_tag(&mut dec, TAG_GDAL_METADATA);
+        let codec = BlockCodec {
+            compression: dec
+                .find_tag_unsigned::<u16>(Tag::Compression)
+                .map_err(|e| tiff_err(p, e))?
+                .unwrap_or(1),
+            predictor,
+            sample_type,
+            little_endian: bytes.get(..2) == Some(b"II".as_slice()),
+        };
 
         Ok(GeoTiff {
             path: p.to_path_buf(),
@@ -425,35 +451,38 @@ impl GeoTiff {
             nodata,
             gdal_metadata,
             overviews,
+            codec,
+            offsets: offsets[..expected].to_vec(),
+            counts: counts[..expected].to_vec(),
         })
     }
 
-    /// A decoder positioned on the full-resolution image, for one worker.
-    pub fn decoder(&self) -> Result<Decoder<Cursor<&[u8]>>, RasterError> {
-        let mut dec = Decoder::new(Cursor::new(&self.bytes[..]))
-            .map_err(|e| tiff_err(&self.path, e))?
-            .with_limits(Limits::unlimited());
-        if self.ifd_index != 0 {
-            dec.seek_to_image(self.ifd_index)
-                .map_err(|e| tiff_err(&self.path, e))?;
-        }
-        Ok(dec)
-    }
-
-    /// Decode block `index` (row-major over the block grid). Edge blocks are
-    /// returned with their valid width and height (`block_extent`).
-    pub fn decode_block(
-        &self,
-        dec: &mut Decoder<Cursor<&[u8]>>,
-        index: u32,
-    ) -> Result<DecodingResult, RasterError> {
-        dec.read_chunk(index).map_err(|e| match tiff_err(&self.path, e) {
-            RasterError::Corrupt { path, detail } => RasterError::Corrupt {
-                path,
-                detail: format!("block {index}: {detail}"),
-            },
-            other => other,
-        })
+    /// Decode block `index` (row-major over the block grid) into its
+    /// samples that lie inside the image (`block_extent`), row-major.
+    pub fn decode_block(&self, index: u32) -> Result<DecodingResult, RasterError> {
+        let i = index as usize;
+        let (Some(&off), Some(&len)) = (self.offsets.get(i), self.counts.get(i)) else {
+            return Err(RasterError::Corrupt {
+                path: self.path.clone(),
+                detail: format!("no block {index}"),
+            });
+        };
+        let (_, _, w, h) = self.block_extent(index);
+        let (stored_w, stored_h) = if self.layout.tiled {
+            (
+                self.layout.block_width as usize,
+                self.layout.block_height as usize,
+            )
+        } else {
+            (self.width as usize, h as usize)
+        };
+        // Offsets and lengths were checked against the file size at open.
+        let src = &self.bytes[off as usize..(off + len) as usize];
+        block_decode::decode_block(&self.codec, src, stored_w, stored_h, w as usize, h as usize)
+            .map_err(|e| RasterError::Corrupt {
+                path: self.path.clone(),
+                detail: format!("block {index}: {e}"),
+            })
     }
 
     /// Pixel rectangle `(col, row, width, height)` covered by block `index`

@@ -1,0 +1,139 @@
+//! Feature extraction benchmark (issue 3, item 6/7 acceptance): on a
+//! synthetic fractal DEM of 512 x 512 and 4096 x 4096 cells (30 m), time
+//! - `render`: the local terrain around the eye and its depth buffer,
+//! - `silhouettes`: silhouette extraction from that depth buffer,
+//! - `ridges`: the PPA ridge network of the whole DEM,
+//! - `total`: all three, as one feature-extraction pass of an edit.
+//!
+//! Run: `cargo bench --bench features` (`-- 512` to select a size). The
+//! view is `DEMSKETCH_BENCH_VIEW` (default 800x450) pixels, hfov 60.
+
+use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
+use demsketch::features::{detect_ridges, extract_silhouettes, RidgeParams, SilhouetteParams};
+use demsketch::raster::{Crs, GeoTransform, HeightMap};
+use demsketch::render::{DepthBuffer, LocalTerrain};
+use demsketch::view::{Camera, Curvature, LocalFrame};
+use std::time::Duration;
+
+/// Deterministic multi-octave value noise, mountains of ~1500 m relief.
+fn fractal(n: usize) -> HeightMap {
+    fn hash(x: i64, y: i64, o: u64) -> f64 {
+        let mut h = (x as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+            ^ (y as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)
+            ^ o.wrapping_mul(0x1656_67B1_9E37_79F9);
+        h ^= h >> 29;
+        h = h.wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        h ^= h >> 32;
+        (h >> 11) as f64 / (1u64 << 53) as f64
+    }
+    fn noise(x: f64, y: f64, o: u64) -> f64 {
+        let (xi, yi) = (x.floor(), y.floor());
+        let (fx, fy) = (x - xi, y - yi);
+        let (sx, sy) = (fx * fx * (3.0 - 2.0 * fx), fy * fy * (3.0 - 2.0 * fy));
+        let (xi, yi) = (xi as i64, yi as i64);
+        let a = hash(xi, yi, o) + sx * (hash(xi + 1, yi, o) - hash(xi, yi, o));
+        let b = hash(xi, yi + 1, o) + sx * (hash(xi + 1, yi + 1, o) - hash(xi, yi + 1, o));
+        a + sy * (b - a)
+    }
+    let mut data = vec![0f32; n * n];
+    use rayon::prelude::*;
+    data.par_chunks_mut(n).enumerate().for_each(|(r, row)| {
+        for (c, v) in row.iter_mut().enumerate() {
+            // features ~ 9 km at the coarsest octave, whatever the DEM size
+            let (x, y) = (c as f64 / 300.0, r as f64 / 300.0);
+            let mut h = 0.0;
+            let mut amp = 1000.0;
+            let mut f = 1.0;
+            for o in 0..7 {
+                h += amp * noise(x * f, y * f, o);
+                amp *= 0.5;
+                f *= 2.0;
+            }
+            *v = h as f32;
+        }
+    });
+    HeightMap {
+        width: n,
+        height: n,
+        data,
+        geotransform: GeoTransform::north_up(500_000.0, 4_000_000.0 + 30.0 * n as f64, 30.0, 30.0),
+        crs: Crs {
+            epsg: Some(32632),
+            wkt: String::new(),
+            proj: None,
+            geographic: false,
+        },
+    }
+}
+
+fn view_size() -> (usize, usize) {
+    std::env::var("DEMSKETCH_BENCH_VIEW")
+        .ok()
+        .and_then(|s| {
+            let (a, b) = s.split_once('x')?;
+            Some((a.parse().ok()?, b.parse().ok()?))
+        })
+        .unwrap_or((800, 450))
+}
+
+fn bench(c: &mut Criterion) {
+    let (vw, vh) = view_size();
+    let mut g = c.benchmark_group("features");
+    g.sample_size(10)
+        .warm_up_time(Duration::from_secs(1))
+        .measurement_time(Duration::from_secs(5));
+    for n in [512usize, 4096] {
+        let map = fractal(n);
+        // Eye 1.7 m above the ground a quarter of the way up from the south
+        // edge, looking north across the DEM.
+        let (ex, ey) = (500_000.0 + 15.0 * n as f64, 4_000_000.0 + 7.5 * n as f64);
+        let (px, py) = map.geotransform.crs_to_pixel(ex, ey).unwrap_or((0.0, 0.0));
+        let ground = map.bilinear(px, py).unwrap_or(0.0);
+        let frame = LocalFrame::planar(
+            &map,
+            (ex, ey),
+            ground + 1.7,
+            Curvature::at_latitude(46.0, 1.0 / 7.0),
+        );
+        let camera = Camera::new(vw, vh, 10.0, 1.0, 0.0, 60.0).expect("camera");
+        let render = || {
+            let t = LocalTerrain::new(&map, &frame, None);
+            let db = DepthBuffer::render(&t, &camera);
+            (t, db)
+        };
+        let (terrain, db) = render();
+        let sp = SilhouetteParams::default();
+        let rp = RidgeParams::default();
+        g.bench_with_input(BenchmarkId::new("render", n), &n, |b, _| b.iter(render));
+        g.bench_with_input(BenchmarkId::new("silhouettes", n), &n, |b, _| {
+            b.iter(|| extract_silhouettes(&terrain, &db, &sp).expect("silhouettes"))
+        });
+        g.bench_with_input(BenchmarkId::new("ridges", n), &n, |b, _| {
+            b.iter(|| detect_ridges(&map, &rp).expect("ridges"))
+        });
+        g.bench_with_input(BenchmarkId::new("total", n), &n, |b, _| {
+            b.iter(|| {
+                let (t, db) = render();
+                let s = extract_silhouettes(&t, &db, &sp).expect("silhouettes");
+                let r = detect_ridges(&map, &rp).expect("ridges");
+                (s.curves.len(), r.lines.len())
+            })
+        });
+        let s = extract_silhouettes(&terrain, &db, &sp).expect("silhouettes");
+        let r = detect_ridges(&map, &rp).expect("ridges");
+        eprintln!(
+            "{n}x{n}: view {vw}x{vh}, {:.0}% terrain, {} silhouettes / {} samples / {} T-junctions; {} ridge candidates, {} lines, {} nodes",
+            100.0 * db.terrain_fraction(),
+            s.curves.len(),
+            s.sample_count(),
+            s.junctions.len(),
+            r.candidate_cells,
+            r.lines.len(),
+            r.nodes.len()
+        );
+    }
+    g.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

@@ -1,0 +1,91 @@
+//! Setting up a view on a DEM of any size: resolve the viewpoint through
+//! PROJ, read only the window of the tile layer within the maximum view
+//! distance, and build the [`LocalTerrain`] that rendering, locating and
+//! visibility use. This is the one entry point the command line (and the
+//! edit pipeline) needs to go from "DEM + lon/lat" to something to render.
+
+use super::{LocalTerrain, RenderError};
+use crate::raster::{Dem, HeightMap, Window};
+use crate::view::{Georef, LocalFrame, ViewError, Viewpoint};
+
+/// A viewpoint resolved on a DEM, with the terrain around it.
+pub struct Scene {
+    /// The DEM window that was read (whole DEM without a maximum distance).
+    pub window: HeightMap,
+    /// Where the window lies in the DEM's grid.
+    pub window_offset: (i64, i64),
+    pub georef: Georef,
+    pub frame: LocalFrame,
+    pub terrain: LocalTerrain,
+}
+
+impl Scene {
+    /// Resolve `vp` on `dem`, reading only the cells within `max_distance`
+    /// metres (`None`: the whole DEM), with refraction coefficient `k`.
+    pub fn open(
+        dem: &Dem,
+        vp: &Viewpoint,
+        max_distance: Option<f64>,
+        k: f64,
+    ) -> Result<Scene, RenderError> {
+        let name = dem.path.display().to_string();
+        let georef = Georef::for_crs(&dem.crs, &name)?;
+        let (x, y) = georef.lonlat_to_crs(vp.lon, vp.lat)?;
+        let outside = || ViewError::OutsideDem {
+            dem: name.clone(),
+            lon: vp.lon,
+            lat: vp.lat,
+        };
+        let (px, py) = dem.geotransform.crs_to_pixel(x, y).ok_or_else(outside)?;
+        if !(px >= 0.0 && py >= 0.0 && px < dem.width as f64 && py < dem.height as f64) {
+            return Err(outside().into());
+        }
+        let max_d = max_distance.filter(|d| d.is_finite() && *d > 0.0);
+        let win = match max_d {
+            None => dem.full_window(),
+            Some(r) => {
+                let m = georef.metric_matrix(vp.lon, vp.lat)?;
+                let det = m[0][0] * m[1][1] - m[0][1] * m[1][0];
+                let mi = [
+                    [m[1][1] / det, -m[0][1] / det],
+                    [-m[1][0] / det, m[0][0] / det],
+                ];
+                let (gx, gy) = dem.geotransform.pixel_size();
+                let dx = r * mi[0][0].hypot(mi[0][1]) + 2.0 * gx;
+                let dy = r * mi[1][0].hypot(mi[1][1]) + 2.0 * gy;
+                dem.window_for_bounds([x - dx, y - dy, x + dx, y + dy])
+                    .unwrap_or_else(|| Window::new(px as i64, py as i64, 1, 1))
+            }
+        };
+        let window = dem.read_height_map(win)?;
+        let frame = georef.local_frame(vp, &window, k)?;
+        let terrain = LocalTerrain::new(&window, &frame, max_d);
+        Ok(Scene {
+            window,
+            window_offset: (win.col, win.row),
+            georef,
+            frame,
+            terrain,
+        })
+    }
+
+    /// Resolve `vp` on a height map already in memory.
+    pub fn from_height_map(
+        dem: HeightMap,
+        name: &str,
+        vp: &Viewpoint,
+        max_distance: Option<f64>,
+        k: f64,
+    ) -> Result<Scene, RenderError> {
+        let georef = Georef::new(&dem, name)?;
+        let frame = georef.local_frame(vp, &dem, k)?;
+        let terrain = LocalTerrain::new(&dem, &frame, max_distance);
+        Ok(Scene {
+            window: dem,
+            window_offset: (0, 0),
+            georef,
+            frame,
+            terrain,
+        })
+    }
+}
