@@ -10,7 +10,10 @@
 
 use rayon::prelude::*;
 
-use super::galerkin::{galerkin, interp, RegularWeights, StencilSource};
+use super::galerkin::{
+    block_weights, galerkin, interp, weights_from_block, BlockWeights, ConstantSource,
+    StencilSource, Weights,
+};
 
 /// Below this many points a level is processed on one thread.
 const PARALLEL_MIN_POINTS: usize = 1 << 14;
@@ -40,9 +43,12 @@ pub(super) struct CoarseLevel {
     pub reg: [f32; 9],
     pub reg64: [f64; 9],
     pub reg_inv: f32,
-    /// Interpolation weights of regular points of this level (from the next
-    /// coarser level into this one).
-    pub regw: RegularWeights,
+    /// Interpolation from this level into the finer one, per block (the
+    /// fine points `(2i + a, 2j + b)` of coarse point `(i, j)`): 0 for the
+    /// constant `reg_block`, `k > 0` for `bw[k - 1]`. Padded layout.
+    pub bw_idx: Vec<u32>,
+    pub bw: Vec<BlockWeights>,
+    pub reg_block: BlockWeights,
     /// Number of live points.
     pub live: usize,
 }
@@ -122,23 +128,55 @@ impl CoarseLevel {
                 })
             })
             .collect();
-        let reg64 = galerkin(&super::galerkin::ConstantSource(fine_reg), 0, 0);
+        let const_src = ConstantSource(fine_reg);
+        let reg64 = galerkin(&const_src, |i, j| interp(&const_src, i, j), 0, 0);
+        let reg_block = block_weights(&const_src, 0, 0);
         let reg_diag = reg64[4];
+        let regular = |ci: usize, cj: usize| {
+            let fj = 2 * cj;
+            fj >= 3 && fj + 3 < fny && (fj - 3..=fj + 3).all(|r| !near[r * nx + ci])
+        };
+        // Interpolation weights of the blocks of non-regular points.
+        let blocks: Vec<Vec<(usize, BlockWeights)>> = (0..ny)
+            .into_par_iter()
+            .map(|cj| {
+                (0..nx)
+                    .filter(|&ci| !regular(ci, cj))
+                    .map(|ci| (ci, block_weights(src, ci as isize, cj as isize)))
+                    .collect()
+            })
+            .collect();
+        let mut bw_idx = vec![0u32; len];
+        let mut bw = Vec::new();
+        for (cj, row) in blocks.into_iter().enumerate() {
+            for (ci, b) in row {
+                bw.push(b);
+                bw_idx[(cj + 1) * pitch + ci + 1] = bw.len() as u32;
+            }
+        }
+        let weights_at = |fi: isize, fj: isize| -> Weights {
+            if fi < 0 || fj < 0 || fi as usize >= fnx || fj as usize >= fny {
+                return Weights::default();
+            }
+            let k = (fj as usize / 2 + 1) * pitch + fi as usize / 2 + 1;
+            let b = match bw_idx[k] {
+                0 => &reg_block,
+                n => &bw[(n - 1) as usize],
+            };
+            weights_from_block(b, fi, fj)
+        };
         // Per coarse row: indices (local) and irregular stencils.
         let rows: Vec<(Vec<u32>, Vec<[f32; 9]>)> = (0..ny)
             .into_par_iter()
             .map(|cj| {
                 let mut ids = vec![DEAD; nx];
                 let mut sts = Vec::new();
-                let fj = 2 * cj;
                 for (ci, id) in ids.iter_mut().enumerate() {
-                    let regular =
-                        fj >= 3 && fj + 3 < fny && (fj - 3..=fj + 3).all(|r| !near[r * nx + ci]);
-                    if regular {
+                    if regular(ci, cj) {
                         *id = REGULAR;
                         continue;
                     }
-                    let st = galerkin(src, ci as isize, cj as isize);
+                    let st = galerkin(src, weights_at, ci as isize, cj as isize);
                     if st[4] <= 1e-9 * reg_diag {
                         continue;
                     }
@@ -179,7 +217,9 @@ impl CoarseLevel {
             reg,
             reg64,
             reg_inv: (1.0 / reg64[4]) as f32,
-            regw: RegularWeights::from_stencil(reg64),
+            bw_idx,
+            bw,
+            reg_block,
             live,
         }
     }
@@ -316,134 +356,91 @@ impl CoarseLevel {
     }
 }
 
-/// Fine-side data a transfer needs: the fine level's stencils, its regular
-/// weights, and its size.
-pub(super) struct FineSide<'a, S: StencilSource + ?Sized> {
-    pub src: &'a S,
-    pub nx: usize,
-    pub ny: usize,
-    pub regw: RegularWeights,
-}
-
-/// Correction interpolated from `coarse.u` at fine point `(i, j)`.
-#[inline]
-fn interpolated<S: StencilSource + ?Sized>(
-    fine: &FineSide<'_, S>,
-    coarse: &CoarseLevel,
-    i: usize,
-    j: usize,
-) -> f32 {
-    let (ci, cj) = (i / 2, j / 2);
-    let u = &coarse.u;
-    let c = coarse.at(ci, cj);
-    let p = coarse.pitch;
-    if coarse.is_regular(ci, cj) {
-        let w = &fine.regw;
-        return match (i & 1, j & 1) {
-            (0, 0) => u[c],
-            (1, 0) => w.x.0 * u[c] + w.x.1 * u[c + 1],
-            (0, _) => w.y.0 * u[c] + w.y.1 * u[c + p],
-            _ => {
-                w.centre[0] * u[c]
-                    + w.centre[1] * u[c + 1]
-                    + w.centre[2] * u[c + p]
-                    + w.centre[3] * u[c + p + 1]
-            }
-        };
-    }
-    let w = interp(fine.src, i as isize, j as isize);
-    let mut sum = 0.0f64;
-    for &(gi, gj, wt) in &w.c[..w.n] {
-        if gi >= 0 && gj >= 0 && (gi as usize) < coarse.nx && (gj as usize) < coarse.ny {
-            sum += wt * u[coarse.at(gi as usize, gj as usize)] as f64;
+impl CoarseLevel {
+    /// Interpolation weights of block `k` (padded index).
+    #[inline(always)]
+    fn block(&self, k: usize) -> &BlockWeights {
+        match self.bw_idx[k] {
+            0 => &self.reg_block,
+            n => &self.bw[(n - 1) as usize],
         }
     }
-    sum as f32
 }
 
-/// Adds the interpolated coarse correction to row `j` of a fine level,
-/// `out[i]` for `i in 0..nx`.
-pub(super) fn prolongate_row<S: StencilSource + ?Sized>(
-    fine: &FineSide<'_, S>,
-    coarse: &CoarseLevel,
-    j: usize,
-    out: &mut [f32],
-) {
-    for (i, o) in out.iter_mut().enumerate().take(fine.nx) {
-        *o += interpolated(fine, coarse, i, j);
+/// Adds `P coarse.u` to row `j` of the finer level: `out[i]`, `i < nx`.
+pub(super) fn prolongate_row(coarse: &CoarseLevel, j: usize, nx: usize, out: &mut [f32]) {
+    let cj = j / 2;
+    let p = coarse.pitch;
+    let row = coarse.at(0, cj);
+    let u = &coarse.u;
+    let odd_row = j & 1 == 1;
+    for ci in 0..coarse.nx {
+        let k = row + ci;
+        let b = coarse.block(k);
+        let (i0, i1) = (2 * ci, 2 * ci + 1);
+        if odd_row {
+            out[i0] += b[3] * u[k] + b[4] * u[k + p];
+            if i1 < nx {
+                out[i1] += b[5] * u[k] + b[6] * u[k + 1] + b[7] * u[k + p] + b[8] * u[k + p + 1];
+            }
+        } else {
+            out[i0] += b[0] * u[k];
+            if i1 < nx {
+                out[i1] += b[1] * u[k] + b[2] * u[k + 1];
+            }
+        }
     }
 }
 
-/// Restricts a fine residual (`res(i, j)` gives it, 0 outside) to the right-
-/// hand side of coarse row `cj` (`out`, padded row) with `R = P^T`.
-pub(super) fn restrict_row<S: StencilSource + ?Sized>(
-    fine: &FineSide<'_, S>,
+/// Restricts a fine residual to the right-hand side of coarse row `cj`
+/// (`out`, padded row) with `R = P^T`. `res` is the fine residual in padded
+/// natural layout (zero ghost border) with row pitch `rp`.
+pub(super) fn restrict_row(
     coarse: &CoarseLevel,
     cj: usize,
-    res: &dyn Fn(isize, isize) -> f32,
+    res: &[f32],
+    rp: usize,
     out: &mut [f32],
 ) {
-    let w = &fine.regw;
+    let p = coarse.pitch;
+    let r0 = (2 * cj + 1) * rp + 1;
     for ci in 0..coarse.nx {
         let k = coarse.at(ci, cj);
-        let id = coarse.idx[k];
-        let (fi, fj) = (2 * ci as isize, 2 * cj as isize);
-        out[ci + 1] = if id == DEAD {
-            0.0
-        } else if id == REGULAR {
-            res(fi, fj)
-                + w.x.1 * res(fi - 1, fj)
-                + w.x.0 * res(fi + 1, fj)
-                + w.y.1 * res(fi, fj - 1)
-                + w.y.0 * res(fi, fj + 1)
-                + w.centre[3] * res(fi - 1, fj - 1)
-                + w.centre[2] * res(fi + 1, fj - 1)
-                + w.centre[1] * res(fi - 1, fj + 1)
-                + w.centre[0] * res(fi + 1, fj + 1)
-        } else {
-            let mut sum = 0.0f64;
-            for dj in -1..=1 {
-                for di in -1..=1 {
-                    let (i, j) = (fi + di, fj + dj);
-                    if i < 0 || j < 0 || i as usize >= fine.nx || j as usize >= fine.ny {
-                        continue;
-                    }
-                    let wt = interp(fine.src, i, j).of(ci as isize, cj as isize);
-                    if wt != 0.0 {
-                        sum += wt * res(i, j) as f64;
-                    }
-                }
-            }
-            sum as f32
-        };
+        if coarse.idx[k] == DEAD {
+            out[ci + 1] = 0.0;
+            continue;
+        }
+        let (bc, bw, bs, bsw) = (
+            coarse.block(k),
+            coarse.block(k - 1),
+            coarse.block(k - p),
+            coarse.block(k - p - 1),
+        );
+        let c = r0 + 2 * ci;
+        out[ci + 1] = bc[0] * res[c]
+            + bc[1] * res[c + 1]
+            + bw[2] * res[c - 1]
+            + bc[3] * res[c + rp]
+            + bs[4] * res[c - rp]
+            + bc[5] * res[c + rp + 1]
+            + bw[6] * res[c + rp - 1]
+            + bs[7] * res[c - rp + 1]
+            + bsw[8] * res[c - rp - 1];
     }
 }
 
 /// Restriction between two coarse levels: `coarse.rhs = R fine.res`, and
 /// `coarse.u = 0`. `fine.res` must hold the fine residual.
 pub(super) fn restrict_coarse(fine: &CoarseLevel, coarse: &mut CoarseLevel) {
-    let side = FineSide {
-        src: fine,
-        nx: fine.nx,
-        ny: fine.ny,
-        regw: fine.regw,
-    };
-    let fp = fine.pitch as isize;
+    let fp = fine.pitch;
     let fres = &fine.res;
-    let res = |i: isize, j: isize| -> f32 {
-        if i < -1 || j < -1 || i > fine.nx as isize || j > fine.ny as isize {
-            0.0
-        } else {
-            fres[((j + 1) * fp + i + 1) as usize]
-        }
-    };
     let cp = coarse.pitch;
     let cny = coarse.ny;
     let mut rhs = std::mem::take(&mut coarse.rhs);
     {
         let c: &CoarseLevel = coarse;
         let rows = &mut rhs[cp..(cny + 1) * cp];
-        let job = |(cj, out): (usize, &mut [f32])| restrict_row(&side, c, cj, &res, out);
+        let job = |(cj, out): (usize, &mut [f32])| restrict_row(c, cj, fres, fp, out);
         if fine.parallel() {
             rows.par_chunks_mut(cp).enumerate().for_each(job);
         } else {
@@ -456,25 +453,24 @@ pub(super) fn restrict_coarse(fine: &CoarseLevel, coarse: &mut CoarseLevel) {
 
 /// `fine.u += P coarse.u` between two coarse levels (dead fine points get 0).
 pub(super) fn prolongate_coarse(coarse: &CoarseLevel, fine: &mut CoarseLevel) {
-    let mut u = std::mem::take(&mut fine.u);
-    {
-        let f: &CoarseLevel = fine;
-        let side = FineSide {
-            src: f,
-            nx: f.nx,
-            ny: f.ny,
-            regw: f.regw,
-        };
-        let p = f.pitch;
-        let rows = &mut u[p..(f.ny + 1) * p];
-        let job = |(j, row): (usize, &mut [f32])| {
-            prolongate_row(&side, coarse, j, &mut row[1..1 + f.nx]);
-        };
-        if f.parallel() {
-            rows.par_chunks_mut(p).enumerate().for_each(job);
-        } else {
-            rows.chunks_mut(p).enumerate().for_each(job);
+    let p = fine.pitch;
+    let (nx, ny) = (fine.nx, fine.ny);
+    let parallel = fine.parallel();
+    let idx = &fine.idx;
+    let rows = &mut fine.u[p..(ny + 1) * p];
+    let job = |(j, row): (usize, &mut [f32])| {
+        prolongate_row(coarse, j, nx, &mut row[1..1 + nx]);
+        // Dead points keep a zero correction.
+        let ids = &idx[(j + 1) * p + 1..(j + 1) * p + 1 + nx];
+        for (v, &id) in row[1..1 + nx].iter_mut().zip(ids) {
+            if id == DEAD {
+                *v = 0.0;
+            }
         }
+    };
+    if parallel {
+        rows.par_chunks_mut(p).enumerate().for_each(job);
+    } else {
+        rows.chunks_mut(p).enumerate().for_each(job);
     }
-    fine.u = u;
 }

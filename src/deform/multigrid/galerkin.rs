@@ -145,15 +145,76 @@ pub(super) fn interp<S: StencilSource + ?Sized>(src: &S, i: isize, j: isize) -> 
     out
 }
 
+/// Interpolation weights of the fine points of block `(ci, cj)` (fine points
+/// `(2ci + a, 2cj + b)`, `a, b` in 0..2) in the order
+/// `[centre, x-edge west, x-edge east, y-edge south, y-edge north,
+///   cell sw, cell se, cell nw, cell ne]`.
+pub(super) type BlockWeights = [f32; 9];
+
+/// [`BlockWeights`] of block `(ci, cj)` from the fine stencils.
+pub(super) fn block_weights<S: StencilSource + ?Sized>(
+    src: &S,
+    ci: isize,
+    cj: isize,
+) -> BlockWeights {
+    let (i, j) = (2 * ci, 2 * cj);
+    let c = interp(src, i, j);
+    let x = interp(src, i + 1, j);
+    let y = interp(src, i, j + 1);
+    let z = interp(src, i + 1, j + 1);
+    [
+        c.of(ci, cj),
+        x.of(ci, cj),
+        x.of(ci + 1, cj),
+        y.of(ci, cj),
+        y.of(ci, cj + 1),
+        z.of(ci, cj),
+        z.of(ci + 1, cj),
+        z.of(ci, cj + 1),
+        z.of(ci + 1, cj + 1),
+    ]
+    .map(|v| v as f32)
+}
+
+/// Interpolation weights of fine point `(i, j)` read from its block's weights.
+#[inline]
+pub(super) fn weights_from_block(b: &BlockWeights, i: isize, j: isize) -> Weights {
+    let (ci, cj) = (i.div_euclid(2), j.div_euclid(2));
+    let mut w = Weights::default();
+    match (i & 1, j & 1) {
+        (0, 0) => w.push(ci, cj, b[0] as f64),
+        (1, 0) => {
+            w.push(ci, cj, b[1] as f64);
+            w.push(ci + 1, cj, b[2] as f64);
+        }
+        (0, _) => {
+            w.push(ci, cj, b[3] as f64);
+            w.push(ci, cj + 1, b[4] as f64);
+        }
+        _ => {
+            w.push(ci, cj, b[5] as f64);
+            w.push(ci + 1, cj, b[6] as f64);
+            w.push(ci, cj + 1, b[7] as f64);
+            w.push(ci + 1, cj + 1, b[8] as f64);
+        }
+    }
+    w
+}
+
 /// Galerkin stencil `(P^T A P)` of coarse point `(ci, cj)`, entry
-/// `sidx(dI, dJ)` coupling to coarse point `(ci + dI, cj + dJ)`.
-pub(super) fn galerkin<S: StencilSource + ?Sized>(src: &S, ci: isize, cj: isize) -> [f64; 9] {
+/// `sidx(dI, dJ)` coupling to coarse point `(ci + dI, cj + dJ)`;
+/// `weights(i, j)` gives the interpolation weights of fine point `(i, j)`.
+pub(super) fn galerkin<S, W>(src: &S, weights: W, ci: isize, cj: isize) -> [f64; 9]
+where
+    S: StencilSource + ?Sized,
+    W: Fn(isize, isize) -> Weights,
+{
     // Interpolation weights of the fine 5 x 5 window around (2 ci, 2 cj).
     let (fi0, fj0) = (2 * ci - 2, 2 * cj - 2);
     let mut win = [[Weights::default(); 5]; 5];
     for (b, row) in win.iter_mut().enumerate() {
         for (a, w) in row.iter_mut().enumerate() {
-            *w = interp(src, fi0 + a as isize, fj0 + b as isize);
+            *w = weights(fi0 + a as isize, fj0 + b as isize);
         }
     }
     let mut acc = [0.0f64; 9];
@@ -192,33 +253,5 @@ impl StencilSource for ConstantSource {
     #[inline]
     fn stencil(&self, _i: isize, _j: isize) -> [f64; 9] {
         self.0
-    }
-}
-
-/// The constant ("regular") interpolation weights of a level: x-edge
-/// (west, east), y-edge (south, north) and centre (sw, se, nw, ne).
-#[derive(Clone, Copy, Debug)]
-pub(super) struct RegularWeights {
-    pub x: (f32, f32),
-    pub y: (f32, f32),
-    pub centre: [f32; 4],
-}
-
-impl RegularWeights {
-    pub fn from_stencil(st: [f64; 9]) -> RegularWeights {
-        let src = ConstantSource(st);
-        let x = interp(&src, 1, 0);
-        let y = interp(&src, 0, 1);
-        let c = interp(&src, 1, 1);
-        RegularWeights {
-            x: (x.of(0, 0) as f32, x.of(1, 0) as f32),
-            y: (y.of(0, 0) as f32, y.of(0, 1) as f32),
-            centre: [
-                c.of(0, 0) as f32,
-                c.of(1, 0) as f32,
-                c.of(0, 1) as f32,
-                c.of(1, 1) as f32,
-            ],
-        }
     }
 }

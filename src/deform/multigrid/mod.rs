@@ -76,10 +76,8 @@ mod galerkin;
 mod level;
 pub mod synthetic;
 
-use coarse::{
-    prolongate_coarse, prolongate_row, restrict_coarse, restrict_row, CoarseLevel, FineSide,
-};
-use galerkin::{RegularWeights, StencilSource};
+use coarse::{prolongate_coarse, prolongate_row, restrict_coarse, restrict_row, CoarseLevel};
+use galerkin::StencilSource;
 use level::Level;
 use rayon::prelude::*;
 
@@ -217,7 +215,20 @@ pub fn solve(
         });
     }
 
+    let t0 = std::time::Instant::now();
     let mut h = build_hierarchy(nx, ny, hx, hy, opts.screening, fixed, values);
+    if std::env::var_os("MG_DEBUG").is_some() {
+        eprintln!("setup {:.3}s", t0.elapsed().as_secs_f64());
+        for c in &h.coarse {
+            eprintln!(
+                "  level {}x{} live {} irregular {}",
+                c.nx,
+                c.ny,
+                c.live,
+                c.irr.len()
+            );
+        }
+    }
     let mut stats = SolveStats {
         cycles: 0,
         residual_history: Vec::new(),
@@ -231,7 +242,11 @@ pub fn solve(
     stats.residual_history.push(rel);
     let mut slow_cycles = 0;
     while rel > opts.tolerance && stats.cycles < opts.max_cycles {
+        let t1 = std::time::Instant::now();
         v_cycle(&mut h, opts.pre_smooth, opts.post_smooth);
+        if std::env::var_os("MG_DEBUG").is_some() {
+            eprintln!("cycle {:.3}s", t1.elapsed().as_secs_f64());
+        }
         stats.cycles += 1;
         let next = h.fine.residual_norm_squared().sqrt() / b_norm;
         stats.residual_history.push(next);
@@ -467,10 +482,6 @@ struct Hierarchy {
     fine: Level,
     /// Free mask of the finest level, natural layout.
     free: Vec<u8>,
-    ax: f64,
-    ay: f64,
-    diag: f64,
-    fine_regw: RegularWeights,
     coarse: Vec<CoarseLevel>,
 }
 
@@ -510,7 +521,6 @@ fn build_hierarchy(
     let ay = 1.0 / (hy * hy);
     let diag = 2.0 * ax + 2.0 * ay + screening;
     let src = fine_source(&fine, &free, ax, ay, diag);
-    let fine_regw = RegularWeights::from_stencil(src.regular());
     let mut coarse: Vec<CoarseLevel> = Vec::new();
     if nx > COARSEST_MAX_DIM || ny > COARSEST_MAX_DIM {
         let first = CoarseLevel::build(&src, nx, ny, src.regular(), &src.irregular());
@@ -528,15 +538,8 @@ fn build_hierarchy(
         }
         coarse.push(next);
     }
-    Hierarchy {
-        fine,
-        free,
-        ax,
-        ay,
-        diag,
-        fine_regw,
-        coarse,
-    }
+    drop(src);
+    Hierarchy { fine, free, coarse }
 }
 
 /// Copies the caller's natural-layout arrays into the finest level's split
@@ -611,33 +614,17 @@ fn solve_fine_alone(level: &mut Level) {
 /// Restricts the finest level's residual (in `fine.natural`) to the first
 /// coarse level's right-hand side and zeroes its correction.
 fn restrict_fine(h: &mut Hierarchy) {
-    let Hierarchy {
-        fine,
-        free,
-        ax,
-        ay,
-        diag,
-        fine_regw,
-        coarse,
-    } = h;
-    let src = fine_source(fine, free, *ax, *ay, *diag);
-    let side = FineSide {
-        src: &src,
-        nx: fine.nx,
-        ny: fine.ny,
-        regw: *fine_regw,
-    };
-    let nxp = (fine.nx + 2) as isize;
-    let res_buf = &fine.natural;
-    let res = |i: isize, j: isize| res_buf[((j + 1) * nxp + i + 1) as usize];
-    let c = &mut coarse[0];
+    let fine = &h.fine;
+    let nxp = fine.nx + 2;
+    let res = &fine.natural;
+    let c = &mut h.coarse[0];
     let cp = c.pitch;
     let cny = c.ny;
     let mut rhs = std::mem::take(&mut c.rhs);
     {
         let cl: &CoarseLevel = c;
         let rows = &mut rhs[cp..(cny + 1) * cp];
-        let job = |(cj, out): (usize, &mut [f32])| restrict_row(&side, cl, cj, &res, out);
+        let job = |(cj, out): (usize, &mut [f32])| restrict_row(cl, cj, res, nxp, out);
         if fine.parallel() {
             rows.par_chunks_mut(cp).enumerate().for_each(job);
         } else {
@@ -650,24 +637,10 @@ fn restrict_fine(h: &mut Hierarchy) {
 
 /// Adds the interpolated correction of the first coarse level to the finest.
 fn prolongate_fine(h: &mut Hierarchy) {
-    let Hierarchy {
-        fine,
-        free,
-        ax,
-        ay,
-        diag,
-        fine_regw,
-        coarse,
-    } = h;
-    let src = fine_source(fine, free, *ax, *ay, *diag);
-    let side = FineSide {
-        src: &src,
-        nx: fine.nx,
-        ny: fine.ny,
-        regw: *fine_regw,
-    };
-    let c = &coarse[0];
-    fine.add_correction(|j, row| prolongate_row(&side, c, j, row));
+    let c = &h.coarse[0];
+    let nx = h.fine.nx;
+    h.fine
+        .add_correction(|j, row| prolongate_row(c, j, nx, row));
 }
 
 /// One V-cycle on the coarse levels `levels[0]` (right-hand side given).
