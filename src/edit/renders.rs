@@ -56,12 +56,13 @@ fn diverging(t: f64) -> [u8; 3] {
     ]
 }
 
-/// Map of the height change over a grid of `nx x ny` cells (`base` heights
-/// for a faint relief, NaN = nodata drawn grey) with a colour bar labelled
-/// in metres. Returns `(width, height, rgb)`.
+/// Map of the height change over a grid of `nx x ny` cells of `cell_m`
+/// metres (`base` heights for a faint hillshade, NaN = nodata drawn grey)
+/// with a colour bar labelled in metres. Returns `(width, height, rgb)`.
 pub fn height_change_map(
     nx: usize,
     ny: usize,
+    cell_m: (f64, f64),
     base: &[f32],
     change: &[f32],
 ) -> (usize, usize, Vec<u8>) {
@@ -82,14 +83,18 @@ pub fn height_change_map(
             let c = if base[k].is_nan() {
                 [160, 160, 160]
             } else {
-                // Faint hillshade from the base heights (NW light).
-                let hz = |a: usize, b: usize| base[b * nx + a];
+                // Faint hillshade from the base heights (light from the NW).
+                let hz = |a: usize, b: usize| (base[b * nx + a] + change[b * nx + a]) as f64;
                 let (i0, i1) = (i.saturating_sub(1), (i + 1).min(nx - 1));
                 let (j0, j1) = (j.saturating_sub(1), (j + 1).min(ny - 1));
-                let gx = (hz(i1, j) - hz(i0, j)) as f64;
-                let gy = (hz(i, j1) - hz(i, j0)) as f64;
+                let gx = (hz(i1, j) - hz(i0, j)) / (cell_m.0 * (i1 - i0).max(1) as f64);
+                let gy = (hz(i, j1) - hz(i, j0)) / (cell_m.1 * (j1 - j0).max(1) as f64);
                 let shade = if gx.is_finite() && gy.is_finite() {
-                    (1.0 - 0.004 * (gx + gy)).clamp(0.75, 1.1)
+                    // Normal (-gx, gy, 1) in (east, north, up); light from NW, 45 deg up.
+                    let n = (gx * gx + gy * gy + 1.0).sqrt();
+                    let l = (0.5f64).sqrt();
+                    let lambert = ((gx * 0.5 - gy * 0.5) * l + l) / n;
+                    (0.82 + 0.25 * lambert).clamp(0.8, 1.05)
                 } else {
                     1.0
                 };
