@@ -15,10 +15,15 @@
 //!
 //! A feature (by id) is used at most once in the whole sketch. The strokes
 //! are then placed in world space, unmatched ones embedded by the fallback,
-//! and features completed down to the terrain. Finally, sketches that
-//! intersect (a placed stroke of one view, seen from another view, crosses a
-//! stroke of that view in front of it) are reported as an error: the paper
-//! does not support them, and no deformation could satisfy both.
+//! and features completed down to the terrain.
+//!
+//! Sketches that intersect (a placed stroke of one view, seen from another
+//! view, crosses a stroke of that view in front of it) are reported as an
+//! error: the paper does not support them, and no deformation could satisfy
+//! both. The test runs on each view matched on its own (what each sketch
+//! means to its author: without it, the joint minimisation would silently
+//! twist the matches or embed strokes to dodge the crossing) and again on
+//! the joint result ([`check_intersections`]).
 
 use std::cell::RefCell;
 use std::collections::HashMap;
@@ -205,11 +210,53 @@ pub fn match_sketch(views: &[ViewInput], opts: &SketchOptions) -> Result<SketchM
                 .collect()
         })
         .collect();
+    // Sketches that intersect: each view matched on its own (the features
+    // its author would get drawing it alone) must not cross another view's
+    // strokes; otherwise the joint assignment could only avoid the
+    // conflict by twisting the matches (section 7: not supported).
+    if views.len() > 1 {
+        let mut alone: Vec<Vec<Option<usize>>> = Vec::with_capacity(views.len());
+        for t in 0..views.len() {
+            let (a, _) = solve(views, &orderings, &lists, &[t]);
+            alone.push(a.into_iter().nth(t).unwrap_or_default());
+        }
+        let placed = place_views(views, &orderings, &lists, &alone, opts);
+        let m = SketchMatch {
+            views: placed,
+            total_cost: 0.0,
+            nodes: 0,
+        };
+        check_intersections(views, &m)?;
+    }
+    let all: Vec<usize> = (0..views.len()).collect();
+    let (assigned, sol) = solve(views, &orderings, &lists, &all);
+    let mut out_views = place_views(views, &orderings, &lists, &assigned, opts);
+    for (t, l) in lists.into_iter().enumerate() {
+        out_views[t].lists = l;
+    }
+    let result = SketchMatch {
+        views: out_views,
+        total_cost: sol.cost,
+        nodes: sol.nodes,
+    };
+    check_intersections(views, &result)?;
+    Ok(result)
+}
+
+/// Branch-and-bound over the strokes of the views `which` (in that order,
+/// front to back within a view) with the within-view and cross-view
+/// occlusion constraints. Returns the chosen candidate per view and stroke
+/// (`None` for views not in `which` and for emptied lists).
+fn solve(
+    views: &[ViewInput],
+    orderings: &[DepthOrdering],
+    lists: &[Vec<PriorityList>],
+    which: &[usize],
+) -> (Vec<Vec<Option<usize>>>, super::branch_and_bound::Solution) {
     // Global stroke list: (view, stroke), view by view, front to back.
-    let global: Vec<(usize, usize)> = orderings
+    let global: Vec<(usize, usize)> = which
         .iter()
-        .enumerate()
-        .flat_map(|(t, o)| o.order.iter().map(move |&s| (t, s)))
+        .flat_map(|&t| orderings[t].order.iter().map(move |&s| (t, s)))
         .collect();
     let choices: Vec<Vec<Choice>> = global
         .iter()
@@ -261,13 +308,26 @@ pub fn match_sketch(views: &[ViewInput], opts: &SketchOptions) -> Result<SketchM
     };
     let sol = branch_and_bound(&choices, &conflicts, Bound::LowerBound);
 
-    // Placement.
-    let mut out_views = Vec::with_capacity(views.len());
     let mut assigned: Vec<Vec<Option<usize>>> =
         views.iter().map(|v| vec![None; v.strokes.len()]).collect();
     for (g, &(t, s)) in global.iter().enumerate() {
         assigned[t][s] = sol.choice[g];
     }
+    (assigned, sol)
+}
+
+/// Places the strokes of every view on their assigned candidates, embeds
+/// the others and completes the features (`lists` of the result are left
+/// empty).
+fn place_views(
+    views: &[ViewInput],
+    orderings: &[DepthOrdering],
+    lists: &[Vec<PriorityList>],
+    assigned: &[Vec<Option<usize>>],
+    opts: &SketchOptions,
+) -> Vec<ViewMatch> {
+    // Placement.
+    let mut out_views = Vec::with_capacity(views.len());
     for (t, view) in views.iter().enumerate() {
         let proj = view.projection;
         let mut placed: Vec<Option<Vec<PlacedPoint>>> = view
@@ -335,16 +395,7 @@ pub fn match_sketch(views: &[ViewInput], opts: &SketchOptions) -> Result<SketchM
             lists: Vec::new(),
         });
     }
-    for (t, l) in lists.into_iter().enumerate() {
-        out_views[t].lists = l;
-    }
-    let result = SketchMatch {
-        views: out_views,
-        total_cost: sol.cost,
-        nodes: sol.nodes,
-    };
-    check_intersections(views, &result)?;
-    Ok(result)
+    out_views
 }
 
 /// Reports the first pair of sketches that intersect (see the module
