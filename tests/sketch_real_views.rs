@@ -164,6 +164,34 @@ fn identity(name: &str, lon: f64, lat: f64, heading: f64) {
         view.features.len() - r.sil.curves.len(),
         t.elapsed().as_secs_f64() * 1e3
     );
+    // The depth order agrees with the terrain: where two traced strokes
+    // share pixel columns, the upper one is the farther silhouette (along a
+    // column, visible depth grows upwards) and must be ordered behind.
+    let mut pairs = 0;
+    for a in 0..curves.len() {
+        for b in 0..curves.len() {
+            let (sa, sb) = (&input.strokes[a], &input.strokes[b]);
+            let (lo, hi) = (
+                sa.x_range().0.max(sb.x_range().0),
+                sa.x_range().1.min(sb.x_range().1),
+            );
+            if hi - lo < 10.0 {
+                continue;
+            }
+            let x = 0.5 * (lo + hi);
+            let (ya, yb) = (sa.y_at(x).unwrap(), sb.y_at(x).unwrap());
+            if ya < yb - 2.0 {
+                // a above b: a behind b.
+                assert!(
+                    m.ordering.rank[a] > m.ordering.rank[b],
+                    "{name}: stroke {a} is above stroke {b} at x {x:.0} but ordered in front: {:?}",
+                    m.ordering.order
+                );
+                pairs += 1;
+            }
+        }
+    }
+    eprintln!("{name}: depth order agrees with the terrain on {pairs} overlapping pairs");
     let mut worst = 0.0_f64;
     for (k, (s, c)) in m.strokes.iter().zip(&curves).enumerate() {
         let want = FeatureSource::Silhouette {
