@@ -129,6 +129,10 @@ pub struct ColumnProfile {
     k0: i64,
     depth: Vec<f64>,
     y: Vec<f64>,
+    min_depth: f64,
+    max_depth: f64,
+    min_y: f64,
+    max_y: f64,
 }
 
 impl ColumnProfile {
@@ -140,23 +144,86 @@ impl ColumnProfile {
                 k0: 0,
                 depth: Vec::new(),
                 y: Vec::new(),
+                min_depth: f64::NAN,
+                max_depth: f64::NAN,
+                min_y: f64::NAN,
+                max_y: f64::NAN,
             };
         }
         let k0 = (a0 / OCCLUSION_STEP_PX).ceil() as i64;
         let k1 = (a1 / OCCLUSION_STEP_PX).floor() as i64;
         let len = (k1 - k0 + 1).max(0) as usize;
         let (mut depth, mut y) = (Vec::with_capacity(len), Vec::with_capacity(len));
+        // Both polylines are x-monotone: walk them with cursors (linear
+        // interpolation, as `Candidate::depth_at` and `Stroke::y_at`).
+        let cp = &cand.points;
+        let sp = &stroke.points;
+        let (sx0, sx1) = stroke.x_range();
+        let (mut i, mut j) = (0usize, 0usize);
         for k in k0..=k1 {
             let x = k as f64 * OCCLUSION_STEP_PX;
-            depth.push(cand.depth_at(x).unwrap_or(f64::NAN));
-            y.push(stroke.y_at(x).unwrap_or(f64::NAN));
+            while i + 1 < cp.len() && cp[i + 1].deformed_pixel[0] < x {
+                i += 1;
+            }
+            let d = if i + 1 < cp.len() {
+                let (a, b) = (&cp[i], &cp[i + 1]);
+                let dx = b.deformed_pixel[0] - a.deformed_pixel[0];
+                if x <= a.deformed_pixel[0] {
+                    a.depth
+                } else if dx > 1e-12 {
+                    a.depth + (x - a.deformed_pixel[0]) / dx * (b.depth - a.depth)
+                } else {
+                    b.depth
+                }
+            } else {
+                cp.last().map_or(f64::NAN, |p| p.depth)
+            };
+            depth.push(d);
+            let yv = if x >= sx0 && x <= sx1 && !sp.is_empty() {
+                while j + 1 < sp.len() && sp[j + 1][0] < x {
+                    j += 1;
+                }
+                if j + 1 < sp.len() {
+                    let (a, b) = (sp[j], sp[j + 1]);
+                    let dx = b[0] - a[0];
+                    if x <= a[0] {
+                        a[1]
+                    } else if dx > 1e-12 {
+                        a[1] + (x - a[0]) / dx * (b[1] - a[1])
+                    } else {
+                        b[1]
+                    }
+                } else {
+                    sp[sp.len() - 1][1]
+                }
+            } else {
+                f64::NAN
+            };
+            y.push(yv);
         }
-        ColumnProfile { k0, depth, y }
+        let fmin = |v: &[f64]| v.iter().copied().fold(f64::INFINITY, f64::min);
+        let fmax = |v: &[f64]| v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        ColumnProfile {
+            k0,
+            min_depth: fmin(&depth),
+            max_depth: fmax(&depth),
+            min_y: fmin(&y),
+            max_y: fmax(&y),
+            depth,
+            y,
+        }
     }
 
     /// Does the candidate of `back` (a farther stroke) hide the candidate of
     /// `front`? See [`occludes_within_view`].
     pub fn hides(back: &ColumnProfile, front: &ColumnProfile) -> bool {
+        // Quick rejection: `back` nowhere nearer than `front`, or nowhere
+        // high enough.
+        if !(back.min_depth < front.max_depth * (1.0 - 1e-9) - 1e-6)
+            || !(back.min_y <= front.max_y + OCCLUSION_TOL_PX)
+        {
+            return false;
+        }
         let lo = back.k0.max(front.k0);
         let hi = (back.k0 + back.depth.len() as i64).min(front.k0 + front.depth.len() as i64);
         (lo..hi).any(|k| {
