@@ -33,8 +33,8 @@ fn hash4(seed: u64, i: usize, a: usize, j: usize, b: usize) -> f64 {
 #[test]
 fn branch_and_bound_equals_brute_force_on_500_instances() {
     let mut rng = Rng(0x5EED);
-    let (mut bb_nodes, mut bf_nodes, mut paper_nodes, mut exhaustive_nodes) =
-        (0u64, 0u64, 0u64, 0u64);
+    let (mut bb_nodes, mut bf_nodes, mut paper_nodes, mut exhaustive_nodes, mut fc_nodes) =
+        (0u64, 0u64, 0u64, 0u64, 0u64);
     let mut with_empty = 0;
     for inst in 0..500 {
         let n = 1 + rng.below(6) as usize;
@@ -58,7 +58,8 @@ fn branch_and_bound_equals_brute_force_on_500_instances() {
         let bb = branch_and_bound(&lists, &conflicts, Bound::LowerBound);
         let paper = branch_and_bound(&lists, &conflicts, Bound::PartialCost);
         let ex = branch_and_bound(&lists, &conflicts, Bound::None);
-        for s in [&bb, &paper, &ex] {
+        let fc = branch_and_bound(&lists, &conflicts, Bound::ForwardChecking);
+        for s in [&bb, &paper, &ex, &fc] {
             assert!(
                 (s.cost - bf.cost).abs() <= 1e-9 * bf.cost.max(1.0),
                 "instance {inst}: {} vs brute force {}",
@@ -78,16 +79,21 @@ fn branch_and_bound_equals_brute_force_on_500_instances() {
         bb_nodes += bb.nodes;
         paper_nodes += paper.nodes;
         exhaustive_nodes += ex.nodes;
+        fc_nodes += fc.nodes;
         bf_nodes += bf.nodes;
     }
     assert!(bb_nodes < bf_nodes);
     assert!(paper_nodes < bf_nodes);
+    assert!(fc_nodes < bf_nodes && fc_nodes <= bb_nodes);
     println!(
         "500 instances ({with_empty} with an emptied list): nodes visited: brute force {bf_nodes}, \
          exhaustive feasible tree {exhaustive_nodes}, B&B paper bound {paper_nodes} ({:.4} of brute force), \
-         B&B with lower bound {bb_nodes} ({:.4} of brute force)",
+         B&B with lower bound {bb_nodes} ({:.4} of brute force), \
+         B&B with forward checking (default) {fc_nodes} ({:.4} of brute force, {:.3} of the feasible tree)",
         paper_nodes as f64 / bf_nodes as f64,
-        bb_nodes as f64 / bf_nodes as f64
+        bb_nodes as f64 / bf_nodes as f64,
+        fc_nodes as f64 / bf_nodes as f64,
+        fc_nodes as f64 / exhaustive_nodes as f64
     );
 }
 

@@ -230,6 +230,12 @@ pub fn build_candidate(
     if span <= 0.0 {
         return None;
     }
+    // Quick rejection on the feature's x range (most features of a view do
+    // not cover a given stroke).
+    let (fa, fb) = feature.x_range()?;
+    if !(fb.min(sx1) - fa.max(sx0) >= opts.min_coverage * span) {
+        return None;
+    }
     // Keep the x-monotone samples (the producer's contract).
     let mut samples = Vec::with_capacity(feature.samples.len());
     for s in &feature.samples {

@@ -11,9 +11,16 @@
 //!    `(occluded-by, r)` when the counterclockwise angle from the tangent of
 //!    `s` to the tangent of `r` is below 180 degrees, else `(in-front-of, r)`.
 //!    Angles are measured as seen on screen (y up).
-//! 2. **Cues without junctions**: if the x interval of `r` lies inside that
-//!    of `s`, `s` is behind `r`; otherwise the stroke whose lowest extremity
-//!    is higher on screen is behind.
+//!    An extremity that meets the other stroke at one of *its* extremities
+//!    is an end-to-end contact (one silhouette continuing another, common
+//!    when tracing real views), not a T-junction, and gives no cue.
+//! 2. **Cues without junctions**: where the two strokes share pixel columns
+//!    and one is drawn above the other there, it is behind (the paper's
+//!    first observation, "if a silhouette lies above another, it ...
+//!    [is] farther away", applied column by column, where it is exact for a
+//!    height field); otherwise, if the x interval of `r` lies inside that of
+//!    `s`, `s` is behind `r`; otherwise the stroke whose lowest extremity is
+//!    higher on screen is behind.
 //! 3. **Sweep** ([`order_strokes`]): the extremities are visited from left to
 //!    right; opening a stroke inserts it into the sorting structure
 //!    ([`SortingStructure`]) with its start junction and, for each stroke
@@ -24,7 +31,8 @@
 //!    existing order as little as possible.
 //!
 //! Contradictory cues are resolved deterministically: junction cues beat
-//! containment cues, which beat height cues, and among cues of the same
+//! above cues, which beat containment cues, which beat height cues, and
+//! among cues of the same
 //! strength the one met first in the sweep wins. A cue contradicted by a
 //! stronger one is *overridden* (expected: a height cue is only a fallback);
 //! a cue contradicted by cues of its own strength is a *conflict* and is
@@ -66,9 +74,20 @@ pub struct Junction {
 #[serde(rename_all = "lowercase")]
 pub enum CueKind {
     Junction,
+    /// Where two strokes share pixel columns, the one drawn above is behind
+    /// (the paper's first observation, tested column by column).
+    Above,
     Containment,
     Height,
 }
+
+/// All cue kinds, strongest first.
+const CUE_KINDS: [CueKind; 4] = [
+    CueKind::Junction,
+    CueKind::Above,
+    CueKind::Containment,
+    CueKind::Height,
+];
 
 /// "`behind` lies behind `front`", with where it comes from.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
@@ -130,6 +149,12 @@ pub fn label_junctions(strokes: &[Stroke], threshold: f64) -> Vec<Junction> {
                 if r == s || siblings(st, rt) {
                     continue;
                 }
+                // Meeting the other stroke at one of its own extremities is
+                // an end-to-end contact (one silhouette continuing another),
+                // not a T-junction: the tangent rule says nothing there.
+                if dist2(q, rt.start()) < threshold || dist2(q, rt.end()) < threshold {
+                    continue;
+                }
                 let (d, _, tr) = rt.closest(q);
                 if d < threshold && best.is_none_or(|b| d < b.0) {
                     best = Some((d, r, tr));
@@ -158,6 +183,10 @@ pub fn label_junctions(strokes: &[Stroke], threshold: f64) -> Vec<Junction> {
         }
     }
     out
+}
+
+fn dist2(a: [f64; 2], b: [f64; 2]) -> f64 {
+    (a[0] - b[0]).hypot(a[1] - b[1])
 }
 
 fn siblings(a: &Stroke, b: &Stroke) -> bool {
@@ -259,7 +288,7 @@ impl SortingStructure {
 /// only a conflict when no path made of stronger cues exists).
 fn weakest_on_path(adj: &[Vec<(usize, CueKind)>], from: usize, to: usize) -> Option<CueKind> {
     // Search with increasing allowed weakness.
-    for limit in [CueKind::Junction, CueKind::Containment, CueKind::Height] {
+    for limit in CUE_KINDS {
         let mut seen = vec![false; adj.len()];
         let mut stack = vec![from];
         seen[from] = true;
@@ -413,9 +442,50 @@ pub fn order_strokes(strokes: &[Stroke], threshold: f64) -> DepthOrdering {
     }
 }
 
-/// Containment, then height cue between two strokes with no junction:
-/// (behind, front, kind).
+/// Shared columns needed for the [`CueKind::Above`] cue, pixels.
+const ABOVE_MIN_OVERLAP_PX: f64 = 4.0;
+/// Vertical separation that counts as "above", pixels.
+const ABOVE_TOLERANCE_PX: f64 = 1.0;
+
+/// "Above" cue: over the pixel columns both strokes cover, one is drawn
+/// above the other everywhere (by more than a pixel somewhere and below it
+/// nowhere): it is behind, since along a column of a terrain view the
+/// visible depth grows upwards (section 4's first observation, exact where
+/// the strokes share columns). `None` when they share too few columns, touch
+/// only, or cross.
+fn above_cue(s: &Stroke, si: usize, r: &Stroke, ri: usize) -> Option<(usize, usize, CueKind)> {
+    let (s0, s1) = s.x_range();
+    let (r0, r1) = r.x_range();
+    let (lo, hi) = (s0.max(r0), s1.min(r1));
+    if !(hi - lo >= ABOVE_MIN_OVERLAP_PX) {
+        return None;
+    }
+    let n = ((hi - lo) / 2.0).ceil().max(2.0) as usize;
+    let (mut s_above, mut r_above) = (0usize, 0usize);
+    for k in 0..=n {
+        let x = lo + (hi - lo) * k as f64 / n as f64;
+        let (Some(ys), Some(yr)) = (s.y_at(x), r.y_at(x)) else {
+            continue;
+        };
+        if ys < yr - ABOVE_TOLERANCE_PX {
+            s_above += 1;
+        } else if yr < ys - ABOVE_TOLERANCE_PX {
+            r_above += 1;
+        }
+    }
+    match (s_above > 0, r_above > 0) {
+        (true, false) => Some((si, ri, CueKind::Above)),
+        (false, true) => Some((ri, si, CueKind::Above)),
+        _ => None,
+    }
+}
+
+/// The above cue, else containment, else the height cue between two
+/// strokes with no junction: (behind, front, kind).
 fn weak_cue(s: &Stroke, si: usize, r: &Stroke, ri: usize) -> Option<(usize, usize, CueKind)> {
+    if let Some(c) = above_cue(s, si, r, ri) {
+        return Some(c);
+    }
     let (s0, s1) = s.x_range();
     let (r0, r1) = r.x_range();
     let eps = 1e-9;

@@ -52,7 +52,8 @@ pub use file::{
 };
 pub use multi_view::{
     check_intersections, match_sketch, match_view, occludes_across_views, occludes_within_view,
-    MatchError, MatchKind, SketchMatch, StrokeMatch, ViewInput, ViewMatch,
+    ColumnProfile, MatchError, MatchKind, SketchMatch, StrokeMatch, ViewInput, ViewMatch,
+    OCCLUSION_STEP_PX,
 };
 pub use placement::{
     complete_feature, place_on_candidate, place_with_depths, PlacedPoint, PointSource,

@@ -15,13 +15,17 @@
 //!
 //! A feature (by id) is used at most once in the whole sketch. The strokes
 //! are then placed in world space, unmatched ones embedded by the fallback,
-//! and features completed down to the terrain. Finally, sketches that
-//! intersect (a placed stroke of one view, seen from another view, crosses a
-//! stroke of that view in front of it) are reported as an error: the paper
-//! does not support them, and no deformation could satisfy both.
+//! and features completed down to the terrain.
+//!
+//! Sketches that intersect (a placed stroke of one view, seen from another
+//! view, crosses a stroke of that view in front of it) are reported as an
+//! error: the paper does not support them, and no deformation could satisfy
+//! both. The test runs on each view matched on its own (what each sketch
+//! means to its author: without it, the joint minimisation would silently
+//! twist the matches or embed strokes to dodge the crossing) and again on
+//! the joint result ([`check_intersections`]).
 
-use std::cell::RefCell;
-use std::collections::HashMap;
+use rayon::prelude::*;
 
 use super::branch_and_bound::{branch_and_bound, Bound, Choice};
 use super::candidates::{priority_list, Candidate, CandidateOptions, CostTerms, PriorityList};
@@ -112,41 +116,140 @@ pub enum MatchError {
 }
 
 /// Pixel step of the occlusion tests.
-const OCCLUSION_STEP_PX: f64 = 2.0;
+pub const OCCLUSION_STEP_PX: f64 = 2.0;
 /// Tolerance on screen height in the occlusion tests, pixels.
 const OCCLUSION_TOL_PX: f64 = 0.5;
 
+/// A candidate of a stroke sampled on the global pixel-column grid
+/// `x = k * OCCLUSION_STEP_PX`: the candidate's depth and the stroke's row
+/// at each column of the candidate's x range (NaN where undefined). The
+/// within-view occlusion test compares two profiles column by column.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ColumnProfile {
+    k0: i64,
+    depth: Vec<f64>,
+    y: Vec<f64>,
+    min_depth: f64,
+    max_depth: f64,
+    min_y: f64,
+    max_y: f64,
+}
+
+impl ColumnProfile {
+    /// The profile of candidate `cand` of stroke `stroke`.
+    pub fn new(stroke: &Stroke, cand: &Candidate) -> ColumnProfile {
+        let (a0, a1) = cand.x_range();
+        if !(a0.is_finite() && a1.is_finite() && a1 >= a0) {
+            return ColumnProfile {
+                k0: 0,
+                depth: Vec::new(),
+                y: Vec::new(),
+                min_depth: f64::NAN,
+                max_depth: f64::NAN,
+                min_y: f64::NAN,
+                max_y: f64::NAN,
+            };
+        }
+        let k0 = (a0 / OCCLUSION_STEP_PX).ceil() as i64;
+        let k1 = (a1 / OCCLUSION_STEP_PX).floor() as i64;
+        let len = (k1 - k0 + 1).max(0) as usize;
+        let (mut depth, mut y) = (Vec::with_capacity(len), Vec::with_capacity(len));
+        // Both polylines are x-monotone: walk them with cursors (linear
+        // interpolation, as `Candidate::depth_at` and `Stroke::y_at`).
+        let cp = &cand.points;
+        let sp = &stroke.points;
+        let (sx0, sx1) = stroke.x_range();
+        let (mut i, mut j) = (0usize, 0usize);
+        for k in k0..=k1 {
+            let x = k as f64 * OCCLUSION_STEP_PX;
+            while i + 1 < cp.len() && cp[i + 1].deformed_pixel[0] < x {
+                i += 1;
+            }
+            let d = if i + 1 < cp.len() {
+                let (a, b) = (&cp[i], &cp[i + 1]);
+                let dx = b.deformed_pixel[0] - a.deformed_pixel[0];
+                if x <= a.deformed_pixel[0] {
+                    a.depth
+                } else if dx > 1e-12 {
+                    a.depth + (x - a.deformed_pixel[0]) / dx * (b.depth - a.depth)
+                } else {
+                    b.depth
+                }
+            } else {
+                cp.last().map_or(f64::NAN, |p| p.depth)
+            };
+            depth.push(d);
+            let yv = if x >= sx0 && x <= sx1 && !sp.is_empty() {
+                while j + 1 < sp.len() && sp[j + 1][0] < x {
+                    j += 1;
+                }
+                if j + 1 < sp.len() {
+                    let (a, b) = (sp[j], sp[j + 1]);
+                    let dx = b[0] - a[0];
+                    if x <= a[0] {
+                        a[1]
+                    } else if dx > 1e-12 {
+                        a[1] + (x - a[0]) / dx * (b[1] - a[1])
+                    } else {
+                        b[1]
+                    }
+                } else {
+                    sp[sp.len() - 1][1]
+                }
+            } else {
+                f64::NAN
+            };
+            y.push(yv);
+        }
+        let fmin = |v: &[f64]| v.iter().copied().fold(f64::INFINITY, f64::min);
+        let fmax = |v: &[f64]| v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        ColumnProfile {
+            k0,
+            min_depth: fmin(&depth),
+            max_depth: fmax(&depth),
+            min_y: fmin(&y),
+            max_y: fmax(&y),
+            depth,
+            y,
+        }
+    }
+
+    /// Does the candidate of `back` (a farther stroke) hide the candidate of
+    /// `front`? See [`occludes_within_view`].
+    pub fn hides(back: &ColumnProfile, front: &ColumnProfile) -> bool {
+        // Quick rejection: `back` nowhere nearer than `front`, or nowhere
+        // high enough.
+        if !(back.min_depth < front.max_depth * (1.0 - 1e-9) - 1e-6)
+            || !(back.min_y <= front.max_y + OCCLUSION_TOL_PX)
+        {
+            return false;
+        }
+        let lo = back.k0.max(front.k0);
+        let hi = (back.k0 + back.depth.len() as i64).min(front.k0 + front.depth.len() as i64);
+        (lo..hi).any(|k| {
+            let (i, j) = ((k - front.k0) as usize, (k - back.k0) as usize);
+            let (da, db, ya, yb) = (front.depth[i], back.depth[j], front.y[i], back.y[j]);
+            // NaN compares false: undefined columns never occlude.
+            db < da * (1.0 - 1e-9) - 1e-6 && yb <= ya + OCCLUSION_TOL_PX
+        })
+    }
+}
+
 /// Within one view: does candidate `back` of the farther stroke `s_back`
 /// hide candidate `front` of the nearer stroke `s_front`? True when, on a
-/// common pixel column, `back` is nearer to the eye than `front` while its
-/// stroke is drawn at or above `s_front` (after deformation each candidate
-/// lies on its stroke).
+/// common pixel column (every [`OCCLUSION_STEP_PX`] pixels), `back` is
+/// nearer to the eye than `front` while its stroke is drawn at or above
+/// `s_front` (after deformation each candidate lies on its stroke).
 pub fn occludes_within_view(
     s_front: &Stroke,
     front: &Candidate,
     s_back: &Stroke,
     back: &Candidate,
 ) -> bool {
-    let (a0, a1) = front.x_range();
-    let (b0, b1) = back.x_range();
-    let (lo, hi) = (a0.max(b0), a1.min(b1));
-    if !(hi >= lo) {
-        return false;
-    }
-    let n = ((hi - lo) / OCCLUSION_STEP_PX).ceil() as usize;
-    for k in 0..=n {
-        let x = (lo + k as f64 * OCCLUSION_STEP_PX).min(hi);
-        let (Some(da), Some(db)) = (front.depth_at(x), back.depth_at(x)) else {
-            continue;
-        };
-        let (Some(ya), Some(yb)) = (s_front.y_at(x), s_back.y_at(x)) else {
-            continue;
-        };
-        if db < da * (1.0 - 1e-9) - 1e-6 && yb <= ya + OCCLUSION_TOL_PX {
-            return true;
-        }
-    }
-    false
+    ColumnProfile::hides(
+        &ColumnProfile::new(s_back, back),
+        &ColumnProfile::new(s_front, front),
+    )
 }
 
 /// Across views: does `other` (a deformed candidate of another view, given
@@ -205,11 +308,53 @@ pub fn match_sketch(views: &[ViewInput], opts: &SketchOptions) -> Result<SketchM
                 .collect()
         })
         .collect();
+    // Sketches that intersect: each view matched on its own (the features
+    // its author would get drawing it alone) must not cross another view's
+    // strokes; otherwise the joint assignment could only avoid the
+    // conflict by twisting the matches (section 7: not supported).
+    if views.len() > 1 {
+        let mut alone: Vec<Vec<Option<usize>>> = Vec::with_capacity(views.len());
+        for t in 0..views.len() {
+            let (a, _) = solve(views, &orderings, &lists, &[t]);
+            alone.push(a.into_iter().nth(t).unwrap_or_default());
+        }
+        let placed = place_views(views, &orderings, &lists, &alone, opts);
+        let m = SketchMatch {
+            views: placed,
+            total_cost: 0.0,
+            nodes: 0,
+        };
+        check_intersections(views, &m)?;
+    }
+    let all: Vec<usize> = (0..views.len()).collect();
+    let (assigned, sol) = solve(views, &orderings, &lists, &all);
+    let mut out_views = place_views(views, &orderings, &lists, &assigned, opts);
+    for (t, l) in lists.into_iter().enumerate() {
+        out_views[t].lists = l;
+    }
+    let result = SketchMatch {
+        views: out_views,
+        total_cost: sol.cost,
+        nodes: sol.nodes,
+    };
+    check_intersections(views, &result)?;
+    Ok(result)
+}
+
+/// Branch-and-bound over the strokes of the views `which` (in that order,
+/// front to back within a view) with the within-view and cross-view
+/// occlusion constraints. Returns the chosen candidate per view and stroke
+/// (`None` for views not in `which` and for emptied lists).
+fn solve(
+    views: &[ViewInput],
+    orderings: &[DepthOrdering],
+    lists: &[Vec<PriorityList>],
+    which: &[usize],
+) -> (Vec<Vec<Option<usize>>>, super::branch_and_bound::Solution) {
     // Global stroke list: (view, stroke), view by view, front to back.
-    let global: Vec<(usize, usize)> = orderings
+    let global: Vec<(usize, usize)> = which
         .iter()
-        .enumerate()
-        .flat_map(|(t, o)| o.order.iter().map(move |&s| (t, s)))
+        .flat_map(|&t| orderings[t].order.iter().map(move |&s| (t, s)))
         .collect();
     let choices: Vec<Vec<Choice>> = global
         .iter()
@@ -224,50 +369,86 @@ pub fn match_sketch(views: &[ViewInput], opts: &SketchOptions) -> Result<SketchM
                 .collect()
         })
         .collect();
-    // Cross-view projections, computed lazily: (global stroke, cand, view).
-    type ProjKey = (usize, usize, usize);
-    let proj_cache: RefCell<HashMap<ProjKey, Vec<Option<([f64; 2], f64)>>>> =
-        RefCell::new(HashMap::new());
-    let projected_into = |g: usize, a: usize, u: usize| -> Vec<Option<([f64; 2], f64)>> {
-        if let Some(v) = proj_cache.borrow().get(&(g, a, u)) {
-            return v.clone();
-        }
-        let (t, s) = global[g];
-        let pts: Vec<Option<([f64; 2], f64)>> = lists[t][s].candidates[a]
-            .points
-            .iter()
-            .map(|p| views[u].projection.project(p.deformed))
-            .collect();
-        proj_cache.borrow_mut().insert((g, a, u), pts.clone());
-        pts
+    // Column profiles of every candidate (within-view tests) and, for
+    // multi-view sketches, the projection of every deformed candidate into
+    // the other views (cross-view tests), computed once and in parallel so
+    // that the constraint test is a pure function the search can call from
+    // several threads.
+    let profiles: Vec<Vec<ColumnProfile>> = global
+        .par_iter()
+        .map(|&(t, s)| {
+            lists[t][s]
+                .candidates
+                .iter()
+                .map(|c| ColumnProfile::new(&views[t].strokes[s], c))
+                .collect()
+        })
+        .collect();
+    type Projected = Vec<Option<([f64; 2], f64)>>;
+    let projected: Vec<Vec<Vec<Projected>>> = if which.len() > 1 {
+        global
+            .par_iter()
+            .map(|&(t, s)| {
+                lists[t][s]
+                    .candidates
+                    .iter()
+                    .map(|c| {
+                        which
+                            .iter()
+                            .map(|&u| {
+                                if u == t {
+                                    Vec::new()
+                                } else {
+                                    c.points
+                                        .iter()
+                                        .map(|p| views[u].projection.project(p.deformed))
+                                        .collect()
+                                }
+                            })
+                            .collect()
+                    })
+                    .collect()
+            })
+            .collect()
+    } else {
+        Vec::new()
     };
-    let cache: RefCell<HashMap<(usize, usize, usize, usize), bool>> = RefCell::new(HashMap::new());
+    let slot = |u: usize| which.iter().position(|&w| w == u).unwrap_or(0);
     let conflicts = |i: usize, a: usize, j: usize, b: usize| -> bool {
-        if let Some(&c) = cache.borrow().get(&(i, a, j, b)) {
-            return c;
-        }
         let (ti, si) = global[i];
         let (tj, sj) = global[j];
-        let ca = &lists[ti][si].candidates[a];
-        let cb = &lists[tj][sj].candidates[b];
-        let c = if ti == tj {
-            occludes_within_view(&views[ti].strokes[si], ca, &views[tj].strokes[sj], cb)
+        if ti == tj {
+            // i is in front of j (same view, front to back).
+            ColumnProfile::hides(&profiles[j][b], &profiles[i][a])
         } else {
-            occludes_projected(&views[ti].strokes[si], ca, &projected_into(j, b, ti))
-                || occludes_projected(&views[tj].strokes[sj], cb, &projected_into(i, a, tj))
-        };
-        cache.borrow_mut().insert((i, a, j, b), c);
-        c
+            let ca = &lists[ti][si].candidates[a];
+            let cb = &lists[tj][sj].candidates[b];
+            occludes_projected(&views[ti].strokes[si], ca, &projected[j][b][slot(ti)])
+                || occludes_projected(&views[tj].strokes[sj], cb, &projected[i][a][slot(tj)])
+        }
     };
-    let sol = branch_and_bound(&choices, &conflicts, Bound::LowerBound);
+    let sol = branch_and_bound(&choices, &conflicts, Bound::ForwardChecking);
 
-    // Placement.
-    let mut out_views = Vec::with_capacity(views.len());
     let mut assigned: Vec<Vec<Option<usize>>> =
         views.iter().map(|v| vec![None; v.strokes.len()]).collect();
     for (g, &(t, s)) in global.iter().enumerate() {
         assigned[t][s] = sol.choice[g];
     }
+    (assigned, sol)
+}
+
+/// Places the strokes of every view on their assigned candidates, embeds
+/// the others and completes the features (`lists` of the result are left
+/// empty).
+fn place_views(
+    views: &[ViewInput],
+    orderings: &[DepthOrdering],
+    lists: &[Vec<PriorityList>],
+    assigned: &[Vec<Option<usize>>],
+    opts: &SketchOptions,
+) -> Vec<ViewMatch> {
+    // Placement.
+    let mut out_views = Vec::with_capacity(views.len());
     for (t, view) in views.iter().enumerate() {
         let proj = view.projection;
         let mut placed: Vec<Option<Vec<PlacedPoint>>> = view
@@ -335,16 +516,7 @@ pub fn match_sketch(views: &[ViewInput], opts: &SketchOptions) -> Result<SketchM
             lists: Vec::new(),
         });
     }
-    for (t, l) in lists.into_iter().enumerate() {
-        out_views[t].lists = l;
-    }
-    let result = SketchMatch {
-        views: out_views,
-        total_cost: sol.cost,
-        nodes: sol.nodes,
-    };
-    check_intersections(views, &result)?;
-    Ok(result)
+    out_views
 }
 
 /// Reports the first pair of sketches that intersect (see the module
