@@ -283,6 +283,42 @@ fn nodata_keeps_nodata_and_is_never_constrained() {
     );
     assert_eq!(nodata_cells, hole);
 
+    // An integer DEM whose nodata (65535) is along its left edge: a curve
+    // starting over it leaves every nodata cell's stored value as it was.
+    let u16 = tmp.path().join("edge_u16.tif");
+    gdal_translate(
+        &fixture("zion_srtm_utm12n.tif"),
+        &u16,
+        &["-srcwin", "0", "50", "120", "120"],
+    );
+    let edge = Dem::open(&u16).unwrap();
+    let c = raised(&edge, &[[0.4, 30.2], [40.5, 70.3]], 60.0, 40);
+    let d = deform(&edge, &[c], &DeformOptions::default()).unwrap();
+    let out = tmp.path().join("edge_out.tif");
+    edge.write_back(
+        d.window,
+        &d.write_values(),
+        &Destination::Path(out.clone()),
+        &Provenance {
+            edit_id: "nodata-u16".into(),
+        },
+    )
+    .unwrap();
+    let (a, b) = (gdal_read(&u16), gdal_read(&out));
+    assert_eq!(a.nodata, Some(65535.0));
+    let mut kept = 0;
+    let mut changed = 0;
+    for (x, y) in a.data.iter().zip(&b.data) {
+        if *x == 65535.0 {
+            assert_eq!(*y, 65535.0, "a UInt16 nodata cell was overwritten");
+            kept += 1;
+        } else if x != y {
+            changed += 1;
+        }
+    }
+    eprintln!("UInt16: {kept} nodata cells kept, {changed} cells changed");
+    assert!(kept >= 120 && changed > 100);
+
     // A curve entirely over nodata constrains nothing: an error, not a no-op.
     let inside = raised(&dem, &[[57.0, 139.0], [63.0, 141.0]], 10.0, 4);
     let err = deform(&dem, &[inside], &DeformOptions::default()).unwrap_err();

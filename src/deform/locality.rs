@@ -8,13 +8,14 @@
 //!   diagonal of the curves' bounding box, at least [`MIN_INFLUENCE_CELLS`]
 //!   cells.
 //! - [`affected_window`]: the curves' bounding box grown by `d` (plus the
-//!   constraint radius and one cell), clipped to the DEM. Every cell within
+//!   constraint reach and one cell), clipped to the DEM. Every cell within
 //!   `d` of a curve lies inside it.
 //! - [`influence_mask`]: which cells of the window the solver may change.
 //!   A cell is free when its distance to the nearest constrained cell centre
-//!   plus the constraint radius `r` is at most `d`; constrained centres lie
-//!   within `r` of a curve, so every free cell lies within `d` of a curve,
-//!   and every cell farther than `d` from all curves is held at exactly 0.
+//!   plus the constraint reach `r` (the cell diagonal) is at most `d`;
+//!   constrained centres lie within `r` of a curve, so every free cell lies
+//!   within `d` of a curve, and every cell farther than `d` from all curves
+//!   is held at exactly 0.
 //!   Distances come from an exact Euclidean distance transform (Felzenszwalb
 //!   and Huttenlocher's lower envelope of parabolas, separable, anisotropic
 //!   cells), parallel over rows and columns.
@@ -115,7 +116,7 @@ pub fn default_influence_m(dem: &Dem, curves: &[CurveConstraint], cell: CellSize
 
 /// The window of `dem` an edit with these curves and influence distance can
 /// change: the curves' pixel bounding box grown by `influence_m` plus the
-/// constraint radius and one cell, clipped to the DEM. `None` when it misses
+/// constraint reach and one cell, clipped to the DEM. `None` when it misses
 /// the DEM.
 pub fn affected_window(
     dem: &Dem,
@@ -124,7 +125,7 @@ pub fn affected_window(
     influence_m: f64,
 ) -> Option<Window> {
     let b = pixel_bbox(dem, curves)?;
-    let r = cell.constraint_radius();
+    let r = cell.constraint_reach();
     let gx = (influence_m + r) / cell.hx + 1.0;
     let gy = (influence_m + r) / cell.hy + 1.0;
     let c0 = (b[0] - gx).floor();
@@ -144,7 +145,7 @@ pub fn affected_window(
 /// are always inside.
 pub fn influence_mask(c: &ConstraintRaster, cell: CellSize, influence_m: f64) -> Vec<bool> {
     let d2 = squared_distance_to_constraints(c, cell);
-    let r = cell.constraint_radius();
+    let r = cell.constraint_reach();
     d2.par_iter()
         .zip(c.constrained.par_iter())
         .map(|(&d2, &k)| k || (d2 as f64).sqrt() * (1.0 + 1e-6) + r <= influence_m)
