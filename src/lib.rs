@@ -13,8 +13,11 @@
 //! - [`sketch`]: sketch files, stroke depth ordering and stroke-feature matching.
 //! - [`deform`]: displacement constraints, the multigrid diffusion solver and
 //!   lowering of protruding silhouettes.
+//! - [`edit`]: one edit end to end: load, features, matching, deformation,
+//!   lowering, write-back, report and pictures.
 
 pub mod deform;
+pub mod edit;
 pub mod features;
 pub mod raster;
 pub mod render;

@@ -1,14 +1,19 @@
 #!/usr/bin/env bash
 # The main job on a bundled real DEM: installs what is missing, builds the
-# release binary and runs demsketch on Zion National Park (SRTM, UTM 12N).
-# Results go to out/demo/.
+# release binary and runs `demsketch edit` on Zion National Park (SRTM,
+# UTM 12N) with the bundled sketch fixtures/sketches/zion_dome.json.
+# Results go to out/demo/: corrected.tif, report.json, renders/.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash tools/setup.sh
 export GDAL_PAM_ENABLED=NO
 cargo build --release --locked
 bin=target/release/demsketch
+dem=fixtures/zion_srtm_utm12n.tif
+sketch=fixtures/sketches/zion_dome.json
+rm -rf out/demo
 mkdir -p out/demo
-$bin info fixtures/zion_srtm_utm12n.tif
-$bin info fixtures/zion_srtm_utm12n.tif --json > out/demo/info.json
-echo "wrote out/demo/info.json"
+$bin info "$dem"
+$bin edit "$dem" --sketch "$sketch" --out out/demo/corrected.tif \
+    --report out/demo/report.json --renders out/demo/renders
+echo "wrote out/demo/corrected.tif, out/demo/report.json and out/demo/renders/"

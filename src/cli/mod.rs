@@ -1,5 +1,6 @@
 //! Subcommands of the `demsketch` binary and the mapping of errors to exit codes.
 
+pub mod edit;
 pub mod info;
 pub mod locate;
 pub mod view;
@@ -23,6 +24,8 @@ pub enum Command {
     View(view::ViewArgs),
     /// Print the terrain point (lon, lat, height, distance) seen at a pixel of a view, as JSON.
     Locate(locate::LocateArgs),
+    /// Correct a DEM so that its silhouettes match a sketch: corrected GeoTIFF/tiles, report, pictures.
+    Edit(edit::EditArgs),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
@@ -30,6 +33,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Info(a) => info::run(a),
         Command::View(a) => view::run(a),
         Command::Locate(a) => locate::run(a),
+        Command::Edit(a) => edit::run(a),
     }
 }
 

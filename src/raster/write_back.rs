@@ -415,7 +415,16 @@ fn encode_tile(
     provenance: &Provenance,
 ) -> Result<(), RasterError> {
     let gerr = |e: gdal::errors::GdalError| RasterError::gdal(&tile.path, e);
-    let src = gdal::Dataset::open(&tile.path).map_err(gerr)?;
+    // Decode the source with all cores (GTiff's NUM_THREADS open option);
+    // "@" keeps other drivers from warning about an option they lack.
+    let src = gdal::Dataset::open_ex(
+        &tile.path,
+        gdal::DatasetOptions {
+            open_options: Some(&["@NUM_THREADS=ALL_CPUS"]),
+            ..Default::default()
+        },
+    )
+    .map_err(gerr)?;
     let mem_driver = DriverManager::get_driver_by_name("MEM").map_err(gerr)?;
     let mut mem = src
         .create_copy(&mem_driver, "", &RasterCreationOptions::default())

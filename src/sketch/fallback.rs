@@ -7,9 +7,11 @@
 //! behind it in the depth order. Without a stroke behind it, it goes behind
 //! the one in front (depth times `ratio`); without a stroke in front, in
 //! front of the one behind (depth divided by `ratio`). When the view has no
-//! placed stroke at all (the terrain has no features), the stroke is put on
-//! a vertical plane facing the camera through a point where it touches the
-//! terrain: the first terrain point met by the rays below one of its ends.
+//! placed stroke at all (the terrain has no features), the nearest stroke
+//! is put on the drawing plane (normal: the camera view direction) through
+//! a point where it touches the terrain, the first terrain point met by the
+//! rays below one of its ends (section 8 of the paper); the strokes behind
+//! it are then placed relative to it as above.
 
 use super::candidates::interp_by_x;
 use super::placement::{place_with_depths, PlacedPoint, PointSource};
@@ -107,15 +109,18 @@ pub fn march_ray(
     None
 }
 
-/// Places the stroke on the vertical plane through `point` facing the eye.
+/// Places the stroke on the drawing plane through `point`: the plane whose
+/// normal is the camera view direction (section 8 of Tassé et al.: "the
+/// drawing plane determined by the camera direction and a 3D point where
+/// the stroke touches the terrain").
 pub fn embed_on_plane(
     stroke: &Stroke,
     proj: &dyn ViewProjection,
     point: [f64; 3],
 ) -> Vec<PlacedPoint> {
     let eye = proj.eye();
-    let mut n = sub(point, eye);
-    n[2] = 0.0;
+    let (w, h) = proj.image_size();
+    let n = sub(proj.unproject([w as f64 / 2.0, h as f64 / 2.0], 1.0), eye);
     let nl = norm(n);
     let fallback_depth = norm(sub(point, eye)).max(1.0);
     let depths: Vec<Option<f64>> = stroke

@@ -19,6 +19,9 @@
 //! - [`fallback`]: 3D embedding of strokes left without a feature.
 //! - [`multi_view`]: the entry point, [`match_sketch`], which matches all
 //!   views of a sketch jointly and detects intersecting sketches.
+//! - [`view_input`]: the bridge from a real rendered view (scene, camera,
+//!   silhouettes, ridges) to [`ViewInput`], and placed points back to the
+//!   DEM's CRS.
 
 pub mod branch_and_bound;
 pub mod candidates;
@@ -29,6 +32,7 @@ pub mod multi_view;
 pub mod placement;
 pub mod projection;
 pub mod stroke;
+pub mod view_input;
 
 pub use branch_and_bound::{
     branch_and_bound, brute_force, valid, Bound, Choice, Solution, EMPTY_LIST_COST,
@@ -57,3 +61,7 @@ pub use projection::{
     FeatureKind, FeatureSample, HeightFn, SimplePinhole, ViewFeature, ViewProjection,
 };
 pub use stroke::{prepare_stroke, resample, Stroke, StrokeError};
+pub use view_input::{
+    ridge_features, silhouette_features, terrain_height_local, FeatureSource, SceneProjection,
+    SceneView, ViewFeatureOptions, SILHOUETTE_ID_BASE,
+};

@@ -62,6 +62,10 @@ pub struct StrokeMatch {
     pub depth_rank: usize,
     pub kind: MatchKind,
     pub feature_id: Option<usize>,
+    /// Index of the chosen candidate in the view's priority list of this
+    /// stroke ([`ViewMatch::lists`]); `None` when embedded.
+    #[serde(skip)]
+    pub candidate: Option<usize>,
     pub costs: Option<CostTerms>,
     /// Length of the priority list used, and candidates before truncation.
     pub candidates: usize,
@@ -304,9 +308,8 @@ pub fn match_sketch(views: &[ViewInput], opts: &SketchOptions) -> Result<SketchM
                         0.25,
                     );
                 }
-                let cand = assigned[t][s]
-                    .filter(|_| matched[s])
-                    .map(|a| &lists[t][s].candidates[a]);
+                let chosen = assigned[t][s].filter(|_| matched[s]);
+                let cand = chosen.map(|a| &lists[t][s].candidates[a]);
                 StrokeMatch {
                     id: st.id.clone(),
                     source_id: st.source_id.clone(),
@@ -317,6 +320,7 @@ pub fn match_sketch(views: &[ViewInput], opts: &SketchOptions) -> Result<SketchM
                         None => MatchKind::Embedded,
                     },
                     feature_id: cand.map(|c| c.feature_id),
+                    candidate: chosen,
                     costs: cand.map(|c| c.costs),
                     candidates: lists[t][s].candidates.len(),
                     considered: lists[t][s].considered,

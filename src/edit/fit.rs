@@ -1,0 +1,86 @@
+//! How well the edited terrain shows a stroke, rendered from the stroke's
+//! view (the report's `fit` and `visible_fraction`, DESIGN.md):
+//!
+//! - `fitted_fraction`: share of the stroke's pixel columns where the edited
+//!   terrain has an occlusion boundary (a silhouette sample) or the skyline
+//!   within [`FIT_TOLERANCE_PX`] of the stroke;
+//! - `mean_px`, `max_px`: distance from the stroke to the nearest boundary
+//!   of each column that has one;
+//! - `visible_fraction`: share of the stroke's columns where the ray through
+//!   the stroke point reaches the placed curve, i.e. no terrain nearer than
+//!   the curve (by more than [`HIDDEN_MARGIN`] of its depth) covers it.
+
+use super::rendered_view::{RenderedView, StrokeCurve};
+use crate::view::CameraModel;
+
+/// A column is fitted when a boundary lies within this many pixels.
+pub const FIT_TOLERANCE_PX: f64 = 1.0;
+/// Terrain nearer than `(1 - HIDDEN_MARGIN) * depth` of the placed curve
+/// hides it.
+pub const HIDDEN_MARGIN: f64 = 0.02;
+
+/// Fit figures of one stroke.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct StrokeFit {
+    pub fitted_fraction: f64,
+    pub mean_px: f64,
+    pub max_px: f64,
+    /// Pixel columns measured.
+    pub columns: usize,
+}
+
+/// Measure the fit and visibility of `stroke` in `view`.
+pub fn measure(stroke: &StrokeCurve, view: &RenderedView) -> (StrokeFit, f64) {
+    let cols = stroke.columns(view.camera.width);
+    if cols.is_empty() {
+        return (
+            StrokeFit {
+                fitted_fraction: 0.0,
+                mean_px: f64::NAN,
+                max_px: f64::NAN,
+                columns: 0,
+            },
+            0.0,
+        );
+    }
+    let (mut fitted, mut visible, mut sum, mut max, mut measured) =
+        (0usize, 0usize, 0.0, 0.0f64, 0);
+    for &(i, y, d) in &cols {
+        let nearest = view
+            .boundaries(i)
+            .map(|b| (b - y).abs())
+            .fold(f64::INFINITY, f64::min);
+        if nearest.is_finite() {
+            measured += 1;
+            sum += nearest;
+            max = max.max(nearest);
+            if nearest <= FIT_TOLERANCE_PX {
+                fitted += 1;
+            }
+        }
+        if !is_hidden(view, i as f64 + 0.5, y, d) {
+            visible += 1;
+        }
+    }
+    let n = cols.len() as f64;
+    (
+        StrokeFit {
+            fitted_fraction: fitted as f64 / n,
+            mean_px: if measured > 0 {
+                sum / measured as f64
+            } else {
+                f64::NAN
+            },
+            max_px: if measured > 0 { max } else { f64::NAN },
+            columns: cols.len(),
+        },
+        visible as f64 / n,
+    )
+}
+
+/// Is the point of depth `d` on the ray through pixel `(x, y)` hidden by
+/// nearer terrain?
+pub fn is_hidden(view: &RenderedView, x: f64, y: f64, d: f64) -> bool {
+    let dir = view.camera.unproject([x, y]);
+    view.terrain.cast(dir, d * (1.0 - HIDDEN_MARGIN)).is_some()
+}

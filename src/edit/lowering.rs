@@ -1,0 +1,99 @@
+//! Lowering protruding silhouettes (section 6.2 of Tassé et al. 2014).
+//!
+//! After deformation, terrain nearer than a sketched silhouette may hide it.
+//! The edited terrain is re-rendered from the sketch's view and its visible
+//! silhouettes found (section 5.1). A silhouette `s` is an *unwanted
+//! protruding silhouette* when, on a pixel column of a stroke `g`, it is
+//! nearer to the camera than `g`'s placed curve and its projection lies
+//! higher in the image than `g` (above the stroke by more than the fit
+//! tolerance): the mountain of `s` then hides `g` there. The height by which
+//! `s` must come down is measured in the sketching plane: for each such
+//! sample, how far its terrain point lies above the line of sight through
+//! the stroke (plus a one-pixel margin, so that it ends up under it); `h` is
+//! the maximum over the samples of `s`, and `s` is lowered uniformly by `h`.
+//! The lowered samples become new curve constraints (DEM CRS, absolute
+//! heights); the caller adds them to the sketch's constraints and deforms
+//! again, repeating until no protruding silhouette remains.
+//!
+//! The paper lowers the whole silhouette; here the lowered part is the
+//! stretch of `s` over the columns where it hides a stroke, widened by
+//! [`LOWERING_PAD_PX`] on each side: the rest of `s` hides nothing, and
+//! constraining it would only add changes far from the sketch.
+
+use super::fit::{FIT_TOLERANCE_PX, HIDDEN_MARGIN};
+use super::rendered_view::{RenderedView, StrokeCurve};
+use crate::view::CameraModel;
+
+/// Pixels of the protruding silhouette kept on each side of the hidden
+/// columns when it is lowered.
+pub const LOWERING_PAD_PX: f64 = 8.0;
+/// The lowered silhouette is put this many pixels under the stroke.
+pub const BELOW_STROKE_PX: f64 = 1.0;
+
+/// One protruding silhouette and how it is lowered.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Protrusion {
+    /// Index of the silhouette curve in the rendered view.
+    pub curve: usize,
+    /// Uniform lowering, metres.
+    pub h: f64,
+    /// Pixel columns of strokes it hides.
+    pub hidden_columns: usize,
+    /// The lowered samples: DEM CRS x, y and absolute height minus `h`.
+    pub lowered: Vec<[f64; 3]>,
+}
+
+/// Find the protruding silhouettes of `view` with respect to `strokes`.
+pub fn find_protruding(view: &RenderedView, strokes: &[StrokeCurve]) -> Vec<Protrusion> {
+    let n = view.silhouettes.curves.len();
+    // Per curve: lowering needed and the x range of the hidden columns.
+    let mut need = vec![0.0f64; n];
+    let mut range = vec![(f64::INFINITY, f64::NEG_INFINITY); n];
+    let mut hidden = vec![0usize; n];
+    for g in strokes {
+        for (i, y, d) in g.columns(view.camera.width) {
+            let x = i as f64 + 0.5;
+            let ray = view.camera.unproject([x, y + BELOW_STROKE_PX]);
+            let rh = ray[0].hypot(ray[1]);
+            for &(c, s) in &view.by_column[i] {
+                let sample = &view.silhouettes.curves[c as usize].samples[s as usize];
+                if sample.pixel[1] >= y - FIT_TOLERANCE_PX
+                    || sample.depth >= d * (1.0 - HIDDEN_MARGIN)
+                {
+                    continue;
+                }
+                let p = sample.local;
+                let z_ray = if rh > 0.0 {
+                    ray[2] * p[0].hypot(p[1]) / rh
+                } else {
+                    f64::NEG_INFINITY
+                };
+                let h = p[2] - z_ray;
+                if h.is_finite() && h > 0.0 {
+                    let c = c as usize;
+                    need[c] = need[c].max(h);
+                    range[c] = (range[c].0.min(x), range[c].1.max(x));
+                    hidden[c] += 1;
+                }
+            }
+        }
+    }
+    (0..n)
+        .filter(|&c| hidden[c] > 0)
+        .map(|c| {
+            let (x0, x1) = (range[c].0 - LOWERING_PAD_PX, range[c].1 + LOWERING_PAD_PX);
+            let lowered = view.silhouettes.curves[c]
+                .samples
+                .iter()
+                .filter(|s| s.pixel[0] >= x0 && s.pixel[0] <= x1)
+                .map(|s| [s.world[0], s.world[1], s.world[2] - need[c]])
+                .collect();
+            Protrusion {
+                curve: c,
+                h: need[c],
+                hidden_columns: hidden[c],
+                lowered,
+            }
+        })
+        .collect()
+}

@@ -1,0 +1,64 @@
+//! One edit end to end (`demsketch edit`): a DEM and a sketch file in,
+//! corrected tiles, a report and pictures out (the pipeline of DESIGN.md).
+//!
+//! [`run`] loads the DEM and the sketch, renders every view (reading only
+//! the DEM within the maximum view distance), extracts its silhouettes and
+//! the ridge network, matches the strokes of all views jointly, turns the
+//! placed strokes into curve constraints in the DEM's CRS and deforms the
+//! DEM ([`pipeline`]). It then re-renders each view and lowers protruding
+//! silhouettes until every stroke is visible ([`lowering`]), measures how
+//! well the edited terrain shows each stroke ([`fit`]), writes the affected
+//! tiles back atomically, and finally the pictures ([`renders`]) and the
+//! report ([`report`]). Nothing is written unless every step succeeded.
+
+pub mod fit;
+mod interim_deform;
+mod interim_view_input;
+pub mod lowering;
+pub mod pipeline;
+pub mod rendered_view;
+pub mod renders;
+pub mod report;
+
+pub use pipeline::{run, EditOptions};
+pub use report::EditReport;
+
+/// Errors of an edit. One line naming the file and the problem.
+#[derive(Debug, thiserror::Error)]
+pub enum EditError {
+    #[error(transparent)]
+    Sketch(#[from] crate::sketch::SketchError),
+    #[error(transparent)]
+    Raster(#[from] crate::raster::RasterError),
+    #[error("{sketch}: view \"{view}\": {source}")]
+    View {
+        sketch: String,
+        view: String,
+        #[source]
+        source: crate::render::RenderError,
+    },
+    #[error("{sketch}: {source}")]
+    Match {
+        sketch: String,
+        #[source]
+        source: crate::sketch::MatchError,
+    },
+    #[error("{sketch}: {message}")]
+    Unusable { sketch: String, message: String },
+    #[error("{path}: cannot write: {message}")]
+    Write { path: String, message: String },
+    /// A failure of the program rather than of the input.
+    #[error("internal error: {0}")]
+    Internal(String),
+}
+
+impl EditError {
+    /// True when the input (DEM, sketch, paths) is at fault: exit code 1.
+    pub fn is_user_error(&self) -> bool {
+        match self {
+            EditError::Raster(e) => e.is_user_error(),
+            EditError::Internal(_) => false,
+            _ => true,
+        }
+    }
+}

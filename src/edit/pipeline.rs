@@ -1,0 +1,638 @@
+//! The edit pipeline, stage by stage (timings in the report use these
+//! names):
+//!
+//! 1. `load`: open the DEM (tile layer), read and validate the sketch,
+//!    resolve every view's viewpoint (PROJ) and read the DEM window within
+//!    the maximum view distance ([`Scene::open`]).
+//! 2. `features`: render each view (exact depth buffer), extract its
+//!    silhouettes, and the ridge network of the DEM around all views.
+//! 3. `matching`: strokes of all views matched jointly
+//!    ([`match_sketch`]), placed in 3D, converted to the DEM's CRS.
+//! 4. `deformation`: displacement constraints diffused by multigrid,
+//!    `H' = H + M` on the affected window.
+//! 5. `lowering`: each view re-rendered on the edited terrain; protruding
+//!    silhouettes lowered by the paper's `h` as new constraints, re-solve
+//!    with the union, repeat until none remain (or the iteration limit);
+//!    fit and visibility measured on the final terrain.
+//! 6. `write`: affected tiles written back atomically, then the pictures
+//!    and the report.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+
+use super::fit::measure;
+use super::interim_deform::{deform, CurveConstraint, DeformOptions, Deformation};
+use super::interim_view_input::{view_features, CameraProjection};
+use super::lowering::find_protruding;
+use super::rendered_view::{RenderedView, StrokeCurve};
+use super::renders::{encode_png, height_change_map, view_picture, Picture};
+use super::report::{
+    DeformationReport, EditReport, FeatureCounts, MatchReport, StagedFile, StrokeReport, Timings,
+};
+use super::EditError;
+use crate::features::{detect_ridges, RidgeNetwork, RidgeParams};
+use crate::raster::{Dem, Destination, HeightMap, Provenance, Window};
+use crate::render::Scene;
+use crate::sketch::{
+    match_sketch, EyeHeightSpec, SketchFile, Stroke, ViewFeature, ViewInput, ViewSpec,
+};
+use crate::view::{Camera, EyeHeight, Viewpoint};
+
+/// Options of an edit.
+#[derive(Debug, Clone)]
+pub struct EditOptions {
+    /// Where the corrected DEM goes.
+    pub destination: Destination,
+    /// Write the report here (JSON).
+    pub report: Option<PathBuf>,
+    /// Write before/after views and the height-change map into this directory.
+    pub renders: Option<PathBuf>,
+    /// Only the DEM within this distance of each viewpoint is read, metres
+    /// (`None`: the whole DEM).
+    pub max_distance_m: Option<f64>,
+    /// Refraction coefficient k.
+    pub refraction: f64,
+    /// Most re-solves per view while lowering protruding silhouettes.
+    pub max_lowering_iterations: usize,
+    /// Show progress on stderr (only drawn when stderr is a terminal).
+    pub progress: bool,
+}
+
+impl EditOptions {
+    /// Defaults: 50 km view distance, k = 1/7, 4 lowering iterations.
+    pub fn new(destination: Destination) -> EditOptions {
+        EditOptions {
+            destination,
+            report: None,
+            renders: None,
+            max_distance_m: Some(50_000.0),
+            refraction: 1.0 / 7.0,
+            max_lowering_iterations: 4,
+            progress: false,
+        }
+    }
+}
+
+/// A view of the sketch set up on the DEM.
+struct ViewState<'a> {
+    spec: &'a ViewSpec,
+    scene: Scene,
+    camera: Camera,
+    strokes: Vec<Stroke>,
+    before: RenderedView,
+    features: Vec<ViewFeature>,
+    counts: FeatureCounts,
+}
+
+fn secs(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64()
+}
+
+/// Progress on stderr: a spinner with the current stage, hidden when stderr
+/// is not a terminal or progress is off.
+fn progress_bar(on: bool) -> ProgressBar {
+    let target = if on {
+        ProgressDrawTarget::stderr()
+    } else {
+        ProgressDrawTarget::hidden()
+    };
+    let pb = ProgressBar::with_draw_target(None, target);
+    if let Ok(style) = ProgressStyle::with_template("{spinner} [{elapsed}] {msg}") {
+        pb.set_style(style);
+    }
+    pb.enable_steady_tick(std::time::Duration::from_millis(120));
+    pb
+}
+
+/// Run one edit: see the module documentation.
+pub fn run(
+    dem_path: &Path,
+    sketch_path: &Path,
+    opts: &EditOptions,
+) -> Result<EditReport, EditError> {
+    let t_all = Instant::now();
+    let pb = progress_bar(opts.progress);
+    let mut timings = Timings::default();
+    let sketch_name = sketch_path.display().to_string();
+
+    // 1. Load.
+    pb.set_message("loading DEM and sketch");
+    let t = Instant::now();
+    let sketch = SketchFile::from_path(sketch_path)?;
+    let dem = Dem::open(dem_path)?;
+    let mut notes = Vec::new();
+    let mut prepared = Vec::new();
+    for v in &sketch.views {
+        let (strokes, n) = v.prepared_strokes(&sketch.options, &sketch_name)?;
+        notes.extend(n);
+        prepared.push(strokes);
+    }
+    let max_d = opts.max_distance_m.filter(|d| d.is_finite() && *d > 0.0);
+    let mut scenes = Vec::new();
+    for v in &sketch.views {
+        let vp = Viewpoint {
+            lon: v.viewpoint.lon,
+            lat: v.viewpoint.lat,
+            height: match v.viewpoint.height() {
+                EyeHeightSpec::AboveSurface(h) => EyeHeight::AboveSurface(h),
+                EyeHeightSpec::Absolute(a) => EyeHeight::Absolute(a),
+            },
+        };
+        let view_err = |source| EditError::View {
+            sketch: sketch_name.clone(),
+            view: v.name.clone(),
+            source,
+        };
+        let camera = Camera::new(
+            v.camera.width as usize,
+            v.camera.height as usize,
+            v.camera.heading_deg,
+            v.camera.pitch_deg,
+            v.camera.roll_deg,
+            v.camera.hfov_deg,
+        )
+        .map_err(|e| view_err(e.into()))?;
+        let scene = Scene::open(&dem, &vp, max_d, opts.refraction).map_err(view_err)?;
+        scenes.push((scene, camera));
+    }
+    timings.load = secs(t);
+
+    // 2. Features: render every view, silhouettes, ridges around all views.
+    pb.set_message("rendering views, silhouettes and ridges");
+    let t = Instant::now();
+    let ridges = ridge_network(&dem, &scenes)?;
+    let mut views: Vec<ViewState> = Vec::new();
+    let mut next_id = 0usize;
+    for ((v, (scene, camera)), strokes) in sketch.views.iter().zip(scenes).zip(prepared) {
+        let before = RenderedView::render(&scene.window, &scene.frame, &camera, max_d)
+            .map_err(|e| EditError::Internal(format!("view \"{}\": features: {e}", v.name)))?;
+        let features = view_features(&before.silhouettes, &ridges, &scene.frame, &camera, next_id);
+        next_id += features.len();
+        let sil = before.silhouettes.curves.len();
+        let counts = FeatureCounts {
+            silhouettes: sil,
+            ridges: features.len().saturating_sub(sil),
+        };
+        views.push(ViewState {
+            spec: v,
+            scene,
+            camera,
+            strokes,
+            before,
+            features,
+            counts,
+        });
+    }
+    timings.features = secs(t);
+
+    // 3. Matching, all views jointly.
+    pb.set_message("matching strokes to terrain features");
+    let t = Instant::now();
+    let projections: Vec<CameraProjection> = views
+        .iter()
+        .map(|v| CameraProjection {
+            camera: v.camera,
+            terrain: &v.before.terrain,
+        })
+        .collect();
+    let inputs: Vec<ViewInput> = views
+        .iter()
+        .zip(&projections)
+        .map(|(v, p)| ViewInput {
+            name: v.spec.name.clone(),
+            strokes: v.strokes.clone(),
+            features: &v.features,
+            projection: p,
+        })
+        .collect();
+    let matched = match_sketch(&inputs, &sketch.options).map_err(|source| EditError::Match {
+        sketch: sketch_name.clone(),
+        source,
+    })?;
+    for (v, m) in views.iter().zip(&matched.views) {
+        for c in &m.ordering.conflicts {
+            notes.push(format!(
+                "view \"{}\": depth order: {}",
+                v.spec.name, c.message
+            ));
+        }
+    }
+    let mut constraints: Vec<CurveConstraint> = Vec::new();
+    let mut curves: Vec<Vec<StrokeCurve>> = Vec::new();
+    for (v, m) in views.iter().zip(&matched.views) {
+        let frame = &v.scene.frame;
+        let mut cs = Vec::new();
+        for (s, sm) in v.strokes.iter().zip(&m.strokes) {
+            let points: Vec<[f64; 3]> = sm
+                .points
+                .iter()
+                .map(|p| {
+                    let (x, y, z) = frame.local_to_crs(p.world);
+                    [x, y, z]
+                })
+                .filter(|p| p.iter().all(|c| c.is_finite()))
+                .collect();
+            if points.len() >= 2 {
+                constraints.push(CurveConstraint { points });
+            }
+            cs.push(StrokeCurve::new(s, sm));
+        }
+        curves.push(cs);
+    }
+    if constraints.is_empty() {
+        return Err(EditError::Unusable {
+            sketch: sketch_name,
+            message: "no stroke could be placed on the terrain".into(),
+        });
+    }
+    timings.matching = secs(t);
+
+    // 4. Deformation.
+    pb.set_message("deforming the DEM (multigrid)");
+    let t = Instant::now();
+    let dopts = DeformOptions {
+        influence_m: sketch.options.influence_m,
+    };
+    let deform_err = |e: super::interim_deform::DeformError| match e {
+        super::interim_deform::DeformError::Raster(r) => EditError::Raster(r),
+        other => EditError::Unusable {
+            sketch: sketch_name.clone(),
+            message: format!("deformation: {other}"),
+        },
+    };
+    let user_constraints = constraints.len();
+    let mut deformation = deform(&dem, &constraints, &dopts).map_err(deform_err)?;
+    timings.deformation = secs(t);
+
+    // 5. Lowering protruding silhouettes, one view at a time.
+    pb.set_message("lowering protruding silhouettes");
+    let t = Instant::now();
+    let mut iterations = vec![0usize; views.len()];
+    let mut lowered = vec![0usize; views.len()];
+    let mut generation = 0usize;
+    let mut finals: Vec<Option<(usize, RenderedView)>> = (0..views.len()).map(|_| None).collect();
+    for (k, v) in views.iter().enumerate() {
+        loop {
+            let after = render_edited(v, &deformation, max_d)?;
+            let protruding = find_protruding(&after, &curves[k]);
+            if protruding.is_empty() || iterations[k] >= opts.max_lowering_iterations {
+                finals[k] = Some((generation, after));
+                break;
+            }
+            for p in &protruding {
+                if p.lowered.len() >= 2 {
+                    constraints.push(CurveConstraint {
+                        points: p.lowered.clone(),
+                    });
+                }
+            }
+            lowered[k] += protruding.len();
+            iterations[k] += 1;
+            generation += 1;
+            pb.set_message(format!(
+                "lowering protruding silhouettes: view \"{}\", iteration {}",
+                v.spec.name, iterations[k]
+            ));
+            deformation = deform(&dem, &constraints, &dopts).map_err(deform_err)?;
+        }
+    }
+    // Fit and visibility on the final terrain.
+    let mut view_reports = Vec::new();
+    let mut after_views = Vec::new();
+    for ((k, v), m) in views.iter().enumerate().zip(&matched.views) {
+        let after = match finals[k].take() {
+            Some((g, r)) if g == generation => r,
+            _ => render_edited(v, &deformation, max_d)?,
+        };
+        let strokes = curves[k]
+            .iter()
+            .zip(&m.strokes)
+            .map(|(c, sm)| {
+                let (fit, visible) = measure(c, &after);
+                let (lo, hi) = c.depths.iter().fold((f64::INFINITY, 0.0f64), |(a, b), d| {
+                    (a.min(d.1), b.max(d.1))
+                });
+                StrokeReport {
+                    id: c.id.clone(),
+                    source_id: c.source_id.clone(),
+                    matched: MatchReport {
+                        kind: sm.kind,
+                        feature_id: sm.feature_id,
+                        cost: sm.costs.map(|c| c.total),
+                        depth_rank: sm.depth_rank,
+                        depth_m: [if lo.is_finite() { lo } else { 0.0 }, hi],
+                    },
+                    fit,
+                    visible_fraction: visible,
+                }
+            })
+            .collect();
+        view_reports.push(super::report::ViewReport {
+            name: v.spec.name.clone(),
+            strokes,
+            lowering_iterations: iterations[k],
+            silhouettes_lowered: lowered[k],
+            features: v.counts,
+        });
+        after_views.push(after);
+    }
+    timings.lowering = secs(t);
+
+    // 6. Write: pictures staged first, then the DEM, then pictures and report.
+    pb.set_message("writing corrected tiles");
+    let t = Instant::now();
+    let pictures = if opts.renders.is_some() {
+        pictures(&views, &after_views, &deformation)?
+    } else {
+        Vec::new()
+    };
+    let staged_report = match &opts.report {
+        Some(p) => Some(StagedFile::create(p).map_err(|e| EditError::Write {
+            path: p.display().to_string(),
+            message: e.to_string(),
+        })?),
+        None => None,
+    };
+    let staged_renders = match &opts.renders {
+        Some(dir) => Some(StagedDir::create(dir, &pictures)?),
+        None => None,
+    };
+    let provenance = Provenance {
+        edit_id: format!(
+            "{}:{}",
+            sketch_path
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default(),
+            content_hash(&sketch)
+        ),
+    };
+    let values = deformation.write_values();
+    let written = dem.write_back(deformation.window, &values, &opts.destination, &provenance)?;
+    if let Some(s) = staged_renders {
+        s.commit()?;
+    }
+    timings.write = secs(t);
+    timings.total = secs(t_all);
+
+    let max_abs = deformation
+        .displacement
+        .iter()
+        .fold(0.0f32, |a, v| a.max(v.abs())) as f64;
+    let w = deformation.window;
+    let report = EditReport {
+        dem: dem_path.display().to_string(),
+        sketch: sketch_name,
+        output: match &opts.destination {
+            Destination::InPlace => dem_path.display().to_string(),
+            Destination::Path(p) => p.display().to_string(),
+        },
+        views: view_reports,
+        tiles_written: written
+            .tiles_written
+            .iter()
+            .map(|p| p.display().to_string())
+            .collect(),
+        tiles_unchanged: written
+            .tiles_unchanged
+            .iter()
+            .map(|p| p.display().to_string())
+            .collect(),
+        changed_cells: written.changed_cells,
+        max_abs_displacement_m: max_abs,
+        deformation: DeformationReport {
+            window: [w.col, w.row, w.width as i64, w.height as i64],
+            curve_constraints: user_constraints,
+            lowering_constraints: constraints.len() - user_constraints,
+            influence_m: deformation.stats.influence_m,
+            solver: serde_json::to_value(&deformation.stats).unwrap_or_default(),
+        },
+        timings_s: timings,
+        notes,
+    };
+    if let (Some(staged), Some(path)) = (staged_report, &opts.report) {
+        let mut text = serde_json::to_string_pretty(&report)
+            .map_err(|e| EditError::Internal(format!("report: {e}")))?;
+        text.push('\n');
+        staged
+            .commit(text.as_bytes())
+            .map_err(|e| EditError::Write {
+                path: path.display().to_string(),
+                message: e.to_string(),
+            })?;
+    }
+    pb.finish_and_clear();
+    Ok(report)
+}
+
+/// Ridge network of the DEM over the union of the views' windows (one
+/// network, so that a ridge seen from two views is one feature).
+fn ridge_network(dem: &Dem, scenes: &[(Scene, Camera)]) -> Result<RidgeNetwork, EditError> {
+    let wins: Vec<Window> = scenes
+        .iter()
+        .map(|(s, _)| {
+            Window::new(
+                s.window_offset.0,
+                s.window_offset.1,
+                s.window.width,
+                s.window.height,
+            )
+        })
+        .collect();
+    let Some(first) = wins.first() else {
+        return Ok(RidgeNetwork::default());
+    };
+    let (mut c0, mut r0, mut c1, mut r1) = (first.col, first.row, first.col_end(), first.row_end());
+    for w in &wins {
+        c0 = c0.min(w.col);
+        r0 = r0.min(w.row);
+        c1 = c1.max(w.col_end());
+        r1 = r1.max(w.row_end());
+    }
+    let union = Window::new(c0, r0, (c1 - c0) as usize, (r1 - r0) as usize);
+    let owned;
+    let map: &HeightMap = if union == *first {
+        &scenes[0].0.window
+    } else {
+        owned = dem.read_height_map(union)?;
+        &owned
+    };
+    detect_ridges(map, &RidgeParams::default())
+        .map_err(|e| EditError::Internal(format!("ridges: {e}")))
+}
+
+/// Render a view on the DEM with the deformation applied.
+fn render_edited(
+    v: &ViewState,
+    d: &Deformation,
+    max_d: Option<f64>,
+) -> Result<RenderedView, EditError> {
+    let edited = edited_window(&v.scene.window, v.scene.window_offset, d);
+    RenderedView::render(&edited, &v.scene.frame, &v.camera, max_d)
+        .map_err(|e| EditError::Internal(format!("view \"{}\": features: {e}", v.spec.name)))
+}
+
+/// `map` (a window of the DEM at `offset`) with `H + M` swapped in where the
+/// deformation's window overlaps it.
+pub(crate) fn edited_window(map: &HeightMap, offset: (i64, i64), d: &Deformation) -> HeightMap {
+    let mut out = map.clone();
+    let mw = Window::new(offset.0, offset.1, map.width, map.height);
+    let Some(ov) = mw.intersect(&d.window) else {
+        return out;
+    };
+    for r in ov.row..ov.row_end() {
+        let src = ((r - d.window.row) as usize) * d.window.width;
+        let dst = ((r - offset.1) as usize) * map.width;
+        for c in ov.col..ov.col_end() {
+            let s = src + (c - d.window.col) as usize;
+            let t = dst + (c - offset.0) as usize;
+            let h = d.base.data[s];
+            if !h.is_nan() {
+                out.data[t] = h + d.displacement[s];
+            }
+        }
+    }
+    out
+}
+
+/// Before/after views with the strokes, and the height-change map.
+fn pictures(
+    views: &[ViewState],
+    after: &[RenderedView],
+    d: &Deformation,
+) -> Result<Vec<Picture>, EditError> {
+    let enc = |w, h, rgb: &[u8]| encode_png(w, h, rgb).map_err(|e| EditError::Internal(e));
+    let mut out = Vec::new();
+    for (v, a) in views.iter().zip(after) {
+        let strokes: Vec<Vec<[f64; 2]>> = v.spec.strokes.iter().map(|s| s.points.clone()).collect();
+        let (w, h) = (v.camera.width, v.camera.height);
+        let name = sanitize(&v.spec.name);
+        out.push(Picture {
+            name: format!("{name}_before.png"),
+            png: enc(w, h, &view_picture(&v.before, &strokes))?,
+        });
+        out.push(Picture {
+            name: format!("{name}_after.png"),
+            png: enc(w, h, &view_picture(a, &strokes))?,
+        });
+    }
+    let (gx, gy) = d.base.geotransform.pixel_size();
+    let cell_m = if d.base.crs.geographic {
+        let lat = d.base.geotransform.0[3].to_radians();
+        (gx.abs() * 111_320.0 * lat.cos().max(0.01), gy.abs() * 110_540.0)
+    } else {
+        (gx.abs(), gy.abs())
+    };
+    let (w, h, rgb) = height_change_map(
+        d.window.width,
+        d.window.height,
+        cell_m,
+        &d.base.data,
+        &d.displacement,
+    );
+    out.push(Picture {
+        name: "height_change.png".into(),
+        png: enc(w, h, &rgb)?,
+    });
+    Ok(out)
+}
+
+/// A file-name-safe version of a view name.
+fn sanitize(name: &str) -> String {
+    let s: String = name
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '-' || c == '_' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    if s.is_empty() {
+        "view".into()
+    } else {
+        s
+    }
+}
+
+/// A short hash of the sketch content (FNV-1a of its JSON), for provenance.
+fn content_hash(sketch: &SketchFile) -> String {
+    let text = serde_json::to_string(sketch).unwrap_or_default();
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for b in text.bytes() {
+        h ^= b as u64;
+        h = h.wrapping_mul(0x0100_0000_01b3);
+    }
+    format!("{h:016x}")
+}
+
+/// Pictures written into a staging directory beside the target, moved into
+/// the target directory on commit; removed if dropped uncommitted.
+struct StagedDir {
+    target: PathBuf,
+    stage: PathBuf,
+    names: Vec<String>,
+    done: bool,
+}
+
+impl StagedDir {
+    fn create(target: &Path, pictures: &[Picture]) -> Result<StagedDir, EditError> {
+        let werr = |p: &Path, e: std::io::Error| EditError::Write {
+            path: p.display().to_string(),
+            message: e.to_string(),
+        };
+        if target.exists() && !target.is_dir() {
+            return Err(EditError::Write {
+                path: target.display().to_string(),
+                message: "exists and is not a directory".into(),
+            });
+        }
+        let name = target
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "renders".into());
+        let stage = target.with_file_name(format!(".{name}.demsketch-{}.tmp", std::process::id()));
+        std::fs::create_dir_all(&stage).map_err(|e| werr(&stage, e))?;
+        let mut staged = StagedDir {
+            target: target.to_path_buf(),
+            stage,
+            names: Vec::new(),
+            done: false,
+        };
+        for p in pictures {
+            let path = staged.stage.join(&p.name);
+            std::fs::write(&path, &p.png).map_err(|e| werr(&path, e))?;
+            staged.names.push(p.name.clone());
+        }
+        Ok(staged)
+    }
+
+    fn commit(mut self) -> Result<(), EditError> {
+        let werr = |p: &Path, e: std::io::Error| EditError::Write {
+            path: p.display().to_string(),
+            message: e.to_string(),
+        };
+        if !self.target.exists() {
+            std::fs::rename(&self.stage, &self.target).map_err(|e| werr(&self.target, e))?;
+        } else {
+            for n in &self.names {
+                let to = self.target.join(n);
+                std::fs::rename(self.stage.join(n), &to).map_err(|e| werr(&to, e))?;
+            }
+            let _ = std::fs::remove_dir(&self.stage);
+        }
+        self.done = true;
+        Ok(())
+    }
+}
+
+impl Drop for StagedDir {
+    fn drop(&mut self) {
+        if !self.done {
+            let _ = std::fs::remove_dir_all(&self.stage);
+        }
+    }
+}

@@ -1,0 +1,148 @@
+//! The edit report (`edit --report report.json`): the fields of DESIGN.md
+//! that tools and tests read (matching, fit, visibility, lowering
+//! iterations, tiles written, changed cells, largest displacement, timings
+//! per stage) plus a few details, serialised as JSON and written atomically.
+
+use serde::Serialize;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use super::fit::StrokeFit;
+use crate::sketch::MatchKind;
+
+/// The whole report.
+#[derive(Debug, Clone, Serialize)]
+pub struct EditReport {
+    pub dem: String,
+    pub sketch: String,
+    /// Where the corrected DEM went (the input for `--in-place`).
+    pub output: String,
+    pub views: Vec<ViewReport>,
+    /// Files rewritten by the edit.
+    pub tiles_written: Vec<String>,
+    /// Files copied or linked unchanged into the output.
+    pub tiles_unchanged: Vec<String>,
+    /// Cells whose stored value changed.
+    pub changed_cells: usize,
+    /// Largest |M| over the DEM, metres.
+    pub max_abs_displacement_m: f64,
+    pub deformation: DeformationReport,
+    pub timings_s: Timings,
+    /// Notes (split strokes, depth-order conflicts).
+    pub notes: Vec<String>,
+}
+
+/// One view of the sketch.
+#[derive(Debug, Clone, Serialize)]
+pub struct ViewReport {
+    pub name: String,
+    pub strokes: Vec<StrokeReport>,
+    /// Re-solves triggered by protruding silhouettes seen from this view.
+    pub lowering_iterations: usize,
+    /// Protruding silhouettes lowered, over all iterations.
+    pub silhouettes_lowered: usize,
+    /// Features offered to matching (silhouettes, ridges).
+    pub features: FeatureCounts,
+}
+
+/// Features of a view.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct FeatureCounts {
+    pub silhouettes: usize,
+    pub ridges: usize,
+}
+
+/// One stroke (a piece, when a stroke folding back in x was split).
+#[derive(Debug, Clone, Serialize)]
+pub struct StrokeReport {
+    pub id: String,
+    pub source_id: String,
+    #[serde(rename = "match")]
+    pub matched: MatchReport,
+    pub fit: StrokeFit,
+    pub visible_fraction: f64,
+}
+
+/// What a stroke was matched to.
+#[derive(Debug, Clone, Serialize)]
+pub struct MatchReport {
+    pub kind: MatchKind,
+    pub feature_id: Option<usize>,
+    pub cost: Option<f64>,
+    /// Position in the view's depth order (0 = nearest).
+    pub depth_rank: usize,
+    /// Depth range of the placed curve, metres.
+    pub depth_m: [f64; 2],
+}
+
+/// The deformation that was written.
+#[derive(Debug, Clone, Serialize)]
+pub struct DeformationReport {
+    /// `[col, row, width, height]` of the solved window on the DEM grid.
+    pub window: [i64; 4],
+    pub curve_constraints: usize,
+    pub lowering_constraints: usize,
+    pub influence_m: f64,
+    pub solver: serde_json::Value,
+}
+
+/// Seconds per stage.
+#[derive(Debug, Clone, Copy, Default, Serialize)]
+pub struct Timings {
+    pub load: f64,
+    pub features: f64,
+    pub matching: f64,
+    pub deformation: f64,
+    pub lowering: f64,
+    pub write: f64,
+    pub total: f64,
+}
+
+/// A file written atomically: created as a temporary file beside `path` up
+/// front (which proves the directory is writable), filled and renamed into
+/// place by [`StagedFile::commit`], removed if dropped uncommitted.
+pub struct StagedFile {
+    pub path: PathBuf,
+    temp: PathBuf,
+    file: Option<std::fs::File>,
+}
+
+impl StagedFile {
+    /// Create the temporary file beside `path`.
+    pub fn create(path: &Path) -> std::io::Result<StagedFile> {
+        let name = path
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "report.json".into());
+        let temp = path.with_file_name(format!(".{name}.demsketch-{}.tmp", std::process::id()));
+        let file = std::fs::File::create(&temp)?;
+        Ok(StagedFile {
+            path: path.to_path_buf(),
+            temp,
+            file: Some(file),
+        })
+    }
+
+    /// Write `bytes` and rename into place.
+    pub fn commit(mut self, bytes: &[u8]) -> std::io::Result<()> {
+        let mut f = self
+            .file
+            .take()
+            .ok_or_else(|| std::io::Error::other("committed twice"))?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+        drop(f);
+        std::fs::rename(&self.temp, &self.path)?;
+        self.temp = PathBuf::new();
+        Ok(())
+    }
+}
+
+impl Drop for StagedFile {
+    fn drop(&mut self) {
+        if !self.temp.as_os_str().is_empty() {
+            self.file.take();
+            let _ = std::fs::remove_file(&self.temp);
+        }
+    }
+}
