@@ -198,18 +198,34 @@ fn segment_candidates(
     out: &mut Vec<Candidate>,
 ) {
     let (dxp, dyp) = (b[0] - a[0], b[1] - a[1]);
-    let len_px = dxp.abs().max(dyp.abs());
+    let reach = cell.constraint_reach();
+    let (rpx, rpy) = (reach / cell.hx, reach / cell.hy);
+    // Only the part of the segment within reach of the window matters
+    // (Liang-Barsky clip to the grown window), so far-away points cost
+    // nothing.
+    let Some((ta, tb)) = clip_param(
+        a,
+        dxp,
+        dyp,
+        [
+            -rpx - 1.0,
+            -rpy - 1.0,
+            w as f64 + rpx + 1.0,
+            h as f64 + rpy + 1.0,
+        ],
+    ) else {
+        return;
+    };
+    let len_px = (tb - ta) * dxp.abs().max(dyp.abs());
     let pieces = (len_px / 4.0).ceil().max(1.0) as usize;
     // Metric coordinates: x * hx, y * hy.
     let (ax, ay) = (a[0] * cell.hx, a[1] * cell.hy);
     let (ex, ey) = (dxp * cell.hx, dyp * cell.hy);
     let len2 = ex * ex + ey * ey;
-    let reach = cell.constraint_reach();
-    let (rpx, rpy) = (reach / cell.hx, reach / cell.hy);
     let reach2 = reach * reach;
     for k in 0..pieces {
-        let t0 = k as f64 / pieces as f64;
-        let t1 = (k + 1) as f64 / pieces as f64;
+        let t0 = ta + (tb - ta) * (k as f64 / pieces as f64);
+        let t1 = ta + (tb - ta) * ((k + 1) as f64 / pieces as f64);
         let (x0, x1) = (a[0] + t0 * dxp, a[0] + t1 * dxp);
         let (y0, y1) = (a[1] + t0 * dyp, a[1] + t1 * dyp);
         // Cells whose centre (c + 0.5) may lie within reach of the piece.
@@ -247,6 +263,24 @@ fn segment_candidates(
             }
         }
     }
+}
+
+/// The parameter range `[ta, tb]` within `[0, 1]` of the points
+/// `a + t (dx, dy)` inside the box `[x0, y0, x1, y1]`, if any.
+fn clip_param(a: [f64; 3], dx: f64, dy: f64, b: [f64; 4]) -> Option<(f64, f64)> {
+    let (mut lo, mut hi) = (0.0f64, 1.0f64);
+    for (p, d, min, max) in [(a[0], dx, b[0], b[2]), (a[1], dy, b[1], b[3])] {
+        if d == 0.0 {
+            if p < min || p > max {
+                return None;
+            }
+        } else {
+            let (u, v) = ((min - p) / d, (max - p) / d);
+            lo = lo.max(u.min(v));
+            hi = hi.min(u.max(v));
+        }
+    }
+    (lo <= hi).then_some((lo, hi))
 }
 
 /// True when some point `a + t (dx, dy)`, `t` in `[t0, t1]`, lies less than
@@ -353,6 +387,19 @@ mod tests {
         }
         let hq = 100.0 + 2.0 * (4.3 - 0.5) - 3.0 * (5.8 - 0.5);
         assert!((c.delta[5 * 10 + 4] as f64 - (500.0 - hq)).abs() < 1e-4);
+    }
+
+    #[test]
+    fn far_away_points_are_clipped() {
+        let m = plane(10, 10);
+        // A segment from far outside through the grid's row 5 centre line.
+        let curve = CurveConstraint {
+            points: vec![[-1e12, -5.5, 100.0], [1e12, -5.5, 100.0]],
+        };
+        let c = rasterise(&m, &[curve], CellSize { hx: 1.0, hy: 1.0 });
+        // Only row 5 (rows 4 and 6 are a whole cell away).
+        assert_eq!(c.count, 10);
+        assert!((0..10).all(|col| c.constrained[5 * 10 + col]));
     }
 
     #[test]
