@@ -521,10 +521,7 @@ fn pictures(
     let (gx, gy) = d.base.geotransform.pixel_size();
     let cell_m = if d.base.crs.geographic {
         let lat = d.base.geotransform.0[3].to_radians();
-        (
-            gx.abs() * 111_320.0 * lat.cos().max(0.01),
-            gy.abs() * 110_540.0,
-        )
+        (gx.abs() * 111_320.0 * lat.cos().max(0.01), gy.abs() * 110_540.0)
     } else {
         (gx.abs(), gy.abs())
     };
