@@ -154,39 +154,51 @@ pub fn influence_mask(c: &ConstraintRaster, cell: CellSize, influence_m: f64) ->
 
 /// Squared distance in m^2 from every cell centre of the window to the
 /// nearest constrained cell centre (infinity when none), by a separable
-/// exact Euclidean distance transform.
+/// exact Euclidean distance transform: columns first (in parallel blocks of
+/// columns, so reads stay cache-friendly), then rows.
 pub fn squared_distance_to_constraints(c: &ConstraintRaster, cell: CellSize) -> Vec<f32> {
+    const BLOCK: usize = 16;
     let (w, h) = (c.width, c.height);
-    // Pass 1: along each column (spacing hy), column-major output.
-    let cols: Vec<Vec<f64>> = (0..w)
+    if w == 0 || h == 0 {
+        return Vec::new();
+    }
+    // Pass 1: along each column (spacing hy); block-local column-major.
+    let blocks: Vec<Vec<f32>> = (0..w.div_ceil(BLOCK))
         .into_par_iter()
-        .map(|col| {
-            let f: Vec<f64> = (0..h)
-                .map(|row| {
-                    if c.constrained[row * w + col] {
+        .map(|bi| {
+            let c0 = bi * BLOCK;
+            let nc = BLOCK.min(w - c0);
+            let mut out = vec![0f32; nc * h];
+            let mut f = vec![0f64; h];
+            let mut d = vec![0f64; h];
+            for k in 0..nc {
+                for (row, fv) in f.iter_mut().enumerate() {
+                    *fv = if c.constrained[row * w + c0 + k] {
                         0.0
                     } else {
                         f64::INFINITY
-                    }
-                })
-                .collect();
-            let mut out = vec![0.0; h];
-            edt_1d(&f, cell.hy, &mut out);
+                    };
+                }
+                edt_1d(&f, cell.hy, &mut d);
+                for (o, v) in out[k * h..(k + 1) * h].iter_mut().zip(&d) {
+                    *o = *v as f32;
+                }
+            }
             out
         })
         .collect();
     // Pass 2: along each row (spacing hx).
     let mut d2 = vec![0f32; w * h];
-    d2.par_chunks_mut(w.max(1))
-        .enumerate()
-        .for_each(|(row, out_row)| {
-            let f: Vec<f64> = (0..w).map(|col| cols[col][row]).collect();
-            let mut out = vec![0.0; w];
-            edt_1d(&f, cell.hx, &mut out);
-            for (o, v) in out_row.iter_mut().zip(out) {
-                *o = v as f32;
-            }
-        });
+    d2.par_chunks_mut(w).enumerate().for_each(|(row, out_row)| {
+        let f: Vec<f64> = (0..w)
+            .map(|col| blocks[col / BLOCK][(col % BLOCK) * h + row] as f64)
+            .collect();
+        let mut d = vec![0.0; w];
+        edt_1d(&f, cell.hx, &mut d);
+        for (o, v) in out_row.iter_mut().zip(d) {
+            *o = v as f32;
+        }
+    });
     d2
 }
 
