@@ -334,3 +334,68 @@ fn nodata_keeps_nodata_and_is_never_constrained() {
     assert!(matches!(err, DeformError::OffDem { .. }), "{err}");
     assert!(!err.to_string().contains('\n'));
 }
+
+#[test]
+fn screening_tightens_the_falloff_and_options_are_checked() {
+    let tmp = tempfile::tempdir().unwrap();
+    let crop = tmp.path().join("crop_u16.tif");
+    gdal_translate(
+        &fixture("zion_srtm_utm12n.tif"),
+        &crop,
+        &["-srcwin", "100", "150", "120", "120"],
+    );
+    let dem = Dem::open(&crop).unwrap();
+    let curve = raised(&dem, &[[30.2, 60.3], [90.4, 62.1]], 80.0, 30);
+    let cs = std::slice::from_ref(&curve);
+    let laplace = deform(&dem, cs, &DeformOptions::default()).unwrap();
+    let screened = deform(
+        &dem,
+        cs,
+        &DeformOptions {
+            screening: 1.0 / (250.0f64 * 250.0),
+            ..DeformOptions::default()
+        },
+    )
+    .unwrap();
+    assert_eq!(laplace.window, screened.window);
+    // Same constraints; away from the curve the screened field is smaller.
+    let (mut sum_l, mut sum_s) = (0.0, 0.0);
+    for k in 0..laplace.displacement.len() {
+        assert_eq!(laplace.constrained[k], screened.constrained[k]);
+        if laplace.constrained[k] {
+            assert_eq!(laplace.displacement[k], screened.displacement[k]);
+        } else if !laplace.displacement[k].is_nan() {
+            sum_l += laplace.displacement[k].abs() as f64;
+            sum_s += screened.displacement[k].abs() as f64;
+        }
+    }
+    eprintln!("mean-free |M|: Laplace {sum_l:.0}, screened {sum_s:.0} (sums over free cells)");
+    assert!(sum_s < 0.7 * sum_l);
+
+    let bad = |o: DeformOptions| deform(&dem, cs, &o).unwrap_err();
+    assert!(matches!(
+        bad(DeformOptions {
+            influence_m: Some(-1.0),
+            ..DeformOptions::default()
+        }),
+        DeformError::BadOption(_)
+    ));
+    assert!(matches!(
+        bad(DeformOptions {
+            max_window_cells: 100,
+            ..DeformOptions::default()
+        }),
+        DeformError::WindowTooLarge { .. }
+    ));
+    assert!(matches!(
+        deform(&dem, &[], &DeformOptions::default()).unwrap_err(),
+        DeformError::NoCurves
+    ));
+    let nan = CurveConstraint {
+        points: vec![[f64::NAN, 0.0, 0.0]],
+    };
+    assert!(matches!(
+        deform(&dem, &[nan], &DeformOptions::default()).unwrap_err(),
+        DeformError::NonFinite { curve: 0, point: 0 }
+    ));
+}
