@@ -283,6 +283,42 @@ fn nodata_keeps_nodata_and_is_never_constrained() {
     );
     assert_eq!(nodata_cells, hole);
 
+    // An integer DEM whose nodata (65535) is along its left edge: a curve
+    // starting over it leaves every nodata cell's stored value as it was.
+    let u16 = tmp.path().join("edge_u16.tif");
+    gdal_translate(
+        &fixture("zion_srtm_utm12n.tif"),
+        &u16,
+        &["-srcwin", "0", "50", "120", "120"],
+    );
+    let edge = Dem::open(&u16).unwrap();
+    let c = raised(&edge, &[[0.4, 30.2], [40.5, 70.3]], 60.0, 40);
+    let d = deform(&edge, &[c], &DeformOptions::default()).unwrap();
+    let out = tmp.path().join("edge_out.tif");
+    edge.write_back(
+        d.window,
+        &d.write_values(),
+        &Destination::Path(out.clone()),
+        &Provenance {
+            edit_id: "nodata-u16".into(),
+        },
+    )
+    .unwrap();
+    let (a, b) = (gdal_read(&u16), gdal_read(&out));
+    assert_eq!(a.nodata, Some(65535.0));
+    let mut kept = 0;
+    let mut changed = 0;
+    for (x, y) in a.data.iter().zip(&b.data) {
+        if *x == 65535.0 {
+            assert_eq!(*y, 65535.0, "a UInt16 nodata cell was overwritten");
+            kept += 1;
+        } else if x != y {
+            changed += 1;
+        }
+    }
+    eprintln!("UInt16: {kept} nodata cells kept, {changed} cells changed");
+    assert!(kept >= 120 && changed > 100);
+
     // A curve entirely over nodata constrains nothing: an error, not a no-op.
     let inside = raised(&dem, &[[57.0, 139.0], [63.0, 141.0]], 10.0, 4);
     let err = deform(&dem, &[inside], &DeformOptions::default()).unwrap_err();
@@ -297,4 +333,69 @@ fn nodata_keeps_nodata_and_is_never_constrained() {
     let err = deform(&dem, &[off], &DeformOptions::default()).unwrap_err();
     assert!(matches!(err, DeformError::OffDem { .. }), "{err}");
     assert!(!err.to_string().contains('\n'));
+}
+
+#[test]
+fn screening_tightens_the_falloff_and_options_are_checked() {
+    let tmp = tempfile::tempdir().unwrap();
+    let crop = tmp.path().join("crop_u16.tif");
+    gdal_translate(
+        &fixture("zion_srtm_utm12n.tif"),
+        &crop,
+        &["-srcwin", "100", "150", "120", "120"],
+    );
+    let dem = Dem::open(&crop).unwrap();
+    let curve = raised(&dem, &[[30.2, 60.3], [90.4, 62.1]], 80.0, 30);
+    let cs = std::slice::from_ref(&curve);
+    let laplace = deform(&dem, cs, &DeformOptions::default()).unwrap();
+    let screened = deform(
+        &dem,
+        cs,
+        &DeformOptions {
+            screening: 1.0 / (250.0f64 * 250.0),
+            ..DeformOptions::default()
+        },
+    )
+    .unwrap();
+    assert_eq!(laplace.window, screened.window);
+    // Same constraints; away from the curve the screened field is smaller.
+    let (mut sum_l, mut sum_s) = (0.0, 0.0);
+    for k in 0..laplace.displacement.len() {
+        assert_eq!(laplace.constrained[k], screened.constrained[k]);
+        if laplace.constrained[k] {
+            assert_eq!(laplace.displacement[k], screened.displacement[k]);
+        } else if !laplace.displacement[k].is_nan() {
+            sum_l += laplace.displacement[k].abs() as f64;
+            sum_s += screened.displacement[k].abs() as f64;
+        }
+    }
+    eprintln!("mean-free |M|: Laplace {sum_l:.0}, screened {sum_s:.0} (sums over free cells)");
+    assert!(sum_s < 0.7 * sum_l);
+
+    let bad = |o: DeformOptions| deform(&dem, cs, &o).unwrap_err();
+    assert!(matches!(
+        bad(DeformOptions {
+            influence_m: Some(-1.0),
+            ..DeformOptions::default()
+        }),
+        DeformError::BadOption(_)
+    ));
+    assert!(matches!(
+        bad(DeformOptions {
+            max_window_cells: 100,
+            ..DeformOptions::default()
+        }),
+        DeformError::WindowTooLarge { .. }
+    ));
+    assert!(matches!(
+        deform(&dem, &[], &DeformOptions::default()).unwrap_err(),
+        DeformError::NoCurves
+    ));
+    let nan = CurveConstraint {
+        points: vec![[f64::NAN, 0.0, 0.0]],
+    };
+    assert!(matches!(
+        deform(&dem, &[nan], &DeformOptions::default()).unwrap_err(),
+        DeformError::NonFinite { curve: 0, point: 0 }
+    ));
 }

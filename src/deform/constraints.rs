@@ -6,39 +6,44 @@
 //!
 //! # Rule
 //!
-//! Let `r` be half the diagonal of a cell (in metres). Every valid cell whose
-//! centre lies within `r` of a curve is constrained, and its value is taken
-//! at the **closest point** `q` of the curve to the centre:
-//! `delta_c = z(q) - H(q)`, with `z` interpolated linearly along the
-//! polyline segment and `H` interpolated bilinearly between cell centres.
-//! When a cell is within `r` of several curves (or segments), the closest
-//! point wins; exact ties go to the earlier curve / segment, so the result
-//! is a deterministic function of the curves.
+//! The edited terrain is read between cell centres by bilinear
+//! interpolation, so a curve point `q` is governed by the (up to) four cells
+//! whose bilinear weight at `q` is positive: the cells whose centre lies
+//! less than one cell from `q` along both axes. The constrained set is the
+//! union of these stencils over the whole curve: **every valid cell whose
+//! centre is within less than one cell of the curve in the L-infinity sense**
+//! (`|x_c - x_q| < 1` and `|y_c - y_q| < 1` in pixel units for some curve
+//! point `q`). Its value is taken at the curve point `q*` **closest** to the
+//! centre (Euclidean distance in metres): `delta_c = z(q*) - H(q*)`, with `z`
+//! interpolated linearly along the polyline segment and `H` interpolated
+//! bilinearly between cell centres. When several curves or segments come
+//! near a cell, the closest point wins; exact ties go to the earlier curve /
+//! segment, so the result is a deterministic function of the curves.
 //!
 //! # What is exact
 //!
-//! `r` is chosen so that for every point `q` of a curve, the four cell
-//! centres around `q` (the bilinear stencil of `q`) are all constrained:
-//! they are at most half a cell diagonal from `q`. Along a straight segment
-//! the closest point of a centre is an affine function of the centre, so if
-//! `delta` varies linearly along the segment (the curve's `z` is linear
-//! there and `H` is linear along it, e.g. a planar terrain, or a segment
-//! inside one cell), the constrained values are samples of an affine
-//! function and bilinear interpolation reproduces it: the edited terrain
-//! `H' = H + M`, interpolated bilinearly, passes **exactly** through `z(q)`
-//! at every curve point, whatever the curve's direction or slope (no gaps,
-//! no staircase). In general the error is second order: it is bounded by
-//! the variation of `delta`'s derivative within one cell (terrain curvature
-//! along the curve, curve bends), and near a curve's two end points
-//! (within `r`), where the closest point sticks to the end point.
+//! Along a straight segment the closest point of a centre is an affine
+//! function of the centre, so if `delta` varies linearly along the segment
+//! (the curve's `z` is linear there and `H` is linear along it, e.g. on a
+//! planar terrain), the constrained values are samples of one affine function
+//! of the plane, and bilinear interpolation reproduces affine functions:
+//! since every stencil cell of every curve point is constrained, the edited
+//! terrain `H' = H + M`, interpolated bilinearly, passes **exactly** through
+//! `z(q)` at every curve point, whatever the curve's direction or slope (no
+//! gaps, no staircase). In general the error is second order: it is bounded
+//! by the variation of `delta`'s derivative within about one cell (terrain
+//! curvature along the curve, curve bends), and it is larger within a cell
+//! of a curve's two end points, where the closest point sticks to the end
+//! point.
 //!
-//! The constrained set along a curve is a band about two cells wide, so it
-//! is 4-connected (no diagonal leaks for the 5-point solver, no gaps on
-//! steep or diagonal curves). Curves closer to each other than about one cell
-//! compete for the cells between them.
+//! The constrained set along a curve is a band two to four cells wide, so it
+//! is 4-connected (no gaps on steep or diagonal curves, no diagonal leaks for
+//! the 5-point solver). Across the band `M` is constant along the normal to
+//! the curve. Curves closer to each other than about two cells compete for
+//! the cells between them (the nearer one wins).
 //!
-//! Nodata cells are never constrained. Where the bilinear stencil of `q`
-//! touches nodata (or the window's edge), `H(q)` is the bilinear weighting
+//! Nodata cells are never constrained. Where the bilinear stencil of `q*`
+//! touches nodata (or the window's edge), `H(q*)` is the bilinear weighting
 //! renormalised over the valid corners; a curve point with no valid corner
 //! gives no constraint.
 //!
@@ -65,12 +70,11 @@ pub struct CellSize {
 }
 
 impl CellSize {
-    /// Half the cell diagonal: the constraint radius `r` of the module
-    /// documentation, widened by a relative 1e-9 so that cell centres at
-    /// exactly `r` (a 45-degree curve through centres) are not lost to
-    /// rounding.
-    pub fn constraint_radius(&self) -> f64 {
-        0.5 * self.hx.hypot(self.hy) * (1.0 + 1e-9)
+    /// The largest distance in metres between a constrained cell's centre
+    /// and its curve: less than one cell along both axes, so less than the
+    /// cell diagonal `hypot(hx, hy)`.
+    pub fn constraint_reach(&self) -> f64 {
+        self.hx.hypot(self.hy)
     }
 }
 
@@ -96,6 +100,8 @@ struct Candidate {
     cell: usize,
     /// Squared distance centre to closest point, m^2.
     d2: f64,
+    /// The cell is in the bilinear stencil of some point of the segment.
+    member: bool,
     /// Closest point in window pixel coordinates and its curve height.
     qx: f64,
     qy: f64,
@@ -109,7 +115,6 @@ struct Candidate {
 /// Curves must have finite coordinates (the caller checks).
 pub fn rasterise(base: &HeightMap, curves: &[CurveConstraint], cell: CellSize) -> ConstraintRaster {
     let (w, h) = (base.width, base.height);
-    let r = cell.constraint_radius();
     let mut cands: Vec<Candidate> = Vec::new();
     for curve in curves {
         // Window pixel coordinates of the vertices.
@@ -124,10 +129,10 @@ pub fn rasterise(base: &HeightMap, curves: &[CurveConstraint], cell: CellSize) -
             .collect();
         match px.len() {
             0 => {}
-            1 => segment_candidates(px[0], px[0], w, h, cell, r, &mut cands),
+            1 => segment_candidates(px[0], px[0], w, h, cell, &mut cands),
             _ => {
                 for s in px.windows(2) {
-                    segment_candidates(s[0], s[1], w, h, cell, r, &mut cands);
+                    segment_candidates(s[0], s[1], w, h, cell, &mut cands);
                 }
             }
         }
@@ -142,15 +147,17 @@ pub fn rasterise(base: &HeightMap, curves: &[CurveConstraint], cell: CellSize) -
     let mut i = 0;
     while i < cands.len() {
         let mut best = cands[i];
+        let mut member = best.member;
         let mut j = i + 1;
         while j < cands.len() && cands[j].cell == best.cell {
             if cands[j].d2 < best.d2 {
                 best = cands[j];
             }
+            member |= cands[j].member;
             j += 1;
         }
         i = j;
-        if base.data[best.cell].is_nan() {
+        if !member || base.data[best.cell].is_nan() {
             continue;
         }
         let Some(hq) = bilinear_valid(base, best.qx, best.qy) else {
@@ -175,36 +182,53 @@ pub fn rasterise(base: &HeightMap, curves: &[CurveConstraint], cell: CellSize) -
     }
 }
 
-/// Pushes every cell whose centre lies within `r` metres of the segment
-/// `a b` (window pixel coordinates and heights), with its closest point. Long
-/// segments are cut into pieces of a few cells so that only cells near the
-/// segment are visited; the closest point of the whole segment is the
-/// closest over its pieces, and heights are interpolated along the whole
-/// segment so the pieces agree.
+/// Pushes every cell whose centre lies within [`CellSize::constraint_reach`]
+/// of the segment `a b` (window pixel coordinates and heights), with its
+/// closest point on the segment and whether it is in the bilinear stencil of
+/// a segment point. Long segments are cut into pieces of a few cells so that
+/// only cells near the segment are visited; the closest point of the whole
+/// segment is the closest over its pieces, and heights are interpolated along
+/// the whole segment so the pieces agree.
 fn segment_candidates(
     a: [f64; 3],
     b: [f64; 3],
     w: usize,
     h: usize,
     cell: CellSize,
-    r: f64,
     out: &mut Vec<Candidate>,
 ) {
     let (dxp, dyp) = (b[0] - a[0], b[1] - a[1]);
-    let len_px = dxp.abs().max(dyp.abs());
+    let reach = cell.constraint_reach();
+    let (rpx, rpy) = (reach / cell.hx, reach / cell.hy);
+    // Only the part of the segment within reach of the window matters
+    // (Liang-Barsky clip to the grown window), so far-away points cost
+    // nothing.
+    let Some((ta, tb)) = clip_param(
+        a,
+        dxp,
+        dyp,
+        [
+            -rpx - 1.0,
+            -rpy - 1.0,
+            w as f64 + rpx + 1.0,
+            h as f64 + rpy + 1.0,
+        ],
+    ) else {
+        return;
+    };
+    let len_px = (tb - ta) * dxp.abs().max(dyp.abs());
     let pieces = (len_px / 4.0).ceil().max(1.0) as usize;
     // Metric coordinates: x * hx, y * hy.
     let (ax, ay) = (a[0] * cell.hx, a[1] * cell.hy);
     let (ex, ey) = (dxp * cell.hx, dyp * cell.hy);
     let len2 = ex * ex + ey * ey;
-    let (rpx, rpy) = (r / cell.hx, r / cell.hy);
-    let r2 = r * r;
+    let reach2 = reach * reach;
     for k in 0..pieces {
-        let t0 = k as f64 / pieces as f64;
-        let t1 = (k + 1) as f64 / pieces as f64;
+        let t0 = ta + (tb - ta) * (k as f64 / pieces as f64);
+        let t1 = ta + (tb - ta) * ((k + 1) as f64 / pieces as f64);
         let (x0, x1) = (a[0] + t0 * dxp, a[0] + t1 * dxp);
         let (y0, y1) = (a[1] + t0 * dyp, a[1] + t1 * dyp);
-        // Cells whose centre (c + 0.5) may lie within r of the piece.
+        // Cells whose centre (c + 0.5) may lie within reach of the piece.
         let c_lo = (x0.min(x1) - rpx - 0.5).ceil().max(0.0);
         let c_hi = (x0.max(x1) + rpx - 0.5).floor().min(w as f64 - 1.0);
         let r_lo = (y0.min(y1) - rpy - 0.5).ceil().max(0.0);
@@ -213,9 +237,11 @@ fn segment_candidates(
             continue;
         }
         for row in r_lo as usize..=r_hi as usize {
-            let py = (row as f64 + 0.5) * cell.hy;
+            let cy = row as f64 + 0.5;
+            let py = cy * cell.hy;
             for col in c_lo as usize..=c_hi as usize {
-                let px = (col as f64 + 0.5) * cell.hx;
+                let cx = col as f64 + 0.5;
+                let px = cx * cell.hx;
                 let t = if len2 > 0.0 {
                     (((px - ax) * ex + (py - ay) * ey) / len2).clamp(t0, t1)
                 } else {
@@ -223,18 +249,68 @@ fn segment_candidates(
                 };
                 let (qx, qy) = (ax + t * ex, ay + t * ey);
                 let d2 = (px - qx) * (px - qx) + (py - qy) * (py - qy);
-                if d2 <= r2 {
-                    out.push(Candidate {
-                        cell: row * w + col,
-                        d2,
-                        qx: a[0] + t * dxp,
-                        qy: a[1] + t * dyp,
-                        z: a[2] + t * (b[2] - a[2]),
-                    });
+                if d2 >= reach2 {
+                    continue;
                 }
+                out.push(Candidate {
+                    cell: row * w + col,
+                    d2,
+                    member: in_stencil(a, dxp, dyp, t0, t1, cx, cy),
+                    qx: a[0] + t * dxp,
+                    qy: a[1] + t * dyp,
+                    z: a[2] + t * (b[2] - a[2]),
+                });
             }
         }
     }
+}
+
+/// The parameter range `[ta, tb]` within `[0, 1]` of the points
+/// `a + t (dx, dy)` inside the box `[x0, y0, x1, y1]`, if any.
+fn clip_param(a: [f64; 3], dx: f64, dy: f64, b: [f64; 4]) -> Option<(f64, f64)> {
+    let (mut lo, mut hi) = (0.0f64, 1.0f64);
+    for (p, d, min, max) in [(a[0], dx, b[0], b[2]), (a[1], dy, b[1], b[3])] {
+        if d == 0.0 {
+            if p < min || p > max {
+                return None;
+            }
+        } else {
+            let (u, v) = ((min - p) / d, (max - p) / d);
+            lo = lo.max(u.min(v));
+            hi = hi.min(u.max(v));
+        }
+    }
+    (lo <= hi).then_some((lo, hi))
+}
+
+/// True when some point `a + t (dx, dy)`, `t` in `[t0, t1]`, lies less than
+/// one pixel from `(cx, cy)` along both axes, i.e. the cell centred there
+/// has a positive bilinear weight at that point.
+fn in_stencil(a: [f64; 3], dx: f64, dy: f64, t0: f64, t1: f64, cx: f64, cy: f64) -> bool {
+    // The open interval of t where |a + t d - c| < 1 along one axis.
+    let axis = |a: f64, d: f64, c: f64| -> (f64, f64) {
+        if d == 0.0 {
+            if (a - c).abs() < 1.0 {
+                (f64::NEG_INFINITY, f64::INFINITY)
+            } else {
+                (f64::INFINITY, f64::NEG_INFINITY)
+            }
+        } else {
+            let (u, v) = ((c - 1.0 - a) / d, (c + 1.0 - a) / d);
+            (u.min(v), u.max(v))
+        }
+    };
+    let (xl, xh) = axis(a[0], dx, cx);
+    let (yl, yh) = axis(a[1], dy, cy);
+    let lo = t0.max(xl).max(yl);
+    let hi = t1.min(xh).min(yh);
+    if lo > hi {
+        return false;
+    }
+    // The midpoint of a non-empty intersection satisfies the strict
+    // inequalities unless the intersection is a single boundary point.
+    let t = 0.5 * (lo + hi);
+    (a[0] + t * dx - cx).abs() < 1.0 && (a[1] + t * dy - cy).abs() < 1.0
 }
 
 /// Bilinear height at window pixel coordinates `(px, py)` (cell centres at
@@ -305,12 +381,25 @@ mod tests {
         };
         let c = rasterise(&m, &[curve], CellSize { hx: 1.0, hy: 1.0 });
         assert_eq!(c.count, 4);
-        for (col, row) in [(3, 5), (4, 5), (3, 4), (4, 4)] {
+        for (col, row) in [(3, 5), (4, 5), (3, 6), (4, 6)] {
             let k = row * 10 + col;
             assert!(c.constrained[k], "cell {col},{row}");
         }
         let hq = 100.0 + 2.0 * (4.3 - 0.5) - 3.0 * (5.8 - 0.5);
         assert!((c.delta[5 * 10 + 4] as f64 - (500.0 - hq)).abs() < 1e-4);
+    }
+
+    #[test]
+    fn far_away_points_are_clipped() {
+        let m = plane(10, 10);
+        // A segment from far outside through the grid's row 5 centre line.
+        let curve = CurveConstraint {
+            points: vec![[-1e12, -5.5, 100.0], [1e12, -5.5, 100.0]],
+        };
+        let c = rasterise(&m, &[curve], CellSize { hx: 1.0, hy: 1.0 });
+        // Only row 5 (rows 4 and 6 are a whole cell away).
+        assert_eq!(c.count, 10);
+        assert!((0..10).all(|col| c.constrained[5 * 10 + col]));
     }
 
     #[test]
@@ -321,8 +410,8 @@ mod tests {
             points: vec![[2.5, -2.5, 0.0], [2.5, -2.5, 0.0]],
         };
         let c = rasterise(&m, &[curve], CellSize { hx: 1.0, hy: 1.0 });
-        // The centre cell is nodata; its neighbours are within r? No: at
-        // distance 1 > 0.707, so nothing is constrained.
+        // The point is the centre of a nodata cell; its neighbours' centres
+        // are a whole cell away (zero bilinear weight): nothing constrained.
         assert_eq!(c.count, 0);
         // Halfway between the nodata cell and the one below: only that one counts.
         assert_eq!(bilinear_valid(&m, 2.5, 3.0), Some(100.0 + 4.0 - 9.0));

@@ -8,13 +8,14 @@
 //!   diagonal of the curves' bounding box, at least [`MIN_INFLUENCE_CELLS`]
 //!   cells.
 //! - [`affected_window`]: the curves' bounding box grown by `d` (plus the
-//!   constraint radius and one cell), clipped to the DEM. Every cell within
+//!   constraint reach and one cell), clipped to the DEM. Every cell within
 //!   `d` of a curve lies inside it.
 //! - [`influence_mask`]: which cells of the window the solver may change.
 //!   A cell is free when its distance to the nearest constrained cell centre
-//!   plus the constraint radius `r` is at most `d`; constrained centres lie
-//!   within `r` of a curve, so every free cell lies within `d` of a curve,
-//!   and every cell farther than `d` from all curves is held at exactly 0.
+//!   plus the constraint reach `r` (the cell diagonal) is at most `d`;
+//!   constrained centres lie within `r` of a curve, so every free cell lies
+//!   within `d` of a curve, and every cell farther than `d` from all curves
+//!   is held at exactly 0.
 //!   Distances come from an exact Euclidean distance transform (Felzenszwalb
 //!   and Huttenlocher's lower envelope of parabolas, separable, anisotropic
 //!   cells), parallel over rows and columns.
@@ -115,7 +116,7 @@ pub fn default_influence_m(dem: &Dem, curves: &[CurveConstraint], cell: CellSize
 
 /// The window of `dem` an edit with these curves and influence distance can
 /// change: the curves' pixel bounding box grown by `influence_m` plus the
-/// constraint radius and one cell, clipped to the DEM. `None` when it misses
+/// constraint reach and one cell, clipped to the DEM. `None` when it misses
 /// the DEM.
 pub fn affected_window(
     dem: &Dem,
@@ -124,7 +125,7 @@ pub fn affected_window(
     influence_m: f64,
 ) -> Option<Window> {
     let b = pixel_bbox(dem, curves)?;
-    let r = cell.constraint_radius();
+    let r = cell.constraint_reach();
     let gx = (influence_m + r) / cell.hx + 1.0;
     let gy = (influence_m + r) / cell.hy + 1.0;
     let c0 = (b[0] - gx).floor();
@@ -144,7 +145,7 @@ pub fn affected_window(
 /// are always inside.
 pub fn influence_mask(c: &ConstraintRaster, cell: CellSize, influence_m: f64) -> Vec<bool> {
     let d2 = squared_distance_to_constraints(c, cell);
-    let r = cell.constraint_radius();
+    let r = cell.constraint_reach();
     d2.par_iter()
         .zip(c.constrained.par_iter())
         .map(|(&d2, &k)| k || (d2 as f64).sqrt() * (1.0 + 1e-6) + r <= influence_m)
@@ -153,39 +154,51 @@ pub fn influence_mask(c: &ConstraintRaster, cell: CellSize, influence_m: f64) ->
 
 /// Squared distance in m^2 from every cell centre of the window to the
 /// nearest constrained cell centre (infinity when none), by a separable
-/// exact Euclidean distance transform.
+/// exact Euclidean distance transform: columns first (in parallel blocks of
+/// columns, so reads stay cache-friendly), then rows.
 pub fn squared_distance_to_constraints(c: &ConstraintRaster, cell: CellSize) -> Vec<f32> {
+    const BLOCK: usize = 16;
     let (w, h) = (c.width, c.height);
-    // Pass 1: along each column (spacing hy), column-major output.
-    let cols: Vec<Vec<f64>> = (0..w)
+    if w == 0 || h == 0 {
+        return Vec::new();
+    }
+    // Pass 1: along each column (spacing hy); block-local column-major.
+    let blocks: Vec<Vec<f32>> = (0..w.div_ceil(BLOCK))
         .into_par_iter()
-        .map(|col| {
-            let f: Vec<f64> = (0..h)
-                .map(|row| {
-                    if c.constrained[row * w + col] {
+        .map(|bi| {
+            let c0 = bi * BLOCK;
+            let nc = BLOCK.min(w - c0);
+            let mut out = vec![0f32; nc * h];
+            let mut f = vec![0f64; h];
+            let mut d = vec![0f64; h];
+            for k in 0..nc {
+                for (row, fv) in f.iter_mut().enumerate() {
+                    *fv = if c.constrained[row * w + c0 + k] {
                         0.0
                     } else {
                         f64::INFINITY
-                    }
-                })
-                .collect();
-            let mut out = vec![0.0; h];
-            edt_1d(&f, cell.hy, &mut out);
+                    };
+                }
+                edt_1d(&f, cell.hy, &mut d);
+                for (o, v) in out[k * h..(k + 1) * h].iter_mut().zip(&d) {
+                    *o = *v as f32;
+                }
+            }
             out
         })
         .collect();
     // Pass 2: along each row (spacing hx).
     let mut d2 = vec![0f32; w * h];
-    d2.par_chunks_mut(w.max(1))
-        .enumerate()
-        .for_each(|(row, out_row)| {
-            let f: Vec<f64> = (0..w).map(|col| cols[col][row]).collect();
-            let mut out = vec![0.0; w];
-            edt_1d(&f, cell.hx, &mut out);
-            for (o, v) in out_row.iter_mut().zip(out) {
-                *o = v as f32;
-            }
-        });
+    d2.par_chunks_mut(w).enumerate().for_each(|(row, out_row)| {
+        let f: Vec<f64> = (0..w)
+            .map(|col| blocks[col / BLOCK][(col % BLOCK) * h + row] as f64)
+            .collect();
+        let mut d = vec![0.0; w];
+        edt_1d(&f, cell.hx, &mut d);
+        for (o, v) in out_row.iter_mut().zip(d) {
+            *o = v as f32;
+        }
+    });
     d2
 }
 
