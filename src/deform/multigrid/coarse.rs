@@ -110,32 +110,52 @@ impl CoarseLevel {
         let ny = fny.div_ceil(2);
         let pitch = nx + 2;
         let len = (ny + 2) * pitch;
-        // Horizontal dilation by 3 at even columns.
-        let near: Vec<bool> = fine_irregular
-            .par_chunks(fnx)
-            .flat_map_iter(|row| {
+        // Horizontal dilation by 3 at even columns: near[fj][ci] = 1 when an
+        // irregular fine point (or the edge) is within 3 columns of 2 ci.
+        let mut near = vec![1u8; fny * nx];
+        near.par_chunks_mut(nx)
+            .zip(fine_irregular.par_chunks(fnx))
+            .for_each(|(out, row)| {
                 let mut prefix = Vec::with_capacity(fnx + 1);
                 prefix.push(0u32);
+                let mut acc = 0u32;
                 for &b in row {
-                    prefix.push(prefix[prefix.len() - 1] + u32::from(b));
+                    acc += u32::from(b);
+                    prefix.push(acc);
                 }
-                (0..nx).map(move |ci| {
+                for (ci, o) in out.iter_mut().enumerate() {
                     let c = 2 * ci;
-                    if c < 3 || c + 3 >= fnx {
-                        return true;
+                    if c >= 3 && c + 3 < fnx {
+                        *o = u8::from(prefix[c + 4] != prefix[c - 3]);
                     }
-                    prefix[c + 4] - prefix[c - 3] > 0
-                })
-            })
-            .collect();
+                }
+            });
+        // Vertical dilation by 3: regular[cj][ci].
+        let mut regular_map = vec![false; nx * ny];
+        regular_map
+            .par_chunks_mut(nx)
+            .enumerate()
+            .for_each(|(cj, out)| {
+                let fj = 2 * cj;
+                if fj < 3 || fj + 3 >= fny {
+                    return;
+                }
+                let mut any = vec![0u8; nx];
+                for r in fj - 3..=fj + 3 {
+                    for (a, &v) in any.iter_mut().zip(&near[r * nx..(r + 1) * nx]) {
+                        *a |= v;
+                    }
+                }
+                for (o, &a) in out.iter_mut().zip(&any) {
+                    *o = a == 0;
+                }
+            });
+        drop(near);
         let const_src = ConstantSource(fine_reg);
         let reg64 = galerkin(&const_src, |i, j| interp(&const_src, i, j), 0, 0);
         let reg_block = block_weights(&const_src, 0, 0);
         let reg_diag = reg64[4];
-        let regular = |ci: usize, cj: usize| {
-            let fj = 2 * cj;
-            fj >= 3 && fj + 3 < fny && (fj - 3..=fj + 3).all(|r| !near[r * nx + ci])
-        };
+        let regular = |ci: usize, cj: usize| regular_map[cj * nx + ci];
         // Interpolation weights of the blocks of non-regular points.
         let blocks: Vec<Vec<(usize, BlockWeights)>> = (0..ny)
             .into_par_iter()
@@ -226,10 +246,16 @@ impl CoarseLevel {
 
     /// `irregular[i + nx j]`: true where the stencil is not the constant one.
     pub fn irregular(&self) -> Vec<bool> {
-        (0..self.ny)
-            .into_par_iter()
-            .flat_map_iter(|j| (0..self.nx).map(move |i| self.idx[self.at(i, j)] != REGULAR))
-            .collect()
+        let mut out = vec![true; self.nx * self.ny];
+        out.par_chunks_mut(self.nx)
+            .enumerate()
+            .for_each(|(j, row)| {
+                let start = self.at(0, j);
+                for (o, &id) in row.iter_mut().zip(&self.idx[start..start + self.nx]) {
+                    *o = id != REGULAR;
+                }
+            });
+        out
     }
 
     /// Gauss-Seidel update of row `j` (colour (0, j) then colour (1, j)).

@@ -436,21 +436,24 @@ impl FineSource<'_> {
         [0.0, -ay, 0.0, -ax, self.diag, -ax, 0.0, -ay, 0.0]
     }
 
-    /// `true` where the stencil is not [`FineSource::regular`].
+    /// `true` where the stencil is not [`FineSource::regular`]: fixed
+    /// cells and cells with a fixed or outside 4-neighbour.
     fn irregular(&self) -> Vec<bool> {
-        (0..self.ny)
-            .into_par_iter()
-            .flat_map_iter(|j| {
-                (0..self.nx).map(move |i| {
-                    let (i, j) = (i as isize, j as isize);
-                    !(self.free(i, j)
-                        && self.free(i - 1, j)
-                        && self.free(i + 1, j)
-                        && self.free(i, j - 1)
-                        && self.free(i, j + 1))
-                })
-            })
-            .collect()
+        let (nx, ny) = (self.nx, self.ny);
+        let free = self.free;
+        let mut out = vec![true; nx * ny];
+        out.par_chunks_mut(nx).enumerate().for_each(|(j, row)| {
+            if j == 0 || j + 1 >= ny || nx < 3 {
+                return;
+            }
+            let up = &free[(j - 1) * nx..j * nx];
+            let mid = &free[j * nx..(j + 1) * nx];
+            let dn = &free[(j + 1) * nx..(j + 2) * nx];
+            for i in 1..nx - 1 {
+                row[i] = (mid[i] & mid[i - 1] & mid[i + 1] & up[i] & dn[i]) == 0;
+            }
+        });
+        out
     }
 }
 
@@ -669,7 +672,11 @@ fn v_cycle(h: &mut Hierarchy, pre: usize, post: usize) {
     h.fine.smooth(pre);
     h.fine.residual_natural();
     restrict_fine(h);
-    coarse_cycle(&mut h.coarse, pre, post);
+    let cs: usize = std::env::var("MG_CS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(pre);
+    coarse_cycle(&mut h.coarse, cs, cs);
     prolongate_fine(h);
     h.fine.smooth(post);
 }
