@@ -128,6 +128,9 @@ pub struct SolveStats {
     pub relative_residual: f64,
     /// Grid levels in the hierarchy (1 = no coarsening was possible).
     pub levels: usize,
+    /// Wall-clock seconds spent building the hierarchy (Galerkin coarse
+    /// operators and interpolation weights), included in the solve.
+    pub setup_seconds: f64,
 }
 
 /// Why [`solve`] failed.
@@ -212,28 +215,19 @@ pub fn solve(
             residual_history: vec![0.0],
             relative_residual: 0.0,
             levels: 0,
+            setup_seconds: 0.0,
         });
     }
 
-    let t0 = std::time::Instant::now();
+    let setup_start = std::time::Instant::now();
     let mut h = build_hierarchy(nx, ny, hx, hy, opts.screening, fixed, values);
-    if std::env::var_os("MG_DEBUG").is_some() {
-        eprintln!("setup {:.3}s", t0.elapsed().as_secs_f64());
-        for c in &h.coarse {
-            eprintln!(
-                "  level {}x{} live {} irregular {}",
-                c.nx,
-                c.ny,
-                c.live,
-                c.irr.len()
-            );
-        }
-    }
+    let setup_seconds = setup_start.elapsed().as_secs_f64();
     let mut stats = SolveStats {
         cycles: 0,
         residual_history: Vec::new(),
         relative_residual: f64::INFINITY,
         levels: h.levels(),
+        setup_seconds,
     };
     if opts.full_multigrid {
         full_multigrid(&mut h, opts);
@@ -242,11 +236,7 @@ pub fn solve(
     stats.residual_history.push(rel);
     let mut slow_cycles = 0;
     while rel > opts.tolerance && stats.cycles < opts.max_cycles {
-        let t1 = std::time::Instant::now();
         v_cycle(&mut h, opts.pre_smooth, opts.post_smooth);
-        if std::env::var_os("MG_DEBUG").is_some() {
-            eprintln!("cycle {:.3}s", t1.elapsed().as_secs_f64());
-        }
         stats.cycles += 1;
         let next = h.fine.residual_norm_squared().sqrt() / b_norm;
         stats.residual_history.push(next);
@@ -483,8 +473,6 @@ impl StencilSource for FineSource<'_> {
 /// Galerkin coarse levels under it.
 struct Hierarchy {
     fine: Level,
-    /// Free mask of the finest level, natural layout.
-    free: Vec<u8>,
     coarse: Vec<CoarseLevel>,
 }
 
@@ -541,8 +529,7 @@ fn build_hierarchy(
         }
         coarse.push(next);
     }
-    drop(src);
-    Hierarchy { fine, free, coarse }
+    Hierarchy { fine, coarse }
 }
 
 /// Copies the caller's natural-layout arrays into the finest level's split
@@ -672,11 +659,7 @@ fn v_cycle(h: &mut Hierarchy, pre: usize, post: usize) {
     h.fine.smooth(pre);
     h.fine.residual_natural();
     restrict_fine(h);
-    let cs: usize = std::env::var("MG_CS")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(pre);
-    coarse_cycle(&mut h.coarse, cs, cs);
+    coarse_cycle(&mut h.coarse, pre, post);
     prolongate_fine(h);
     h.fine.smooth(post);
 }
