@@ -579,17 +579,19 @@ pub(super) fn prolongate_row(coarse: &CoarseLevel, j: usize, nx: usize, out: &mu
 }
 
 /// Restricts a fine residual to the right-hand side of coarse row `cj`
-/// (`out`, padded row) with `R = P^T`. `res` is the fine residual in padded
-/// natural layout (zero ghost border) with row pitch `rp`.
+/// (`out`, padded row) with `R = P^T`. `res` holds fine residual rows in
+/// padded natural layout (zero ghosts) with row pitch `rp`; fine row `2 cj`
+/// starts at `centre`, rows `2 cj - 1` and `2 cj + 1` are next to it.
 pub(super) fn restrict_row(
     coarse: &CoarseLevel,
     cj: usize,
     res: &[f32],
+    centre: usize,
     rp: usize,
     out: &mut [f32],
 ) {
     let p = coarse.pitch;
-    let r0 = (2 * cj + 1) * rp + 1;
+    let r0 = centre + 1;
     for ci in 0..coarse.nx {
         let k = coarse.at(ci, cj);
         if coarse.idx[k] == DEAD {
@@ -626,7 +628,8 @@ pub(super) fn restrict_coarse(fine: &CoarseLevel, coarse: &mut CoarseLevel) {
     {
         let c: &CoarseLevel = coarse;
         let rows = &mut rhs[cp..(cny + 1) * cp];
-        let job = |(cj, out): (usize, &mut [f32])| restrict_row(c, cj, fres, fp, out);
+        let job =
+            |(cj, out): (usize, &mut [f32])| restrict_row(c, cj, fres, (2 * cj + 1) * fp, fp, out);
         if fine.parallel() {
             rows.par_chunks_mut(cp).enumerate().for_each(job);
         } else {
