@@ -144,27 +144,36 @@ fn rates(history: &[f64]) -> Vec<f64> {
 }
 
 #[test]
-fn scattered_curves_1025_converge_every_cycle() {
-    let history = scattered_history(1025, 7, 1e-4);
+fn scattered_curves_513_converge_every_cycle() {
+    let history = scattered_history(513, 7, 1e-5);
     let r = rates(&history);
-    eprintln!("1025 rates: {r:.3?}");
-    // Regression guard at the currently achieved rate (see the ignored
-    // acceptance test below for the 10x target).
+    eprintln!("513 rates: {r:.3?}");
     for (cycle, rate) in r.iter().enumerate() {
-        assert!(*rate < 0.6, "cycle {cycle}: residual ratio {rate:.3}");
+        assert!(*rate <= 0.1, "cycle {cycle}: residual ratio {rate:.3}");
     }
 }
 
 /// Acceptance target of issue 5: every V-cycle reduces the residual at least
-/// tenfold on 1025 and 4097 grids with scattered curve constraints.
-/// Not met yet (measured: about 0.06 on the first cycle, then 0.15 to 0.35);
-/// run with `cargo test --test multigrid -- --ignored`.
+/// tenfold on 1025 x 1025 and 4097 x 4097 grids with scattered curve
+/// constraints.
+///
+/// What it checks: the synthetic layout (8 random one-cell-wide 8-connected
+/// polylines with varying displacements, 20 isolated points, 4 nodata discs
+/// fixed to 0; seed 11) solved from a zero guess with the default V(2,2)
+/// cycles down to a relative residual of 1e-5; every entry of the residual
+/// history (the relative residual `||b - A m|| / ||b||` after each V-cycle,
+/// one V-cycle = one iteration, no Krylov acceleration) is at most 0.1 times
+/// the previous one; the final field is checked against an independent f64
+/// residual, and fixed cells are unchanged. The 4097 case takes about 10 s in
+/// the opt-level-2 test profile on a 2-core machine.
 #[test]
-#[ignore = "acceptance target not met yet: rates 0.15-0.35 after the first cycle"]
 fn acceptance_tenfold_per_cycle_1025_and_4097() {
     for n in [1025, 4097] {
         let history = scattered_history(n, 11, 1e-5);
-        for (cycle, rate) in rates(&history).iter().enumerate() {
+        let r = rates(&history);
+        eprintln!("{n} rates: {r:.3?}");
+        assert!(history.len() >= 4, "n = {n}: {history:?}");
+        for (cycle, rate) in r.iter().enumerate() {
             assert!(*rate <= 0.1, "n = {n}, cycle {cycle}: ratio {rate:.3}");
         }
     }

@@ -63,13 +63,17 @@ def main():
     ap.add_argument("--n", type=int, default=4096)
     ap.add_argument("--seed", type=int, default=42)
     ap.add_argument("--tol", type=float, default=1e-4)
+    ap.add_argument("--bench-bin", default=None,
+                    help="prebuilt multigrid_bench binary (default: cargo run --release)")
     args = ap.parse_args()
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     with tempfile.TemporaryDirectory() as tmp:
-        out = subprocess.run(
-            ["cargo", "run", "--release", "--quiet", "--example", "multigrid_bench", "--",
-             str(args.n), str(args.seed), str(args.tol), tmp, "3"],
-            cwd=root, check=True, capture_output=True, text=True)
+        if args.bench_bin:
+            cmd = [args.bench_bin]
+        else:
+            cmd = ["cargo", "run", "--release", "--quiet", "--example", "multigrid_bench", "--"]
+        cmd += [str(args.n), str(args.seed), str(args.tol), tmp, "3"]
+        out = subprocess.run(cmd, cwd=root, check=True, capture_output=True, text=True)
         ours = json.loads(out.stdout.strip().splitlines()[-1])
         fixed = np.fromfile(os.path.join(tmp, "fixed.u8"), dtype=np.uint8).reshape(args.n, args.n) != 0
         values = np.fromfile(os.path.join(tmp, "values.f32"), dtype="<f4").reshape(args.n, args.n)
@@ -88,7 +92,8 @@ def main():
         "unknowns": int(A.shape[0]),
     }
     print(json.dumps({"n": args.n, "tolerance": args.tol, "demsketch": ours, "pyamg": pyamg_result,
-                      "speedup_total": pyamg_result["total_s"] / ours["seconds_best"]}, indent=1))
+                      "speedup_total": pyamg_result["total_s"] / ours["seconds_best"],
+                      "load_average": os.getloadavg()}, indent=1))
 
 
 if __name__ == "__main__":

@@ -39,6 +39,13 @@ pub(super) struct CoarseLevel {
     /// Irregular stencils and their inverse diagonals.
     pub irr: Vec<[f32; 9]>,
     pub irr_inv: Vec<f32>,
+    /// Column of each irregular point; those of row `j` are
+    /// `irr_row[j] .. irr_row[j + 1]` (irregular points are numbered row by row).
+    pub irr_col: Vec<u32>,
+    pub irr_row: Vec<u32>,
+    /// `blend[a][k]`: 1 where point `k` is regular and its column has parity `a`
+    /// (padded layout).
+    blend: [Vec<u8>; 2],
     /// The constant stencil of regular points (f32 and f64) and its inverse diagonal.
     pub reg: [f32; 9],
     pub reg64: [f64; 9],
@@ -67,6 +74,147 @@ impl StencilSource for CoarseLevel {
     }
 }
 
+/// Constant-stencil Gauss-Seidel values of a whole padded row into `buf`,
+/// then blended into `uc` where `blend` is set.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn regular_update_kernel(
+    buf: &mut [f32],
+    uc: &mut [f32],
+    un: &[f32],
+    us: &[f32],
+    rhs: &[f32],
+    blend: &[u8],
+    s: &[f32; 9],
+    inv: f32,
+) {
+    let n = uc.len() - 2;
+    {
+        let (w, c, e) = (&uc[..n], &uc[1..n + 1], &uc[2..n + 2]);
+        let (nw, nn, ne) = (&un[..n], &un[1..n + 1], &un[2..n + 2]);
+        let (sw, ss, se) = (&us[..n], &us[1..n + 1], &us[2..n + 2]);
+        let _ = c;
+        let rhs = &rhs[1..n + 1];
+        let out = &mut buf[1..n + 1];
+        for k in 0..n {
+            let sum = s[0] * nw[k]
+                + s[1] * nn[k]
+                + s[2] * ne[k]
+                + s[3] * w[k]
+                + s[5] * e[k]
+                + s[6] * sw[k]
+                + s[7] * ss[k]
+                + s[8] * se[k];
+            out[k] = (rhs[k] - sum) * inv;
+        }
+    }
+    let (out, bl, new) = (&mut uc[1..n + 1], &blend[1..n + 1], &buf[1..n + 1]);
+    for k in 0..n {
+        out[k] = if bl[k] != 0 { new[k] } else { out[k] };
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[allow(clippy::too_many_arguments)]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn regular_update_avx2(
+    buf: &mut [f32],
+    uc: &mut [f32],
+    un: &[f32],
+    us: &[f32],
+    rhs: &[f32],
+    blend: &[u8],
+    s: &[f32; 9],
+    inv: f32,
+) {
+    regular_update_kernel(buf, uc, un, us, rhs, blend, s, inv)
+}
+
+#[allow(clippy::too_many_arguments)]
+#[inline]
+fn regular_update(
+    buf: &mut [f32],
+    uc: &mut [f32],
+    un: &[f32],
+    us: &[f32],
+    rhs: &[f32],
+    blend: &[u8],
+    s: &[f32; 9],
+    inv: f32,
+) {
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma") {
+        // SAFETY: the CPU supports AVX2 and FMA.
+        unsafe { regular_update_avx2(buf, uc, un, us, rhs, blend, s, inv) };
+        return;
+    }
+    regular_update_kernel(buf, uc, un, us, rhs, blend, s, inv)
+}
+
+/// Constant-stencil residual of a padded row into `out` where the point is
+/// regular, 0 elsewhere.
+#[inline(always)]
+fn regular_residual_kernel(
+    out: &mut [f32],
+    un: &[f32],
+    uc: &[f32],
+    us: &[f32],
+    rhs: &[f32],
+    ids: &[u32],
+    s: &[f32; 9],
+) {
+    let n = uc.len() - 2;
+    let (w, c, e) = (&uc[..n], &uc[1..n + 1], &uc[2..n + 2]);
+    let (nw, nn, ne) = (&un[..n], &un[1..n + 1], &un[2..n + 2]);
+    let (sw, ss, se) = (&us[..n], &us[1..n + 1], &us[2..n + 2]);
+    let (rhs, ids, out) = (&rhs[1..n + 1], &ids[1..n + 1], &mut out[1..n + 1]);
+    for k in 0..n {
+        let au = s[0] * nw[k]
+            + s[1] * nn[k]
+            + s[2] * ne[k]
+            + s[3] * w[k]
+            + s[4] * c[k]
+            + s[5] * e[k]
+            + s[6] * sw[k]
+            + s[7] * ss[k]
+            + s[8] * se[k];
+        out[k] = if ids[k] == REGULAR { rhs[k] - au } else { 0.0 };
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn regular_residual_avx2(
+    out: &mut [f32],
+    un: &[f32],
+    uc: &[f32],
+    us: &[f32],
+    rhs: &[f32],
+    ids: &[u32],
+    s: &[f32; 9],
+) {
+    regular_residual_kernel(out, un, uc, us, rhs, ids, s)
+}
+
+#[inline]
+fn regular_residual(
+    out: &mut [f32],
+    un: &[f32],
+    uc: &[f32],
+    us: &[f32],
+    rhs: &[f32],
+    ids: &[u32],
+    s: &[f32; 9],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma") {
+        // SAFETY: the CPU supports AVX2 and FMA.
+        unsafe { regular_residual_avx2(out, un, uc, us, rhs, ids, s) };
+        return;
+    }
+    regular_residual_kernel(out, un, uc, us, rhs, ids, s)
+}
+
 /// Raw pointer to a level's unknown, shared by the smoother's threads.
 /// Soundness: in each phase a thread writes only rows of one parity that no
 /// other thread touches and reads rows of the other parity, which nobody
@@ -89,13 +237,6 @@ impl CoarseLevel {
         self.nx * self.ny >= PARALLEL_MIN_POINTS
     }
 
-    /// Whether coarse point `(i, j)` is regular (then every fine point within
-    /// 3 of `(2i, 2j)` has the finer level's constant stencil).
-    #[inline]
-    pub fn is_regular(&self, i: usize, j: usize) -> bool {
-        self.idx[self.at(i, j)] == REGULAR
-    }
-
     /// The coarse level under a finer level given by `src` (`fnx x fny`
     /// points, constant stencil `fine_reg`), with `fine_irregular[i + fnx j]`
     /// true where the finer stencil is not `fine_reg`.
@@ -110,32 +251,52 @@ impl CoarseLevel {
         let ny = fny.div_ceil(2);
         let pitch = nx + 2;
         let len = (ny + 2) * pitch;
-        // Horizontal dilation by 3 at even columns.
-        let near: Vec<bool> = fine_irregular
-            .par_chunks(fnx)
-            .flat_map_iter(|row| {
+        // Horizontal dilation by 3 at even columns: near[fj][ci] = 1 when an
+        // irregular fine point (or the edge) is within 3 columns of 2 ci.
+        let mut near = vec![1u8; fny * nx];
+        near.par_chunks_mut(nx)
+            .zip(fine_irregular.par_chunks(fnx))
+            .for_each(|(out, row)| {
                 let mut prefix = Vec::with_capacity(fnx + 1);
                 prefix.push(0u32);
+                let mut acc = 0u32;
                 for &b in row {
-                    prefix.push(prefix[prefix.len() - 1] + u32::from(b));
+                    acc += u32::from(b);
+                    prefix.push(acc);
                 }
-                (0..nx).map(move |ci| {
+                for (ci, o) in out.iter_mut().enumerate() {
                     let c = 2 * ci;
-                    if c < 3 || c + 3 >= fnx {
-                        return true;
+                    if c >= 3 && c + 3 < fnx {
+                        *o = u8::from(prefix[c + 4] != prefix[c - 3]);
                     }
-                    prefix[c + 4] - prefix[c - 3] > 0
-                })
-            })
-            .collect();
+                }
+            });
+        // Vertical dilation by 3: regular[cj][ci].
+        let mut regular_map = vec![false; nx * ny];
+        regular_map
+            .par_chunks_mut(nx)
+            .enumerate()
+            .for_each(|(cj, out)| {
+                let fj = 2 * cj;
+                if fj < 3 || fj + 3 >= fny {
+                    return;
+                }
+                let mut any = vec![0u8; nx];
+                for r in fj - 3..=fj + 3 {
+                    for (a, &v) in any.iter_mut().zip(&near[r * nx..(r + 1) * nx]) {
+                        *a |= v;
+                    }
+                }
+                for (o, &a) in out.iter_mut().zip(&any) {
+                    *o = a == 0;
+                }
+            });
+        drop(near);
         let const_src = ConstantSource(fine_reg);
         let reg64 = galerkin(&const_src, |i, j| interp(&const_src, i, j), 0, 0);
         let reg_block = block_weights(&const_src, 0, 0);
         let reg_diag = reg64[4];
-        let regular = |ci: usize, cj: usize| {
-            let fj = 2 * cj;
-            fj >= 3 && fj + 3 < fny && (fj - 3..=fj + 3).all(|r| !near[r * nx + ci])
-        };
+        let regular = |ci: usize, cj: usize| regular_map[cj * nx + ci];
         // Interpolation weights of the blocks of non-regular points.
         let blocks: Vec<Vec<(usize, BlockWeights)>> = (0..ny)
             .into_par_iter()
@@ -188,6 +349,9 @@ impl CoarseLevel {
             .collect();
         let mut idx = vec![DEAD; len];
         let mut irr = Vec::new();
+        let mut irr_col = Vec::new();
+        let mut irr_row = vec![0u32];
+        let mut blend = [vec![0u8; len], vec![0u8; len]];
         let mut live = 0;
         for (cj, (ids, sts)) in rows.into_iter().enumerate() {
             let base = irr.len() as u32;
@@ -195,12 +359,19 @@ impl CoarseLevel {
                 let k = (cj + 1) * pitch + ci + 1;
                 idx[k] = match id {
                     DEAD => DEAD,
-                    REGULAR => REGULAR,
-                    local => local + base,
+                    REGULAR => {
+                        blend[ci & 1][k] = 1;
+                        REGULAR
+                    }
+                    local => {
+                        irr_col.push(ci as u32);
+                        local + base
+                    }
                 };
                 live += usize::from(id != DEAD);
             }
             irr.extend(sts);
+            irr_row.push(irr.len() as u32);
         }
         let irr_inv = irr.iter().map(|s| 1.0 / s[4]).collect();
         let reg = reg64.map(|v| v as f32);
@@ -214,6 +385,9 @@ impl CoarseLevel {
             idx,
             irr,
             irr_inv,
+            irr_col,
+            irr_row,
+            blend,
             reg,
             reg64,
             reg_inv: (1.0 / reg64[4]) as f32,
@@ -226,47 +400,56 @@ impl CoarseLevel {
 
     /// `irregular[i + nx j]`: true where the stencil is not the constant one.
     pub fn irregular(&self) -> Vec<bool> {
-        (0..self.ny)
-            .into_par_iter()
-            .flat_map_iter(|j| (0..self.nx).map(move |i| self.idx[self.at(i, j)] != REGULAR))
-            .collect()
+        let mut out = vec![true; self.nx * self.ny];
+        out.par_chunks_mut(self.nx)
+            .enumerate()
+            .for_each(|(j, row)| {
+                let start = self.at(0, j);
+                for (o, &id) in row.iter_mut().zip(&self.idx[start..start + self.nx]) {
+                    *o = id != REGULAR;
+                }
+            });
+        out
     }
 
     /// Gauss-Seidel update of row `j` (colour (0, j) then colour (1, j)).
+    /// Regular points: the constant-stencil update is computed for the whole
+    /// row into `buf` (contiguous, vectorised) and blended into the points of
+    /// the colour; irregular points are then updated one by one.
     ///
     /// # Safety
     /// No other thread may access row `j` or write rows `j - 1`, `j + 1`.
     #[inline]
-    unsafe fn relax_row(&self, u: SharedRows, j: usize) {
-        let p = self.pitch as isize;
-        let row = (j + 1) * self.pitch + 1;
-        let u = u.0;
-        let reg = &self.reg;
+    unsafe fn relax_row(&self, u: SharedRows, j: usize, buf: &mut Vec<f32>) {
+        let p = self.pitch;
+        let start = (j + 1) * p;
+        let un = std::slice::from_raw_parts(u.0.add(start - p), p);
+        let uc = std::slice::from_raw_parts_mut(u.0.add(start), p);
+        let us = std::slice::from_raw_parts(u.0.add(start + p), p);
+        let rhs = &self.rhs[start..start + p];
+        buf.resize(p, 0.0);
+        let s = &self.reg;
+        let inv = self.reg_inv;
+        let (first, last) = (self.irr_row[j] as usize, self.irr_row[j + 1] as usize);
         for a in 0..2 {
-            let mut i = a;
-            while i < self.nx {
-                let k = row + i;
-                let id = self.idx[k];
-                i += 2;
-                if id == DEAD {
+            let blend = &self.blend[a][start..start + p];
+            regular_update(buf, uc, un, us, rhs, blend, s, inv);
+            for n in first..last {
+                let ci = self.irr_col[n] as usize;
+                if ci & 1 != a {
                     continue;
                 }
-                let (s, inv) = if id == REGULAR {
-                    (reg, self.reg_inv)
-                } else {
-                    let n = (id - 2) as usize;
-                    (&self.irr[n], self.irr_inv[n])
-                };
-                let c = u.add(k);
-                let sum = s[0] * *c.offset(-p - 1)
-                    + s[1] * *c.offset(-p)
-                    + s[2] * *c.offset(-p + 1)
-                    + s[3] * *c.offset(-1)
-                    + s[5] * *c.offset(1)
-                    + s[6] * *c.offset(p - 1)
-                    + s[7] * *c.offset(p)
-                    + s[8] * *c.offset(p + 1);
-                *c = (self.rhs[k] - sum) * inv;
+                let k = ci + 1;
+                let s = &self.irr[n];
+                let sum = s[0] * un[k - 1]
+                    + s[1] * un[k]
+                    + s[2] * un[k + 1]
+                    + s[3] * uc[k - 1]
+                    + s[5] * uc[k + 1]
+                    + s[6] * us[k - 1]
+                    + s[7] * us[k]
+                    + s[8] * us[k + 1];
+                uc[k] = (rhs[k] - sum) * self.irr_inv[n];
             }
         }
     }
@@ -280,44 +463,47 @@ impl CoarseLevel {
             for parity in 0..2 {
                 let rows = (this.ny + 1 - parity) / 2;
                 // SAFETY: schedule documented on `SharedRows`.
-                let job = |m: usize| unsafe { this.relax_row(shared, 2 * m + parity) };
+                let job = |buf: &mut Vec<f32>, m: usize| unsafe {
+                    this.relax_row(shared, 2 * m + parity, buf)
+                };
                 if this.parallel() {
-                    (0..rows).into_par_iter().with_min_len(8).for_each(job);
+                    (0..rows)
+                        .into_par_iter()
+                        .with_min_len(8)
+                        .for_each_init(Vec::new, job);
                 } else {
-                    (0..rows).for_each(job);
+                    let mut buf = Vec::new();
+                    (0..rows).for_each(|m| job(&mut buf, m));
                 }
             }
         }
     }
 
-    /// Residual of row `j` into `out` (padded row, entries `1 ..= nx`).
+    /// Residual of row `j` into `out` (padded row, entries `1 ..= nx`; dead
+    /// points 0).
     #[inline]
     fn residual_row(&self, j: usize, out: &mut [f32]) {
         let p = self.pitch;
-        let row = (j + 1) * p + 1;
-        let u = &self.u;
-        for i in 0..self.nx {
-            let k = row + i;
-            let id = self.idx[k];
-            out[i + 1] = if id == DEAD {
-                0.0
-            } else {
-                let s = if id == REGULAR {
-                    &self.reg
-                } else {
-                    &self.irr[(id - 2) as usize]
-                };
-                let au = s[0] * u[k - p - 1]
-                    + s[1] * u[k - p]
-                    + s[2] * u[k - p + 1]
-                    + s[3] * u[k - 1]
-                    + s[4] * u[k]
-                    + s[5] * u[k + 1]
-                    + s[6] * u[k + p - 1]
-                    + s[7] * u[k + p]
-                    + s[8] * u[k + p + 1];
-                self.rhs[k] - au
-            };
+        let start = (j + 1) * p;
+        let un = &self.u[start - p..start];
+        let uc = &self.u[start..start + p];
+        let us = &self.u[start + p..start + 2 * p];
+        let rhs = &self.rhs[start..start + p];
+        let ids = &self.idx[start..start + p];
+        regular_residual(out, un, uc, us, rhs, ids, &self.reg);
+        for n in self.irr_row[j] as usize..self.irr_row[j + 1] as usize {
+            let k = self.irr_col[n] as usize + 1;
+            let s = &self.irr[n];
+            let au = s[0] * un[k - 1]
+                + s[1] * un[k]
+                + s[2] * un[k + 1]
+                + s[3] * uc[k - 1]
+                + s[4] * uc[k]
+                + s[5] * uc[k + 1]
+                + s[6] * us[k - 1]
+                + s[7] * us[k]
+                + s[8] * us[k + 1];
+            out[k] = rhs[k] - au;
         }
     }
 
@@ -393,17 +579,19 @@ pub(super) fn prolongate_row(coarse: &CoarseLevel, j: usize, nx: usize, out: &mu
 }
 
 /// Restricts a fine residual to the right-hand side of coarse row `cj`
-/// (`out`, padded row) with `R = P^T`. `res` is the fine residual in padded
-/// natural layout (zero ghost border) with row pitch `rp`.
+/// (`out`, padded row) with `R = P^T`. `res` holds fine residual rows in
+/// padded natural layout (zero ghosts) with row pitch `rp`; fine row `2 cj`
+/// starts at `centre`, rows `2 cj - 1` and `2 cj + 1` are next to it.
 pub(super) fn restrict_row(
     coarse: &CoarseLevel,
     cj: usize,
     res: &[f32],
+    centre: usize,
     rp: usize,
     out: &mut [f32],
 ) {
     let p = coarse.pitch;
-    let r0 = (2 * cj + 1) * rp + 1;
+    let r0 = centre + 1;
     for ci in 0..coarse.nx {
         let k = coarse.at(ci, cj);
         if coarse.idx[k] == DEAD {
@@ -440,7 +628,8 @@ pub(super) fn restrict_coarse(fine: &CoarseLevel, coarse: &mut CoarseLevel) {
     {
         let c: &CoarseLevel = coarse;
         let rows = &mut rhs[cp..(cny + 1) * cp];
-        let job = |(cj, out): (usize, &mut [f32])| restrict_row(c, cj, fres, fp, out);
+        let job =
+            |(cj, out): (usize, &mut [f32])| restrict_row(c, cj, fres, (2 * cj + 1) * fp, fp, out);
         if fine.parallel() {
             rows.par_chunks_mut(cp).enumerate().for_each(job);
         } else {

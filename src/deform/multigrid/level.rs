@@ -57,9 +57,6 @@ pub(super) struct Level {
     pub free_cells: usize,
     /// Row bands `[r0, r1)` of the parallel smoother.
     bands: Vec<(usize, usize)>,
-    /// Residual scratch in natural layout with a zero ghost border,
-    /// `(ny + 2) x (nx + 2)` (allocated on first use).
-    pub natural: Vec<f32>,
 }
 
 /// Raw pointers to the two colour arrays of a level's unknown, shared by the
@@ -316,7 +313,6 @@ impl Level {
             mask: [vec![0; len], vec![0; len]],
             free_cells: 0,
             bands,
-            natural: Vec::new(),
         }
     }
 
@@ -465,52 +461,28 @@ impl Level {
 }
 
 impl Level {
-    /// Fills [`Level::natural`] with the residual (natural layout, zero ghost
-    /// border) and returns its squared norm (f64 sums).
-    pub fn residual_natural(&mut self) -> f64 {
-        let nxp = self.nx + 2;
-        let mut natural = std::mem::take(&mut self.natural);
-        natural.resize((self.ny + 2) * nxp, 0.0);
+    /// Residual of row `j` in natural layout into `row[1 ..= nx]` (`row` is a
+    /// padded row, its ghosts untouched); `scratch` is reused between calls.
+    pub fn residual_natural_row(&self, j: usize, row: &mut [f32], scratch: &mut Vec<f32>) {
+        let w = self.w;
         let avx2 = have_avx2();
-        let this: &Level = self;
-        let w = this.w;
-        let job = |(j, row): (usize, &mut [f32]), buf: &mut Vec<f32>| {
-            buf.resize(2 * w, 0.0);
-            let (red, black) = buf.split_at_mut(w);
-            this.residual_colour_row(red, 0, j, avx2);
-            this.residual_colour_row(black, 1, j, avx2);
-            let sq = sum_squares(red) + sum_squares(black);
-            // Cell i has colour (i + j) & 1 and entry i >> 1.
-            let (even, odd) = if j & 1 == 0 {
-                (&*red, &*black)
-            } else {
-                (&*black, &*red)
-            };
-            let row = &mut row[1..1 + this.nx];
-            for (i, r) in row.iter_mut().enumerate() {
-                *r = if i & 1 == 0 {
-                    even[i >> 1]
-                } else {
-                    odd[i >> 1]
-                };
-            }
-            sq
-        };
-        let rows = &mut natural[nxp..(this.ny + 1) * nxp];
-        let sq = if this.parallel() {
-            rows.par_chunks_mut(nxp)
-                .enumerate()
-                .map_init(Vec::new, |buf, item| job(item, buf))
-                .sum()
+        scratch.resize(2 * w, 0.0);
+        let (red, black) = scratch.split_at_mut(w);
+        self.residual_colour_row(red, 0, j, avx2);
+        self.residual_colour_row(black, 1, j, avx2);
+        // Cell i has colour (i + j) & 1 and entry i >> 1.
+        let (even, odd) = if j & 1 == 0 {
+            (&*red, &*black)
         } else {
-            let mut buf = Vec::new();
-            rows.chunks_mut(nxp)
-                .enumerate()
-                .map(|item| job(item, &mut buf))
-                .sum()
+            (&*black, &*red)
         };
-        self.natural = natural;
-        sq
+        let row = &mut row[1..1 + self.nx];
+        for (k, pair) in row.chunks_mut(2).enumerate() {
+            pair[0] = even[k];
+            if let Some(o) = pair.get_mut(1) {
+                *o = odd[k];
+            }
+        }
     }
 
     /// Adds a correction given row by row in natural layout to the free
