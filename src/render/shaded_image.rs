@@ -4,6 +4,7 @@
 //! readable), over a sky gradient. Written as 8-bit RGB PNG with the `png`
 //! crate; the depth buffer itself can be written as a Float32 TIFF.
 
+use super::atomic::write_atomically;
 use super::depth_buffer::{DepthBuffer, SKY};
 use super::terrain::LocalTerrain;
 use super::RenderError;
@@ -76,13 +77,7 @@ pub fn shade(depth: &DepthBuffer, terrain: &LocalTerrain, opts: &ShadeOptions) -
     );
     let sun = [az.sin() * alt.cos(), az.cos() * alt.cos(), alt.sin()];
     // Height range of the visible terrain for the colour ramp.
-    let (mut hmin, mut hmax) = (f64::INFINITY, f64::NEG_INFINITY);
-    for &v in &terrain.z {
-        if !v.is_nan() {
-            hmin = hmin.min(v as f64);
-            hmax = hmax.max(v as f64);
-        }
-    }
+    let (hmin, hmax) = terrain.height_range();
     let frame = terrain.frame;
     let hmin_abs = hmin + frame.eye_alt;
     let hspan = (hmax - hmin).max(1.0);
@@ -119,38 +114,44 @@ pub fn shade(depth: &DepthBuffer, terrain: &LocalTerrain, opts: &ShadeOptions) -
     out
 }
 
-/// Write RGB bytes as an 8-bit PNG.
+/// Write RGB bytes as an 8-bit PNG (atomically: temporary file, then rename).
 pub fn write_png(path: &Path, width: usize, height: usize, rgb: &[u8]) -> Result<(), RenderError> {
-    let werr = |m: String| RenderError::Write {
-        path: path.display().to_string(),
-        message: m,
-    };
-    let file = std::fs::File::create(path).map_err(|e| werr(e.to_string()))?;
-    let mut enc = png::Encoder::new(std::io::BufWriter::new(file), width as u32, height as u32);
-    enc.set_color(png::ColorType::Rgb);
-    enc.set_depth(png::BitDepth::Eight);
-    let mut wr = enc.write_header().map_err(|e| werr(e.to_string()))?;
-    wr.write_image_data(rgb).map_err(|e| werr(e.to_string()))?;
-    wr.finish().map_err(|e| werr(e.to_string()))?;
-    Ok(())
+    write_atomically(path, |tmp| {
+        let werr = |m: String| RenderError::Write {
+            path: path.display().to_string(),
+            message: m,
+        };
+        let file = std::fs::File::create(tmp).map_err(|e| werr(e.to_string()))?;
+        let mut enc = png::Encoder::new(std::io::BufWriter::new(file), width as u32, height as u32);
+        enc.set_color(png::ColorType::Rgb);
+        enc.set_depth(png::BitDepth::Eight);
+        let mut wr = enc.write_header().map_err(|e| werr(e.to_string()))?;
+        wr.write_image_data(rgb).map_err(|e| werr(e.to_string()))?;
+        wr.finish().map_err(|e| werr(e.to_string()))?;
+        Ok(())
+    })
 }
 
 /// Write the depth buffer as a Float32 TIFF in image space (no
 /// georeference): metres from the eye, `inf` for sky.
 pub fn write_depth_tiff(depth: &DepthBuffer, path: &Path) -> Result<(), RenderError> {
-    let werr = |e: gdal::errors::GdalError| RenderError::Write {
-        path: path.display().to_string(),
-        message: e.to_string().lines().next().unwrap_or("").to_string(),
-    };
-    let driver = gdal::DriverManager::get_driver_by_name("GTiff").map_err(werr)?;
-    let ds = driver
-        .create_with_band_type::<f32, _>(path, depth.width, depth.height, 1)
-        .map_err(werr)?;
-    let mut band = ds.rasterband(1).map_err(werr)?;
-    let mut buf = gdal::raster::Buffer::new((depth.width, depth.height), depth.depth.clone());
-    band.write((0, 0), (depth.width, depth.height), &mut buf)
-        .map_err(werr)?;
-    Ok(())
+    write_atomically(path, |tmp| {
+        let werr = |e: gdal::errors::GdalError| RenderError::Write {
+            path: path.display().to_string(),
+            message: e.to_string().lines().next().unwrap_or("").to_string(),
+        };
+        let driver = gdal::DriverManager::get_driver_by_name("GTiff").map_err(werr)?;
+        let ds = driver
+            .create_with_band_type::<f32, _>(tmp, depth.width, depth.height, 1)
+            .map_err(werr)?;
+        let mut band = ds.rasterband(1).map_err(werr)?;
+        let mut buf = gdal::raster::Buffer::new((depth.width, depth.height), depth.depth.clone());
+        band.write((0, 0), (depth.width, depth.height), &mut buf)
+            .map_err(werr)?;
+        drop(band);
+        ds.close().map_err(werr)?;
+        Ok(())
+    })
 }
 
 /// Draw a polyline of pixel coordinates (DESIGN.md convention: pixel `(i, j)`
