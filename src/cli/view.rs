@@ -286,7 +286,13 @@ pub fn run(args: ViewArgs) -> anyhow::Result<()> {
         .transpose()?;
 
     let (w, h) = (view.camera.width, view.camera.height);
-    let mut rgb = shade(&depth, &scene.terrain, &ShadeOptions::default());
+    // Sun behind the viewer's right shoulder, so the slopes facing the
+    // viewer are lit.
+    let opts = ShadeOptions {
+        sun_azimuth_deg: view.camera.heading_deg + 135.0,
+        ..ShadeOptions::default()
+    };
+    let mut rgb = shade(&depth, &scene.terrain, &opts);
     let line = (w.max(h) as f64 / 800.0).clamp(1.0, 4.0);
     if let (true, Some(net)) = (want(Overlay::Ridges), &ridges) {
         let cell = scene.terrain.frame.p[0][0].hypot(scene.terrain.frame.p[1][0]);

@@ -18,8 +18,8 @@ pub struct ShadeOptions {
     pub sun_azimuth_deg: f64,
     /// Sun altitude above the horizon, degrees.
     pub sun_altitude_deg: f64,
-    /// Distance at which haze covers 63% of the terrain colour; `None`: a
-    /// third of the farthest visible distance.
+    /// Distance at which haze covers 54% of the terrain colour (85% of
+    /// 1 - 1/e); `None`: half the farthest visible distance.
     pub haze_distance_m: Option<f64>,
 }
 
@@ -70,7 +70,7 @@ pub fn shade(depth: &DepthBuffer, terrain: &LocalTerrain, opts: &ShadeOptions) -
         .copied()
         .filter(|d| d.is_finite())
         .fold(0.0f32, f32::max) as f64;
-    let haze_d = opts.haze_distance_m.unwrap_or((max_depth / 3.0).max(500.0));
+    let haze_d = opts.haze_distance_m.unwrap_or((max_depth / 2.0).max(500.0));
     let (az, alt) = (
         opts.sun_azimuth_deg.to_radians(),
         opts.sun_altitude_deg.to_radians(),
@@ -97,14 +97,14 @@ pub fn shade(depth: &DepthBuffer, terrain: &LocalTerrain, opts: &ShadeOptions) -
                 let habs = p[2] + frame.eye_alt + frame.curvature.drop(p[0].hypot(p[1]));
                 let base = ramp((habs - hmin_abs) / hspan);
                 let n = terrain
-                    .triangle_normal(depth.triangle[k])
+                    .shading_normal(p, depth.triangle[k])
                     .unwrap_or([0.0, 0.0, 1.0]);
                 let lambert = (n[0] * sun[0] + n[1] * sun[1] + n[2] * sun[2]).max(0.0);
                 let sky = 0.5 + 0.5 * n[2];
                 let light = 0.22 * sky + 0.95 * lambert;
                 let lit = [base[0] * light, base[1] * light, base[2] * light];
                 let f = 1.0 - (-t / haze_d).exp();
-                lerp(lit, haze, 0.9 * f)
+                lerp(lit, haze, 0.85 * f)
             };
             row[i * 3] = c[0].round().clamp(0.0, 255.0) as u8;
             row[i * 3 + 1] = c[1].round().clamp(0.0, 255.0) as u8;

@@ -322,6 +322,49 @@ impl LocalTerrain {
         (self.col0 + cell % cx, self.row0 + cell / cx, (id % 2) as u8)
     }
 
+    /// Smooth upward unit normal of the surface at local point `p` on
+    /// triangle `id`, for shading: the central-difference gradients of the
+    /// cell's four vertices, interpolated bilinearly (like a hillshade's
+    /// gradient, without the facets of the triangles). Falls back to the
+    /// triangle's own normal next to nodata.
+    pub fn shading_normal(&self, p: [f64; 3], id: u32) -> Option<[f64; 3]> {
+        let cx = self.cells_x().max(1);
+        let cell = (id / 2) as usize;
+        let (c, r) = (cell % cx, cell / cx);
+        let (vx, vy) = self.en_to_v(p[0], p[1]);
+        let (fx, fy) = (
+            (vx - c as f64).clamp(0.0, 1.0),
+            (vy - r as f64).clamp(0.0, 1.0),
+        );
+        let grad = |c: usize, r: usize| -> Option<(f64, f64)> {
+            let z = |c: usize, r: usize| self.vertex_z(c, r);
+            let (c0, c1) = (c.saturating_sub(1), (c + 1).min(self.nx - 1));
+            let (r0, r1) = (r.saturating_sub(1), (r + 1).min(self.ny - 1));
+            let gx = (z(c1, r)? - z(c0, r)?) / (c1 - c0).max(1) as f64;
+            let gy = (z(c, r1)? - z(c, r0)?) / (r1 - r0).max(1) as f64;
+            Some((gx, gy))
+        };
+        let g = (|| {
+            let g00 = grad(c, r)?;
+            let g10 = grad(c + 1, r)?;
+            let g01 = grad(c, r + 1)?;
+            let g11 = grad(c + 1, r + 1)?;
+            let l = |a: f64, b: f64, t: f64| a + (b - a) * t;
+            Some((
+                l(l(g00.0, g10.0, fx), l(g01.0, g11.0, fx), fy),
+                l(l(g00.1, g10.1, fx), l(g01.1, g11.1, fx), fy),
+            ))
+        })();
+        let Some((gx, gy)) = g else {
+            return self.triangle_normal(id);
+        };
+        let m = self.en_to_v;
+        let de = gx * m[0][0] + gy * m[1][0];
+        let dn = gx * m[0][1] + gy * m[1][1];
+        let l = (de * de + dn * dn + 1.0).sqrt();
+        Some([-de / l, -dn / l, 1.0 / l])
+    }
+
     /// Upward unit normal of triangle `id` in the local frame.
     pub fn triangle_normal(&self, id: u32) -> Option<[f64; 3]> {
         let [a, b, c] = self.triangle_vertices(id)?;
