@@ -247,7 +247,8 @@ impl Metric {
     fn step_m(&self, dx: f64, dy: f64, y: f64) -> f64 {
         let g = &self.gt;
         let (sx, sy) = self.scale(y);
-        ((dx * g[1] + dy * g[2]) * sx).hypot((dx * g[4] + dy * g[5]) * sy)
+        let (a, b) = ((dx * g[1] + dy * g[2]) * sx, (dx * g[4] + dy * g[5]) * sy);
+        (a * a + b * b).sqrt()
     }
 }
 
@@ -263,10 +264,11 @@ fn walk(mask: &[u8], w: usize, metric: &Metric, start: usize, mut d: usize) -> (
     let mut len = 0.0;
     let mut c = start;
     let y0 = metric.gt[3];
+    let step: [f64; 8] =
+        std::array::from_fn(|k| metric.step_m(DIRS[k].0 as f64, DIRS[k].1 as f64, y0));
     loop {
         let n = neighbour(c, d, w);
-        let (dx, dy) = DIRS[d];
-        len += metric.step_m(dx as f64, dy as f64, y0);
+        len += step[d];
         path.push(n);
         c = n;
         let m = mask[c];

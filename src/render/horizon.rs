@@ -75,7 +75,7 @@ impl HorizonIndex {
                         if b.zmax == f32::NEG_INFINITY || b.zmax.is_nan() {
                             continue;
                         }
-                        let dc = b.centre.0.hypot(b.centre.1);
+                        let dc = (b.centre.0 * b.centre.0 + b.centre.1 * b.centre.1).sqrt();
                         if dc + b.radius <= near_m {
                             continue;
                         }
@@ -140,8 +140,9 @@ impl HorizonIndex {
     #[inline]
     pub fn start_distance(&self, de: f64, dn: f64, m: f64) -> Option<f64> {
         let az = de.atan2(dn);
-        let s = ((az * self.sectors_per_rad).floor() as i64).rem_euclid(self.sectors as i64);
-        let p = &self.prefix[s as usize * self.rings..(s as usize + 1) * self.rings];
+        // az >= -pi, so the shifted value is positive and truncation is floor
+        let s = ((az * self.sectors_per_rad + self.sectors as f64) as usize) % self.sectors;
+        let p = &self.prefix[s * self.rings..(s + 1) * self.rings];
         let m = m as f32;
         // first ring whose running maximum reaches m
         let r = p.partition_point(|&v| v < m);

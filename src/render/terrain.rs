@@ -171,7 +171,8 @@ impl LocalTerrain {
                     let mut radius = 0f64;
                     for (vx, vy) in [(x0, y0), (x1, y0), (x0, y1), (x1, y1)] {
                         let (e, n) = this.v_to_en(vx, vy);
-                        radius = radius.max((e - centre.0).hypot(n - centre.1));
+                        radius =
+                            radius.max(((e - centre.0).powi(2) + (n - centre.1).powi(2)).sqrt());
                     }
                     out.push(Block {
                         centre,
@@ -386,7 +387,7 @@ impl LocalTerrain {
     /// `d` (local frame) with the triangulated terrain, within distance
     /// `t_limit` and the maximum view distance. `None`: the ray escapes (sky).
     pub fn cast(&self, d: [f64; 3], t_limit: f64) -> Option<RayHit> {
-        let dh = d[0].hypot(d[1]);
+        let dh = (d[0] * d[0] + d[1] * d[1]).sqrt();
         let Some(hz) = self.horizon.as_ref().filter(|_| dh > 1e-9) else {
             return self.traverse(d, 0.0, t_limit);
         };
@@ -418,7 +419,7 @@ impl LocalTerrain {
         let (wx, wy) = ((self.nx - 1) as f64, (self.ny - 1) as f64);
         let mut t0 = t_start.max(0.0);
         let mut t1 = t_limit;
-        let dh = d[0].hypot(d[1]);
+        let dh = (d[0] * d[0] + d[1] * d[1]).sqrt();
         if self.max_distance.is_finite() && dh > 0.0 {
             t1 = t1.min(self.max_distance / dh);
         }
@@ -477,8 +478,8 @@ impl LocalTerrain {
             if level < top {
                 let tq = t + eps;
                 let (qx, qy) = (ox + gx * tq, oy + gy * tq);
-                if (qx.floor().max(0.0) as usize) >> 1 != bx >> 1
-                    || (qy.floor().max(0.0) as usize) >> 1 != by >> 1
+                // (truncation is floor for the non-negative values kept by max)
+                if (qx.max(0.0) as usize) >> 1 != bx >> 1 || (qy.max(0.0) as usize) >> 1 != by >> 1
                 {
                     level += 1;
                 }
@@ -565,7 +566,8 @@ fn axis_block(o: f64, g: f64, p: f64, s: f64, w: f64, n: usize, tp: f64) -> Opti
             f64::INFINITY
         }
     };
-    let mut b = ((p / s).floor().max(0.0) as usize).min(n - 1);
+    // truncation is floor for the non-negative values kept by max
+    let mut b = ((p / s).max(0.0) as usize).min(n - 1);
     let mut te = exit(b);
     if te <= tp {
         if g > 0.0 {
