@@ -51,6 +51,7 @@ fn help_lists_the_options() {
         "silhouettes",
         "ridges",
         "strokes",
+        "Examples:",
     ] {
         assert!(help.contains(opt), "view --help does not mention {opt}");
     }

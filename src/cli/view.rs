@@ -160,16 +160,21 @@ pub enum Overlay {
     Strokes,
 }
 
-/// Render what a person standing at a viewpoint sees.
-///
-/// The view comes from a sketch file (`--sketch FILE [--view NAME]`, camera
-/// flags override its values) or from the camera flags alone (`--lon X --lat
-/// Y ...`). Example:
-///
-///   demsketch view fixtures/zion_srtm_utm12n.tif --lon -113.0463 --lat 37.3225
-///   --heading 30 --pitch 2 --out zion.png --overlay silhouettes,ridges
+/// Examples shown at the end of `demsketch view --help`.
+pub const VIEW_EXAMPLES: &str = "\
+Examples:
+  demsketch view fixtures/zion_srtm_utm12n.tif --lon -112.998 --lat 37.188 \\
+      --heading 10 --pitch 4 --overlay silhouettes,ridges --out zion.png
+  demsketch view dem.tif --sketch sketch.json --view north-rim --out v.png \\
+      --depth depth.tif --viewshed vis.tif --features features.geojson
+
+The view comes from --sketch FILE [--view NAME] (camera flags override its
+values) or from --lon/--lat and the camera flags alone. Errors (viewpoint
+outside the DEM or on nodata, bad camera, unreadable files) are one line on
+stderr with exit code 1; nothing is written then.";
+
+/// Arguments of `demsketch view`.
 #[derive(clap::Args, Debug)]
-#[command(verbatim_doc_comment)]
 pub struct ViewArgs {
     /// A GeoTIFF, a directory of GeoTIFF tiles, or any raster GDAL opens.
     pub dem: PathBuf,
