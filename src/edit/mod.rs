@@ -13,7 +13,6 @@
 
 pub mod fit;
 mod interim_deform;
-mod interim_view_input;
 pub mod lowering;
 pub mod pipeline;
 pub mod rendered_view;
