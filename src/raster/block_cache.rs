@@ -88,9 +88,4 @@ impl BlockCache {
             }
         }
     }
-
-    /// Decoded bytes held now.
-    pub fn bytes(&self) -> usize {
-        self.inner.lock().map(|g| g.bytes).unwrap_or(0)
-    }
 }

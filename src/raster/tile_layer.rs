@@ -298,15 +298,6 @@ impl Dem {
         w.intersect(&self.full_window())
     }
 
-    /// Nodata test in the precision of the sample type, as GDAL does (a
-    /// Float32 file's nodata of -3.4e38 is the f32 nearest to it).
-    fn is_nodata(&self, v: f64) -> bool {
-        v.is_nan()
-            || self
-                .nodata
-                .is_some_and(|n| v == self.sample_type.quantize(n))
-    }
-
     /// Read a window as one seamless array across tiles. Cells outside every
     /// tile, and nodata cells, are invalid (their value is NaN).
     pub fn read_window<T: Sample>(&self, win: Window) -> Result<WindowData<T>, RasterError> {

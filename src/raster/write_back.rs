@@ -108,7 +108,8 @@ struct TileEdit {
     tile: usize,
     /// Window in tile pixel coordinates that holds changes.
     local: Window,
-    /// Quantized new values over `local` (row-major).
+    /// Quantized new values over `local` (row-major), NaN = keep the stored
+    /// value.
     values: Vec<f64>,
     changed: usize,
 }
@@ -161,12 +162,14 @@ impl Dem {
                             + c;
                         let old = original.data[wi];
                         let new = values[wi];
+                        // NaN = keep the stored value (nodata cells keep
+                        // their raw nodata value, see `encode_tile`).
                         let v = if !original.valid[wi] || new.is_nan() {
-                            old
+                            f64::NAN
                         } else {
                             tile.sample_type.quantize(new)
                         };
-                        if original.valid[wi] && v != old {
+                        if !v.is_nan() && v != old {
                             changed += 1;
                         }
                         vals[r * ov.width + c] = v;
@@ -412,14 +415,36 @@ fn encode_tile(
     provenance: &Provenance,
 ) -> Result<(), RasterError> {
     let gerr = |e: gdal::errors::GdalError| RasterError::gdal(&tile.path, e);
-    let src = gdal::Dataset::open(&tile.path).map_err(gerr)?;
+    // Decode the source with all cores (GTiff's NUM_THREADS open option);
+    // "@" keeps other drivers from warning about an option they lack.
+    let src = gdal::Dataset::open_ex(
+        &tile.path,
+        gdal::DatasetOptions {
+            open_options: Some(&["@NUM_THREADS=ALL_CPUS"]),
+            ..Default::default()
+        },
+    )
+    .map_err(gerr)?;
     let mem_driver = DriverManager::get_driver_by_name("MEM").map_err(gerr)?;
     let mut mem = src
         .create_copy(&mem_driver, "", &RasterCreationOptions::default())
         .map_err(gerr)?;
     {
         let mut band = mem.rasterband(1).map_err(gerr)?;
-        let mut buf = Buffer::new((edit.local.width, edit.local.height), edit.values.clone());
+        // Cells to keep take their stored value back (nodata stays the
+        // file's own nodata value, bit for bit).
+        let size = (edit.local.width, edit.local.height);
+        let origin = (edit.local.col as isize, edit.local.row as isize);
+        let stored = band
+            .read_as::<f64>(origin, size, size, None)
+            .map_err(gerr)?;
+        let merged: Vec<f64> = edit
+            .values
+            .iter()
+            .zip(stored.data())
+            .map(|(&v, &old)| if v.is_nan() { old } else { v })
+            .collect();
+        let mut buf = Buffer::new(size, merged);
         band.write(
             (edit.local.col as isize, edit.local.row as isize),
             (edit.local.width, edit.local.height),

@@ -20,8 +20,6 @@
 
 use rayon::prelude::*;
 
-use super::geometry::Geometry;
-
 /// Below this many cells a level is processed on one thread: the rayon
 /// hand-off costs more than it saves.
 const PARALLEL_MIN_CELLS: usize = 1 << 15;
@@ -44,12 +42,8 @@ pub(super) struct Level {
     pub ay: f32,
     /// Diagonal `2 ax + 2 ay + c` of a cell away from constraints.
     pub diag: f32,
-    /// Per-cell diagonal, split by colour, on coarse levels (empty on the
-    /// finest level, where it is the constant `diag`): next to fixed cells it
-    /// carries the true distance to the constraint, see `geometry`.
-    pub diag_cells: [Vec<f32>; 2],
-    /// One padded row filled with `diag`.
-    diag_const_row: Vec<f32>,
+    /// `1 / diag`.
+    pub inv_diag: f32,
     /// Unknown, split by colour.
     pub u: [Vec<f32>; 2],
     /// Right-hand side, split by colour; empty when the level has none
@@ -63,8 +57,8 @@ pub(super) struct Level {
     pub free_cells: usize,
     /// Row bands `[r0, r1)` of the parallel smoother.
     bands: Vec<(usize, usize)>,
-    /// Natural-layout copy of `u` with a zero ghost border,
-    /// `(ny + 2) x (nx + 2)`; filled before prolongation from this level.
+    /// Residual scratch in natural layout with a zero ghost border,
+    /// `(ny + 2) x (nx + 2)` (allocated on first use).
     pub natural: Vec<f32>,
 }
 
@@ -107,7 +101,8 @@ impl SharedColours {
 }
 
 /// Gauss-Seidel update of one colour row: for every free entry,
-/// `u = (rhs + ax (west + east) + ay (north + south)) / diag`.
+/// `u = (rhs + ax (west + east) + ay (north + south)) / diag` (times the
+/// precomputed inverse diagonal: no division per cell).
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 fn relax_row_kernel(
@@ -117,13 +112,12 @@ fn relax_row_kernel(
     same: &[f32],
     north: &[f32],
     south: &[f32],
-    diag: &[f32],
+    inv_diag: f32,
     s: usize,
     coef: (f32, f32),
 ) {
     let (ax, ay) = coef;
     let w = out.len();
-    let diag = &diag[..w];
     let west = &same[s..s + w];
     let east = &same[s + 1..s + 1 + w];
     let north = &north[1..1 + w];
@@ -131,7 +125,7 @@ fn relax_row_kernel(
     let mask = &mask[..w];
     let rhs = &rhs[..w];
     for k in 0..w {
-        let new = (rhs[k] + ax * (west[k] + east[k]) + ay * (north[k] + south[k])) / diag[k];
+        let new = (rhs[k] + ax * (west[k] + east[k]) + ay * (north[k] + south[k])) * inv_diag;
         out[k] = if mask[k] != 0 { new } else { out[k] };
     }
 }
@@ -146,11 +140,11 @@ unsafe fn relax_row_avx2(
     same: &[f32],
     north: &[f32],
     south: &[f32],
-    diag: &[f32],
+    inv_diag: f32,
     s: usize,
     coef: (f32, f32),
 ) {
-    relax_row_kernel(out, mask, rhs, same, north, south, diag, s, coef)
+    relax_row_kernel(out, mask, rhs, same, north, south, inv_diag, s, coef)
 }
 
 /// Residual of one colour row: `rhs + ax (west + east) + ay (north + south)
@@ -165,13 +159,12 @@ fn residual_row_kernel(
     same: &[f32],
     north: &[f32],
     south: &[f32],
-    diag: &[f32],
+    diag: f32,
     s: usize,
     coef: (f32, f32),
 ) {
     let (ax, ay) = coef;
     let w = out.len();
-    let diag = &diag[..w];
     let west = &same[s..s + w];
     let east = &same[s + 1..s + 1 + w];
     let north = &north[1..1 + w];
@@ -180,7 +173,7 @@ fn residual_row_kernel(
     let mask = &mask[..w];
     let rhs = &rhs[..w];
     for k in 0..w {
-        let r = rhs[k] + ax * (west[k] + east[k]) + ay * (north[k] + south[k]) - diag[k] * u[k];
+        let r = rhs[k] + ax * (west[k] + east[k]) + ay * (north[k] + south[k]) - diag * u[k];
         out[k] = if mask[k] != 0 { r } else { 0.0 };
     }
 }
@@ -196,7 +189,7 @@ unsafe fn residual_row_avx2(
     same: &[f32],
     north: &[f32],
     south: &[f32],
-    diag: &[f32],
+    diag: f32,
     s: usize,
     coef: (f32, f32),
 ) {
@@ -225,7 +218,7 @@ fn relax_row(
     same: &[f32],
     north: &[f32],
     south: &[f32],
-    diag: &[f32],
+    inv_diag: f32,
     s: usize,
     coef: (f32, f32),
     avx2: bool,
@@ -233,11 +226,11 @@ fn relax_row(
     #[cfg(target_arch = "x86_64")]
     if avx2 {
         // SAFETY: the CPU supports AVX2 and FMA (checked by `have_avx2`).
-        unsafe { relax_row_avx2(out, mask, rhs, same, north, south, diag, s, coef) };
+        unsafe { relax_row_avx2(out, mask, rhs, same, north, south, inv_diag, s, coef) };
         return;
     }
     let _ = avx2;
-    relax_row_kernel(out, mask, rhs, same, north, south, diag, s, coef)
+    relax_row_kernel(out, mask, rhs, same, north, south, inv_diag, s, coef)
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -250,7 +243,7 @@ fn residual_row(
     same: &[f32],
     north: &[f32],
     south: &[f32],
-    diag: &[f32],
+    diag: f32,
     s: usize,
     coef: (f32, f32),
     avx2: bool,
@@ -312,8 +305,7 @@ impl Level {
             ax: ax as f32,
             ay: ay as f32,
             diag: diag as f32,
-            diag_cells: [Vec::new(), Vec::new()],
-            diag_const_row: vec![diag as f32; stride],
+            inv_diag: (1.0 / diag) as f32,
             u: [vec![0.0; len], vec![0.0; len]],
             rhs: if with_rhs {
                 [vec![0.0; len], vec![0.0; len]]
@@ -345,17 +337,6 @@ impl Level {
         }
     }
 
-    /// Diagonal of colour `c`, entries `0 .. w` of row `j`.
-    #[inline]
-    pub fn diag_row(&self, c: usize, j: isize) -> &[f32] {
-        if self.diag_cells[c].is_empty() {
-            &self.diag_const_row[..self.w]
-        } else {
-            let start = self.row_start(j) + 1;
-            &self.diag_cells[c][start..start + self.w]
-        }
-    }
-
     /// Whether this level is large enough to use several threads.
     #[inline]
     pub fn parallel(&self) -> bool {
@@ -381,7 +362,7 @@ impl Level {
             shared.row(other, jj),
             shared.row(other, jj - 1),
             shared.row(other, jj + 1),
-            self.diag_row(c, jj),
+            self.inv_diag,
             s,
             (self.ax, self.ay),
             avx2,
@@ -452,7 +433,7 @@ impl Level {
             &self.u[other][start..start + st],
             &self.u[other][up..up + st],
             &self.u[other][down..down + st],
-            self.diag_row(c, jj),
+            self.diag,
             (j + c) & 1,
             (self.ax, self.ay),
             avx2,
@@ -481,217 +462,105 @@ impl Level {
             (0..self.ny).map(|j| row_sum(j, &mut buf)).sum()
         }
     }
+}
 
-    /// A coarse level from its [`Geometry`]: free mask and per-cell diagonal
-    /// `ax (w_e + w_w) + ay (w_n + w_s) + c` with the geometry's link weights.
-    pub fn from_geometry(geo: &Geometry, hx: f64, hy: f64, screening: f64) -> Level {
-        let mut level = Level::new(geo.nx, geo.ny, hx, hy, screening, true);
-        let len = level.u[0].len();
-        level.diag_cells = [vec![level.diag; len], vec![level.diag; len]];
-        let (ax, ay) = (level.ax, level.ay);
-        let c = screening as f32;
-        let nx = geo.nx;
-        let mut free = 0;
-        for j in 0..geo.ny {
-            let row = level.row_start(j as isize) + 1;
-            for i in 0..nx {
-                if geo.free[j * nx + i] == 0 {
-                    continue;
-                }
-                free += 1;
-                let colour = (i + j) & 1;
-                let k = row + (i >> 1);
-                let w = geo.weights(i, j);
-                level.mask[colour][k] = 1;
-                level.diag_cells[colour][k] = ax * (w[0] + w[1]) + ay * (w[2] + w[3]) + c;
-            }
-        }
-        level.free_cells = free;
-        level.natural = vec![0.0; (geo.ny + 2) * (nx + 2)];
-        level
-    }
-
-    /// Copies `u` into [`Level::natural`] (natural layout, zero ghost border).
-    pub fn fill_natural(&mut self) {
+impl Level {
+    /// Fills [`Level::natural`] with the residual (natural layout, zero ghost
+    /// border) and returns its squared norm (f64 sums).
+    pub fn residual_natural(&mut self) -> f64 {
         let nxp = self.nx + 2;
-        let nx = self.nx;
-        let w = self.w;
-        let stride = self.stride;
-        let (u0, u1) = (&self.u[0], &self.u[1]);
-        let fill = |(j, row): (usize, &mut [f32])| {
-            let start = (j + 1) * stride + 1;
-            let red = &u0[start..start + w];
-            let black = &u1[start..start + w];
+        let mut natural = std::mem::take(&mut self.natural);
+        natural.resize((self.ny + 2) * nxp, 0.0);
+        let avx2 = have_avx2();
+        let this: &Level = self;
+        let w = this.w;
+        let job = |(j, row): (usize, &mut [f32]), buf: &mut Vec<f32>| {
+            buf.resize(2 * w, 0.0);
+            let (red, black) = buf.split_at_mut(w);
+            this.residual_colour_row(red, 0, j, avx2);
+            this.residual_colour_row(black, 1, j, avx2);
+            let sq = sum_squares(red) + sum_squares(black);
             // Cell i has colour (i + j) & 1 and entry i >> 1.
             let (even, odd) = if j & 1 == 0 {
-                (red, black)
+                (&*red, &*black)
             } else {
-                (black, red)
+                (&*black, &*red)
             };
-            for i in 0..nx {
-                row[i + 1] = if i & 1 == 0 {
+            let row = &mut row[1..1 + this.nx];
+            for (i, r) in row.iter_mut().enumerate() {
+                *r = if i & 1 == 0 {
                     even[i >> 1]
                 } else {
                     odd[i >> 1]
                 };
             }
+            sq
         };
-        let rows = &mut self.natural[nxp..(self.ny + 1) * nxp];
-        if self.nx * self.ny >= PARALLEL_MIN_CELLS {
-            rows.par_chunks_mut(nxp).enumerate().for_each(fill);
+        let rows = &mut natural[nxp..(this.ny + 1) * nxp];
+        let sq = if this.parallel() {
+            rows.par_chunks_mut(nxp)
+                .enumerate()
+                .map_init(Vec::new, |buf, item| job(item, buf))
+                .sum()
         } else {
-            rows.chunks_mut(nxp).enumerate().for_each(fill);
-        }
-    }
-}
-
-/// Computes the fine residual and restricts it to the coarse right-hand side
-/// in one pass (the fine residual is never stored): coarse rhs = mean of the
-/// residuals of the four children (fixed children contribute 0). The coarse
-/// unknown is reset to 0. Returns the squared norm of the fine residual.
-pub(super) fn restrict_residual(fine: &Level, coarse: &mut Level) -> f64 {
-    let avx2 = have_avx2();
-    let w = fine.w;
-    let cst = coarse.stride;
-    let cnx = coarse.nx;
-    let cny = coarse.ny;
-    let parallel = fine.parallel();
-    let [crhs0, crhs1] = &mut coarse.rhs;
-    let [cu0, cu1] = &mut coarse.u;
-    let cmask0 = &coarse.mask[0];
-    let cmask1 = &coarse.mask[1];
-    let job = |(cj, (((r0, r1), u0), u1)): (
-        usize,
-        (((&mut [f32], &mut [f32]), &mut [f32]), &mut [f32]),
-    ),
-               buf: &mut Vec<f32>| {
-        buf.resize(4 * w, 0.0);
-        let (top, bottom) = buf.split_at_mut(2 * w);
-        let (t0, t1) = top.split_at_mut(w);
-        let (b0, b1) = bottom.split_at_mut(w);
-        let j0 = 2 * cj;
-        let j1 = 2 * cj + 1;
-        fine.residual_colour_row(t0, 0, j0, avx2);
-        fine.residual_colour_row(t1, 1, j0, avx2);
-        let mut sq = sum_squares(t0) + sum_squares(t1);
-        if j1 < fine.ny {
-            fine.residual_colour_row(b0, 0, j1, avx2);
-            fine.residual_colour_row(b1, 1, j1, avx2);
-            sq += sum_squares(b0) + sum_squares(b1);
-        } else {
-            b0.fill(0.0);
-            b1.fill(0.0);
-        }
-        u0.fill(0.0);
-        u1.fill(0.0);
-        let mstart = (cj + 1) * cst;
-        let m0 = &cmask0[mstart..mstart + cst];
-        let m1 = &cmask1[mstart..mstart + cst];
-        // Children of coarse cell ci are entry ci of both colours of both rows.
-        for ci in 0..cnx {
-            let c = (ci + cj) & 1;
-            let k = (ci >> 1) + 1;
-            let value = 0.25 * (t0[ci] + t1[ci] + b0[ci] + b1[ci]);
-            if c == 0 {
-                r0[k] = if m0[k] != 0 { value } else { 0.0 };
-            } else {
-                r1[k] = if m1[k] != 0 { value } else { 0.0 };
-            }
-        }
+            let mut buf = Vec::new();
+            rows.chunks_mut(nxp)
+                .enumerate()
+                .map(|item| job(item, &mut buf))
+                .sum()
+        };
+        self.natural = natural;
         sq
-    };
-    let end = (cny + 1) * cst;
-    if parallel {
-        crhs0[cst..end]
-            .par_chunks_mut(cst)
-            .zip(crhs1[cst..end].par_chunks_mut(cst))
-            .zip(cu0[cst..end].par_chunks_mut(cst))
-            .zip(cu1[cst..end].par_chunks_mut(cst))
-            .enumerate()
-            .map_init(Vec::new, |buf, item| job(item, buf))
-            .sum()
-    } else {
-        let mut buf = Vec::new();
-        crhs0[cst..end]
-            .chunks_mut(cst)
-            .zip(crhs1[cst..end].chunks_mut(cst))
-            .zip(cu0[cst..end].chunks_mut(cst))
-            .zip(cu1[cst..end].chunks_mut(cst))
-            .enumerate()
-            .map(|item| job(item, &mut buf))
-            .sum()
     }
-}
 
-/// Adds the bilinear (cell-centred: weights 9/16, 3/16, 3/16, 1/16)
-/// interpolation of the coarse correction to the free fine cells. Fixed
-/// coarse cells hold a zero correction, so the correction fades to zero
-/// towards the constraints. Requires `coarse.natural` to be filled.
-pub(super) fn prolongate_add(coarse: &Level, fine: &mut Level) {
-    let cnx = coarse.nx;
-    let cnxp = cnx + 2;
-    let w = fine.w;
-    let st = fine.stride;
-    let ny = fine.ny;
-    let nat = &coarse.natural;
-    let mask0 = &fine.mask[0];
-    let mask1 = &fine.mask[1];
-    let job = |(cj, (u0, u1)): (usize, (&mut [f32], &mut [f32])), buf: &mut Vec<f32>| {
-        buf.resize(3 * cnxp, 0.0);
-        let (v, rest) = buf.split_at_mut(cnxp);
-        let (even, odd) = rest.split_at_mut(cnxp);
-        let centre = &nat[(cj + 1) * cnxp..(cj + 2) * cnxp];
-        for half in 0..2 {
-            let j = 2 * cj + half;
-            if j >= ny {
-                break;
-            }
-            let other = if half == 0 {
-                &nat[cj * cnxp..(cj + 1) * cnxp]
-            } else {
-                &nat[(cj + 2) * cnxp..(cj + 3) * cnxp]
-            };
-            for ((vv, &c), &o) in v.iter_mut().zip(centre).zip(other) {
-                *vv = 0.75 * c + 0.25 * o;
-            }
-            // even[I]: fine cell 2I, odd[I]: fine cell 2I + 1 (I = 0 .. w).
-            for i in 0..w {
-                even[i] = 0.75 * v[i + 1] + 0.25 * v[i];
-                odd[i] = 0.75 * v[i + 1] + 0.25 * v[i + 2];
-            }
-            // Fine row j: even cells have colour j & 1.
-            let off = half * st + 1;
+    /// Adds a correction given row by row in natural layout to the free
+    /// cells: `correction(j, row)` fills `row[i]`, `i < nx`, for row `j`.
+    pub fn add_correction<F>(&mut self, correction: F)
+    where
+        F: Fn(usize, &mut [f32]) + Sync,
+    {
+        let st = self.stride;
+        let nx = self.nx;
+        let w = self.w;
+        let end = (self.ny + 1) * st;
+        let parallel = self.parallel();
+        let [u0, u1] = &mut self.u;
+        let (m0, m1) = (&self.mask[0], &self.mask[1]);
+        let job = |(j, (r0, r1)): (usize, (&mut [f32], &mut [f32])), buf: &mut Vec<f32>| {
+            buf.clear();
+            buf.resize(2 * w, 0.0);
+            correction(j, &mut buf[..nx]);
             let mstart = (j + 1) * st + 1;
+            let (ma, mb) = (&m0[mstart..mstart + w], &m1[mstart..mstart + w]);
+            // Even cells of row j have colour j & 1.
             let (ue, uo, me, mo) = if j & 1 == 0 {
-                (&mut *u0, &mut *u1, mask0, mask1)
+                (&mut r0[1..1 + w], &mut r1[1..1 + w], ma, mb)
             } else {
-                (&mut *u1, &mut *u0, mask1, mask0)
+                (&mut r1[1..1 + w], &mut r0[1..1 + w], mb, ma)
             };
-            let ue = &mut ue[off..off + w];
-            let uo = &mut uo[off..off + w];
-            let me = &me[mstart..mstart + w];
-            let mo = &mo[mstart..mstart + w];
-            for i in 0..w {
-                ue[i] += if me[i] != 0 { even[i] } else { 0.0 };
-                uo[i] += if mo[i] != 0 { odd[i] } else { 0.0 };
+            for k in 0..w {
+                let (e, o) = (buf[2 * k], buf[2 * k + 1]);
+                if me[k] != 0 {
+                    ue[k] += e;
+                }
+                if mo[k] != 0 {
+                    uo[k] += o;
+                }
             }
+        };
+        if parallel {
+            u0[st..end]
+                .par_chunks_mut(st)
+                .zip(u1[st..end].par_chunks_mut(st))
+                .enumerate()
+                .for_each_init(Vec::new, |buf, item| job(item, buf));
+        } else {
+            let mut buf = Vec::new();
+            u0[st..end]
+                .chunks_mut(st)
+                .zip(u1[st..end].chunks_mut(st))
+                .enumerate()
+                .for_each(|item| job(item, &mut buf));
         }
-    };
-    let parallel = fine.parallel();
-    let [u0, u1] = &mut fine.u;
-    let end = (ny + 1) * st;
-    if parallel {
-        u0[st..end]
-            .par_chunks_mut(2 * st)
-            .zip(u1[st..end].par_chunks_mut(2 * st))
-            .enumerate()
-            .for_each_init(Vec::new, |buf, item| job(item, buf));
-    } else {
-        let mut buf = Vec::new();
-        u0[st..end]
-            .chunks_mut(2 * st)
-            .zip(u1[st..end].chunks_mut(2 * st))
-            .enumerate()
-            .for_each(|item| job(item, &mut buf));
     }
 }

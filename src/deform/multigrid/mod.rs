@@ -71,11 +71,14 @@
 //! # Ok::<(), demsketch::deform::multigrid::MultigridError>(())
 //! ```
 
-mod geometry;
+mod coarse;
+mod galerkin;
 mod level;
 pub mod synthetic;
 
-use level::{prolongate_add, restrict_residual, Level};
+use coarse::{prolongate_coarse, prolongate_row, restrict_coarse, restrict_row, CoarseLevel};
+use galerkin::StencilSource;
+use level::Level;
 use rayon::prelude::*;
 
 /// Options of [`solve`].
@@ -212,23 +215,40 @@ pub fn solve(
         });
     }
 
-    let mut levels = build_hierarchy(nx, ny, hx, hy, opts.screening, fixed, values);
+    let t0 = std::time::Instant::now();
+    let mut h = build_hierarchy(nx, ny, hx, hy, opts.screening, fixed, values);
+    if std::env::var_os("MG_DEBUG").is_some() {
+        eprintln!("setup {:.3}s", t0.elapsed().as_secs_f64());
+        for c in &h.coarse {
+            eprintln!(
+                "  level {}x{} live {} irregular {}",
+                c.nx,
+                c.ny,
+                c.live,
+                c.irr.len()
+            );
+        }
+    }
     let mut stats = SolveStats {
         cycles: 0,
         residual_history: Vec::new(),
         relative_residual: f64::INFINITY,
-        levels: levels.len(),
+        levels: h.levels(),
     };
     if opts.full_multigrid {
-        full_multigrid(&mut levels, fixed, opts);
+        full_multigrid(&mut h, opts);
     }
-    let mut rel = levels[0].residual_norm_squared().sqrt() / b_norm;
+    let mut rel = h.fine.residual_norm_squared().sqrt() / b_norm;
     stats.residual_history.push(rel);
     let mut slow_cycles = 0;
     while rel > opts.tolerance && stats.cycles < opts.max_cycles {
-        v_cycle(&mut levels, opts.pre_smooth, opts.post_smooth);
+        let t1 = std::time::Instant::now();
+        v_cycle(&mut h, opts.pre_smooth, opts.post_smooth);
+        if std::env::var_os("MG_DEBUG").is_some() {
+            eprintln!("cycle {:.3}s", t1.elapsed().as_secs_f64());
+        }
         stats.cycles += 1;
-        let next = levels[0].residual_norm_squared().sqrt() / b_norm;
+        let next = h.fine.residual_norm_squared().sqrt() / b_norm;
         stats.residual_history.push(next);
         // Stop when rounding (f32 storage) stalls the iteration.
         slow_cycles = if next > 0.9 * rel { slow_cycles + 1 } else { 0 };
@@ -238,7 +258,7 @@ pub fn solve(
         }
     }
     stats.relative_residual = rel;
-    copy_out(&levels[0], values, fixed);
+    copy_out(&h.fine, values, fixed);
     if rel <= opts.tolerance {
         Ok(stats)
     } else {
@@ -386,13 +406,105 @@ fn dirichlet_coupling_norm(
     sq.sqrt()
 }
 
-/// Smallest dimension of the coarsest level: coarsening stops once a
-/// dimension is at most this.
+/// Coarsening stops once both dimensions of a level are at most this.
 const COARSEST_MAX_DIM: usize = 4;
 
-/// Builds the finest level from the caller's arrays and the coarse levels
-/// below it; stops when a dimension is small or a coarse level would have no
-/// free cell.
+/// The finest level's stencils, from its free mask: the 5-point operator on
+/// free cells, couplings to fixed cells and to the outside eliminated.
+struct FineSource<'a> {
+    nx: usize,
+    ny: usize,
+    ax: f64,
+    ay: f64,
+    diag: f64,
+    free: &'a [u8],
+}
+
+impl FineSource<'_> {
+    #[inline]
+    fn free(&self, i: isize, j: isize) -> bool {
+        i >= 0
+            && j >= 0
+            && (i as usize) < self.nx
+            && (j as usize) < self.ny
+            && self.free[j as usize * self.nx + i as usize] != 0
+    }
+
+    /// The stencil away from constraints.
+    fn regular(&self) -> [f64; 9] {
+        let (ax, ay) = (self.ax, self.ay);
+        [0.0, -ay, 0.0, -ax, self.diag, -ax, 0.0, -ay, 0.0]
+    }
+
+    /// `true` where the stencil is not [`FineSource::regular`].
+    fn irregular(&self) -> Vec<bool> {
+        (0..self.ny)
+            .into_par_iter()
+            .flat_map_iter(|j| {
+                (0..self.nx).map(move |i| {
+                    let (i, j) = (i as isize, j as isize);
+                    !(self.free(i, j)
+                        && self.free(i - 1, j)
+                        && self.free(i + 1, j)
+                        && self.free(i, j - 1)
+                        && self.free(i, j + 1))
+                })
+            })
+            .collect()
+    }
+}
+
+impl StencilSource for FineSource<'_> {
+    #[inline]
+    fn stencil(&self, i: isize, j: isize) -> [f64; 9] {
+        if !self.free(i, j) {
+            return [0.0; 9];
+        }
+        let f = |a: isize, b: isize| if self.free(a, b) { 1.0 } else { 0.0 };
+        let (ax, ay) = (self.ax, self.ay);
+        [
+            0.0,
+            -ay * f(i, j - 1),
+            0.0,
+            -ax * f(i - 1, j),
+            self.diag,
+            -ax * f(i + 1, j),
+            0.0,
+            -ay * f(i, j + 1),
+            0.0,
+        ]
+    }
+}
+
+/// The finest level (red-black split storage, 5-point operator) and the
+/// Galerkin coarse levels under it.
+struct Hierarchy {
+    fine: Level,
+    /// Free mask of the finest level, natural layout.
+    free: Vec<u8>,
+    coarse: Vec<CoarseLevel>,
+}
+
+impl Hierarchy {
+    fn levels(&self) -> usize {
+        1 + self.coarse.len()
+    }
+}
+
+fn fine_source<'a>(fine: &Level, free: &'a [u8], ax: f64, ay: f64, diag: f64) -> FineSource<'a> {
+    FineSource {
+        nx: fine.nx,
+        ny: fine.ny,
+        ax,
+        ay,
+        diag,
+        free,
+    }
+}
+
+/// Builds the finest level from the caller's arrays and the Galerkin coarse
+/// levels below it; stops when both dimensions are small or a coarse level
+/// would have no live point.
 fn build_hierarchy(
     nx: usize,
     ny: usize,
@@ -401,27 +513,33 @@ fn build_hierarchy(
     screening: f64,
     fixed: &[bool],
     values: &[f32],
-) -> Vec<Level> {
-    let mut finest = Level::new(nx, ny, hx, hy, screening, false);
-    copy_in(&mut finest, fixed, values);
-    let mut levels = vec![finest];
-    let (mut h_x, mut h_y) = (hx, hy);
-    let mut geometry = geometry::Geometry::finest(nx, ny, fixed);
-    loop {
-        let last = &levels[levels.len() - 1];
-        if last.nx <= COARSEST_MAX_DIM || last.ny <= COARSEST_MAX_DIM {
-            break;
+) -> Hierarchy {
+    let mut fine = Level::new(nx, ny, hx, hy, screening, false);
+    copy_in(&mut fine, fixed, values);
+    let free: Vec<u8> = fixed.par_iter().map(|&f| u8::from(!f)).collect();
+    let ax = 1.0 / (hx * hx);
+    let ay = 1.0 / (hy * hy);
+    let diag = 2.0 * ax + 2.0 * ay + screening;
+    let src = fine_source(&fine, &free, ax, ay, diag);
+    let mut coarse: Vec<CoarseLevel> = Vec::new();
+    if nx > COARSEST_MAX_DIM || ny > COARSEST_MAX_DIM {
+        let first = CoarseLevel::build(&src, nx, ny, src.regular(), &src.irregular());
+        if first.live > 0 {
+            coarse.push(first);
         }
-        h_x *= 2.0;
-        h_y *= 2.0;
-        geometry = geometry.coarsen();
-        if geometry.free_cells() == 0 {
-            break;
-        }
-        let coarse = Level::from_geometry(&geometry, h_x, h_y, screening);
-        levels.push(coarse);
     }
-    levels
+    while let Some(last) = coarse.last() {
+        if last.nx <= COARSEST_MAX_DIM && last.ny <= COARSEST_MAX_DIM {
+            break;
+        }
+        let next = CoarseLevel::build(last, last.nx, last.ny, last.reg64, &last.irregular());
+        if next.live == 0 {
+            break;
+        }
+        coarse.push(next);
+    }
+    drop(src);
+    Hierarchy { fine, free, coarse }
 }
 
 /// Copies the caller's natural-layout arrays into the finest level's split
@@ -478,9 +596,9 @@ fn copy_out(level: &Level, values: &mut [f32], fixed: &[bool]) {
         });
 }
 
-/// Smooths the coarsest level until its residual fell by 1e-3 (or a sweep
-/// limit): an almost exact coarse solve.
-fn solve_coarsest(level: &mut Level) {
+/// Smooths a level that has no coarse level under it until its residual
+/// fell by 1e-3 (or a sweep limit): an almost exact solve of a tiny grid.
+fn solve_fine_alone(level: &mut Level) {
     let start = level.residual_norm_squared();
     if start == 0.0 {
         return;
@@ -493,44 +611,95 @@ fn solve_coarsest(level: &mut Level) {
     }
 }
 
-/// One V-cycle on `levels[0]` with `levels[1..]` as coarse grids.
-fn v_cycle(levels: &mut [Level], pre: usize, post: usize) {
-    let Some((fine, rest)) = levels.split_first_mut() else {
-        return;
-    };
-    let Some(coarse) = rest.first_mut() else {
-        solve_coarsest(fine);
-        return;
-    };
-    fine.smooth(pre);
-    restrict_residual(fine, coarse);
-    v_cycle(rest, pre, post);
-    let coarse = &mut rest[0];
-    coarse.fill_natural();
-    prolongate_add(coarse, fine);
-    fine.smooth(post);
+/// Restricts the finest level's residual (in `fine.natural`) to the first
+/// coarse level's right-hand side and zeroes its correction.
+fn restrict_fine(h: &mut Hierarchy) {
+    let fine = &h.fine;
+    let nxp = fine.nx + 2;
+    let res = &fine.natural;
+    let c = &mut h.coarse[0];
+    let cp = c.pitch;
+    let cny = c.ny;
+    let mut rhs = std::mem::take(&mut c.rhs);
+    {
+        let cl: &CoarseLevel = c;
+        let rows = &mut rhs[cp..(cny + 1) * cp];
+        let job = |(cj, out): (usize, &mut [f32])| restrict_row(cl, cj, res, nxp, out);
+        if fine.parallel() {
+            rows.par_chunks_mut(cp).enumerate().for_each(job);
+        } else {
+            rows.chunks_mut(cp).enumerate().for_each(job);
+        }
+    }
+    c.rhs = rhs;
+    c.u.fill(0.0);
 }
 
-/// Full multigrid pass: the Dirichlet values are restricted to every level
-/// (a fixed coarse cell takes the mean of its fixed children), the coarsest
-/// problem is solved, and on each finer level the interpolated coarse
-/// solution is the initial guess of one V-cycle.
-fn full_multigrid(levels: &mut [Level], fixed: &[bool], opts: &MultigridOptions) {
-    let _ = fixed;
-    for l in 0..levels.len() - 1 {
-        let (head, tail) = levels.split_at_mut(l + 1);
-        restrict_dirichlet(&head[l], &mut tail[0]);
+/// Adds the interpolated correction of the first coarse level to the finest.
+fn prolongate_fine(h: &mut Hierarchy) {
+    let c = &h.coarse[0];
+    let nx = h.fine.nx;
+    h.fine
+        .add_correction(|j, row| prolongate_row(c, j, nx, row));
+}
+
+/// One V-cycle on the coarse levels `levels[0]` (right-hand side given).
+fn coarse_cycle(levels: &mut [CoarseLevel], pre: usize, post: usize) {
+    let Some((first, rest)) = levels.split_first_mut() else {
+        return;
+    };
+    if rest.is_empty() {
+        first.solve_coarsest();
+        return;
     }
-    let last = levels.len() - 1;
-    solve_coarsest(&mut levels[last]);
-    for l in (0..last).rev() {
-        let (head, tail) = levels.split_at_mut(l + 1);
-        let fine = &mut head[l];
-        zero_free(fine);
-        tail[0].fill_natural();
-        prolongate_add(&tail[0], fine);
-        v_cycle(&mut levels[l..], opts.pre_smooth, opts.post_smooth);
+    first.smooth(pre);
+    first.compute_residual();
+    restrict_coarse(first, &mut rest[0]);
+    coarse_cycle(rest, pre, post);
+    prolongate_coarse(&rest[0], first);
+    first.smooth(post);
+}
+
+/// One V-cycle on the finest level.
+fn v_cycle(h: &mut Hierarchy, pre: usize, post: usize) {
+    if h.coarse.is_empty() {
+        solve_fine_alone(&mut h.fine);
+        return;
     }
+    h.fine.smooth(pre);
+    h.fine.residual_natural();
+    restrict_fine(h);
+    coarse_cycle(&mut h.coarse, pre, post);
+    prolongate_fine(h);
+    h.fine.smooth(post);
+}
+
+/// Full multigrid pass on the residual equation: the residual of the zero
+/// initial guess is restricted to every level, the coarsest level is solved,
+/// and on each finer level the interpolated coarse solution is the initial
+/// guess of one V-cycle; the finest level then receives the interpolated
+/// correction (the V-cycles that follow are counted as usual).
+fn full_multigrid(h: &mut Hierarchy, opts: &MultigridOptions) {
+    zero_free(&mut h.fine);
+    if h.coarse.is_empty() {
+        return;
+    }
+    h.fine.residual_natural();
+    restrict_fine(h);
+    let n = h.coarse.len();
+    for l in 0..n - 1 {
+        let (head, tail) = h.coarse.split_at_mut(l + 1);
+        head[l].compute_residual();
+        restrict_coarse(&head[l], &mut tail[0]);
+    }
+    h.coarse[n - 1].solve_coarsest();
+    for l in (0..n - 1).rev() {
+        let (head, tail) = h.coarse.split_at_mut(l + 1);
+        head[l].u.fill(0.0);
+        prolongate_coarse(&tail[0], &mut head[l]);
+        coarse_cycle(&mut h.coarse[l..], opts.pre_smooth, opts.post_smooth);
+    }
+    prolongate_fine(h);
 }
 
 /// Sets every free cell of `level` to 0.
@@ -543,61 +712,4 @@ fn zero_free(level: &mut Level) {
             }
         });
     }
-}
-
-/// Coarse Dirichlet data for the full multigrid pass: every fixed coarse cell
-/// gets the mean of its fixed children inside the grid (0 when it has none);
-/// free coarse cells get 0. The coarse right-hand side is zeroed.
-fn restrict_dirichlet(fine: &Level, coarse: &mut Level) {
-    let (fnx, fny) = (fine.nx, fine.ny);
-    let fst = fine.stride;
-    let cst = coarse.stride;
-    let cnx = coarse.nx;
-    let end = (coarse.ny + 1) * cst;
-    let fine_value = |i: usize, j: usize| -> Option<f32> {
-        if i >= fnx || j >= fny {
-            return None;
-        }
-        let c = (i + j) & 1;
-        let k = (j + 1) * fst + 1 + (i >> 1);
-        if fine.mask[c][k] != 0 {
-            None
-        } else {
-            Some(fine.u[c][k])
-        }
-    };
-    let [u0, u1] = &mut coarse.u;
-    let (m0, m1) = (&coarse.mask[0], &coarse.mask[1]);
-    for r in coarse.rhs.iter_mut() {
-        r.fill(0.0);
-    }
-    u0[cst..end]
-        .par_chunks_mut(cst)
-        .zip(u1[cst..end].par_chunks_mut(cst))
-        .enumerate()
-        .for_each(|(cj, (u0, u1))| {
-            let mstart = (cj + 1) * cst;
-            for ci in 0..cnx {
-                let c = (ci + cj) & 1;
-                let k = (ci >> 1) + 1;
-                let (u, m) = if c == 0 {
-                    (&mut *u0, &m0[mstart..mstart + cst])
-                } else {
-                    (&mut *u1, &m1[mstart..mstart + cst])
-                };
-                if m[k] != 0 {
-                    u[k] = 0.0;
-                    continue;
-                }
-                let mut sum = 0.0f32;
-                let mut count = 0u32;
-                for (di, dj) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
-                    if let Some(v) = fine_value(2 * ci + di, 2 * cj + dj) {
-                        sum += v;
-                        count += 1;
-                    }
-                }
-                u[k] = if count > 0 { sum / count as f32 } else { 0.0 };
-            }
-        });
 }

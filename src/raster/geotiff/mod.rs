@@ -55,7 +55,7 @@ pub struct GeoTiff {
     pub path: PathBuf,
     bytes: Arc<Mmap>,
     /// Index of the full-resolution IFD.
-    ifd_index: usize,
+    pub ifd_index: usize,
     pub width: u32,
     pub height: u32,
     pub sample_type: SampleType,

@@ -1,0 +1,336 @@
+//! Locality and nodata of `deform`: on 200 x 200 crops of the Zion UTM
+//! fixture (Float32 with a nodata hole, split into 4 x 4 tiles; and the
+//! original UInt16 as one file), every cell farther than the influence
+//! distance from the curves is bit-identical to the input after
+//! `Dem::write_back` (read with GDAL), tiles outside the affected set are not
+//! rewritten (hard-linked or byte-identical), nodata cells keep nodata and
+//! are never constrained, and `deform` is a pure function of its inputs.
+
+mod deform_support;
+
+use std::path::Path;
+
+use deform_support::*;
+use demsketch::deform::{deform, plan, CurveConstraint, DeformError, DeformOptions};
+use demsketch::raster::{Dem, Destination, Provenance};
+
+const SIZE: usize = 200;
+const TILE: usize = 50;
+/// Centre (pixel) and radius (cells) of the nodata hole punched in the crop.
+const HOLE: (f64, f64, f64) = (60.0, 140.0, 8.0);
+const NODATA: f64 = -9999.0;
+
+/// A 200 x 200 Float32 crop with a round nodata hole, as one file.
+fn float_crop_with_hole(dir: &Path) -> std::path::PathBuf {
+    let raw = dir.join("raw.tif");
+    gdal_translate(
+        &fixture("zion_srtm_utm12n.tif"),
+        &raw,
+        &["-srcwin", "100", "150", "200", "200", "-ot", "Float32"],
+    );
+    let g = gdal_read(&raw);
+    let mut data: Vec<f32> = g.data.iter().map(|&v| v as f32).collect();
+    for r in 0..SIZE {
+        for c in 0..SIZE {
+            let (dx, dy) = (c as f64 + 0.5 - HOLE.0, r as f64 + 0.5 - HOLE.1);
+            if dx.hypot(dy) <= HOLE.2 {
+                data[r * SIZE + c] = NODATA as f32;
+            }
+        }
+    }
+    let path = dir.join("crop.tif");
+    write_f32_geotiff(&path, SIZE, SIZE, g.gt, 32612, &data, Some(NODATA));
+    path
+}
+
+/// A polyline given in pixel coordinates of `dem`, raised by `bump` metres
+/// (sin^2 profile along it) above the DEM's own surface.
+fn raised(dem: &Dem, px: &[[f64; 2]], bump: f64, samples: usize) -> CurveConstraint {
+    let h = dem.read_height_map(dem.full_window()).unwrap();
+    let n = px.len() - 1;
+    let mut pts = Vec::new();
+    for s in 0..=samples {
+        let u = s as f64 / samples as f64;
+        let k = ((u * n as f64).floor() as usize).min(n - 1);
+        let t = u * n as f64 - k as f64;
+        let p = [
+            px[k][0] + t * (px[k + 1][0] - px[k][0]),
+            px[k][1] + t * (px[k + 1][1] - px[k][1]),
+        ];
+        // Over nodata, take the surface height of the hole's rim (any z).
+        let base = demsketch::deform::constraints::bilinear_valid(&h, p[0], p[1]).unwrap_or(2000.0);
+        let (x, y) = dem.geotransform.pixel_to_crs(p[0], p[1]);
+        pts.push([x, y, base + bump * (std::f64::consts::PI * u).sin().powi(2)]);
+    }
+    CurveConstraint { points: pts }
+}
+
+/// Checks bit-identity beyond the influence distance between `input` and
+/// `output` (GDAL reads), returns (cells beyond, cells changed).
+fn check_beyond(
+    input: &Grid,
+    output: &Grid,
+    curve: &CurveConstraint,
+    influence: f64,
+) -> (usize, usize) {
+    let poly: Vec<[f64; 2]> = curve.points.iter().map(|p| [p[0], p[1]]).collect();
+    let (mut beyond, mut changed) = (0, 0);
+    for r in 0..input.height {
+        for c in 0..input.width {
+            let (a, b) = (input.at(c, r), output.at(c, r));
+            let d = distance_to_polyline(centre(&input.gt, c, r), &poly);
+            if a.to_bits() != b.to_bits() {
+                changed += 1;
+                assert!(
+                    d <= influence,
+                    "cell ({c}, {r}) at {d:.1} m > {influence} m changed: {a} -> {b}"
+                );
+            }
+            if d > influence {
+                beyond += 1;
+            }
+        }
+    }
+    (beyond, changed)
+}
+
+#[test]
+fn beyond_influence_is_bit_identical_and_far_tiles_are_linked() {
+    let tmp = tempfile::tempdir().unwrap();
+    let crop = float_crop_with_hole(tmp.path());
+    let tiles = tmp.path().join("tiles");
+    split_tiles(
+        &crop,
+        &tiles,
+        SIZE / TILE,
+        TILE,
+        &["-co", "COMPRESS=DEFLATE"],
+    );
+    let dem = Dem::open(&tiles).unwrap();
+    let curve = raised(&dem, &[[15.2, 20.4], [40.7, 35.1]], 50.0, 30);
+    let influence = 1000.0;
+    let opts = DeformOptions {
+        influence_m: Some(influence),
+        ..DeformOptions::default()
+    };
+    // The plan is known before solving and matches the deformation.
+    let p = plan(&dem, std::slice::from_ref(&curve), &opts).unwrap();
+    let d = deform(&dem, std::slice::from_ref(&curve), &opts).unwrap();
+    assert_eq!(p.window, d.window);
+    assert_eq!(p.affected_tiles, d.affected_tiles);
+    assert!(d.affected_tiles.len() < 16 / 2, "{:?}", d.affected_tiles);
+    // Purity: a second call gives the same bits.
+    let again = deform(&dem, std::slice::from_ref(&curve), &opts).unwrap();
+    assert!(d
+        .displacement
+        .iter()
+        .zip(&again.displacement)
+        .all(|(a, b)| a.to_bits() == b.to_bits()));
+
+    let out = tmp.path().join("out");
+    let rep = dem
+        .write_back(
+            d.window,
+            &d.write_values(),
+            &Destination::Path(out.clone()),
+            &Provenance {
+                edit_id: "locality-test".into(),
+            },
+        )
+        .unwrap();
+    // Tiles outside the affected set: not rewritten, hard-linked or identical.
+    use std::os::unix::fs::MetadataExt;
+    let mut linked = 0;
+    for (ti, tile) in dem.tiles.iter().enumerate() {
+        let name = tile.path.file_name().unwrap();
+        let written = rep
+            .tiles_written
+            .iter()
+            .any(|p| p.file_name() == Some(name));
+        if !d.affected_tiles.contains(&ti) {
+            assert!(
+                !written,
+                "tile {} outside the affected set was rewritten",
+                name.to_string_lossy()
+            );
+            let (a, b) = (
+                std::fs::metadata(&tile.path).unwrap(),
+                std::fs::metadata(out.join(name)).unwrap(),
+            );
+            if a.ino() == b.ino() {
+                linked += 1;
+            } else {
+                assert_eq!(
+                    std::fs::read(&tile.path).unwrap(),
+                    std::fs::read(out.join(name)).unwrap()
+                );
+            }
+        }
+    }
+    let input = gdal_read_mosaic(&tiles);
+    let output = gdal_read_mosaic(&out);
+    let (beyond, changed) = check_beyond(&input, &output, &curve, influence);
+    eprintln!(
+        "affected tiles {:?} of 16, written {}, hard-linked {linked}; {beyond} cells beyond \
+         {influence} m all identical; {changed} cells changed; max |M| {:.1} m",
+        d.affected_tiles,
+        rep.tiles_written.len(),
+        d.stats.max_abs_displacement_m
+    );
+    assert!(changed > 100);
+    assert!(beyond > 30_000);
+}
+
+#[test]
+fn integer_dem_beyond_influence_is_bit_identical() {
+    let tmp = tempfile::tempdir().unwrap();
+    let crop = tmp.path().join("crop_u16.tif");
+    gdal_translate(
+        &fixture("zion_srtm_utm12n.tif"),
+        &crop,
+        &["-srcwin", "100", "150", "200", "200"],
+    );
+    let dem = Dem::open(&crop).unwrap();
+    let curve = raised(
+        &dem,
+        &[[150.3, 120.1], [120.2, 170.8], [90.0, 160.0]],
+        -45.0,
+        40,
+    );
+    // Default influence (half the curve's bbox diagonal).
+    let d = deform(
+        &dem,
+        std::slice::from_ref(&curve),
+        &DeformOptions::default(),
+    )
+    .unwrap();
+    let influence = d.stats.influence_m;
+    let out = tmp.path().join("out.tif");
+    dem.write_back(
+        d.window,
+        &d.write_values(),
+        &Destination::Path(out.clone()),
+        &Provenance {
+            edit_id: "locality-u16".into(),
+        },
+    )
+    .unwrap();
+    let (beyond, changed) = check_beyond(&gdal_read(&crop), &gdal_read(&out), &curve, influence);
+    eprintln!(
+        "UInt16: influence {influence:.0} m, {beyond} cells beyond identical, {changed} changed"
+    );
+    assert!(changed > 100 && beyond > 1000);
+}
+
+#[test]
+fn nodata_keeps_nodata_and_is_never_constrained() {
+    let tmp = tempfile::tempdir().unwrap();
+    let crop = float_crop_with_hole(tmp.path());
+    let dem = Dem::open(&crop).unwrap();
+    // Straight across the hole.
+    let curve = raised(&dem, &[[35.0, 141.3], [86.0, 139.1]], 70.0, 50);
+    let d = deform(
+        &dem,
+        std::slice::from_ref(&curve),
+        &DeformOptions::default(),
+    )
+    .unwrap();
+    let w = d.window;
+    let mut hole = 0;
+    let mut constrained_near_hole = 0;
+    for r in 0..w.height {
+        for c in 0..w.width {
+            let k = r * w.width + c;
+            let (gc, gr) = (w.col as usize + c, w.row as usize + r);
+            let dist = (gc as f64 + 0.5 - HOLE.0).hypot(gr as f64 + 0.5 - HOLE.1);
+            if dist <= HOLE.2 {
+                hole += 1;
+                assert!(d.base.data[k].is_nan());
+                assert!(!d.constrained[k], "nodata cell ({gc}, {gr}) constrained");
+                assert!(d.displacement[k].is_nan());
+                assert!(d.edited().data[k].is_nan());
+                assert!(d.write_values()[k].is_nan());
+            } else if dist <= HOLE.2 + 2.0 && d.constrained[k] {
+                constrained_near_hole += 1;
+            }
+        }
+    }
+    assert!(hole > 150);
+    assert!(constrained_near_hole > 0);
+    let out = tmp.path().join("out.tif");
+    dem.write_back(
+        d.window,
+        &d.write_values(),
+        &Destination::Path(out.clone()),
+        &Provenance {
+            edit_id: "nodata".into(),
+        },
+    )
+    .unwrap();
+    let (a, b) = (gdal_read(&crop), gdal_read(&out));
+    let mut nodata_cells = 0;
+    for (x, y) in a.data.iter().zip(&b.data) {
+        assert_eq!(a.is_nodata(*x), b.is_nodata(*y));
+        if a.is_nodata(*x) {
+            nodata_cells += 1;
+            assert_eq!(x.to_bits(), y.to_bits());
+        }
+    }
+    eprintln!(
+        "hole of {hole} cells kept nodata ({nodata_cells} nodata cells in the output); \
+         {constrained_near_hole} constrained cells on the hole's rim; max |M| {:.1} m",
+        d.stats.max_abs_displacement_m
+    );
+    assert_eq!(nodata_cells, hole);
+
+    // An integer DEM whose nodata (65535) is along its left edge: a curve
+    // starting over it leaves every nodata cell's stored value as it was.
+    let u16 = tmp.path().join("edge_u16.tif");
+    gdal_translate(
+        &fixture("zion_srtm_utm12n.tif"),
+        &u16,
+        &["-srcwin", "0", "50", "120", "120"],
+    );
+    let edge = Dem::open(&u16).unwrap();
+    let c = raised(&edge, &[[0.4, 30.2], [40.5, 70.3]], 60.0, 40);
+    let d = deform(&edge, &[c], &DeformOptions::default()).unwrap();
+    let out = tmp.path().join("edge_out.tif");
+    edge.write_back(
+        d.window,
+        &d.write_values(),
+        &Destination::Path(out.clone()),
+        &Provenance {
+            edit_id: "nodata-u16".into(),
+        },
+    )
+    .unwrap();
+    let (a, b) = (gdal_read(&u16), gdal_read(&out));
+    assert_eq!(a.nodata, Some(65535.0));
+    let mut kept = 0;
+    let mut changed = 0;
+    for (x, y) in a.data.iter().zip(&b.data) {
+        if *x == 65535.0 {
+            assert_eq!(*y, 65535.0, "a UInt16 nodata cell was overwritten");
+            kept += 1;
+        } else if x != y {
+            changed += 1;
+        }
+    }
+    eprintln!("UInt16: {kept} nodata cells kept, {changed} cells changed");
+    assert!(kept >= 120 && changed > 100);
+
+    // A curve entirely over nodata constrains nothing: an error, not a no-op.
+    let inside = raised(&dem, &[[57.0, 139.0], [63.0, 141.0]], 10.0, 4);
+    let err = deform(&dem, &[inside], &DeformOptions::default()).unwrap_err();
+    assert!(
+        matches!(err, DeformError::NothingConstrained { .. }),
+        "{err}"
+    );
+    // Off the DEM.
+    let off = CurveConstraint {
+        points: vec![[0.0, 0.0, 1000.0], [10.0, 10.0, 1000.0]],
+    };
+    let err = deform(&dem, &[off], &DeformOptions::default()).unwrap_err();
+    assert!(matches!(err, DeformError::OffDem { .. }), "{err}");
+    assert!(!err.to_string().contains('\n'));
+}
