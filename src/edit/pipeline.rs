@@ -23,7 +23,6 @@ use std::time::Instant;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 use super::fit::measure;
-use super::interim_deform::{deform, CurveConstraint, DeformOptions, Deformation};
 use super::lowering::find_protruding;
 use super::rendered_view::{RenderedView, StrokeCurve};
 use super::renders::{encode_png, height_change_map, view_picture, Picture};
@@ -31,6 +30,7 @@ use super::report::{
     DeformationReport, EditReport, FeatureCounts, MatchReport, StagedFile, StrokeReport, Timings,
 };
 use super::EditError;
+use crate::deform::{deform, CurveConstraint, DeformError, DeformOptions, Deformation};
 use crate::features::{detect_ridges, RidgeNetwork, RidgeParams};
 use crate::raster::{Dem, Destination, HeightMap, Provenance, Window};
 use crate::render::Scene;
@@ -273,12 +273,14 @@ pub fn run(
     let t = Instant::now();
     let dopts = DeformOptions {
         influence_m: sketch.options.influence_m,
+        ..DeformOptions::default()
     };
-    let deform_err = |e: super::interim_deform::DeformError| match e {
-        super::interim_deform::DeformError::Raster(r) => EditError::Raster(r),
-        other => EditError::Unusable {
-            sketch: sketch_name.clone(),
-            message: format!("deformation: {other}"),
+    let dem_name = dem_path.display().to_string();
+    let deform_err = |e: DeformError| match e {
+        DeformError::Raster(r) => EditError::Raster(r),
+        source => EditError::Deform {
+            dem: dem_name.clone(),
+            source,
         },
     };
     let user_constraints = constraints.len();
@@ -396,10 +398,7 @@ pub fn run(
     timings.write = secs(t);
     timings.total = secs(t_all);
 
-    let max_abs = deformation
-        .displacement
-        .iter()
-        .fold(0.0f32, |a, v| a.max(v.abs())) as f64;
+    let max_abs = deformation.stats.max_abs_displacement_m;
     let w = deformation.window;
     let report = EditReport {
         dem: dem_path.display().to_string(),
@@ -507,9 +506,9 @@ pub(crate) fn edited_window(map: &HeightMap, offset: (i64, i64), d: &Deformation
         for c in ov.col..ov.col_end() {
             let s = src + (c - d.window.col) as usize;
             let t = dst + (c - offset.0) as usize;
-            let h = d.base.data[s];
-            if !h.is_nan() {
-                out.data[t] = h + d.displacement[s];
+            let (h, m) = (d.base.data[s], d.displacement[s]);
+            if !h.is_nan() && m.is_finite() && m != 0.0 {
+                out.data[t] = h + m;
             }
         }
     }
