@@ -200,6 +200,15 @@ fn strokes_traced_from_the_skyline_are_fitted_and_visible() {
     let rep = demsketch::edit::run(&dem_path, &sk, &opts).unwrap();
     const FITTED_MIN: f64 = 0.7;
     for s in &rep.views[0].strokes {
+        eprintln!(
+            "{}: {:?}, fitted {:.3}, mean {:.2} px, max {:.2} px, visible {:.3}",
+            s.id,
+            s.matched.kind,
+            s.fit.fitted_fraction,
+            s.fit.mean_px,
+            s.fit.max_px,
+            s.visible_fraction
+        );
         assert!(s.fit.mean_px <= 1.0, "{}: mean_px {}", s.id, s.fit.mean_px);
         assert!(
             s.fit.fitted_fraction >= FITTED_MIN,

@@ -303,7 +303,7 @@ pub fn run(
                 break;
             }
             for p in &protruding {
-                if p.lowered.len() >= 2 {
+                if !p.lowered.is_empty() {
                     constraints.push(CurveConstraint {
                         points: p.lowered.clone(),
                     });
