@@ -286,10 +286,18 @@ fn failures_write_nothing() {
     let e = run_with(&off, &out, "viewpoint off the DEM");
     assert!(e.contains("outside"), "{e}");
 
-    // Write error: the output's directory does not exist.
+    // Write error found before any work: the output's directory does not exist.
     let missing = tmp.path().join("no/such/dir/out.tif");
-    let e = run_with(&good, &missing, "write error");
+    let e = run_with(&good, &missing, "missing output directory");
     assert!(e.contains("out.tif"), "{e}");
+
+    // Write error found at write time, after the whole edit was computed and
+    // the report and pictures staged: the output is a directory. The staged
+    // files must be gone.
+    let dir_out = tmp.path().join("taken.tif");
+    std::fs::create_dir(&dir_out).unwrap();
+    let e = run_with(&good, &dir_out, "output is a directory");
+    assert!(e.contains("taken.tif"), "{e}");
 
     // In place with a bad sketch leaves the input unchanged (covered by the
     // snapshot of the whole directory).

@@ -119,6 +119,8 @@ pub fn run(
     let mut timings = Timings::default();
     let sketch_name = sketch_path.display().to_string();
 
+    check_output_paths(opts)?;
+
     // 1. Load.
     pb.set_message("loading DEM and sketch");
     let t = Instant::now();
@@ -443,6 +445,30 @@ pub fn run(
     }
     pb.finish_and_clear();
     Ok(report)
+}
+
+/// Fail early, before any work, when an output cannot be written: its
+/// parent directory must exist (write-back checks the rest).
+fn check_output_paths(opts: &EditOptions) -> Result<(), EditError> {
+    let mut paths: Vec<&Path> = Vec::new();
+    if let Destination::Path(p) = &opts.destination {
+        paths.push(p);
+    }
+    paths.extend(opts.report.as_deref());
+    paths.extend(opts.renders.as_deref());
+    for p in paths {
+        let parent = p
+            .parent()
+            .filter(|q| !q.as_os_str().is_empty())
+            .unwrap_or(Path::new("."));
+        if !parent.is_dir() {
+            return Err(EditError::Write {
+                path: p.display().to_string(),
+                message: "its parent directory does not exist".into(),
+            });
+        }
+    }
+    Ok(())
 }
 
 /// Ridge network of the DEM over the union of the views' windows (one
