@@ -43,8 +43,19 @@ fn setup(dir: &Path) -> (std::path::PathBuf, std::path::PathBuf) {
         1.0 / 7.0,
     )
     .unwrap();
+    let t = std::time::Instant::now();
     let depth = DepthBuffer::render(&scene.terrain, &camera);
+    let t_render = t.elapsed().as_secs_f64();
+    let t = std::time::Instant::now();
     let sil = extract_silhouettes(&scene.terrain, &depth, &SilhouetteParams::default()).unwrap();
+    let t_sil = t.elapsed().as_secs_f64();
+    let t = std::time::Instant::now();
+    let ridges = demsketch::features::detect_ridges(&scene.window, &Default::default()).unwrap();
+    eprintln!(
+        "stage parts: render {t_render:.3} s, silhouettes {t_sil:.3} s, ridges {:.3} s ({} lines)",
+        t.elapsed().as_secs_f64(),
+        ridges.lines.len()
+    );
     let mut curves: Vec<_> = sil.curves.iter().filter(|c| c.samples.len() > 30).collect();
     curves.sort_by_key(|c| std::cmp::Reverse(c.samples.len()));
     let strokes: Vec<_> = curves
