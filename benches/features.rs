@@ -3,10 +3,13 @@
 //! - `render`: the local terrain around the eye and its depth buffer,
 //! - `silhouettes`: silhouette extraction from that depth buffer,
 //! - `ridges`: the PPA ridge network of the whole DEM,
-//! - `total`: all three, as one feature-extraction pass of an edit.
+//! - `total`: all three, as one feature-extraction pass of an edit,
+//! - `render_1600x900` (4096 only): terrain + depth buffer of a full-size
+//!   1600 x 900 view, the picture `demsketch view` draws by default.
 //!
 //! Run: `cargo bench --bench features` (`-- 512` to select a size). The
-//! view is `DEMSKETCH_BENCH_VIEW` (default 800x450) pixels, hfov 60.
+//! feature-extraction view is `DEMSKETCH_BENCH_VIEW` (default 800x450)
+//! pixels, hfov 60, eye 1.7 m above the ground, pitch 1 degree.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use demsketch::features::{detect_ridges, extract_silhouettes, RidgeParams, SilhouetteParams};
@@ -119,6 +122,15 @@ fn bench(c: &mut Criterion) {
                 (s.curves.len(), r.lines.len())
             })
         });
+        if n == 4096 {
+            let big = Camera::new(1600, 900, 10.0, 1.0, 0.0, 60.0).expect("camera");
+            g.bench_with_input(BenchmarkId::new("render_1600x900", n), &n, |b, _| {
+                b.iter(|| {
+                    let t = LocalTerrain::new(&map, &frame, None);
+                    DepthBuffer::render(&t, &big)
+                })
+            });
+        }
         let s = extract_silhouettes(&terrain, &db, &sp).expect("silhouettes");
         let r = detect_ridges(&map, &rp).expect("ridges");
         eprintln!(

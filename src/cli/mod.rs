@@ -21,6 +21,7 @@ pub enum Command {
     /// Describe a DEM: size, tiles, CRS, geotransform, bounds, nodata, encoding, min/max.
     Info(info::InfoArgs),
     /// Render what a person standing at a viewpoint sees (PNG), optionally the depth buffer and viewshed.
+    #[command(after_help = view::VIEW_EXAMPLES)]
     View(view::ViewArgs),
     /// Print the terrain point (lon, lat, height, distance) seen at a pixel of a view, as JSON.
     Locate(locate::LocateArgs),

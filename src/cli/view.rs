@@ -1,14 +1,20 @@
 //! `demsketch view DEM (--sketch FILE [--view NAME] | --lon X --lat Y [camera
-//! flags]) --out view.png [--depth depth.tif] [--viewshed vis.tif]`: render
-//! what a person standing at the viewpoint sees (shaded PNG, strokes of the
-//! sketch overlaid), and optionally the depth buffer and the viewshed.
+//! flags]) --out view.png [--overlay LIST] [--depth depth.tif] [--viewshed
+//! vis.tif] [--features features.geojson]`: render what a person standing at
+//! the viewpoint sees (shaded PNG with optional overlays of the view's
+//! silhouettes, the visible ridge lines and the sketch's strokes), and
+//! optionally the depth buffer, the viewshed and the features as GeoJSON.
 //! Also defines the camera flags shared with `locate`.
 
 use anyhow::Context;
+use demsketch::features::geojson::{feature_collection, to_lonlat_with_georef, write_geojson};
+use demsketch::features::{
+    detect_ridges, extract_silhouettes, RidgeNetwork, RidgeParams, SilhouetteParams, Silhouettes,
+};
 use demsketch::raster::Dem;
 use demsketch::render::{
-    draw_polyline, shade, viewshed, write_depth_tiff, write_png, write_viewshed_tiff, DepthBuffer,
-    Scene, ShadeOptions,
+    draw_polyline, shade, viewshed, visible_polylines, write_depth_tiff, write_png,
+    write_viewshed_tiff, DepthBuffer, Scene, ShadeOptions,
 };
 use demsketch::view::{Camera, EyeHeight, Viewpoint};
 use serde::Deserialize;
@@ -141,6 +147,33 @@ impl CameraFlags {
     }
 }
 
+/// What `--overlay` can draw over the picture.
+#[derive(clap::ValueEnum, Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Overlay {
+    /// The view's silhouettes (skyline and every visible occlusion edge), red.
+    Silhouettes,
+    /// T-junctions where one silhouette ends behind another, blue dots.
+    Junctions,
+    /// The visible parts of the DEM's ridge lines (PPA), yellow.
+    Ridges,
+    /// The strokes of the sketch file's view, magenta.
+    Strokes,
+}
+
+/// Examples shown at the end of `demsketch view --help`.
+pub const VIEW_EXAMPLES: &str = "\
+Examples:
+  demsketch view fixtures/zion_srtm_utm12n.tif --lon -112.998 --lat 37.188 \\
+      --heading 10 --pitch 4 --overlay silhouettes,ridges --out zion.png
+  demsketch view dem.tif --sketch sketch.json --view north-rim --out v.png \\
+      --depth depth.tif --viewshed vis.tif --features features.geojson
+
+The view comes from --sketch FILE [--view NAME] (camera flags override its
+values) or from --lon/--lat and the camera flags alone. Errors (viewpoint
+outside the DEM or on nodata, bad camera, unreadable files) are one line on
+stderr with exit code 1; nothing is written then.";
+
+/// Arguments of `demsketch view`.
 #[derive(clap::Args, Debug)]
 pub struct ViewArgs {
     /// A GeoTIFF, a directory of GeoTIFF tiles, or any raster GDAL opens.
@@ -153,18 +186,28 @@ pub struct ViewArgs {
     pub view: Option<String>,
     #[command(flatten)]
     pub camera: CameraFlags,
-    /// Output PNG.
+    /// Output PNG (8-bit RGB: lit terrain, distance haze, sky).
     #[arg(long)]
     pub out: PathBuf,
-    /// Also write the depth buffer (Float32 TIFF, metres, inf = sky).
+    /// What to draw over the picture, comma-separated [default: strokes when
+    /// the sketch has any].
+    #[arg(long, value_enum, value_delimiter = ',')]
+    pub overlay: Vec<Overlay>,
+    /// Also write the depth buffer (Float32 TIFF in image space, metres from
+    /// the eye, inf = sky).
     #[arg(long)]
     pub depth: Option<PathBuf>,
-    /// Also write the viewshed (GeoTIFF on the DEM grid, 255 visible / 0 not).
+    /// Also write the viewshed (GeoTIFF on the DEM grid, 255 visible / 0 not,
+    /// like gdal_viewshed; cells beyond --max-distance are 0).
     #[arg(long)]
     pub viewshed: Option<PathBuf>,
     /// Target height above the surface for the viewshed, metres.
     #[arg(long, default_value_t = 0.0)]
     pub target_height: f64,
+    /// Also write the view's features as GeoJSON: silhouettes (with their
+    /// pixel polylines), T-junctions and the ridge lines, in lon/lat/z.
+    #[arg(long)]
+    pub features: Option<PathBuf>,
 }
 
 /// The view to render: from the sketch file, with camera flags overriding.
@@ -216,6 +259,9 @@ fn resolve_view(args: &ViewArgs) -> anyhow::Result<ResolvedView> {
 
 pub fn run(args: ViewArgs) -> anyhow::Result<()> {
     let view = resolve_view(&args)?;
+    if let Some(t) = Some(args.target_height).filter(|t| !t.is_finite()) {
+        anyhow::bail!("--target-height {t} must be a finite number of metres");
+    }
     let dem = Dem::open(&args.dem)?;
     let scene = Scene::open(
         &dem,
@@ -224,24 +270,72 @@ pub fn run(args: ViewArgs) -> anyhow::Result<()> {
         args.camera.refraction,
     )?;
     let depth = DepthBuffer::render(&scene.terrain, &view.camera);
-    let mut rgb = shade(&depth, &scene.terrain, &ShadeOptions::default());
-    for s in &view.strokes {
-        draw_polyline(
-            &mut rgb,
-            view.camera.width,
-            view.camera.height,
-            s,
-            [230, 40, 40],
-            2.0,
-        );
+    let overlays: Vec<Overlay> = if args.overlay.is_empty() {
+        if view.strokes.is_empty() {
+            Vec::new()
+        } else {
+            vec![Overlay::Strokes]
+        }
+    } else {
+        args.overlay.clone()
+    };
+    let want = |o: Overlay| overlays.contains(&o);
+    let need_sil =
+        args.features.is_some() || want(Overlay::Silhouettes) || want(Overlay::Junctions);
+    let need_ridges = args.features.is_some() || want(Overlay::Ridges);
+    let silhouettes: Option<Silhouettes> = need_sil
+        .then(|| extract_silhouettes(&scene.terrain, &depth, &SilhouetteParams::default()))
+        .transpose()?;
+    let ridges: Option<RidgeNetwork> = need_ridges
+        .then(|| detect_ridges(&scene.window, &RidgeParams::default()))
+        .transpose()?;
+
+    let (w, h) = (view.camera.width, view.camera.height);
+    // Sun behind the viewer's right shoulder, so the slopes facing the
+    // viewer are lit.
+    let opts = ShadeOptions {
+        sun_azimuth_deg: view.camera.heading_deg + 135.0,
+        ..ShadeOptions::default()
+    };
+    let mut rgb = shade(&depth, &scene.terrain, &opts);
+    let line = (w.max(h) as f64 / 800.0).clamp(1.0, 4.0);
+    if let (true, Some(net)) = (want(Overlay::Ridges), &ridges) {
+        let cell = scene.terrain.frame.p[0][0].hypot(scene.terrain.frame.p[1][0]);
+        for l in &net.lines {
+            for part in visible_polylines(&scene.terrain, &depth, &l.points, 2.0 * cell) {
+                draw_polyline(&mut rgb, w, h, &part, [255, 214, 0], line);
+            }
+        }
     }
-    write_png(&args.out, view.camera.width, view.camera.height, &rgb)?;
+    if let Some(sil) = &silhouettes {
+        if want(Overlay::Silhouettes) {
+            for c in &sil.curves {
+                draw_polyline(&mut rgb, w, h, &c.pixels(), [225, 30, 30], line);
+            }
+        }
+        if want(Overlay::Junctions) {
+            for j in &sil.junctions {
+                draw_polyline(&mut rgb, w, h, &[j.pixel], [20, 60, 255], 3.0 * line);
+            }
+        }
+    }
+    if want(Overlay::Strokes) {
+        for s in &view.strokes {
+            draw_polyline(&mut rgb, w, h, s, [230, 0, 200], line + 1.0);
+        }
+    }
+    write_png(&args.out, w, h, &rgb)?;
     if let Some(p) = &args.depth {
         write_depth_tiff(&depth, p)?;
     }
     if let Some(p) = &args.viewshed {
         let vs = viewshed(&scene.terrain, &scene.window, args.target_height);
         write_viewshed_tiff(&vs, p)?;
+    }
+    if let Some(p) = &args.features {
+        let to_ll = to_lonlat_with_georef(&scene.georef);
+        let fc = feature_collection(silhouettes.as_ref(), ridges.as_ref(), &to_ll)?;
+        write_geojson(p, &fc)?;
     }
     Ok(())
 }

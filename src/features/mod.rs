@@ -12,6 +12,7 @@
 pub mod geojson;
 pub mod ridges;
 pub mod silhouettes;
+mod spanning_forest;
 
 pub use ridges::{detect_ridges, RidgeLine, RidgeNetwork, RidgeNode, RidgeParams};
 pub use silhouettes::{

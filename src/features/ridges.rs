@@ -16,6 +16,7 @@
 
 use rayon::prelude::*;
 
+use super::spanning_forest::spanning_forest;
 use super::FeatureError;
 use crate::raster::HeightMap;
 
@@ -144,7 +145,7 @@ pub fn detect_ridges(map: &HeightMap, params: &RidgeParams) -> Result<RidgeNetwo
 
     let cand = profile_recognition(map, params);
     let candidate_cells = cand.par_iter().filter(|&&c| c).count();
-    let mut mask = spanning_forest(map, &cand);
+    let mut mask = spanning_forest(&map.data, &cand, w, h);
     drop(cand);
     for _ in 0..params.prune_passes {
         prune(&mut mask, w, &metric, min_branch, min_line);
@@ -209,102 +210,6 @@ fn profile_recognition(map: &HeightMap, p: &RidgeParams) -> Vec<bool> {
     cand
 }
 
-/// Order-preserving map of an `f32` to `u32` (total order, NaN excluded before).
-#[inline]
-fn f32_key(v: f32) -> u32 {
-    let b = v.to_bits();
-    if b >> 31 == 1 {
-        !b
-    } else {
-        b | 0x8000_0000
-    }
-}
-
-/// Segments between adjacent candidates (E, S, SE, SW; of two crossing
-/// diagonals only the higher is kept) and their maximum spanning forest by
-/// height. Returns the adjacency mask of the forest.
-fn spanning_forest(map: &HeightMap, cand: &[bool]) -> Vec<u8> {
-    let (w, h) = (map.width, map.height);
-    let z = &map.data;
-    const ROWS: usize = 32;
-    let chunks: Vec<Vec<u64>> = (0..h.div_ceil(ROWS))
-        .into_par_iter()
-        .map(|ci| {
-            let mut out = Vec::new();
-            for row in ci * ROWS..((ci + 1) * ROWS).min(h) {
-                for col in 0..w {
-                    let c = row * w + col;
-                    if !cand[c] {
-                        continue;
-                    }
-                    let zc = z[c];
-                    let key = |other: usize, dir: usize| -> u64 {
-                        let wgt = zc + z[other];
-                        ((!f32_key(wgt)) as u64) << 32 | (c * 4 + dir) as u64
-                    };
-                    if col + 1 < w && cand[c + 1] {
-                        out.push(key(c + 1, 0));
-                    }
-                    if row + 1 < h {
-                        let s = c + w;
-                        if cand[s] {
-                            out.push(key(s, 1));
-                        }
-                        if col + 1 < w && cand[s + 1] {
-                            let crossing = cand[c + 1] && cand[s];
-                            let se = zc + z[s + 1];
-                            if !(crossing && z[c + 1] + z[s] > se) {
-                                out.push(key(s + 1, 2));
-                            }
-                        }
-                        if col > 0 && cand[s - 1] {
-                            let crossing = cand[c - 1] && cand[s];
-                            let sw = zc + z[s - 1];
-                            if !(crossing && z[c - 1] + z[s] >= sw) {
-                                out.push(key(s - 1, 3));
-                            }
-                        }
-                    }
-                }
-            }
-            out
-        })
-        .collect();
-    let mut edges: Vec<u64> = Vec::with_capacity(chunks.iter().map(Vec::len).sum());
-    for c in chunks {
-        edges.extend_from_slice(&c);
-    }
-    edges.par_sort_unstable();
-
-    let mut parent: Vec<u32> = (0..(w * h) as u32).collect();
-    fn find(parent: &mut [u32], mut x: u32) -> u32 {
-        while parent[x as usize] != x {
-            let p = parent[x as usize];
-            parent[x as usize] = parent[p as usize];
-            x = p;
-        }
-        x
-    }
-    let mut mask = vec![0u8; w * h];
-    for e in edges {
-        let id = (e & 0xffff_ffff) as usize;
-        let (a, dir) = (id / 4, id % 4);
-        let (b, da) = match dir {
-            0 => (a + 1, 0),
-            1 => (a + w, 2),
-            2 => (a + w + 1, 1),
-            _ => (a + w - 1, 3),
-        };
-        let (ra, rb) = (find(&mut parent, a as u32), find(&mut parent, b as u32));
-        if ra != rb {
-            parent[ra as usize] = rb;
-            mask[a] |= 1 << da;
-            mask[b] |= 1 << ((da + 4) % 8);
-        }
-    }
-    mask
-}
-
 /// Horizontal metres per pixel step, and 3D lengths.
 struct Metric {
     gt: [f64; 6],
@@ -342,7 +247,8 @@ impl Metric {
     fn step_m(&self, dx: f64, dy: f64, y: f64) -> f64 {
         let g = &self.gt;
         let (sx, sy) = self.scale(y);
-        ((dx * g[1] + dy * g[2]) * sx).hypot((dx * g[4] + dy * g[5]) * sy)
+        let (a, b) = ((dx * g[1] + dy * g[2]) * sx, (dx * g[4] + dy * g[5]) * sy);
+        (a * a + b * b).sqrt()
     }
 }
 
@@ -358,10 +264,11 @@ fn walk(mask: &[u8], w: usize, metric: &Metric, start: usize, mut d: usize) -> (
     let mut len = 0.0;
     let mut c = start;
     let y0 = metric.gt[3];
+    let step: [f64; 8] =
+        std::array::from_fn(|k| metric.step_m(DIRS[k].0 as f64, DIRS[k].1 as f64, y0));
     loop {
         let n = neighbour(c, d, w);
-        let (dx, dy) = DIRS[d];
-        len += metric.step_m(dx as f64, dy as f64, y0);
+        len += step[d];
         path.push(n);
         c = n;
         let m = mask[c];

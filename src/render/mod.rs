@@ -7,11 +7,15 @@
 //! [`viewshed`] computes which DEM cells the eye sees and
 //! [`write_viewshed_tiff`] writes it on the DEM's grid like `gdal_viewshed`;
 //! [`locate`] answers "which terrain point is at this pixel" and
-//! [`project_point`] the reverse. [`Scene`] sets all of this up on a tiled
+//! [`project_point`] the reverse; [`visible_polylines`] projects 3D curves
+//! (ridges) into a view, keeping what the eye sees. [`Scene`] sets all of this up on a tiled
 //! DEM of any size, reading only the window within the maximum view distance.
 
+mod atomic;
 mod depth_buffer;
+mod horizon;
 mod locate;
+mod overlay;
 mod scene;
 mod shaded_image;
 mod terrain;
@@ -19,6 +23,7 @@ mod viewshed;
 
 pub use depth_buffer::{pick, DepthBuffer, TerrainHit, SKY};
 pub use locate::{locate, project_point, Located};
+pub use overlay::visible_polylines;
 pub use scene::Scene;
 pub use shaded_image::{draw_polyline, shade, write_depth_tiff, write_png, ShadeOptions};
 pub use terrain::{LocalTerrain, RayHit};

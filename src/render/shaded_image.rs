@@ -4,6 +4,7 @@
 //! readable), over a sky gradient. Written as 8-bit RGB PNG with the `png`
 //! crate; the depth buffer itself can be written as a Float32 TIFF.
 
+use super::atomic::write_atomically;
 use super::depth_buffer::{DepthBuffer, SKY};
 use super::terrain::LocalTerrain;
 use super::RenderError;
@@ -17,8 +18,8 @@ pub struct ShadeOptions {
     pub sun_azimuth_deg: f64,
     /// Sun altitude above the horizon, degrees.
     pub sun_altitude_deg: f64,
-    /// Distance at which haze covers 63% of the terrain colour; `None`: a
-    /// third of the farthest visible distance.
+    /// Distance at which haze covers 54% of the terrain colour (85% of
+    /// 1 - 1/e); `None`: half the farthest visible distance.
     pub haze_distance_m: Option<f64>,
 }
 
@@ -69,20 +70,14 @@ pub fn shade(depth: &DepthBuffer, terrain: &LocalTerrain, opts: &ShadeOptions) -
         .copied()
         .filter(|d| d.is_finite())
         .fold(0.0f32, f32::max) as f64;
-    let haze_d = opts.haze_distance_m.unwrap_or((max_depth / 3.0).max(500.0));
+    let haze_d = opts.haze_distance_m.unwrap_or((max_depth / 2.0).max(500.0));
     let (az, alt) = (
         opts.sun_azimuth_deg.to_radians(),
         opts.sun_altitude_deg.to_radians(),
     );
     let sun = [az.sin() * alt.cos(), az.cos() * alt.cos(), alt.sin()];
     // Height range of the visible terrain for the colour ramp.
-    let (mut hmin, mut hmax) = (f64::INFINITY, f64::NEG_INFINITY);
-    for &v in &terrain.z {
-        if !v.is_nan() {
-            hmin = hmin.min(v as f64);
-            hmax = hmax.max(v as f64);
-        }
-    }
+    let (hmin, hmax) = terrain.height_range();
     let frame = terrain.frame;
     let hmin_abs = hmin + frame.eye_alt;
     let hspan = (hmax - hmin).max(1.0);
@@ -102,14 +97,14 @@ pub fn shade(depth: &DepthBuffer, terrain: &LocalTerrain, opts: &ShadeOptions) -
                 let habs = p[2] + frame.eye_alt + frame.curvature.drop(p[0].hypot(p[1]));
                 let base = ramp((habs - hmin_abs) / hspan);
                 let n = terrain
-                    .triangle_normal(depth.triangle[k])
+                    .shading_normal(p, depth.triangle[k])
                     .unwrap_or([0.0, 0.0, 1.0]);
                 let lambert = (n[0] * sun[0] + n[1] * sun[1] + n[2] * sun[2]).max(0.0);
                 let sky = 0.5 + 0.5 * n[2];
                 let light = 0.22 * sky + 0.95 * lambert;
                 let lit = [base[0] * light, base[1] * light, base[2] * light];
                 let f = 1.0 - (-t / haze_d).exp();
-                lerp(lit, haze, 0.9 * f)
+                lerp(lit, haze, 0.85 * f)
             };
             row[i * 3] = c[0].round().clamp(0.0, 255.0) as u8;
             row[i * 3 + 1] = c[1].round().clamp(0.0, 255.0) as u8;
@@ -119,38 +114,44 @@ pub fn shade(depth: &DepthBuffer, terrain: &LocalTerrain, opts: &ShadeOptions) -
     out
 }
 
-/// Write RGB bytes as an 8-bit PNG.
+/// Write RGB bytes as an 8-bit PNG (atomically: temporary file, then rename).
 pub fn write_png(path: &Path, width: usize, height: usize, rgb: &[u8]) -> Result<(), RenderError> {
-    let werr = |m: String| RenderError::Write {
-        path: path.display().to_string(),
-        message: m,
-    };
-    let file = std::fs::File::create(path).map_err(|e| werr(e.to_string()))?;
-    let mut enc = png::Encoder::new(std::io::BufWriter::new(file), width as u32, height as u32);
-    enc.set_color(png::ColorType::Rgb);
-    enc.set_depth(png::BitDepth::Eight);
-    let mut wr = enc.write_header().map_err(|e| werr(e.to_string()))?;
-    wr.write_image_data(rgb).map_err(|e| werr(e.to_string()))?;
-    wr.finish().map_err(|e| werr(e.to_string()))?;
-    Ok(())
+    write_atomically(path, |tmp| {
+        let werr = |m: String| RenderError::Write {
+            path: path.display().to_string(),
+            message: m,
+        };
+        let file = std::fs::File::create(tmp).map_err(|e| werr(e.to_string()))?;
+        let mut enc = png::Encoder::new(std::io::BufWriter::new(file), width as u32, height as u32);
+        enc.set_color(png::ColorType::Rgb);
+        enc.set_depth(png::BitDepth::Eight);
+        let mut wr = enc.write_header().map_err(|e| werr(e.to_string()))?;
+        wr.write_image_data(rgb).map_err(|e| werr(e.to_string()))?;
+        wr.finish().map_err(|e| werr(e.to_string()))?;
+        Ok(())
+    })
 }
 
 /// Write the depth buffer as a Float32 TIFF in image space (no
 /// georeference): metres from the eye, `inf` for sky.
 pub fn write_depth_tiff(depth: &DepthBuffer, path: &Path) -> Result<(), RenderError> {
-    let werr = |e: gdal::errors::GdalError| RenderError::Write {
-        path: path.display().to_string(),
-        message: e.to_string().lines().next().unwrap_or("").to_string(),
-    };
-    let driver = gdal::DriverManager::get_driver_by_name("GTiff").map_err(werr)?;
-    let ds = driver
-        .create_with_band_type::<f32, _>(path, depth.width, depth.height, 1)
-        .map_err(werr)?;
-    let mut band = ds.rasterband(1).map_err(werr)?;
-    let mut buf = gdal::raster::Buffer::new((depth.width, depth.height), depth.depth.clone());
-    band.write((0, 0), (depth.width, depth.height), &mut buf)
-        .map_err(werr)?;
-    Ok(())
+    write_atomically(path, |tmp| {
+        let werr = |e: gdal::errors::GdalError| RenderError::Write {
+            path: path.display().to_string(),
+            message: e.to_string().lines().next().unwrap_or("").to_string(),
+        };
+        let driver = gdal::DriverManager::get_driver_by_name("GTiff").map_err(werr)?;
+        let ds = driver
+            .create_with_band_type::<f32, _>(tmp, depth.width, depth.height, 1)
+            .map_err(werr)?;
+        let mut band = ds.rasterband(1).map_err(werr)?;
+        let mut buf = gdal::raster::Buffer::new((depth.width, depth.height), depth.depth.clone());
+        band.write((0, 0), (depth.width, depth.height), &mut buf)
+            .map_err(werr)?;
+        drop(band);
+        ds.close().map_err(werr)?;
+        Ok(())
+    })
 }
 
 /// Draw a polyline of pixel coordinates (DESIGN.md convention: pixel `(i, j)`

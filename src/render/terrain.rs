@@ -13,6 +13,7 @@
 //! vertex are holes. Between vertices the surface is exactly these planar
 //! triangles, and [`LocalTerrain::cast`] intersects rays with them exactly.
 
+use super::horizon::{Block, HorizonIndex};
 use crate::raster::HeightMap;
 use crate::view::LocalFrame;
 use rayon::prelude::*;
@@ -50,6 +51,8 @@ pub struct LocalTerrain {
     mip_dims: Vec<(usize, usize)>,
     zmin: f64,
     zmax: f64,
+    /// Horizon bounds for skipping empty space (see [`HorizonIndex`]).
+    horizon: Option<HorizonIndex>,
 }
 
 impl LocalTerrain {
@@ -120,9 +123,69 @@ impl LocalTerrain {
             mip_dims: Vec::new(),
             zmin: 0.0,
             zmax: 0.0,
+            horizon: None,
         };
         t.build_mip();
+        t.build_horizon();
         t
+    }
+
+    /// Mean size of a cell in metres.
+    fn cell_m(&self) -> f64 {
+        let p = self.frame.p;
+        (p[0][0].hypot(p[1][0]) * p[0][1].hypot(p[1][1])).sqrt()
+    }
+
+    /// Build the [`HorizonIndex`] from a pyramid level with at most ~300k
+    /// blocks.
+    fn build_horizon(&mut self) {
+        if self.nx < 2 || self.ny < 2 || !self.zmax.is_finite() {
+            return;
+        }
+        let cells = self.cells_x() * (self.ny - 1);
+        let mut level = 0;
+        while level + 1 < self.mip.len() && (cells >> (2 * level)) > 300_000 {
+            level += 1;
+        }
+        let (mw, mh) = self.mip_dims[level];
+        let s = 1usize << level;
+        let cell_m = self.cell_m();
+        let (wx, wy) = ((self.nx - 1) as f64, (self.ny - 1) as f64);
+        let mut max_dh = 0f64;
+        for (vx, vy) in [(0.0, 0.0), (wx, 0.0), (0.0, wy), (wx, wy)] {
+            let (e, n) = self.v_to_en(vx, vy);
+            max_dh = max_dh.max(e.hypot(n));
+        }
+        max_dh = max_dh.min(self.max_distance) + cell_m;
+        let mip = &self.mip[level];
+        let this = &*self;
+        let index = HorizonIndex::build(
+            mh,
+            |by, out: &mut Vec<Block>| {
+                let y0 = (by * s) as f64;
+                let y1 = (((by + 1) * s) as f64).min(wy);
+                for bx in 0..mw {
+                    let x0 = (bx * s) as f64;
+                    let x1 = (((bx + 1) * s) as f64).min(wx);
+                    let centre = this.v_to_en(0.5 * (x0 + x1), 0.5 * (y0 + y1));
+                    let mut radius = 0f64;
+                    for (vx, vy) in [(x0, y0), (x1, y0), (x0, y1), (x1, y1)] {
+                        let (e, n) = this.v_to_en(vx, vy);
+                        radius =
+                            radius.max(((e - centre.0).powi(2) + (n - centre.1).powi(2)).sqrt());
+                    }
+                    out.push(Block {
+                        centre,
+                        radius: radius * 1.000_001 + 1e-6,
+                        zmax: mip[by * mw + bx],
+                    });
+                }
+            },
+            cell_m * s as f64,
+            max_dh,
+            3.0 * cell_m,
+        );
+        self.horizon = Some(index);
     }
 
     fn build_mip(&mut self) {
@@ -147,13 +210,20 @@ impl LocalTerrain {
                 *out = if m.is_nan() { f32::NEG_INFINITY } else { m };
             }
         });
-        let (mut zmin, mut zmax) = (f64::INFINITY, f64::NEG_INFINITY);
-        for &v in &self.z {
-            if !v.is_nan() {
-                zmin = zmin.min(v as f64);
-                zmax = zmax.max(v as f64);
-            }
-        }
+        let (zmin, zmax) = self
+            .z
+            .par_chunks(1 << 16)
+            .map(|ch| {
+                ch.iter()
+                    .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &v| {
+                        (a.min(v), b.max(v))
+                    })
+            })
+            .reduce(
+                || (f32::INFINITY, f32::NEG_INFINITY),
+                |x, y| (x.0.min(y.0), x.1.max(y.1)),
+            );
+        let (zmin, zmax) = (zmin as f64, zmax as f64);
         self.zmin = zmin;
         self.zmax = zmax;
         let mut mip = vec![l0];
@@ -166,23 +236,29 @@ impl LocalTerrain {
             let (w2, h2) = (w.div_ceil(2), h.div_ceil(2));
             let prev = &mip[mip.len() - 1];
             let mut next = vec![f32::NEG_INFINITY; w2 * h2];
-            for r in 0..h2 {
-                for c in 0..w2 {
-                    let mut m = f32::NEG_INFINITY;
-                    for (dc, dr) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
-                        let (sc, sr) = (2 * c + dc, 2 * r + dr);
-                        if sc < w && sr < h {
-                            m = m.max(prev[sr * w + sc]);
-                        }
-                    }
-                    next[r * w2 + c] = m;
+            next.par_chunks_mut(w2).enumerate().for_each(|(r, out)| {
+                let a = &prev[2 * r * w..(2 * r + 1) * w];
+                let b = if 2 * r + 1 < h {
+                    &prev[(2 * r + 1) * w..(2 * r + 2) * w]
+                } else {
+                    a
+                };
+                for (c, o) in out.iter_mut().enumerate() {
+                    let c1 = (2 * c + 1).min(w - 1);
+                    *o = a[2 * c].max(a[c1]).max(b[2 * c]).max(b[c1]);
                 }
-            }
+            });
             mip.push(next);
             dims.push((w2, h2));
         }
         self.mip = mip;
         self.mip_dims = dims;
+    }
+
+    /// Lowest and highest apparent vertex height (relative to the eye);
+    /// infinite when every vertex is nodata.
+    pub fn height_range(&self) -> (f64, f64) {
+        (self.zmin, self.zmax)
     }
 
     /// Number of cells across (`nx - 1`).
@@ -247,6 +323,49 @@ impl LocalTerrain {
         (self.col0 + cell % cx, self.row0 + cell / cx, (id % 2) as u8)
     }
 
+    /// Smooth upward unit normal of the surface at local point `p` on
+    /// triangle `id`, for shading: the central-difference gradients of the
+    /// cell's four vertices, interpolated bilinearly (like a hillshade's
+    /// gradient, without the facets of the triangles). Falls back to the
+    /// triangle's own normal next to nodata.
+    pub fn shading_normal(&self, p: [f64; 3], id: u32) -> Option<[f64; 3]> {
+        let cx = self.cells_x().max(1);
+        let cell = (id / 2) as usize;
+        let (c, r) = (cell % cx, cell / cx);
+        let (vx, vy) = self.en_to_v(p[0], p[1]);
+        let (fx, fy) = (
+            (vx - c as f64).clamp(0.0, 1.0),
+            (vy - r as f64).clamp(0.0, 1.0),
+        );
+        let grad = |c: usize, r: usize| -> Option<(f64, f64)> {
+            let z = |c: usize, r: usize| self.vertex_z(c, r);
+            let (c0, c1) = (c.saturating_sub(1), (c + 1).min(self.nx - 1));
+            let (r0, r1) = (r.saturating_sub(1), (r + 1).min(self.ny - 1));
+            let gx = (z(c1, r)? - z(c0, r)?) / (c1 - c0).max(1) as f64;
+            let gy = (z(c, r1)? - z(c, r0)?) / (r1 - r0).max(1) as f64;
+            Some((gx, gy))
+        };
+        let g = (|| {
+            let g00 = grad(c, r)?;
+            let g10 = grad(c + 1, r)?;
+            let g01 = grad(c, r + 1)?;
+            let g11 = grad(c + 1, r + 1)?;
+            let l = |a: f64, b: f64, t: f64| a + (b - a) * t;
+            Some((
+                l(l(g00.0, g10.0, fx), l(g01.0, g11.0, fx), fy),
+                l(l(g00.1, g10.1, fx), l(g01.1, g11.1, fx), fy),
+            ))
+        })();
+        let Some((gx, gy)) = g else {
+            return self.triangle_normal(id);
+        };
+        let m = self.en_to_v;
+        let de = gx * m[0][0] + gy * m[1][0];
+        let dn = gx * m[0][1] + gy * m[1][1];
+        let l = (de * de + dn * dn + 1.0).sqrt();
+        Some([-de / l, -dn / l, 1.0 / l])
+    }
+
     /// Upward unit normal of triangle `id` in the local frame.
     pub fn triangle_normal(&self, id: u32) -> Option<[f64; 3]> {
         let [a, b, c] = self.triangle_vertices(id)?;
@@ -268,6 +387,27 @@ impl LocalTerrain {
     /// `d` (local frame) with the triangulated terrain, within distance
     /// `t_limit` and the maximum view distance. `None`: the ray escapes (sky).
     pub fn cast(&self, d: [f64; 3], t_limit: f64) -> Option<RayHit> {
+        let dh = (d[0] * d[0] + d[1] * d[1]).sqrt();
+        let Some(hz) = self.horizon.as_ref().filter(|_| dh > 1e-9) else {
+            return self.traverse(d, 0.0, t_limit);
+        };
+        // Exactly through the disc around the eye, then from the first
+        // distance where the horizon index allows a hit.
+        let t_near = hz.near_m / dh;
+        if let Some(hit) = self.traverse(d, 0.0, t_near.min(t_limit)) {
+            return Some(hit);
+        }
+        if t_near >= t_limit {
+            return None;
+        }
+        let s0 = hz.start_distance(d[0], d[1], d[2] / dh)?;
+        self.traverse(d, (s0 / dh).max(t_near), t_limit)
+    }
+
+    /// Exact first intersection of the ray segment `[t_start, t_limit]`
+    /// (clipped to the grid, the height range and the maximum distance),
+    /// by hierarchical traversal of the max-height pyramid.
+    fn traverse(&self, d: [f64; 3], t_start: f64, t_limit: f64) -> Option<RayHit> {
         let m = self.en_to_v;
         let gx = m[0][0] * d[0] + m[0][1] * d[1];
         let gy = m[1][0] * d[0] + m[1][1] * d[1];
@@ -277,9 +417,9 @@ impl LocalTerrain {
             return None;
         }
         let (wx, wy) = ((self.nx - 1) as f64, (self.ny - 1) as f64);
-        let mut t0 = 0.0f64;
+        let mut t0 = t_start.max(0.0);
         let mut t1 = t_limit;
-        let dh = d[0].hypot(d[1]);
+        let dh = (d[0] * d[0] + d[1] * d[1]).sqrt();
         if self.max_distance.is_finite() && dh > 0.0 {
             t1 = t1.min(self.max_distance / dh);
         }
@@ -338,8 +478,8 @@ impl LocalTerrain {
             if level < top {
                 let tq = t + eps;
                 let (qx, qy) = (ox + gx * tq, oy + gy * tq);
-                if (qx.floor().max(0.0) as usize) >> 1 != bx >> 1
-                    || (qy.floor().max(0.0) as usize) >> 1 != by >> 1
+                // (truncation is floor for the non-negative values kept by max)
+                if (qx.max(0.0) as usize) >> 1 != bx >> 1 || (qy.max(0.0) as usize) >> 1 != by >> 1
                 {
                     level += 1;
                 }
@@ -426,7 +566,8 @@ fn axis_block(o: f64, g: f64, p: f64, s: f64, w: f64, n: usize, tp: f64) -> Opti
             f64::INFINITY
         }
     };
-    let mut b = ((p / s).floor().max(0.0) as usize).min(n - 1);
+    // truncation is floor for the non-negative values kept by max
+    let mut b = ((p / s).max(0.0) as usize).min(n - 1);
     let mut te = exit(b);
     if te <= tp {
         if g > 0.0 {
