@@ -15,12 +15,18 @@
 //! heights); the caller adds them to the sketch's constraints and deforms
 //! again, repeating until no protruding silhouette remains.
 //!
+//! A column where the stroke is hidden but no extracted silhouette sample
+//! lies above it (the extractor drops very short pieces) falls back to the
+//! depth buffer: walking up from the stroke pixel through the nearer
+//! terrain, the last pixel before it ends is the silhouette there; such
+//! points of one stroke form one more protruding silhouette.
+//!
 //! The paper lowers the whole silhouette; here the lowered part is the
 //! stretch of `s` over the columns where it hides a stroke, widened by
 //! [`LOWERING_PAD_PX`] on each side: the rest of `s` hides nothing, and
 //! constraining it would only add changes far from the sketch.
 
-use super::fit::{FIT_TOLERANCE_PX, HIDDEN_MARGIN};
+use super::fit::{is_hidden, HIDDEN_MARGIN};
 use super::rendered_view::{RenderedView, StrokeCurve};
 use crate::view::CameraModel;
 
@@ -33,7 +39,8 @@ pub const BELOW_STROKE_PX: f64 = 1.0;
 /// One protruding silhouette and how it is lowered.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Protrusion {
-    /// Index of the silhouette curve in the rendered view.
+    /// Index of the silhouette curve in the rendered view (`usize::MAX`:
+    /// points found in the depth buffer).
     pub curve: usize,
     /// Uniform lowering, metres.
     pub h: f64,
@@ -50,35 +57,69 @@ pub fn find_protruding(view: &RenderedView, strokes: &[StrokeCurve]) -> Vec<Prot
     let mut need = vec![0.0f64; n];
     let mut range = vec![(f64::INFINITY, f64::NEG_INFINITY); n];
     let mut hidden = vec![0usize; n];
+    let mut extra = Vec::new();
     for g in strokes {
+        // Depth-buffer fallback for this stroke: (x, CRS point, h).
+        let mut fallback: Vec<([f64; 3], f64)> = Vec::new();
         for (i, y, d) in g.columns(view.camera.width) {
             let x = i as f64 + 0.5;
             let ray = view.camera.unproject([x, y + BELOW_STROKE_PX]);
             let rh = ray[0].hypot(ray[1]);
-            for &(c, s) in &view.by_column[i] {
-                let sample = &view.silhouettes.curves[c as usize].samples[s as usize];
-                if sample.pixel[1] >= y - FIT_TOLERANCE_PX
-                    || sample.depth >= d * (1.0 - HIDDEN_MARGIN)
-                {
-                    continue;
-                }
-                let p = sample.local;
-                let z_ray = if rh > 0.0 {
-                    ray[2] * p[0].hypot(p[1]) / rh
+            let above_ray = |p: [f64; 3]| {
+                if rh > 0.0 {
+                    p[2] - ray[2] * p[0].hypot(p[1]) / rh
                 } else {
                     f64::NEG_INFINITY
-                };
-                let h = p[2] - z_ray;
+                }
+            };
+            let mut found = false;
+            for &(c, s) in &view.by_column[i] {
+                let sample = &view.silhouettes.curves[c as usize].samples[s as usize];
+                if sample.pixel[1] >= y || sample.depth >= d * (1.0 - HIDDEN_MARGIN) {
+                    continue;
+                }
+                let h = above_ray(sample.local);
                 if h.is_finite() && h > 0.0 {
                     let c = c as usize;
                     need[c] = need[c].max(h);
                     range[c] = (range[c].0.min(x), range[c].1.max(x));
                     hidden[c] += 1;
+                    found = true;
+                }
+            }
+            if found || !is_hidden(view, x, y, d) {
+                continue;
+            }
+            // Walk up from the stroke pixel through the nearer terrain.
+            let limit = (d * (1.0 - HIDDEN_MARGIN)) as f32;
+            let mut j = (y.floor().max(0.0) as usize).min(view.depth.height - 1);
+            while j > 0 && view.depth.depth_at(i, j - 1) < limit {
+                j -= 1;
+            }
+            if view.depth.depth_at(i, j) >= limit {
+                continue;
+            }
+            if let Some(hit) = view.depth.hit(&view.terrain, i, j) {
+                let h = above_ray(hit.local);
+                if h.is_finite() && h > 0.0 {
+                    fallback.push(([hit.x, hit.y, hit.z], h));
                 }
             }
         }
+        if !fallback.is_empty() {
+            let h = fallback.iter().fold(0.0f64, |a, p| a.max(p.1));
+            extra.push(Protrusion {
+                curve: usize::MAX,
+                h,
+                hidden_columns: fallback.len(),
+                lowered: fallback
+                    .iter()
+                    .map(|(p, _)| [p[0], p[1], p[2] - h])
+                    .collect(),
+            });
+        }
     }
-    (0..n)
+    let mut out: Vec<Protrusion> = (0..n)
         .filter(|&c| hidden[c] > 0)
         .map(|c| {
             let (x0, x1) = (range[c].0 - LOWERING_PAD_PX, range[c].1 + LOWERING_PAD_PX);
@@ -95,5 +136,7 @@ pub fn find_protruding(view: &RenderedView, strokes: &[StrokeCurve]) -> Vec<Prot
                 lowered,
             }
         })
-        .collect()
+        .collect();
+    out.extend(extra);
+    out
 }

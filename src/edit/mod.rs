@@ -12,8 +12,6 @@
 //! report ([`report`]). Nothing is written unless every step succeeded.
 
 pub mod fit;
-mod interim_deform;
-mod interim_view_input;
 pub mod lowering;
 pub mod pipeline;
 pub mod rendered_view;
@@ -45,6 +43,12 @@ pub enum EditError {
     },
     #[error("{sketch}: {message}")]
     Unusable { sketch: String, message: String },
+    #[error("{dem}: deformation: {source}")]
+    Deform {
+        dem: String,
+        #[source]
+        source: crate::deform::DeformError,
+    },
     #[error("{path}: cannot write: {message}")]
     Write { path: String, message: String },
     /// A failure of the program rather than of the input.
@@ -58,6 +62,10 @@ impl EditError {
         match self {
             EditError::Raster(e) => e.is_user_error(),
             EditError::Internal(_) => false,
+            EditError::Deform { source, .. } => !matches!(
+                source,
+                crate::deform::DeformError::Solver(_) | crate::deform::DeformError::BadOption(_)
+            ),
             _ => true,
         }
     }

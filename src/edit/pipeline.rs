@@ -23,8 +23,6 @@ use std::time::Instant;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 use super::fit::measure;
-use super::interim_deform::{deform, CurveConstraint, DeformOptions, Deformation};
-use super::interim_view_input::{view_features, CameraProjection};
 use super::lowering::find_protruding;
 use super::rendered_view::{RenderedView, StrokeCurve};
 use super::renders::{encode_png, height_change_map, view_picture, Picture};
@@ -32,13 +30,15 @@ use super::report::{
     DeformationReport, EditReport, FeatureCounts, MatchReport, StagedFile, StrokeReport, Timings,
 };
 use super::EditError;
+use crate::deform::{deform, CurveConstraint, DeformError, DeformOptions, Deformation};
 use crate::features::{detect_ridges, RidgeNetwork, RidgeParams};
 use crate::raster::{Dem, Destination, HeightMap, Provenance, Window};
 use crate::render::Scene;
 use crate::sketch::{
-    match_sketch, EyeHeightSpec, SketchFile, Stroke, ViewFeature, ViewInput, ViewSpec,
+    match_sketch, EyeHeightSpec, SceneProjection, SceneView, SketchFile, Stroke,
+    ViewFeatureOptions, ViewInput, ViewSpec,
 };
-use crate::view::{Camera, EyeHeight, Viewpoint};
+use crate::view::{Camera, EyeHeight, LocalFrame, Viewpoint};
 
 /// Options of an edit.
 #[derive(Debug, Clone)]
@@ -78,12 +78,14 @@ impl EditOptions {
 /// A view of the sketch set up on the DEM.
 struct ViewState<'a> {
     spec: &'a ViewSpec,
-    scene: Scene,
+    /// The DEM window read around the viewpoint, where it lies on the DEM
+    /// grid, and the view's local frame (resolved on that window).
+    window: HeightMap,
+    window_offset: (i64, i64),
+    frame: LocalFrame,
     camera: Camera,
     strokes: Vec<Stroke>,
     before: RenderedView,
-    features: Vec<ViewFeature>,
-    counts: FeatureCounts,
 }
 
 fn secs(t: Instant) -> f64 {
@@ -116,6 +118,8 @@ pub fn run(
     let pb = progress_bar(opts.progress);
     let mut timings = Timings::default();
     let sketch_name = sketch_path.display().to_string();
+
+    check_output_paths(opts)?;
 
     // 1. Load.
     pb.set_message("loading DEM and sketch");
@@ -164,48 +168,69 @@ pub fn run(
     let t = Instant::now();
     let ridges = ridge_network(&dem, &scenes)?;
     let mut views: Vec<ViewState> = Vec::new();
-    let mut next_id = 0usize;
     for ((v, (scene, camera)), strokes) in sketch.views.iter().zip(scenes).zip(prepared) {
-        let before = RenderedView::render(&scene.window, &scene.frame, &camera, max_d)
+        let Scene {
+            window,
+            window_offset,
+            frame,
+            terrain,
+            ..
+        } = scene;
+        let before = RenderedView::from_terrain(terrain, &camera)
             .map_err(|e| EditError::Internal(format!("view \"{}\": features: {e}", v.name)))?;
-        let features = view_features(&before.silhouettes, &ridges, &scene.frame, &camera, next_id);
-        next_id += features.len();
-        let sil = before.silhouettes.curves.len();
-        let counts = FeatureCounts {
-            silhouettes: sil,
-            ridges: features.len().saturating_sub(sil),
-        };
         views.push(ViewState {
             spec: v,
-            scene,
+            window,
+            window_offset,
+            frame,
             camera,
             strokes,
             before,
-            features,
-            counts,
         });
     }
+    // Multi-view sketches are matched in one world frame: the first view's.
+    let world = (views.len() > 1).then(|| views[0].frame);
+    let scene_views: Vec<SceneView> = views
+        .iter()
+        .enumerate()
+        .map(|(k, v)| {
+            let mut p = SceneProjection::new(v.camera, &v.before.terrain);
+            if let Some(w) = world {
+                p = p.in_world_frame(w);
+            }
+            SceneView::build(
+                &v.spec.name,
+                k,
+                p,
+                &v.before.silhouettes,
+                &ridges,
+                &ViewFeatureOptions::default(),
+            )
+        })
+        .collect();
+    let counts: Vec<FeatureCounts> = scene_views
+        .iter()
+        .map(|sv| {
+            let sil = sv
+                .features
+                .iter()
+                .filter(|f| f.kind == crate::sketch::FeatureKind::Silhouette)
+                .count();
+            FeatureCounts {
+                silhouettes: sil,
+                ridges: sv.features.len() - sil,
+            }
+        })
+        .collect();
     timings.features = secs(t);
 
     // 3. Matching, all views jointly.
     pb.set_message("matching strokes to terrain features");
     let t = Instant::now();
-    let projections: Vec<CameraProjection> = views
-        .iter()
-        .map(|v| CameraProjection {
-            camera: v.camera,
-            terrain: &v.before.terrain,
-        })
-        .collect();
     let inputs: Vec<ViewInput> = views
         .iter()
-        .zip(&projections)
-        .map(|(v, p)| ViewInput {
-            name: v.spec.name.clone(),
-            strokes: v.strokes.clone(),
-            features: &v.features,
-            projection: p,
-        })
+        .zip(&scene_views)
+        .map(|(v, sv)| sv.input(v.strokes.clone()))
         .collect();
     let matched = match_sketch(&inputs, &sketch.options).map_err(|source| EditError::Match {
         sketch: sketch_name.clone(),
@@ -221,17 +246,13 @@ pub fn run(
     }
     let mut constraints: Vec<CurveConstraint> = Vec::new();
     let mut curves: Vec<Vec<StrokeCurve>> = Vec::new();
-    for (v, m) in views.iter().zip(&matched.views) {
-        let frame = &v.scene.frame;
+    for ((v, sv), m) in views.iter().zip(&scene_views).zip(&matched.views) {
         let mut cs = Vec::new();
         for (s, sm) in v.strokes.iter().zip(&m.strokes) {
-            let points: Vec<[f64; 3]> = sm
-                .points
-                .iter()
-                .map(|p| {
-                    let (x, y, z) = frame.local_to_crs(p.world);
-                    [x, y, z]
-                })
+            let points: Vec<[f64; 3]> = sv
+                .projection
+                .placed_to_dem(&sm.points)
+                .into_iter()
                 .filter(|p| p.iter().all(|c| c.is_finite()))
                 .collect();
             if points.len() >= 2 {
@@ -254,12 +275,14 @@ pub fn run(
     let t = Instant::now();
     let dopts = DeformOptions {
         influence_m: sketch.options.influence_m,
+        ..DeformOptions::default()
     };
-    let deform_err = |e: super::interim_deform::DeformError| match e {
-        super::interim_deform::DeformError::Raster(r) => EditError::Raster(r),
-        other => EditError::Unusable {
-            sketch: sketch_name.clone(),
-            message: format!("deformation: {other}"),
+    let dem_name = dem_path.display().to_string();
+    let deform_err = |e: DeformError| match e {
+        DeformError::Raster(r) => EditError::Raster(r),
+        source => EditError::Deform {
+            dem: dem_name.clone(),
+            source,
         },
     };
     let user_constraints = constraints.len();
@@ -282,7 +305,7 @@ pub fn run(
                 break;
             }
             for p in &protruding {
-                if p.lowered.len() >= 2 {
+                if !p.lowered.is_empty() {
                     constraints.push(CurveConstraint {
                         points: p.lowered.clone(),
                     });
@@ -334,7 +357,7 @@ pub fn run(
             strokes,
             lowering_iterations: iterations[k],
             silhouettes_lowered: lowered[k],
-            features: v.counts,
+            features: counts[k],
         });
         after_views.push(after);
     }
@@ -377,10 +400,7 @@ pub fn run(
     timings.write = secs(t);
     timings.total = secs(t_all);
 
-    let max_abs = deformation
-        .displacement
-        .iter()
-        .fold(0.0f32, |a, v| a.max(v.abs())) as f64;
+    let max_abs = deformation.stats.max_abs_displacement_m;
     let w = deformation.window;
     let report = EditReport {
         dem: dem_path.display().to_string(),
@@ -427,6 +447,30 @@ pub fn run(
     Ok(report)
 }
 
+/// Fail early, before any work, when an output cannot be written: its
+/// parent directory must exist (write-back checks the rest).
+fn check_output_paths(opts: &EditOptions) -> Result<(), EditError> {
+    let mut paths: Vec<&Path> = Vec::new();
+    if let Destination::Path(p) = &opts.destination {
+        paths.push(p);
+    }
+    paths.extend(opts.report.as_deref());
+    paths.extend(opts.renders.as_deref());
+    for p in paths {
+        let parent = p
+            .parent()
+            .filter(|q| !q.as_os_str().is_empty())
+            .unwrap_or(Path::new("."));
+        if !parent.is_dir() {
+            return Err(EditError::Write {
+                path: p.display().to_string(),
+                message: "its parent directory does not exist".into(),
+            });
+        }
+    }
+    Ok(())
+}
+
 /// Ridge network of the DEM over the union of the views' windows (one
 /// network, so that a ridge seen from two views is one feature).
 fn ridge_network(dem: &Dem, scenes: &[(Scene, Camera)]) -> Result<RidgeNetwork, EditError> {
@@ -469,8 +513,8 @@ fn render_edited(
     d: &Deformation,
     max_d: Option<f64>,
 ) -> Result<RenderedView, EditError> {
-    let edited = edited_window(&v.scene.window, v.scene.window_offset, d);
-    RenderedView::render(&edited, &v.scene.frame, &v.camera, max_d)
+    let edited = edited_window(&v.window, v.window_offset, d);
+    RenderedView::render(&edited, &v.frame, &v.camera, max_d)
         .map_err(|e| EditError::Internal(format!("view \"{}\": features: {e}", v.spec.name)))
 }
 
@@ -488,9 +532,9 @@ pub(crate) fn edited_window(map: &HeightMap, offset: (i64, i64), d: &Deformation
         for c in ov.col..ov.col_end() {
             let s = src + (c - d.window.col) as usize;
             let t = dst + (c - offset.0) as usize;
-            let h = d.base.data[s];
-            if !h.is_nan() {
-                out.data[t] = h + d.displacement[s];
+            let (h, m) = (d.base.data[s], d.displacement[s]);
+            if !h.is_nan() && m.is_finite() && m != 0.0 {
+                out.data[t] = h + m;
             }
         }
     }
@@ -521,7 +565,10 @@ fn pictures(
     let (gx, gy) = d.base.geotransform.pixel_size();
     let cell_m = if d.base.crs.geographic {
         let lat = d.base.geotransform.0[3].to_radians();
-        (gx.abs() * 111_320.0 * lat.cos().max(0.01), gy.abs() * 110_540.0)
+        (
+            gx.abs() * 111_320.0 * lat.cos().max(0.01),
+            gy.abs() * 110_540.0,
+        )
     } else {
         (gx.abs(), gy.abs())
     };
