@@ -1,8 +1,0 @@
-//! Placeholder for the raster_io benchmark; replaced by the real one.
-
-use criterion::{criterion_group, criterion_main, Criterion};
-
-fn bench(_c: &mut Criterion) {}
-
-criterion_group!(benches, bench);
-criterion_main!(benches);
