@@ -23,7 +23,16 @@ fn main() {
         eprintln!("demsketch: internal error: {msg}{loc}");
         std::process::exit(2);
     }));
-    let args = cli::Cli::parse();
+    // Bad flags are user errors (exit 1, as DESIGN.md says), not clap's
+    // default 2, which demsketch keeps for internal errors.
+    let args = match cli::Cli::try_parse() {
+        Ok(a) => a,
+        Err(e) => {
+            let code = if e.use_stderr() { 1 } else { 0 };
+            let _ = e.print();
+            std::process::exit(code);
+        }
+    };
     match cli::run(args) {
         Ok(()) => {}
         Err(e) => {

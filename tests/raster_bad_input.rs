@@ -214,3 +214,31 @@ fn mismatched_tiles_fail_cleanly() {
     std::fs::create_dir(&empty).expect("mkdir");
     expect_user_error(d, &["info", &s(&empty)], &["no_tiles", "no GeoTIFF tiles"]);
 }
+
+/// Bad flags are user errors: exit 1 (clap's own default would be 2, which
+/// demsketch keeps for internal errors), a message naming the flag.
+#[test]
+fn bad_flags_exit_with_one() {
+    let zion = s(&fixture("zion_srtm_utm12n.tif"));
+    for args in [
+        vec![
+            "view",
+            zion.as_str(),
+            "--lon",
+            "-112.9",
+            "--lat",
+            "37.4",
+            "--size",
+            "12y9",
+            "--out",
+            "x.png",
+        ],
+        vec!["info", zion.as_str(), "--no-such-flag"],
+        vec!["no-such-command"],
+    ] {
+        let out = demsketch(&args);
+        assert_eq!(out.status.code(), Some(1), "{args:?}");
+        assert!(!out.stderr.is_empty(), "{args:?}");
+    }
+    assert_eq!(demsketch(&["--help"]).status.code(), Some(0));
+}

@@ -19,18 +19,7 @@ pub struct LocateArgs {
 }
 
 fn parse_pixel(s: &str) -> Result<(f64, f64), String> {
-    let (x, y) = s
-        .split_once(',')
-        .ok_or_else(|| format!("pixel '{s}' must be X,Y"))?;
-    let x: f64 = x
-        .trim()
-        .parse()
-        .map_err(|_| format!("pixel '{s}': bad X"))?;
-    let y: f64 = y
-        .trim()
-        .parse()
-        .map_err(|_| format!("pixel '{s}': bad Y"))?;
-    Ok((x, y))
+    super::parse_pair(s, &[','], "pixel", "X,Y (e.g. 800,450)", ["X", "Y"])
 }
 
 pub fn run(args: LocateArgs) -> anyhow::Result<()> {

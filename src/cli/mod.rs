@@ -53,3 +53,26 @@ pub fn exit_code(e: &anyhow::Error) -> i32 {
         1
     }
 }
+
+/// Parse a pair of numbers written `A<sep>B` (`1600x900`, `412.5,300`) for
+/// clap, naming the flag and the part that is wrong.
+pub(crate) fn parse_pair<T: std::str::FromStr>(
+    s: &str,
+    seps: &[char],
+    what: &str,
+    example: &str,
+    names: [&str; 2],
+) -> Result<(T, T), String> {
+    let (a, b) = s
+        .split_once(seps)
+        .ok_or_else(|| format!("{what} '{s}' must be written like {example}"))?;
+    let a = a
+        .trim()
+        .parse()
+        .map_err(|_| format!("{what} '{s}': bad {}", names[0]))?;
+    let b = b
+        .trim()
+        .parse()
+        .map_err(|_| format!("{what} '{s}': bad {}", names[1]))?;
+    Ok((a, b))
+}

@@ -59,18 +59,13 @@ pub struct CameraFlags {
 }
 
 fn parse_size(s: &str) -> Result<(usize, usize), String> {
-    let (w, h) = s
-        .split_once(['x', 'X'])
-        .ok_or_else(|| format!("size '{s}' must be WxH, e.g. 1600x900"))?;
-    let w: usize = w
-        .trim()
-        .parse()
-        .map_err(|_| format!("size '{s}': bad width"))?;
-    let h: usize = h
-        .trim()
-        .parse()
-        .map_err(|_| format!("size '{s}': bad height"))?;
-    Ok((w, h))
+    super::parse_pair(
+        s,
+        &['x', 'X'],
+        "size",
+        "WxH (e.g. 1600x900)",
+        ["width", "height"],
+    )
 }
 
 /// The view of a sketch file (DESIGN.md "Sketch file"), as far as `view` needs it.

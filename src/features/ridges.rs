@@ -102,7 +102,7 @@ impl RidgeNetwork {
 
 /// Neighbour directions of the adjacency mask: bit `d` links a cell to the
 /// cell at `DIRS[d]` (dx, dy); the opposite direction is `(d + 4) % 8`.
-const DIRS: [(isize, isize); 8] = [
+pub(super) const DIRS: [(isize, isize); 8] = [
     (1, 0),
     (1, 1),
     (0, 1),

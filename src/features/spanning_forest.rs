@@ -30,17 +30,7 @@ use std::collections::HashMap;
 /// Rows per strip.
 const STRIP: usize = 64;
 
-/// Neighbour offsets of the mask bits (same order as `ridges::DIRS`).
-const DIRS: [(isize, isize); 8] = [
-    (1, 0),
-    (1, 1),
-    (0, 1),
-    (-1, 1),
-    (-1, 0),
-    (-1, -1),
-    (0, -1),
-    (1, -1),
-];
+use super::ridges::DIRS;
 
 /// Order-preserving map of an `f32` to `u32`.
 #[inline]
