@@ -292,19 +292,7 @@ pub fn relative_residual(
                     continue;
                 }
                 let at = |ii: usize, jj: usize| values[jj * nx + ii] as f64;
-                let mut s = 0.0;
-                if i > 0 {
-                    s += ax * at(i - 1, j);
-                }
-                if i + 1 < nx {
-                    s += ax * at(i + 1, j);
-                }
-                if j > 0 {
-                    s += ay * at(i, j - 1);
-                }
-                if j + 1 < ny {
-                    s += ay * at(i, j + 1);
-                }
+                let s = weighted_neighbour_sum(i, j, nx, ny, ax, ay, at);
                 let r = s - diag * values[idx] as f64;
                 sum += r * r;
             }
@@ -385,19 +373,7 @@ fn dirichlet_coupling_norm(
                 if fixed[j * nx + i] {
                     continue;
                 }
-                let mut b = 0.0;
-                if i > 0 {
-                    b += ax * at(i - 1, j);
-                }
-                if i + 1 < nx {
-                    b += ax * at(i + 1, j);
-                }
-                if j > 0 {
-                    b += ay * at(i, j - 1);
-                }
-                if j + 1 < ny {
-                    b += ay * at(i, j + 1);
-                }
+                let b = weighted_neighbour_sum(i, j, nx, ny, ax, ay, at);
                 sum += b * b;
             }
             sum
@@ -786,4 +762,33 @@ mod tests {
             assert!((a - b).abs() < 1e-12, "{reg:?}");
         }
     }
+}
+
+/// `ax (west + east) + ay (north + south)` of cell (i, j) for the 5-point
+/// operator, with `at(i, j)` giving a neighbour's value; neighbours outside
+/// the grid count as 0 (Dirichlet 0 just outside the edge).
+#[inline(always)]
+fn weighted_neighbour_sum(
+    i: usize,
+    j: usize,
+    nx: usize,
+    ny: usize,
+    ax: f64,
+    ay: f64,
+    at: impl Fn(usize, usize) -> f64,
+) -> f64 {
+    let mut s = 0.0;
+    if i > 0 {
+        s += ax * at(i - 1, j);
+    }
+    if i + 1 < nx {
+        s += ax * at(i + 1, j);
+    }
+    if j > 0 {
+        s += ay * at(i, j - 1);
+    }
+    if j + 1 < ny {
+        s += ay * at(i, j + 1);
+    }
+    s
 }
