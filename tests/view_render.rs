@@ -92,6 +92,83 @@ fn ray_casting_is_exact_on_the_triangulated_height_field() {
     assert!(checked > 100);
 }
 
+/// Compare the rasterised depth buffer with one exact cast per pixel: the
+/// same depth everywhere (up to f32 rounding), the same triangle except
+/// where a pixel centre lies on a shared edge (then the depths agree).
+fn assert_raster_equals_casting(terrain: &LocalTerrain, cam: &Camera, what: &str) {
+    let fast = DepthBuffer::render(terrain, cam);
+    let slow = DepthBuffer::render_by_ray_casting(terrain, cam);
+    let (mut terrain_px, mut other_tri, mut worst) = (0usize, 0usize, 0f64);
+    for k in 0..fast.depth.len() {
+        let (a, b) = (fast.depth[k] as f64, slow.depth[k] as f64);
+        assert_eq!(
+            a.is_finite(),
+            b.is_finite(),
+            "{what}: pixel {} {}: raster {a} vs cast {b}",
+            k % cam.width,
+            k / cam.width
+        );
+        if a.is_finite() {
+            terrain_px += 1;
+            let rel = (a - b).abs() / b;
+            worst = worst.max(rel);
+            assert!(rel < 1e-4, "{what}: pixel {k}: raster {a} vs cast {b}");
+            other_tri += usize::from(fast.triangle[k] != slow.triangle[k]);
+        }
+    }
+    eprintln!(
+        "{what}: {terrain_px} terrain pixels equal to ray casting (worst relative depth {worst:.1e}), {other_tri} on shared edges"
+    );
+    assert!(terrain_px > 0);
+    assert!(other_tri * 1000 <= terrain_px, "{what}: {other_tri} triangle ids differ");
+}
+
+#[test]
+fn rasterised_depth_buffer_equals_exact_ray_casting() {
+    // A noisy synthetic field with a hole, cameras pitched, rolled and
+    // looking straight down.
+    let mut rng = Lcg(11);
+    let mut dem = synthetic(96, 80, 25.0, |x, y| {
+        100.0 + 30.0 * ((x / 200.0).sin() + (y / 150.0).cos())
+    });
+    for v in dem.data.iter_mut() {
+        *v += (rng.next() * 40.0) as f32;
+    }
+    dem.data[20 * 96 + 30] = f32::NAN;
+    let (ex, ey) = dem.geotransform.pixel_to_crs(40.3, 52.7);
+    let ground = dem.bilinear(40.3, 52.7).unwrap();
+    let frame = LocalFrame::planar(&dem, (ex, ey), ground + 2.0, Curvature::default());
+    let terrain = LocalTerrain::new(&dem, &frame, None);
+    for (k, (hd, p, r, fov)) in [
+        (10.0, 0.0, 0.0, 60.0),
+        (200.0, -12.0, 0.0, 70.0),
+        (95.0, 5.0, 17.0, 50.0),
+        (300.0, -89.0, 0.0, 90.0),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let cam = Camera::new(320, 200, hd, p, r, fov).unwrap();
+        assert_raster_equals_casting(&terrain, &cam, &format!("synthetic view {k}"));
+    }
+    // Real DEMs, as `view` renders them.
+    for (name, px, py, heading) in [
+        ("zion_srtm_utm12n.tif", 210.5, 103.5, 20.0),
+        ("vinschgau_250m_utm32n.tif", 101.5, 110.5, 250.0),
+    ] {
+        let dem = load(&fixture(name));
+        let georef = Georef::new(&dem, name).unwrap();
+        let (x, y) = dem.geotransform.pixel_to_crs(px, py);
+        let (lon, lat) = georef.crs_to_lonlat(x, y).unwrap();
+        let frame = georef
+            .local_frame(&Viewpoint::above_surface(lon, lat, 1.7), &dem, 1.0 / 7.0)
+            .unwrap();
+        let terrain = LocalTerrain::new(&dem, &frame, None);
+        let cam = Camera::new(800, 450, heading, 1.0, 0.0, 60.0).unwrap();
+        assert_raster_equals_casting(&terrain, &cam, name);
+    }
+}
+
 #[test]
 fn depth_of_a_flat_plane_is_analytic() {
     let dem = synthetic(400, 400, 10.0, |_, _| 50.0);

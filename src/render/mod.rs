@@ -1,8 +1,8 @@
 //! First-person rendering of a DEM: depth buffer, shaded image and viewshed.
 //!
 //! A [`LocalTerrain`] holds the part of the DEM within the maximum view
-//! distance in a viewpoint's local frame; [`DepthBuffer::render`] casts one
-//! exact ray per pixel against its triangles; [`shade`] turns a depth buffer
+//! distance in a viewpoint's local frame; [`DepthBuffer::render`] rasterises its
+//! triangles exactly at the pixel centres; [`shade`] turns a depth buffer
 //! into a picture (lighting + distance haze) and [`write_png`] saves it;
 //! [`viewshed`] computes which DEM cells the eye sees and
 //! [`write_viewshed_tiff`] writes it on the DEM's grid like `gdal_viewshed`;
@@ -19,6 +19,7 @@ mod overlay;
 mod scene;
 mod shaded_image;
 mod terrain;
+mod triangle_raster;
 mod viewshed;
 
 pub use depth_buffer::{pick, DepthBuffer, TerrainHit, SKY};

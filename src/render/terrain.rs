@@ -51,8 +51,9 @@ pub struct LocalTerrain {
     mip_dims: Vec<(usize, usize)>,
     zmin: f64,
     zmax: f64,
-    /// Horizon bounds for skipping empty space (see [`HorizonIndex`]).
-    horizon: Option<HorizonIndex>,
+    /// Horizon bounds for skipping empty space (see [`HorizonIndex`]),
+    /// built on the first ray cast: rasterised views do not need it.
+    horizon: std::sync::OnceLock<Option<HorizonIndex>>,
 }
 
 impl LocalTerrain {
@@ -123,10 +124,9 @@ impl LocalTerrain {
             mip_dims: Vec::new(),
             zmin: 0.0,
             zmax: 0.0,
-            horizon: None,
+            horizon: std::sync::OnceLock::new(),
         };
         t.build_mip();
-        t.build_horizon();
         t
     }
 
@@ -138,9 +138,9 @@ impl LocalTerrain {
 
     /// Build the [`HorizonIndex`] from a pyramid level with at most ~300k
     /// blocks.
-    fn build_horizon(&mut self) {
+    fn build_horizon(&self) -> Option<HorizonIndex> {
         if self.nx < 2 || self.ny < 2 || !self.zmax.is_finite() {
-            return;
+            return None;
         }
         let cells = self.cells_x() * (self.ny - 1);
         let mut level = 0;
@@ -185,7 +185,12 @@ impl LocalTerrain {
             max_dh,
             3.0 * cell_m,
         );
-        self.horizon = Some(index);
+        Some(index)
+    }
+
+    /// Eye position in vertex coordinates.
+    pub(crate) fn eye_vertex(&self) -> (f64, f64) {
+        self.eye_v
     }
 
     fn build_mip(&mut self) {
@@ -388,7 +393,8 @@ impl LocalTerrain {
     /// `t_limit` and the maximum view distance. `None`: the ray escapes (sky).
     pub fn cast(&self, d: [f64; 3], t_limit: f64) -> Option<RayHit> {
         let dh = (d[0] * d[0] + d[1] * d[1]).sqrt();
-        let Some(hz) = self.horizon.as_ref().filter(|_| dh > 1e-9) else {
+        let hz = self.horizon.get_or_init(|| self.build_horizon());
+        let Some(hz) = hz.as_ref().filter(|_| dh > 1e-9) else {
             return self.traverse(d, 0.0, t_limit);
         };
         // Exactly through the disc around the eye, then from the first

@@ -1,0 +1,561 @@
+//! Exact z-buffer rasterisation of the triangulated height field: for every
+//! pixel centre, the nearest triangle of a [`LocalTerrain`] its ray passes
+//! through, and the distance to it. The same answer as casting one exact ray
+//! per pixel ([`LocalTerrain::cast`]), at a fraction of the cost, because the
+//! work follows the triangles (most of which cover no pixel centre at all)
+//! instead of the rays.
+//!
+//! How:
+//! - **Exact coverage without clipping.** In camera coordinates (eye at the
+//!   origin) the ray through pixel `(px, py)` is `d = (px - W/2, H/2 - py, f)`.
+//!   It passes through triangle `P0 P1 P2` exactly when the three numbers
+//!   `(Pj x Pk) . d` have the sign of `det = P0 . (P1 x P2)`; each is an
+//!   affine function of `(px, py)` (the 2D homogeneous edge functions of
+//!   Olano and Greer). The hit is `d * det / (n . d)` with `n` the
+//!   triangle's normal. This needs no near-plane clipping, and because the
+//!   cross product is exactly antisymmetric in floating point, the two
+//!   triangles sharing an edge evaluate exactly opposite numbers on it:
+//!   with inclusive tests no pixel centre falls through a crack.
+//! - **Front to back by blocks.** The grid is cut into blocks of
+//!   [`BLOCK`] x [`BLOCK`] cells and visited in rings of increasing
+//!   Manhattan block distance from the eye's block. A ray's horizontal
+//!   track moves monotonically away from the eye along both grid axes, so
+//!   it meets the blocks of successive rings in order and never two blocks
+//!   of one ring: a pixel filled by an earlier ring is final.
+//! - **Occlusion culling.** Per image column the renderer keeps the
+//!   topmost row from which every pixel down to the bottom is final. A
+//!   block whose screen bounding box (its cells' extent times its height
+//!   range) lies entirely below those rows is hidden and skipped without
+//!   looking at its triangles; most of the far terrain behind the first
+//!   ridges goes this way.
+//! - **Parallel by image strips.** Vertical strips of the image are
+//!   rendered independently (rayon), each with its own buffers and its own
+//!   culling state.
+
+use super::depth_buffer::SKY;
+use super::terrain::LocalTerrain;
+use crate::view::Camera;
+use rayon::prelude::*;
+
+/// Block edge in cells for ordering and culling.
+const BLOCK: usize = 16;
+
+/// Pixel columns per strip rendered by one task.
+const STRIP: usize = 64;
+
+/// The camera in the terrain's vertex coordinates: camera coordinates
+/// (right, up, forward) of vertex `(c, r)` with apparent height `z` are
+/// `o + c * gc + r * gr + z * gz` per axis.
+#[derive(Clone, Copy)]
+struct VertexToCamera {
+    o: [f64; 3],
+    gc: [f64; 3],
+    gr: [f64; 3],
+    gz: [f64; 3],
+}
+
+impl VertexToCamera {
+    fn new(terrain: &LocalTerrain, camera: &Camera) -> Self {
+        let (e0, n0) = terrain.v_to_en(0.0, 0.0);
+        let (e1, n1) = terrain.v_to_en(1.0, 0.0);
+        let (e2, n2) = terrain.v_to_en(0.0, 1.0);
+        let axes = [camera.right, camera.up, camera.forward];
+        let mut m = VertexToCamera {
+            o: [0.0; 3],
+            gc: [0.0; 3],
+            gr: [0.0; 3],
+            gz: [0.0; 3],
+        };
+        for (k, a) in axes.iter().enumerate() {
+            m.o[k] = a[0] * e0 + a[1] * n0;
+            m.gc[k] = a[0] * (e1 - e0) + a[1] * (n1 - n0);
+            m.gr[k] = a[0] * (e2 - e0) + a[1] * (n2 - n0);
+            m.gz[k] = a[2];
+        }
+        m
+    }
+
+    #[inline]
+    fn apply(&self, c: f64, r: f64, z: f64) -> [f64; 3] {
+        [
+            self.o[0] + c * self.gc[0] + r * self.gr[0] + z * self.gz[0],
+            self.o[1] + c * self.gc[1] + r * self.gr[1] + z * self.gz[1],
+            self.o[2] + c * self.gc[2] + r * self.gr[2] + z * self.gz[2],
+        ]
+    }
+}
+
+/// One block's screen footprint.
+#[derive(Clone, Copy)]
+struct BlockBox {
+    /// Block index (column, row) in the block grid.
+    bx: u32,
+    by: u32,
+    /// Pixel index ranges (inclusive) whose centres may show the block.
+    x0: i32,
+    x1: i32,
+    y0: i32,
+}
+
+/// Render the depth (distance along the unit pixel-centre ray, infinite for
+/// sky) and the triangle id of every pixel of `camera` over `terrain`.
+pub(crate) fn rasterise(terrain: &LocalTerrain, camera: &Camera) -> (Vec<f32>, Vec<u32>) {
+    let (w, h) = (camera.width, camera.height);
+    let mut depth = vec![f32::INFINITY; w * h];
+    let mut triangle = vec![SKY; w * h];
+    if terrain.nx < 2 || terrain.ny < 2 {
+        return (depth, triangle);
+    }
+    let m = VertexToCamera::new(terrain, camera);
+    let blocks = block_boxes(terrain, camera, &m);
+    if blocks.is_empty() {
+        return (depth, triangle);
+    }
+    let strips: Vec<(usize, Vec<f32>, Vec<u32>)> = (0..w.div_ceil(STRIP))
+        .into_par_iter()
+        .map(|s| {
+            let x0 = s * STRIP;
+            let x1 = (x0 + STRIP).min(w);
+            let (t, id) = render_strip(terrain, camera, &m, &blocks, x0, x1);
+            (x0, t, id)
+        })
+        .collect();
+    // Scatter the strips and turn ray parameters into distances.
+    let f = camera.focal_px;
+    depth
+        .par_chunks_mut(w)
+        .zip(triangle.par_chunks_mut(w))
+        .enumerate()
+        .for_each(|(j, (drow, trow))| {
+            let v = h as f64 / 2.0 - (j as f64 + 0.5);
+            for (x0, t, id) in &strips {
+                let sw = t.len() / h;
+                for k in 0..sw {
+                    let i = x0 + k;
+                    let tri = id[j * sw + k];
+                    if tri == SKY {
+                        continue;
+                    }
+                    let u = i as f64 + 0.5 - w as f64 / 2.0;
+                    let len = (u * u + v * v + f * f).sqrt();
+                    drow[i] = (t[j * sw + k] as f64 * len) as f32;
+                    trow[i] = tri;
+                }
+            }
+        });
+    (depth, triangle)
+}
+
+/// The blocks that may be seen, with their screen boxes, ordered by ring
+/// (Manhattan block distance from the eye's block), and the ring starts.
+struct Blocks {
+    boxes: Vec<BlockBox>,
+    /// `boxes[ring_start[k]..ring_start[k + 1]]` is ring `k`.
+    ring_start: Vec<usize>,
+}
+
+impl Blocks {
+    fn is_empty(&self) -> bool {
+        self.boxes.is_empty()
+    }
+}
+
+fn block_boxes(terrain: &LocalTerrain, camera: &Camera, m: &VertexToCamera) -> Blocks {
+    let (cx, cy) = (terrain.nx - 1, terrain.ny - 1);
+    let (bw, bh) = (cx.div_ceil(BLOCK), cy.div_ceil(BLOCK));
+    let (w, h) = (camera.width as f64, camera.height as f64);
+    let f = camera.focal_px;
+    let eye = terrain.eye_vertex();
+    let ebx = (eye.0 / BLOCK as f64).floor() as i64;
+    let eby = (eye.1 / BLOCK as f64).floor() as i64;
+    let nx = terrain.nx;
+    let z = &terrain.z;
+    // Near limit for projecting a box: boxes reaching closer to the camera
+    // plane than this are treated as covering the whole image.
+    let near = 1e-3;
+    let rows: Vec<Vec<(u32, BlockBox)>> = (0..bh)
+        .into_par_iter()
+        .map(|by| {
+            let mut out = Vec::new();
+            let r0 = by * BLOCK;
+            let r1 = ((by + 1) * BLOCK).min(cy);
+            for bx in 0..bw {
+                let c0 = bx * BLOCK;
+                let c1 = ((bx + 1) * BLOCK).min(cx);
+                let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+                for r in r0..=r1 {
+                    for &v in &z[r * nx + c0..=r * nx + c1] {
+                        // min/max ignore NaN (nodata) unless all are NaN
+                        lo = lo.min(v);
+                        hi = hi.max(v);
+                    }
+                }
+                if !(hi >= lo) {
+                    continue;
+                }
+                let (mut sx0, mut sx1, mut sy0, mut sy1) = (
+                    f64::INFINITY,
+                    f64::NEG_INFINITY,
+                    f64::INFINITY,
+                    f64::NEG_INFINITY,
+                );
+                let mut behind = 0;
+                let mut straddles = false;
+                for (c, r) in [(c0, r0), (c1, r0), (c0, r1), (c1, r1)] {
+                    for zz in [lo, hi] {
+                        let p = m.apply(c as f64, r as f64, zz as f64);
+                        if p[2] <= near {
+                            straddles = true;
+                            if p[2] <= 0.0 {
+                                behind += 1;
+                            }
+                            continue;
+                        }
+                        let sx = w / 2.0 + f * p[0] / p[2];
+                        let sy = h / 2.0 - f * p[1] / p[2];
+                        sx0 = sx0.min(sx);
+                        sx1 = sx1.max(sx);
+                        sy0 = sy0.min(sy);
+                        sy1 = sy1.max(sy);
+                    }
+                }
+                if behind == 8 {
+                    continue;
+                }
+                let bb = if straddles {
+                    BlockBox {
+                        bx: bx as u32,
+                        by: by as u32,
+                        x0: 0,
+                        x1: camera.width as i32 - 1,
+                        y0: 0,
+                    }
+                } else {
+                    // Pixel i's centre is i + 0.5; a margin of one pixel
+                    // absorbs rounding.
+                    let x0 = (sx0 - 1.5).ceil().max(0.0);
+                    let x1 = (sx1 + 0.5).floor().min(w - 1.0);
+                    let y0 = (sy0 - 1.5).ceil().max(0.0);
+                    let y1 = (sy1 + 0.5).floor().min(h - 1.0);
+                    if x0 > x1 || y0 > y1 {
+                        continue;
+                    }
+                    BlockBox {
+                        bx: bx as u32,
+                        by: by as u32,
+                        x0: x0 as i32,
+                        x1: x1 as i32,
+                        y0: y0 as i32,
+                    }
+                };
+                let ring = (bx as i64 - ebx).unsigned_abs() + (by as i64 - eby).unsigned_abs();
+                out.push((ring as u32, bb));
+            }
+            out
+        })
+        .collect();
+    // Counting sort by ring.
+    let max_ring = rows
+        .iter()
+        .flat_map(|r| r.iter().map(|(k, _)| *k as usize))
+        .max()
+        .unwrap_or(0);
+    let mut ring_start = vec![0usize; max_ring + 2];
+    for (k, _) in rows.iter().flatten() {
+        ring_start[*k as usize + 1] += 1;
+    }
+    for k in 0..=max_ring {
+        ring_start[k + 1] += ring_start[k];
+    }
+    let mut fill = ring_start.clone();
+    let total = ring_start[max_ring + 1];
+    let mut boxes = vec![
+        BlockBox {
+            bx: 0,
+            by: 0,
+            x0: 0,
+            x1: -1,
+            y0: 0,
+        };
+        total
+    ];
+    for (k, b) in rows.into_iter().flatten() {
+        boxes[fill[k as usize]] = b;
+        fill[k as usize] += 1;
+    }
+    Blocks { boxes, ring_start }
+}
+
+/// A projected vertex: camera coordinates and screen position.
+#[derive(Clone, Copy, Default)]
+struct PVertex {
+    p: [f64; 3],
+    sx: f64,
+    sy: f64,
+    /// 0: in front of the camera (`sx`, `sy` valid), 1: nodata, 2: at or
+    /// behind the camera plane.
+    state: u8,
+}
+
+/// Render image columns `x0..x1`: ray parameters (distance / |d|, with the
+/// unnormalised ray `d`) and triangle ids, column-strip-major rows.
+fn render_strip(
+    terrain: &LocalTerrain,
+    camera: &Camera,
+    m: &VertexToCamera,
+    blocks: &Blocks,
+    x0: usize,
+    x1: usize,
+) -> (Vec<f32>, Vec<u32>) {
+    let h = camera.height;
+    let sw = x1 - x0;
+    let mut tbuf = vec![f32::INFINITY; sw * h];
+    let mut ibuf = vec![SKY; sw * h];
+    // ytop[k]: every pixel of strip column k from this row down is final.
+    let mut ytop = vec![h as i32; sw];
+    let mut verts = vec![PVertex::default(); (BLOCK + 1) * (BLOCK + 1)];
+    let ctx = Raster {
+        terrain,
+        camera,
+        x0: x0 as i32,
+        x1: x1 as i32 - 1,
+        sw,
+        h: h as i32,
+    };
+    let rings = blocks.ring_start.len() - 1;
+    for ring in 0..rings {
+        let mut drew = false;
+        for b in &blocks.boxes[blocks.ring_start[ring]..blocks.ring_start[ring + 1]] {
+            let bx0 = b.x0.max(ctx.x0);
+            let bx1 = b.x1.min(ctx.x1);
+            if bx0 > bx1 {
+                continue;
+            }
+            // Hidden when every column of its box is final below its top.
+            if (bx0..=bx1).all(|x| ytop[(x - ctx.x0) as usize] <= b.y0) {
+                continue;
+            }
+            ctx.draw_block(m, b, &mut verts, &mut tbuf, &mut ibuf);
+            drew = true;
+        }
+        if drew {
+            for (k, yt) in ytop.iter_mut().enumerate() {
+                while *yt > 0 && ibuf[(*yt as usize - 1) * sw + k] != SKY {
+                    *yt -= 1;
+                }
+            }
+        }
+    }
+    (tbuf, ibuf)
+}
+
+/// What one strip task draws into.
+struct Raster<'a> {
+    terrain: &'a LocalTerrain,
+    camera: &'a Camera,
+    /// Inclusive pixel column range of the strip.
+    x0: i32,
+    x1: i32,
+    sw: usize,
+    h: i32,
+}
+
+impl Raster<'_> {
+    fn draw_block(
+        &self,
+        m: &VertexToCamera,
+        b: &BlockBox,
+        verts: &mut [PVertex],
+        tbuf: &mut [f32],
+        ibuf: &mut [u32],
+    ) {
+        let t = self.terrain;
+        let (cx, cy) = (t.nx - 1, t.ny - 1);
+        let c0 = b.bx as usize * BLOCK;
+        let r0 = b.by as usize * BLOCK;
+        let c1 = ((b.bx as usize + 1) * BLOCK).min(cx);
+        let r1 = ((b.by as usize + 1) * BLOCK).min(cy);
+        let vw = c1 - c0 + 1;
+        let (w, h) = (self.camera.width as f64, self.camera.height as f64);
+        let f = self.camera.focal_px;
+        for r in r0..=r1 {
+            for c in c0..=c1 {
+                let z = t.z[r * t.nx + c];
+                let v = &mut verts[(r - r0) * vw + (c - c0)];
+                if z.is_nan() {
+                    v.state = 1;
+                    continue;
+                }
+                let p = m.apply(c as f64, r as f64, z as f64);
+                v.p = p;
+                if p[2] > 0.0 {
+                    v.state = 0;
+                    v.sx = w / 2.0 + f * p[0] / p[2];
+                    v.sy = h / 2.0 - f * p[1] / p[2];
+                } else {
+                    v.state = 2;
+                }
+            }
+        }
+        let cells_x = cx as u32;
+        for r in r0..r1 {
+            for c in c0..c1 {
+                let k = (r - r0) * vw + (c - c0);
+                let (a, bq, cq, d) = (verts[k], verts[k + 1], verts[k + vw], verts[k + vw + 1]);
+                let id = 2 * (r as u32 * cells_x + c as u32);
+                // triangle 0: (c,r) (c+1,r) (c+1,r+1); 1: (c,r) (c,r+1) (c+1,r+1)
+                self.draw_triangle(&a, &bq, &d, id, tbuf, ibuf);
+                self.draw_triangle(&a, &cq, &d, id + 1, tbuf, ibuf);
+            }
+        }
+    }
+
+    #[inline]
+    fn draw_triangle(
+        &self,
+        a: &PVertex,
+        b: &PVertex,
+        c: &PVertex,
+        id: u32,
+        tbuf: &mut [f32],
+        ibuf: &mut [u32],
+    ) {
+        if (a.state | b.state | c.state) & 1 != 0 {
+            return; // hole
+        }
+        let (px0, px1, py0, py1);
+        if a.state | b.state | c.state == 0 {
+            let (sx0, sx1) = (a.sx.min(b.sx).min(c.sx), a.sx.max(b.sx).max(c.sx));
+            let (sy0, sy1) = (a.sy.min(b.sy).min(c.sy), a.sy.max(b.sy).max(c.sy));
+            // pixel centres i + 0.5 within [s0, s1], with a rounding margin
+            px0 = ((sx0 - 0.5 - 1e-7).ceil() as i32).max(self.x0);
+            px1 = ((sx1 - 0.5 + 1e-7).floor() as i32).min(self.x1);
+            if px0 > px1 {
+                return;
+            }
+            py0 = ((sy0 - 0.5 - 1e-7).ceil() as i32).max(0);
+            py1 = ((sy1 - 0.5 + 1e-7).floor() as i32).min(self.h - 1);
+            if py0 > py1 {
+                return;
+            }
+        } else {
+            if a.state & b.state & c.state == 2 {
+                return; // wholly behind the camera
+            }
+            match self.clipped_box(a, b, c) {
+                Some((x0, x1, y0, y1)) => {
+                    px0 = x0;
+                    px1 = x1;
+                    py0 = y0;
+                    py1 = y1;
+                }
+                None => return,
+            }
+        }
+        let (p0, p1, p2) = (a.p, b.p, c.p);
+        let e0 = cross(p1, p2);
+        let e1 = cross(p2, p0);
+        let e2 = cross(p0, p1);
+        let det = dot(p0, e0);
+        if det == 0.0 || !det.is_finite() {
+            return; // edge-on: seen as a line, covers no pixel centre
+        }
+        let s = det.signum();
+        let (w2, h2, f) = (
+            self.camera.width as f64 / 2.0,
+            self.camera.height as f64 / 2.0,
+            self.camera.focal_px,
+        );
+        // E . d with d = (px - w2, h2 - py, f) as  ax * px + ay * py + k
+        let edge = |e: [f64; 3]| {
+            let e = [e[0] * s, e[1] * s, e[2] * s];
+            (e[0], -e[1], e[2] * f - e[0] * w2 + e[1] * h2)
+        };
+        let (a0, b0, k0) = edge(e0);
+        let (a1, b1, k1) = edge(e1);
+        let (a2, b2, k2) = edge(e2);
+        // n . d, n = e0 + e1 + e2 (the normal scaled by 2 * area)
+        let n = [e0[0] + e1[0] + e2[0], e0[1] + e1[1] + e2[1], e0[2] + e1[2] + e2[2]];
+        let (na, nb, nk) = (n[0], -n[1], n[2] * f - n[0] * w2 + n[1] * h2);
+        let sw = self.sw;
+        for py in py0..=py1 {
+            let y = py as f64 + 0.5;
+            let row = py as usize * sw;
+            for px in px0..=px1 {
+                let x = px as f64 + 0.5;
+                let w0 = a0 * x + b0 * y + k0;
+                let w1 = a1 * x + b1 * y + k1;
+                let w2v = a2 * x + b2 * y + k2;
+                if w0 < 0.0 || w1 < 0.0 || w2v < 0.0 {
+                    continue;
+                }
+                let nd = na * x + nb * y + nk;
+                let tt = (det / nd) as f32;
+                let k = row + (px - self.x0) as usize;
+                if tt > 0.0 && tt < tbuf[k] {
+                    tbuf[k] = tt;
+                    ibuf[k] = id;
+                }
+            }
+        }
+    }
+
+    /// Pixel box of a triangle that reaches the camera plane: the part in
+    /// front of a near plane, projected.
+    fn clipped_box(&self, a: &PVertex, b: &PVertex, c: &PVertex) -> Option<(i32, i32, i32, i32)> {
+        let near = 1e-6;
+        let pts = [a.p, b.p, c.p];
+        let (w, h) = (self.camera.width as f64, self.camera.height as f64);
+        let f = self.camera.focal_px;
+        let (mut sx0, mut sx1, mut sy0, mut sy1) = (
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+        );
+        let mut add = |p: [f64; 3]| {
+            let sx = w / 2.0 + f * p[0] / p[2];
+            let sy = h / 2.0 - f * p[1] / p[2];
+            sx0 = sx0.min(sx);
+            sx1 = sx1.max(sx);
+            sy0 = sy0.min(sy);
+            sy1 = sy1.max(sy);
+        };
+        for i in 0..3 {
+            let (p, q) = (pts[i], pts[(i + 1) % 3]);
+            if p[2] >= near {
+                add(p);
+            }
+            if (p[2] >= near) != (q[2] >= near) {
+                let s = (near - p[2]) / (q[2] - p[2]);
+                add([
+                    p[0] + s * (q[0] - p[0]),
+                    p[1] + s * (q[1] - p[1]),
+                    near,
+                ]);
+            }
+        }
+        if !(sx1 >= sx0) {
+            return None;
+        }
+        let x0 = ((sx0 - 1.5).max(-1.0).ceil() as i32).max(self.x0);
+        let x1 = ((sx1 + 0.5).min(w + 1.0).floor() as i32).min(self.x1);
+        let y0 = ((sy0 - 1.5).max(-1.0).ceil() as i32).max(0);
+        let y1 = ((sy1 + 0.5).min(h + 1.0).floor() as i32).min(self.h - 1);
+        (x0 <= x1 && y0 <= y1).then_some((x0, x1, y0, y1))
+    }
+}
+
+#[inline]
+fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+#[inline]
+fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
