@@ -120,7 +120,10 @@ fn assert_raster_equals_casting(terrain: &LocalTerrain, cam: &Camera, what: &str
         "{what}: {terrain_px} terrain pixels equal to ray casting (worst relative depth {worst:.1e}), {other_tri} on shared edges"
     );
     assert!(terrain_px > 0);
-    assert!(other_tri * 1000 <= terrain_px, "{what}: {other_tri} triangle ids differ");
+    assert!(
+        other_tri * 1000 <= terrain_px,
+        "{what}: {other_tri} triangle ids differ"
+    );
 }
 
 #[test]

@@ -12,11 +12,14 @@
 //!    (inverse camera depth is affine on planar triangles, so a continuous
 //!    surface is extrapolated exactly and only real jumps and strong creases
 //!    remain as candidates).
-//! 2. Each candidate is refined on the column's centre line by bisection with
-//!    exact ray casts towards the largest depth gap: a crease closes up
-//!    (rejected), an occlusion boundary converges to the grazing ray, giving
-//!    the silhouette's sub-pixel position and the 3D terrain point that forms
-//!    it (the tangent point on the front-facing/back-facing edge).
+//! 2. Each candidate is refined exactly on the column's centre line: the
+//!    plane of the column's rays cuts the terrain in a polyline, walked
+//!    triangle by triangle from the point the near pixel shows until it
+//!    stops rising as seen from the eye (the front-facing/back-facing edge):
+//!    the grazing ray there gives the silhouette's sub-pixel position and
+//!    the 3D terrain point that forms it; a polyline that rises to the far
+//!    pixel's ray is a crease and is rejected. Where the walk is numerically
+//!    inconclusive, bisection with exact ray casts takes over.
 //! 3. Samples of neighbouring columns are linked into polylines ordered along
 //!    image x when their depths agree and the pixels between them belong to
 //!    the occluding surface.
@@ -41,7 +44,8 @@ pub struct SilhouetteParams {
     /// Pre-filter: relative shortfall of the upper pixel's inverse depth
     /// below the linear continuation of the two pixels under it.
     pub prefilter: f64,
-    /// Bisection steps per candidate (each step halves the bracket, from one pixel).
+    /// Bisection steps per candidate in the fallback refinement by ray
+    /// casting (each step halves the bracket, from one pixel).
     pub refine_iterations: u32,
     /// Samples in neighbouring columns are linked when their depths differ by
     /// less than this fraction.
@@ -249,6 +253,178 @@ fn column_samples(
     out
 }
 
+/// Outcome of following the near surface along a column's plane.
+enum Walk {
+    /// The occluding contour: image row coordinate, local point, triangle.
+    Contour { y: f64, local: [f64; 3], tri: u32 },
+    /// The surface rises continuously to the far pixel's ray: a crease.
+    Crease,
+    /// Numerically inconclusive (fall back to bisection).
+    Inconclusive,
+}
+
+/// Longest walk along the near surface, in triangles.
+const MAX_WALK: usize = 512;
+
+/// Find the occluding contour above the near pixel `(x, y)` exactly, without
+/// casting rays: the rays of image column `x` (through the pixel centres
+/// `x + 0.5`) span a plane through the eye; its intersection with the
+/// terrain is a polyline, walked triangle by triangle away from the eye from
+/// the point the near pixel shows. The contour is the first point where the
+/// polyline, seen from the eye, stops rising (a front-facing/back-facing
+/// edge) and stays below for a relative depth of `min_jump` behind it
+/// (lower bumps within that distance are crossed: they hide nothing of
+/// consequence); the grazing ray there is the silhouette's sub-pixel row. A
+/// polyline that rises to the far pixel's ray is a crease. This is the limit
+/// the bisection of [`refine_bracket`] converges to, at the cost of a few
+/// triangle steps.
+fn walk_to_contour(
+    terrain: &LocalTerrain,
+    db: &DepthBuffer,
+    x: usize,
+    y: usize,
+    min_jump: f64,
+) -> Walk {
+    let cam = &db.camera;
+    let k = y * db.width + x;
+    let (tri0, t_a) = (db.triangle[k], db.depth[k] as f64);
+    let (w, h, f) = (cam.width as f64, cam.height as f64, cam.focal_px);
+    let px = x as f64 + 0.5;
+    let u = px - w / 2.0;
+    let (fw, rt, up) = (cam.forward, cam.right, cam.up);
+    // In-plane outward axis and the plane's normal.
+    let a = [
+        f * fw[0] + u * rt[0],
+        f * fw[1] + u * rt[1],
+        f * fw[2] + u * rt[2],
+    ];
+    let nrm = cross(a, up);
+    let row_of = |p: [f64; 3]| -> Option<f64> {
+        let z = dot(p, fw);
+        (z > 0.0).then(|| h / 2.0 - f * dot(p, up) / z)
+    };
+    let Some(q0) = ray_point(cam, px, y as f64 + 0.5, t_a) else {
+        return Walk::Inconclusive;
+    };
+    let far_y = y as f64 - 0.5;
+    let (mut best_y, mut best, mut best_tri, mut best_d) = (y as f64 + 0.5, q0, tri0, t_a);
+    let (cx, cy) = (terrain.cells_x(), terrain.ny.saturating_sub(1));
+    if cx == 0 || tri0 == crate::render::SKY {
+        return Walk::Inconclusive;
+    }
+    let cell = (tri0 / 2) as usize;
+    let (mut c, mut r, mut half) = (cell % cx, cell / cx, tri0 % 2);
+    let mut entry: Option<[(usize, usize); 2]> = None;
+    for _ in 0..MAX_WALK {
+        let g = if half == 0 {
+            [(c, r), (c + 1, r), (c + 1, r + 1)]
+        } else {
+            [(c, r), (c, r + 1), (c + 1, r + 1)]
+        };
+        let mut pv = [[0.0; 3]; 3];
+        for (i, &(vc, vr)) in g.iter().enumerate() {
+            match terrain.vertex_local(vc, vr) {
+                Some(p) => pv[i] = p,
+                // a hole: the surface ends at the best point so far
+                None if entry.is_some() => {
+                    return Walk::Contour {
+                        y: best_y,
+                        local: best,
+                        tri: best_tri,
+                    }
+                }
+                None => return Walk::Inconclusive,
+            }
+        }
+        let sd = [dot(nrm, pv[0]), dot(nrm, pv[1]), dot(nrm, pv[2])];
+        // the crossing edges other than the entry; at the start, the one
+        // farther out along the plane
+        let mut exit: Option<(usize, [f64; 3])> = None;
+        for e in 0..3 {
+            let (i, j) = (e, (e + 1) % 3);
+            if (sd[i] >= 0.0) == (sd[j] >= 0.0) {
+                continue;
+            }
+            if let Some(en) = entry {
+                if (en[0] == g[i] && en[1] == g[j]) || (en[0] == g[j] && en[1] == g[i]) {
+                    continue;
+                }
+            }
+            let s = sd[i] / (sd[i] - sd[j]);
+            let xp = [
+                pv[i][0] + s * (pv[j][0] - pv[i][0]),
+                pv[i][1] + s * (pv[j][1] - pv[i][1]),
+                pv[i][2] + s * (pv[j][2] - pv[i][2]),
+            ];
+            if exit.is_none_or(|(_, q)| dot(xp, a) > dot(q, a)) {
+                exit = Some((e, xp));
+            }
+        }
+        let Some((e, xp)) = exit else {
+            return Walk::Inconclusive;
+        };
+        let Some(yx) = row_of(xp) else {
+            return Walk::Inconclusive;
+        };
+        let dx = dot(xp, xp).sqrt();
+        let tri = (2 * (r * cx + c) + half as usize) as u32;
+        if yx < best_y {
+            if yx <= far_y {
+                return Walk::Crease;
+            }
+            (best_y, best, best_tri, best_d) = (yx, xp, tri, dx);
+        } else if dx > best_d * (1.0 + min_jump) {
+            return Walk::Contour {
+                y: best_y,
+                local: best,
+                tri: best_tri,
+            };
+        }
+        // Step across the exit edge (see the triangle layout of LocalTerrain).
+        let next = match (half, e) {
+            (0, 0) => (r > 0).then(|| (c, r.wrapping_sub(1), 1)),
+            (0, 1) => (c + 1 < cx).then_some((c + 1, r, 1)),
+            (1, 0) => (c > 0).then(|| (c.wrapping_sub(1), r, 0)),
+            (1, 1) => (r + 1 < cy).then_some((c, r + 1, 0)),
+            (_, _) => Some((c, r, 1 - half)),
+        };
+        let Some((nc, nr, nh)) = next else {
+            // the edge of the terrain: an occlusion boundary
+            return Walk::Contour {
+                y: best_y,
+                local: best,
+                tri: best_tri,
+            };
+        };
+        entry = Some([g[e], g[(e + 1) % 3]]);
+        (c, r, half) = (nc, nr, nh);
+    }
+    Walk::Inconclusive
+}
+
+/// The point at distance `t` along the ray through pixel coordinates `(px, py)`.
+fn ray_point(cam: &crate::view::Camera, px: f64, py: f64, t: f64) -> Option<[f64; 3]> {
+    if !t.is_finite() {
+        return None;
+    }
+    let d = cam.unproject([px, py]);
+    Some([d[0] * t, d[1] * t, d[2] * t])
+}
+
+#[inline]
+fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+#[inline]
+fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
 /// One side of a bisection bracket: row coordinate, hit distance (infinite
 /// for sky) and triangle hit.
 #[derive(Clone, Copy)]
@@ -271,6 +447,28 @@ fn refine(
     out: &mut Vec<SilhouetteSample>,
 ) {
     let w = db.width;
+    match walk_to_contour(terrain, db, x, y, p.min_jump) {
+        Walk::Crease => return,
+        Walk::Contour { y: yc, local, tri } => {
+            let fb = db.depth[(y - 1) * w + x];
+            let (cx, cy, cz) = terrain.frame.local_to_crs(local);
+            let (c, r, _) = terrain.triangle_cell(tri);
+            out.push(SilhouetteSample {
+                pixel: [x as f64 + 0.5, yc],
+                depth: dot(local, local).sqrt(),
+                local,
+                world: [cx, cy, cz],
+                cell: [c as u32, r as u32],
+                depth_behind: if fb.is_finite() {
+                    fb as f64
+                } else {
+                    f64::INFINITY
+                },
+            });
+            return;
+        }
+        Walk::Inconclusive => {}
+    }
     let near = Side {
         y: y as f64 + 0.5,
         t: db.depth[y * w + x] as f64,

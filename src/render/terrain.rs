@@ -46,14 +46,21 @@ pub struct LocalTerrain {
     eye_v: (f64, f64),
     /// Local (east, north) metres -> vertex coordinates.
     en_to_v: [[f64; 2]; 2],
+    zmin: f64,
+    zmax: f64,
+    /// Acceleration structures of ray casting, built on the first cast
+    /// (rasterised views do not need them).
+    index: std::sync::OnceLock<CastIndex>,
+}
+
+/// What [`LocalTerrain::cast`] uses to skip empty space.
+#[derive(Debug, Clone)]
+struct CastIndex {
     /// Max-height pyramid: level l holds the max over blocks of 2^l x 2^l cells.
     mip: Vec<Vec<f32>>,
     mip_dims: Vec<(usize, usize)>,
-    zmin: f64,
-    zmax: f64,
-    /// Horizon bounds for skipping empty space (see [`HorizonIndex`]),
-    /// built on the first ray cast: rasterised views do not need it.
-    horizon: std::sync::OnceLock<Option<HorizonIndex>>,
+    /// Horizon bounds (see [`HorizonIndex`]).
+    horizon: Option<HorizonIndex>,
 }
 
 impl LocalTerrain {
@@ -110,7 +117,19 @@ impl LocalTerrain {
             }
         });
         let eye_v = (ex - 0.5 - c0 as f64, ey - 0.5 - r0 as f64);
-        let mut t = LocalTerrain {
+        let (zmin, zmax) = z
+            .par_chunks(1 << 16)
+            .map(|ch| {
+                ch.iter()
+                    .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &v| {
+                        (a.min(v), b.max(v))
+                    })
+            })
+            .reduce(
+                || (f32::INFINITY, f32::NEG_INFINITY),
+                |x, y| (x.0.min(y.0), x.1.max(y.1)),
+            );
+        LocalTerrain {
             frame: *frame,
             col0: c0,
             row0: r0,
@@ -120,14 +139,23 @@ impl LocalTerrain {
             max_distance: max_d,
             eye_v,
             en_to_v: pinv,
-            mip: Vec::new(),
-            mip_dims: Vec::new(),
-            zmin: 0.0,
-            zmax: 0.0,
-            horizon: std::sync::OnceLock::new(),
-        };
-        t.build_mip();
-        t
+            zmin: zmin as f64,
+            zmax: zmax as f64,
+            index: std::sync::OnceLock::new(),
+        }
+    }
+
+    /// The ray-casting index, built on first use.
+    fn index(&self) -> &CastIndex {
+        self.index.get_or_init(|| {
+            let (mip, mip_dims) = self.build_mip();
+            let horizon = self.build_horizon(&mip, &mip_dims);
+            CastIndex {
+                mip,
+                mip_dims,
+                horizon,
+            }
+        })
     }
 
     /// Mean size of a cell in metres.
@@ -138,16 +166,16 @@ impl LocalTerrain {
 
     /// Build the [`HorizonIndex`] from a pyramid level with at most ~300k
     /// blocks.
-    fn build_horizon(&self) -> Option<HorizonIndex> {
+    fn build_horizon(&self, mips: &[Vec<f32>], dims: &[(usize, usize)]) -> Option<HorizonIndex> {
         if self.nx < 2 || self.ny < 2 || !self.zmax.is_finite() {
             return None;
         }
         let cells = self.cells_x() * (self.ny - 1);
         let mut level = 0;
-        while level + 1 < self.mip.len() && (cells >> (2 * level)) > 300_000 {
+        while level + 1 < mips.len() && (cells >> (2 * level)) > 300_000 {
             level += 1;
         }
-        let (mw, mh) = self.mip_dims[level];
+        let (mw, mh) = dims[level];
         let s = 1usize << level;
         let cell_m = self.cell_m();
         let (wx, wy) = ((self.nx - 1) as f64, (self.ny - 1) as f64);
@@ -157,8 +185,8 @@ impl LocalTerrain {
             max_dh = max_dh.max(e.hypot(n));
         }
         max_dh = max_dh.min(self.max_distance) + cell_m;
-        let mip = &self.mip[level];
-        let this = &*self;
+        let mip = &mips[level];
+        let this = self;
         let index = HorizonIndex::build(
             mh,
             |by, out: &mut Vec<Block>| {
@@ -193,7 +221,8 @@ impl LocalTerrain {
         self.eye_v
     }
 
-    fn build_mip(&mut self) {
+    #[allow(clippy::type_complexity)]
+    fn build_mip(&self) -> (Vec<Vec<f32>>, Vec<(usize, usize)>) {
         let (cx, cy) = (
             self.nx.saturating_sub(1).max(1),
             self.ny.saturating_sub(1).max(1),
@@ -215,22 +244,6 @@ impl LocalTerrain {
                 *out = if m.is_nan() { f32::NEG_INFINITY } else { m };
             }
         });
-        let (zmin, zmax) = self
-            .z
-            .par_chunks(1 << 16)
-            .map(|ch| {
-                ch.iter()
-                    .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &v| {
-                        (a.min(v), b.max(v))
-                    })
-            })
-            .reduce(
-                || (f32::INFINITY, f32::NEG_INFINITY),
-                |x, y| (x.0.min(y.0), x.1.max(y.1)),
-            );
-        let (zmin, zmax) = (zmin as f64, zmax as f64);
-        self.zmin = zmin;
-        self.zmax = zmax;
         let mut mip = vec![l0];
         let mut dims = vec![(cx, cy)];
         while {
@@ -256,8 +269,7 @@ impl LocalTerrain {
             mip.push(next);
             dims.push((w2, h2));
         }
-        self.mip = mip;
-        self.mip_dims = dims;
+        (mip, dims)
     }
 
     /// Lowest and highest apparent vertex height (relative to the eye);
@@ -393,8 +405,7 @@ impl LocalTerrain {
     /// `t_limit` and the maximum view distance. `None`: the ray escapes (sky).
     pub fn cast(&self, d: [f64; 3], t_limit: f64) -> Option<RayHit> {
         let dh = (d[0] * d[0] + d[1] * d[1]).sqrt();
-        let hz = self.horizon.get_or_init(|| self.build_horizon());
-        let Some(hz) = hz.as_ref().filter(|_| dh > 1e-9) else {
+        let Some(hz) = self.index().horizon.as_ref().filter(|_| dh > 1e-9) else {
             return self.traverse(d, 0.0, t_limit);
         };
         // Exactly through the disc around the eye, then from the first
@@ -448,7 +459,8 @@ impl LocalTerrain {
         if !(t1 > t0) {
             return None;
         }
-        let top = self.mip.len() - 1;
+        let CastIndex { mip, mip_dims, .. } = self.index();
+        let top = mip.len() - 1;
         let mut level = top.min(3);
         let mut t = t0;
         let eps = 1e-7 * (1.0 + t1.min(1e7));
@@ -456,7 +468,7 @@ impl LocalTerrain {
             let tp = t + eps;
             let (px, py) = (ox + gx * tp, oy + gy * tp);
             let s = (1usize << level) as f64;
-            let (mw, mh) = self.mip_dims[level];
+            let (mw, mh) = mip_dims[level];
             let (Some((bx, tx)), Some((by, ty))) = (
                 axis_block(ox, gx, px, s, wx, mw, tp),
                 axis_block(oy, gy, py, s, wy, mh, tp),
@@ -465,7 +477,7 @@ impl LocalTerrain {
             };
             let te = tx.min(ty).min(t1).max(tp);
             let ray_min = dz * if dz < 0.0 { te } else { t };
-            if ray_min > self.mip[level][by * mw + bx] as f64 {
+            if ray_min > mip[level][by * mw + bx] as f64 {
                 t = te;
                 if level < top {
                     level += 1;

@@ -475,7 +475,11 @@ impl Raster<'_> {
         let (a1, b1, k1) = edge(e1);
         let (a2, b2, k2) = edge(e2);
         // n . d, n = e0 + e1 + e2 (the normal scaled by 2 * area)
-        let n = [e0[0] + e1[0] + e2[0], e0[1] + e1[1] + e2[1], e0[2] + e1[2] + e2[2]];
+        let n = [
+            e0[0] + e1[0] + e2[0],
+            e0[1] + e1[1] + e2[1],
+            e0[2] + e1[2] + e2[2],
+        ];
         let (na, nb, nk) = (n[0], -n[1], n[2] * f - n[0] * w2 + n[1] * h2);
         let sw = self.sw;
         for py in py0..=py1 {
@@ -528,11 +532,7 @@ impl Raster<'_> {
             }
             if (p[2] >= near) != (q[2] >= near) {
                 let s = (near - p[2]) / (q[2] - p[2]);
-                add([
-                    p[0] + s * (q[0] - p[0]),
-                    p[1] + s * (q[1] - p[1]),
-                    near,
-                ]);
+                add([p[0] + s * (q[0] - p[0]), p[1] + s * (q[1] - p[1]), near]);
             }
         }
         if !(sx1 >= sx0) {

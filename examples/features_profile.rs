@@ -1,0 +1,65 @@
+//! Stage-by-stage timing of feature extraction on the synthetic fractal DEM
+//! of `benches/features.rs` (same DEM, eye and camera), for profiling:
+//! terrain set-up, depth buffer, silhouettes and ridges, best of N runs.
+//!
+//!     cargo run --release --example features_profile -- 4096 [800x450] [runs]
+//!     perf record -g target/release/examples/features_profile 4096
+
+#[path = "../benches/support/fractal.rs"]
+mod fractal;
+
+use demsketch::features::{detect_ridges, extract_silhouettes, RidgeParams, SilhouetteParams};
+use demsketch::render::{DepthBuffer, LocalTerrain};
+use demsketch::view::{Camera, Curvature, LocalFrame};
+use std::time::Instant;
+
+fn best<T>(runs: usize, mut f: impl FnMut() -> T) -> (f64, T) {
+    let mut best = f64::INFINITY;
+    let mut out = None;
+    for _ in 0..runs {
+        let t = Instant::now();
+        let v = f();
+        best = best.min(t.elapsed().as_secs_f64());
+        out = Some(v);
+    }
+    (best * 1e3, out.expect("at least one run"))
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    let n: usize = args.get(1).and_then(|s| s.parse().ok()).unwrap_or(512);
+    let (vw, vh) = args
+        .get(2)
+        .and_then(|s| {
+            let (a, b) = s.split_once('x')?;
+            Some((a.parse().ok()?, b.parse().ok()?))
+        })
+        .unwrap_or((800usize, 450usize));
+    let runs: usize = args.get(3).and_then(|s| s.parse().ok()).unwrap_or(10);
+    let map = fractal::fractal(n);
+    let (ex, ey) = (500_000.0 + 15.0 * n as f64, 4_000_000.0 + 7.5 * n as f64);
+    let (px, py) = map.geotransform.crs_to_pixel(ex, ey).unwrap_or((0.0, 0.0));
+    let ground = map.bilinear(px, py).unwrap_or(0.0);
+    let frame = LocalFrame::planar(
+        &map,
+        (ex, ey),
+        ground + 1.7,
+        Curvature::at_latitude(46.0, 1.0 / 7.0),
+    );
+    let camera = Camera::new(vw, vh, 10.0, 1.0, 0.0, 60.0).expect("camera");
+    let (t_terrain, terrain) = best(runs, || LocalTerrain::new(&map, &frame, None));
+    let (t_depth, db) = best(runs, || DepthBuffer::render(&terrain, &camera));
+    let sp = SilhouetteParams::default();
+    let (t_sil, sil) = best(runs, || {
+        extract_silhouettes(&terrain, &db, &sp).expect("silhouettes")
+    });
+    let rp = RidgeParams::default();
+    let (t_ridges, ridges) = best(runs, || detect_ridges(&map, &rp).expect("ridges"));
+    println!(
+        "{n}x{n}, view {vw}x{vh}, best of {runs}: terrain {t_terrain:.1} ms, depth buffer {t_depth:.1} ms, silhouettes {t_sil:.1} ms ({} curves, {} samples), ridges {t_ridges:.1} ms ({} lines); sum {:.1} ms",
+        sil.curves.len(),
+        sil.sample_count(),
+        ridges.lines.len(),
+        t_terrain + t_depth + t_sil + t_ridges
+    );
+}
