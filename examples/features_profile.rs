@@ -13,16 +13,32 @@ use demsketch::render::{DepthBuffer, LocalTerrain};
 use demsketch::view::{Camera, Curvature, LocalFrame};
 use std::time::Instant;
 
-fn best<T>(runs: usize, mut f: impl FnMut() -> T) -> (f64, T) {
+/// Process CPU time (user + system, all threads) in seconds, from
+/// `/proc/self/stat` (clock ticks of 10 ms; average over many runs).
+fn cpu_s() -> f64 {
+    std::fs::read_to_string("/proc/self/stat")
+        .ok()
+        .and_then(|s| {
+            let rest = &s[s.rfind(')')? + 2..];
+            let f: Vec<&str> = rest.split_whitespace().collect();
+            Some((f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?) / 100.0)
+        })
+        .unwrap_or(0.0)
+}
+
+/// Best wall time (ms) and mean CPU time per run (ms) over `runs` runs.
+fn best<T>(runs: usize, mut f: impl FnMut() -> T) -> ((f64, f64), T) {
     let mut best = f64::INFINITY;
     let mut out = None;
+    let c0 = cpu_s();
     for _ in 0..runs {
         let t = Instant::now();
         let v = f();
         best = best.min(t.elapsed().as_secs_f64());
         out = Some(v);
     }
-    (best * 1e3, out.expect("at least one run"))
+    let cpu = (cpu_s() - c0) / runs as f64;
+    ((best * 1e3, cpu * 1e3), out.expect("at least one run"))
 }
 
 fn main() {
@@ -47,6 +63,24 @@ fn main() {
         Curvature::at_latitude(46.0, 1.0 / 7.0),
     );
     let camera = Camera::new(vw, vh, 10.0, 1.0, 0.0, 60.0).expect("camera");
+    // STAGE=terrain|depth|silhouettes|ridges: run only that stage `runs`
+    // times after one set-up run (for `perf stat`, whose counts do not
+    // depend on the machine's load).
+    if let Ok(stage) = std::env::var("STAGE") {
+        let terrain = LocalTerrain::new(&map, &frame, None);
+        let db = DepthBuffer::render(&terrain, &camera);
+        let sp = SilhouetteParams::default();
+        for _ in 0..runs {
+            match stage.as_str() {
+                "terrain" => drop(LocalTerrain::new(&map, &frame, None)),
+                "depth" => drop(DepthBuffer::render(&terrain, &camera)),
+                "silhouettes" => drop(extract_silhouettes(&terrain, &db, &sp)),
+                "ridges" => drop(detect_ridges(&map, &RidgeParams::default())),
+                _ => {}
+            }
+        }
+        return;
+    }
     let (t_terrain, terrain) = best(runs, || LocalTerrain::new(&map, &frame, None));
     let (t_depth, db) = best(runs, || DepthBuffer::render(&terrain, &camera));
     let sp = SilhouetteParams::default();
@@ -55,11 +89,17 @@ fn main() {
     });
     let rp = RidgeParams::default();
     let (t_ridges, ridges) = best(runs, || detect_ridges(&map, &rp).expect("ridges"));
+    let ms = |t: (f64, f64)| format!("{:.1} ms (cpu {:.1})", t.0, t.1);
     println!(
-        "{n}x{n}, view {vw}x{vh}, best of {runs}: terrain {t_terrain:.1} ms, depth buffer {t_depth:.1} ms, silhouettes {t_sil:.1} ms ({} curves, {} samples), ridges {t_ridges:.1} ms ({} lines); sum {:.1} ms",
+        "{n}x{n}, view {vw}x{vh}, best of {runs}: terrain {}, depth buffer {}, silhouettes {} ({} curves, {} samples), ridges {} ({} lines); sum {:.1} ms (cpu {:.1})",
+        ms(t_terrain),
+        ms(t_depth),
+        ms(t_sil),
         sil.curves.len(),
         sil.sample_count(),
+        ms(t_ridges),
         ridges.lines.len(),
-        t_terrain + t_depth + t_sil + t_ridges
+        t_terrain.0 + t_depth.0 + t_sil.0 + t_ridges.0,
+        t_terrain.1 + t_depth.1 + t_sil.1 + t_ridges.1
     );
 }

@@ -190,19 +190,54 @@ pub fn extract_silhouettes(
             "silhouette min_jump and link_depth must be > 0 and max_link_dy >= 1".into(),
         ));
     }
-    let columns: Vec<Vec<SilhouetteSample>> = (0..w)
+    // Columns in groups: one pass over the group's rows (contiguous in the
+    // row-major buffer) makes each column's depths contiguous.
+    let columns: Vec<Vec<SilhouetteSample>> = (0..w.div_ceil(COLUMN_GROUP))
         .into_par_iter()
-        .map(|x| column_samples(terrain, depth, params, x))
+        .flat_map_iter(|g| {
+            let x0 = g * COLUMN_GROUP;
+            let x1 = (x0 + COLUMN_GROUP).min(w);
+            let cols = column_depths(depth, x0, x1);
+            (x0..x1)
+                .map(|x| column_samples(terrain, depth, params, x, &cols[(x - x0) * h..][..h]))
+                .collect::<Vec<_>>()
+        })
         .collect();
     let (curves, where_) = link(depth, params, &columns);
     let junctions = find_junctions(&curves, &where_, params);
     Ok(Silhouettes { curves, junctions })
 }
 
-/// Camera-axis factor of pixel `(x, y)`: camera depth = distance * factor.
-#[inline]
-fn axis_factor(f: f64, u: f64, v: f64) -> f64 {
-    f / (f * f + u * u + v * v).sqrt()
+/// Image columns handled together by one task.
+const COLUMN_GROUP: usize = 16;
+
+/// Column-major `(distance, inverse camera depth)` of image columns
+/// `x0..x1` (inverse depth 0 for sky). Inverse camera depth is affine along
+/// a planar triangle's image, which is what the candidate pre-filter uses.
+fn column_depths(db: &DepthBuffer, x0: usize, x1: usize) -> Vec<(f32, f32)> {
+    let (w, h) = (db.width, db.height);
+    let f = db.camera.focal_px as f32;
+    let n = x1 - x0;
+    let u2: Vec<f32> = (x0..x1)
+        .map(|x| {
+            let u = x as f32 + 0.5 - w as f32 / 2.0;
+            u * u + f * f
+        })
+        .collect();
+    let mut out = vec![(f32::INFINITY, 0.0); n * h];
+    let mut inv = vec![0f32; n];
+    for y in 0..h {
+        let v = h as f32 / 2.0 - (y as f32 + 0.5);
+        let row = &db.depth[y * w + x0..y * w + x1];
+        // camera depth = distance * f / |(u, v, f)|; sky (infinite) gives 0
+        for ((o, &d), &uu) in inv.iter_mut().zip(row).zip(&u2) {
+            *o = (uu + v * v).sqrt() / (d * f);
+        }
+        for (k, (&d, &iz)) in row.iter().zip(&inv).enumerate() {
+            out[k * h + y] = (d, iz);
+        }
+    }
+    out
 }
 
 /// Candidates and refined samples of one image column.
@@ -211,35 +246,24 @@ fn column_samples(
     db: &DepthBuffer,
     p: &SilhouetteParams,
     x: usize,
+    col: &[(f32, f32)],
 ) -> Vec<SilhouetteSample> {
-    let (w, h) = (db.width, db.height);
-    let cam = &db.camera;
-    let f = cam.focal_px;
-    let u = x as f64 + 0.5 - w as f64 / 2.0;
-    // inverse camera depth of row y (0 for sky)
-    let inv = |y: usize| -> f64 {
-        let d = db.depth[y * w + x];
-        if d.is_finite() {
-            let v = h as f64 / 2.0 - (y as f64 + 0.5);
-            1.0 / (d as f64 * axis_factor(f, u, v))
-        } else {
-            0.0
-        }
-    };
+    let h = db.height;
     let mut out = Vec::new();
     for y in 1..h {
-        let near = db.depth[y * w + x];
+        let (near, wp) = col[y];
         if !near.is_finite() {
             continue;
         }
-        let far = db.depth[(y - 1) * w + x];
+        let wp = wp as f64;
+        let (far, wq) = col[y - 1];
+        let wq = wq as f64;
         if far.is_finite() && far as f64 <= near as f64 * (1.0 + p.min_jump) {
             continue;
         }
         if far.is_finite() {
-            let (wq, wp) = (inv(y - 1), inv(y));
-            let pred = if y + 1 < h && db.depth[(y + 1) * w + x].is_finite() {
-                (2.0 * wp - inv(y + 1)).min(wp)
+            let pred = if y + 1 < h && col[y + 1].0.is_finite() {
+                (2.0 * wp - col[y + 1].1 as f64).min(wp)
             } else {
                 wp
             };

@@ -90,30 +90,31 @@ impl LocalTerrain {
         let ny = r1.saturating_sub(r0).max(1);
         let coef = frame.curvature.coefficient();
         let eye_alt = frame.eye_alt;
-        let mut z = vec![f32::NAN; nx * ny];
+        // Zeroed allocation: the pages are mapped by the parallel fill below,
+        // which writes every element.
+        let mut z = vec![0f32; nx * ny];
+        let max_d2 = max_d * max_d * 1.0001 + 1.0;
         z.par_chunks_mut(nx).enumerate().for_each(|(r, row)| {
             let src_r = r0 + r;
             if src_r >= dem.height {
+                row.fill(f32::NAN);
                 return;
             }
             let dy = src_r as f64 + 0.5 - ey;
+            let src = &dem.data[src_r * dem.width..(src_r + 1) * dem.width];
             for (c, out) in row.iter_mut().enumerate() {
                 let src_c = c0 + c;
-                if src_c >= dem.width {
-                    continue;
-                }
-                let h = dem.data[src_r * dem.width + src_c];
-                if h.is_nan() {
-                    continue;
-                }
+                let h = src.get(src_c).copied().unwrap_or(f32::NAN);
                 let dx = src_c as f64 + 0.5 - ex;
                 let e = p[0][0] * dx + p[0][1] * dy;
                 let n = p[1][0] * dx + p[1][1] * dy;
                 let d2 = e * e + n * n;
-                if d2 > max_d * max_d * 1.0001 + 1.0 {
-                    continue;
-                }
-                *out = (h as f64 - eye_alt - coef * d2) as f32;
+                // NaN heights stay NaN
+                *out = if d2 > max_d2 {
+                    f32::NAN
+                } else {
+                    (h as f64 - eye_alt - coef * d2) as f32
+                };
             }
         });
         let eye_v = (ex - 0.5 - c0 as f64, ey - 0.5 - r0 as f64);

@@ -41,7 +41,7 @@ use rayon::prelude::*;
 const BLOCK: usize = 16;
 
 /// Pixel columns per strip rendered by one task.
-const STRIP: usize = 64;
+const STRIP: usize = 128;
 
 /// The camera in the terrain's vertex coordinates: camera coordinates
 /// (right, up, forward) of vertex `(c, r)` with apparent height `z` are
@@ -120,26 +120,23 @@ pub(crate) fn rasterise(terrain: &LocalTerrain, camera: &Camera) -> (Vec<f32>, V
             (x0, t, id)
         })
         .collect();
-    // Scatter the strips and turn ray parameters into distances.
-    let f = camera.focal_px;
+    // Scatter the strips and turn ray parameters into distances (sky: an
+    // infinite parameter gives an infinite distance).
+    let f = camera.focal_px as f32;
     depth
         .par_chunks_mut(w)
         .zip(triangle.par_chunks_mut(w))
         .enumerate()
         .for_each(|(j, (drow, trow))| {
-            let v = h as f64 / 2.0 - (j as f64 + 0.5);
+            let v = h as f32 / 2.0 - (j as f32 + 0.5);
+            let vf = v * v + f * f;
             for (x0, t, id) in &strips {
                 let sw = t.len() / h;
-                for k in 0..sw {
-                    let i = x0 + k;
-                    let tri = id[j * sw + k];
-                    if tri == SKY {
-                        continue;
-                    }
-                    let u = i as f64 + 0.5 - w as f64 / 2.0;
-                    let len = (u * u + v * v + f * f).sqrt();
-                    drow[i] = (t[j * sw + k] as f64 * len) as f32;
-                    trow[i] = tri;
+                let (ts, ids) = (&t[j * sw..(j + 1) * sw], &id[j * sw..(j + 1) * sw]);
+                trow[*x0..x0 + sw].copy_from_slice(ids);
+                for ((out, &tt), i) in drow[*x0..x0 + sw].iter_mut().zip(ts).zip(*x0..) {
+                    let u = i as f32 + 0.5 - w as f32 / 2.0;
+                    *out = tt * (u * u + vf).sqrt();
                 }
             }
         });
@@ -335,7 +332,7 @@ fn render_strip(
             if (bx0..=bx1).all(|x| ytop[(x - ctx.x0) as usize] <= b.y0) {
                 continue;
             }
-            ctx.draw_block(m, b, &mut verts, &mut tbuf, &mut ibuf);
+            ctx.draw_block(m, b, &mut verts, &ytop, &mut tbuf, &mut ibuf);
             drew = true;
         }
         if drew {
@@ -366,6 +363,7 @@ impl Raster<'_> {
         m: &VertexToCamera,
         b: &BlockBox,
         verts: &mut [PVertex],
+        ytop: &[i32],
         tbuf: &mut [f32],
         ibuf: &mut [u32],
     ) {
@@ -390,8 +388,9 @@ impl Raster<'_> {
                 v.p = p;
                 if p[2] > 0.0 {
                     v.state = 0;
-                    v.sx = w / 2.0 + f * p[0] / p[2];
-                    v.sy = h / 2.0 - f * p[1] / p[2];
+                    let q = f / p[2];
+                    v.sx = w / 2.0 + p[0] * q;
+                    v.sy = h / 2.0 - p[1] * q;
                 } else {
                     v.state = 2;
                 }
@@ -404,19 +403,21 @@ impl Raster<'_> {
                 let (a, bq, cq, d) = (verts[k], verts[k + 1], verts[k + vw], verts[k + vw + 1]);
                 let id = 2 * (r as u32 * cells_x + c as u32);
                 // triangle 0: (c,r) (c+1,r) (c+1,r+1); 1: (c,r) (c,r+1) (c+1,r+1)
-                self.draw_triangle(&a, &bq, &d, id, tbuf, ibuf);
-                self.draw_triangle(&a, &cq, &d, id + 1, tbuf, ibuf);
+                self.draw_triangle(&a, &bq, &d, id, ytop, tbuf, ibuf);
+                self.draw_triangle(&a, &cq, &d, id + 1, ytop, tbuf, ibuf);
             }
         }
     }
 
     #[inline]
+    #[allow(clippy::too_many_arguments)]
     fn draw_triangle(
         &self,
         a: &PVertex,
         b: &PVertex,
         c: &PVertex,
         id: u32,
+        ytop: &[i32],
         tbuf: &mut [f32],
         ibuf: &mut [u32],
     ) {
@@ -428,14 +429,21 @@ impl Raster<'_> {
             let (sx0, sx1) = (a.sx.min(b.sx).min(c.sx), a.sx.max(b.sx).max(c.sx));
             let (sy0, sy1) = (a.sy.min(b.sy).min(c.sy), a.sy.max(b.sy).max(c.sy));
             // pixel centres i + 0.5 within [s0, s1], with a rounding margin
-            px0 = ((sx0 - 0.5 - 1e-7).ceil() as i32).max(self.x0);
-            px1 = ((sx1 - 0.5 + 1e-7).floor() as i32).min(self.x1);
+            px0 = ceil_i32(sx0 - 0.5 - 1e-7).max(self.x0);
+            px1 = floor_i32(sx1 - 0.5 + 1e-7).min(self.x1);
             if px0 > px1 {
                 return;
             }
-            py0 = ((sy0 - 0.5 - 1e-7).ceil() as i32).max(0);
-            py1 = ((sy1 - 0.5 + 1e-7).floor() as i32).min(self.h - 1);
+            py0 = ceil_i32(sy0 - 0.5 - 1e-7).max(0);
+            py1 = floor_i32(sy1 - 0.5 + 1e-7).min(self.h - 1);
             if py0 > py1 {
+                return;
+            }
+            // hidden behind what earlier rings drew
+            if ytop[(px0 - self.x0) as usize..=(px1 - self.x0) as usize]
+                .iter()
+                .all(|&t| t <= py0)
+            {
                 return;
             }
         } else {
@@ -482,10 +490,33 @@ impl Raster<'_> {
         ];
         let (na, nb, nk) = (n[0], -n[1], n[2] * f - n[0] * w2 + n[1] * h2);
         let sw = self.sw;
+        let edges = [(a0, b0, k0), (a1, b1, k1), (a2, b2, k2)];
         for py in py0..=py1 {
             let y = py as f64 + 0.5;
             let row = py as usize * sw;
-            for px in px0..=px1 {
+            // The span of the row inside all three edges, widened by a pixel
+            // on each side; the exact test below decides each pixel.
+            let (mut lo, mut hi) = (px0, px1);
+            if px1 - px0 > 3 {
+                let (mut xl, mut xh) = (f64::NEG_INFINITY, f64::INFINITY);
+                for &(a, b, k) in &edges {
+                    let c = b * y + k;
+                    if a > 0.0 {
+                        xl = xl.max(-c / a);
+                    } else if a < 0.0 {
+                        xh = xh.min(-c / a);
+                    } else if c < 0.0 {
+                        xh = f64::NEG_INFINITY;
+                    }
+                }
+                if !(xh >= xl) {
+                    continue;
+                }
+                // pixel centres px + 0.5 in [xl, xh], one pixel of margin
+                lo = lo.max(floor_i32(xl - 1.5));
+                hi = hi.min(floor_i32(xh + 0.5));
+            }
+            for px in lo..=hi {
                 let x = px as f64 + 0.5;
                 let w0 = a0 * x + b0 * y + k0;
                 let w1 = a1 * x + b1 * y + k1;
@@ -544,6 +575,20 @@ impl Raster<'_> {
         let y1 = ((sy1 + 0.5).min(h + 1.0).floor() as i32).min(self.h - 1);
         (x0 <= x1 && y0 <= y1).then_some((x0, x1, y0, y1))
     }
+}
+
+/// `floor` to i32 without a libm call or a branch, saturating far outside
+/// the image (truncation is floor for the positive shifted value).
+#[inline]
+fn floor_i32(v: f64) -> i32 {
+    const SHIFT: f64 = 4_194_304.0;
+    (v.clamp(-4e6, 4e6) + SHIFT) as i32 - SHIFT as i32
+}
+
+/// `ceil` to i32, as [`floor_i32`].
+#[inline]
+fn ceil_i32(v: f64) -> i32 {
+    -floor_i32(-v)
 }
 
 #[inline]
