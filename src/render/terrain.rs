@@ -123,7 +123,8 @@ impl LocalTerrain {
             .map(|ch| {
                 ch.iter()
                     .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &v| {
-                        (a.min(v), b.max(v))
+                        // comparisons skip NaN and vectorise
+                        (if v < a { v } else { a }, if v > b { v } else { b })
                     })
             })
             .reduce(

@@ -182,9 +182,9 @@ fn block_boxes(terrain: &LocalTerrain, camera: &Camera, m: &VertexToCamera) -> B
                 let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
                 for r in r0..=r1 {
                     for &v in &z[r * nx + c0..=r * nx + c1] {
-                        // min/max ignore NaN (nodata) unless all are NaN
-                        lo = lo.min(v);
-                        hi = hi.max(v);
+                        // comparisons skip NaN (nodata) and vectorise
+                        lo = if v < lo { v } else { lo };
+                        hi = if v > hi { v } else { hi };
                     }
                 }
                 if !(hi >= lo) {
