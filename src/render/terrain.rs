@@ -48,19 +48,18 @@ pub struct LocalTerrain {
     en_to_v: [[f64; 2]; 2],
     zmin: f64,
     zmax: f64,
-    /// Acceleration structures of ray casting, built on the first cast
-    /// (rasterised views do not need them).
+    /// Acceleration structures of ray casting, built on first use
+    /// (rasterised views need neither).
     index: std::sync::OnceLock<CastIndex>,
+    horizon: std::sync::OnceLock<Option<HorizonIndex>>,
 }
 
-/// What [`LocalTerrain::cast`] uses to skip empty space.
+/// The max-height pyramid every cast traverses: level l holds the max over
+/// blocks of 2^l x 2^l cells.
 #[derive(Debug, Clone)]
 struct CastIndex {
-    /// Max-height pyramid: level l holds the max over blocks of 2^l x 2^l cells.
     mip: Vec<Vec<f32>>,
     mip_dims: Vec<(usize, usize)>,
-    /// Horizon bounds (see [`HorizonIndex`]).
-    horizon: Option<HorizonIndex>,
 }
 
 impl LocalTerrain {
@@ -144,20 +143,26 @@ impl LocalTerrain {
             zmin: zmin as f64,
             zmax: zmax as f64,
             index: std::sync::OnceLock::new(),
+            horizon: std::sync::OnceLock::new(),
         }
     }
 
-    /// The ray-casting index, built on first use.
+    /// The max-height pyramid, built on first use.
     fn index(&self) -> &CastIndex {
         self.index.get_or_init(|| {
             let (mip, mip_dims) = self.build_mip();
-            let horizon = self.build_horizon(&mip, &mip_dims);
-            CastIndex {
-                mip,
-                mip_dims,
-                horizon,
-            }
+            CastIndex { mip, mip_dims }
         })
+    }
+
+    /// The horizon index, built on first use.
+    fn horizon(&self) -> Option<&HorizonIndex> {
+        self.horizon
+            .get_or_init(|| {
+                let idx = self.index();
+                self.build_horizon(&idx.mip, &idx.mip_dims)
+            })
+            .as_ref()
     }
 
     /// Mean size of a cell in metres.
@@ -402,12 +407,22 @@ impl LocalTerrain {
         (l > 0.0).then(|| [n[0] / l, n[1] / l, n[2] / l])
     }
 
+    /// As [`LocalTerrain::cast`], for a few short rays: uses the horizon
+    /// index when it exists but does not build it (building it costs more
+    /// than a few hundred casts of bounded length gain from it).
+    pub fn cast_within(&self, d: [f64; 3], t_limit: f64) -> Option<RayHit> {
+        if self.horizon.get().is_some() {
+            return self.cast(d, t_limit);
+        }
+        self.traverse(d, 0.0, t_limit)
+    }
+
     /// The first intersection of the ray from the eye along unit direction
     /// `d` (local frame) with the triangulated terrain, within distance
     /// `t_limit` and the maximum view distance. `None`: the ray escapes (sky).
     pub fn cast(&self, d: [f64; 3], t_limit: f64) -> Option<RayHit> {
         let dh = (d[0] * d[0] + d[1] * d[1]).sqrt();
-        let Some(hz) = self.index().horizon.as_ref().filter(|_| dh > 1e-9) else {
+        let Some(hz) = self.horizon().filter(|_| dh > 1e-9) else {
             return self.traverse(d, 0.0, t_limit);
         };
         // Exactly through the disc around the eye, then from the first
