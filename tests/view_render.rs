@@ -61,6 +61,8 @@ fn ray_casting_is_exact_on_the_triangulated_height_field() {
     let ground = dem.bilinear(10.3, 12.7).unwrap();
     let frame = LocalFrame::planar(&dem, (ex, ey), ground + 2.0, Curvature::default());
     let terrain = LocalTerrain::new(&dem, &frame, None);
+    // A second copy only ever cast with `cast_within` (no horizon index).
+    let bounded = LocalTerrain::new(&dem, &frame, None);
     let ntri = 2 * 47 * 47;
     let mut checked = 0;
     let mut worst: f64 = 0.0;
@@ -69,6 +71,7 @@ fn ray_casting_is_exact_on_the_triangulated_height_field() {
         let el = (rng.next() - 0.7) * 0.6;
         let d = [az.sin() * el.cos(), az.cos() * el.cos(), el.sin()];
         let fast = terrain.cast(d, f64::INFINITY);
+        assert_eq!(bounded.cast_within(d, f64::INFINITY), fast);
         let mut best: Option<(f64, u32)> = None;
         for id in 0..ntri as u32 {
             if let Some(t) = terrain.triangle_vertices(id).and_then(|tv| tri_hit(d, tv)) {
