@@ -16,6 +16,7 @@
 
 use rayon::prelude::*;
 
+use super::candidates::{CandidateSet, BAND};
 use super::spanning_forest::spanning_forest;
 use super::FeatureError;
 use crate::raster::HeightMap;
@@ -113,6 +114,23 @@ pub(super) const DIRS: [(isize, isize); 8] = [
     (1, -1),
 ];
 
+/// Number of set bits of each mask value: a cell's degree in the forest.
+const DEGREE: [u8; 256] = {
+    let mut t = [0u8; 256];
+    let mut m = 0;
+    while m < 256 {
+        t[m] = (m as u8).count_ones() as u8;
+        m += 1;
+    }
+    t
+};
+
+/// Degree of a cell with adjacency mask `m`.
+#[inline(always)]
+pub(super) fn degree(m: u8) -> u32 {
+    DEGREE[m as usize] as u32
+}
+
 /// Detect the ridge network of `map`.
 pub fn detect_ridges(map: &HeightMap, params: &RidgeParams) -> Result<RidgeNetwork, FeatureError> {
     let (w, h) = (map.width, map.height);
@@ -144,72 +162,155 @@ pub fn detect_ridges(map: &HeightMap, params: &RidgeParams) -> Result<RidgeNetwo
     let min_line = params.min_line_m.unwrap_or(5.0 * cell_m);
 
     let cand = profile_recognition(map, params);
-    let candidate_cells = cand.par_iter().filter(|&&c| c).count();
     let mut mask = spanning_forest(&map.data, &cand, w, h);
-    drop(cand);
-    for _ in 0..params.prune_passes {
-        prune(&mut mask, w, &metric, min_branch, min_line);
-    }
-    let mut net = trace(map, &mask, &metric, params.smooth_iterations);
-    net.candidate_cells = candidate_cells;
+    let forest = Forest::new(&cand, w);
+    prune(
+        &forest,
+        &mut mask,
+        &metric,
+        (min_branch, min_line),
+        params.prune_passes,
+    );
+    let mut net = trace(map, &forest, &mask, &metric, params.smooth_iterations);
+    net.candidate_cells = cand.len();
     Ok(net)
 }
 
-/// Profile recognition: `true` for cells that are a crest of at least
-/// `min_directions` of the four profiles through them.
-fn profile_recognition(map: &HeightMap, p: &RidgeParams) -> Vec<bool> {
+/// Profile recognition: the cells that are a crest of at least
+/// `min_directions` of the four profiles through them, in parallel by bands
+/// of rows.
+fn profile_recognition(map: &HeightMap, p: &RidgeParams) -> CandidateSet {
     let (w, h) = (map.width, map.height);
-    let data = &map.data;
-    let hw = p.half_window;
-    let drop = p.min_drop_m;
-    let mut cand = vec![false; w * h];
-    cand.par_chunks_mut(w).enumerate().for_each_init(
-        || (vec![0f32; w], vec![0f32; w], vec![0u8; w]),
-        |(min_a, min_b, count), (row, out)| {
-            count.iter_mut().for_each(|c| *c = 0);
-            let centre = &data[row * w..(row + 1) * w];
-            for &(dx, dy) in &DIRS[..4] {
-                min_a.iter_mut().for_each(|v| *v = f32::NAN);
-                min_b.iter_mut().for_each(|v| *v = f32::NAN);
-                for k in 1..=hw as isize {
-                    // side A: (col + k dx, row + k dy); side B: (col - k dx, row - k dy)
-                    for (side, s) in [(&mut *min_a, 1isize), (&mut *min_b, -1isize)] {
-                        let r = row as isize + s * k * dy;
-                        if r < 0 || r >= h as isize {
-                            continue;
-                        }
-                        let src = &data[r as usize * w..(r as usize + 1) * w];
-                        let off = s * k * dx;
-                        let (c0, c1) = if off >= 0 {
-                            (0usize, w.saturating_sub(off as usize))
-                        } else {
-                            ((-off) as usize, w)
-                        };
-                        if c0 >= c1 {
-                            continue;
-                        }
-                        let src = &src[(c0 as isize + off) as usize..(c1 as isize + off) as usize];
-                        for (m, &v) in side[c0..c1].iter_mut().zip(src) {
-                            *m = m.min(v);
-                        }
-                    }
-                }
-                for ((c, &z), (&a, &b)) in count
-                    .iter_mut()
-                    .zip(centre)
-                    .zip(min_a.iter().zip(min_b.iter()))
-                {
-                    *c += (z - a > drop && z - b > drop) as u8;
-                }
-            }
-            for (o, &c) in out.iter_mut().zip(count.iter()) {
-                *o = c >= p.min_directions;
-            }
-        },
-    );
-    cand
+    let mut bits = vec![0u64; (w * h).div_ceil(64)];
+    // `w` words hold the `BAND` rows of a band.
+    bits.par_chunks_mut(w)
+        .enumerate()
+        .for_each(|(band, words)| profile_band(map, p, band * BAND, words));
+    CandidateSet::from_bits(bits, &map.data, w, h)
 }
 
+/// Profile recognition of the rows from `r0` (at most `BAND`), into the
+/// band's bitmap words.
+///
+/// The rows around the current one sit in a ring of padded copies where
+/// cells outside the DEM and NaN cells are `+inf`, so the lowest point of a
+/// profile side is a plain minimum over fixed offsets (a side with no valid
+/// cell stays `+inf` and never shows a drop, as before with NaN).
+#[inline(never)]
+fn profile_band(map: &HeightMap, p: &RidgeParams, r0: usize, words: &mut [u64]) {
+    let (w, h) = (map.width, map.height);
+    let hw = p.half_window;
+    let r1 = (r0 + BAND).min(h);
+    let w8 = w.next_multiple_of(8);
+    let wp = w8 + 2 * hw;
+    let slots = 2 * hw + 1;
+    let mut ring = vec![f32::INFINITY; slots * wp];
+    let fill = |ring: &mut [f32], r: isize| {
+        let slot = r.rem_euclid(slots as isize) as usize;
+        let row = &mut ring[slot * wp + hw..slot * wp + hw + w];
+        if r < 0 || r >= h as isize {
+            row.fill(f32::INFINITY);
+        } else {
+            let src = &map.data[r as usize * w..(r as usize + 1) * w];
+            for (d, &v) in row.iter_mut().zip(src) {
+                *d = if v.is_nan() { f32::INFINITY } else { v };
+            }
+        }
+    };
+    let (r0i, hwi) = (r0 as isize, hw as isize);
+    for r in r0i - hwi..r0i + hwi {
+        fill(&mut ring, r);
+    }
+    let mut centre = vec![f32::NAN; w8];
+    let mut flags = vec![0u8; words.len() * 64 + 8];
+    let mut starts = Vec::with_capacity(8 * hw);
+    for r in r0..r1 {
+        let ri = r as isize;
+        fill(&mut ring, ri + hwi);
+        starts.clear();
+        for &(dx, dy) in &DIRS[..4] {
+            for side in [1isize, -1] {
+                for k in 1..=hwi {
+                    let slot = (ri + side * k * dy).rem_euclid(slots as isize) as usize;
+                    starts.push(slot * wp + (hwi + side * k * dx) as usize);
+                }
+            }
+        }
+        centre[..w].copy_from_slice(&map.data[r * w..(r + 1) * w]);
+        let out = &mut flags[(r - r0) * w..(r - r0) * w + w8];
+        profile_row(&ring, &starts, hw, &centre, p, out);
+    }
+    flags[(r1 - r0) * w..].fill(0);
+    for (word, f) in words.iter_mut().zip(flags.chunks_exact(64)) {
+        *word = pack_flags(f);
+    }
+}
+
+/// The smaller of `a` and `b` (one `minps`; no NaN reaches it).
+#[inline(always)]
+fn lower(a: f32, b: f32) -> f32 {
+    if b < a {
+        b
+    } else {
+        a
+    }
+}
+
+/// Candidate flags (0 or 1) of one row, 8 cells at a time. `starts[(2 * dir
+/// + side) * hw + k - 1]` is where, in `ring`, the profile point `k` cells
+/// from the first cell along direction `dir` (side 0) or against it (side 1)
+/// lies.
+#[inline(never)]
+fn profile_row(
+    ring: &[f32],
+    starts: &[usize],
+    hw: usize,
+    centre: &[f32],
+    p: &RidgeParams,
+    out: &mut [u8],
+) {
+    let (drop, min_dirs) = (p.min_drop_m, p.min_directions as i32);
+    for (o, (z, out)) in centre
+        .chunks_exact(8)
+        .zip(out.chunks_exact_mut(8))
+        .enumerate()
+    {
+        let o = o * 8;
+        let mut count = [0i32; 8];
+        for dir in 0..4 {
+            let mut a = [f32::INFINITY; 8];
+            let mut b = [f32::INFINITY; 8];
+            for k in 0..hw {
+                let sa = &ring[starts[2 * dir * hw + k] + o..][..8];
+                let sb = &ring[starts[(2 * dir + 1) * hw + k] + o..][..8];
+                for i in 0..8 {
+                    a[i] = lower(a[i], sa[i]);
+                    b[i] = lower(b[i], sb[i]);
+                }
+            }
+            for i in 0..8 {
+                count[i] += (z[i] - a[i] > drop && z[i] - b[i] > drop) as i32;
+            }
+        }
+        for i in 0..8 {
+            out[i] = (count[i] >= min_dirs) as u8;
+        }
+    }
+}
+
+/// 64 flags (0 or 1) as the bits of a word.
+#[inline]
+fn pack_flags(f: &[u8]) -> u64 {
+    let mut word = 0u64;
+    for (j, bytes) in f.chunks_exact(8).enumerate() {
+        let mut b = [0u8; 8];
+        b.copy_from_slice(bytes);
+        // Byte j of a 0/1 word lands on bit j of the top byte.
+        let byte = u64::from_le_bytes(b).wrapping_mul(0x0102_0408_1020_4080) >> 56;
+        word |= byte << (8 * j);
+    }
+    word
+}
 /// Horizontal metres per pixel step, and 3D lengths.
 struct Metric {
     gt: [f64; 6],
@@ -252,168 +353,286 @@ impl Metric {
     }
 }
 
-fn neighbour(c: usize, d: usize, w: usize) -> usize {
-    let (dx, dy) = DIRS[d];
-    (c as isize + dy * w as isize + dx) as usize
+/// Moving along the forest: cell offsets of the mask directions and the
+/// candidates' ids, cells and heights.
+struct Forest<'a> {
+    cand: &'a CandidateSet,
+    off: [isize; 8],
 }
 
-/// Walk from `start` out along direction `d` until a cell whose degree is not
-/// 2. Returns the cells visited (start included) and the walked length.
-fn walk(mask: &[u8], w: usize, metric: &Metric, start: usize, mut d: usize) -> (Vec<usize>, f64) {
-    let mut path = vec![start];
-    let mut len = 0.0;
-    let mut c = start;
+impl<'a> Forest<'a> {
+    fn new(cand: &'a CandidateSet, w: usize) -> Self {
+        Forest {
+            cand,
+            off: std::array::from_fn(|d| DIRS[d].1 * w as isize + DIRS[d].0),
+        }
+    }
+
+    /// The cell and candidate id one step from `cell` along direction `d`
+    /// (which must lead to a candidate).
+    #[inline]
+    fn step(&self, cell: usize, d: usize) -> (usize, usize) {
+        let n = (cell as isize + self.off[d]) as usize;
+        (n, self.cand.id(n) as usize)
+    }
+}
+
+/// Ids whose mask satisfies `keep`, in order (scanned in parallel).
+fn select(mask: &[u8], keep: impl Fn(u8) -> bool + Sync) -> Vec<u32> {
+    const CHUNK: usize = 1 << 16;
+    let parts: Vec<Vec<u32>> = mask
+        .par_chunks(CHUNK)
+        .enumerate()
+        .map(|(k, chunk)| {
+            let base = (k * CHUNK) as u32;
+            let mut v = Vec::new();
+            for (i, &m) in chunk.iter().enumerate() {
+                if keep(m) {
+                    v.push(base + i as u32);
+                }
+            }
+            v
+        })
+        .collect();
+    parts.concat()
+}
+
+/// Pruning passes: leaf branches shorter than `min_branch` that end at a
+/// branch point are removed, as are isolated lines shorter than `min_line`.
+///
+/// Leaves are visited in cell order, one after another (a removal changes
+/// the branch point's degree, which the next walks see). A walk stops as
+/// soon as it is long enough to be kept whatever its end. Removals create no
+/// new leaves (a branch point keeps degree 2 or more) and never touch a
+/// chain whose walk stopped that way, so later passes only revisit the
+/// leaves that reached their end and were kept: the result is that of
+/// walking every leaf in every pass.
+#[inline(never)]
+fn prune(
+    forest: &Forest,
+    mask: &mut [u8],
+    metric: &Metric,
+    (min_branch, min_line): (f64, f64),
+    passes: usize,
+) {
+    if passes == 0 {
+        return;
+    }
     let y0 = metric.gt[3];
     let step: [f64; 8] =
         std::array::from_fn(|k| metric.step_m(DIRS[k].0 as f64, DIRS[k].1 as f64, y0));
-    loop {
-        let n = neighbour(c, d, w);
-        len += step[d];
-        path.push(n);
-        c = n;
-        let m = mask[c];
-        if m.count_ones() != 2 {
-            break;
-        }
-        let back = (d + 4) % 8;
-        let rest = m & !(1 << back);
-        d = rest.trailing_zeros() as usize;
-    }
-    (path, len)
-}
-
-fn remove_path(mask: &mut [u8], w: usize, path: &[usize]) {
-    for p in path.windows(2) {
-        let (a, b) = (p[0], p[1]);
-        for d in 0..8 {
-            if mask[a] & (1 << d) != 0 && neighbour(a, d, w) == b {
-                mask[a] &= !(1 << d);
-                mask[b] &= !(1 << ((d + 4) % 8));
-            }
-        }
-    }
-}
-
-/// One pruning pass: leaf branches shorter than `min_branch` that end at a
-/// branch point are removed, as are isolated lines shorter than `min_line`.
-fn prune(mask: &mut [u8], w: usize, metric: &Metric, min_branch: f64, min_line: f64) {
-    let leaves: Vec<usize> = mask
-        .par_iter()
-        .enumerate()
-        .filter_map(|(i, m)| (m.count_ones() == 1).then_some(i))
-        .collect();
-    for leaf in leaves {
+    let enough = min_branch.max(min_line);
+    let cells = &forest.cand.cells;
+    let mut path: Vec<(u32, u32, u8)> = Vec::new();
+    // The leaves to visit in the next pass.
+    let mut revisit: Vec<u32> = Vec::new();
+    let mut visit = |leaf: usize, mask: &mut [u8]| -> bool {
         let m = mask[leaf];
-        if m.count_ones() != 1 {
-            continue;
-        }
-        let (path, len) = walk(mask, w, metric, leaf, m.trailing_zeros() as usize);
-        let end = mask[*path.last().unwrap_or(&leaf)].count_ones();
+        path.clear();
+        let (mut c, mut id, mut d) = (cells[leaf] as usize, leaf, m.trailing_zeros() as usize);
+        let mut len = 0.0;
+        let end_degree = loop {
+            let (nc, nid) = forest.step(c, d);
+            len += step[d];
+            path.push((id as u32, nid as u32, d as u8));
+            let nm = mask[nid];
+            if degree(nm) != 2 {
+                break Some(degree(nm));
+            }
+            if len >= enough {
+                break None;
+            }
+            let back = (d + 4) % 8;
+            d = (nm & !(1 << back)).trailing_zeros() as usize;
+            (c, id) = (nc, nid);
+        };
+        // Long enough whatever its end: kept for good.
+        let Some(end) = end_degree else {
+            return false;
+        };
         let too_short = if end >= 3 {
             len < min_branch
         } else {
             len < min_line
         };
         if too_short {
-            remove_path(mask, w, &path);
+            for &(a, b, d) in &path {
+                mask[a as usize] &= !(1 << d);
+                mask[b as usize] &= !(1 << ((d + 4) % 8));
+            }
         }
+        !too_short
+    };
+    for leaf in 0..mask.len() {
+        if degree(mask[leaf]) == 1 && visit(leaf, mask) {
+            revisit.push(leaf as u32);
+        }
+    }
+    for _ in 1..passes {
+        let mut kept = 0;
+        for k in 0..revisit.len() {
+            let leaf = revisit[k] as usize;
+            if degree(mask[leaf]) == 1 && visit(leaf, mask) {
+                revisit[kept] = leaf as u32;
+                kept += 1;
+            }
+        }
+        revisit.truncate(kept);
     }
 }
 
 /// Trace the forest into lines between nodes, smooth them and convert them
-/// to CRS coordinates.
-fn trace(map: &HeightMap, mask: &[u8], metric: &Metric, smooth: usize) -> RidgeNetwork {
+/// to CRS coordinates. Each line is traced from its node of lower cell index
+/// (in parallel over the nodes; the walk from the other end is dropped), so
+/// the lines come in the order of their first node and direction.
+#[inline(never)]
+fn trace(
+    map: &HeightMap,
+    forest: &Forest,
+    mask: &[u8],
+    metric: &Metric,
+    smooth: usize,
+) -> RidgeNetwork {
     let w = map.width;
     let gt = &map.geotransform;
-    let mut net = RidgeNetwork::default();
-    let node_cells: Vec<usize> = mask
+    let cand = forest.cand;
+    let node_ids = select(mask, |m| m != 0 && degree(m) != 2);
+    let nodes: Vec<RidgeNode> = node_ids
         .par_iter()
         .enumerate()
-        .filter_map(|(i, m)| (*m != 0 && m.count_ones() != 2).then_some(i))
-        .collect();
-    let mut ids = std::collections::HashMap::with_capacity(node_cells.len());
-    for &c in &node_cells {
-        let id = net.nodes.len() as u32;
-        ids.insert(c, id);
-        let (col, row) = (c % w, c / w);
-        let (x, y) = gt.pixel_to_crs(col as f64 + 0.5, row as f64 + 0.5);
-        net.nodes.push(RidgeNode {
-            id,
-            cell: [col as u32, row as u32],
-            point: [x, y, map.data[c] as f64],
-            degree: mask[c].count_ones() as u8,
-        });
-    }
-    let mut done = vec![0u8; mask.len()];
-    for &c in &node_cells {
-        for d in 0..8 {
-            if mask[c] & (1 << d) == 0 || done[c] & (1 << d) != 0 {
-                continue;
+        .map(|(i, &id)| {
+            let c = cand.cells[id as usize] as usize;
+            let (col, row) = (c % w, c / w);
+            let (x, y) = gt.pixel_to_crs(col as f64 + 0.5, row as f64 + 0.5);
+            RidgeNode {
+                id: i as u32,
+                cell: [col as u32, row as u32],
+                point: [x, y, cand.heights[id as usize] as f64],
+                degree: degree(mask[id as usize]) as u8,
             }
-            let (path, _) = walk(mask, w, metric, c, d);
-            let last = *path.last().unwrap_or(&c);
-            // mark the final edge from the far end so it is not traced again
-            let prev = path[path.len() - 2];
-            for e in 0..8 {
-                if mask[last] & (1 << e) != 0 && neighbour(last, e, w) == prev {
-                    done[last] |= 1 << e;
+        })
+        .collect();
+    const CHUNK: usize = 256;
+    let chunks: Vec<Vec<RidgeLine>> = node_ids
+        .par_chunks(CHUNK)
+        .enumerate()
+        .map(|(k, chunk)| {
+            let mut lines = Vec::new();
+            let mut ids: Vec<u32> = Vec::new();
+            let mut dirs: Vec<u8> = Vec::new();
+            for (i, &id) in chunk.iter().enumerate() {
+                let m0 = mask[id as usize];
+                let cell = cand.cells[id as usize] as usize;
+                for d0 in 0..8 {
+                    if m0 & (1 << d0) == 0 {
+                        continue;
+                    }
+                    ids.clear();
+                    dirs.clear();
+                    ids.push(id);
+                    let (mut c, mut d) = (cell, d0);
+                    let end = loop {
+                        let (nc, nid) = forest.step(c, d);
+                        ids.push(nid as u32);
+                        dirs.push(d as u8);
+                        c = nc;
+                        let m = mask[nid];
+                        if degree(m) != 2 {
+                            break nid as u32;
+                        }
+                        let back = (d + 4) % 8;
+                        d = (m & !(1 << back)).trailing_zeros() as usize;
+                    };
+                    if end < id {
+                        continue;
+                    }
+                    let far = node_ids.binary_search(&end).map_or(u32::MAX, |j| j as u32);
+                    let node = (k * CHUNK + i) as u32;
+                    lines.push(polyline(
+                        map,
+                        metric,
+                        cand,
+                        (cell, &ids, &dirs),
+                        smooth,
+                        [node, far],
+                    ));
                 }
             }
-            done[c] |= 1 << d;
-            let mut px: Vec<[f64; 3]> = path
-                .iter()
-                .map(|&p| {
-                    [
-                        (p % w) as f64 + 0.5,
-                        (p / w) as f64 + 0.5,
-                        map.data[p] as f64,
-                    ]
-                })
-                .collect();
-            smooth_polyline(&mut px, smooth);
-            let points: Vec<[f64; 3]> = px
-                .iter()
-                .map(|p| {
-                    let (x, y) = gt.pixel_to_crs(p[0], p[1]);
-                    [x, y, p[2]]
-                })
-                .collect();
-            let length_m = px
-                .windows(2)
-                .zip(points.windows(2))
-                .map(|(a, b)| {
-                    let hm = metric.step_m(a[1][0] - a[0][0], a[1][1] - a[0][1], b[0][1]);
-                    hm.hypot(a[1][2] - a[0][2])
-                })
-                .sum();
-            let (na, nb) = (
-                ids.get(&c).copied().unwrap_or(u32::MAX),
-                ids.get(&last).copied().unwrap_or(u32::MAX),
-            );
-            net.lines.push(RidgeLine {
-                id: net.lines.len() as u32,
-                pixels: px.iter().map(|p| [p[0], p[1]]).collect(),
-                points,
-                length_m,
-                nodes: [na, nb],
-            });
-        }
+            lines
+        })
+        .collect();
+    let mut lines = Vec::with_capacity(chunks.iter().map(Vec::len).sum());
+    for chunk in chunks {
+        lines.extend(chunk);
     }
-    net
+    for (i, l) in lines.iter_mut().enumerate() {
+        l.id = i as u32;
+    }
+    RidgeNetwork {
+        lines,
+        nodes,
+        candidate_cells: 0,
+    }
 }
 
-/// [1 2 1]/4 smoothing of interior vertices, `iterations` times.
+/// The smoothed line from cell `cell` through the candidates `ids` (the
+/// first one, then one step along each of `dirs`) in pixel and CRS
+/// coordinates.
+#[inline(never)]
+fn polyline(
+    map: &HeightMap,
+    metric: &Metric,
+    cand: &CandidateSet,
+    (cell, ids, dirs): (usize, &[u32], &[u8]),
+    smooth: usize,
+    nodes: [u32; 2],
+) -> RidgeLine {
+    let w = map.width;
+    let (mut col, mut row) = ((cell % w) as isize, (cell / w) as isize);
+    let z = |id: u32| cand.heights[id as usize] as f64;
+    let mut px: Vec<[f64; 3]> = Vec::with_capacity(ids.len());
+    px.push([col as f64 + 0.5, row as f64 + 0.5, z(ids[0])]);
+    for (&id, &d) in ids[1..].iter().zip(dirs) {
+        let (dx, dy) = DIRS[d as usize];
+        (col, row) = (col + dx, row + dy);
+        px.push([col as f64 + 0.5, row as f64 + 0.5, z(id)]);
+    }
+    smooth_polyline(&mut px, smooth);
+    let pixels: Vec<[f64; 2]> = px.iter().map(|p| [p[0], p[1]]).collect();
+    let mut points = px;
+    for p in points.iter_mut() {
+        (p[0], p[1]) = map.geotransform.pixel_to_crs(p[0], p[1]);
+    }
+    let length_m = pixels
+        .windows(2)
+        .zip(points.windows(2))
+        .map(|(a, b)| {
+            let hm = metric.step_m(a[1][0] - a[0][0], a[1][1] - a[0][1], b[0][1]);
+            hm.hypot(b[1][2] - b[0][2])
+        })
+        .sum();
+    RidgeLine {
+        id: 0,
+        points,
+        pixels,
+        length_m,
+        nodes,
+    }
+}
+
+/// [1 2 1]/4 smoothing of interior vertices, `iterations` times, in place.
 fn smooth_polyline(p: &mut [[f64; 3]], iterations: usize) {
     if p.len() < 3 {
         return;
     }
-    let mut tmp = p.to_vec();
     for _ in 0..iterations {
+        let mut prev = p[0];
         for i in 1..p.len() - 1 {
+            let cur = p[i];
             for k in 0..3 {
-                tmp[i][k] = 0.25 * p[i - 1][k] + 0.5 * p[i][k] + 0.25 * p[i + 1][k];
+                p[i][k] = 0.25 * prev[k] + 0.5 * cur[k] + 0.25 * p[i + 1][k];
             }
+            prev = cur;
         }
-        p.copy_from_slice(&tmp);
     }
 }
