@@ -9,10 +9,12 @@
 //! order times 4 plus its direction), so the forest is unique and equal to
 //! what Kruskal's algorithm over all segments (highest first) gives.
 //!
-//! 1. The rows are cut into strips of 64 rows. Each strip runs Kruskal on the
-//!    segments inside it (in parallel): the segments are generated in id
-//!    order and sorted by weight with a stable radix sort, and a union-find
-//!    with path halving over the strip's candidates keeps the forest. By the
+//! 1. The rows are cut into strips of 64 rows. Each strip computes the
+//!    forest of the segments inside it (in parallel): one Borůvka step (the
+//!    best segment of every candidate is in the forest) joins the candidates
+//!    into trees, then Kruskal runs on the segments between trees only,
+//!    sorted by weight with a stable radix sort (the segments are generated
+//!    in id order), with a union-find over the strip's candidates. By the
 //!    cycle property, a segment left out of its strip's forest is the lowest
 //!    of a cycle and is not in the global forest either.
 //! 2. Only segments crossing strip boundaries can close new cycles. Their
@@ -216,6 +218,7 @@ struct Scratch {
     segs: Vec<[u32; 2]>,
     parent: Vec<u32>,
     rank: Vec<u8>,
+    best: Vec<u64>,
     core: Vec<u8>,
     flags: Vec<u8>,
     number: Vec<u32>,
@@ -322,10 +325,13 @@ fn strip_forest(
         segs,
         parent,
         rank,
+        best,
         ..
     } = scratch;
     items.clear();
     segs.clear();
+    best.clear();
+    best.resize(n, u64::MAX);
     let mut crossing = Vec::new();
     let row_ids = |r: usize| cand.before(r * w)..cand.before((r + 1).min(h) * w);
     let mut next_ids = row_ids(r0);
@@ -342,8 +348,12 @@ fn strip_forest(
         row_segments(z, w, &rows, |d, (a, b), (ida, idb)| {
             let weight = weight_key(z, a, b);
             if d == 0 || inside {
-                items.push((weight as u64) << 32 | segs.len() as u64);
-                segs.push([(ida - id0) << 2 | d as u32, idb - id0]);
+                let item = (weight as u64) << 32 | segs.len() as u64;
+                let (la, lb) = ((ida - id0) as usize, (idb - id0) as usize);
+                items.push(item);
+                segs.push([(la as u32) << 2 | d as u32, lb as u32]);
+                best[la] = best[la].min(item);
+                best[lb] = best[lb].min(item);
             } else {
                 crossing.push(Segment {
                     a: ida,
@@ -354,9 +364,39 @@ fn strip_forest(
             }
         });
     }
-    sort_by_high_word(items, sorted);
+    // Borůvka step: the best segment of every candidate (the first of its
+    // segments in Kruskal order) is in the forest. These segments form trees
+    // whose only cycles are the pairs of candidates that chose the same
+    // segment; the lower id of a pair is the root.
     parent.clear();
-    parent.extend(0..n as u32);
+    for (v, &item) in best.iter().enumerate() {
+        if item == u64::MAX {
+            parent.push(v as u32);
+            continue;
+        }
+        let [ad, b] = segs[(item & 0xffff_ffff) as usize];
+        let (a, d) = (ad >> 2, ad & 3);
+        smask[a as usize] |= 1 << d;
+        smask[b as usize] |= 1 << (d + 4);
+        let other = if a as usize == v { b } else { a };
+        let root = best[other as usize] == item && (v as u32) < other;
+        parent.push(if root { v as u32 } else { other });
+    }
+    for v in 0..n as u32 {
+        let root = find(parent, v);
+        let mut x = v;
+        while parent[x as usize] != root {
+            (x, parent[x as usize]) = (parent[x as usize], root);
+        }
+    }
+    // Kruskal on the segments between the trees.
+    sorted.clear();
+    sorted.extend(items.iter().copied().filter(|&item| {
+        let [ad, b] = segs[(item & 0xffff_ffff) as usize];
+        parent[(ad >> 2) as usize] != parent[b as usize]
+    }));
+    std::mem::swap(items, sorted);
+    sort_by_high_word(items, sorted);
     rank.clear();
     rank.resize(n, 0);
     for &item in items.iter() {
