@@ -397,6 +397,104 @@ fn select(mask: &[u8], keep: impl Fn(u8) -> bool + Sync) -> Vec<u32> {
     parts.concat()
 }
 
+/// Walks from leaves along the forest, with the pruning lengths.
+struct LeafWalker<'a> {
+    forest: &'a Forest<'a>,
+    /// Metres of one step along each direction.
+    step: [f64; 8],
+    min_branch: f64,
+    min_line: f64,
+    /// A walk this long is kept whatever its end.
+    enough: f64,
+}
+
+impl LeafWalker<'_> {
+    /// The end of the walk from `leaf` (the first cell of degree other than
+    /// 2) and the walked length, or `None` when the walk grows long enough
+    /// to be kept before its end.
+    #[inline]
+    fn walk(&self, mask: &[u8], leaf: usize) -> Option<(usize, f64)> {
+        let (mut c, mut d) = (
+            self.forest.cand.cells[leaf] as usize,
+            mask[leaf].trailing_zeros() as usize,
+        );
+        let mut len = 0.0;
+        loop {
+            let (nc, nid) = self.forest.step(c, d);
+            len += self.step[d];
+            let m = mask[nid];
+            if degree(m) != 2 {
+                return Some((nid, len));
+            }
+            if len >= self.enough {
+                return None;
+            }
+            d = (m & !(1 << ((d + 4) % 8))).trailing_zeros() as usize;
+            c = nc;
+        }
+    }
+
+    /// Whether a walk of `len` ending at a cell of degree `end_degree` is
+    /// pruned.
+    #[inline]
+    fn too_short(&self, len: f64, end_degree: u32) -> bool {
+        if end_degree >= 3 {
+            len < self.min_branch
+        } else {
+            len < self.min_line
+        }
+    }
+
+    /// Removes the walk from `leaf` to its end.
+    fn remove(&self, mask: &mut [u8], leaf: usize) {
+        let (mut c, mut id, mut d) = (
+            self.forest.cand.cells[leaf] as usize,
+            leaf,
+            mask[leaf].trailing_zeros() as usize,
+        );
+        loop {
+            let (nc, nid) = self.forest.step(c, d);
+            let m = mask[nid];
+            let back = (d + 4) % 8;
+            mask[id] &= !(1 << d);
+            mask[nid] &= !(1 << back);
+            if degree(m) != 2 {
+                return;
+            }
+            d = (m & !(1 << back)).trailing_zeros() as usize;
+            (c, id) = (nc, nid);
+        }
+    }
+
+    /// Removes the walk from `leaf` to its end `end` (directly when they are
+    /// neighbours).
+    #[inline]
+    fn remove_to(&self, mask: &mut [u8], leaf: usize, end: usize) {
+        let d = mask[leaf].trailing_zeros() as usize;
+        let cells = &self.forest.cand.cells;
+        if cells[leaf] as isize + self.forest.off[d] == cells[end] as isize {
+            mask[leaf] &= !(1 << d);
+            mask[end] &= !(1 << ((d + 4) % 8));
+        } else {
+            self.remove(mask, leaf);
+        }
+    }
+
+    /// Walks from `leaf` and removes the walk when it is too short; returns
+    /// whether the walk reached its end and was kept.
+    fn visit(&self, mask: &mut [u8], leaf: usize) -> bool {
+        let Some((end, len)) = self.walk(mask, leaf) else {
+            return false;
+        };
+        if self.too_short(len, degree(mask[end])) {
+            self.remove(mask, leaf);
+            false
+        } else {
+            true
+        }
+    }
+}
+
 /// Pruning passes: leaf branches shorter than `min_branch` that end at a
 /// branch point are removed, as are isolated lines shorter than `min_line`.
 ///
@@ -407,6 +505,12 @@ fn select(mask: &[u8], keep: impl Fn(u8) -> bool + Sync) -> Vec<u32> {
 /// chain whose walk stopped that way, so later passes only revisit the
 /// leaves that reached their end and were kept: the result is that of
 /// walking every leaf in every pass.
+///
+/// The walks of the first pass are made beforehand in parallel on the
+/// unpruned forest. In the ordered pass, a leaf's chain is still intact
+/// (only its own removal or that of the leaf at its other end would touch
+/// it), so its walk is unchanged as long as its end is still a branch point
+/// or still a leaf; otherwise it is walked again.
 #[inline(never)]
 fn prune(
     forest: &Forest,
@@ -419,60 +523,65 @@ fn prune(
         return;
     }
     let y0 = metric.gt[3];
-    let step: [f64; 8] =
-        std::array::from_fn(|k| metric.step_m(DIRS[k].0 as f64, DIRS[k].1 as f64, y0));
-    let enough = min_branch.max(min_line);
-    let cells = &forest.cand.cells;
-    let mut path: Vec<(u32, u32, u8)> = Vec::new();
+    let walker = LeafWalker {
+        forest,
+        step: std::array::from_fn(|k| metric.step_m(DIRS[k].0 as f64, DIRS[k].1 as f64, y0)),
+        min_branch,
+        min_line,
+        enough: min_branch.max(min_line),
+    };
+    // Walks of the leaves that reach their end: leaf id, end id << 30, bit
+    // 62: the end is a branch point, bit 63: too short.
+    const CHUNK: usize = 1 << 14;
+    const ID: u64 = (1 << 30) - 1;
+    let walks: Vec<Vec<u64>> = mask
+        .par_chunks(CHUNK)
+        .enumerate()
+        .map(|(k, chunk)| {
+            let mut walks = Vec::new();
+            for (i, _) in chunk.iter().enumerate().filter(|(_, &m)| degree(m) == 1) {
+                let leaf = k * CHUNK + i;
+                if let Some((end, len)) = walker.walk(mask, leaf) {
+                    let end_degree = degree(mask[end]);
+                    walks.push(
+                        leaf as u64
+                            | (end as u64) << 30
+                            | ((end_degree >= 3) as u64) << 62
+                            | (walker.too_short(len, end_degree) as u64) << 63,
+                    );
+                }
+            }
+            walks
+        })
+        .collect();
     // The leaves to visit in the next pass.
     let mut revisit: Vec<u32> = Vec::new();
-    let mut visit = |leaf: usize, mask: &mut [u8]| -> bool {
-        let m = mask[leaf];
-        path.clear();
-        let (mut c, mut id, mut d) = (cells[leaf] as usize, leaf, m.trailing_zeros() as usize);
-        let mut len = 0.0;
-        let end_degree = loop {
-            let (nc, nid) = forest.step(c, d);
-            len += step[d];
-            path.push((id as u32, nid as u32, d as u8));
-            let nm = mask[nid];
-            if degree(nm) != 2 {
-                break Some(degree(nm));
-            }
-            if len >= enough {
-                break None;
-            }
-            let back = (d + 4) % 8;
-            d = (nm & !(1 << back)).trailing_zeros() as usize;
-            (c, id) = (nc, nid);
-        };
-        // Long enough whatever its end: kept for good.
-        let Some(end) = end_degree else {
-            return false;
-        };
-        let too_short = if end >= 3 {
-            len < min_branch
-        } else {
-            len < min_line
-        };
-        if too_short {
-            for &(a, b, d) in &path {
-                mask[a as usize] &= !(1 << d);
-                mask[b as usize] &= !(1 << ((d + 4) % 8));
-            }
+    for &walk in walks.iter().flatten() {
+        let (leaf, end) = ((walk & ID) as usize, (walk >> 30 & ID) as usize);
+        if degree(mask[leaf]) != 1 {
+            continue;
         }
-        !too_short
-    };
-    for leaf in 0..mask.len() {
-        if degree(mask[leaf]) == 1 && visit(leaf, mask) {
+        let end_degree = degree(mask[end]);
+        let branch = walk >> 62 & 1 == 1;
+        let kept = if (end_degree == 1 && !branch) || (end_degree >= 3 && branch) {
+            let too_short = walk >> 63 == 1;
+            if too_short {
+                walker.remove_to(mask, leaf, end);
+            }
+            !too_short
+        } else {
+            walker.visit(mask, leaf)
+        };
+        if kept {
             revisit.push(leaf as u32);
         }
     }
+    drop(walks);
     for _ in 1..passes {
         let mut kept = 0;
         for k in 0..revisit.len() {
             let leaf = revisit[k] as usize;
-            if degree(mask[leaf]) == 1 && visit(leaf, mask) {
+            if degree(mask[leaf]) == 1 && walker.visit(mask, leaf) {
                 revisit[kept] = leaf as u32;
                 kept += 1;
             }
