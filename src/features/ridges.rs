@@ -180,12 +180,18 @@ pub fn detect_ridges(map: &HeightMap, params: &RidgeParams) -> Result<RidgeNetwo
 /// `min_directions` of the four profiles through them, in parallel by bands
 /// of rows.
 fn profile_recognition(map: &HeightMap, p: &RidgeParams) -> CandidateSet {
+    profile_recognition_with(map, p, true)
+}
+
+/// [`profile_recognition`], with the SIMD kernel where the CPU has one
+/// (`simd`) or the portable one.
+fn profile_recognition_with(map: &HeightMap, p: &RidgeParams, simd: bool) -> CandidateSet {
     let (w, h) = (map.width, map.height);
     let mut bits = vec![0u64; (w * h).div_ceil(64)];
     // `w` words hold the `BAND` rows of a band.
     bits.par_chunks_mut(w)
         .enumerate()
-        .for_each(|(band, words)| profile_band(map, p, band * BAND, words));
+        .for_each(|(band, words)| profile_band(map, p, band * BAND, words, simd));
     CandidateSet::from_bits(bits, &map.data, w, h)
 }
 
@@ -197,7 +203,7 @@ fn profile_recognition(map: &HeightMap, p: &RidgeParams) -> CandidateSet {
 /// profile side is a plain minimum over fixed offsets (a side with no valid
 /// cell stays `+inf` and never shows a drop, as before with NaN).
 #[inline(never)]
-fn profile_band(map: &HeightMap, p: &RidgeParams, r0: usize, words: &mut [u64]) {
+fn profile_band(map: &HeightMap, p: &RidgeParams, r0: usize, words: &mut [u64], simd: bool) {
     let (w, h) = (map.width, map.height);
     let hw = p.half_window;
     let r1 = (r0 + BAND).min(h);
@@ -222,7 +228,7 @@ fn profile_band(map: &HeightMap, p: &RidgeParams, r0: usize, words: &mut [u64]) 
         fill(&mut ring, r);
     }
     let mut centre = vec![f32::NAN; w8];
-    let mut flags = vec![0u8; words.len() * 64 + 8];
+    let mut bits = vec![0u8; w8 / 8];
     let mut starts = Vec::with_capacity(8 * hw);
     for r in r0..r1 {
         let ri = r as isize;
@@ -237,12 +243,16 @@ fn profile_band(map: &HeightMap, p: &RidgeParams, r0: usize, words: &mut [u64]) 
             }
         }
         centre[..w].copy_from_slice(&map.data[r * w..(r + 1) * w]);
-        let out = &mut flags[(r - r0) * w..(r - r0) * w + w8];
-        profile_row(&ring, &starts, hw, &centre, p, out);
-    }
-    flags[(r1 - r0) * w..].fill(0);
-    for (word, f) in words.iter_mut().zip(flags.chunks_exact(64)) {
-        *word = pack_flags(f);
+        let row = ProfileRow {
+            ring: &ring,
+            starts: &starts,
+            hw,
+            centre: &centre,
+            drop: p.min_drop_m,
+            min_dirs: p.min_directions as i32,
+        };
+        row.flags(&mut bits, simd);
+        append_bits(words, (r - r0) * w, &bits, w);
     }
 }
 
@@ -256,61 +266,164 @@ fn lower(a: f32, b: f32) -> f32 {
     }
 }
 
-/// Candidate flags (0 or 1) of one row, 8 cells at a time. `starts[(2 * dir
-/// + side) * hw + k - 1]` is where, in `ring`, the profile point `k` cells
-/// from the first cell along direction `dir` (side 0) or against it (side 1)
-/// lies.
-#[inline(never)]
-fn profile_row(
-    ring: &[f32],
-    starts: &[usize],
+/// The rows around a row of profile recognition: `ring` holds padded rows,
+/// `starts[(2 * dir + side) * hw + k - 1]` is where in `ring` the profile
+/// point `k` cells from the row's first cell along direction `dir` (side 0)
+/// or against it (side 1) lies, and every start leaves room for `centre.len()`
+/// values.
+struct ProfileRow<'a> {
+    ring: &'a [f32],
+    starts: &'a [usize],
     hw: usize,
-    centre: &[f32],
-    p: &RidgeParams,
-    out: &mut [u8],
-) {
-    let (drop, min_dirs) = (p.min_drop_m, p.min_directions as i32);
-    for (o, (z, out)) in centre
-        .chunks_exact(8)
-        .zip(out.chunks_exact_mut(8))
-        .enumerate()
-    {
-        let o = o * 8;
-        let mut count = [0i32; 8];
-        for dir in 0..4 {
-            let mut a = [f32::INFINITY; 8];
-            let mut b = [f32::INFINITY; 8];
-            for k in 0..hw {
-                let sa = &ring[starts[2 * dir * hw + k] + o..][..8];
-                let sb = &ring[starts[(2 * dir + 1) * hw + k] + o..][..8];
-                for i in 0..8 {
-                    a[i] = lower(a[i], sa[i]);
-                    b[i] = lower(b[i], sb[i]);
+    /// Heights of the row, a multiple of 8 long.
+    centre: &'a [f32],
+    drop: f32,
+    min_dirs: i32,
+}
+
+impl ProfileRow<'_> {
+    /// Candidate flags of the row into `bits` (bit `i` of byte `j`: cell
+    /// `8 j + i`), with SIMD where the CPU has it and `simd` is set.
+    fn flags(&self, bits: &mut [u8], simd: bool) {
+        assert!(self.centre.len() % 8 == 0 && bits.len() * 8 >= self.centre.len());
+        assert!(self.starts.len() == 8 * self.hw);
+        assert!(self
+            .starts
+            .iter()
+            .all(|&s| s + self.centre.len() <= self.ring.len()));
+        #[cfg(target_arch = "x86_64")]
+        if simd && std::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2; the asserts above keep every
+            // load inside `ring`, `centre` and every store inside `bits`.
+            unsafe {
+                match self.hw {
+                    1 => self.flags_avx2::<1>(bits),
+                    2 => self.flags_avx2::<2>(bits),
+                    3 => self.flags_avx2::<3>(bits),
+                    4 => self.flags_avx2::<4>(bits),
+                    _ => self.flags_avx2_any(bits),
                 }
             }
-            for i in 0..8 {
-                count[i] += (z[i] - a[i] > drop && z[i] - b[i] > drop) as i32;
-            }
+            return;
         }
-        for i in 0..8 {
-            out[i] = (count[i] >= min_dirs) as u8;
+        self.flags_portable(bits)
+    }
+
+    fn flags_portable(&self, bits: &mut [u8]) {
+        let (ring, starts, hw) = (self.ring, self.starts, self.hw);
+        for (o, (z, byte)) in self.centre.chunks_exact(8).zip(bits).enumerate() {
+            let o = o * 8;
+            let mut count = [0i32; 8];
+            for dir in 0..4 {
+                let mut a = [f32::INFINITY; 8];
+                let mut b = [f32::INFINITY; 8];
+                for k in 0..hw {
+                    let sa = &ring[starts[2 * dir * hw + k] + o..][..8];
+                    let sb = &ring[starts[(2 * dir + 1) * hw + k] + o..][..8];
+                    for i in 0..8 {
+                        a[i] = lower(a[i], sa[i]);
+                        b[i] = lower(b[i], sb[i]);
+                    }
+                }
+                for i in 0..8 {
+                    count[i] += (z[i] - a[i] > self.drop && z[i] - b[i] > self.drop) as i32;
+                }
+            }
+            *byte = (0..8).fold(0u8, |m, i| m | ((count[i] >= self.min_dirs) as u8) << i);
+        }
+    }
+
+    /// [`Self::flags_portable`] with 8 cells per AVX2 register, for
+    /// `hw == HW`.
+    ///
+    /// # Safety
+    /// The CPU must support AVX2 and the bounds asserted in [`Self::flags`]
+    /// must hold.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn flags_avx2<const HW: usize>(&self, bits: &mut [u8]) {
+        use std::arch::x86_64::*;
+        let ring = self.ring.as_ptr();
+        let at: [[*const f32; HW]; 8] =
+            std::array::from_fn(|ds| std::array::from_fn(|k| ring.add(self.starts[ds * HW + k])));
+        let centre = self.centre.as_ptr();
+        let drop = _mm256_set1_ps(self.drop);
+        let below = _mm256_set1_epi32(self.min_dirs - 1);
+        for (j, byte) in bits.iter_mut().take(self.centre.len() / 8).enumerate() {
+            let o = 8 * j;
+            let z = _mm256_loadu_ps(centre.add(o));
+            let mut count = _mm256_setzero_si256();
+            for dir in 0..4 {
+                let side = |s: &[*const f32; HW]| {
+                    let mut m = _mm256_loadu_ps(s[0].add(o));
+                    for p in &s[1..] {
+                        m = _mm256_min_ps(m, _mm256_loadu_ps(p.add(o)));
+                    }
+                    _mm256_cmp_ps::<_CMP_GT_OQ>(_mm256_sub_ps(z, m), drop)
+                };
+                let crest = _mm256_and_ps(side(&at[2 * dir]), side(&at[2 * dir + 1]));
+                // A true lane is -1.
+                count = _mm256_sub_epi32(count, _mm256_castps_si256(crest));
+            }
+            let hit = _mm256_cmpgt_epi32(count, below);
+            *byte = _mm256_movemask_ps(_mm256_castsi256_ps(hit)) as u8;
+        }
+    }
+
+    /// [`Self::flags_avx2`] for any `hw`.
+    ///
+    /// # Safety
+    /// As [`Self::flags_avx2`].
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn flags_avx2_any(&self, bits: &mut [u8]) {
+        use std::arch::x86_64::*;
+        let (ring, starts, hw) = (self.ring.as_ptr(), self.starts, self.hw);
+        let centre = self.centre.as_ptr();
+        let drop = _mm256_set1_ps(self.drop);
+        let below = _mm256_set1_epi32(self.min_dirs - 1);
+        for (j, byte) in bits.iter_mut().take(self.centre.len() / 8).enumerate() {
+            let o = 8 * j;
+            let z = _mm256_loadu_ps(centre.add(o));
+            let mut count = _mm256_setzero_si256();
+            for dir in 0..4 {
+                let side = |s: usize| {
+                    let mut m = _mm256_set1_ps(f32::INFINITY);
+                    for &st in &starts[(2 * dir + s) * hw..(2 * dir + s + 1) * hw] {
+                        m = _mm256_min_ps(m, _mm256_loadu_ps(ring.add(st + o)));
+                    }
+                    _mm256_cmp_ps::<_CMP_GT_OQ>(_mm256_sub_ps(z, m), drop)
+                };
+                let crest = _mm256_and_ps(side(0), side(1));
+                count = _mm256_sub_epi32(count, _mm256_castps_si256(crest));
+            }
+            let hit = _mm256_cmpgt_epi32(count, below);
+            *byte = _mm256_movemask_ps(_mm256_castsi256_ps(hit)) as u8;
         }
     }
 }
 
-/// 64 flags (0 or 1) as the bits of a word.
-#[inline]
-fn pack_flags(f: &[u8]) -> u64 {
-    let mut word = 0u64;
-    for (j, bytes) in f.chunks_exact(8).enumerate() {
-        let mut b = [0u8; 8];
-        b.copy_from_slice(bytes);
-        // Byte j of a 0/1 word lands on bit j of the top byte.
-        let byte = u64::from_le_bytes(b).wrapping_mul(0x0102_0408_1020_4080) >> 56;
-        word |= byte << (8 * j);
+/// ORs the first `n` flags of `bits` (8 per byte) into `words` from bit
+/// `offset` on.
+fn append_bits(words: &mut [u64], offset: usize, bits: &[u8], n: usize) {
+    for (j, &b) in bits.iter().take(n.div_ceil(8)).enumerate() {
+        let valid = (n - 8 * j).min(8);
+        let b = (b as u64) & ((1u64 << valid) - 1);
+        if b == 0 {
+            continue;
+        }
+        let o = offset + 8 * j;
+        let (word, shift) = (o >> 6, o & 63);
+        words[word] |= b << shift;
+        if shift > 56 {
+            let spill = b >> (64 - shift);
+            if spill != 0 {
+                words[word + 1] |= spill;
+            }
+        }
     }
-    word
 }
+
 /// Horizontal metres per pixel step, and 3D lengths.
 struct Metric {
     gt: [f64; 6],
@@ -742,6 +855,98 @@ fn smooth_polyline(p: &mut [[f64; 3]], iterations: usize) {
                 p[i][k] = 0.25 * prev[k] + 0.5 * cur[k] + 0.25 * p[i + 1][k];
             }
             prev = cur;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::raster::{Crs, GeoTransform};
+
+    fn random_map(w: usize, h: usize, seed: u64) -> HeightMap {
+        let mut s = seed;
+        let data = (0..w * h)
+            .map(|_| {
+                s ^= s << 13;
+                s ^= s >> 7;
+                s ^= s << 17;
+                // Coarse values make ties; a few NaN cells.
+                match s % 97 {
+                    0 => f32::NAN,
+                    v => (v % 23) as f32,
+                }
+            })
+            .collect();
+        HeightMap {
+            width: w,
+            height: h,
+            data,
+            geotransform: GeoTransform::north_up(0.0, 0.0, 30.0, 30.0),
+            crs: Crs {
+                epsg: None,
+                wkt: String::new(),
+                proj: None,
+                geographic: false,
+            },
+        }
+    }
+
+    /// Profile recognition by its definition, cell by cell.
+    fn reference(map: &HeightMap, p: &RidgeParams) -> Vec<bool> {
+        let (w, h) = (map.width as isize, map.height as isize);
+        let at = |c: isize, r: isize| {
+            (c >= 0 && r >= 0 && c < w && r < h)
+                .then(|| map.data[(r * w + c) as usize])
+                .filter(|v| !v.is_nan())
+        };
+        let mut out = Vec::new();
+        for r in 0..h {
+            for c in 0..w {
+                let z = map.data[(r * w + c) as usize];
+                let mut n = 0;
+                for &(dx, dy) in &DIRS[..4] {
+                    let low = |s: isize| {
+                        (1..=p.half_window as isize)
+                            .filter_map(|k| at(c + s * k * dx, r + s * k * dy))
+                            .reduce(f32::min)
+                    };
+                    let crest = [low(1), low(-1)]
+                        .iter()
+                        .all(|m| m.is_some_and(|m| z - m > p.min_drop_m));
+                    n += crest as u8;
+                }
+                out.push(n >= p.min_directions);
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn profile_recognition_follows_its_definition() {
+        for (w, h, seed) in [(70, 150, 1), (9, 200, 2), (130, 66, 3), (64, 64, 4)] {
+            let map = random_map(w, h, seed);
+            for hw in 1..=5 {
+                for (min_directions, min_drop_m) in [(1, 0.0), (2, 0.0), (3, 2.5), (4, -1.0)] {
+                    let p = RidgeParams {
+                        half_window: hw,
+                        min_directions,
+                        min_drop_m,
+                        ..RidgeParams::default()
+                    };
+                    let want = reference(&map, &p);
+                    for simd in [true, false] {
+                        let set = profile_recognition_with(&map, &p, simd);
+                        let got: Vec<bool> = (0..w * h)
+                            .map(|c| set.before(c + 1) > set.before(c))
+                            .collect();
+                        assert!(
+                            got == want,
+                            "{w} x {h}, hw {hw}, {min_directions} directions, drop {min_drop_m}, simd {simd}"
+                        );
+                    }
+                }
+            }
         }
     }
 }

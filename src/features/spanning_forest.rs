@@ -199,6 +199,7 @@ struct Link {
 }
 
 /// One strip after contraction.
+#[derive(Default)]
 struct Contracted {
     /// Chains between the strip's key vertices (local vertex numbers).
     chains: Vec<Link>,
@@ -208,6 +209,26 @@ struct Contracted {
     down: Vec<u32>,
     /// Vertex numbers of the `b` ends of the previous strip's crossing segments.
     up: Vec<u32>,
+}
+
+/// Candidate ids of the `b` ends of the segments from row `row` to the row
+/// below, in the order in which [`strip_forest`] lists them as crossing.
+fn crossing_ends(z: &[f32], cand: &CandidateSet, w: usize, row: usize) -> Vec<u32> {
+    let ids = |r: usize| cand.before(r * w)..cand.before((r + 1) * w);
+    let (cur, next) = (ids(row), ids(row + 1));
+    let rows = RowPair {
+        cur: &cand.cells[cur.start as usize..cur.end as usize],
+        cur_id0: cur.start,
+        next: &cand.cells[next.start as usize..next.end as usize],
+        next_id0: next.start,
+    };
+    let mut ends = Vec::new();
+    row_segments(z, w, &rows, |d, _, (_, idb)| {
+        if d != 0 {
+            ends.push(idb);
+        }
+    });
+    ends
 }
 
 /// Working memory of one rayon job, reused from strip to strip.
@@ -234,34 +255,32 @@ pub(super) fn spanning_forest(z: &[f32], cand: &CandidateSet, w: usize, h: usize
     let first_id: Vec<u32> = (0..=strips)
         .map(|s| cand.before((s * STRIP).min(h) * w))
         .collect();
-    // 1. Kruskal inside each strip; collect the crossing segments.
-    let crossing: Vec<Vec<Segment>> = split_at_bounds(&mut mask, &first_id)
-        .into_par_iter()
-        .enumerate()
-        .map_init(Scratch::default, |scratch, (s, smask)| {
-            strip_forest(z, cand, (w, h), (s, first_id[s]), smask, scratch)
-        })
-        .collect();
-    if strips < 2 || crossing.iter().all(|c| c.is_empty()) {
+    // 1. Forest of each strip, contracted to its terminals and branch
+    // points; the crossing segments to the next strip.
+    let several = strips > 1;
+    let (crossing, contracted): (Vec<Vec<Segment>>, Vec<Contracted>) =
+        split_at_bounds(&mut mask, &first_id)
+            .into_par_iter()
+            .enumerate()
+            .map_init(Scratch::default, |scratch, (s, smask)| {
+                let id0 = first_id[s];
+                let down = strip_forest(z, cand, (w, h), (s, id0), smask, scratch);
+                let contracted = if several {
+                    let up = if s > 0 {
+                        crossing_ends(z, cand, w, s * STRIP - 1)
+                    } else {
+                        Vec::new()
+                    };
+                    contract_strip(cand, w, id0, smask, (&down, &up), scratch)
+                } else {
+                    Contracted::default()
+                };
+                (down, contracted)
+            })
+            .unzip();
+    if !several || crossing.iter().all(|c| c.is_empty()) {
         return mask;
     }
-    // 2. Contract each strip's forest to its terminals and branch points.
-    let contracted: Vec<Contracted> = (0..strips)
-        .into_par_iter()
-        .map_init(Scratch::default, |scratch, s| {
-            let (id0, id1) = (first_id[s], first_id[s + 1]);
-            let above = if s > 0 { &crossing[s - 1][..] } else { &[] };
-            contract_strip(
-                z,
-                cand,
-                w,
-                id0,
-                &mask[id0 as usize..id1 as usize],
-                (&crossing[s], above),
-                scratch,
-            )
-        })
-        .collect();
     // 3. Kruskal on the contracted graph.
     let mut base = Vec::with_capacity(strips + 1);
     let mut n = 0u32;
@@ -418,15 +437,18 @@ fn strip_forest(
 /// to the next strip, `up` those of the previous strip into this one.
 #[inline(never)]
 fn contract_strip(
-    z: &[f32],
     cand: &CandidateSet,
     w: usize,
     id0: u32,
     smask: &[u8],
-    (down, up): (&[Segment], &[Segment]),
+    (down, up): (&[Segment], &[u32]),
     scratch: &mut Scratch,
 ) -> Contracted {
     const TERMINAL: u8 = 1;
+    if down.is_empty() && up.is_empty() {
+        return Contracted::default();
+    }
+    let z = &cand.heights[id0 as usize..];
     let n = smask.len();
     let off = offsets(w);
     let cells = &cand.cells[id0 as usize..id0 as usize + n];
@@ -444,8 +466,8 @@ fn contract_strip(
     for s in down {
         flags[(s.a - id0) as usize] = TERMINAL;
     }
-    for s in up {
-        flags[(s.b - id0) as usize] = TERMINAL;
+    for &b in up {
+        flags[(b - id0) as usize] = TERMINAL;
     }
     let term = |i: usize| flags[i] == TERMINAL;
     core.clear();
@@ -502,14 +524,14 @@ fn contract_strip(
                         a: ga,
                         b: gb,
                         bit: d as u8,
-                        key: segment_key(weight_key(z, cell, other), ga, d),
+                        key: segment_key(weight_key(z, c, nb), ga, d),
                     }
                 } else {
                     Segment {
                         a: gb,
                         b: ga,
                         bit: d as u8 - 4,
-                        key: segment_key(weight_key(z, other, cell), gb, d - 4),
+                        key: segment_key(weight_key(z, nb, c), gb, d - 4),
                     }
                 };
                 if low.is_none_or(|l| seg.key > l.key) {
@@ -536,7 +558,7 @@ fn contract_strip(
         chains,
         vertices,
         down: down.iter().map(|s| number[(s.a - id0) as usize]).collect(),
-        up: up.iter().map(|s| number[(s.b - id0) as usize]).collect(),
+        up: up.iter().map(|&b| number[(b - id0) as usize]).collect(),
     }
 }
 
