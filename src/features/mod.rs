@@ -9,6 +9,7 @@
 //! - [`geojson`]: export of features as GeoJSON LineStrings (lon, lat, z)
 //!   with kind, id, length and, for silhouettes, the image polyline.
 
+mod candidates;
 pub mod geojson;
 pub mod ridges;
 pub mod silhouettes;

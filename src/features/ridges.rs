@@ -16,6 +16,7 @@
 
 use rayon::prelude::*;
 
+use super::candidates::{CandidateSet, BAND};
 use super::spanning_forest::spanning_forest;
 use super::FeatureError;
 use crate::raster::HeightMap;
@@ -113,6 +114,23 @@ pub(super) const DIRS: [(isize, isize); 8] = [
     (1, -1),
 ];
 
+/// Number of set bits of each mask value: a cell's degree in the forest.
+const DEGREE: [u8; 256] = {
+    let mut t = [0u8; 256];
+    let mut m = 0;
+    while m < 256 {
+        t[m] = (m as u8).count_ones() as u8;
+        m += 1;
+    }
+    t
+};
+
+/// Degree of a cell with adjacency mask `m`.
+#[inline(always)]
+pub(super) fn degree(m: u8) -> u32 {
+    DEGREE[m as usize] as u32
+}
+
 /// Detect the ridge network of `map`.
 pub fn detect_ridges(map: &HeightMap, params: &RidgeParams) -> Result<RidgeNetwork, FeatureError> {
     let (w, h) = (map.width, map.height);
@@ -144,70 +162,266 @@ pub fn detect_ridges(map: &HeightMap, params: &RidgeParams) -> Result<RidgeNetwo
     let min_line = params.min_line_m.unwrap_or(5.0 * cell_m);
 
     let cand = profile_recognition(map, params);
-    let candidate_cells = cand.par_iter().filter(|&&c| c).count();
     let mut mask = spanning_forest(&map.data, &cand, w, h);
-    drop(cand);
-    for _ in 0..params.prune_passes {
-        prune(&mut mask, w, &metric, min_branch, min_line);
-    }
-    let mut net = trace(map, &mask, &metric, params.smooth_iterations);
-    net.candidate_cells = candidate_cells;
+    let forest = Forest::new(&cand, w);
+    prune(
+        &forest,
+        &mut mask,
+        &metric,
+        (min_branch, min_line),
+        params.prune_passes,
+    );
+    let mut net = trace(map, &forest, &mask, &metric, params.smooth_iterations);
+    net.candidate_cells = cand.len();
     Ok(net)
 }
 
-/// Profile recognition: `true` for cells that are a crest of at least
-/// `min_directions` of the four profiles through them.
-fn profile_recognition(map: &HeightMap, p: &RidgeParams) -> Vec<bool> {
+/// Profile recognition: the cells that are a crest of at least
+/// `min_directions` of the four profiles through them, in parallel by bands
+/// of rows.
+fn profile_recognition(map: &HeightMap, p: &RidgeParams) -> CandidateSet {
+    profile_recognition_with(map, p, true)
+}
+
+/// [`profile_recognition`], with the SIMD kernel where the CPU has one
+/// (`simd`) or the portable one.
+fn profile_recognition_with(map: &HeightMap, p: &RidgeParams, simd: bool) -> CandidateSet {
     let (w, h) = (map.width, map.height);
-    let data = &map.data;
+    let mut bits = vec![0u64; (w * h).div_ceil(64)];
+    // `w` words hold the `BAND` rows of a band.
+    bits.par_chunks_mut(w)
+        .enumerate()
+        .for_each(|(band, words)| profile_band(map, p, band * BAND, words, simd));
+    CandidateSet::from_bits(bits, &map.data, w, h)
+}
+
+/// Profile recognition of the rows from `r0` (at most `BAND`), into the
+/// band's bitmap words.
+///
+/// The rows around the current one sit in a ring of padded copies where
+/// cells outside the DEM and NaN cells are `+inf`, so the lowest point of a
+/// profile side is a plain minimum over fixed offsets (a side with no valid
+/// cell stays `+inf` and never shows a drop, as before with NaN).
+#[inline(never)]
+fn profile_band(map: &HeightMap, p: &RidgeParams, r0: usize, words: &mut [u64], simd: bool) {
+    let (w, h) = (map.width, map.height);
     let hw = p.half_window;
-    let drop = p.min_drop_m;
-    let mut cand = vec![false; w * h];
-    cand.par_chunks_mut(w).enumerate().for_each_init(
-        || (vec![0f32; w], vec![0f32; w], vec![0u8; w]),
-        |(min_a, min_b, count), (row, out)| {
-            count.iter_mut().for_each(|c| *c = 0);
-            let centre = &data[row * w..(row + 1) * w];
-            for &(dx, dy) in &DIRS[..4] {
-                min_a.iter_mut().for_each(|v| *v = f32::NAN);
-                min_b.iter_mut().for_each(|v| *v = f32::NAN);
-                for k in 1..=hw as isize {
-                    // side A: (col + k dx, row + k dy); side B: (col - k dx, row - k dy)
-                    for (side, s) in [(&mut *min_a, 1isize), (&mut *min_b, -1isize)] {
-                        let r = row as isize + s * k * dy;
-                        if r < 0 || r >= h as isize {
-                            continue;
-                        }
-                        let src = &data[r as usize * w..(r as usize + 1) * w];
-                        let off = s * k * dx;
-                        let (c0, c1) = if off >= 0 {
-                            (0usize, w.saturating_sub(off as usize))
-                        } else {
-                            ((-off) as usize, w)
-                        };
-                        if c0 >= c1 {
-                            continue;
-                        }
-                        let src = &src[(c0 as isize + off) as usize..(c1 as isize + off) as usize];
-                        for (m, &v) in side[c0..c1].iter_mut().zip(src) {
-                            *m = m.min(v);
-                        }
+    let r1 = (r0 + BAND).min(h);
+    let w8 = w.next_multiple_of(8);
+    let wp = w8 + 2 * hw;
+    let slots = 2 * hw + 1;
+    let mut ring = vec![f32::INFINITY; slots * wp];
+    let fill = |ring: &mut [f32], r: isize| {
+        let slot = r.rem_euclid(slots as isize) as usize;
+        let row = &mut ring[slot * wp + hw..slot * wp + hw + w];
+        if r < 0 || r >= h as isize {
+            row.fill(f32::INFINITY);
+        } else {
+            let src = &map.data[r as usize * w..(r as usize + 1) * w];
+            for (d, &v) in row.iter_mut().zip(src) {
+                *d = if v.is_nan() { f32::INFINITY } else { v };
+            }
+        }
+    };
+    let (r0i, hwi) = (r0 as isize, hw as isize);
+    for r in r0i - hwi..r0i + hwi {
+        fill(&mut ring, r);
+    }
+    let mut centre = vec![f32::NAN; w8];
+    let mut bits = vec![0u8; w8 / 8];
+    let mut starts = Vec::with_capacity(8 * hw);
+    for r in r0..r1 {
+        let ri = r as isize;
+        fill(&mut ring, ri + hwi);
+        starts.clear();
+        for &(dx, dy) in &DIRS[..4] {
+            for side in [1isize, -1] {
+                for k in 1..=hwi {
+                    let slot = (ri + side * k * dy).rem_euclid(slots as isize) as usize;
+                    starts.push(slot * wp + (hwi + side * k * dx) as usize);
+                }
+            }
+        }
+        centre[..w].copy_from_slice(&map.data[r * w..(r + 1) * w]);
+        let row = ProfileRow {
+            ring: &ring,
+            starts: &starts,
+            hw,
+            centre: &centre,
+            drop: p.min_drop_m,
+            min_dirs: p.min_directions as i32,
+        };
+        row.flags(&mut bits, simd);
+        append_bits(words, (r - r0) * w, &bits, w);
+    }
+}
+
+/// The smaller of `a` and `b` (one `minps`; no NaN reaches it).
+#[inline(always)]
+fn lower(a: f32, b: f32) -> f32 {
+    if b < a {
+        b
+    } else {
+        a
+    }
+}
+
+/// The rows around a row of profile recognition: `ring` holds padded rows,
+/// `starts[(2 * dir + side) * hw + k - 1]` is where in `ring` the profile
+/// point `k` cells from the row's first cell along direction `dir` (side 0)
+/// or against it (side 1) lies, and every start leaves room for `centre.len()`
+/// values.
+struct ProfileRow<'a> {
+    ring: &'a [f32],
+    starts: &'a [usize],
+    hw: usize,
+    /// Heights of the row, a multiple of 8 long.
+    centre: &'a [f32],
+    drop: f32,
+    min_dirs: i32,
+}
+
+impl ProfileRow<'_> {
+    /// Candidate flags of the row into `bits` (bit `i` of byte `j`: cell
+    /// `8 j + i`), with SIMD where the CPU has it and `simd` is set.
+    fn flags(&self, bits: &mut [u8], simd: bool) {
+        assert!(self.centre.len() % 8 == 0 && bits.len() * 8 >= self.centre.len());
+        assert!(self.starts.len() == 8 * self.hw);
+        assert!(self
+            .starts
+            .iter()
+            .all(|&s| s + self.centre.len() <= self.ring.len()));
+        #[cfg(target_arch = "x86_64")]
+        if simd && std::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2; the asserts above keep every
+            // load inside `ring`, `centre` and every store inside `bits`.
+            unsafe {
+                match self.hw {
+                    1 => self.flags_avx2::<1>(bits),
+                    2 => self.flags_avx2::<2>(bits),
+                    3 => self.flags_avx2::<3>(bits),
+                    4 => self.flags_avx2::<4>(bits),
+                    _ => self.flags_avx2_any(bits),
+                }
+            }
+            return;
+        }
+        self.flags_portable(bits)
+    }
+
+    fn flags_portable(&self, bits: &mut [u8]) {
+        let (ring, starts, hw) = (self.ring, self.starts, self.hw);
+        for (o, (z, byte)) in self.centre.chunks_exact(8).zip(bits).enumerate() {
+            let o = o * 8;
+            let mut count = [0i32; 8];
+            for dir in 0..4 {
+                let mut a = [f32::INFINITY; 8];
+                let mut b = [f32::INFINITY; 8];
+                for k in 0..hw {
+                    let sa = &ring[starts[2 * dir * hw + k] + o..][..8];
+                    let sb = &ring[starts[(2 * dir + 1) * hw + k] + o..][..8];
+                    for i in 0..8 {
+                        a[i] = lower(a[i], sa[i]);
+                        b[i] = lower(b[i], sb[i]);
                     }
                 }
-                for ((c, &z), (&a, &b)) in count
-                    .iter_mut()
-                    .zip(centre)
-                    .zip(min_a.iter().zip(min_b.iter()))
-                {
-                    *c += (z - a > drop && z - b > drop) as u8;
+                for i in 0..8 {
+                    count[i] += (z[i] - a[i] > self.drop && z[i] - b[i] > self.drop) as i32;
                 }
             }
-            for (o, &c) in out.iter_mut().zip(count.iter()) {
-                *o = c >= p.min_directions;
+            *byte = (0..8).fold(0u8, |m, i| m | ((count[i] >= self.min_dirs) as u8) << i);
+        }
+    }
+
+    /// [`Self::flags_portable`] with 8 cells per AVX2 register, for
+    /// `hw == HW`.
+    ///
+    /// # Safety
+    /// The CPU must support AVX2 and the bounds asserted in [`Self::flags`]
+    /// must hold.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn flags_avx2<const HW: usize>(&self, bits: &mut [u8]) {
+        use std::arch::x86_64::*;
+        let ring = self.ring.as_ptr();
+        let at: [[*const f32; HW]; 8] =
+            std::array::from_fn(|ds| std::array::from_fn(|k| ring.add(self.starts[ds * HW + k])));
+        let centre = self.centre.as_ptr();
+        let drop = _mm256_set1_ps(self.drop);
+        let below = _mm256_set1_epi32(self.min_dirs - 1);
+        for (j, byte) in bits.iter_mut().take(self.centre.len() / 8).enumerate() {
+            let o = 8 * j;
+            let z = _mm256_loadu_ps(centre.add(o));
+            let mut count = _mm256_setzero_si256();
+            for dir in 0..4 {
+                let side = |s: &[*const f32; HW]| {
+                    let mut m = _mm256_loadu_ps(s[0].add(o));
+                    for p in &s[1..] {
+                        m = _mm256_min_ps(m, _mm256_loadu_ps(p.add(o)));
+                    }
+                    _mm256_cmp_ps::<_CMP_GT_OQ>(_mm256_sub_ps(z, m), drop)
+                };
+                let crest = _mm256_and_ps(side(&at[2 * dir]), side(&at[2 * dir + 1]));
+                // A true lane is -1.
+                count = _mm256_sub_epi32(count, _mm256_castps_si256(crest));
             }
-        },
-    );
-    cand
+            let hit = _mm256_cmpgt_epi32(count, below);
+            *byte = _mm256_movemask_ps(_mm256_castsi256_ps(hit)) as u8;
+        }
+    }
+
+    /// [`Self::flags_avx2`] for any `hw`.
+    ///
+    /// # Safety
+    /// As [`Self::flags_avx2`].
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn flags_avx2_any(&self, bits: &mut [u8]) {
+        use std::arch::x86_64::*;
+        let (ring, starts, hw) = (self.ring.as_ptr(), self.starts, self.hw);
+        let centre = self.centre.as_ptr();
+        let drop = _mm256_set1_ps(self.drop);
+        let below = _mm256_set1_epi32(self.min_dirs - 1);
+        for (j, byte) in bits.iter_mut().take(self.centre.len() / 8).enumerate() {
+            let o = 8 * j;
+            let z = _mm256_loadu_ps(centre.add(o));
+            let mut count = _mm256_setzero_si256();
+            for dir in 0..4 {
+                let side = |s: usize| {
+                    let mut m = _mm256_set1_ps(f32::INFINITY);
+                    for &st in &starts[(2 * dir + s) * hw..(2 * dir + s + 1) * hw] {
+                        m = _mm256_min_ps(m, _mm256_loadu_ps(ring.add(st + o)));
+                    }
+                    _mm256_cmp_ps::<_CMP_GT_OQ>(_mm256_sub_ps(z, m), drop)
+                };
+                let crest = _mm256_and_ps(side(0), side(1));
+                count = _mm256_sub_epi32(count, _mm256_castps_si256(crest));
+            }
+            let hit = _mm256_cmpgt_epi32(count, below);
+            *byte = _mm256_movemask_ps(_mm256_castsi256_ps(hit)) as u8;
+        }
+    }
+}
+
+/// ORs the first `n` flags of `bits` (8 per byte) into `words` from bit
+/// `offset` on.
+fn append_bits(words: &mut [u64], offset: usize, bits: &[u8], n: usize) {
+    for (j, &b) in bits.iter().take(n.div_ceil(8)).enumerate() {
+        let valid = (n - 8 * j).min(8);
+        let b = (b as u64) & ((1u64 << valid) - 1);
+        if b == 0 {
+            continue;
+        }
+        let o = offset + 8 * j;
+        let (word, shift) = (o >> 6, o & 63);
+        words[word] |= b << shift;
+        if shift > 56 {
+            let spill = b >> (64 - shift);
+            if spill != 0 {
+                words[word + 1] |= spill;
+            }
+        }
+    }
 }
 
 /// Horizontal metres per pixel step, and 3D lengths.
@@ -252,168 +466,487 @@ impl Metric {
     }
 }
 
-fn neighbour(c: usize, d: usize, w: usize) -> usize {
-    let (dx, dy) = DIRS[d];
-    (c as isize + dy * w as isize + dx) as usize
+/// Moving along the forest: cell offsets of the mask directions and the
+/// candidates' ids, cells and heights.
+struct Forest<'a> {
+    cand: &'a CandidateSet,
+    off: [isize; 8],
 }
 
-/// Walk from `start` out along direction `d` until a cell whose degree is not
-/// 2. Returns the cells visited (start included) and the walked length.
-fn walk(mask: &[u8], w: usize, metric: &Metric, start: usize, mut d: usize) -> (Vec<usize>, f64) {
-    let mut path = vec![start];
-    let mut len = 0.0;
-    let mut c = start;
-    let y0 = metric.gt[3];
-    let step: [f64; 8] =
-        std::array::from_fn(|k| metric.step_m(DIRS[k].0 as f64, DIRS[k].1 as f64, y0));
-    loop {
-        let n = neighbour(c, d, w);
-        len += step[d];
-        path.push(n);
-        c = n;
-        let m = mask[c];
-        if m.count_ones() != 2 {
-            break;
+impl<'a> Forest<'a> {
+    fn new(cand: &'a CandidateSet, w: usize) -> Self {
+        Forest {
+            cand,
+            off: std::array::from_fn(|d| DIRS[d].1 * w as isize + DIRS[d].0),
         }
-        let back = (d + 4) % 8;
-        let rest = m & !(1 << back);
-        d = rest.trailing_zeros() as usize;
     }
-    (path, len)
-}
 
-fn remove_path(mask: &mut [u8], w: usize, path: &[usize]) {
-    for p in path.windows(2) {
-        let (a, b) = (p[0], p[1]);
-        for d in 0..8 {
-            if mask[a] & (1 << d) != 0 && neighbour(a, d, w) == b {
-                mask[a] &= !(1 << d);
-                mask[b] &= !(1 << ((d + 4) % 8));
-            }
-        }
+    /// The cell and candidate id one step from `cell` along direction `d`
+    /// (which must lead to a candidate).
+    #[inline]
+    fn step(&self, cell: usize, d: usize) -> (usize, usize) {
+        let n = (cell as isize + self.off[d]) as usize;
+        (n, self.cand.id(n) as usize)
     }
 }
 
-/// One pruning pass: leaf branches shorter than `min_branch` that end at a
-/// branch point are removed, as are isolated lines shorter than `min_line`.
-fn prune(mask: &mut [u8], w: usize, metric: &Metric, min_branch: f64, min_line: f64) {
-    let leaves: Vec<usize> = mask
-        .par_iter()
+/// Ids whose mask satisfies `keep`, in order (scanned in parallel).
+fn select(mask: &[u8], keep: impl Fn(u8) -> bool + Sync) -> Vec<u32> {
+    const CHUNK: usize = 1 << 16;
+    let parts: Vec<Vec<u32>> = mask
+        .par_chunks(CHUNK)
         .enumerate()
-        .filter_map(|(i, m)| (m.count_ones() == 1).then_some(i))
+        .map(|(k, chunk)| {
+            let base = (k * CHUNK) as u32;
+            let mut v = Vec::new();
+            for (i, &m) in chunk.iter().enumerate() {
+                if keep(m) {
+                    v.push(base + i as u32);
+                }
+            }
+            v
+        })
         .collect();
-    for leaf in leaves {
-        let m = mask[leaf];
-        if m.count_ones() != 1 {
+    parts.concat()
+}
+
+/// Walks from leaves along the forest, with the pruning lengths.
+struct LeafWalker<'a> {
+    forest: &'a Forest<'a>,
+    /// Metres of one step along each direction.
+    step: [f64; 8],
+    min_branch: f64,
+    min_line: f64,
+    /// A walk this long is kept whatever its end.
+    enough: f64,
+}
+
+impl LeafWalker<'_> {
+    /// The end of the walk from `leaf` (the first cell of degree other than
+    /// 2) and the walked length, or `None` when the walk grows long enough
+    /// to be kept before its end.
+    #[inline]
+    fn walk(&self, mask: &[u8], leaf: usize) -> Option<(usize, f64)> {
+        let (mut c, mut d) = (
+            self.forest.cand.cells[leaf] as usize,
+            mask[leaf].trailing_zeros() as usize,
+        );
+        let mut len = 0.0;
+        loop {
+            let (nc, nid) = self.forest.step(c, d);
+            len += self.step[d];
+            let m = mask[nid];
+            if degree(m) != 2 {
+                return Some((nid, len));
+            }
+            if len >= self.enough {
+                return None;
+            }
+            d = (m & !(1 << ((d + 4) % 8))).trailing_zeros() as usize;
+            c = nc;
+        }
+    }
+
+    /// Whether a walk of `len` ending at a cell of degree `end_degree` is
+    /// pruned.
+    #[inline]
+    fn too_short(&self, len: f64, end_degree: u32) -> bool {
+        if end_degree >= 3 {
+            len < self.min_branch
+        } else {
+            len < self.min_line
+        }
+    }
+
+    /// Removes the walk from `leaf` to its end.
+    fn remove(&self, mask: &mut [u8], leaf: usize) {
+        let (mut c, mut id, mut d) = (
+            self.forest.cand.cells[leaf] as usize,
+            leaf,
+            mask[leaf].trailing_zeros() as usize,
+        );
+        loop {
+            let (nc, nid) = self.forest.step(c, d);
+            let m = mask[nid];
+            let back = (d + 4) % 8;
+            mask[id] &= !(1 << d);
+            mask[nid] &= !(1 << back);
+            if degree(m) != 2 {
+                return;
+            }
+            d = (m & !(1 << back)).trailing_zeros() as usize;
+            (c, id) = (nc, nid);
+        }
+    }
+
+    /// Removes the walk from `leaf` to its end `end` (directly when they are
+    /// neighbours).
+    #[inline]
+    fn remove_to(&self, mask: &mut [u8], leaf: usize, end: usize) {
+        let d = mask[leaf].trailing_zeros() as usize;
+        let cells = &self.forest.cand.cells;
+        if cells[leaf] as isize + self.forest.off[d] == cells[end] as isize {
+            mask[leaf] &= !(1 << d);
+            mask[end] &= !(1 << ((d + 4) % 8));
+        } else {
+            self.remove(mask, leaf);
+        }
+    }
+
+    /// Walks from `leaf` and removes the walk when it is too short; returns
+    /// whether the walk reached its end and was kept.
+    fn visit(&self, mask: &mut [u8], leaf: usize) -> bool {
+        let Some((end, len)) = self.walk(mask, leaf) else {
+            return false;
+        };
+        if self.too_short(len, degree(mask[end])) {
+            self.remove(mask, leaf);
+            false
+        } else {
+            true
+        }
+    }
+}
+
+/// Pruning passes: leaf branches shorter than `min_branch` that end at a
+/// branch point are removed, as are isolated lines shorter than `min_line`.
+///
+/// Leaves are visited in cell order, one after another (a removal changes
+/// the branch point's degree, which the next walks see). A walk stops as
+/// soon as it is long enough to be kept whatever its end. Removals create no
+/// new leaves (a branch point keeps degree 2 or more) and never touch a
+/// chain whose walk stopped that way, so later passes only revisit the
+/// leaves that reached their end and were kept: the result is that of
+/// walking every leaf in every pass.
+///
+/// The walks of the first pass are made beforehand in parallel on the
+/// unpruned forest. In the ordered pass, a leaf's chain is still intact
+/// (only its own removal or that of the leaf at its other end would touch
+/// it), so its walk is unchanged as long as its end is still a branch point
+/// or still a leaf; otherwise it is walked again.
+#[inline(never)]
+fn prune(
+    forest: &Forest,
+    mask: &mut [u8],
+    metric: &Metric,
+    (min_branch, min_line): (f64, f64),
+    passes: usize,
+) {
+    if passes == 0 {
+        return;
+    }
+    let y0 = metric.gt[3];
+    let walker = LeafWalker {
+        forest,
+        step: std::array::from_fn(|k| metric.step_m(DIRS[k].0 as f64, DIRS[k].1 as f64, y0)),
+        min_branch,
+        min_line,
+        enough: min_branch.max(min_line),
+    };
+    // Walks of the leaves that reach their end: leaf id, end id << 30, bit
+    // 62: the end is a branch point, bit 63: too short.
+    const CHUNK: usize = 1 << 14;
+    const ID: u64 = (1 << 30) - 1;
+    let walks: Vec<Vec<u64>> = mask
+        .par_chunks(CHUNK)
+        .enumerate()
+        .map(|(k, chunk)| {
+            let mut walks = Vec::new();
+            for (i, _) in chunk.iter().enumerate().filter(|(_, &m)| degree(m) == 1) {
+                let leaf = k * CHUNK + i;
+                if let Some((end, len)) = walker.walk(mask, leaf) {
+                    let end_degree = degree(mask[end]);
+                    walks.push(
+                        leaf as u64
+                            | (end as u64) << 30
+                            | ((end_degree >= 3) as u64) << 62
+                            | (walker.too_short(len, end_degree) as u64) << 63,
+                    );
+                }
+            }
+            walks
+        })
+        .collect();
+    // The leaves to visit in the next pass.
+    let mut revisit: Vec<u32> = Vec::new();
+    for &walk in walks.iter().flatten() {
+        let (leaf, end) = ((walk & ID) as usize, (walk >> 30 & ID) as usize);
+        if degree(mask[leaf]) != 1 {
             continue;
         }
-        let (path, len) = walk(mask, w, metric, leaf, m.trailing_zeros() as usize);
-        let end = mask[*path.last().unwrap_or(&leaf)].count_ones();
-        let too_short = if end >= 3 {
-            len < min_branch
+        let end_degree = degree(mask[end]);
+        let branch = walk >> 62 & 1 == 1;
+        let kept = if (end_degree == 1 && !branch) || (end_degree >= 3 && branch) {
+            let too_short = walk >> 63 == 1;
+            if too_short {
+                walker.remove_to(mask, leaf, end);
+            }
+            !too_short
         } else {
-            len < min_line
+            walker.visit(mask, leaf)
         };
-        if too_short {
-            remove_path(mask, w, &path);
+        if kept {
+            revisit.push(leaf as u32);
         }
+    }
+    drop(walks);
+    for _ in 1..passes {
+        let mut kept = 0;
+        for k in 0..revisit.len() {
+            let leaf = revisit[k] as usize;
+            if degree(mask[leaf]) == 1 && walker.visit(mask, leaf) {
+                revisit[kept] = leaf as u32;
+                kept += 1;
+            }
+        }
+        revisit.truncate(kept);
     }
 }
 
 /// Trace the forest into lines between nodes, smooth them and convert them
-/// to CRS coordinates.
-fn trace(map: &HeightMap, mask: &[u8], metric: &Metric, smooth: usize) -> RidgeNetwork {
+/// to CRS coordinates. Each line is traced from its node of lower cell index
+/// (in parallel over the nodes; the walk from the other end is dropped), so
+/// the lines come in the order of their first node and direction.
+#[inline(never)]
+fn trace(
+    map: &HeightMap,
+    forest: &Forest,
+    mask: &[u8],
+    metric: &Metric,
+    smooth: usize,
+) -> RidgeNetwork {
     let w = map.width;
     let gt = &map.geotransform;
-    let mut net = RidgeNetwork::default();
-    let node_cells: Vec<usize> = mask
+    let cand = forest.cand;
+    let node_ids = select(mask, |m| m != 0 && degree(m) != 2);
+    let nodes: Vec<RidgeNode> = node_ids
         .par_iter()
         .enumerate()
-        .filter_map(|(i, m)| (*m != 0 && m.count_ones() != 2).then_some(i))
-        .collect();
-    let mut ids = std::collections::HashMap::with_capacity(node_cells.len());
-    for &c in &node_cells {
-        let id = net.nodes.len() as u32;
-        ids.insert(c, id);
-        let (col, row) = (c % w, c / w);
-        let (x, y) = gt.pixel_to_crs(col as f64 + 0.5, row as f64 + 0.5);
-        net.nodes.push(RidgeNode {
-            id,
-            cell: [col as u32, row as u32],
-            point: [x, y, map.data[c] as f64],
-            degree: mask[c].count_ones() as u8,
-        });
-    }
-    let mut done = vec![0u8; mask.len()];
-    for &c in &node_cells {
-        for d in 0..8 {
-            if mask[c] & (1 << d) == 0 || done[c] & (1 << d) != 0 {
-                continue;
+        .map(|(i, &id)| {
+            let c = cand.cells[id as usize] as usize;
+            let (col, row) = (c % w, c / w);
+            let (x, y) = gt.pixel_to_crs(col as f64 + 0.5, row as f64 + 0.5);
+            RidgeNode {
+                id: i as u32,
+                cell: [col as u32, row as u32],
+                point: [x, y, cand.heights[id as usize] as f64],
+                degree: degree(mask[id as usize]) as u8,
             }
-            let (path, _) = walk(mask, w, metric, c, d);
-            let last = *path.last().unwrap_or(&c);
-            // mark the final edge from the far end so it is not traced again
-            let prev = path[path.len() - 2];
-            for e in 0..8 {
-                if mask[last] & (1 << e) != 0 && neighbour(last, e, w) == prev {
-                    done[last] |= 1 << e;
+        })
+        .collect();
+    const CHUNK: usize = 256;
+    let chunks: Vec<Vec<RidgeLine>> = node_ids
+        .par_chunks(CHUNK)
+        .enumerate()
+        .map(|(k, chunk)| {
+            let mut lines = Vec::new();
+            let mut ids: Vec<u32> = Vec::new();
+            let mut dirs: Vec<u8> = Vec::new();
+            for (i, &id) in chunk.iter().enumerate() {
+                let m0 = mask[id as usize];
+                let cell = cand.cells[id as usize] as usize;
+                for d0 in 0..8 {
+                    if m0 & (1 << d0) == 0 {
+                        continue;
+                    }
+                    ids.clear();
+                    dirs.clear();
+                    ids.push(id);
+                    let (mut c, mut d) = (cell, d0);
+                    let end = loop {
+                        let (nc, nid) = forest.step(c, d);
+                        ids.push(nid as u32);
+                        dirs.push(d as u8);
+                        c = nc;
+                        let m = mask[nid];
+                        if degree(m) != 2 {
+                            break nid as u32;
+                        }
+                        let back = (d + 4) % 8;
+                        d = (m & !(1 << back)).trailing_zeros() as usize;
+                    };
+                    if end < id {
+                        continue;
+                    }
+                    let far = node_ids.binary_search(&end).map_or(u32::MAX, |j| j as u32);
+                    let node = (k * CHUNK + i) as u32;
+                    lines.push(polyline(
+                        map,
+                        metric,
+                        cand,
+                        (cell, &ids, &dirs),
+                        smooth,
+                        [node, far],
+                    ));
                 }
             }
-            done[c] |= 1 << d;
-            let mut px: Vec<[f64; 3]> = path
-                .iter()
-                .map(|&p| {
-                    [
-                        (p % w) as f64 + 0.5,
-                        (p / w) as f64 + 0.5,
-                        map.data[p] as f64,
-                    ]
-                })
-                .collect();
-            smooth_polyline(&mut px, smooth);
-            let points: Vec<[f64; 3]> = px
-                .iter()
-                .map(|p| {
-                    let (x, y) = gt.pixel_to_crs(p[0], p[1]);
-                    [x, y, p[2]]
-                })
-                .collect();
-            let length_m = px
-                .windows(2)
-                .zip(points.windows(2))
-                .map(|(a, b)| {
-                    let hm = metric.step_m(a[1][0] - a[0][0], a[1][1] - a[0][1], b[0][1]);
-                    hm.hypot(a[1][2] - a[0][2])
-                })
-                .sum();
-            let (na, nb) = (
-                ids.get(&c).copied().unwrap_or(u32::MAX),
-                ids.get(&last).copied().unwrap_or(u32::MAX),
-            );
-            net.lines.push(RidgeLine {
-                id: net.lines.len() as u32,
-                pixels: px.iter().map(|p| [p[0], p[1]]).collect(),
-                points,
-                length_m,
-                nodes: [na, nb],
-            });
-        }
+            lines
+        })
+        .collect();
+    let mut lines = Vec::with_capacity(chunks.iter().map(Vec::len).sum());
+    for chunk in chunks {
+        lines.extend(chunk);
     }
-    net
+    for (i, l) in lines.iter_mut().enumerate() {
+        l.id = i as u32;
+    }
+    RidgeNetwork {
+        lines,
+        nodes,
+        candidate_cells: 0,
+    }
 }
 
-/// [1 2 1]/4 smoothing of interior vertices, `iterations` times.
+/// The smoothed line from cell `cell` through the candidates `ids` (the
+/// first one, then one step along each of `dirs`) in pixel and CRS
+/// coordinates.
+#[inline(never)]
+fn polyline(
+    map: &HeightMap,
+    metric: &Metric,
+    cand: &CandidateSet,
+    (cell, ids, dirs): (usize, &[u32], &[u8]),
+    smooth: usize,
+    nodes: [u32; 2],
+) -> RidgeLine {
+    let w = map.width;
+    let (mut col, mut row) = ((cell % w) as isize, (cell / w) as isize);
+    let z = |id: u32| cand.heights[id as usize] as f64;
+    let mut px: Vec<[f64; 3]> = Vec::with_capacity(ids.len());
+    px.push([col as f64 + 0.5, row as f64 + 0.5, z(ids[0])]);
+    for (&id, &d) in ids[1..].iter().zip(dirs) {
+        let (dx, dy) = DIRS[d as usize];
+        (col, row) = (col + dx, row + dy);
+        px.push([col as f64 + 0.5, row as f64 + 0.5, z(id)]);
+    }
+    smooth_polyline(&mut px, smooth);
+    let pixels: Vec<[f64; 2]> = px.iter().map(|p| [p[0], p[1]]).collect();
+    let mut points = px;
+    for p in points.iter_mut() {
+        (p[0], p[1]) = map.geotransform.pixel_to_crs(p[0], p[1]);
+    }
+    let length_m = pixels
+        .windows(2)
+        .zip(points.windows(2))
+        .map(|(a, b)| {
+            let hm = metric.step_m(a[1][0] - a[0][0], a[1][1] - a[0][1], b[0][1]);
+            hm.hypot(b[1][2] - b[0][2])
+        })
+        .sum();
+    RidgeLine {
+        id: 0,
+        points,
+        pixels,
+        length_m,
+        nodes,
+    }
+}
+
+/// [1 2 1]/4 smoothing of interior vertices, `iterations` times, in place.
 fn smooth_polyline(p: &mut [[f64; 3]], iterations: usize) {
     if p.len() < 3 {
         return;
     }
-    let mut tmp = p.to_vec();
     for _ in 0..iterations {
+        let mut prev = p[0];
         for i in 1..p.len() - 1 {
+            let cur = p[i];
             for k in 0..3 {
-                tmp[i][k] = 0.25 * p[i - 1][k] + 0.5 * p[i][k] + 0.25 * p[i + 1][k];
+                p[i][k] = 0.25 * prev[k] + 0.5 * cur[k] + 0.25 * p[i + 1][k];
+            }
+            prev = cur;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::raster::{Crs, GeoTransform};
+
+    fn random_map(w: usize, h: usize, seed: u64) -> HeightMap {
+        let mut s = seed;
+        let data = (0..w * h)
+            .map(|_| {
+                s ^= s << 13;
+                s ^= s >> 7;
+                s ^= s << 17;
+                // Coarse values make ties; a few NaN cells.
+                match s % 97 {
+                    0 => f32::NAN,
+                    v => (v % 23) as f32,
+                }
+            })
+            .collect();
+        HeightMap {
+            width: w,
+            height: h,
+            data,
+            geotransform: GeoTransform::north_up(0.0, 0.0, 30.0, 30.0),
+            crs: Crs {
+                epsg: None,
+                wkt: String::new(),
+                proj: None,
+                geographic: false,
+            },
+        }
+    }
+
+    /// Profile recognition by its definition, cell by cell.
+    fn reference(map: &HeightMap, p: &RidgeParams) -> Vec<bool> {
+        let (w, h) = (map.width as isize, map.height as isize);
+        let at = |c: isize, r: isize| {
+            (c >= 0 && r >= 0 && c < w && r < h)
+                .then(|| map.data[(r * w + c) as usize])
+                .filter(|v| !v.is_nan())
+        };
+        let mut out = Vec::new();
+        for r in 0..h {
+            for c in 0..w {
+                let z = map.data[(r * w + c) as usize];
+                let mut n = 0;
+                for &(dx, dy) in &DIRS[..4] {
+                    let low = |s: isize| {
+                        (1..=p.half_window as isize)
+                            .filter_map(|k| at(c + s * k * dx, r + s * k * dy))
+                            .reduce(f32::min)
+                    };
+                    let crest = [low(1), low(-1)]
+                        .iter()
+                        .all(|m| m.is_some_and(|m| z - m > p.min_drop_m));
+                    n += crest as u8;
+                }
+                out.push(n >= p.min_directions);
             }
         }
-        p.copy_from_slice(&tmp);
+        out
+    }
+
+    #[test]
+    fn profile_recognition_follows_its_definition() {
+        for (w, h, seed) in [(70, 150, 1), (9, 200, 2), (130, 66, 3), (64, 64, 4)] {
+            let map = random_map(w, h, seed);
+            for hw in 1..=5 {
+                for (min_directions, min_drop_m) in [(1, 0.0), (2, 0.0), (3, 2.5), (4, -1.0)] {
+                    let p = RidgeParams {
+                        half_window: hw,
+                        min_directions,
+                        min_drop_m,
+                        ..RidgeParams::default()
+                    };
+                    let want = reference(&map, &p);
+                    for simd in [true, false] {
+                        let set = profile_recognition_with(&map, &p, simd);
+                        let got: Vec<bool> = (0..w * h)
+                            .map(|c| set.before(c + 1) > set.before(c))
+                            .collect();
+                        assert!(
+                            got == want,
+                            "{w} x {h}, hw {hw}, {min_directions} directions, drop {min_drop_m}, simd {simd}"
+                        );
+                    }
+                }
+            }
+        }
     }
 }

@@ -5,13 +5,18 @@
 //!
 //! Segments join 8-adjacent candidate cells (of two crossing diagonals only
 //! the higher is kept); a segment's weight is the sum of its two heights and
-//! ties are broken by segment id, so the forest is unique and equal to what
-//! Kruskal's algorithm over all segments (highest first) gives.
+//! ties are broken by segment id (the id of its first candidate in row-major
+//! order times 4 plus its direction), so the forest is unique and equal to
+//! what Kruskal's algorithm over all segments (highest first) gives.
 //!
-//! 1. The rows are cut into strips. Each strip runs Kruskal on the segments
-//!    inside it with a small union-find (in parallel). By the cycle
-//!    property, a segment left out of its strip's forest is the lowest of a
-//!    cycle and is not in the global forest either.
+//! 1. The rows are cut into strips of 64 rows. Each strip computes the
+//!    forest of the segments inside it (in parallel): one Borůvka step (the
+//!    best segment of every candidate is in the forest) joins the candidates
+//!    into trees, then Kruskal runs on the segments between trees only,
+//!    sorted by weight with a stable radix sort (the segments are generated
+//!    in id order), with a union-find over the strip's candidates. By the
+//!    cycle property, a segment left out of its strip's forest is the lowest
+//!    of a cycle and is not in the global forest either.
 //! 2. Only segments crossing strip boundaries can close new cycles. Their
 //!    end cells are terminals. In each strip forest, branches that hold no
 //!    terminal are cut off (they are in no cycle) and the remaining chains
@@ -21,16 +26,17 @@
 //!    decides which crossing segments join and which chains lose their
 //!    lowest segment.
 //!
-//! The result is the forest's adjacency mask (bit `d` links a cell to its
-//! neighbour `DIRS[d]` of [`super::ridges`]).
+//! The result is the forest's adjacency mask per candidate id (bit `d` links
+//! a candidate to its neighbour `DIRS[d]` of [`super::ridges`]).
 
 use rayon::prelude::*;
-use std::collections::HashMap;
 
-/// Rows per strip.
+use super::candidates::{split_at_bounds, CandidateSet};
+use super::ridges::{degree, DIRS};
+
+/// Rows per strip (a multiple of 64 cells per strip keeps strips on whole
+/// bitmap words).
 const STRIP: usize = 64;
-
-use super::ridges::DIRS;
 
 /// Order-preserving map of an `f32` to `u32`.
 #[inline]
@@ -43,216 +49,461 @@ fn f32_key(v: f32) -> u32 {
     }
 }
 
-/// Sort key of the segment from cell `a` along mask bit `d` (`d` < 4, the
-/// other cell lies to the east or below): higher weight first, then lower
-/// id. The id is `a * 4 + d`.
+/// Weight part of a segment's sort key: ascending keys are descending
+/// height sums.
 #[inline]
-fn key(z: &[f32], a: usize, b: usize, d: usize) -> u64 {
-    ((!f32_key(z[a] + z[b])) as u64) << 32 | (a * 4 + d) as u64
+fn weight_key(z: &[f32], a: usize, b: usize) -> u32 {
+    !f32_key(z[a] + z[b])
 }
 
-/// Key of the segment between `c` and its neighbour along any mask bit `d`.
+/// Full sort key of the segment from candidate `id_a` along bit `d` (< 4):
+/// higher weight first, then lower segment id.
 #[inline]
-fn key_any(z: &[f32], w: usize, c: usize, d: usize) -> u64 {
-    let n = neighbour(c, d, w);
-    if d < 4 {
-        key(z, c, n, d)
-    } else {
-        key(z, n, c, d - 4)
-    }
+fn segment_key(weight: u32, id_a: u32, d: usize) -> u64 {
+    (weight as u64) << 32 | (id_a as u64 * 4 + d as u64)
 }
 
-#[inline]
-fn neighbour(c: usize, d: usize, w: usize) -> usize {
-    let (dx, dy) = DIRS[d];
-    (c as isize + dy * w as isize + dx) as usize
+/// Cell offsets of the eight mask directions.
+fn offsets(w: usize) -> [isize; 8] {
+    std::array::from_fn(|d| DIRS[d].1 * w as isize + DIRS[d].0)
 }
 
-/// The segments from candidate cell `c` (row `row`, column `col`) to its
-/// east / south-east / south / south-west neighbours, as `(bit, other)`.
+/// Root of `x`, halving the path on the way.
 #[inline]
-fn segments(
-    cand: &[bool],
-    z: &[f32],
-    w: usize,
-    h: usize,
-    c: usize,
-    mut f: impl FnMut(usize, usize),
-) {
-    let (col, row) = (c % w, c / w);
-    if col + 1 < w && cand[c + 1] {
-        f(0, c + 1);
-    }
-    if row + 1 >= h {
-        return;
-    }
-    let s = c + w;
-    if cand[s] {
-        f(2, s);
-    }
-    if col + 1 < w && cand[s + 1] {
-        let crossing = cand[c + 1] && cand[s];
-        if !(crossing && z[c + 1] + z[s] > z[c] + z[s + 1]) {
-            f(1, s + 1);
-        }
-    }
-    if col > 0 && cand[s - 1] {
-        let crossing = cand[c - 1] && cand[s];
-        if !(crossing && z[c - 1] + z[s] >= z[c] + z[s - 1]) {
-            f(3, s - 1);
-        }
-    }
-}
-
 fn find(parent: &mut [u32], mut x: u32) -> u32 {
     while parent[x as usize] != x {
-        let p = parent[x as usize];
-        parent[x as usize] = parent[p as usize];
+        let p = parent[parent[x as usize] as usize];
+        parent[x as usize] = p;
         x = p;
     }
     x
 }
 
-/// A contracted chain of a strip forest, or a crossing segment.
+/// Joins the trees of roots `ra` and `rb` (union by rank).
+#[inline]
+fn union(parent: &mut [u32], rank: &mut [u8], ra: u32, rb: u32) {
+    let (ka, kb) = (rank[ra as usize], rank[rb as usize]);
+    if ka < kb {
+        parent[ra as usize] = rb;
+    } else {
+        parent[rb as usize] = ra;
+        if ka == kb {
+            rank[ra as usize] += 1;
+        }
+    }
+}
+
+/// The candidates of a row and of the row below it.
+struct RowPair<'a> {
+    /// Cells of the row's candidates, and the id of the first.
+    cur: &'a [u32],
+    cur_id0: u32,
+    /// The same for the row below (empty below the last row).
+    next: &'a [u32],
+    next_id0: u32,
+}
+
+/// The segments from the candidates of a row to their east / south-east /
+/// south / south-west neighbours, as `f(bit, (cell a, cell b), (id a, id b))`,
+/// in segment-id order. Of two crossing diagonals only the higher is kept
+/// (ties to the south-west one).
+#[inline]
+fn row_segments(
+    z: &[f32],
+    w: usize,
+    rows: &RowPair,
+    mut f: impl FnMut(usize, (usize, usize), (u32, u32)),
+) {
+    const NONE: u32 = u32::MAX;
+    let (cur, next) = (rows.cur, rows.next);
+    let mut j = 0usize;
+    for (i, &a) in cur.iter().enumerate() {
+        // Cells of other rows never match: the lists hold one row each.
+        let ida = rows.cur_id0 + i as u32;
+        let east = cur.get(i + 1) == Some(&(a + 1));
+        let west = i > 0 && cur[i - 1] + 1 == a;
+        let (a, s) = (a as usize, a as usize + w);
+        if east {
+            f(0, (a, a + 1), (ida, ida + 1));
+        }
+        // Candidates below at s - 1, s, s + 1.
+        while j < next.len() && (next[j] as usize) + 1 < s {
+            j += 1;
+        }
+        let mut below = [NONE; 3];
+        let mut k = j;
+        while k < next.len() && next[k] as usize <= s + 1 {
+            below[next[k] as usize + 1 - s] = rows.next_id0 + k as u32;
+            k += 1;
+        }
+        let south = below[1] != NONE;
+        if below[2] != NONE && !(east && south && z[a + 1] + z[s] > z[a] + z[s + 1]) {
+            f(1, (a, s + 1), (ida, below[2]));
+        }
+        if south {
+            f(2, (a, s), (ida, below[1]));
+        }
+        if below[0] != NONE && !(west && south && z[a - 1] + z[s] >= z[a] + z[s - 1]) {
+            f(3, (a, s - 1), (ida, below[0]));
+        }
+    }
+}
+
+/// Stable LSD radix sort of `items` by their upper 32 bits (11-bit digits;
+/// digits equal in all items are skipped).
+fn sort_by_high_word(items: &mut Vec<u64>, tmp: &mut Vec<u64>) {
+    const DIGITS: [(u32, usize); 3] = [(32, 11), (43, 11), (54, 10)];
+    let mut hist = [[0u32; 1 << 11]; 3];
+    for &x in items.iter() {
+        for (h, &(shift, bits)) in hist.iter_mut().zip(&DIGITS) {
+            h[(x >> shift) as usize & ((1 << bits) - 1)] += 1;
+        }
+    }
+    tmp.resize(items.len(), 0);
+    for (h, &(shift, bits)) in hist.iter_mut().zip(&DIGITS) {
+        if h.iter().any(|&c| c as usize == items.len()) {
+            continue;
+        }
+        let mut sum = 0u32;
+        for c in h.iter_mut() {
+            let n = *c;
+            *c = sum;
+            sum += n;
+        }
+        for &x in items.iter() {
+            let slot = &mut h[(x >> shift) as usize & ((1 << bits) - 1)];
+            tmp[*slot as usize] = x;
+            *slot += 1;
+        }
+        std::mem::swap(items, tmp);
+    }
+}
+
+/// A segment by the ids of its two candidates; `bit` (< 4) leads from `a`
+/// to `b`.
 #[derive(Clone, Copy)]
-struct Link {
+struct Segment {
     a: u32,
     b: u32,
-    /// Key of the lowest segment (the link's weight).
-    key: u64,
-    /// That segment: cell and mask bit.
-    cell: u32,
     bit: u8,
+    key: u64,
+}
+
+/// A contracted chain of a strip forest (its lowest segment) or a crossing
+/// segment, between two vertices of the contracted graph.
+#[derive(Clone, Copy)]
+struct Link {
+    ends: [u32; 2],
+    seg: Segment,
     crossing: bool,
 }
 
-/// Maximum spanning forest of the candidate segments; returns the mask.
-pub(crate) fn spanning_forest(z: &[f32], cand: &[bool], w: usize, h: usize) -> Vec<u8> {
-    let mut mask = vec![0u8; w * h];
+/// One strip after contraction.
+#[derive(Default)]
+struct Contracted {
+    /// Chains between the strip's key vertices (local vertex numbers).
+    chains: Vec<Link>,
+    /// Number of key vertices.
+    vertices: u32,
+    /// Vertex numbers of the `a` ends of the strip's own crossing segments.
+    down: Vec<u32>,
+    /// Vertex numbers of the `b` ends of the previous strip's crossing segments.
+    up: Vec<u32>,
+}
+
+/// Candidate ids of the `b` ends of the segments from row `row` to the row
+/// below, in the order in which [`strip_forest`] lists them as crossing.
+fn crossing_ends(z: &[f32], cand: &CandidateSet, w: usize, row: usize) -> Vec<u32> {
+    let ids = |r: usize| cand.before(r * w)..cand.before((r + 1) * w);
+    let (cur, next) = (ids(row), ids(row + 1));
+    let rows = RowPair {
+        cur: &cand.cells[cur.start as usize..cur.end as usize],
+        cur_id0: cur.start,
+        next: &cand.cells[next.start as usize..next.end as usize],
+        next_id0: next.start,
+    };
+    let mut ends = Vec::new();
+    row_segments(z, w, &rows, |d, _, (_, idb)| {
+        if d != 0 {
+            ends.push(idb);
+        }
+    });
+    ends
+}
+
+/// Working memory of one rayon job, reused from strip to strip.
+#[derive(Default)]
+struct Scratch {
+    items: Vec<u64>,
+    sorted: Vec<u64>,
+    segs: Vec<[u32; 2]>,
+    parent: Vec<u32>,
+    rank: Vec<u8>,
+    best: Vec<u64>,
+    core: Vec<u8>,
+    flags: Vec<u8>,
+    number: Vec<u32>,
+    stack: Vec<u32>,
+}
+
+/// Maximum spanning forest of the candidate segments: the adjacency mask of
+/// each candidate id.
+#[inline(never)]
+pub(super) fn spanning_forest(z: &[f32], cand: &CandidateSet, w: usize, h: usize) -> Vec<u8> {
+    let mut mask = vec![0u8; cand.len()];
     let strips = h.div_ceil(STRIP);
-    // 1. Kruskal inside each strip; collect the crossing segments.
-    let crossing: Vec<Vec<Link>> = mask
-        .par_chunks_mut(STRIP * w)
-        .enumerate()
-        .map(|(s, mask)| {
-            let (r0, r1) = (s * STRIP, ((s + 1) * STRIP).min(h));
-            let base = r0 * w;
-            let mut keys = Vec::new();
-            let mut cross = Vec::new();
-            for c in base..r1 * w {
-                if !cand[c] {
-                    continue;
-                }
-                segments(cand, z, w, h, c, |d, o| {
-                    let k = key(z, c, o, d);
-                    if o < r1 * w {
-                        keys.push(k);
-                    } else {
-                        cross.push(Link {
-                            a: c as u32,
-                            b: o as u32,
-                            key: k,
-                            cell: c as u32,
-                            bit: d as u8,
-                            crossing: true,
-                        });
-                    }
-                });
-            }
-            keys.sort_unstable();
-            let mut parent: Vec<u32> = (0..((r1 - r0) * w) as u32).collect();
-            for k in keys {
-                let id = (k & 0xffff_ffff) as usize;
-                let (a, d) = (id / 4, id % 4);
-                let b = neighbour(a, d, w);
-                let (la, lb) = ((a - base) as u32, (b - base) as u32);
-                let (ra, rb) = (find(&mut parent, la), find(&mut parent, lb));
-                if ra != rb {
-                    parent[ra as usize] = rb;
-                    mask[a - base] |= 1 << d;
-                    mask[b - base] |= 1 << (d + 4);
-                }
-            }
-            cross
-        })
+    let first_id: Vec<u32> = (0..=strips)
+        .map(|s| cand.before((s * STRIP).min(h) * w))
         .collect();
-    let crossing: Vec<Link> = crossing.into_iter().flatten().collect();
-    if crossing.is_empty() || strips < 2 {
+    // 1. Forest of each strip, contracted to its terminals and branch
+    // points; the crossing segments to the next strip.
+    let several = strips > 1;
+    let (crossing, contracted): (Vec<Vec<Segment>>, Vec<Contracted>) =
+        split_at_bounds(&mut mask, &first_id)
+            .into_par_iter()
+            .enumerate()
+            .map_init(Scratch::default, |scratch, (s, smask)| {
+                let id0 = first_id[s];
+                let down = strip_forest(z, cand, (w, h), (s, id0), smask, scratch);
+                let contracted = if several {
+                    let up = if s > 0 {
+                        crossing_ends(z, cand, w, s * STRIP - 1)
+                    } else {
+                        Vec::new()
+                    };
+                    contract_strip(cand, w, id0, smask, (&down, &up), scratch)
+                } else {
+                    Contracted::default()
+                };
+                (down, contracted)
+            })
+            .unzip();
+    if !several || crossing.iter().all(|c| c.is_empty()) {
         return mask;
     }
-    // 2. Terminals and contracted chains per strip.
-    let mut terminal = vec![false; w * h];
-    for l in &crossing {
-        terminal[l.a as usize] = true;
-        terminal[l.b as usize] = true;
-    }
-    let chains: Vec<Vec<Link>> = mask
-        .par_chunks(STRIP * w)
-        .enumerate()
-        .map(|(s, smask)| {
-            let base = s * STRIP * w;
-            contract_strip(z, w, base, smask, &terminal[base..base + smask.len()])
-        })
-        .collect();
     // 3. Kruskal on the contracted graph.
-    let mut links: Vec<Link> = chains.into_iter().flatten().collect();
-    links.extend_from_slice(&crossing);
-    links.sort_unstable_by_key(|l| l.key);
-    let mut ids: HashMap<u32, u32> = HashMap::with_capacity(2 * links.len());
-    let mut parent: Vec<u32> = Vec::with_capacity(2 * links.len());
-    let mut id_of = |c: u32, parent: &mut Vec<u32>| -> u32 {
-        *ids.entry(c).or_insert_with(|| {
-            parent.push(parent.len() as u32);
-            parent.len() as u32 - 1
-        })
-    };
+    let mut base = Vec::with_capacity(strips + 1);
+    let mut n = 0u32;
+    for c in &contracted {
+        base.push(n);
+        n += c.vertices;
+    }
+    let mut links: Vec<Link> = Vec::new();
+    for (s, c) in contracted.iter().enumerate() {
+        links.extend(c.chains.iter().map(|l| Link {
+            ends: [base[s] + l.ends[0], base[s] + l.ends[1]],
+            ..*l
+        }));
+        if s + 1 < strips {
+            let below = &contracted[s + 1];
+            links.extend(crossing[s].iter().enumerate().map(|(i, &seg)| Link {
+                ends: [base[s] + c.down[i], base[s + 1] + below.up[i]],
+                seg,
+                crossing: true,
+            }));
+        }
+    }
+    links.par_sort_unstable_by_key(|l| l.seg.key);
+    let mut parent: Vec<u32> = (0..n).collect();
+    let mut rank = vec![0u8; n as usize];
     for l in links {
-        let (a, b) = (id_of(l.a, &mut parent), id_of(l.b, &mut parent));
-        let (ra, rb) = (find(&mut parent, a), find(&mut parent, b));
-        let (c, d) = (l.cell as usize, l.bit as usize);
-        let n = neighbour(c, d, w);
+        let (ra, rb) = (find(&mut parent, l.ends[0]), find(&mut parent, l.ends[1]));
+        let Segment { a, b, bit, .. } = l.seg;
         if ra != rb {
-            parent[ra as usize] = rb;
+            union(&mut parent, &mut rank, ra, rb);
             if l.crossing {
-                mask[c] |= 1 << d;
-                mask[n] |= 1 << ((d + 4) % 8);
+                mask[a as usize] |= 1 << bit;
+                mask[b as usize] |= 1 << (bit + 4);
             }
         } else if !l.crossing {
             // The chain's lowest segment closes a cycle: break it there.
-            mask[c] &= !(1 << d);
-            mask[n] &= !(1 << ((d + 4) % 8));
+            mask[a as usize] &= !(1 << bit);
+            mask[b as usize] &= !(1 << (bit + 4));
         }
     }
     mask
 }
 
-/// The chains between terminals and branch points of one strip's forest
-/// (`smask`, cells `base..base + smask.len()`), after cutting branches that
-/// hold no terminal.
-fn contract_strip(z: &[f32], w: usize, base: usize, smask: &[u8], term: &[bool]) -> Vec<Link> {
+/// Kruskal on the segments inside strip `s` (candidate ids from `id0`, mask
+/// `smask`); returns the segments from its last row to the next strip.
+#[inline(never)]
+fn strip_forest(
+    z: &[f32],
+    cand: &CandidateSet,
+    (w, h): (usize, usize),
+    (s, id0): (usize, u32),
+    smask: &mut [u8],
+    scratch: &mut Scratch,
+) -> Vec<Segment> {
+    let (r0, r1) = (s * STRIP, ((s + 1) * STRIP).min(h));
     let n = smask.len();
-    let mut core = smask.to_vec();
+    // Sort items: weight key above, index into `segs` below.
+    let Scratch {
+        items,
+        sorted,
+        segs,
+        parent,
+        rank,
+        best,
+        ..
+    } = scratch;
+    items.clear();
+    segs.clear();
+    best.clear();
+    best.resize(n, u64::MAX);
+    let mut crossing = Vec::new();
+    let row_ids = |r: usize| cand.before(r * w)..cand.before((r + 1).min(h) * w);
+    let mut next_ids = row_ids(r0);
+    for row in r0..r1 {
+        let cur_ids = next_ids;
+        next_ids = row_ids(row + 1);
+        let rows = RowPair {
+            cur: &cand.cells[cur_ids.start as usize..cur_ids.end as usize],
+            cur_id0: cur_ids.start,
+            next: &cand.cells[next_ids.start as usize..next_ids.end as usize],
+            next_id0: next_ids.start,
+        };
+        let inside = row + 1 < r1;
+        row_segments(z, w, &rows, |d, (a, b), (ida, idb)| {
+            let weight = weight_key(z, a, b);
+            if d == 0 || inside {
+                let item = (weight as u64) << 32 | segs.len() as u64;
+                let (la, lb) = ((ida - id0) as usize, (idb - id0) as usize);
+                items.push(item);
+                segs.push([(la as u32) << 2 | d as u32, lb as u32]);
+                best[la] = best[la].min(item);
+                best[lb] = best[lb].min(item);
+            } else {
+                crossing.push(Segment {
+                    a: ida,
+                    b: idb,
+                    bit: d as u8,
+                    key: segment_key(weight, ida, d),
+                });
+            }
+        });
+    }
+    // Borůvka step: the best segment of every candidate (the first of its
+    // segments in Kruskal order) is in the forest. These segments form trees
+    // whose only cycles are the pairs of candidates that chose the same
+    // segment; the lower id of a pair is the root.
+    parent.clear();
+    for (v, &item) in best.iter().enumerate() {
+        if item == u64::MAX {
+            parent.push(v as u32);
+            continue;
+        }
+        let [ad, b] = segs[(item & 0xffff_ffff) as usize];
+        let (a, d) = (ad >> 2, ad & 3);
+        smask[a as usize] |= 1 << d;
+        smask[b as usize] |= 1 << (d + 4);
+        let other = if a as usize == v { b } else { a };
+        let root = best[other as usize] == item && (v as u32) < other;
+        parent.push(if root { v as u32 } else { other });
+    }
+    for v in 0..n as u32 {
+        let root = find(parent, v);
+        let mut x = v;
+        while parent[x as usize] != root {
+            (x, parent[x as usize]) = (parent[x as usize], root);
+        }
+    }
+    // Kruskal on the segments between the trees.
+    sorted.clear();
+    sorted.extend(items.iter().copied().filter(|&item| {
+        let [ad, b] = segs[(item & 0xffff_ffff) as usize];
+        parent[(ad >> 2) as usize] != parent[b as usize]
+    }));
+    std::mem::swap(items, sorted);
+    sort_by_high_word(items, sorted);
+    rank.clear();
+    rank.resize(n, 0);
+    for &item in items.iter() {
+        let [ad, b] = segs[(item & 0xffff_ffff) as usize];
+        let (a, d) = (ad >> 2, ad & 3);
+        let (ra, rb) = (find(parent, a), find(parent, b));
+        if ra != rb {
+            union(parent, rank, ra, rb);
+            smask[a as usize] |= 1 << d;
+            smask[b as usize] |= 1 << (d + 4);
+        }
+    }
+    crossing
+}
+
+/// The chains between key vertices (terminals and branch points) of one
+/// strip's forest `smask` (candidate ids from `id0`), after cutting
+/// branches that hold no terminal. `down` are the strip's crossing segments
+/// to the next strip, `up` those of the previous strip into this one.
+#[inline(never)]
+fn contract_strip(
+    cand: &CandidateSet,
+    w: usize,
+    id0: u32,
+    smask: &[u8],
+    (down, up): (&[Segment], &[u32]),
+    scratch: &mut Scratch,
+) -> Contracted {
+    const TERMINAL: u8 = 1;
+    if down.is_empty() && up.is_empty() {
+        return Contracted::default();
+    }
+    let z = &cand.heights[id0 as usize..];
+    let n = smask.len();
+    let off = offsets(w);
+    let cells = &cand.cells[id0 as usize..id0 as usize + n];
+    let Scratch {
+        core,
+        flags,
+        number,
+        stack,
+        ..
+    } = scratch;
+    // flags: bit 0 terminal, bits 1.. unused; `done` edges live in `core`'s
+    // copy below.
+    flags.clear();
+    flags.resize(n, 0);
+    for s in down {
+        flags[(s.a - id0) as usize] = TERMINAL;
+    }
+    for &b in up {
+        flags[(b - id0) as usize] = TERMINAL;
+    }
+    let term = |i: usize| flags[i] == TERMINAL;
+    core.clear();
+    core.extend_from_slice(smask);
     // Cut non-terminal leaves repeatedly.
-    let mut stack: Vec<usize> = (0..n)
-        .filter(|&i| core[i].count_ones() == 1 && !term[i])
-        .collect();
+    stack.clear();
+    stack.extend((0..n as u32).filter(|&i| degree(core[i as usize]) == 1 && !term(i as usize)));
     while let Some(i) = stack.pop() {
-        if core[i].count_ones() != 1 || term[i] {
+        let i = i as usize;
+        if degree(core[i]) != 1 || term(i) {
             continue;
         }
         let d = core[i].trailing_zeros() as usize;
-        let j = neighbour(base + i, d, w) - base;
+        let j = (cand.id((cells[i] as isize + off[d]) as usize) - id0) as usize;
         core[i] = 0;
         core[j] &= !(1 << ((d + 4) % 8));
-        if core[j].count_ones() == 1 && !term[j] {
-            stack.push(j);
+        if degree(core[j]) == 1 && !term(j) {
+            stack.push(j as u32);
         }
     }
-    let is_key = |i: usize| term[i] || core[i].count_ones() != 2;
-    let mut out = Vec::new();
-    let mut done = vec![0u8; n];
+    // Number the key vertices.
+    number.clear();
+    number.resize(n, u32::MAX);
+    let mut vertices = 0u32;
     for i in 0..n {
-        if core[i] == 0 || !is_key(i) {
+        if term(i) || (core[i] != 0 && degree(core[i]) != 2) {
+            number[i] = vertices;
+            vertices += 1;
+        }
+    }
+    // Trace the chains from key vertices; `done` marks traced edge ends.
+    let done = flags;
+    done.iter_mut().for_each(|f| *f = 0);
+    let mut chains = Vec::new();
+    for i in 0..n {
+        if core[i] == 0 || number[i] == u32::MAX {
             continue;
         }
         for d0 in 0..8 {
@@ -262,16 +513,32 @@ fn contract_strip(z: &[f32], w: usize, base: usize, smask: &[u8], term: &[bool])
             done[i] |= 1 << d0;
             let (mut c, mut d) = (i, d0);
             // The lowest segment has the largest key.
-            let mut low: Option<(u64, usize, usize)> = None;
+            let mut low: Option<Segment> = None;
             let end = loop {
-                let g = base + c;
-                let k = key_any(z, w, g, d);
-                if low.is_none_or(|l| k > l.0) {
-                    low = Some((k, g, d));
+                let cell = cells[c] as usize;
+                let other = (cell as isize + off[d]) as usize;
+                let nb = (cand.id(other) - id0) as usize;
+                let (ga, gb) = (id0 + c as u32, id0 + nb as u32);
+                let seg = if d < 4 {
+                    Segment {
+                        a: ga,
+                        b: gb,
+                        bit: d as u8,
+                        key: segment_key(weight_key(z, c, nb), ga, d),
+                    }
+                } else {
+                    Segment {
+                        a: gb,
+                        b: ga,
+                        bit: d as u8 - 4,
+                        key: segment_key(weight_key(z, nb, c), gb, d - 4),
+                    }
+                };
+                if low.is_none_or(|l| seg.key > l.key) {
+                    low = Some(seg);
                 }
-                let nb = neighbour(g, d, w) - base;
                 let back = (d + 4) % 8;
-                if is_key(nb) {
+                if number[nb] != u32::MAX {
                     done[nb] |= 1 << back;
                     break nb;
                 }
@@ -279,44 +546,63 @@ fn contract_strip(z: &[f32], w: usize, base: usize, smask: &[u8], term: &[bool])
                 c = nb;
                 d = rest.trailing_zeros() as usize;
             };
-            let Some((k, cell, bit)) = low else { continue };
-            let (cell, bit) = if bit < 4 {
-                (cell, bit)
-            } else {
-                (neighbour(cell, bit, w), bit - 4)
-            };
-            out.push(Link {
-                a: (base + i) as u32,
-                b: (base + end) as u32,
-                key: k,
-                cell: cell as u32,
-                bit: bit as u8,
+            let Some(seg) = low else { continue };
+            chains.push(Link {
+                ends: [number[i], number[end]],
+                seg,
                 crossing: false,
             });
         }
     }
-    out
+    Contracted {
+        chains,
+        vertices,
+        down: down.iter().map(|s| number[(s.a - id0) as usize]).collect(),
+        up: up.iter().map(|&b| number[(b - id0) as usize]).collect(),
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    /// Kruskal over all segments at once: the reference.
+    /// Kruskal over all segments at once, on cell indices: the reference.
     fn global_kruskal(z: &[f32], cand: &[bool], w: usize, h: usize) -> Vec<u8> {
-        let mut keys = Vec::new();
+        let mut segs = Vec::new();
         for c in 0..w * h {
-            if cand[c] {
-                segments(cand, z, w, h, c, |d, o| keys.push(key(z, c, o, d)));
+            if !cand[c] {
+                continue;
+            }
+            let (col, row) = (c % w, c / w);
+            let mut add = |d: usize, o: usize| segs.push((z[c] + z[o], c, d, o));
+            let east = col + 1 < w && cand[c + 1];
+            if east {
+                add(0, c + 1);
+            }
+            if row + 1 < h {
+                let s = c + w;
+                if col + 1 < w
+                    && cand[s + 1]
+                    && !(east && cand[s] && z[c + 1] + z[s] > z[c] + z[s + 1])
+                {
+                    add(1, s + 1);
+                }
+                if cand[s] {
+                    add(2, s);
+                }
+                if col > 0
+                    && cand[s - 1]
+                    && !(cand[c - 1] && cand[s] && z[c - 1] + z[s] >= z[c] + z[s - 1])
+                {
+                    add(3, s - 1);
+                }
             }
         }
-        keys.sort_unstable();
+        // Highest first, then by cell and direction.
+        segs.sort_by(|p, q| q.0.total_cmp(&p.0).then((p.1, p.2).cmp(&(q.1, q.2))));
         let mut parent: Vec<u32> = (0..(w * h) as u32).collect();
         let mut mask = vec![0u8; w * h];
-        for k in keys {
-            let id = (k & 0xffff_ffff) as usize;
-            let (a, d) = (id / 4, id % 4);
-            let b = neighbour(a, d, w);
+        for (_, a, d, b) in segs {
             let (ra, rb) = (find(&mut parent, a as u32), find(&mut parent, b as u32));
             if ra != rb {
                 parent[ra as usize] = rb;
@@ -341,12 +627,41 @@ mod tests {
             (100, 300, 0.7),
             (64, 129, 0.9),
             (5, 400, 0.6),
+            (1, 150, 0.8),
+            (200, 1, 0.8),
         ] {
             let z: Vec<f32> = (0..w * h).map(|_| (rnd() * 50.0).round() as f32).collect();
-            let cand: Vec<bool> = (0..w * h).map(|_| rnd() < density).collect();
-            let a = spanning_forest(&z, &cand, w, h);
-            let b = global_kruskal(&z, &cand, w, h);
-            assert!(a == b, "{w} x {h} at {density}: forests differ");
+            let flags: Vec<bool> = (0..w * h).map(|_| rnd() < density).collect();
+            let set = CandidateSet::from_flags(&flags, &z, w, h);
+            let by_id = spanning_forest(&z, &set, w, h);
+            let want = global_kruskal(&z, &flags, w, h);
+            let got: Vec<u8> = (0..w * h)
+                .map(|c| {
+                    if flags[c] {
+                        by_id[set.id(c) as usize]
+                    } else {
+                        0
+                    }
+                })
+                .collect();
+            assert!(got == want, "{w} x {h} at {density}: forests differ");
         }
+    }
+
+    #[test]
+    fn radix_sort_is_stable_by_the_high_word() {
+        let mut seed = 0x9e37_79b9_7f4a_7c15u64;
+        let mut items: Vec<u64> = (0..5000u64)
+            .map(|i| {
+                seed ^= seed << 13;
+                seed ^= seed >> 7;
+                seed ^= seed << 17;
+                ((seed >> 32) & 0xff00_07ff) << 32 | i
+            })
+            .collect();
+        let mut want = items.clone();
+        want.sort_by_key(|x| x >> 32);
+        sort_by_high_word(&mut items, &mut Vec::new());
+        assert_eq!(items, want);
     }
 }

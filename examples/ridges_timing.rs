@@ -1,0 +1,129 @@
+//! Times ridge detection (PPA) on the synthetic fractal DEM of the features
+//! benchmark and prints a fingerprint of the network, so that a change of the
+//! implementation can be checked to give the same lines.
+//!
+//! Run: `cargo run --release --example ridges_timing -- [width] [repeats] [height]`.
+
+use demsketch::features::{detect_ridges, RidgeParams};
+use demsketch::raster::{Crs, GeoTransform, HeightMap};
+use std::time::Instant;
+
+/// The benchmark's deterministic multi-octave value noise (benches/features.rs).
+fn fractal(w: usize, h: usize) -> HeightMap {
+    fn hash(x: i64, y: i64, o: u64) -> f64 {
+        let mut h = (x as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+            ^ (y as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)
+            ^ o.wrapping_mul(0x1656_67B1_9E37_79F9);
+        h ^= h >> 29;
+        h = h.wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        h ^= h >> 32;
+        (h >> 11) as f64 / (1u64 << 53) as f64
+    }
+    fn noise(x: f64, y: f64, o: u64) -> f64 {
+        let (xi, yi) = (x.floor(), y.floor());
+        let (fx, fy) = (x - xi, y - yi);
+        let (sx, sy) = (fx * fx * (3.0 - 2.0 * fx), fy * fy * (3.0 - 2.0 * fy));
+        let (xi, yi) = (xi as i64, yi as i64);
+        let a = hash(xi, yi, o) + sx * (hash(xi + 1, yi, o) - hash(xi, yi, o));
+        let b = hash(xi, yi + 1, o) + sx * (hash(xi + 1, yi + 1, o) - hash(xi, yi + 1, o));
+        a + sy * (b - a)
+    }
+    let mut data = vec![0f32; w * h];
+    use rayon::prelude::*;
+    data.par_chunks_mut(w).enumerate().for_each(|(r, row)| {
+        for (c, v) in row.iter_mut().enumerate() {
+            let (x, y) = (c as f64 / 300.0, r as f64 / 300.0);
+            let mut h = 0.0;
+            let mut amp = 1000.0;
+            let mut f = 1.0;
+            for o in 0..7 {
+                h += amp * noise(x * f, y * f, o);
+                amp *= 0.5;
+                f *= 2.0;
+            }
+            *v = h as f32;
+        }
+    });
+    HeightMap {
+        width: w,
+        height: h,
+        data,
+        geotransform: GeoTransform::north_up(500_000.0, 4_000_000.0 + 30.0 * h as f64, 30.0, 30.0),
+        crs: Crs {
+            epsg: Some(32632),
+            wkt: String::new(),
+            proj: None,
+            geographic: false,
+        },
+    }
+}
+
+/// The fractal DEM, kept in the temporary directory between runs (so that
+/// profiles of this example show ridge detection, not the noise).
+fn cached_fractal(w: usize, h: usize) -> HeightMap {
+    let path = std::env::temp_dir().join(format!("demsketch_fractal_{w}x{h}.f32"));
+    let mut map = fractal(w.min(2), h.min(2));
+    if let Ok(bytes) = std::fs::read(&path) {
+        if bytes.len() == w * h * 4 {
+            map.data = bytes
+                .chunks_exact(4)
+                .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+                .collect();
+            map.width = w;
+            map.height = h;
+            map.geotransform =
+                GeoTransform::north_up(500_000.0, 4_000_000.0 + 30.0 * h as f64, 30.0, 30.0);
+            return map;
+        }
+    }
+    let map = fractal(w, h);
+    let bytes: Vec<u8> = map.data.iter().flat_map(|v| v.to_le_bytes()).collect();
+    let _ = std::fs::write(&path, bytes);
+    map
+}
+
+fn main() {
+    let mut args = std::env::args().skip(1);
+    let n: usize = args.next().and_then(|s| s.parse().ok()).unwrap_or(4096);
+    let repeats: usize = args.next().and_then(|s| s.parse().ok()).unwrap_or(10);
+    let h: usize = args.next().and_then(|s| s.parse().ok()).unwrap_or(n);
+    let map = cached_fractal(n, h);
+    let params = RidgeParams::default();
+    let mut best = f64::INFINITY;
+    let mut net = None;
+    for _ in 0..repeats {
+        let t = Instant::now();
+        let r = detect_ridges(&map, &params).expect("ridges");
+        best = best.min(t.elapsed().as_secs_f64());
+        net = Some(r);
+    }
+    let Some(net) = net else { return };
+    // Fingerprint: a hash of every vertex, line and node, in order.
+    let mut fp = 0xcbf2_9ce4_8422_2325u64;
+    let mut mix = |v: u64| {
+        fp ^= v;
+        fp = fp.wrapping_mul(0x100_0000_01b3);
+    };
+    for l in &net.lines {
+        mix(l.nodes[0] as u64);
+        mix(l.nodes[1] as u64);
+        for p in &l.points {
+            mix(p[0].to_bits());
+            mix(p[1].to_bits());
+            mix(p[2].to_bits());
+        }
+        mix(l.length_m.to_bits());
+    }
+    for nd in &net.nodes {
+        mix(nd.cell[0] as u64 | (nd.cell[1] as u64) << 32);
+        mix(nd.degree as u64);
+    }
+    println!(
+        "{n}x{h}: best of {repeats}: {:.2} ms; {} candidates, {} lines, {} nodes, {:.1} km, fingerprint {fp:016x}",
+        best * 1e3,
+        net.candidate_cells,
+        net.lines.len(),
+        net.nodes.len(),
+        net.total_length_m() / 1e3
+    );
+}
