@@ -89,9 +89,10 @@ impl LocalTerrain {
         let ny = r1.saturating_sub(r0).max(1);
         let coef = frame.curvature.coefficient();
         let eye_alt = frame.eye_alt;
-        // Zeroed allocation: the pages are mapped by the parallel fill below,
-        // which writes every element.
-        let mut z = vec![0f32; nx * ny];
+        // A recycled buffer (see `spare_heights`) or a zeroed allocation whose
+        // pages are mapped by the parallel fill below, which writes every
+        // element.
+        let mut z = spare_heights::take(nx * ny);
         let max_d2 = max_d * max_d * 1.0001 + 1.0;
         z.par_chunks_mut(nx).enumerate().for_each(|(r, row)| {
             let src_r = r0 + r;
@@ -100,21 +101,21 @@ impl LocalTerrain {
                 return;
             }
             let dy = src_r as f64 + 0.5 - ey;
-            let src = &dem.data[src_r * dem.width..(src_r + 1) * dem.width];
-            for (c, out) in row.iter_mut().enumerate() {
-                let src_c = c0 + c;
-                let h = src.get(src_c).copied().unwrap_or(f32::NAN);
-                let dx = src_c as f64 + 0.5 - ex;
-                let e = p[0][0] * dx + p[0][1] * dy;
-                let n = p[1][0] * dx + p[1][1] * dy;
+            // columns inside the DEM, then any beyond its edge
+            let inside = dem.width.saturating_sub(c0).min(nx);
+            let src = &dem.data[src_r * dem.width + c0..src_r * dem.width + c0 + inside];
+            let (e0, n0) = (p[0][1] * dy, p[1][1] * dy);
+            let dx0 = c0 as f64 + 0.5 - ex;
+            for (c, (out, &h)) in row[..inside].iter_mut().zip(src).enumerate() {
+                let dx = dx0 + c as f64;
+                let e = p[0][0] * dx + e0;
+                let n = p[1][0] * dx + n0;
                 let d2 = e * e + n * n;
                 // NaN heights stay NaN
-                *out = if d2 > max_d2 {
-                    f32::NAN
-                } else {
-                    (h as f64 - eye_alt - coef * d2) as f32
-                };
+                let v = (h as f64 - eye_alt - coef * d2) as f32;
+                *out = if d2 > max_d2 { f32::NAN } else { v };
             }
+            row[inside..].fill(f32::NAN);
         });
         let eye_v = (ex - 0.5 - c0 as f64, ey - 0.5 - r0 as f64);
         let (zmin, zmax) = z
@@ -582,6 +583,55 @@ impl LocalTerrain {
             }
         }
         None
+    }
+}
+
+impl Drop for LocalTerrain {
+    fn drop(&mut self) {
+        spare_heights::give_back(std::mem::take(&mut self.z));
+    }
+}
+
+/// Height buffers of dropped terrains, kept for the next one: a large
+/// terrain's buffer is a fresh memory mapping each time it is allocated,
+/// and mapping its pages costs more than filling it (about 50 ms of CPU for
+/// a 4096 x 4096 DEM). Re-rendering the same DEM (benchmarks, the edit's
+/// lowering loop) reuses the buffer instead. At most two are kept.
+mod spare_heights {
+    use std::sync::Mutex;
+
+    static SPARE: Mutex<Vec<Vec<f32>>> = Mutex::new(Vec::new());
+    /// Buffers smaller than this (in elements) are not worth keeping.
+    const MIN_KEEP: usize = 1 << 20;
+
+    /// A buffer of length `n` with unspecified contents.
+    pub(super) fn take(n: usize) -> Vec<f32> {
+        if n >= MIN_KEEP {
+            if let Ok(mut spare) = SPARE.lock() {
+                if let Some(k) = spare
+                    .iter()
+                    .position(|b| b.capacity() >= n && b.capacity() <= 2 * n)
+                {
+                    let mut b = spare.swap_remove(k);
+                    b.truncate(n);
+                    b.resize(n, 0.0);
+                    return b;
+                }
+            }
+        }
+        vec![0f32; n]
+    }
+
+    pub(super) fn give_back(b: Vec<f32>) {
+        if b.capacity() < MIN_KEEP {
+            return;
+        }
+        if let Ok(mut spare) = SPARE.lock() {
+            if spare.len() >= 2 {
+                spare.remove(0);
+            }
+            spare.push(b);
+        }
     }
 }
 
