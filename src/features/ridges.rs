@@ -481,6 +481,21 @@ impl<'a> Forest<'a> {
         }
     }
 
+    /// Id of the first cell of degree other than 2 on the walk from `cell`
+    /// along direction `d`.
+    #[inline]
+    fn end(&self, mask: &[u8], mut cell: usize, mut d: usize) -> usize {
+        loop {
+            let (nc, nid) = self.step(cell, d);
+            let m = mask[nid];
+            if degree(m) != 2 {
+                return nid;
+            }
+            d = (m & !(1 << ((d + 4) % 8))).trailing_zeros() as usize;
+            cell = nc;
+        }
+    }
+
     /// The cell and candidate id one step from `cell` along direction `d`
     /// (which must lead to a candidate).
     #[inline]
@@ -508,6 +523,18 @@ fn select(mask: &[u8], keep: impl Fn(u8) -> bool + Sync) -> Vec<u32> {
         })
         .collect();
     parts.concat()
+}
+
+/// Mask of a candidate id in a leaf's walk record: leaf id, end id << 30,
+/// bit 62: the end is a branch point (else a leaf), bit 63: too short.
+const ID: u64 = (1 << 30) - 1;
+
+/// Whether a walk record's end still has the degree class (branch point or
+/// leaf) it had when walked: then the walk is unchanged.
+#[inline]
+fn same_class(walk: u64, end_degree: u32) -> bool {
+    let branch = walk >> 62 & 1 == 1;
+    (end_degree == 1 && !branch) || (end_degree >= 3 && branch)
 }
 
 /// Walks from leaves along the forest, with the pruning lengths.
@@ -593,17 +620,26 @@ impl LeafWalker<'_> {
         }
     }
 
+    /// The record of the walk from `leaf` to `end` of length `len`.
+    #[inline]
+    fn record(&self, mask: &[u8], leaf: usize, end: usize, len: f64) -> u64 {
+        let end_degree = degree(mask[end]);
+        leaf as u64
+            | (end as u64) << 30
+            | ((end_degree >= 3) as u64) << 62
+            | (self.too_short(len, end_degree) as u64) << 63
+    }
+
     /// Walks from `leaf` and removes the walk when it is too short; returns
-    /// whether the walk reached its end and was kept.
-    fn visit(&self, mask: &mut [u8], leaf: usize) -> bool {
-        let Some((end, len)) = self.walk(mask, leaf) else {
-            return false;
-        };
-        if self.too_short(len, degree(mask[end])) {
+    /// the walk's record when it reached its end and was kept.
+    fn settle(&self, mask: &mut [u8], leaf: usize) -> Option<u64> {
+        let (end, len) = self.walk(mask, leaf)?;
+        let walk = self.record(mask, leaf, end, len);
+        if walk >> 63 == 1 {
             self.remove(mask, leaf);
-            false
+            None
         } else {
-            true
+            Some(walk)
         }
     }
 }
@@ -616,8 +652,9 @@ impl LeafWalker<'_> {
 /// soon as it is long enough to be kept whatever its end. Removals create no
 /// new leaves (a branch point keeps degree 2 or more) and never touch a
 /// chain whose walk stopped that way, so later passes only revisit the
-/// leaves that reached their end and were kept: the result is that of
-/// walking every leaf in every pass.
+/// leaves that reached their end and were kept, and walk again only those
+/// whose end changed class: the result is that of walking every leaf in
+/// every pass.
 ///
 /// The walks of the first pass are made beforehand in parallel on the
 /// unpruned forest. In the ordered pass, a leaf's chain is still intact
@@ -643,10 +680,8 @@ fn prune(
         min_line,
         enough: min_branch.max(min_line),
     };
-    // Walks of the leaves that reach their end: leaf id, end id << 30, bit
-    // 62: the end is a branch point, bit 63: too short.
+    // Records of the walks of the leaves that reach their end.
     const CHUNK: usize = 1 << 14;
-    const ID: u64 = (1 << 30) - 1;
     let walks: Vec<Vec<u64>> = mask
         .par_chunks(CHUNK)
         .enumerate()
@@ -655,49 +690,48 @@ fn prune(
             for (i, _) in chunk.iter().enumerate().filter(|(_, &m)| degree(m) == 1) {
                 let leaf = k * CHUNK + i;
                 if let Some((end, len)) = walker.walk(mask, leaf) {
-                    let end_degree = degree(mask[end]);
-                    walks.push(
-                        leaf as u64
-                            | (end as u64) << 30
-                            | ((end_degree >= 3) as u64) << 62
-                            | (walker.too_short(len, end_degree) as u64) << 63,
-                    );
+                    walks.push(walker.record(mask, leaf, end, len));
                 }
             }
             walks
         })
         .collect();
-    // The leaves to visit in the next pass.
-    let mut revisit: Vec<u32> = Vec::new();
+    // The leaves to visit in the next pass, with their walks.
+    let mut revisit: Vec<u64> = Vec::new();
     for &walk in walks.iter().flatten() {
         let (leaf, end) = ((walk & ID) as usize, (walk >> 30 & ID) as usize);
         if degree(mask[leaf]) != 1 {
             continue;
         }
-        let end_degree = degree(mask[end]);
-        let branch = walk >> 62 & 1 == 1;
-        let kept = if (end_degree == 1 && !branch) || (end_degree >= 3 && branch) {
-            let too_short = walk >> 63 == 1;
-            if too_short {
+        if same_class(walk, degree(mask[end])) {
+            if walk >> 63 == 1 {
                 walker.remove_to(mask, leaf, end);
+            } else {
+                revisit.push(walk);
             }
-            !too_short
-        } else {
-            walker.visit(mask, leaf)
-        };
-        if kept {
-            revisit.push(leaf as u32);
+        } else if let Some(walk) = walker.settle(mask, leaf) {
+            revisit.push(walk);
         }
     }
     drop(walks);
+    // A kept walk whose end kept its class is kept again.
     for _ in 1..passes {
         let mut kept = 0;
         for k in 0..revisit.len() {
-            let leaf = revisit[k] as usize;
-            if degree(mask[leaf]) == 1 && walker.visit(mask, leaf) {
-                revisit[kept] = leaf as u32;
-                kept += 1;
+            let walk = revisit[k];
+            let (leaf, end) = ((walk & ID) as usize, (walk >> 30 & ID) as usize);
+            if degree(mask[leaf]) != 1 {
+                continue;
             }
+            let walk = if same_class(walk, degree(mask[end])) {
+                walk
+            } else if let Some(walk) = walker.settle(mask, leaf) {
+                walk
+            } else {
+                continue;
+            };
+            revisit[kept] = walk;
+            kept += 1;
         }
         revisit.truncate(kept);
     }
@@ -734,62 +768,65 @@ fn trace(
             }
         })
         .collect();
-    const CHUNK: usize = 256;
-    let chunks: Vec<Vec<RidgeLine>> = node_ids
+    // The lines as first node (index) << 3 | direction: walked from both
+    // ends, kept from the lower one.
+    const CHUNK: usize = 1024;
+    let firsts: Vec<Vec<u32>> = node_ids
         .par_chunks(CHUNK)
         .enumerate()
         .map(|(k, chunk)| {
-            let mut lines = Vec::new();
-            let mut ids: Vec<u32> = Vec::new();
-            let mut dirs: Vec<u8> = Vec::new();
+            let mut firsts = Vec::new();
             for (i, &id) in chunk.iter().enumerate() {
-                let m0 = mask[id as usize];
-                let cell = cand.cells[id as usize] as usize;
-                for d0 in 0..8 {
-                    if m0 & (1 << d0) == 0 {
-                        continue;
+                let (m, cell) = (mask[id as usize], cand.cells[id as usize] as usize);
+                for d in (0..8).filter(|d| m & (1 << d) != 0) {
+                    if forest.end(mask, cell, d) > id as usize {
+                        firsts.push(((k * CHUNK + i) as u32) << 3 | d as u32);
                     }
-                    ids.clear();
-                    dirs.clear();
-                    ids.push(id);
-                    let (mut c, mut d) = (cell, d0);
-                    let end = loop {
-                        let (nc, nid) = forest.step(c, d);
-                        ids.push(nid as u32);
-                        dirs.push(d as u8);
-                        c = nc;
-                        let m = mask[nid];
-                        if degree(m) != 2 {
-                            break nid as u32;
-                        }
-                        let back = (d + 4) % 8;
-                        d = (m & !(1 << back)).trailing_zeros() as usize;
-                    };
-                    if end < id {
-                        continue;
-                    }
-                    let far = node_ids.binary_search(&end).map_or(u32::MAX, |j| j as u32);
-                    let node = (k * CHUNK + i) as u32;
-                    lines.push(polyline(
-                        map,
-                        metric,
-                        cand,
-                        (cell, &ids, &dirs),
-                        smooth,
-                        [node, far],
-                    ));
                 }
             }
-            lines
+            firsts
         })
         .collect();
-    let mut lines = Vec::with_capacity(chunks.iter().map(Vec::len).sum());
-    for chunk in chunks {
-        lines.extend(chunk);
-    }
-    for (i, l) in lines.iter_mut().enumerate() {
-        l.id = i as u32;
-    }
+    let firsts = firsts.concat();
+    let mut lines = Vec::new();
+    firsts
+        .par_iter()
+        .enumerate()
+        .map_init(
+            || (Vec::new(), Vec::new()),
+            |(ids, dirs), (line, &first)| {
+                let (node, d0) = ((first >> 3) as usize, (first & 7) as usize);
+                let id = node_ids[node];
+                let cell = cand.cells[id as usize] as usize;
+                ids.clear();
+                dirs.clear();
+                ids.push(id);
+                let (mut c, mut d) = (cell, d0);
+                let end = loop {
+                    let (nc, nid) = forest.step(c, d);
+                    ids.push(nid as u32);
+                    dirs.push(d as u8);
+                    c = nc;
+                    let m = mask[nid];
+                    if degree(m) != 2 {
+                        break nid as u32;
+                    }
+                    d = (m & !(1 << ((d + 4) % 8))).trailing_zeros() as usize;
+                };
+                let far = node_ids.binary_search(&end).map_or(u32::MAX, |j| j as u32);
+                let mut l = polyline(
+                    map,
+                    metric,
+                    cand,
+                    (cell, ids, dirs),
+                    smooth,
+                    [node as u32, far],
+                );
+                l.id = line as u32;
+                l
+            },
+        )
+        .collect_into_vec(&mut lines);
     RidgeNetwork {
         lines,
         nodes,

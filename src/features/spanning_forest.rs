@@ -93,14 +93,25 @@ fn union(parent: &mut [u32], rank: &mut [u8], ra: u32, rb: u32) {
     }
 }
 
+/// End of a row's list of candidate cells.
+const SENTINEL: u32 = u32::MAX;
+
 /// The candidates of a row and of the row below it.
 struct RowPair<'a> {
-    /// Cells of the row's candidates, and the id of the first.
+    /// Cells of the row's candidates followed by [`SENTINEL`], and the id of
+    /// the first.
     cur: &'a [u32],
     cur_id0: u32,
-    /// The same for the row below (empty below the last row).
+    /// The same for the row below (only the sentinel below the last row).
     next: &'a [u32],
     next_id0: u32,
+}
+
+/// `cells` followed by [`SENTINEL`], into `out`.
+fn with_sentinel(cells: &[u32], out: &mut Vec<u32>) {
+    out.clear();
+    out.extend_from_slice(cells);
+    out.push(SENTINEL);
 }
 
 /// The segments from the candidates of a row to their east / south-east /
@@ -114,37 +125,36 @@ fn row_segments(
     rows: &RowPair,
     mut f: impl FnMut(usize, (usize, usize), (u32, u32)),
 ) {
-    const NONE: u32 = u32::MAX;
     let (cur, next) = (rows.cur, rows.next);
     let mut j = 0usize;
-    for (i, &a) in cur.iter().enumerate() {
+    for i in 0..cur.len() - 1 {
         // Cells of other rows never match: the lists hold one row each.
+        let a = cur[i];
         let ida = rows.cur_id0 + i as u32;
-        let east = cur.get(i + 1) == Some(&(a + 1));
+        let east = cur[i + 1] == a + 1;
         let west = i > 0 && cur[i - 1] + 1 == a;
         let (a, s) = (a as usize, a as usize + w);
         if east {
             f(0, (a, a + 1), (ida, ida + 1));
         }
-        // Candidates below at s - 1, s, s + 1.
-        while j < next.len() && (next[j] as usize) + 1 < s {
+        // Candidates below at s - 1, s, s + 1 (the sentinel ends the scans).
+        while (next[j] as usize) + 1 < s {
             j += 1;
         }
-        let mut below = [NONE; 3];
-        let mut k = j;
-        while k < next.len() && next[k] as usize <= s + 1 {
-            below[next[k] as usize + 1 - s] = rows.next_id0 + k as u32;
-            k += 1;
-        }
-        let south = below[1] != NONE;
-        if below[2] != NONE && !(east && south && z[a + 1] + z[s] > z[a] + z[s + 1]) {
-            f(1, (a, s + 1), (ida, below[2]));
+        let south_west = next[j] as usize + 1 == s;
+        let k = j + south_west as usize;
+        let south = next[k] as usize == s;
+        let k_east = k + south as usize;
+        let south_east = next[k_east] as usize == s + 1;
+        let id = |k: usize| rows.next_id0 + k as u32;
+        if south_east && !(east && south && z[a + 1] + z[s] > z[a] + z[s + 1]) {
+            f(1, (a, s + 1), (ida, id(k_east)));
         }
         if south {
-            f(2, (a, s), (ida, below[1]));
+            f(2, (a, s), (ida, id(k)));
         }
-        if below[0] != NONE && !(west && south && z[a - 1] + z[s] >= z[a] + z[s - 1]) {
-            f(3, (a, s - 1), (ida, below[0]));
+        if south_west && !(west && south && z[a - 1] + z[s] >= z[a] + z[s - 1]) {
+            f(3, (a, s - 1), (ida, id(j)));
         }
     }
 }
@@ -216,10 +226,19 @@ struct Contracted {
 fn crossing_ends(z: &[f32], cand: &CandidateSet, w: usize, row: usize) -> Vec<u32> {
     let ids = |r: usize| cand.before(r * w)..cand.before((r + 1) * w);
     let (cur, next) = (ids(row), ids(row + 1));
+    let (mut cur_cells, mut next_cells) = (Vec::new(), Vec::new());
+    with_sentinel(
+        &cand.cells[cur.start as usize..cur.end as usize],
+        &mut cur_cells,
+    );
+    with_sentinel(
+        &cand.cells[next.start as usize..next.end as usize],
+        &mut next_cells,
+    );
     let rows = RowPair {
-        cur: &cand.cells[cur.start as usize..cur.end as usize],
+        cur: &cur_cells,
         cur_id0: cur.start,
-        next: &cand.cells[next.start as usize..next.end as usize],
+        next: &next_cells,
         next_id0: next.start,
     };
     let mut ends = Vec::new();
@@ -240,6 +259,8 @@ struct Scratch {
     parent: Vec<u32>,
     rank: Vec<u8>,
     best: Vec<u64>,
+    row_cur: Vec<u32>,
+    row_next: Vec<u32>,
     core: Vec<u8>,
     flags: Vec<u8>,
     number: Vec<u32>,
@@ -345,6 +366,8 @@ fn strip_forest(
         parent,
         rank,
         best,
+        row_cur,
+        row_next,
         ..
     } = scratch;
     items.clear();
@@ -354,13 +377,22 @@ fn strip_forest(
     let mut crossing = Vec::new();
     let row_ids = |r: usize| cand.before(r * w)..cand.before((r + 1).min(h) * w);
     let mut next_ids = row_ids(r0);
+    with_sentinel(
+        &cand.cells[next_ids.start as usize..next_ids.end as usize],
+        row_next,
+    );
     for row in r0..r1 {
         let cur_ids = next_ids;
         next_ids = row_ids(row + 1);
+        std::mem::swap(row_cur, row_next);
+        with_sentinel(
+            &cand.cells[next_ids.start as usize..next_ids.end as usize],
+            row_next,
+        );
         let rows = RowPair {
-            cur: &cand.cells[cur_ids.start as usize..cur_ids.end as usize],
+            cur: row_cur,
             cur_id0: cur_ids.start,
-            next: &cand.cells[next_ids.start as usize..next_ids.end as usize],
+            next: row_next,
             next_id0: next_ids.start,
         };
         let inside = row + 1 < r1;
@@ -457,6 +489,7 @@ fn contract_strip(
         flags,
         number,
         stack,
+        parent,
         ..
     } = scratch;
     // flags: bit 0 terminal, bits 1.. unused; `done` edges live in `core`'s
@@ -470,8 +503,25 @@ fn contract_strip(
         flags[(b - id0) as usize] = TERMINAL;
     }
     let term = |i: usize| flags[i] == TERMINAL;
+    // Only the trees with two terminals or more can hold a cycle through the
+    // crossing segments; the others reduce to their terminal (if any).
+    number.clear();
+    number.resize(n, 0);
+    for i in 0..n {
+        if term(i) {
+            let r = find(parent, i as u32) as usize;
+            number[r] = (number[r] + 1).min(2);
+        }
+    }
     core.clear();
-    core.extend_from_slice(smask);
+    core.extend((0..n).map(|i| {
+        if smask[i] != 0 && number[find(parent, i as u32) as usize] == 2 {
+            smask[i]
+        } else {
+            0
+        }
+    }));
+
     // Cut non-terminal leaves repeatedly.
     stack.clear();
     stack.extend((0..n as u32).filter(|&i| degree(core[i as usize]) == 1 && !term(i as usize)));
