@@ -20,6 +20,8 @@
 
 use rayon::prelude::*;
 
+use super::coarse::{prolongate, CoarseLevel};
+
 /// Below this many cells a level is processed on one thread: the rayon
 /// hand-off costs more than it saves.
 const PARALLEL_MIN_CELLS: usize = 1 << 15;
@@ -257,7 +259,7 @@ fn residual_row(
 
 /// Sum of squares in f64 (four independent accumulators so it vectorises).
 #[inline]
-fn sum_squares(values: &[f32]) -> f64 {
+pub(super) fn sum_squares(values: &[f32]) -> f64 {
     let mut acc = [0.0f64; 4];
     let mut chunks = values.chunks_exact(4);
     for ch in &mut chunks {
@@ -461,78 +463,49 @@ impl Level {
 }
 
 impl Level {
-    /// Residual of row `j` in natural layout into `row[1 ..= nx]` (`row` is a
-    /// padded row, its ghosts untouched); `scratch` is reused between calls.
-    pub fn residual_natural_row(&self, j: usize, row: &mut [f32], scratch: &mut Vec<f32>) {
+    /// Residual of row `j` split by column parity into `e` (even columns)
+    /// and `o` (odd columns), padded: entry `k` at `k + 1`, a leading zero,
+    /// zeros past the row's end (`e` and `o` have at least `w + 2` entries).
+    /// In red-black storage the even cells of row `j` have colour `j & 1`.
+    pub fn residual_halves(&self, j: usize, e: &mut [f32], o: &mut [f32]) {
         let w = self.w;
         let avx2 = have_avx2();
-        scratch.resize(2 * w, 0.0);
-        let (red, black) = scratch.split_at_mut(w);
-        self.residual_colour_row(red, 0, j, avx2);
-        self.residual_colour_row(black, 1, j, avx2);
-        // Cell i has colour (i + j) & 1 and entry i >> 1.
-        let (even, odd) = if j & 1 == 0 {
-            (&*red, &*black)
-        } else {
-            (&*black, &*red)
-        };
-        let row = &mut row[1..1 + self.nx];
-        for (k, pair) in row.chunks_mut(2).enumerate() {
-            pair[0] = even[k];
-            if let Some(o) = pair.get_mut(1) {
-                *o = odd[k];
-            }
+        let even = j & 1;
+        for (c, out) in [(even, &mut *e), (1 - even, &mut *o)] {
+            out[0] = 0.0;
+            out[w + 1..].fill(0.0);
+            self.residual_colour_row(&mut out[1..1 + w], c, j, avx2);
         }
     }
 
-    /// Adds a correction given row by row in natural layout to the free
-    /// cells: `correction(j, row)` fills `row[i]`, `i < nx`, for row `j`.
-    pub fn add_correction<F>(&mut self, correction: F)
-    where
-        F: Fn(usize, &mut [f32]) + Sync,
-    {
-        let st = self.stride;
-        let nx = self.nx;
-        let w = self.w;
-        let end = (self.ny + 1) * st;
-        let parallel = self.parallel();
-        let [u0, u1] = &mut self.u;
-        let (m0, m1) = (&self.mask[0], &self.mask[1]);
-        let job = |(j, (r0, r1)): (usize, (&mut [f32], &mut [f32])), buf: &mut Vec<f32>| {
-            buf.clear();
-            buf.resize(2 * w, 0.0);
-            correction(j, &mut buf[..nx]);
-            let mstart = (j + 1) * st + 1;
-            let (ma, mb) = (&m0[mstart..mstart + w], &m1[mstart..mstart + w]);
-            // Even cells of row j have colour j & 1.
-            let (ue, uo, me, mo) = if j & 1 == 0 {
-                (&mut r0[1..1 + w], &mut r1[1..1 + w], ma, mb)
-            } else {
-                (&mut r1[1..1 + w], &mut r0[1..1 + w], mb, ma)
-            };
-            for k in 0..w {
-                let (e, o) = (buf[2 * k], buf[2 * k + 1]);
-                if me[k] != 0 {
-                    ue[k] += e;
-                }
-                if mo[k] != 0 {
-                    uo[k] += o;
+    /// `u += P coarse.u` on the free cells (fixed cells have zero weights
+    /// anyway; the mask also keeps the padding entries at 0).
+    pub fn prolongate_from(&mut self, coarse: &CoarseLevel) {
+        let (w, ny, st) = (self.w, self.ny, self.stride);
+        let shared = SharedColours {
+            ptr: [self.u[0].as_mut_ptr(), self.u[1].as_mut_ptr()],
+            stride: st,
+        };
+        let mask = &self.mask;
+        let add_row = |fj: usize, even: &[f32], odd: &[f32]| {
+            let c = fj & 1;
+            let start = (fj + 1) * st + 1;
+            for (colour, corr) in [(c, even), (1 - c, odd)] {
+                // SAFETY: each call of the closure below owns fine rows
+                // 2 cj and 2 cj + 1.
+                let row = unsafe { &mut shared.row_mut(colour, fj as isize)[1..1 + w] };
+                let m = &mask[colour][start..start + w];
+                for ((u, &m), &v) in row.iter_mut().zip(m).zip(corr) {
+                    *u += if m != 0 { v } else { 0.0 };
                 }
             }
         };
-        if parallel {
-            u0[st..end]
-                .par_chunks_mut(st)
-                .zip(u1[st..end].par_chunks_mut(st))
-                .enumerate()
-                .for_each_init(Vec::new, |buf, item| job(item, buf));
-        } else {
-            let mut buf = Vec::new();
-            u0[st..end]
-                .chunks_mut(st)
-                .zip(u1[st..end].chunks_mut(st))
-                .enumerate()
-                .for_each(|item| job(item, &mut buf));
-        }
+        let parallel = self.parallel();
+        prolongate(coarse, parallel, |cj, [e0, o0, e1, o1]| {
+            add_row(2 * cj, e0, o0);
+            if 2 * cj + 1 < ny {
+                add_row(2 * cj + 1, e1, o1);
+            }
+        });
     }
 }

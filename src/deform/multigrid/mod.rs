@@ -86,7 +86,7 @@ mod galerkin;
 mod level;
 pub mod synthetic;
 
-use coarse::{prolongate_coarse, prolongate_row, restrict_coarse, restrict_row, CoarseLevel};
+use coarse::{prolongate_coarse, restrict_coarse, CoarseLevel};
 use galerkin::StencilSource;
 use level::Level;
 use rayon::prelude::*;
@@ -211,9 +211,11 @@ pub fn solve(
         ));
     }
 
-    let b_norm = dirichlet_coupling_norm(nx, ny, hx, hy, fixed, values);
-    let free = fixed.iter().filter(|&&f| !f).count();
-    if free == 0 || b_norm == 0.0 {
+    let setup_start = std::time::Instant::now();
+    let mut fine = Level::new(nx, ny, hx, hy, opts.screening, false);
+    let intake = copy_in(&mut fine, fixed, values);
+    let b_norm = intake.b_norm;
+    if fine.free_cells == 0 || b_norm == 0.0 {
         // Nothing to solve, or the exact solution is M = 0 on free cells.
         for (v, &f) in values.iter_mut().zip(fixed) {
             if !f {
@@ -228,9 +230,7 @@ pub fn solve(
             setup_seconds: 0.0,
         });
     }
-
-    let setup_start = std::time::Instant::now();
-    let mut h = build_hierarchy(nx, ny, hx, hy, opts.screening, fixed, values);
+    let mut h = build_hierarchy(fine, hx, hy, opts.screening, fixed);
     let setup_seconds = setup_start.elapsed().as_secs_f64();
     let mut stats = SolveStats {
         cycles: 0,
@@ -242,7 +242,12 @@ pub fn solve(
     if opts.full_multigrid {
         full_multigrid(&mut h, opts);
     }
-    let mut rel = h.fine.residual_norm_squared().sqrt() / b_norm;
+    // From a zero guess the residual is `b` itself.
+    let mut rel = if intake.zero_guess && !opts.full_multigrid {
+        1.0
+    } else {
+        h.fine.residual_norm_squared().sqrt() / b_norm
+    };
     stats.residual_history.push(rel);
     let mut slow_cycles = 0;
     while rel > opts.tolerance && stats.cycles < opts.max_cycles {
@@ -336,11 +341,16 @@ fn validate(
     if !(hx.is_finite() && hy.is_finite() && hx > 0.0 && hy > 0.0) {
         return Err(MultigridError::BadCellSize { hx, hy });
     }
-    if let Some(idx) = values.par_iter().position_first(|v| !v.is_finite()) {
-        return Err(MultigridError::NonFiniteValue {
-            i: idx % nx,
-            j: idx / nx,
-        });
+    // Row by row, with a branch-free (vectorised) test per row.
+    let bad_row = values
+        .par_chunks(nx)
+        .position_first(|row| row.iter().fold(false, |bad, v| bad | !v.is_finite()));
+    if let Some(j) = bad_row {
+        let i = values[j * nx..(j + 1) * nx]
+            .iter()
+            .position(|v| !v.is_finite())
+            .unwrap_or(0);
+        return Err(MultigridError::NonFiniteValue { i, j });
     }
     Ok(())
 }
@@ -385,15 +395,16 @@ fn dirichlet_coupling_norm(
 /// Coarsening stops once both dimensions of a level are at most this.
 const COARSEST_MAX_DIM: usize = 4;
 
-/// The finest level's stencils, from its free mask: the 5-point operator on
-/// free cells, couplings to fixed cells and to the outside eliminated.
+/// The finest level's stencils, from the caller's fixed mask: the 5-point
+/// operator on free cells, couplings to fixed cells and to the outside
+/// eliminated.
 struct FineSource<'a> {
     nx: usize,
     ny: usize,
     ax: f64,
     ay: f64,
     diag: f64,
-    free: &'a [u8],
+    fixed: &'a [bool],
 }
 
 impl FineSource<'_> {
@@ -403,33 +414,13 @@ impl FineSource<'_> {
             && j >= 0
             && (i as usize) < self.nx
             && (j as usize) < self.ny
-            && self.free[j as usize * self.nx + i as usize] != 0
+            && !self.fixed[j as usize * self.nx + i as usize]
     }
 
     /// The stencil away from constraints.
     fn regular(&self) -> [f64; 9] {
         let (ax, ay) = (self.ax, self.ay);
         [0.0, -ay, 0.0, -ax, self.diag, -ax, 0.0, -ay, 0.0]
-    }
-
-    /// `true` where the stencil is not [`FineSource::regular`]: fixed
-    /// cells and cells with a fixed or outside 4-neighbour.
-    fn irregular(&self) -> Vec<bool> {
-        let (nx, ny) = (self.nx, self.ny);
-        let free = self.free;
-        let mut out = vec![true; nx * ny];
-        out.par_chunks_mut(nx).enumerate().for_each(|(j, row)| {
-            if j == 0 || j + 1 >= ny || nx < 3 {
-                return;
-            }
-            let up = &free[(j - 1) * nx..j * nx];
-            let mid = &free[j * nx..(j + 1) * nx];
-            let dn = &free[(j + 1) * nx..(j + 2) * nx];
-            for i in 1..nx - 1 {
-                row[i] = (mid[i] & mid[i - 1] & mid[i + 1] & up[i] & dn[i]) == 0;
-            }
-        });
-        out
     }
 }
 
@@ -453,6 +444,24 @@ impl StencilSource for FineSource<'_> {
             0.0,
         ]
     }
+
+    /// Fixed cells, cells with a fixed 4-neighbour, and the grid's edge.
+    fn irregular_row(&self, j: usize, out: &mut [u8]) {
+        let (nx, ny) = (self.nx, self.ny);
+        if j == 0 || j + 1 >= ny || nx < 3 {
+            out.fill(1);
+            return;
+        }
+        let fixed = self.fixed;
+        let up = &fixed[(j - 1) * nx..j * nx];
+        let mid = &fixed[j * nx..(j + 1) * nx];
+        let dn = &fixed[(j + 1) * nx..(j + 2) * nx];
+        out[0] = 1;
+        out[nx - 1] = 1;
+        for i in 1..nx - 1 {
+            out[i] = u8::from(mid[i] | mid[i - 1] | mid[i + 1] | up[i] | dn[i]);
+        }
+    }
 }
 
 /// The finest level (red-black split storage, 5-point operator) and the
@@ -468,39 +477,29 @@ impl Hierarchy {
     }
 }
 
-fn fine_source<'a>(fine: &Level, free: &'a [u8], ax: f64, ay: f64, diag: f64) -> FineSource<'a> {
+fn fine_source<'a>(fine: &Level, fixed: &'a [bool], ax: f64, ay: f64, diag: f64) -> FineSource<'a> {
     FineSource {
         nx: fine.nx,
         ny: fine.ny,
         ax,
         ay,
         diag,
-        free,
+        fixed,
     }
 }
 
 /// Builds the finest level from the caller's arrays and the Galerkin coarse
 /// levels below it; stops when both dimensions are small or a coarse level
 /// would have no live point.
-fn build_hierarchy(
-    nx: usize,
-    ny: usize,
-    hx: f64,
-    hy: f64,
-    screening: f64,
-    fixed: &[bool],
-    values: &[f32],
-) -> Hierarchy {
-    let mut fine = Level::new(nx, ny, hx, hy, screening, false);
-    copy_in(&mut fine, fixed, values);
-    let free: Vec<u8> = fixed.par_iter().map(|&f| u8::from(!f)).collect();
+fn build_hierarchy(fine: Level, hx: f64, hy: f64, screening: f64, fixed: &[bool]) -> Hierarchy {
+    let (nx, ny) = (fine.nx, fine.ny);
     let ax = 1.0 / (hx * hx);
     let ay = 1.0 / (hy * hy);
     let diag = 2.0 * ax + 2.0 * ay + screening;
-    let src = fine_source(&fine, &free, ax, ay, diag);
+    let src = fine_source(&fine, fixed, ax, ay, diag);
     let mut coarse: Vec<CoarseLevel> = Vec::new();
     if nx > COARSEST_MAX_DIM || ny > COARSEST_MAX_DIM {
-        let first = CoarseLevel::build(&src, nx, ny, src.regular(), &src.irregular());
+        let first = CoarseLevel::build(&src, nx, ny, src.regular());
         if first.live > 0 {
             coarse.push(first);
         }
@@ -509,7 +508,7 @@ fn build_hierarchy(
         if last.nx <= COARSEST_MAX_DIM && last.ny <= COARSEST_MAX_DIM {
             break;
         }
-        let next = CoarseLevel::build(last, last.nx, last.ny, last.reg64, &last.irregular());
+        let next = CoarseLevel::build(last, last.nx, last.ny, last.reg64);
         if next.live == 0 {
             break;
         }
@@ -518,38 +517,105 @@ fn build_hierarchy(
     Hierarchy { fine, coarse }
 }
 
+/// What [`copy_in`] learnt about the caller's arrays.
+struct Intake {
+    /// `||b||_2`, see [`dirichlet_coupling_norm`] (f32 per cell, f64 sums).
+    b_norm: f64,
+    /// Every free cell of the initial guess is 0.
+    zero_guess: bool,
+}
+
 /// Copies the caller's natural-layout arrays into the finest level's split
-/// storage and builds its free mask.
-fn copy_in(level: &mut Level, fixed: &[bool], values: &[f32]) {
-    let nx = level.nx;
+/// storage, builds its free mask and counts its free cells, and computes
+/// `||b||` and whether the initial guess is zero in the same pass.
+fn copy_in(level: &mut Level, fixed: &[bool], values: &[f32]) -> Intake {
+    let (nx, ny) = (level.nx, level.ny);
     let st = level.stride;
-    let end = (level.ny + 1) * st;
+    let (ax, ay) = (level.ax, level.ay);
+    let end = (ny + 1) * st;
+    let zero_values = vec![0.0f32; nx];
+    let none_fixed = vec![false; nx];
+    let row_of = |j: isize| -> (&[f32], &[bool]) {
+        if j < 0 || j as usize >= ny {
+            (&zero_values, &none_fixed)
+        } else {
+            let r = j as usize * nx..(j as usize + 1) * nx;
+            (&values[r.clone()], &fixed[r])
+        }
+    };
     let [u0, u1] = &mut level.u;
     let [m0, m1] = &mut level.mask;
-    let free: usize = u0[st..end]
+    let (free, b_sq, nonzero) = u0[st..end]
         .par_chunks_mut(st)
         .zip(u1[st..end].par_chunks_mut(st))
         .zip(m0[st..end].par_chunks_mut(st))
         .zip(m1[st..end].par_chunks_mut(st))
-        .zip(values.par_chunks(nx).zip(fixed.par_chunks(nx)))
         .enumerate()
-        .map(|(j, ((((u0, u1), m0), m1), (vals, fix)))| {
-            let mut free = 0;
-            for i in 0..nx {
-                let k = (i >> 1) + 1;
-                let (u, m) = if (i + j) & 1 == 0 {
-                    (&mut *u0, &mut *m0)
-                } else {
-                    (&mut *u1, &mut *m1)
-                };
-                u[k] = vals[i];
-                m[k] = u8::from(!fix[i]);
-                free += usize::from(!fix[i]);
+        .map_init(Vec::new, |b, (j, (((u0, u1), m0), m1))| {
+            let (vals, fix) = row_of(j as isize);
+            // Even cells of row j have colour j & 1.
+            let (ue, uo, me, mo) = if j & 1 == 0 {
+                (u0, u1, m0, m1)
+            } else {
+                (u1, u0, m1, m0)
+            };
+            let half = nx / 2;
+            for k in 0..half {
+                ue[k + 1] = vals[2 * k];
+                uo[k + 1] = vals[2 * k + 1];
+                me[k + 1] = u8::from(!fix[2 * k]);
+                mo[k + 1] = u8::from(!fix[2 * k + 1]);
             }
-            free
+            if nx & 1 == 1 {
+                ue[half + 1] = vals[nx - 1];
+                me[half + 1] = u8::from(!fix[nx - 1]);
+            }
+            let mut free = 0usize;
+            let mut nonzero = 0u32;
+            for (&v, &f) in vals.iter().zip(fix) {
+                free += usize::from(!f);
+                nonzero |= u32::from(!f & (v != 0.0));
+            }
+            // b of the row: the free cells' coupling to fixed neighbours.
+            let (up, up_fixed) = row_of(j as isize - 1);
+            let (dn, dn_fixed) = row_of(j as isize + 1);
+            let fv = |v: f32, f: bool| if f { v } else { 0.0 };
+            b.clear();
+            b.resize(nx, 0.0f32);
+            let vertical = |i: usize| fv(up[i], up_fixed[i]) + fv(dn[i], dn_fixed[i]);
+            let at = |i: usize| fv(vals[i], fix[i]);
+            if nx == 1 {
+                b[0] = ay * vertical(0);
+            } else {
+                b[0] = ax * at(1) + ay * vertical(0);
+                b[nx - 1] = ax * at(nx - 2) + ay * vertical(nx - 1);
+                let (west, east) = (&vals[..nx - 2], &vals[2..]);
+                let (west_fixed, east_fixed) = (&fix[..nx - 2], &fix[2..]);
+                let (u, uf, d, df) = (
+                    &up[1..nx - 1],
+                    &up_fixed[1..nx - 1],
+                    &dn[1..nx - 1],
+                    &dn_fixed[1..nx - 1],
+                );
+                for (k, o) in b[1..nx - 1].iter_mut().enumerate() {
+                    let horizontal = fv(west[k], west_fixed[k]) + fv(east[k], east_fixed[k]);
+                    *o = ax * horizontal + ay * (fv(u[k], uf[k]) + fv(d[k], df[k]));
+                }
+            }
+            for (o, &f) in b.iter_mut().zip(fix) {
+                if f {
+                    *o = 0.0;
+                }
+            }
+            let nonzero = nonzero != 0;
+            (free, level::sum_squares(b), nonzero)
         })
-        .sum();
+        .reduce(|| (0, 0.0, false), |a, b| (a.0 + b.0, a.1 + b.1, a.2 | b.2));
     level.free_cells = free;
+    Intake {
+        b_norm: b_sq.sqrt(),
+        zero_guess: !nonzero,
+    }
 }
 
 /// Copies the free cells of the finest level back to the caller's array.
@@ -587,68 +653,19 @@ fn solve_fine_alone(level: &mut Level) {
     }
 }
 
-/// Coarse rows per task of the fine-level restriction.
-const RESTRICT_CHUNK: usize = 8;
-
 /// Computes the finest level's residual and restricts it to the first
 /// coarse level's right-hand side in one pass (the fine residual is only
 /// held three rows at a time), and zeroes the coarse correction.
 fn restrict_fine(h: &mut Hierarchy) {
     let fine = &h.fine;
-    let (nx, ny) = (fine.nx, fine.ny);
-    let rp = nx + 2;
-    let c = &mut h.coarse[0];
-    let cp = c.pitch;
-    let cny = c.ny;
-    let mut rhs = std::mem::take(&mut c.rhs);
-    {
-        let cl: &CoarseLevel = c;
-        let rows = &mut rhs[cp..(cny + 1) * cp];
-        let job = |(t, chunk): (usize, &mut [f32]), bufs: &mut (Vec<f32>, Vec<f32>)| {
-            let (buf, scratch) = bufs;
-            buf.clear();
-            buf.resize(3 * rp, 0.0);
-            let fill = |j: isize, row: &mut [f32], scratch: &mut Vec<f32>| {
-                if j < 0 || j as usize >= ny {
-                    row.fill(0.0);
-                } else {
-                    fine.residual_natural_row(j as usize, row, scratch);
-                }
-            };
-            for (m, out) in chunk.chunks_mut(cp).enumerate() {
-                let cj = t * RESTRICT_CHUNK + m;
-                let fj = 2 * cj as isize;
-                if m == 0 {
-                    fill(fj - 1, &mut buf[..rp], scratch);
-                } else {
-                    buf.copy_within(2 * rp..3 * rp, 0);
-                }
-                fill(fj, &mut buf[rp..2 * rp], scratch);
-                fill(fj + 1, &mut buf[2 * rp..3 * rp], scratch);
-                restrict_row(cl, cj, buf, rp, rp, out);
-            }
-        };
-        if fine.parallel() {
-            rows.par_chunks_mut(RESTRICT_CHUNK * cp)
-                .enumerate()
-                .for_each_init(|| (Vec::new(), Vec::new()), |bufs, item| job(item, bufs));
-        } else {
-            let mut bufs = (Vec::new(), Vec::new());
-            rows.chunks_mut(RESTRICT_CHUNK * cp)
-                .enumerate()
-                .for_each(|item| job(item, &mut bufs));
-        }
-    }
-    c.rhs = rhs;
-    c.u.fill(0.0);
+    coarse::restrict(&mut h.coarse[0], fine.ny, fine.parallel(), |j, e, o| {
+        fine.residual_halves(j, e, o)
+    });
 }
 
 /// Adds the interpolated correction of the first coarse level to the finest.
 fn prolongate_fine(h: &mut Hierarchy) {
-    let c = &h.coarse[0];
-    let nx = h.fine.nx;
-    h.fine
-        .add_correction(|j, row| prolongate_row(c, j, nx, row));
+    h.fine.prolongate_from(&h.coarse[0]);
 }
 
 /// One V-cycle on the coarse levels `levels[0]` (right-hand side given).
@@ -661,7 +678,6 @@ fn coarse_cycle(levels: &mut [CoarseLevel], pre: usize, post: usize) {
         return;
     }
     first.smooth(pre);
-    first.compute_residual();
     restrict_coarse(first, &mut rest[0]);
     coarse_cycle(rest, pre, post);
     prolongate_coarse(&rest[0], first);
@@ -695,13 +711,12 @@ fn full_multigrid(h: &mut Hierarchy, opts: &MultigridOptions) {
     let n = h.coarse.len();
     for l in 0..n - 1 {
         let (head, tail) = h.coarse.split_at_mut(l + 1);
-        head[l].compute_residual();
         restrict_coarse(&head[l], &mut tail[0]);
     }
     h.coarse[n - 1].solve_coarsest();
     for l in (0..n - 1).rev() {
         let (head, tail) = h.coarse.split_at_mut(l + 1);
-        head[l].u.fill(0.0);
+        head[l].u.iter_mut().for_each(|u| u.fill(0.0));
         prolongate_coarse(&tail[0], &mut head[l]);
         coarse_cycle(&mut h.coarse[l..], opts.pre_smooth, opts.post_smooth);
     }
@@ -732,7 +747,9 @@ mod tests {
     fn galerkin_operators_are_symmetric() {
         let (nx, ny) = (77, 61);
         let layout = synthetic::scattered_constraints(nx, ny, 4, 6, 2, 5);
-        let h = build_hierarchy(nx, ny, 1.0, 2.0, 0.0, &layout.fixed, &layout.values);
+        let mut fine = Level::new(nx, ny, 1.0, 2.0, 0.0, false);
+        copy_in(&mut fine, &layout.fixed, &layout.values);
+        let h = build_hierarchy(fine, 1.0, 2.0, 0.0, &layout.fixed);
         assert!(h.coarse.len() >= 4);
         for c in &h.coarse {
             for j in 0..c.ny as isize {
@@ -754,9 +771,9 @@ mod tests {
             }
         }
         let fine = Level::new(9, 9, 1.0, 1.0, 0.0, false);
-        let free = vec![1u8; 81];
-        let src = fine_source(&fine, &free, 1.0, 1.0, 4.0);
-        let reg = CoarseLevel::build(&src, 9, 9, src.regular(), &src.irregular()).reg64;
+        let fixed = vec![false; 81];
+        let src = fine_source(&fine, &fixed, 1.0, 1.0, 4.0);
+        let reg = CoarseLevel::build(&src, 9, 9, src.regular()).reg64;
         let expected = [-0.25, -0.5, -0.25, -0.5, 3.0, -0.5, -0.25, -0.5, -0.25];
         for (a, b) in reg.iter().zip(expected) {
             assert!((a - b).abs() < 1e-12, "{reg:?}");
