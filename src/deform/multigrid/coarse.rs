@@ -30,6 +30,7 @@
 use rayon::prelude::*;
 
 use super::galerkin::{constant_coarse, galerkin, BlockWeights, StencilSource};
+use super::level::{deinterleave, interleave, sum_squares};
 
 /// Below this many points a level is processed on one thread.
 const PARALLEL_MIN_POINTS: usize = 1 << 14;
@@ -244,30 +245,6 @@ fn prolong_kernel(
         e1[k] = r[3] * uc[k] + r[4] * un[k];
         o1[k] = (r[5] * uc[k] + r[6] * uc[k + 1]) + (r[7] * un[k] + r[8] * un[k + 1]);
     }
-}
-
-/// Instantiates `$name` as `$kernel` compiled for AVX2 + FMA where the CPU
-/// has them (checked once per call, cached by the standard library), and
-/// for the baseline target otherwise.
-macro_rules! dispatch {
-    ($name:ident, $avx:ident, $kernel:ident, ($($arg:ident: $ty:ty),*)) => {
-        #[cfg(target_arch = "x86_64")]
-        #[target_feature(enable = "avx2,fma")]
-        unsafe fn $avx($($arg: $ty),*) {
-            $kernel($($arg),*)
-        }
-
-        #[inline]
-        fn $name($($arg: $ty),*) {
-            #[cfg(target_arch = "x86_64")]
-            if std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma") {
-                // SAFETY: the CPU supports AVX2 and FMA.
-                unsafe { $avx($($arg),*) };
-                return;
-            }
-            $kernel($($arg),*)
-        }
-    };
 }
 
 dispatch!(relax_half, relax_half_avx2, relax_half_kernel,
@@ -562,7 +539,7 @@ impl CoarseLevel {
         (0..self.ny)
             .map(|j| {
                 self.residual_halves(j, &mut e, &mut o);
-                super::level::sum_squares(&e) + super::level::sum_squares(&o)
+                sum_squares(&e) + sum_squares(&o)
             })
             .sum()
     }
@@ -590,13 +567,12 @@ impl CoarseLevel {
             return;
         }
         let start = self.row_start(j as isize) + 1;
-        let (e, o) = (&self.u[0][start..], &self.u[1][start..]);
-        for (k, pair) in out[..self.nx].chunks_mut(2).enumerate() {
-            pair[0] = e[k];
-            if let Some(v) = pair.get_mut(1) {
-                *v = o[k];
-            }
-        }
+        let half = self.hs - 2;
+        interleave(
+            &mut out[..self.nx],
+            &self.u[0][start..start + half],
+            &self.u[1][start..start + half],
+        );
         out[self.nx] = 0.0;
     }
 }
@@ -716,12 +692,7 @@ where
                             + bsw[8] * po[k - 1]
                     };
                 }
-                for (k, pair) in out.chunks(2).enumerate() {
-                    r0[k + 1] = pair[0];
-                    if let Some(&v) = pair.get(1) {
-                        r1[k + 1] = v;
-                    }
-                }
+                deinterleave(out, &mut r0[1..], &mut r1[1..]);
             }
         };
         let chunk = ROW_CHUNK * hs;

@@ -81,6 +81,32 @@
 //! # Ok::<(), demsketch::deform::multigrid::MultigridError>(())
 //! ```
 
+/// Defines `$name` as `$kernel` compiled for AVX2 + FMA where the CPU has
+/// them (checked per call; the standard library caches the answer), and for
+/// the baseline target otherwise. The kernels are plain loops written so
+/// that they vectorise.
+macro_rules! dispatch {
+    ($vis:vis $name:ident, $avx:ident, $kernel:ident, ($($arg:ident: $ty:ty),* $(,)?) $(-> $ret:ty)?) => {
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = "avx2,fma")]
+        #[allow(clippy::too_many_arguments)]
+        unsafe fn $avx($($arg: $ty),*) $(-> $ret)? {
+            $kernel($($arg),*)
+        }
+
+        #[allow(clippy::too_many_arguments)]
+        #[inline]
+        $vis fn $name($($arg: $ty),*) $(-> $ret)? {
+            #[cfg(target_arch = "x86_64")]
+            if std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma") {
+                // SAFETY: the CPU supports AVX2 and FMA.
+                return unsafe { $avx($($arg),*) };
+            }
+            $kernel($($arg),*)
+        }
+    };
+}
+
 mod coarse;
 mod galerkin;
 mod level;
@@ -212,8 +238,8 @@ pub fn solve(
     }
 
     let setup_start = std::time::Instant::now();
-    let mut fine = Level::new(nx, ny, hx, hy, opts.screening, false);
-    let intake = copy_in(&mut fine, fixed, values);
+    let mut fine = Level::new(nx, ny, hx, hy, opts.screening);
+    let intake = fine.load(fixed, values);
     let b_norm = intake.b_norm;
     if fine.free_cells == 0 || b_norm == 0.0 {
         // Nothing to solve, or the exact solution is M = 0 on free cells.
@@ -263,7 +289,7 @@ pub fn solve(
         }
     }
     stats.relative_residual = rel;
-    copy_out(&h.fine, values, fixed);
+    h.fine.store(values);
     if rel <= opts.tolerance {
         Ok(stats)
     } else {
@@ -517,127 +543,6 @@ fn build_hierarchy(fine: Level, hx: f64, hy: f64, screening: f64, fixed: &[bool]
     Hierarchy { fine, coarse }
 }
 
-/// What [`copy_in`] learnt about the caller's arrays.
-struct Intake {
-    /// `||b||_2`, see [`dirichlet_coupling_norm`] (f32 per cell, f64 sums).
-    b_norm: f64,
-    /// Every free cell of the initial guess is 0.
-    zero_guess: bool,
-}
-
-/// Copies the caller's natural-layout arrays into the finest level's split
-/// storage, builds its free mask and counts its free cells, and computes
-/// `||b||` and whether the initial guess is zero in the same pass.
-fn copy_in(level: &mut Level, fixed: &[bool], values: &[f32]) -> Intake {
-    let (nx, ny) = (level.nx, level.ny);
-    let st = level.stride;
-    let (ax, ay) = (level.ax, level.ay);
-    let end = (ny + 1) * st;
-    let zero_values = vec![0.0f32; nx];
-    let none_fixed = vec![false; nx];
-    let row_of = |j: isize| -> (&[f32], &[bool]) {
-        if j < 0 || j as usize >= ny {
-            (&zero_values, &none_fixed)
-        } else {
-            let r = j as usize * nx..(j as usize + 1) * nx;
-            (&values[r.clone()], &fixed[r])
-        }
-    };
-    let [u0, u1] = &mut level.u;
-    let [m0, m1] = &mut level.mask;
-    let (free, b_sq, nonzero) = u0[st..end]
-        .par_chunks_mut(st)
-        .zip(u1[st..end].par_chunks_mut(st))
-        .zip(m0[st..end].par_chunks_mut(st))
-        .zip(m1[st..end].par_chunks_mut(st))
-        .enumerate()
-        .map_init(Vec::new, |b, (j, (((u0, u1), m0), m1))| {
-            let (vals, fix) = row_of(j as isize);
-            // Even cells of row j have colour j & 1.
-            let (ue, uo, me, mo) = if j & 1 == 0 {
-                (u0, u1, m0, m1)
-            } else {
-                (u1, u0, m1, m0)
-            };
-            let half = nx / 2;
-            for k in 0..half {
-                ue[k + 1] = vals[2 * k];
-                uo[k + 1] = vals[2 * k + 1];
-                me[k + 1] = u8::from(!fix[2 * k]);
-                mo[k + 1] = u8::from(!fix[2 * k + 1]);
-            }
-            if nx & 1 == 1 {
-                ue[half + 1] = vals[nx - 1];
-                me[half + 1] = u8::from(!fix[nx - 1]);
-            }
-            let mut free = 0usize;
-            let mut nonzero = 0u32;
-            for (&v, &f) in vals.iter().zip(fix) {
-                free += usize::from(!f);
-                nonzero |= u32::from(!f & (v != 0.0));
-            }
-            // b of the row: the free cells' coupling to fixed neighbours.
-            let (up, up_fixed) = row_of(j as isize - 1);
-            let (dn, dn_fixed) = row_of(j as isize + 1);
-            let fv = |v: f32, f: bool| if f { v } else { 0.0 };
-            b.clear();
-            b.resize(nx, 0.0f32);
-            let vertical = |i: usize| fv(up[i], up_fixed[i]) + fv(dn[i], dn_fixed[i]);
-            let at = |i: usize| fv(vals[i], fix[i]);
-            if nx == 1 {
-                b[0] = ay * vertical(0);
-            } else {
-                b[0] = ax * at(1) + ay * vertical(0);
-                b[nx - 1] = ax * at(nx - 2) + ay * vertical(nx - 1);
-                let (west, east) = (&vals[..nx - 2], &vals[2..]);
-                let (west_fixed, east_fixed) = (&fix[..nx - 2], &fix[2..]);
-                let (u, uf, d, df) = (
-                    &up[1..nx - 1],
-                    &up_fixed[1..nx - 1],
-                    &dn[1..nx - 1],
-                    &dn_fixed[1..nx - 1],
-                );
-                for (k, o) in b[1..nx - 1].iter_mut().enumerate() {
-                    let horizontal = fv(west[k], west_fixed[k]) + fv(east[k], east_fixed[k]);
-                    *o = ax * horizontal + ay * (fv(u[k], uf[k]) + fv(d[k], df[k]));
-                }
-            }
-            for (o, &f) in b.iter_mut().zip(fix) {
-                if f {
-                    *o = 0.0;
-                }
-            }
-            let nonzero = nonzero != 0;
-            (free, level::sum_squares(b), nonzero)
-        })
-        .reduce(|| (0, 0.0, false), |a, b| (a.0 + b.0, a.1 + b.1, a.2 | b.2));
-    level.free_cells = free;
-    Intake {
-        b_norm: b_sq.sqrt(),
-        zero_guess: !nonzero,
-    }
-}
-
-/// Copies the free cells of the finest level back to the caller's array.
-fn copy_out(level: &Level, values: &mut [f32], fixed: &[bool]) {
-    let nx = level.nx;
-    let st = level.stride;
-    let (u0, u1) = (&level.u[0], &level.u[1]);
-    values
-        .par_chunks_mut(nx)
-        .zip(fixed.par_chunks(nx))
-        .enumerate()
-        .for_each(|(j, (vals, fix))| {
-            let start = (j + 1) * st + 1;
-            for i in 0..nx {
-                if !fix[i] {
-                    let u = if (i + j) & 1 == 0 { u0 } else { u1 };
-                    vals[i] = u[start + (i >> 1)];
-                }
-            }
-        });
-}
-
 /// Smooths a level that has no coarse level under it until its residual
 /// fell by 1e-3 (or a sweep limit): an almost exact solve of a tiny grid.
 fn solve_fine_alone(level: &mut Level) {
@@ -656,10 +561,12 @@ fn solve_fine_alone(level: &mut Level) {
 /// Computes the finest level's residual and restricts it to the first
 /// coarse level's right-hand side in one pass (the fine residual is only
 /// held three rows at a time), and zeroes the coarse correction.
-fn restrict_fine(h: &mut Hierarchy) {
+/// `after_sweep`: the fine level was just smoothed, so its black residual
+/// is 0 up to rounding (see [`Level::residual_halves`]).
+fn restrict_fine(h: &mut Hierarchy, after_sweep: bool) {
     let fine = &h.fine;
     coarse::restrict(&mut h.coarse[0], fine.ny, fine.parallel(), |j, e, o| {
-        fine.residual_halves(j, e, o)
+        fine.residual_halves(j, e, o, after_sweep)
     });
 }
 
@@ -691,7 +598,7 @@ fn v_cycle(h: &mut Hierarchy, pre: usize, post: usize) {
         return;
     }
     h.fine.smooth(pre);
-    restrict_fine(h);
+    restrict_fine(h, pre > 0);
     coarse_cycle(&mut h.coarse, pre, post);
     prolongate_fine(h);
     h.fine.smooth(post);
@@ -703,11 +610,11 @@ fn v_cycle(h: &mut Hierarchy, pre: usize, post: usize) {
 /// guess of one V-cycle; the finest level then receives the interpolated
 /// correction (the V-cycles that follow are counted as usual).
 fn full_multigrid(h: &mut Hierarchy, opts: &MultigridOptions) {
-    zero_free(&mut h.fine);
+    h.fine.zero_free();
     if h.coarse.is_empty() {
         return;
     }
-    restrict_fine(h);
+    restrict_fine(h, false);
     let n = h.coarse.len();
     for l in 0..n - 1 {
         let (head, tail) = h.coarse.split_at_mut(l + 1);
@@ -723,18 +630,6 @@ fn full_multigrid(h: &mut Hierarchy, opts: &MultigridOptions) {
     prolongate_fine(h);
 }
 
-/// Sets every free cell of `level` to 0.
-fn zero_free(level: &mut Level) {
-    for c in 0..2 {
-        let (u, m) = (&mut level.u[c], &level.mask[c]);
-        u.par_iter_mut().zip(m.par_iter()).for_each(|(u, &m)| {
-            if m != 0 {
-                *u = 0.0;
-            }
-        });
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::galerkin::sidx;
@@ -747,8 +642,8 @@ mod tests {
     fn galerkin_operators_are_symmetric() {
         let (nx, ny) = (77, 61);
         let layout = synthetic::scattered_constraints(nx, ny, 4, 6, 2, 5);
-        let mut fine = Level::new(nx, ny, 1.0, 2.0, 0.0, false);
-        copy_in(&mut fine, &layout.fixed, &layout.values);
+        let mut fine = Level::new(nx, ny, 1.0, 2.0, 0.0);
+        fine.load(&layout.fixed, &layout.values);
         let h = build_hierarchy(fine, 1.0, 2.0, 0.0, &layout.fixed);
         assert!(h.coarse.len() >= 4);
         for c in &h.coarse {
@@ -770,7 +665,7 @@ mod tests {
                 }
             }
         }
-        let fine = Level::new(9, 9, 1.0, 1.0, 0.0, false);
+        let fine = Level::new(9, 9, 1.0, 1.0, 0.0);
         let fixed = vec![false; 81];
         let src = fine_source(&fine, &fixed, 1.0, 1.0, 4.0);
         let reg = CoarseLevel::build(&src, 9, 9, src.regular()).reg64;
