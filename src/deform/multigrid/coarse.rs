@@ -38,8 +38,15 @@ const PARALLEL_MIN_POINTS: usize = 1 << 14;
 /// Index map entry of regular points (others hold their special index).
 const REGULAR: u32 = u32::MAX;
 
-/// Coarse rows per parallel task of the setup and the transfers.
+/// Coarse rows per parallel task of the transfers.
 const ROW_CHUNK: usize = 8;
+
+/// Coarse rows per parallel task of the regular-point map in the setup.
+const BUILD_CHUNK: usize = 32;
+
+/// Distance in fine points over which an irregular fine stencil makes the
+/// coarse points around it special.
+const NEAR: usize = 2;
 
 /// One coarse level.
 pub(super) struct CoarseLevel {
@@ -53,9 +60,11 @@ pub(super) struct CoarseLevel {
     pub rhs: [Vec<f32>; 2],
     /// `REGULAR` or the special index of point `(i, j)` at `i + nx j`.
     idx: Vec<u32>,
-    /// Special points, row by row with increasing columns: those of row `j`
-    /// are `sp_row[j] .. sp_row[j + 1]`.
+    /// Special points, row by row: those of row `j` are
+    /// `sp_row[j] .. sp_row[j + 1]`, the even columns first, the odd ones
+    /// from `sp_odd[j]` on, each in increasing order.
     sp_row: Vec<u32>,
+    sp_odd: Vec<u32>,
     sp_col: Vec<u32>,
     /// Stencil and inverse diagonal (both 0 for dead points).
     sp_stencil: Vec<[f32; 9]>,
@@ -70,6 +79,8 @@ pub(super) struct CoarseLevel {
     reg_block: BlockWeights,
     /// Number of live (not dead) points.
     pub live: usize,
+    /// Row bands `[r0, r1)` of the parallel smoother.
+    bands: Vec<(usize, usize)>,
 }
 
 impl StencilSource for CoarseLevel {
@@ -256,6 +267,18 @@ dispatch!(restrict_regular, restrict_regular_avx2, restrict_kernel,
 dispatch!(prolong_regular, prolong_regular_avx2, prolong_kernel,
     (row0: (&mut [f32], &mut [f32]), row1: (&mut [f32], &mut [f32]), uc: &[f32], un: &[f32], r: &BlockWeights));
 
+/// Row bands of the smoother: one band below [`PARALLEL_MIN_POINTS`],
+/// otherwise a few bands per thread (at least 8 rows each).
+fn smoother_bands(nx: usize, ny: usize) -> Vec<(usize, usize)> {
+    if nx * ny < PARALLEL_MIN_POINTS || ny < 16 {
+        return vec![(0, ny)];
+    }
+    let count = (rayon::current_num_threads().max(1) * 4).min(ny / 8).max(1);
+    (0..count)
+        .map(|b| (b * ny / count, (b + 1) * ny / count))
+        .collect()
+}
+
 /// Number of points of column parity `a` in a row of `nx` points.
 #[inline]
 fn half_len(nx: usize, a: usize) -> usize {
@@ -279,6 +302,17 @@ impl CoarseLevel {
     #[inline]
     fn specials(&self, j: usize) -> std::ops::Range<usize> {
         self.sp_row[j] as usize..self.sp_row[j + 1] as usize
+    }
+
+    /// Special points of row `j` in columns of parity `a`: index range.
+    #[inline]
+    fn specials_of(&self, j: usize, a: usize) -> std::ops::Range<usize> {
+        let (start, odd, end) = (self.sp_row[j], self.sp_odd[j], self.sp_row[j + 1]);
+        if a == 0 {
+            start as usize..odd as usize
+        } else {
+            odd as usize..end as usize
+        }
     }
 
     /// Interpolation weights of point `(i, j)` (inside the grid).
@@ -306,33 +340,37 @@ impl CoarseLevel {
         let (reg64, reg_block) = constant_coarse(fine_reg);
         let reg_diag = reg64[4];
 
-        // Regular points: no irregular fine point (nor the edge) within 3
-        // fine points of (2 ci, 2 cj) in either direction. Rows are done in
-        // chunks, each with its own rolling window of fine rows.
+        // Regular points: no irregular fine point (nor the edge) within 2
+        // fine points of (2 ci, 2 cj) in either direction. That is exact: the
+        // Galerkin stencil of (ci, cj) and the interpolation weights that the
+        // transfers use around it depend only on the fine stencils within 2
+        // fine points (see `galerkin.rs`). Rows are done in chunks, each
+        // with its own window of dilated fine rows.
         let mut idx = vec![REGULAR; nx * ny];
         let chunk_cols: Vec<Vec<(u32, u32)>> = idx
-            .par_chunks_mut(ROW_CHUNK * nx)
+            .par_chunks_mut(BUILD_CHUNK * nx)
             .enumerate()
             .map(|(t, rows)| {
-                let cj0 = t * ROW_CHUNK;
+                let cj0 = t * BUILD_CHUNK;
                 let mut cols = Vec::new();
-                // near[r][ci]: an irregular fine point within 3 columns of
+                // near[r][ci]: an irregular fine point within 2 columns of
                 // 2 ci in fine row fj0 + r.
-                let fj0 = (2 * cj0).saturating_sub(3);
-                let fj1 = (2 * (cj0 + rows.len() / nx - 1) + 3).min(fny - 1);
+                let fj0 = (2 * cj0).saturating_sub(NEAR);
+                let fj1 = (2 * (cj0 + rows.len() / nx - 1) + NEAR).min(fny - 1);
                 let mut near = vec![0u8; (fj1 + 1 - fj0) * nx];
                 let mut irr = vec![0u8; fnx];
+                let mut scratch = vec![0u8; fnx];
                 for (r, out) in near.chunks_mut(nx).enumerate() {
                     src.irregular_row(fj0 + r, &mut irr);
-                    dilate_columns(&irr, out);
+                    dilate_columns(&irr, &mut scratch, out);
                 }
                 let mut any = vec![0u8; nx];
                 for (m, row) in rows.chunks_mut(nx).enumerate() {
                     let cj = cj0 + m;
                     let fj = 2 * cj;
-                    if fj >= 3 && fj + 3 < fny {
+                    if fj >= NEAR && fj + NEAR < fny {
                         any.fill(0);
-                        for r in fj - 3..=fj + 3 {
+                        for r in fj - NEAR..=fj + NEAR {
                             let nr = &near[(r - fj0) * nx..(r - fj0 + 1) * nx];
                             for (a, &v) in any.iter_mut().zip(nr) {
                                 *a |= v;
@@ -341,10 +379,13 @@ impl CoarseLevel {
                     } else {
                         any.fill(1);
                     }
-                    for (ci, (id, &a)) in row.iter_mut().zip(&any).enumerate() {
-                        if a != 0 {
-                            *id = 0; // numbered below
-                            cols.push((ci as u32, cj as u32));
+                    // Special points of the row: even columns, then odd.
+                    for parity in 0..2 {
+                        for (ci, (id, &a)) in row.iter_mut().zip(&any).enumerate() {
+                            if a != 0 && ci & 1 == parity {
+                                *id = 0; // numbered below
+                                cols.push((ci as u32, cj as u32));
+                            }
                         }
                     }
                 }
@@ -356,16 +397,19 @@ impl CoarseLevel {
         let mut sp_col = Vec::with_capacity(count);
         let mut sp_rowid = Vec::with_capacity(count);
         let mut sp_row = vec![0u32; ny + 1];
+        let mut sp_odd = vec![0u32; ny];
         for cols in &chunk_cols {
             for &(ci, cj) in cols {
                 sp_col.push(ci);
                 sp_rowid.push(cj);
                 sp_row[cj as usize + 1] += 1;
+                sp_odd[cj as usize] += u32::from(ci & 1 == 0);
             }
         }
         drop(chunk_cols);
         for j in 0..ny {
             sp_row[j + 1] += sp_row[j];
+            sp_odd[j] += sp_row[j];
         }
         idx.par_chunks_mut(nx).enumerate().for_each(|(cj, row)| {
             for n in sp_row[cj]..sp_row[cj + 1] {
@@ -409,6 +453,7 @@ impl CoarseLevel {
             rhs: [vec![0.0; len], vec![0.0; len]],
             idx,
             sp_row,
+            sp_odd,
             sp_col,
             sp_stencil,
             sp_inv,
@@ -418,6 +463,7 @@ impl CoarseLevel {
             reg_inv: (1.0 / reg64[4]) as f32,
             reg_block,
             live: nx * ny - dead,
+            bands: smoother_bands(nx, ny),
         }
     }
 
@@ -469,12 +515,8 @@ impl CoarseLevel {
             let out = &mut sh.row_mut(a, j + 1)[1..1 + n];
             let rhs = &self.rhs[a][start + 1..start + 1 + n];
             relax_half(out, rhs, nb, &self.reg, self.reg_inv);
-            for sp in self.specials(j) {
-                let ci = self.sp_col[sp] as usize;
-                if ci & 1 != a {
-                    continue;
-                }
-                let k = ci >> 1;
+            for sp in self.specials_of(j, a) {
+                let k = self.sp_col[sp] as usize >> 1;
                 let v = (rhs[k] - nb.off_centre(&self.sp_stencil[sp], k)) * self.sp_inv[sp];
                 out[k] = v;
             }
@@ -482,23 +524,48 @@ impl CoarseLevel {
     }
 
     /// `sweeps` four-colour Gauss-Seidel sweeps (even rows, then odd rows;
-    /// within a row even then odd columns), parallel over rows.
+    /// within a row even then odd columns), parallel over row bands.
+    ///
+    /// One sweep is one pass over memory: within a band, even row `j` is
+    /// updated and then odd row `j - 1`, whose even neighbours are final
+    /// (the same result as all even rows before all odd rows). Odd rows at
+    /// a band's edge need an even row of the neighbouring band and are
+    /// updated in a second phase. Phase 1 writes the band's even rows and
+    /// its odd rows strictly inside it, and reads the odd edge rows next to
+    /// it, which nobody writes in phase 1; phase 2 writes only odd edge rows
+    /// and reads even rows, which nobody writes in phase 2.
     pub fn smooth(&mut self, sweeps: usize) {
         let sh = SharedHalves {
             ptr: [self.u[0].as_mut_ptr(), self.u[1].as_mut_ptr()],
             hs: self.hs,
         };
         let this: &CoarseLevel = self;
-        for _ in 0..sweeps {
-            for parity in 0..2 {
-                let rows = (this.ny + 1 - parity) / 2;
-                // SAFETY: schedule documented on `SharedHalves`.
-                let job = |m: usize| unsafe { this.relax_row(sh, 2 * m + parity) };
-                if this.parallel() {
-                    (0..rows).into_par_iter().with_min_len(8).for_each(job);
-                } else {
-                    (0..rows).for_each(job);
+        let phase1 = |&(r0, r1): &(usize, usize)| {
+            for j in (r0..r1).filter(|j| j & 1 == 0) {
+                // SAFETY: band schedule documented above.
+                unsafe { this.relax_row(sh, j) };
+                if j >= r0 + 2 {
+                    unsafe { this.relax_row(sh, j - 1) };
                 }
+            }
+        };
+        let phase2 = |&(r0, r1): &(usize, usize)| {
+            // SAFETY: band schedule documented above.
+            if r0 & 1 == 1 {
+                unsafe { this.relax_row(sh, r0) };
+            }
+            let last = r1 - 1;
+            if last > r0 && last & 1 == 1 {
+                unsafe { this.relax_row(sh, last) };
+            }
+        };
+        for _ in 0..sweeps {
+            if this.bands.len() > 1 {
+                this.bands.par_iter().for_each(phase1);
+                this.bands.par_iter().for_each(phase2);
+            } else {
+                this.bands.iter().for_each(phase1);
+                this.bands.iter().for_each(phase2);
             }
         }
     }
@@ -516,12 +583,8 @@ impl CoarseLevel {
             let rhs = &self.rhs[a][start + 1..start + 1 + n];
             let out = &mut out[1..1 + n];
             residual_half(out, centre, rhs, nb, &self.reg);
-            for sp in self.specials(j) {
-                let ci = self.sp_col[sp] as usize;
-                if ci & 1 != a {
-                    continue;
-                }
-                let k = ci >> 1;
+            for sp in self.specials_of(j, a) {
+                let k = self.sp_col[sp] as usize >> 1;
                 out[k] = if self.sp_inv[sp] == 0.0 {
                     0.0
                 } else {
@@ -577,24 +640,24 @@ impl CoarseLevel {
     }
 }
 
-/// `out[ci] = 1` when `irr` (one fine row) has an irregular point within 3
-/// columns of `2 ci`, or that window leaves the row.
-fn dilate_columns(irr: &[u8], out: &mut [u8]) {
+/// `out[ci] = 1` when `irr` (one fine row) has an irregular point within
+/// `NEAR` columns of `2 ci`, or that window leaves the row; `scratch` has
+/// the length of `irr`.
+fn dilate_columns(irr: &[u8], scratch: &mut [u8], out: &mut [u8]) {
     let n = irr.len();
-    let at = |i: isize| -> u8 {
-        if i < 0 || i as usize >= n {
-            1
-        } else {
-            irr[i as usize]
-        }
-    };
+    // scratch[i] = irr[i - 1] | irr[i] | irr[i + 1] (outside counts as 1)
+    // at odd i, packed: scratch[m] for i = 2 m + 1; then
+    // out[ci] = (window around 2 ci - 1) | (window around 2 ci + 1).
+    let odd = n / 2;
+    for (m, s) in scratch[..odd].iter_mut().enumerate() {
+        let i = 2 * m + 1;
+        let east = if i + 1 < n { irr[i + 1] } else { 1 };
+        *s = irr[i - 1] | irr[i] | east;
+    }
     for (ci, o) in out.iter_mut().enumerate() {
-        let c = 2 * ci;
-        *o = if c >= 3 && c + 3 < n {
-            irr[c - 3] | irr[c - 2] | irr[c - 1] | irr[c] | irr[c + 1] | irr[c + 2] | irr[c + 3]
-        } else {
-            (-3..=3).fold(0, |acc, d| acc | at(c as isize + d))
-        };
+        let west = if ci >= 1 { scratch[ci - 1] } else { 1 };
+        let east = if ci < odd { scratch[ci] } else { 1 };
+        *o = west | east;
     }
 }
 
@@ -788,7 +851,11 @@ where
 }
 
 /// `fine.u += P coarse.u` between two coarse levels.
-pub(super) fn prolongate_coarse(coarse: &CoarseLevel, fine: &mut CoarseLevel) {
+///
+/// `before_sweep`: a four-colour sweep follows, whose first colour (even
+/// rows, even columns) does not read the values it replaces, so those
+/// points are not corrected (the result after the sweep is the same).
+pub(super) fn prolongate_coarse(coarse: &CoarseLevel, fine: &mut CoarseLevel, before_sweep: bool) {
     let parallel = fine.parallel();
     let (fny, hs) = (fine.ny, fine.hs);
     let sh = SharedHalves {
@@ -802,6 +869,9 @@ pub(super) fn prolongate_coarse(coarse: &CoarseLevel, fine: &mut CoarseLevel) {
                 continue;
             }
             for (a, c) in [(0, e), (1, o)] {
+                if before_sweep && a == 0 && fj & 1 == 0 {
+                    continue;
+                }
                 // SAFETY: each call owns fine rows 2 cj and 2 cj + 1.
                 let row = unsafe { &mut sh.row_mut(a, fj + 1)[1..1 + counts[a]] };
                 for (u, &v) in row.iter_mut().zip(c) {

@@ -83,17 +83,39 @@ fn edge_weights(s: &[f64; 9], along_x: bool) -> (f64, f64) {
 ///   cell sw, cell se, cell nw, cell ne]`.
 pub(super) type BlockWeights = [f32; 9];
 
+/// [`BlockWeights`] of block `(ci, cj)` from the fine stencils (compiled for
+/// AVX2 + FMA where the CPU has them).
+pub(super) fn block_weights<S: StencilSource + ?Sized>(
+    src: &S,
+    ci: isize,
+    cj: isize,
+) -> BlockWeights {
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma") {
+        // SAFETY: the CPU supports AVX2 and FMA.
+        return unsafe { block_weights_avx2(src, ci, cj) };
+    }
+    block_weights_impl(src, ci, cj)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn block_weights_avx2<S: StencilSource + ?Sized>(
+    src: &S,
+    ci: isize,
+    cj: isize,
+) -> BlockWeights {
+    block_weights_impl(src, ci, cj)
+}
+
 /// [`BlockWeights`] of block `(ci, cj)` from the fine stencils.
 ///
 /// The cell point `(2ci + 1, 2cj + 1)` solves its own row for itself, its
 /// eight neighbours interpolated: a neighbour on a coarse point by its value
 /// (weight 1 when alive), an edge neighbour by its own edge weights. All nine
 /// fine stencils of the 3 x 3 points from `(2ci, 2cj)` are read once.
-pub(super) fn block_weights<S: StencilSource + ?Sized>(
-    src: &S,
-    ci: isize,
-    cj: isize,
-) -> BlockWeights {
+#[inline(always)]
+fn block_weights_impl<S: StencilSource + ?Sized>(src: &S, ci: isize, cj: isize) -> BlockWeights {
     let (i0, j0) = (2 * ci, 2 * cj);
     // st[b][a]: stencil of fine point (i0 + a, j0 + b).
     let mut st = [[[0.0f64; 9]; 3]; 3];
@@ -147,6 +169,30 @@ pub(super) fn block_weights<S: StencilSource + ?Sized>(
     .map(|v| v as f32)
 }
 
+/// [`galerkin_impl`] compiled for AVX2 + FMA where the CPU has them.
+pub(super) fn galerkin<S, B>(src: &S, block: B, ci: isize, cj: isize) -> [f64; 9]
+where
+    S: StencilSource + ?Sized,
+    B: Fn(isize, isize) -> BlockWeights,
+{
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma") {
+        // SAFETY: the CPU supports AVX2 and FMA.
+        return unsafe { galerkin_avx2(src, block, ci, cj) };
+    }
+    galerkin_impl(src, block, ci, cj)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn galerkin_avx2<S, B>(src: &S, block: B, ci: isize, cj: isize) -> [f64; 9]
+where
+    S: StencilSource + ?Sized,
+    B: Fn(isize, isize) -> BlockWeights,
+{
+    galerkin_impl(src, block, ci, cj)
+}
+
 /// Galerkin stencil `(P^T A P)` of coarse point `(ci, cj)`, entry
 /// `sidx(dI, dJ)` coupling to coarse point `(ci + dI, cj + dJ)`;
 /// `block(I, J)` gives the [`BlockWeights`] of coarse point `(I, J)` (zeros
@@ -156,7 +202,8 @@ pub(super) fn block_weights<S: StencilSource + ?Sized>(
 /// only from the 3 x 3 coarse points around `(ci, cj)`: their weights form a
 /// dense 25 x 9 matrix `W`, and the stencil is
 /// `sum over inner f, d: W[f][centre] a_f[d] W[f + d][.]`.
-pub(super) fn galerkin<S, B>(src: &S, block: B, ci: isize, cj: isize) -> [f64; 9]
+#[inline(always)]
+fn galerkin_impl<S, B>(src: &S, block: B, ci: isize, cj: isize) -> [f64; 9]
 where
     S: StencilSource + ?Sized,
     B: Fn(isize, isize) -> BlockWeights,

@@ -607,7 +607,11 @@ impl Level {
 
     /// `u += P coarse.u` on the free cells (fixed cells have zero weights;
     /// they are put back anyway).
-    pub fn prolongate_from(&mut self, coarse: &CoarseLevel) {
+    ///
+    /// `before_sweep`: a red-black sweep follows, whose red update does not
+    /// read the red values it replaces, so only black cells are corrected
+    /// (the result after the sweep is the same).
+    pub fn prolongate_from(&mut self, coarse: &CoarseLevel, before_sweep: bool) {
         let (w, ny, st) = (self.w, self.ny, self.stride);
         let shared = SharedColours {
             ptr: [self.u[0].as_mut_ptr(), self.u[1].as_mut_ptr()],
@@ -617,6 +621,9 @@ impl Level {
         let add_row = |fj: usize, even: &[f32], odd: &[f32]| {
             let c = fj & 1;
             for (colour, corr) in [(c, even), (1 - c, odd)] {
+                if before_sweep && colour == 0 {
+                    continue;
+                }
                 // SAFETY: each call of the closure below owns fine rows
                 // 2 cj and 2 cj + 1.
                 let row = unsafe { &mut shared.row_mut(colour, fj as isize)[1..1 + w] };

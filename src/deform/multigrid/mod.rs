@@ -571,8 +571,9 @@ fn restrict_fine(h: &mut Hierarchy, after_sweep: bool) {
 }
 
 /// Adds the interpolated correction of the first coarse level to the finest.
-fn prolongate_fine(h: &mut Hierarchy) {
-    h.fine.prolongate_from(&h.coarse[0]);
+/// `before_sweep`: a smoothing sweep follows (see [`Level::prolongate_from`]).
+fn prolongate_fine(h: &mut Hierarchy, before_sweep: bool) {
+    h.fine.prolongate_from(&h.coarse[0], before_sweep);
 }
 
 /// One V-cycle on the coarse levels `levels[0]` (right-hand side given).
@@ -587,7 +588,7 @@ fn coarse_cycle(levels: &mut [CoarseLevel], pre: usize, post: usize) {
     first.smooth(pre);
     restrict_coarse(first, &mut rest[0]);
     coarse_cycle(rest, pre, post);
-    prolongate_coarse(&rest[0], first);
+    prolongate_coarse(&rest[0], first, post > 0);
     first.smooth(post);
 }
 
@@ -600,7 +601,7 @@ fn v_cycle(h: &mut Hierarchy, pre: usize, post: usize) {
     h.fine.smooth(pre);
     restrict_fine(h, pre > 0);
     coarse_cycle(&mut h.coarse, pre, post);
-    prolongate_fine(h);
+    prolongate_fine(h, post > 0);
     h.fine.smooth(post);
 }
 
@@ -624,10 +625,10 @@ fn full_multigrid(h: &mut Hierarchy, opts: &MultigridOptions) {
     for l in (0..n - 1).rev() {
         let (head, tail) = h.coarse.split_at_mut(l + 1);
         head[l].u.iter_mut().for_each(|u| u.fill(0.0));
-        prolongate_coarse(&tail[0], &mut head[l]);
+        prolongate_coarse(&tail[0], &mut head[l], false);
         coarse_cycle(&mut h.coarse[l..], opts.pre_smooth, opts.post_smooth);
     }
-    prolongate_fine(h);
+    prolongate_fine(h, false);
 }
 
 #[cfg(test)]
