@@ -670,120 +670,149 @@ pub(super) fn restrict<F>(coarse: &mut CoarseLevel, fny: usize, parallel: bool, 
 where
     F: Fn(usize, &mut [f32], &mut [f32]) + Sync,
 {
-    let hs = coarse.hs;
-    let (cnx, cny) = (coarse.nx, coarse.ny);
-    let width = cnx + 2;
-    let [r0, r1] = std::mem::take(&mut coarse.rhs);
-    let [mut u0, mut u1] = std::mem::take(&mut coarse.u);
-    let (mut r0, mut r1) = (r0, r1);
-    {
-        let c: &CoarseLevel = coarse;
-        let fill = |j: isize, e: &mut [f32], o: &mut [f32]| {
-            if j < 0 || j as usize >= fny {
-                e.fill(0.0);
-                o.fill(0.0);
-            } else {
-                residual(j as usize, e, o);
-            }
-        };
-        let job = |(t, (((r0, r1), u0), u1)): (
-            usize,
-            (((&mut [f32], &mut [f32]), &mut [f32]), &mut [f32]),
-        ),
-                   buf: &mut Vec<f32>| {
-            buf.clear();
-            buf.resize(7 * width, 0.0);
-            let (rows, out) = buf.split_at_mut(6 * width);
-            let (prev, rest) = rows.split_at_mut(2 * width);
-            let (cur, next) = rest.split_at_mut(2 * width);
-            let out = &mut out[..cnx];
-            u0.fill(0.0);
-            u1.fill(0.0);
-            for (m, (r0, r1)) in r0.chunks_mut(hs).zip(r1.chunks_mut(hs)).enumerate() {
-                let cj = t * ROW_CHUNK + m;
-                let fj = 2 * cj as isize;
-                {
-                    let (pe, po) = prev.split_at_mut(width);
-                    if m == 0 {
-                        fill(fj - 1, pe, po);
-                    } else {
-                        let (ne, no) = next.split_at(width);
-                        pe.copy_from_slice(ne);
-                        po.copy_from_slice(no);
-                    }
-                }
-                {
-                    let (ce, co) = cur.split_at_mut(width);
-                    fill(fj, ce, co);
-                    let (ne, no) = next.split_at_mut(width);
-                    fill(fj + 1, ne, no);
-                }
-                let (pe, po) = prev.split_at(width);
-                let (ce, co) = cur.split_at(width);
-                let (ne, no) = next.split_at(width);
-                restrict_regular(out, (pe, po), (ce, co), (ne, no), &c.reg_block);
-                for sp in c.specials(cj) {
-                    let ci = c.sp_col[sp] as usize;
-                    out[ci] = if c.sp_inv[sp] == 0.0 {
-                        0.0
-                    } else {
-                        let bc = c.block(ci, cj);
-                        let bw = if ci > 0 {
-                            *c.block(ci - 1, cj)
-                        } else {
-                            [0.0; 9]
-                        };
-                        let bs = if cj > 0 {
-                            *c.block(ci, cj - 1)
-                        } else {
-                            [0.0; 9]
-                        };
-                        let bsw = if ci > 0 && cj > 0 {
-                            *c.block(ci - 1, cj - 1)
-                        } else {
-                            [0.0; 9]
-                        };
-                        let k = ci + 1;
-                        bc[0] * ce[k]
-                            + bc[1] * co[k]
-                            + bw[2] * co[k - 1]
-                            + bc[3] * ne[k]
-                            + bs[4] * pe[k]
-                            + bc[5] * no[k]
-                            + bw[6] * no[k - 1]
-                            + bs[7] * po[k]
-                            + bsw[8] * po[k - 1]
-                    };
-                }
-                deinterleave(out, &mut r0[1..], &mut r1[1..]);
-            }
-        };
-        let chunk = ROW_CHUNK * hs;
-        let rows0 = &mut r0[hs..(cny + 1) * hs];
-        let rows1 = &mut r1[hs..(cny + 1) * hs];
-        let us0 = &mut u0[hs..(cny + 1) * hs];
-        let us1 = &mut u1[hs..(cny + 1) * hs];
-        if parallel {
-            rows0
-                .par_chunks_mut(chunk)
-                .zip(rows1.par_chunks_mut(chunk))
-                .zip(us0.par_chunks_mut(chunk))
-                .zip(us1.par_chunks_mut(chunk))
-                .enumerate()
-                .for_each_init(Vec::new, |buf, item| job(item, buf));
+    let cny = coarse.ny;
+    let target = RestrictTarget::new(coarse);
+    let width = target.width();
+    let fill = |j: isize, e: &mut [f32], o: &mut [f32]| {
+        if j < 0 || j as usize >= fny {
+            e.fill(0.0);
+            o.fill(0.0);
         } else {
-            let mut buf = Vec::new();
-            rows0
-                .chunks_mut(chunk)
-                .zip(rows1.chunks_mut(chunk))
-                .zip(us0.chunks_mut(chunk))
-                .zip(us1.chunks_mut(chunk))
-                .enumerate()
-                .for_each(|item| job(item, &mut buf));
+            residual(j as usize, e, o);
         }
+    };
+    let job = |t: usize, buf: &mut Vec<f32>| {
+        buf.clear();
+        buf.resize(7 * width, 0.0);
+        let (rows, out) = buf.split_at_mut(6 * width);
+        // Three fine rows (E, O) in rotation: fine row 2 cj + 1 of one
+        // coarse row is row 2 cj' - 1 of the next.
+        let mut slots: Vec<&mut [f32]> = rows.chunks_mut(width).collect();
+        let end = ((t + 1) * ROW_CHUNK).min(cny);
+        for cj in t * ROW_CHUNK..end {
+            let fj = 2 * cj as isize;
+            if cj == t * ROW_CHUNK {
+                let (e, rest) = slots.split_at_mut(1);
+                fill(fj - 1, e[0], rest[0]);
+            } else {
+                slots.rotate_left(4);
+            }
+            {
+                let (head, tail) = slots.split_at_mut(3);
+                fill(fj, head[2], tail[0]);
+                let (e, o) = tail[1..].split_at_mut(1);
+                fill(fj + 1, e[0], o[0]);
+            }
+            let r = |m: usize| (&*slots[2 * m], &*slots[2 * m + 1]);
+            // SAFETY: each task writes only its own coarse rows.
+            unsafe { target.write_row(cj, r(0), r(1), r(2), out) };
+        }
+    };
+    let tasks = cny.div_ceil(ROW_CHUNK);
+    if parallel {
+        (0..tasks)
+            .into_par_iter()
+            .for_each_init(Vec::new, |buf, t| job(t, buf));
+    } else {
+        let mut buf = Vec::new();
+        (0..tasks).for_each(|t| job(t, &mut buf));
     }
-    coarse.rhs = [r0, r1];
-    coarse.u = [u0, u1];
+}
+
+/// Write access to the right-hand side and correction of a coarse level for
+/// restricting into it from several threads, each thread owning whole
+/// coarse rows.
+pub(super) struct RestrictTarget<'a> {
+    level: &'a CoarseLevel,
+    rhs: SharedHalves,
+    u: SharedHalves,
+}
+
+// SAFETY: writes go to coarse rows owned by one thread (see `write_row`).
+unsafe impl Sync for RestrictTarget<'_> {}
+
+impl<'a> RestrictTarget<'a> {
+    pub fn new(level: &'a mut CoarseLevel) -> RestrictTarget<'a> {
+        let hs = level.hs;
+        let rhs = SharedHalves {
+            ptr: [level.rhs[0].as_mut_ptr(), level.rhs[1].as_mut_ptr()],
+            hs,
+        };
+        let u = SharedHalves {
+            ptr: [level.u[0].as_mut_ptr(), level.u[1].as_mut_ptr()],
+            hs,
+        };
+        RestrictTarget { level, rhs, u }
+    }
+
+    /// Length of the fine residual rows `write_row` reads: coarse `nx + 2`.
+    pub fn width(&self) -> usize {
+        self.level.nx + 2
+    }
+
+    /// Coarse rows `cj` with `2 cj` in `rows`.
+    pub fn rows_centred_in(&self, rows: std::ops::Range<usize>) -> std::ops::Range<usize> {
+        rows.start.div_ceil(2)..rows.end.div_ceil(2).min(self.level.ny)
+    }
+
+    /// Restricts the fine residual rows `2 cj - 1` (`s`), `2 cj` (`c`) and
+    /// `2 cj + 1` (`n`), each `(E, O)` as documented on [`restrict`], into
+    /// coarse row `cj` of the right-hand side, and zeroes that row of the
+    /// correction; `out` is scratch.
+    ///
+    /// # Safety
+    /// No other thread may access coarse row `cj` of `rhs` or `u` meanwhile.
+    pub unsafe fn write_row(
+        &self,
+        cj: usize,
+        s: (&[f32], &[f32]),
+        c: (&[f32], &[f32]),
+        n: (&[f32], &[f32]),
+        out: &mut [f32],
+    ) {
+        let level = self.level;
+        let out = &mut out[..level.nx];
+        let ((pe, po), (ce, co), (ne, no)) = (s, c, n);
+        restrict_regular(out, s, c, n, &level.reg_block);
+        for sp in level.specials(cj) {
+            let ci = level.sp_col[sp] as usize;
+            out[ci] = if level.sp_inv[sp] == 0.0 {
+                0.0
+            } else {
+                let zero = [0.0f32; 9];
+                let bc = level.block(ci, cj);
+                let bw = if ci > 0 {
+                    level.block(ci - 1, cj)
+                } else {
+                    &zero
+                };
+                let bs = if cj > 0 {
+                    level.block(ci, cj - 1)
+                } else {
+                    &zero
+                };
+                let bsw = if ci > 0 && cj > 0 {
+                    level.block(ci - 1, cj - 1)
+                } else {
+                    &zero
+                };
+                let k = ci + 1;
+                bc[0] * ce[k]
+                    + bc[1] * co[k]
+                    + bw[2] * co[k - 1]
+                    + bc[3] * ne[k]
+                    + bs[4] * pe[k]
+                    + bc[5] * no[k]
+                    + bw[6] * no[k - 1]
+                    + bs[7] * po[k]
+                    + bsw[8] * po[k - 1]
+            };
+        }
+        let (r0, r1) = (self.rhs.row_mut(0, cj + 1), self.rhs.row_mut(1, cj + 1));
+        deinterleave(out, &mut r0[1..], &mut r1[1..]);
+        self.u.row_mut(0, cj + 1).fill(0.0);
+        self.u.row_mut(1, cj + 1).fill(0.0);
+    }
 }
 
 /// Restriction between two coarse levels: `coarse.rhs = R (fine residual)`,

@@ -77,6 +77,32 @@ pub(super) struct Intake {
     pub zero_guess: bool,
 }
 
+/// What to do with the residual rows of the finest level as they become
+/// final during the last sweep of [`Level::smooth_visiting`]. Rows come as
+/// `(E, O)`: the residual of the even and of the odd cells, padded (entry
+/// `k` at `k + 1`, a leading zero, zeros past the row's end, `w + 2`
+/// entries each), as [`Level::residual_halves`] gives them.
+pub(super) trait RowVisitor: Sync {
+    /// State of one band.
+    type State: Send;
+    /// The black residual is taken as 0 (see [`Level::residual_halves`]).
+    const RED_ONLY: bool;
+    /// State of band `[r0, r1)`.
+    fn start(&self, r0: usize, r1: usize) -> Self::State;
+    /// Row `j` is final: `fill(e, o)` writes its residual. Called with
+    /// increasing `j` within a band, while the sweep goes on elsewhere.
+    fn row<F: FnOnce(&mut [f32], &mut [f32])>(&self, state: &mut Self::State, j: usize, fill: F);
+    /// After the sweep: `residual(j, e, o)` writes the residual of any row
+    /// (the band's edge rows were not given to `row`).
+    fn finish(
+        &self,
+        state: &mut Self::State,
+        r0: usize,
+        r1: usize,
+        residual: &(dyn Fn(usize, &mut [f32], &mut [f32]) + Sync),
+    );
+}
+
 /// Raw pointers to the two colour arrays of a level's unknown, shared by the
 /// smoother's threads.
 ///
@@ -506,49 +532,162 @@ impl Level {
             ptr: [self.u[0].as_mut_ptr(), self.u[1].as_mut_ptr()],
             stride: self.stride,
         };
-        let this: &Level = self;
-        let phase1 = |&(r0, r1): &(usize, usize)| {
-            for j in r0..r1 {
-                // SAFETY: band schedule documented above.
-                unsafe { this.relax_colour_row(shared, 0, j) };
-                if j >= r0 + 2 {
-                    unsafe { this.relax_colour_row(shared, 1, j - 1) };
-                }
-            }
-        };
+        // SAFETY: `shared` points into `self.u`, which nothing else accesses.
+        unsafe { self.sweeps(shared, sweeps) };
+    }
+
+    /// Phase 2 of a sweep (see [`Level::smooth`]).
+    ///
+    /// # Safety
+    /// `shared` points into `self.u`; nothing else accesses it meanwhile.
+    unsafe fn phase2(&self, shared: SharedColours) {
         let phase2 = |&(r0, r1): &(usize, usize)| {
-            // SAFETY: band schedule documented above.
-            unsafe { this.relax_colour_row(shared, 1, r0) };
+            // SAFETY: band schedule documented on `smooth`.
+            unsafe { self.relax_colour_row(shared, 1, r0) };
             if r1 - 1 > r0 {
-                unsafe { this.relax_colour_row(shared, 1, r1 - 1) };
+                unsafe { self.relax_colour_row(shared, 1, r1 - 1) };
             }
         };
-        for _ in 0..sweeps {
-            if this.bands.len() > 1 {
-                this.bands.par_iter().for_each(phase1);
-                this.bands.par_iter().for_each(phase2);
-            } else {
-                this.bands.iter().for_each(phase1);
-                this.bands.iter().for_each(phase2);
+        if self.bands.len() > 1 {
+            self.bands.par_iter().for_each(phase2);
+        } else {
+            self.bands.iter().for_each(phase2);
+        }
+    }
+
+    /// Phase 1 of a sweep over band `[r0, r1)`, calling `after(j)` once
+    /// red row `j` and black row `j - 1` are done.
+    ///
+    /// # Safety
+    /// As for [`Level::phase2`], and only the band schedule runs meanwhile.
+    #[inline]
+    unsafe fn phase1(
+        &self,
+        shared: SharedColours,
+        r0: usize,
+        r1: usize,
+        mut after: impl FnMut(usize),
+    ) {
+        for j in r0..r1 {
+            // SAFETY: band schedule documented on `smooth`.
+            self.relax_colour_row(shared, 0, j);
+            if j >= r0 + 2 {
+                self.relax_colour_row(shared, 1, j - 1);
             }
+            after(j);
+        }
+    }
+
+    /// `sweeps` plain sweeps.
+    ///
+    /// # Safety
+    /// As for [`Level::phase2`].
+    unsafe fn sweeps(&self, shared: SharedColours, sweeps: usize) {
+        for _ in 0..sweeps {
+            let phase1 =
+                |&(r0, r1): &(usize, usize)| unsafe { self.phase1(shared, r0, r1, |_| {}) };
+            if self.bands.len() > 1 {
+                self.bands.par_iter().for_each(phase1);
+            } else {
+                self.bands.iter().for_each(phase1);
+            }
+            self.phase2(shared);
+        }
+    }
+
+    /// `sweeps >= 1` sweeps like [`Level::smooth`], handing the residual of
+    /// every row to `visitor` as the row becomes final in the last sweep:
+    /// rows `r0 + 2 ..= r1 - 3` of each band `[r0, r1)` during the band's
+    /// pass (two rows behind the sweep, while they are in cache), the
+    /// band's remaining edge rows in a third parallel phase after the
+    /// sweep. Returns the bands' final states.
+    pub fn smooth_visiting<V: RowVisitor>(&mut self, sweeps: usize, visitor: &V) -> Vec<V::State> {
+        assert!(sweeps >= 1);
+        let shared = SharedColours {
+            ptr: [self.u[0].as_mut_ptr(), self.u[1].as_mut_ptr()],
+            stride: self.stride,
+        };
+        let this: &Level = self;
+        // SAFETY (all blocks below): `shared` points into `self.u`, which
+        // only the band schedule touches. A residual read in phase 1 covers
+        // rows j - 3 ..= j - 1 of the visiting band, final and written by
+        // nobody else; phase 3 only reads.
+        let residual = |j: usize, e: &mut [f32], o: &mut [f32]| unsafe {
+            this.residual_halves_shared(shared, j, e, o, V::RED_ONLY)
+        };
+        unsafe { this.sweeps(shared, sweeps - 1) };
+        let phase1 = |&(r0, r1): &(usize, usize)| -> V::State {
+            let mut state = visitor.start(r0, r1);
+            unsafe {
+                this.phase1(shared, r0, r1, |j| {
+                    if j >= r0 + 4 {
+                        let r = j - 2;
+                        visitor.row(&mut state, r, |e, o| residual(r, e, o));
+                    }
+                })
+            };
+            state
+        };
+        let states: Vec<V::State> = if this.bands.len() > 1 {
+            this.bands.par_iter().map(phase1).collect()
+        } else {
+            this.bands.iter().map(phase1).collect()
+        };
+        unsafe { this.phase2(shared) };
+        let phase3 = |(mut state, &(r0, r1)): (V::State, &(usize, usize))| {
+            visitor.finish(&mut state, r0, r1, &residual);
+            state
+        };
+        if this.bands.len() > 1 {
+            states
+                .into_par_iter()
+                .zip(this.bands.par_iter())
+                .map(phase3)
+                .collect()
+        } else {
+            states
+                .into_iter()
+                .zip(this.bands.iter())
+                .map(phase3)
+                .collect()
+        }
+    }
+
+    /// Read-only view of `self.u` for the residual functions.
+    #[inline]
+    fn reader(&self) -> SharedColours {
+        SharedColours {
+            ptr: [
+                self.u[0].as_ptr() as *mut f32,
+                self.u[1].as_ptr() as *mut f32,
+            ],
+            stride: self.stride,
         }
     }
 
     /// Residual of colour `c` row `j` into `out` (length `w`; 0 at fixed
     /// cells and past the row's end).
+    ///
+    /// # Safety
+    /// `shared` points into `self.u` and nobody writes rows `j - 1 ..= j + 1`
+    /// meanwhile; it is only read.
     #[inline]
-    fn residual_colour_row(&self, out: &mut [f32], c: usize, j: usize) {
+    unsafe fn residual_colour_row(
+        &self,
+        shared: SharedColours,
+        out: &mut [f32],
+        c: usize,
+        j: usize,
+    ) {
         let other = 1 - c;
-        let st = self.stride;
-        let start = (j + 1) * st;
-        let (up, down) = (start - st, start + st);
+        let jj = j as isize;
         let n = self.count(c, j);
         residual_row(
             &mut out[..n],
-            &self.u[c][start + 1..start + 1 + self.w],
-            &self.u[other][start..start + st],
-            &self.u[other][up..up + st],
-            &self.u[other][down..down + st],
+            &shared.row(c, jj)[1..1 + self.w],
+            shared.row(other, jj),
+            shared.row(other, jj - 1),
+            shared.row(other, jj + 1),
             self.diag,
             (j + c) & 1,
             (self.ax, self.ay),
@@ -561,11 +700,13 @@ impl Level {
 
     /// Squared 2-norm of the residual over the whole level (f64 sums).
     pub fn residual_norm_squared(&self) -> f64 {
+        let shared = self.reader();
         let row_sum = |j: usize, buf: &mut Vec<f32>| {
             buf.resize(self.w, 0.0);
             let mut total = 0.0;
             for c in 0..2 {
-                self.residual_colour_row(buf, c, j);
+                // SAFETY: `shared` reads `self.u`, borrowed shared here.
+                unsafe { self.residual_colour_row(shared, buf, c, j) };
                 total += sum_squares(buf);
             }
             total
@@ -592,6 +733,22 @@ impl Level {
     /// neighbours, so their residual is 0 up to rounding (the restricted
     /// residual changes by about 1e-10 relative on the benchmark layout).
     pub fn residual_halves(&self, j: usize, e: &mut [f32], o: &mut [f32], red_only: bool) {
+        // SAFETY: `reader` reads `self.u`, borrowed shared here.
+        unsafe { self.residual_halves_shared(self.reader(), j, e, o, red_only) }
+    }
+
+    /// [`Level::residual_halves`] through `shared`.
+    ///
+    /// # Safety
+    /// As for [`Level::residual_colour_row`].
+    unsafe fn residual_halves_shared(
+        &self,
+        shared: SharedColours,
+        j: usize,
+        e: &mut [f32],
+        o: &mut [f32],
+        red_only: bool,
+    ) {
         let w = self.w;
         let even = j & 1;
         for (c, out) in [(even, &mut *e), (1 - even, &mut *o)] {
@@ -601,7 +758,7 @@ impl Level {
             }
             out[0] = 0.0;
             out[w + 1..].fill(0.0);
-            self.residual_colour_row(&mut out[1..1 + w], c, j);
+            self.residual_colour_row(shared, &mut out[1..1 + w], c, j);
         }
     }
 

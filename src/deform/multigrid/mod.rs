@@ -112,9 +112,9 @@ mod galerkin;
 mod level;
 pub mod synthetic;
 
-use coarse::{prolongate_coarse, restrict_coarse, CoarseLevel};
+use coarse::{prolongate_coarse, restrict_coarse, CoarseLevel, RestrictTarget};
 use galerkin::StencilSource;
-use level::Level;
+use level::{Level, RowVisitor};
 use rayon::prelude::*;
 
 /// Options of [`solve`].
@@ -277,9 +277,10 @@ pub fn solve(
     stats.residual_history.push(rel);
     let mut slow_cycles = 0;
     while rel > opts.tolerance && stats.cycles < opts.max_cycles {
-        v_cycle(&mut h, opts.pre_smooth, opts.post_smooth);
+        let fused = v_cycle(&mut h, opts.pre_smooth, opts.post_smooth);
         stats.cycles += 1;
-        let next = h.fine.residual_norm_squared().sqrt() / b_norm;
+        let squared = fused.unwrap_or_else(|| h.fine.residual_norm_squared());
+        let next = squared.sqrt() / b_norm;
         stats.residual_history.push(next);
         // Stop when rounding (f32 storage) stalls the iteration.
         slow_cycles = if next > 0.9 * rel { slow_cycles + 1 } else { 0 };
@@ -592,17 +593,168 @@ fn coarse_cycle(levels: &mut [CoarseLevel], pre: usize, post: usize) {
     first.smooth(post);
 }
 
-/// One V-cycle on the finest level.
-fn v_cycle(h: &mut Hierarchy, pre: usize, post: usize) {
+/// One V-cycle on the finest level. Returns the squared residual norm of
+/// the result when it was computed on the way (during the last
+/// post-smoothing sweep).
+fn v_cycle(h: &mut Hierarchy, pre: usize, post: usize) -> Option<f64> {
     if h.coarse.is_empty() {
         solve_fine_alone(&mut h.fine);
-        return;
+        return None;
     }
-    h.fine.smooth(pre);
-    restrict_fine(h, pre > 0);
+    if pre > 0 {
+        // The last pre-smoothing sweep restricts the residual as it goes.
+        let fny = h.fine.ny;
+        let visitor = RestrictVisitor {
+            target: RestrictTarget::new(&mut h.coarse[0]),
+            fny,
+        };
+        h.fine.smooth_visiting(pre, &visitor);
+    } else {
+        restrict_fine(h, false);
+    }
     coarse_cycle(&mut h.coarse, pre, post);
     prolongate_fine(h, post > 0);
-    h.fine.smooth(post);
+    if post == 0 {
+        return None;
+    }
+    let visitor = NormVisitor {
+        width: h.fine.w + 2,
+    };
+    let norm = h.fine.smooth_visiting(post, &visitor);
+    Some(norm.iter().map(|s| s.0).sum())
+}
+
+/// Restricts the finest level's residual to the first coarse level as the
+/// rows become final in the last pre-smoothing sweep: coarse row `cj` as
+/// soon as fine rows `2 cj - 1 ..= 2 cj + 1` are, by the band holding fine
+/// row `2 cj`, and the coarse rows at band edges after the sweep.
+struct RestrictVisitor<'a> {
+    target: RestrictTarget<'a>,
+    fny: usize,
+}
+
+/// Three fine residual rows `(E, O)` in rotation (slot `j % 3` holds fine
+/// row `j`) and the restriction's scratch row, all of one width.
+struct RestrictBuffers {
+    width: usize,
+    r0: usize,
+    buf: Vec<f32>,
+}
+
+impl RestrictBuffers {
+    /// Slot `m`: `(E, O)`.
+    fn slot(&mut self, m: usize) -> (&mut [f32], &mut [f32]) {
+        let w = self.width;
+        let (e, o) = self.buf[2 * m * w..(2 * m + 2) * w].split_at_mut(w);
+        (e, o)
+    }
+}
+
+impl RowVisitor for RestrictVisitor<'_> {
+    type State = RestrictBuffers;
+    const RED_ONLY: bool = true;
+
+    fn start(&self, r0: usize, _r1: usize) -> RestrictBuffers {
+        let width = self.target.width();
+        RestrictBuffers {
+            width,
+            r0,
+            buf: vec![0.0; 7 * width],
+        }
+    }
+
+    fn row<F: FnOnce(&mut [f32], &mut [f32])>(&self, st: &mut RestrictBuffers, j: usize, fill: F) {
+        let (e, o) = st.slot(j % 3);
+        fill(e, o);
+        // Rows j - 2 and j - 1 came through here too: coarse row (j - 1) / 2.
+        if j & 1 == 1 && j >= st.r0 + 4 {
+            let cj = (j - 1) / 2;
+            let w = st.width;
+            let (rows, out) = st.buf.split_at_mut(6 * w);
+            let at = |m: usize| {
+                (
+                    &rows[2 * m * w..(2 * m + 1) * w],
+                    &rows[(2 * m + 1) * w..(2 * m + 2) * w],
+                )
+            };
+            // SAFETY: coarse row cj belongs to the band holding fine row 2 cj.
+            unsafe {
+                self.target
+                    .write_row(cj, at((j - 2) % 3), at((j - 1) % 3), at(j % 3), out)
+            };
+        }
+    }
+
+    fn finish(
+        &self,
+        st: &mut RestrictBuffers,
+        r0: usize,
+        r1: usize,
+        residual: &(dyn Fn(usize, &mut [f32], &mut [f32]) + Sync),
+    ) {
+        for cj in self.target.rows_centred_in(r0..r1) {
+            let fj = 2 * cj;
+            if fj >= r0 + 3 && fj + 4 <= r1 {
+                continue; // done during the sweep
+            }
+            for (m, r) in [(0, fj as isize - 1), (1, fj as isize), (2, fj as isize + 1)] {
+                let (e, o) = st.slot(m);
+                if r < 0 || r as usize >= self.fny {
+                    e.fill(0.0);
+                    o.fill(0.0);
+                } else {
+                    residual(r as usize, e, o);
+                }
+            }
+            let w = st.width;
+            let (rows, out) = st.buf.split_at_mut(6 * w);
+            let at = |m: usize| {
+                (
+                    &rows[2 * m * w..(2 * m + 1) * w],
+                    &rows[(2 * m + 1) * w..(2 * m + 2) * w],
+                )
+            };
+            // SAFETY: coarse row cj belongs to this band (fine row 2 cj is in it).
+            unsafe { self.target.write_row(cj, at(0), at(1), at(2), out) };
+        }
+    }
+}
+
+/// Sums the squared residual of the finest level during the last
+/// post-smoothing sweep.
+struct NormVisitor {
+    /// Padded residual row length, `w + 2`.
+    width: usize,
+}
+
+impl RowVisitor for NormVisitor {
+    /// Sum so far and two scratch rows.
+    type State = (f64, Vec<f32>, Vec<f32>);
+    const RED_ONLY: bool = false;
+
+    fn start(&self, _r0: usize, _r1: usize) -> Self::State {
+        (0.0, vec![0.0; self.width], vec![0.0; self.width])
+    }
+
+    fn row<F: FnOnce(&mut [f32], &mut [f32])>(&self, st: &mut Self::State, _j: usize, fill: F) {
+        let (sum, e, o) = st;
+        fill(e, o);
+        *sum += level::sum_squares(e) + level::sum_squares(o);
+    }
+
+    fn finish(
+        &self,
+        st: &mut Self::State,
+        r0: usize,
+        r1: usize,
+        residual: &(dyn Fn(usize, &mut [f32], &mut [f32]) + Sync),
+    ) {
+        let (sum, e, o) = st;
+        for j in (r0..r1).filter(|&j| j < r0 + 2 || j + 3 > r1) {
+            residual(j, e, o);
+            *sum += level::sum_squares(e) + level::sum_squares(o);
+        }
+    }
 }
 
 /// Full multigrid pass on the residual equation: the residual of the zero
