@@ -71,6 +71,9 @@ pub(super) struct CoarseLevel {
     sp_inv: Vec<f32>,
     /// Interpolation weights from the point into the finer level.
     sp_block: Vec<BlockWeights>,
+    /// Restriction weights onto the point, in the order of
+    /// [`restrict_kernel`]'s `r` (0 for dead points).
+    sp_restrict: Vec<[f32; 9]>,
     /// The constant stencil of regular points (f32 and f64), its inverse
     /// diagonal, and their interpolation weights.
     pub reg: [f32; 9],
@@ -315,15 +318,6 @@ impl CoarseLevel {
         }
     }
 
-    /// Interpolation weights of point `(i, j)` (inside the grid).
-    #[inline]
-    fn block(&self, i: usize, j: usize) -> &BlockWeights {
-        match self.idx[j * self.nx + i] {
-            REGULAR => &self.reg_block,
-            n => &self.sp_block[n as usize],
-        }
-    }
-
     /// The coarse level under a finer level given by `src` (`fnx x fny`
     /// points, constant stencil `fine_reg`).
     pub fn build<S: StencilSource + ?Sized>(
@@ -346,25 +340,26 @@ impl CoarseLevel {
         // transfers use around it depend only on the fine stencils within 2
         // fine points (see `galerkin.rs`). Rows are done in chunks, each
         // with its own window of dilated fine rows.
-        let mut idx = vec![REGULAR; nx * ny];
+        let mut idx = vec![0u32; nx * ny];
+        // Per task: dilated fine rows, one fine row and its scratch, and
+        // the vertical union of one coarse row.
+        let scratch = || (Vec::new(), vec![0u8; fnx], vec![0u8; fnx], vec![0u8; nx]);
         let chunk_cols: Vec<Vec<(u32, u32)>> = idx
             .par_chunks_mut(BUILD_CHUNK * nx)
             .enumerate()
-            .map(|(t, rows)| {
+            .map_init(scratch, |(near, irr, dilate, any), (t, rows)| {
                 let cj0 = t * BUILD_CHUNK;
                 let mut cols = Vec::new();
-                // near[r][ci]: an irregular fine point within 2 columns of
-                // 2 ci in fine row fj0 + r.
+                // near[r][ci]: an irregular fine point within NEAR columns
+                // of 2 ci in fine row fj0 + r.
                 let fj0 = (2 * cj0).saturating_sub(NEAR);
                 let fj1 = (2 * (cj0 + rows.len() / nx - 1) + NEAR).min(fny - 1);
-                let mut near = vec![0u8; (fj1 + 1 - fj0) * nx];
-                let mut irr = vec![0u8; fnx];
-                let mut scratch = vec![0u8; fnx];
+                near.clear();
+                near.resize((fj1 + 1 - fj0) * nx, 0u8);
                 for (r, out) in near.chunks_mut(nx).enumerate() {
-                    src.irregular_row(fj0 + r, &mut irr);
-                    dilate_columns(&irr, &mut scratch, out);
+                    src.irregular_row(fj0 + r, irr);
+                    dilate_columns(irr, dilate, out);
                 }
-                let mut any = vec![0u8; nx];
                 for (m, row) in rows.chunks_mut(nx).enumerate() {
                     let cj = cj0 + m;
                     let fj = 2 * cj;
@@ -379,11 +374,13 @@ impl CoarseLevel {
                     } else {
                         any.fill(1);
                     }
+                    for (id, &a) in row.iter_mut().zip(any.iter()) {
+                        *id = if a != 0 { 0 } else { REGULAR }; // numbered below
+                    }
                     // Special points of the row: even columns, then odd.
                     for parity in 0..2 {
-                        for (ci, (id, &a)) in row.iter_mut().zip(&any).enumerate() {
-                            if a != 0 && ci & 1 == parity {
-                                *id = 0; // numbered below
+                        for (ci, &a) in any.iter().enumerate().skip(parity).step_by(2) {
+                            if a != 0 {
                                 cols.push((ci as u32, cj as u32));
                             }
                         }
@@ -444,6 +441,27 @@ impl CoarseLevel {
                 }
             })
             .unzip();
+        // Restriction weights of the special points (zero for dead ones).
+        let sp_restrict: Vec<[f32; 9]> = sp_col
+            .par_iter()
+            .zip(&sp_rowid)
+            .zip(&sp_inv)
+            .map(|((&ci, &cj), &inv)| {
+                if inv == 0.0 {
+                    return [0.0; 9];
+                }
+                let (i, j) = (ci as isize, cj as isize);
+                let (bc, bw, bs, bsw) = (
+                    block_at(i, j),
+                    block_at(i - 1, j),
+                    block_at(i, j - 1),
+                    block_at(i - 1, j - 1),
+                );
+                [
+                    bc[0], bc[1], bw[2], bc[3], bs[4], bc[5], bw[6], bs[7], bsw[8],
+                ]
+            })
+            .collect();
         let dead = sp_inv.iter().filter(|&&v| v == 0.0).count();
         CoarseLevel {
             nx,
@@ -458,6 +476,7 @@ impl CoarseLevel {
             sp_stencil,
             sp_inv,
             sp_block,
+            sp_restrict,
             reg: reg64.map(|v| v as f32),
             reg64,
             reg_inv: (1.0 / reg64[4]) as f32,
@@ -644,19 +663,40 @@ impl CoarseLevel {
 /// `NEAR` columns of `2 ci`, or that window leaves the row; `scratch` has
 /// the length of `irr`.
 fn dilate_columns(irr: &[u8], scratch: &mut [u8], out: &mut [u8]) {
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU supports AVX2.
+        return unsafe { dilate_columns_avx2(irr, scratch, out) };
+    }
+    dilate_columns_kernel(irr, scratch, out)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn dilate_columns_avx2(irr: &[u8], scratch: &mut [u8], out: &mut [u8]) {
+    dilate_columns_kernel(irr, scratch, out)
+}
+
+#[inline(always)]
+fn dilate_columns_kernel(irr: &[u8], scratch: &mut [u8], out: &mut [u8]) {
     let n = irr.len();
-    // scratch[i] = irr[i - 1] | irr[i] | irr[i + 1] (outside counts as 1)
-    // at odd i, packed: scratch[m] for i = 2 m + 1; then
-    // out[ci] = (window around 2 ci - 1) | (window around 2 ci + 1).
-    let odd = n / 2;
-    for (m, s) in scratch[..odd].iter_mut().enumerate() {
-        let i = 2 * m + 1;
-        let east = if i + 1 < n { irr[i + 1] } else { 1 };
-        *s = irr[i - 1] | irr[i] | east;
+    if n < 3 {
+        out.fill(1);
+        return;
+    }
+    // scratch[i] = irr[i - 1] | irr[i] | irr[i + 1], outside counting as 1
+    // (contiguous, vectorised); the window [2 ci - 2, 2 ci + 2] is then
+    // scratch[2 ci - 1] | scratch[2 ci + 1].
+    scratch[0] = 1;
+    scratch[n - 1] = 1;
+    let (west, mid, east) = (&irr[..n - 2], &irr[1..n - 1], &irr[2..]);
+    for (((s, &w), &m), &e) in scratch[1..n - 1].iter_mut().zip(west).zip(mid).zip(east) {
+        *s = w | m | e;
     }
     for (ci, o) in out.iter_mut().enumerate() {
-        let west = if ci >= 1 { scratch[ci - 1] } else { 1 };
-        let east = if ci < odd { scratch[ci] } else { 1 };
+        let c = 2 * ci;
+        let west = if c >= 1 { scratch[c - 1] } else { 1 };
+        let east = if c + 1 < n { scratch[c + 1] } else { 1 };
         *o = west | east;
     }
 }
@@ -776,37 +816,11 @@ impl<'a> RestrictTarget<'a> {
         restrict_regular(out, s, c, n, &level.reg_block);
         for sp in level.specials(cj) {
             let ci = level.sp_col[sp] as usize;
-            out[ci] = if level.sp_inv[sp] == 0.0 {
-                0.0
-            } else {
-                let zero = [0.0f32; 9];
-                let bc = level.block(ci, cj);
-                let bw = if ci > 0 {
-                    level.block(ci - 1, cj)
-                } else {
-                    &zero
-                };
-                let bs = if cj > 0 {
-                    level.block(ci, cj - 1)
-                } else {
-                    &zero
-                };
-                let bsw = if ci > 0 && cj > 0 {
-                    level.block(ci - 1, cj - 1)
-                } else {
-                    &zero
-                };
-                let k = ci + 1;
-                bc[0] * ce[k]
-                    + bc[1] * co[k]
-                    + bw[2] * co[k - 1]
-                    + bc[3] * ne[k]
-                    + bs[4] * pe[k]
-                    + bc[5] * no[k]
-                    + bw[6] * no[k - 1]
-                    + bs[7] * po[k]
-                    + bsw[8] * po[k - 1]
-            };
+            let r = &level.sp_restrict[sp];
+            let k = ci + 1;
+            out[ci] = (r[0] * ce[k] + r[1] * co[k] + r[2] * co[k - 1])
+                + (r[3] * ne[k] + r[5] * no[k] + r[6] * no[k - 1])
+                + (r[4] * pe[k] + r[7] * po[k] + r[8] * po[k - 1]);
         }
         let (r0, r1) = (self.rhs.row_mut(0, cj + 1), self.rhs.row_mut(1, cj + 1));
         deinterleave(out, &mut r0[1..], &mut r1[1..]);

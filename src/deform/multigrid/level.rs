@@ -259,25 +259,26 @@ fn load_row_kernel(
         free += usize::from(!f);
         nonzero |= u32::from(!f & (v != 0.0));
     }
-    // b: the free cells' coupling to fixed neighbours.
+    // b: the free cells' coupling to fixed neighbours (0 on fixed cells).
     let fv = |v: f32, f: bool| if f { v } else { 0.0 };
     let vertical = |i: usize| fv(up.0[i], up.1[i]) + fv(dn.0[i], dn.1[i]);
+    let free_only = |v: f32, f: bool| if f { 0.0 } else { v };
     if nx == 1 {
-        b[0] = ay * vertical(0);
+        b[0] = free_only(ay * vertical(0), fix[0]);
     } else {
-        b[0] = ax * fv(vals[1], fix[1]) + ay * vertical(0);
-        b[nx - 1] = ax * fv(vals[nx - 2], fix[nx - 2]) + ay * vertical(nx - 1);
+        b[0] = free_only(ax * fv(vals[1], fix[1]) + ay * vertical(0), fix[0]);
+        let last = ax * fv(vals[nx - 2], fix[nx - 2]) + ay * vertical(nx - 1);
+        b[nx - 1] = free_only(last, fix[nx - 1]);
         let (west, east) = (&vals[..nx - 2], &vals[2..]);
         let (west_fixed, east_fixed) = (&fix[..nx - 2], &fix[2..]);
         let (u, uf) = (&up.0[1..nx - 1], &up.1[1..nx - 1]);
         let (d, df) = (&dn.0[1..nx - 1], &dn.1[1..nx - 1]);
+        let own = &fix[1..nx - 1];
         for (k, o) in b[1..nx - 1].iter_mut().enumerate() {
             let horizontal = fv(west[k], west_fixed[k]) + fv(east[k], east_fixed[k]);
-            *o = ax * horizontal + ay * (fv(u[k], uf[k]) + fv(d[k], df[k]));
+            let s = ax * horizontal + ay * (fv(u[k], uf[k]) + fv(d[k], df[k]));
+            *o = free_only(s, own[k]);
         }
-    }
-    for (o, &f) in b.iter_mut().zip(fix) {
-        *o = if f { 0.0 } else { *o };
     }
     (free, sum_squares_kernel(&b[..nx]), nonzero != 0)
 }
