@@ -23,6 +23,13 @@
 //! only the "irregular" coarse points (within 3 fine points of an irregular
 //! fine point) get their own stencil; the others share the level's constant
 //! one.
+//!
+//! The weights of the four fine points `(2I + a, 2J + b)` of coarse point
+//! `(I, J)` are kept together as its [`BlockWeights`]; [`block_weights`]
+//! computes them from the nine fine stencils around the block, and
+//! [`galerkin`] forms one coarse stencil from the nine blocks around it as a
+//! small dense product (the 5 x 5 fine window's weights times the fine
+//! stencils of its inner 3 x 3 points).
 
 /// Index of stencil entry `(di, dj)` (`-1 ..= 1` each): `(dj + 1) * 3 + di + 1`.
 #[inline(always)]
@@ -36,37 +43,20 @@ pub(super) trait StencilSource: Sync {
     /// couples to `(i + di, j + dj)`); all zeros for dead points and points
     /// outside the grid.
     fn stencil(&self, i: isize, j: isize) -> [f64; 9];
-}
 
-/// Up to four interpolation weights `(coarse i, coarse j, weight)`.
-#[derive(Clone, Copy, Default)]
-pub(super) struct Weights {
-    pub n: usize,
-    pub c: [(isize, isize, f64); 4],
-}
-
-impl Weights {
-    #[inline]
-    fn push(&mut self, i: isize, j: isize, w: f64) {
-        self.c[self.n] = (i, j, w);
-        self.n += 1;
-    }
-
-    /// Weight of coarse point `(ci, cj)` (0 when absent).
-    #[inline]
-    pub fn of(&self, ci: isize, cj: isize) -> f64 {
-        self.c[..self.n]
-            .iter()
-            .filter(|c| c.0 == ci && c.1 == cj)
-            .map(|c| c.2)
-            .sum()
-    }
+    /// `out[i] = 1` where the stencil of point `(i, j)` differs from the
+    /// level's constant one (points near a constraint, a dead point or the
+    /// grid's edge), 0 elsewhere; `out` has one entry per point of row `j`.
+    fn irregular_row(&self, j: usize, out: &mut [u8]);
 }
 
 /// Dendy weights of an edge point from its stencil: `(first, second)` for
 /// the coarse neighbours west/east (`along_x`) or south/north.
 #[inline]
 fn edge_weights(s: &[f64; 9], along_x: bool) -> (f64, f64) {
+    if s[4] <= 0.0 {
+        return (0.0, 0.0);
+    }
     let (den, a, b) = if along_x {
         (
             s[4] + s[sidx(0, -1)] + s[sidx(0, 1)],
@@ -87,156 +77,181 @@ fn edge_weights(s: &[f64; 9], along_x: bool) -> (f64, f64) {
     }
 }
 
-/// Interpolation weights of non-centre fine point `(i, j)`.
-#[inline]
-fn interp_simple<S: StencilSource + ?Sized>(src: &S, i: isize, j: isize, out: &mut Weights) {
-    let s = src.stencil(i, j);
-    if s[4] <= 0.0 {
-        return;
-    }
-    let (ci, cj) = (i.div_euclid(2), j.div_euclid(2));
-    match (i & 1, j & 1) {
-        (0, 0) => out.push(ci, cj, 1.0),
-        (1, 0) => {
-            let (w, e) = edge_weights(&s, true);
-            out.push(ci, cj, w);
-            out.push(ci + 1, cj, e);
-        }
-        _ => {
-            let (so, no) = edge_weights(&s, false);
-            out.push(ci, cj, so);
-            out.push(ci, cj + 1, no);
-        }
-    }
-}
-
-/// Interpolation weights of fine point `(i, j)` (empty for dead points).
-pub(super) fn interp<S: StencilSource + ?Sized>(src: &S, i: isize, j: isize) -> Weights {
-    let mut out = Weights::default();
-    if (i & 1) == 0 || (j & 1) == 0 {
-        interp_simple(src, i, j, &mut out);
-        return out;
-    }
-    let s = src.stencil(i, j);
-    if s[4] <= 0.0 {
-        return out;
-    }
-    // Centre point: u = -sum_nb a_nb u_nb / a_c over its eight neighbours.
-    let (ci, cj) = ((i - 1) / 2, (j - 1) / 2);
-    let mut acc = [[0.0f64; 2]; 2];
-    for dj in -1..=1isize {
-        for di in -1..=1isize {
-            let a = s[sidx(di, dj)];
-            if (di == 0 && dj == 0) || a == 0.0 {
-                continue;
-            }
-            let mut nb = Weights::default();
-            interp_simple(src, i + di, j + dj, &mut nb);
-            for &(gi, gj, w) in &nb.c[..nb.n] {
-                acc[(gj - cj) as usize][(gi - ci) as usize] += -a / s[4] * w;
-            }
-        }
-    }
-    for (b, row) in acc.iter().enumerate() {
-        for (a, &w) in row.iter().enumerate() {
-            out.push(ci + a as isize, cj + b as isize, w);
-        }
-    }
-    out
-}
-
 /// Interpolation weights of the fine points of block `(ci, cj)` (fine points
 /// `(2ci + a, 2cj + b)`, `a, b` in 0..2) in the order
 /// `[centre, x-edge west, x-edge east, y-edge south, y-edge north,
 ///   cell sw, cell se, cell nw, cell ne]`.
 pub(super) type BlockWeights = [f32; 9];
 
-/// [`BlockWeights`] of block `(ci, cj)` from the fine stencils.
+/// [`BlockWeights`] of block `(ci, cj)` from the fine stencils (compiled for
+/// AVX2 + FMA where the CPU has them).
 pub(super) fn block_weights<S: StencilSource + ?Sized>(
     src: &S,
     ci: isize,
     cj: isize,
 ) -> BlockWeights {
-    let (i, j) = (2 * ci, 2 * cj);
-    let c = interp(src, i, j);
-    let x = interp(src, i + 1, j);
-    let y = interp(src, i, j + 1);
-    let z = interp(src, i + 1, j + 1);
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma") {
+        // SAFETY: the CPU supports AVX2 and FMA.
+        return unsafe { block_weights_avx2(src, ci, cj) };
+    }
+    block_weights_impl(src, ci, cj)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn block_weights_avx2<S: StencilSource + ?Sized>(
+    src: &S,
+    ci: isize,
+    cj: isize,
+) -> BlockWeights {
+    block_weights_impl(src, ci, cj)
+}
+
+/// [`BlockWeights`] of block `(ci, cj)` from the fine stencils.
+///
+/// The cell point `(2ci + 1, 2cj + 1)` solves its own row for itself, its
+/// eight neighbours interpolated: a neighbour on a coarse point by its value
+/// (weight 1 when alive), an edge neighbour by its own edge weights. All nine
+/// fine stencils of the 3 x 3 points from `(2ci, 2cj)` are read once.
+#[inline(always)]
+fn block_weights_impl<S: StencilSource + ?Sized>(src: &S, ci: isize, cj: isize) -> BlockWeights {
+    let (i0, j0) = (2 * ci, 2 * cj);
+    // st[b][a]: stencil of fine point (i0 + a, j0 + b).
+    let mut st = [[[0.0f64; 9]; 3]; 3];
+    for (b, row) in st.iter_mut().enumerate() {
+        for (a, s) in row.iter_mut().enumerate() {
+            *s = src.stencil(i0 + a as isize, j0 + b as isize);
+        }
+    }
+    let alive = |a: usize, b: usize| if st[b][a][4] > 0.0 { 1.0 } else { 0.0 };
+    // Edge points: x-edges at (i0 + 1, j0 + 2b), y-edges at (i0 + 2a, j0 + 1).
+    let x_edge = [edge_weights(&st[0][1], true), edge_weights(&st[2][1], true)];
+    let y_edge = [
+        edge_weights(&st[1][0], false),
+        edge_weights(&st[1][2], false),
+    ];
+    let mut cell = [[0.0f64; 2]; 2]; // cell[J][I]: weight to (ci + I, cj + J)
+    let sz = &st[1][1];
+    if sz[4] > 0.0 {
+        let f = |di: isize, dj: isize| -sz[sidx(di, dj)] / sz[4];
+        // Corner neighbours: coarse points.
+        cell[0][0] += f(-1, -1) * alive(0, 0);
+        cell[0][1] += f(1, -1) * alive(2, 0);
+        cell[1][0] += f(-1, 1) * alive(0, 2);
+        cell[1][1] += f(1, 1) * alive(2, 2);
+        // South and north neighbours: x-edges.
+        let (w, e) = x_edge[0];
+        cell[0][0] += f(0, -1) * w;
+        cell[0][1] += f(0, -1) * e;
+        let (w, e) = x_edge[1];
+        cell[1][0] += f(0, 1) * w;
+        cell[1][1] += f(0, 1) * e;
+        // West and east neighbours: y-edges.
+        let (s, n) = y_edge[0];
+        cell[0][0] += f(-1, 0) * s;
+        cell[1][0] += f(-1, 0) * n;
+        let (s, n) = y_edge[1];
+        cell[0][1] += f(1, 0) * s;
+        cell[1][1] += f(1, 0) * n;
+    }
     [
-        c.of(ci, cj),
-        x.of(ci, cj),
-        x.of(ci + 1, cj),
-        y.of(ci, cj),
-        y.of(ci, cj + 1),
-        z.of(ci, cj),
-        z.of(ci + 1, cj),
-        z.of(ci, cj + 1),
-        z.of(ci + 1, cj + 1),
+        alive(0, 0),
+        x_edge[0].0,
+        x_edge[0].1,
+        y_edge[0].0,
+        y_edge[0].1,
+        cell[0][0],
+        cell[0][1],
+        cell[1][0],
+        cell[1][1],
     ]
     .map(|v| v as f32)
 }
 
-/// Interpolation weights of fine point `(i, j)` read from its block's weights.
-#[inline]
-pub(super) fn weights_from_block(b: &BlockWeights, i: isize, j: isize) -> Weights {
-    let (ci, cj) = (i.div_euclid(2), j.div_euclid(2));
-    let mut w = Weights::default();
-    match (i & 1, j & 1) {
-        (0, 0) => w.push(ci, cj, b[0] as f64),
-        (1, 0) => {
-            w.push(ci, cj, b[1] as f64);
-            w.push(ci + 1, cj, b[2] as f64);
-        }
-        (0, _) => {
-            w.push(ci, cj, b[3] as f64);
-            w.push(ci, cj + 1, b[4] as f64);
-        }
-        _ => {
-            w.push(ci, cj, b[5] as f64);
-            w.push(ci + 1, cj, b[6] as f64);
-            w.push(ci, cj + 1, b[7] as f64);
-            w.push(ci + 1, cj + 1, b[8] as f64);
-        }
+/// [`galerkin_impl`] compiled for AVX2 + FMA where the CPU has them.
+pub(super) fn galerkin<S, B>(src: &S, block: B, ci: isize, cj: isize) -> [f64; 9]
+where
+    S: StencilSource + ?Sized,
+    B: Fn(isize, isize) -> BlockWeights,
+{
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma") {
+        // SAFETY: the CPU supports AVX2 and FMA.
+        return unsafe { galerkin_avx2(src, block, ci, cj) };
     }
-    w
+    galerkin_impl(src, block, ci, cj)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn galerkin_avx2<S, B>(src: &S, block: B, ci: isize, cj: isize) -> [f64; 9]
+where
+    S: StencilSource + ?Sized,
+    B: Fn(isize, isize) -> BlockWeights,
+{
+    galerkin_impl(src, block, ci, cj)
 }
 
 /// Galerkin stencil `(P^T A P)` of coarse point `(ci, cj)`, entry
 /// `sidx(dI, dJ)` coupling to coarse point `(ci + dI, cj + dJ)`;
-/// `weights(i, j)` gives the interpolation weights of fine point `(i, j)`.
-pub(super) fn galerkin<S, W>(src: &S, weights: W, ci: isize, cj: isize) -> [f64; 9]
+/// `block(I, J)` gives the [`BlockWeights`] of coarse point `(I, J)` (zeros
+/// outside the grid).
+///
+/// The fine points in the 5 x 5 window around `(2 ci, 2 cj)` interpolate
+/// only from the 3 x 3 coarse points around `(ci, cj)`: their weights form a
+/// dense 25 x 9 matrix `W`, and the stencil is
+/// `sum over inner f, d: W[f][centre] a_f[d] W[f + d][.]`.
+#[inline(always)]
+fn galerkin_impl<S, B>(src: &S, block: B, ci: isize, cj: isize) -> [f64; 9]
 where
     S: StencilSource + ?Sized,
-    W: Fn(isize, isize) -> Weights,
+    B: Fn(isize, isize) -> BlockWeights,
 {
-    // Interpolation weights of the fine 5 x 5 window around (2 ci, 2 cj).
-    let (fi0, fj0) = (2 * ci - 2, 2 * cj - 2);
-    let mut win = [[Weights::default(); 5]; 5];
-    for (b, row) in win.iter_mut().enumerate() {
-        for (a, w) in row.iter_mut().enumerate() {
-            *w = weights(fi0 + a as isize, fj0 + b as isize);
+    // w[fb][fa][t]: weight of fine point (2 ci - 2 + fa, 2 cj - 2 + fb) to
+    // coarse point t = sidx(dI, dJ).
+    let mut w = [[[0.0f64; 9]; 5]; 5];
+    for dj in -1..=1isize {
+        for di in -1..=1isize {
+            let b = block(ci + di, cj + dj).map(f64::from);
+            let (fa, fb) = ((2 * di + 2) as usize, (2 * dj + 2) as usize);
+            let t = sidx(di, dj);
+            w[fb][fa][t] = b[0];
+            if fa < 4 {
+                w[fb][fa + 1][t] = b[1];
+                w[fb][fa + 1][t + 1] = b[2];
+            }
+            if fb < 4 {
+                w[fb + 1][fa][t] = b[3];
+                w[fb + 1][fa][t + 3] = b[4];
+                if fa < 4 {
+                    let z = &mut w[fb + 1][fa + 1];
+                    z[t] = b[5];
+                    z[t + 1] = b[6];
+                    z[t + 3] = b[7];
+                    z[t + 4] = b[8];
+                }
+            }
         }
     }
     let mut acc = [0.0f64; 9];
     for fb in 1..4usize {
         for fa in 1..4usize {
-            let wf = win[fb][fa].of(ci, cj);
+            let wf = w[fb][fa][4];
             if wf == 0.0 {
                 continue;
             }
-            let s = src.stencil(fi0 + fa as isize, fj0 + fb as isize);
-            for dj in -1..=1isize {
-                for di in -1..=1isize {
-                    let a = s[sidx(di, dj)];
+            let s = src.stencil(2 * ci - 2 + fa as isize, 2 * cj - 2 + fb as isize);
+            for dj in 0..3usize {
+                for di in 0..3usize {
+                    let a = s[dj * 3 + di];
                     if a == 0.0 {
                         continue;
                     }
-                    let g = &win[(fb as isize + dj) as usize][(fa as isize + di) as usize];
-                    for &(gi, gj, w) in &g.c[..g.n] {
-                        let (d_i, d_j) = (gi - ci, gj - cj);
-                        if d_i.abs() <= 1 && d_j.abs() <= 1 {
-                            acc[sidx(d_i, d_j)] += wf * a * w;
-                        }
+                    let g = &w[fb + dj - 1][fa + di - 1];
+                    let c = wf * a;
+                    for (o, &x) in acc.iter_mut().zip(g) {
+                        *o += c * x;
                     }
                 }
             }
@@ -254,4 +269,16 @@ impl StencilSource for ConstantSource {
     fn stencil(&self, _i: isize, _j: isize) -> [f64; 9] {
         self.0
     }
+
+    fn irregular_row(&self, _j: usize, out: &mut [u8]) {
+        out.fill(0);
+    }
+}
+
+/// The constant coarse stencil and block weights under a constant fine
+/// stencil `fine`.
+pub(super) fn constant_coarse(fine: [f64; 9]) -> ([f64; 9], BlockWeights) {
+    let src = ConstantSource(fine);
+    let block = block_weights(&src, 0, 0);
+    (galerkin(&src, |_, _| block, 0, 0), block)
 }

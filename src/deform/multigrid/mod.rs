@@ -81,14 +81,40 @@
 //! # Ok::<(), demsketch::deform::multigrid::MultigridError>(())
 //! ```
 
+/// Defines `$name` as `$kernel` compiled for AVX2 + FMA where the CPU has
+/// them (checked per call; the standard library caches the answer), and for
+/// the baseline target otherwise. The kernels are plain loops written so
+/// that they vectorise.
+macro_rules! dispatch {
+    ($vis:vis $name:ident, $avx:ident, $kernel:ident, ($($arg:ident: $ty:ty),* $(,)?) $(-> $ret:ty)?) => {
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = "avx2,fma")]
+        #[allow(clippy::too_many_arguments)]
+        unsafe fn $avx($($arg: $ty),*) $(-> $ret)? {
+            $kernel($($arg),*)
+        }
+
+        #[allow(clippy::too_many_arguments)]
+        #[inline]
+        $vis fn $name($($arg: $ty),*) $(-> $ret)? {
+            #[cfg(target_arch = "x86_64")]
+            if std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma") {
+                // SAFETY: the CPU supports AVX2 and FMA.
+                return unsafe { $avx($($arg),*) };
+            }
+            $kernel($($arg),*)
+        }
+    };
+}
+
 mod coarse;
 mod galerkin;
 mod level;
 pub mod synthetic;
 
-use coarse::{prolongate_coarse, prolongate_row, restrict_coarse, restrict_row, CoarseLevel};
+use coarse::{prolongate_coarse, restrict_coarse, CoarseLevel, RestrictTarget};
 use galerkin::StencilSource;
-use level::Level;
+use level::{Level, RowVisitor};
 use rayon::prelude::*;
 
 /// Options of [`solve`].
@@ -211,9 +237,11 @@ pub fn solve(
         ));
     }
 
-    let b_norm = dirichlet_coupling_norm(nx, ny, hx, hy, fixed, values);
-    let free = fixed.iter().filter(|&&f| !f).count();
-    if free == 0 || b_norm == 0.0 {
+    let setup_start = std::time::Instant::now();
+    let mut fine = Level::new(nx, ny, hx, hy, opts.screening);
+    let intake = fine.load(fixed, values);
+    let b_norm = intake.b_norm;
+    if fine.free_cells == 0 || b_norm == 0.0 {
         // Nothing to solve, or the exact solution is M = 0 on free cells.
         for (v, &f) in values.iter_mut().zip(fixed) {
             if !f {
@@ -228,9 +256,7 @@ pub fn solve(
             setup_seconds: 0.0,
         });
     }
-
-    let setup_start = std::time::Instant::now();
-    let mut h = build_hierarchy(nx, ny, hx, hy, opts.screening, fixed, values);
+    let mut h = build_hierarchy(fine, hx, hy, opts.screening, fixed);
     let setup_seconds = setup_start.elapsed().as_secs_f64();
     let mut stats = SolveStats {
         cycles: 0,
@@ -242,13 +268,19 @@ pub fn solve(
     if opts.full_multigrid {
         full_multigrid(&mut h, opts);
     }
-    let mut rel = h.fine.residual_norm_squared().sqrt() / b_norm;
+    // From a zero guess the residual is `b` itself.
+    let mut rel = if intake.zero_guess && !opts.full_multigrid {
+        1.0
+    } else {
+        h.fine.residual_norm_squared().sqrt() / b_norm
+    };
     stats.residual_history.push(rel);
     let mut slow_cycles = 0;
     while rel > opts.tolerance && stats.cycles < opts.max_cycles {
-        v_cycle(&mut h, opts.pre_smooth, opts.post_smooth);
+        let fused = v_cycle(&mut h, opts.pre_smooth, opts.post_smooth);
         stats.cycles += 1;
-        let next = h.fine.residual_norm_squared().sqrt() / b_norm;
+        let squared = fused.unwrap_or_else(|| h.fine.residual_norm_squared());
+        let next = squared.sqrt() / b_norm;
         stats.residual_history.push(next);
         // Stop when rounding (f32 storage) stalls the iteration.
         slow_cycles = if next > 0.9 * rel { slow_cycles + 1 } else { 0 };
@@ -258,7 +290,7 @@ pub fn solve(
         }
     }
     stats.relative_residual = rel;
-    copy_out(&h.fine, values, fixed);
+    h.fine.store(values);
     if rel <= opts.tolerance {
         Ok(stats)
     } else {
@@ -336,11 +368,16 @@ fn validate(
     if !(hx.is_finite() && hy.is_finite() && hx > 0.0 && hy > 0.0) {
         return Err(MultigridError::BadCellSize { hx, hy });
     }
-    if let Some(idx) = values.par_iter().position_first(|v| !v.is_finite()) {
-        return Err(MultigridError::NonFiniteValue {
-            i: idx % nx,
-            j: idx / nx,
-        });
+    // Row by row, with a branch-free (vectorised) test per row.
+    let bad_row = values
+        .par_chunks(nx)
+        .position_first(|row| row.iter().fold(false, |bad, v| bad | !v.is_finite()));
+    if let Some(j) = bad_row {
+        let i = values[j * nx..(j + 1) * nx]
+            .iter()
+            .position(|v| !v.is_finite())
+            .unwrap_or(0);
+        return Err(MultigridError::NonFiniteValue { i, j });
     }
     Ok(())
 }
@@ -385,15 +422,16 @@ fn dirichlet_coupling_norm(
 /// Coarsening stops once both dimensions of a level are at most this.
 const COARSEST_MAX_DIM: usize = 4;
 
-/// The finest level's stencils, from its free mask: the 5-point operator on
-/// free cells, couplings to fixed cells and to the outside eliminated.
+/// The finest level's stencils, from the caller's fixed mask: the 5-point
+/// operator on free cells, couplings to fixed cells and to the outside
+/// eliminated.
 struct FineSource<'a> {
     nx: usize,
     ny: usize,
     ax: f64,
     ay: f64,
     diag: f64,
-    free: &'a [u8],
+    fixed: &'a [bool],
 }
 
 impl FineSource<'_> {
@@ -403,33 +441,13 @@ impl FineSource<'_> {
             && j >= 0
             && (i as usize) < self.nx
             && (j as usize) < self.ny
-            && self.free[j as usize * self.nx + i as usize] != 0
+            && !self.fixed[j as usize * self.nx + i as usize]
     }
 
     /// The stencil away from constraints.
     fn regular(&self) -> [f64; 9] {
         let (ax, ay) = (self.ax, self.ay);
         [0.0, -ay, 0.0, -ax, self.diag, -ax, 0.0, -ay, 0.0]
-    }
-
-    /// `true` where the stencil is not [`FineSource::regular`]: fixed
-    /// cells and cells with a fixed or outside 4-neighbour.
-    fn irregular(&self) -> Vec<bool> {
-        let (nx, ny) = (self.nx, self.ny);
-        let free = self.free;
-        let mut out = vec![true; nx * ny];
-        out.par_chunks_mut(nx).enumerate().for_each(|(j, row)| {
-            if j == 0 || j + 1 >= ny || nx < 3 {
-                return;
-            }
-            let up = &free[(j - 1) * nx..j * nx];
-            let mid = &free[j * nx..(j + 1) * nx];
-            let dn = &free[(j + 1) * nx..(j + 2) * nx];
-            for i in 1..nx - 1 {
-                row[i] = (mid[i] & mid[i - 1] & mid[i + 1] & up[i] & dn[i]) == 0;
-            }
-        });
-        out
     }
 }
 
@@ -453,6 +471,24 @@ impl StencilSource for FineSource<'_> {
             0.0,
         ]
     }
+
+    /// Fixed cells, cells with a fixed 4-neighbour, and the grid's edge.
+    fn irregular_row(&self, j: usize, out: &mut [u8]) {
+        let (nx, ny) = (self.nx, self.ny);
+        if j == 0 || j + 1 >= ny || nx < 3 {
+            out.fill(1);
+            return;
+        }
+        let fixed = self.fixed;
+        let up = &fixed[(j - 1) * nx..j * nx];
+        let mid = &fixed[j * nx..(j + 1) * nx];
+        let dn = &fixed[(j + 1) * nx..(j + 2) * nx];
+        out[0] = 1;
+        out[nx - 1] = 1;
+        for i in 1..nx - 1 {
+            out[i] = u8::from(mid[i] | mid[i - 1] | mid[i + 1] | up[i] | dn[i]);
+        }
+    }
 }
 
 /// The finest level (red-black split storage, 5-point operator) and the
@@ -468,39 +504,29 @@ impl Hierarchy {
     }
 }
 
-fn fine_source<'a>(fine: &Level, free: &'a [u8], ax: f64, ay: f64, diag: f64) -> FineSource<'a> {
+fn fine_source<'a>(fine: &Level, fixed: &'a [bool], ax: f64, ay: f64, diag: f64) -> FineSource<'a> {
     FineSource {
         nx: fine.nx,
         ny: fine.ny,
         ax,
         ay,
         diag,
-        free,
+        fixed,
     }
 }
 
 /// Builds the finest level from the caller's arrays and the Galerkin coarse
 /// levels below it; stops when both dimensions are small or a coarse level
 /// would have no live point.
-fn build_hierarchy(
-    nx: usize,
-    ny: usize,
-    hx: f64,
-    hy: f64,
-    screening: f64,
-    fixed: &[bool],
-    values: &[f32],
-) -> Hierarchy {
-    let mut fine = Level::new(nx, ny, hx, hy, screening, false);
-    copy_in(&mut fine, fixed, values);
-    let free: Vec<u8> = fixed.par_iter().map(|&f| u8::from(!f)).collect();
+fn build_hierarchy(fine: Level, hx: f64, hy: f64, screening: f64, fixed: &[bool]) -> Hierarchy {
+    let (nx, ny) = (fine.nx, fine.ny);
     let ax = 1.0 / (hx * hx);
     let ay = 1.0 / (hy * hy);
     let diag = 2.0 * ax + 2.0 * ay + screening;
-    let src = fine_source(&fine, &free, ax, ay, diag);
+    let src = fine_source(&fine, fixed, ax, ay, diag);
     let mut coarse: Vec<CoarseLevel> = Vec::new();
     if nx > COARSEST_MAX_DIM || ny > COARSEST_MAX_DIM {
-        let first = CoarseLevel::build(&src, nx, ny, src.regular(), &src.irregular());
+        let first = CoarseLevel::build(&src, nx, ny, src.regular());
         if first.live > 0 {
             coarse.push(first);
         }
@@ -509,67 +535,13 @@ fn build_hierarchy(
         if last.nx <= COARSEST_MAX_DIM && last.ny <= COARSEST_MAX_DIM {
             break;
         }
-        let next = CoarseLevel::build(last, last.nx, last.ny, last.reg64, &last.irregular());
+        let next = CoarseLevel::build(last, last.nx, last.ny, last.reg64);
         if next.live == 0 {
             break;
         }
         coarse.push(next);
     }
     Hierarchy { fine, coarse }
-}
-
-/// Copies the caller's natural-layout arrays into the finest level's split
-/// storage and builds its free mask.
-fn copy_in(level: &mut Level, fixed: &[bool], values: &[f32]) {
-    let nx = level.nx;
-    let st = level.stride;
-    let end = (level.ny + 1) * st;
-    let [u0, u1] = &mut level.u;
-    let [m0, m1] = &mut level.mask;
-    let free: usize = u0[st..end]
-        .par_chunks_mut(st)
-        .zip(u1[st..end].par_chunks_mut(st))
-        .zip(m0[st..end].par_chunks_mut(st))
-        .zip(m1[st..end].par_chunks_mut(st))
-        .zip(values.par_chunks(nx).zip(fixed.par_chunks(nx)))
-        .enumerate()
-        .map(|(j, ((((u0, u1), m0), m1), (vals, fix)))| {
-            let mut free = 0;
-            for i in 0..nx {
-                let k = (i >> 1) + 1;
-                let (u, m) = if (i + j) & 1 == 0 {
-                    (&mut *u0, &mut *m0)
-                } else {
-                    (&mut *u1, &mut *m1)
-                };
-                u[k] = vals[i];
-                m[k] = u8::from(!fix[i]);
-                free += usize::from(!fix[i]);
-            }
-            free
-        })
-        .sum();
-    level.free_cells = free;
-}
-
-/// Copies the free cells of the finest level back to the caller's array.
-fn copy_out(level: &Level, values: &mut [f32], fixed: &[bool]) {
-    let nx = level.nx;
-    let st = level.stride;
-    let (u0, u1) = (&level.u[0], &level.u[1]);
-    values
-        .par_chunks_mut(nx)
-        .zip(fixed.par_chunks(nx))
-        .enumerate()
-        .for_each(|(j, (vals, fix))| {
-            let start = (j + 1) * st + 1;
-            for i in 0..nx {
-                if !fix[i] {
-                    let u = if (i + j) & 1 == 0 { u0 } else { u1 };
-                    vals[i] = u[start + (i >> 1)];
-                }
-            }
-        });
 }
 
 /// Smooths a level that has no coarse level under it until its residual
@@ -587,68 +559,22 @@ fn solve_fine_alone(level: &mut Level) {
     }
 }
 
-/// Coarse rows per task of the fine-level restriction.
-const RESTRICT_CHUNK: usize = 8;
-
 /// Computes the finest level's residual and restricts it to the first
 /// coarse level's right-hand side in one pass (the fine residual is only
 /// held three rows at a time), and zeroes the coarse correction.
-fn restrict_fine(h: &mut Hierarchy) {
+/// `after_sweep`: the fine level was just smoothed, so its black residual
+/// is 0 up to rounding (see [`Level::residual_halves`]).
+fn restrict_fine(h: &mut Hierarchy, after_sweep: bool) {
     let fine = &h.fine;
-    let (nx, ny) = (fine.nx, fine.ny);
-    let rp = nx + 2;
-    let c = &mut h.coarse[0];
-    let cp = c.pitch;
-    let cny = c.ny;
-    let mut rhs = std::mem::take(&mut c.rhs);
-    {
-        let cl: &CoarseLevel = c;
-        let rows = &mut rhs[cp..(cny + 1) * cp];
-        let job = |(t, chunk): (usize, &mut [f32]), bufs: &mut (Vec<f32>, Vec<f32>)| {
-            let (buf, scratch) = bufs;
-            buf.clear();
-            buf.resize(3 * rp, 0.0);
-            let fill = |j: isize, row: &mut [f32], scratch: &mut Vec<f32>| {
-                if j < 0 || j as usize >= ny {
-                    row.fill(0.0);
-                } else {
-                    fine.residual_natural_row(j as usize, row, scratch);
-                }
-            };
-            for (m, out) in chunk.chunks_mut(cp).enumerate() {
-                let cj = t * RESTRICT_CHUNK + m;
-                let fj = 2 * cj as isize;
-                if m == 0 {
-                    fill(fj - 1, &mut buf[..rp], scratch);
-                } else {
-                    buf.copy_within(2 * rp..3 * rp, 0);
-                }
-                fill(fj, &mut buf[rp..2 * rp], scratch);
-                fill(fj + 1, &mut buf[2 * rp..3 * rp], scratch);
-                restrict_row(cl, cj, buf, rp, rp, out);
-            }
-        };
-        if fine.parallel() {
-            rows.par_chunks_mut(RESTRICT_CHUNK * cp)
-                .enumerate()
-                .for_each_init(|| (Vec::new(), Vec::new()), |bufs, item| job(item, bufs));
-        } else {
-            let mut bufs = (Vec::new(), Vec::new());
-            rows.chunks_mut(RESTRICT_CHUNK * cp)
-                .enumerate()
-                .for_each(|item| job(item, &mut bufs));
-        }
-    }
-    c.rhs = rhs;
-    c.u.fill(0.0);
+    coarse::restrict(&mut h.coarse[0], fine.ny, fine.parallel(), |j, e, o| {
+        fine.residual_halves(j, e, o, after_sweep)
+    });
 }
 
 /// Adds the interpolated correction of the first coarse level to the finest.
-fn prolongate_fine(h: &mut Hierarchy) {
-    let c = &h.coarse[0];
-    let nx = h.fine.nx;
-    h.fine
-        .add_correction(|j, row| prolongate_row(c, j, nx, row));
+/// `before_sweep`: a smoothing sweep follows (see [`Level::prolongate_from`]).
+fn prolongate_fine(h: &mut Hierarchy, before_sweep: bool) {
+    h.fine.prolongate_from(&h.coarse[0], before_sweep);
 }
 
 /// One V-cycle on the coarse levels `levels[0]` (right-hand side given).
@@ -661,24 +587,174 @@ fn coarse_cycle(levels: &mut [CoarseLevel], pre: usize, post: usize) {
         return;
     }
     first.smooth(pre);
-    first.compute_residual();
     restrict_coarse(first, &mut rest[0]);
     coarse_cycle(rest, pre, post);
-    prolongate_coarse(&rest[0], first);
+    prolongate_coarse(&rest[0], first, post > 0);
     first.smooth(post);
 }
 
-/// One V-cycle on the finest level.
-fn v_cycle(h: &mut Hierarchy, pre: usize, post: usize) {
+/// One V-cycle on the finest level. Returns the squared residual norm of
+/// the result when it was computed on the way (during the last
+/// post-smoothing sweep).
+fn v_cycle(h: &mut Hierarchy, pre: usize, post: usize) -> Option<f64> {
     if h.coarse.is_empty() {
         solve_fine_alone(&mut h.fine);
-        return;
+        return None;
     }
-    h.fine.smooth(pre);
-    restrict_fine(h);
+    if pre > 0 {
+        // The last pre-smoothing sweep restricts the residual as it goes.
+        let fny = h.fine.ny;
+        let visitor = RestrictVisitor {
+            target: RestrictTarget::new(&mut h.coarse[0]),
+            fny,
+        };
+        h.fine.smooth_visiting(pre, &visitor);
+    } else {
+        restrict_fine(h, false);
+    }
     coarse_cycle(&mut h.coarse, pre, post);
-    prolongate_fine(h);
-    h.fine.smooth(post);
+    prolongate_fine(h, post > 0);
+    if post == 0 {
+        return None;
+    }
+    let visitor = NormVisitor {
+        width: h.fine.w + 2,
+    };
+    let norm = h.fine.smooth_visiting(post, &visitor);
+    Some(norm.iter().map(|s| s.0).sum())
+}
+
+/// Restricts the finest level's residual to the first coarse level as the
+/// rows become final in the last pre-smoothing sweep: coarse row `cj` as
+/// soon as fine rows `2 cj - 1 ..= 2 cj + 1` are, by the band holding fine
+/// row `2 cj`, and the coarse rows at band edges after the sweep.
+struct RestrictVisitor<'a> {
+    target: RestrictTarget<'a>,
+    fny: usize,
+}
+
+/// Three fine residual rows `(E, O)` in rotation (slot `j % 3` holds fine
+/// row `j`) and the restriction's scratch row, all of one width.
+struct RestrictBuffers {
+    width: usize,
+    r0: usize,
+    buf: Vec<f32>,
+}
+
+impl RestrictBuffers {
+    /// Slot `m`: `(E, O)`.
+    fn slot(&mut self, m: usize) -> (&mut [f32], &mut [f32]) {
+        let w = self.width;
+        let (e, o) = self.buf[2 * m * w..(2 * m + 2) * w].split_at_mut(w);
+        (e, o)
+    }
+}
+
+impl RowVisitor for RestrictVisitor<'_> {
+    type State = RestrictBuffers;
+    const RED_ONLY: bool = true;
+
+    fn start(&self, r0: usize, _r1: usize) -> RestrictBuffers {
+        let width = self.target.width();
+        RestrictBuffers {
+            width,
+            r0,
+            buf: vec![0.0; 7 * width],
+        }
+    }
+
+    fn row<F: FnOnce(&mut [f32], &mut [f32])>(&self, st: &mut RestrictBuffers, j: usize, fill: F) {
+        let (e, o) = st.slot(j % 3);
+        fill(e, o);
+        // Rows j - 2 and j - 1 came through here too: coarse row (j - 1) / 2.
+        if j & 1 == 1 && j >= st.r0 + 4 {
+            let cj = (j - 1) / 2;
+            let w = st.width;
+            let (rows, out) = st.buf.split_at_mut(6 * w);
+            let at = |m: usize| {
+                (
+                    &rows[2 * m * w..(2 * m + 1) * w],
+                    &rows[(2 * m + 1) * w..(2 * m + 2) * w],
+                )
+            };
+            // SAFETY: coarse row cj belongs to the band holding fine row 2 cj.
+            unsafe {
+                self.target
+                    .write_row(cj, at((j - 2) % 3), at((j - 1) % 3), at(j % 3), out)
+            };
+        }
+    }
+
+    fn finish(
+        &self,
+        st: &mut RestrictBuffers,
+        r0: usize,
+        r1: usize,
+        residual: &(dyn Fn(usize, &mut [f32], &mut [f32]) + Sync),
+    ) {
+        for cj in self.target.rows_centred_in(r0..r1) {
+            let fj = 2 * cj;
+            if fj >= r0 + 3 && fj + 4 <= r1 {
+                continue; // done during the sweep
+            }
+            for (m, r) in [(0, fj as isize - 1), (1, fj as isize), (2, fj as isize + 1)] {
+                let (e, o) = st.slot(m);
+                if r < 0 || r as usize >= self.fny {
+                    e.fill(0.0);
+                    o.fill(0.0);
+                } else {
+                    residual(r as usize, e, o);
+                }
+            }
+            let w = st.width;
+            let (rows, out) = st.buf.split_at_mut(6 * w);
+            let at = |m: usize| {
+                (
+                    &rows[2 * m * w..(2 * m + 1) * w],
+                    &rows[(2 * m + 1) * w..(2 * m + 2) * w],
+                )
+            };
+            // SAFETY: coarse row cj belongs to this band (fine row 2 cj is in it).
+            unsafe { self.target.write_row(cj, at(0), at(1), at(2), out) };
+        }
+    }
+}
+
+/// Sums the squared residual of the finest level during the last
+/// post-smoothing sweep.
+struct NormVisitor {
+    /// Padded residual row length, `w + 2`.
+    width: usize,
+}
+
+impl RowVisitor for NormVisitor {
+    /// Sum so far and two scratch rows.
+    type State = (f64, Vec<f32>, Vec<f32>);
+    const RED_ONLY: bool = false;
+
+    fn start(&self, _r0: usize, _r1: usize) -> Self::State {
+        (0.0, vec![0.0; self.width], vec![0.0; self.width])
+    }
+
+    fn row<F: FnOnce(&mut [f32], &mut [f32])>(&self, st: &mut Self::State, _j: usize, fill: F) {
+        let (sum, e, o) = st;
+        fill(e, o);
+        *sum += level::sum_squares(e) + level::sum_squares(o);
+    }
+
+    fn finish(
+        &self,
+        st: &mut Self::State,
+        r0: usize,
+        r1: usize,
+        residual: &(dyn Fn(usize, &mut [f32], &mut [f32]) + Sync),
+    ) {
+        let (sum, e, o) = st;
+        for j in (r0..r1).filter(|&j| j < r0 + 2 || j + 3 > r1) {
+            residual(j, e, o);
+            *sum += level::sum_squares(e) + level::sum_squares(o);
+        }
+    }
 }
 
 /// Full multigrid pass on the residual equation: the residual of the zero
@@ -687,37 +763,24 @@ fn v_cycle(h: &mut Hierarchy, pre: usize, post: usize) {
 /// guess of one V-cycle; the finest level then receives the interpolated
 /// correction (the V-cycles that follow are counted as usual).
 fn full_multigrid(h: &mut Hierarchy, opts: &MultigridOptions) {
-    zero_free(&mut h.fine);
+    h.fine.zero_free();
     if h.coarse.is_empty() {
         return;
     }
-    restrict_fine(h);
+    restrict_fine(h, false);
     let n = h.coarse.len();
     for l in 0..n - 1 {
         let (head, tail) = h.coarse.split_at_mut(l + 1);
-        head[l].compute_residual();
         restrict_coarse(&head[l], &mut tail[0]);
     }
     h.coarse[n - 1].solve_coarsest();
     for l in (0..n - 1).rev() {
         let (head, tail) = h.coarse.split_at_mut(l + 1);
-        head[l].u.fill(0.0);
-        prolongate_coarse(&tail[0], &mut head[l]);
+        head[l].u.iter_mut().for_each(|u| u.fill(0.0));
+        prolongate_coarse(&tail[0], &mut head[l], false);
         coarse_cycle(&mut h.coarse[l..], opts.pre_smooth, opts.post_smooth);
     }
-    prolongate_fine(h);
-}
-
-/// Sets every free cell of `level` to 0.
-fn zero_free(level: &mut Level) {
-    for c in 0..2 {
-        let (u, m) = (&mut level.u[c], &level.mask[c]);
-        u.par_iter_mut().zip(m.par_iter()).for_each(|(u, &m)| {
-            if m != 0 {
-                *u = 0.0;
-            }
-        });
-    }
+    prolongate_fine(h, false);
 }
 
 #[cfg(test)]
@@ -732,7 +795,9 @@ mod tests {
     fn galerkin_operators_are_symmetric() {
         let (nx, ny) = (77, 61);
         let layout = synthetic::scattered_constraints(nx, ny, 4, 6, 2, 5);
-        let h = build_hierarchy(nx, ny, 1.0, 2.0, 0.0, &layout.fixed, &layout.values);
+        let mut fine = Level::new(nx, ny, 1.0, 2.0, 0.0);
+        fine.load(&layout.fixed, &layout.values);
+        let h = build_hierarchy(fine, 1.0, 2.0, 0.0, &layout.fixed);
         assert!(h.coarse.len() >= 4);
         for c in &h.coarse {
             for j in 0..c.ny as isize {
@@ -753,10 +818,10 @@ mod tests {
                 }
             }
         }
-        let fine = Level::new(9, 9, 1.0, 1.0, 0.0, false);
-        let free = vec![1u8; 81];
-        let src = fine_source(&fine, &free, 1.0, 1.0, 4.0);
-        let reg = CoarseLevel::build(&src, 9, 9, src.regular(), &src.irregular()).reg64;
+        let fine = Level::new(9, 9, 1.0, 1.0, 0.0);
+        let fixed = vec![false; 81];
+        let src = fine_source(&fine, &fixed, 1.0, 1.0, 4.0);
+        let reg = CoarseLevel::build(&src, 9, 9, src.regular()).reg64;
         let expected = [-0.25, -0.5, -0.25, -0.5, 3.0, -0.5, -0.25, -0.5, -0.25];
         for (a, b) in reg.iter().zip(expected) {
             assert!((a - b).abs() < 1e-12, "{reg:?}");
