@@ -37,9 +37,51 @@ pub(super) fn split_at_bounds<'a, T>(mut s: &'a mut [T], bounds: &[u32]) -> Vec<
 }
 
 impl CandidateSet {
+    /// The set of the cells whose bits are set in `bits` (bits past the last
+    /// cell must be clear), with the cells and heights of the candidates in
+    /// order, in consecutive parts.
+    pub(super) fn from_parts(bits: Vec<u64>, parts: Vec<(Vec<u32>, Vec<f32>)>) -> Self {
+        let rank = Self::rank(&bits);
+        let mut bounds = vec![0u32];
+        for (cells, _) in &parts {
+            bounds.push(bounds[bounds.len() - 1] + cells.len() as u32);
+        }
+        debug_assert_eq!(rank.last(), bounds.last());
+        let n = bounds[bounds.len() - 1] as usize;
+        let mut cells = vec![0u32; n];
+        let mut heights = vec![0f32; n];
+        split_at_bounds(&mut cells, &bounds)
+            .into_par_iter()
+            .zip(split_at_bounds(&mut heights, &bounds))
+            .zip(parts)
+            .for_each(|((cells, heights), part)| {
+                cells.copy_from_slice(&part.0);
+                heights.copy_from_slice(&part.1);
+            });
+        CandidateSet {
+            bits,
+            rank,
+            cells,
+            heights,
+        }
+    }
+
+    /// Number of set bits before each word, and the total.
+    fn rank(bits: &[u64]) -> Vec<u32> {
+        let mut rank = Vec::with_capacity(bits.len() + 1);
+        let mut n = 0u32;
+        for &word in bits {
+            rank.push(n);
+            n += word.count_ones();
+        }
+        rank.push(n);
+        rank
+    }
+
     /// The set of the cells of a `w` x `h` grid of heights `z` whose bits are
     /// set in `bits` (`(w * h).div_ceil(64)` words; bits past the last cell
     /// must be clear).
+    #[cfg(test)]
     pub(super) fn from_bits(bits: Vec<u64>, z: &[f32], w: usize, h: usize) -> Self {
         let mut rank = Vec::with_capacity(bits.len() + 1);
         let mut n = 0u32;
@@ -76,7 +118,8 @@ impl CandidateSet {
     }
 
     /// First candidate id of each band of `BAND` rows, and the count.
-    pub(super) fn band_bounds(&self, w: usize, h: usize) -> Vec<u32> {
+    #[cfg(test)]
+    fn band_bounds(&self, w: usize, h: usize) -> Vec<u32> {
         (0..=h.div_ceil(BAND))
             .map(|b| self.before((b * BAND).min(h) * w))
             .collect()
@@ -115,6 +158,7 @@ impl CandidateSet {
 
     /// Calls `f(cell, id)` for the candidates among cells `c0..c1`, in order.
     #[inline]
+    #[cfg(test)]
     pub(super) fn for_each(&self, c0: usize, c1: usize, mut f: impl FnMut(usize, u32)) {
         if c0 >= c1 {
             return;

@@ -187,23 +187,38 @@ fn profile_recognition(map: &HeightMap, p: &RidgeParams) -> CandidateSet {
 /// (`simd`) or the portable one.
 fn profile_recognition_with(map: &HeightMap, p: &RidgeParams, simd: bool) -> CandidateSet {
     let (w, h) = (map.width, map.height);
+    let tq0 = std::time::Instant::now();
     let mut bits = vec![0u64; (w * h).div_ceil(64)];
     // `w` words hold the `BAND` rows of a band.
-    bits.par_chunks_mut(w)
+    let parts: Vec<(Vec<u32>, Vec<f32>)> = bits
+        .par_chunks_mut(w)
         .enumerate()
-        .for_each(|(band, words)| profile_band(map, p, band * BAND, words, simd));
-    CandidateSet::from_bits(bits, &map.data, w, h)
+        .map(|(band, words)| profile_band(map, p, band * BAND, words, simd))
+        .collect();
+    let tq1 = std::time::Instant::now();
+    let c = CandidateSet::from_parts(bits, parts);
+    if std::env::var_os("RIDGE_TIMING").is_some() {
+        eprintln!("profile: bands {:?} set {:?}", tq1 - tq0, tq1.elapsed());
+    }
+    c
 }
 
 /// Profile recognition of the rows from `r0` (at most `BAND`), into the
-/// band's bitmap words.
+/// band's bitmap words; returns the band's candidate cells and heights.
 ///
 /// The rows around the current one sit in a ring of padded copies where
 /// cells outside the DEM and NaN cells are `+inf`, so the lowest point of a
 /// profile side is a plain minimum over fixed offsets (a side with no valid
-/// cell stays `+inf` and never shows a drop, as before with NaN).
+/// cell stays `+inf` and never shows a drop, as before with NaN). A NaN
+/// centre shows no drop either.
 #[inline(never)]
-fn profile_band(map: &HeightMap, p: &RidgeParams, r0: usize, words: &mut [u64], simd: bool) {
+fn profile_band(
+    map: &HeightMap,
+    p: &RidgeParams,
+    r0: usize,
+    words: &mut [u64],
+    simd: bool,
+) -> (Vec<u32>, Vec<f32>) {
     let (w, h) = (map.width, map.height);
     let hw = p.half_window;
     let r1 = (r0 + BAND).min(h);
@@ -218,8 +233,11 @@ fn profile_band(map: &HeightMap, p: &RidgeParams, r0: usize, words: &mut [u64], 
             row.fill(f32::INFINITY);
         } else {
             let src = &map.data[r as usize * w..(r as usize + 1) * w];
-            for (d, &v) in row.iter_mut().zip(src) {
-                *d = if v.is_nan() { f32::INFINITY } else { v };
+            row.copy_from_slice(src);
+            if has_nan(src) {
+                for v in row.iter_mut().filter(|v| v.is_nan()) {
+                    *v = f32::INFINITY;
+                }
             }
         }
     };
@@ -227,9 +245,11 @@ fn profile_band(map: &HeightMap, p: &RidgeParams, r0: usize, words: &mut [u64], 
     for r in r0i - hwi..r0i + hwi {
         fill(&mut ring, r);
     }
-    let mut centre = vec![f32::NAN; w8];
     let mut bits = vec![0u8; w8 / 8];
+    let mut own_centre = vec![f32::NAN; w8];
     let mut starts = Vec::with_capacity(8 * hw);
+    // The band's candidates: cells and heights.
+    let (mut cells, mut heights) = (Vec::new(), Vec::new());
     for r in r0..r1 {
         let ri = r as isize;
         fill(&mut ring, ri + hwi);
@@ -242,18 +262,45 @@ fn profile_band(map: &HeightMap, p: &RidgeParams, r0: usize, words: &mut [u64], 
                 }
             }
         }
-        centre[..w].copy_from_slice(&map.data[r * w..(r + 1) * w]);
+        // The row itself, from the ring unless it holds NaN cells.
+        let src = &map.data[r * w..(r + 1) * w];
+        let centre = if has_nan(src) {
+            own_centre[..w].copy_from_slice(src);
+            &own_centre[..]
+        } else {
+            let at = r % slots * wp + hw;
+            &ring[at..at + w8]
+        };
         let row = ProfileRow {
             ring: &ring,
             starts: &starts,
             hw,
-            centre: &centre,
+            centre,
             drop: p.min_drop_m,
             min_dirs: p.min_directions as i32,
         };
         row.flags(&mut bits, simd);
         append_bits(words, (r - r0) * w, &bits, w);
+        for (j, &b) in bits.iter().enumerate() {
+            let mut b = b;
+            while b != 0 {
+                let col = 8 * j + b.trailing_zeros() as usize;
+                b &= b - 1;
+                if col < w {
+                    cells.push((r * w + col) as u32);
+                    heights.push(src[col]);
+                }
+            }
+        }
     }
+    (cells, heights)
+}
+
+/// Whether `v` holds a NaN (a branch-free pass that vectorises).
+fn has_nan(v: &[f32]) -> bool {
+    v.chunks(64).fold(false, |any, c| {
+        any | c.iter().fold(false, |a, x| a | x.is_nan())
+    })
 }
 
 /// The smaller of `a` and `b` (one `minps`; no NaN reaches it).
@@ -526,7 +573,8 @@ fn select(mask: &[u8], keep: impl Fn(u8) -> bool + Sync) -> Vec<u32> {
 }
 
 /// Mask of a candidate id in a leaf's walk record: leaf id, end id << 30,
-/// bit 62: the end is a branch point (else a leaf), bit 63: too short.
+/// bit 60: one step, bit 62: the end is a branch point (else a leaf), bit
+/// 63: too short.
 const ID: u64 = (1 << 30) - 1;
 
 /// Whether a walk record's end still has the degree class (branch point or
@@ -550,22 +598,24 @@ struct LeafWalker<'a> {
 
 impl LeafWalker<'_> {
     /// The end of the walk from `leaf` (the first cell of degree other than
-    /// 2) and the walked length, or `None` when the walk grows long enough
-    /// to be kept before its end.
+    /// 2), the walked length and whether the end is the leaf's neighbour, or
+    /// `None` when the walk grows long enough to be kept before its end.
     #[inline]
-    fn walk(&self, mask: &[u8], leaf: usize) -> Option<(usize, f64)> {
+    fn walk(&self, mask: &[u8], leaf: usize) -> Option<(usize, f64, bool)> {
         let (mut c, mut d) = (
             self.forest.cand.cells[leaf] as usize,
             mask[leaf].trailing_zeros() as usize,
         );
         let mut len = 0.0;
+        let mut first = true;
         loop {
             let (nc, nid) = self.forest.step(c, d);
             len += self.step[d];
             let m = mask[nid];
             if degree(m) != 2 {
-                return Some((nid, len));
+                return Some((nid, len, first));
             }
+            first = false;
             if len >= self.enough {
                 return None;
             }
@@ -606,13 +656,13 @@ impl LeafWalker<'_> {
         }
     }
 
-    /// Removes the walk from `leaf` to its end `end` (directly when they are
-    /// neighbours).
+    /// Removes the recorded walk `walk` (directly when its end is the leaf's
+    /// neighbour).
     #[inline]
-    fn remove_to(&self, mask: &mut [u8], leaf: usize, end: usize) {
-        let d = mask[leaf].trailing_zeros() as usize;
-        let cells = &self.forest.cand.cells;
-        if cells[leaf] as isize + self.forest.off[d] == cells[end] as isize {
+    fn remove_walk(&self, mask: &mut [u8], walk: u64) {
+        let (leaf, end) = ((walk & ID) as usize, (walk >> 30 & ID) as usize);
+        if walk >> 60 & 1 == 1 {
+            let d = mask[leaf].trailing_zeros() as usize;
             mask[leaf] &= !(1 << d);
             mask[end] &= !(1 << ((d + 4) % 8));
         } else {
@@ -622,10 +672,11 @@ impl LeafWalker<'_> {
 
     /// The record of the walk from `leaf` to `end` of length `len`.
     #[inline]
-    fn record(&self, mask: &[u8], leaf: usize, end: usize, len: f64) -> u64 {
+    fn record(&self, mask: &[u8], leaf: usize, (end, len, one_step): (usize, f64, bool)) -> u64 {
         let end_degree = degree(mask[end]);
         leaf as u64
             | (end as u64) << 30
+            | (one_step as u64) << 60
             | ((end_degree >= 3) as u64) << 62
             | (self.too_short(len, end_degree) as u64) << 63
     }
@@ -633,8 +684,7 @@ impl LeafWalker<'_> {
     /// Walks from `leaf` and removes the walk when it is too short; returns
     /// the walk's record when it reached its end and was kept.
     fn settle(&self, mask: &mut [u8], leaf: usize) -> Option<u64> {
-        let (end, len) = self.walk(mask, leaf)?;
-        let walk = self.record(mask, leaf, end, len);
+        let walk = self.record(mask, leaf, self.walk(mask, leaf)?);
         if walk >> 63 == 1 {
             self.remove(mask, leaf);
             None
@@ -689,8 +739,8 @@ fn prune(
             let mut walks = Vec::new();
             for (i, _) in chunk.iter().enumerate().filter(|(_, &m)| degree(m) == 1) {
                 let leaf = k * CHUNK + i;
-                if let Some((end, len)) = walker.walk(mask, leaf) {
-                    walks.push(walker.record(mask, leaf, end, len));
+                if let Some(end) = walker.walk(mask, leaf) {
+                    walks.push(walker.record(mask, leaf, end));
                 }
             }
             walks
@@ -705,7 +755,7 @@ fn prune(
         }
         if same_class(walk, degree(mask[end])) {
             if walk >> 63 == 1 {
-                walker.remove_to(mask, leaf, end);
+                walker.remove_walk(mask, walk);
             } else {
                 revisit.push(walk);
             }
