@@ -236,7 +236,8 @@ fn interleave_kernel(row: &mut [f32], even: &[f32], odd: &[f32]) {
 
 /// One row of [`Level::load`]: splits `vals` into `even`/`odd` entries and
 /// returns (free cells, sum of `b^2` over the row, whether a free value is
-/// nonzero); `b` is scratch of `vals.len()` entries. `up`/`dn` are the rows
+/// nonzero, whether a value is not finite); `b` is scratch of `vals.len()`
+/// entries. `up`/`dn` are the rows
 /// above and below (zeros and no fixed cells outside the grid).
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
@@ -249,15 +250,17 @@ fn load_row_kernel(
     odd: &mut [f32],
     b: &mut [f32],
     coef: (f32, f32),
-) -> (usize, f64, bool) {
+) -> (usize, f64, bool, bool) {
     let (ax, ay) = coef;
     let nx = vals.len();
     deinterleave_kernel(vals, even, odd);
     let mut free = 0usize;
     let mut nonzero = 0u32;
+    let mut bad = 0u32;
     for (&v, &f) in vals.iter().zip(fix) {
         free += usize::from(!f);
         nonzero |= u32::from(!f & (v != 0.0));
+        bad |= u32::from(!v.is_finite());
     }
     // b: the free cells' coupling to fixed neighbours (0 on fixed cells).
     let fv = |v: f32, f: bool| if f { v } else { 0.0 };
@@ -280,7 +283,7 @@ fn load_row_kernel(
             *o = free_only(s, own[k]);
         }
     }
-    (free, sum_squares_kernel(&b[..nx]), nonzero != 0)
+    (free, sum_squares_kernel(&b[..nx]), nonzero != 0, bad != 0)
 }
 
 dispatch!(relax_row, relax_row_avx2, relax_row_kernel,
@@ -293,7 +296,7 @@ dispatch!(pub(super) deinterleave, deinterleave_avx2, deinterleave_kernel,
 dispatch!(pub(super) interleave, interleave_avx2, interleave_kernel,
     (row: &mut [f32], even: &[f32], odd: &[f32]));
 dispatch!(load_row, load_row_avx2, load_row_kernel,
-    (vals: &[f32], fix: &[bool], up: (&[f32], &[bool]), dn: (&[f32], &[bool]), even: &mut [f32], odd: &mut [f32], b: &mut [f32], coef: (f32, f32)) -> (usize, f64, bool));
+    (vals: &[f32], fix: &[bool], up: (&[f32], &[bool]), dn: (&[f32], &[bool]), even: &mut [f32], odd: &mut [f32], b: &mut [f32], coef: (f32, f32)) -> (usize, f64, bool, bool));
 
 impl Level {
     /// An empty `nx x ny` level of cells of size `hx x hy` with screening `c`.
@@ -367,8 +370,9 @@ impl Level {
     /// Copies the caller's natural-layout arrays in (the fixed values, and
     /// the initial guess on free cells), lists the fixed cells and counts
     /// the free ones, and computes `||b||` and whether the guess is zero in
-    /// the same pass.
-    pub fn load(&mut self, fixed: &[bool], values: &[f32]) -> Intake {
+    /// the same pass. Fails with the first cell `(i, j)` (in row order)
+    /// whose value is not finite.
+    pub fn load(&mut self, fixed: &[bool], values: &[f32]) -> Result<Intake, (usize, usize)> {
         let (nx, ny, st) = (self.nx, self.ny, self.stride);
         let coef = (self.ax, self.ay);
         let zero_values = vec![0.0f32; nx];
@@ -384,13 +388,15 @@ impl Level {
         let chunk = LOAD_CHUNK * st;
         let end = (ny + 1) * st;
         let [u0, u1] = &mut self.u;
-        let parts: Vec<(usize, f64, bool, Vec<u32>, Vec<(u32, f32)>)> = u0[st..end]
+        type Part = (usize, f64, bool, Option<usize>, Vec<u32>, Vec<(u32, f32)>);
+        let parts: Vec<Part> = u0[st..end]
             .par_chunks_mut(chunk)
             .zip(u1[st..end].par_chunks_mut(chunk))
             .enumerate()
             .map(|(t, (u0, u1))| {
                 let mut b = vec![0.0f32; nx];
                 let (mut free, mut b_sq, mut nonzero) = (0, 0.0, false);
+                let mut bad_row = None;
                 // Per colour row: the number of fixed cells, then the cells.
                 let mut counts = Vec::with_capacity(2 * LOAD_CHUNK);
                 let mut cells = Vec::new();
@@ -398,7 +404,7 @@ impl Level {
                     let j = t * LOAD_CHUNK + m;
                     let (vals, fix) = row_of(j as isize);
                     let (even, odd) = if j & 1 == 0 { (r0, r1) } else { (r1, r0) };
-                    let (f, s, z) = load_row(
+                    let (f, s, z, bad) = load_row(
                         vals,
                         fix,
                         row_of(j as isize - 1),
@@ -411,6 +417,9 @@ impl Level {
                     free += f;
                     b_sq += s;
                     nonzero |= z;
+                    if bad && bad_row.is_none() {
+                        bad_row = Some(j);
+                    }
                     // Fixed cells of colour 0, then colour 1; cell i has
                     // colour (i + j) & 1 and entry i >> 1.
                     let before = cells.len();
@@ -432,9 +441,14 @@ impl Level {
                     }
                     debug_assert_eq!(cells.len() - before, nx - f);
                 }
-                (free, b_sq, nonzero, counts, cells)
+                (free, b_sq, nonzero, bad_row, counts, cells)
             })
             .collect();
+        if let Some(j) = parts.iter().find_map(|p| p.3) {
+            let row = &values[j * nx..(j + 1) * nx];
+            let i = row.iter().position(|v| !v.is_finite()).unwrap_or(0);
+            return Err((i, j));
+        }
         let mut free = 0;
         let mut b_sq = 0.0;
         let mut nonzero = false;
@@ -442,7 +456,7 @@ impl Level {
         self.fixed_value.clear();
         self.fixed_start.clear();
         self.fixed_start.push(0);
-        for (f, s, z, counts, cells) in parts {
+        for (f, s, z, _, counts, cells) in parts {
             free += f;
             b_sq += s;
             nonzero |= z;
@@ -457,10 +471,10 @@ impl Level {
             }
         }
         self.free_cells = free;
-        Intake {
+        Ok(Intake {
             b_norm: b_sq.sqrt(),
             zero_guess: !nonzero,
-        }
+        })
     }
 
     /// Copies the level back to the caller's natural-layout array. Fixed

@@ -218,7 +218,8 @@ pub fn solve(
     values: &mut [f32],
     opts: &MultigridOptions,
 ) -> Result<SolveStats, MultigridError> {
-    validate(nx, ny, hx, hy, fixed, values)?;
+    // Finiteness is checked while the values are copied in, below.
+    validate_shape(nx, ny, hx, hy, fixed, values)?;
     if !(opts.tolerance.is_finite() && opts.tolerance > 0.0) {
         return Err(MultigridError::BadOption(format!(
             "tolerance {} must be positive and finite",
@@ -239,7 +240,9 @@ pub fn solve(
 
     let setup_start = std::time::Instant::now();
     let mut fine = Level::new(nx, ny, hx, hy, opts.screening);
-    let intake = fine.load(fixed, values);
+    let intake = fine
+        .load(fixed, values)
+        .map_err(|(i, j)| MultigridError::NonFiniteValue { i, j })?;
     let b_norm = intake.b_norm;
     if fine.free_cells == 0 || b_norm == 0.0 {
         // Nothing to solve, or the exact solution is M = 0 on free cells.
@@ -347,6 +350,30 @@ fn validate(
     fixed: &[bool],
     values: &[f32],
 ) -> Result<(), MultigridError> {
+    validate_shape(nx, ny, hx, hy, fixed, values)?;
+    // Row by row, with a branch-free (vectorised) test per row.
+    let bad_row = values
+        .par_chunks(nx)
+        .position_first(|row| row.iter().fold(false, |bad, v| bad | !v.is_finite()));
+    if let Some(j) = bad_row {
+        let i = values[j * nx..(j + 1) * nx]
+            .iter()
+            .position(|v| !v.is_finite())
+            .unwrap_or(0);
+        return Err(MultigridError::NonFiniteValue { i, j });
+    }
+    Ok(())
+}
+
+/// Checks sizes and cell sizes of the inputs.
+fn validate_shape(
+    nx: usize,
+    ny: usize,
+    hx: f64,
+    hy: f64,
+    fixed: &[bool],
+    values: &[f32],
+) -> Result<(), MultigridError> {
     let expected = match nx.checked_mul(ny) {
         Some(n) if nx > 0 && ny > 0 && n < (isize::MAX as usize) / 8 => n,
         _ => return Err(MultigridError::BadGridSize { nx, ny }),
@@ -367,17 +394,6 @@ fn validate(
     }
     if !(hx.is_finite() && hy.is_finite() && hx > 0.0 && hy > 0.0) {
         return Err(MultigridError::BadCellSize { hx, hy });
-    }
-    // Row by row, with a branch-free (vectorised) test per row.
-    let bad_row = values
-        .par_chunks(nx)
-        .position_first(|row| row.iter().fold(false, |bad, v| bad | !v.is_finite()));
-    if let Some(j) = bad_row {
-        let i = values[j * nx..(j + 1) * nx]
-            .iter()
-            .position(|v| !v.is_finite())
-            .unwrap_or(0);
-        return Err(MultigridError::NonFiniteValue { i, j });
     }
     Ok(())
 }
@@ -796,7 +812,8 @@ mod tests {
         let (nx, ny) = (77, 61);
         let layout = synthetic::scattered_constraints(nx, ny, 4, 6, 2, 5);
         let mut fine = Level::new(nx, ny, 1.0, 2.0, 0.0);
-        fine.load(&layout.fixed, &layout.values);
+        fine.load(&layout.fixed, &layout.values)
+            .expect("the layout is finite");
         let h = build_hierarchy(fine, 1.0, 2.0, 0.0, &layout.fixed);
         assert!(h.coarse.len() >= 4);
         for c in &h.coarse {
