@@ -16,22 +16,29 @@
 //!   part of the fixture's grid the change touches (plus a margin);
 //!
 //! and `cases.json` lists the cases: fixture, sketch, target, the change
-//! (centre, shape, amplitude in metres) and the changed region's threshold.
+//! (centre, width, amplitude in metres) and the changed region's threshold.
+//! With `MAKE_FIT_CASES_KEEP_FULL=DIR` the whole target GeoTIFFs are kept in
+//! `DIR` too (to look at them with `demsketch view DIR/<case>_full.tif
+//! --sketch <case>.json`).
 //!
 //! The change is anchored on the terrain: the point that forms the topmost
 //! silhouette of the original view in a chosen image column (so the change
-//! is seen from the viewpoint). A *peak* is a Gaussian bump
-//! `a exp(-d^2 / 2 s^2)` around that point; a *ridge* is the same profile
-//! around the terrain curve that forms that silhouette over a range of image
-//! columns (raised with `a > 0`, cut with `a < 0`). Beyond `3 s` the change
-//! is exactly 0. The target is written in the fixture's own sample type, so
-//! integer DEMs hold the rounded heights the edit will be compared with.
+//! is seen from the viewpoint). It is a Gaussian `a exp(-d^2 / 2 s^2)` of
+//! the horizontal distance `d` to that point: a peak or knob raised with
+//! `a > 0`, a notch cut into a ridge with `a < 0`; beyond `3 s` it is
+//! exactly 0. The target is written in the fixture's own sample type, so
+//! integer DEMs hold the rounded heights the edit is compared with.
 //!
-//! Strokes are the target's silhouette samples whose terrain point lies
-//! where the change is at least [`TRACE_FRACTION`] of its amplitude, in runs
-//! of at least [`MIN_STROKE_COLUMNS`] neighbouring columns, kept when they
-//! differ visibly (more than [`MIN_VISIBLE_CHANGE_PX`]) from every boundary
-//! of the original view somewhere; one point every [`STROKE_STEP`] columns.
+//! Strokes trace the *outline of the change* in the rendered target: per
+//! image column the topmost silhouette sample whose terrain point lies
+//! where the change is at least [`TRACE_FRACTION`] of its amplitude. The
+//! outline is cut where a column has none, where it jumps by more than
+//! [`MAX_STROKE_JUMP_PX`] or its depth by more than [`MAX_STROKE_DEPTH_STEP`]
+//! (it passes onto another ridge); each piece is kept over the columns where
+//! it leaves every boundary of the original view by more than
+//! [`MIN_VISIBLE_CHANGE_PX`] (where the change shows), plus
+//! [`STROKE_MARGIN_COLUMNS`] on each side, if that is at least
+//! [`MIN_STROKE_COLUMNS`] long; one point every [`STROKE_STEP`] columns.
 
 use demsketch::deform::locality::cell_size_m;
 use demsketch::features::{extract_silhouettes, SilhouetteParams, Silhouettes};
@@ -78,22 +85,14 @@ struct ViewSpec {
     height: usize,
 }
 
-/// The shape of a change.
-#[derive(Clone, Copy)]
-enum Shape {
-    /// A bump around the terrain point of the silhouette in `column`.
-    Peak { column: f64 },
-    /// The profile around the terrain curve of the silhouette through
-    /// `columns.0`..`columns.1` (the one topmost at their middle).
-    Ridge { columns: (f64, f64) },
-}
-
 struct CaseSpec {
     name: &'static str,
     fixture: &'static str,
     what: &'static str,
     view: ViewSpec,
-    shape: Shape,
+    /// The change is centred on the terrain point forming the topmost
+    /// silhouette in this image column.
+    column: f64,
     sigma_m: f64,
     amplitude_m: f64,
     influence_m: f64,
@@ -115,7 +114,7 @@ fn cases() -> Vec<CaseSpec> {
             fixture: "zion_srtm_utm12n.tif",
             what: "the peak on the skyline at column 352 raised by 120 m",
             view: zion_view,
-            shape: Shape::Peak { column: 352.0 },
+            column: 352.0,
             sigma_m: 350.0,
             amplitude_m: 120.0,
             influence_m: 1200.0,
@@ -125,7 +124,7 @@ fn cases() -> Vec<CaseSpec> {
             fixture: "zion_srtm_utm12n.tif",
             what: "a notch 60 m deep cut into the dome on the skyline at column 830",
             view: zion_view,
-            shape: Shape::Peak { column: 830.0 },
+            column: 830.0,
             sigma_m: 300.0,
             amplitude_m: -60.0,
             influence_m: 1000.0,
@@ -143,7 +142,7 @@ fn cases() -> Vec<CaseSpec> {
                 width: 1200,
                 height: 600,
             },
-            shape: Shape::Peak { column: 410.0 },
+            column: 410.0,
             sigma_m: 500.0,
             amplitude_m: -150.0,
             influence_m: 1500.0,
@@ -152,7 +151,7 @@ fn cases() -> Vec<CaseSpec> {
             name: "arenal_flank_raised",
             fixture: "arenal_aster30m_epsg4326.tif",
             what:
-                "a knob 25 m high raised on the volcano's east flank, on the skyline at column 880",
+                "a knob 15 m high raised on the volcano's east flank, on the skyline at column 823",
             view: ViewSpec {
                 lon: -84.684,
                 lat: 10.451,
@@ -162,10 +161,10 @@ fn cases() -> Vec<CaseSpec> {
                 width: 1200,
                 height: 600,
             },
-            shape: Shape::Peak { column: 880.0 },
-            sigma_m: 80.0,
-            amplitude_m: 25.0,
-            influence_m: 250.0,
+            column: 823.0,
+            sigma_m: 40.0,
+            amplitude_m: 15.0,
+            influence_m: 150.0,
         },
     ]
 }
@@ -253,33 +252,14 @@ fn make_case(
         .map_err(|e| e.to_string())?;
     let before = render(&dem, &case.view)?;
 
-    // The terrain curve the change follows, in DEM pixel coordinates.
+    // The anchor in DEM pixel coordinates.
     let gt = &dem.geotransform;
     let to_px = |p: [f64; 3]| gt.crs_to_pixel(p[0], p[1]);
-    let (anchor_col, curve_px): (f64, Vec<(f64, f64)>) = match case.shape {
-        Shape::Peak { column } => {
-            let (c, s) = topmost(&before.sil, column)
-                .ok_or_else(|| format!("{}: no silhouette in column {column}", case.name))?;
-            let p = to_px(before.sil.curves[c].samples[s].world)
-                .ok_or_else(|| format!("{}: bad geotransform", case.name))?;
-            (column, vec![p])
-        }
-        Shape::Ridge { columns } => {
-            let mid = 0.5 * (columns.0 + columns.1);
-            let (c, _) = topmost(&before.sil, mid)
-                .ok_or_else(|| format!("{}: no silhouette in column {mid}", case.name))?;
-            let pts: Vec<(f64, f64)> = before.sil.curves[c]
-                .samples
-                .iter()
-                .filter(|s| s.pixel[0] >= columns.0 && s.pixel[0] <= columns.1)
-                .filter_map(|s| to_px(s.world))
-                .collect();
-            if pts.len() < 2 {
-                return Err(format!("{}: silhouette too short for the ridge", case.name));
-            }
-            (mid, pts)
-        }
-    };
+    let column = case.column;
+    let (c, s) = topmost(&before.sil, column)
+        .ok_or_else(|| format!("{}: no silhouette in column {column}", case.name))?;
+    let centre = to_px(before.sil.curves[c].samples[s].world)
+        .ok_or_else(|| format!("{}: bad geotransform", case.name))?;
 
     // The change on the whole grid.
     let lat = case.view.lat;
@@ -290,7 +270,7 @@ fn make_case(
     for r in 0..h {
         for c in 0..w {
             let (x, y) = (c as f64 + 0.5, r as f64 + 0.5);
-            let d = distance_to_polyline_m(&curve_px, x, y, cell.hx, cell.hy);
+            let d = distance_m(centre, x, y, cell.hx, cell.hy);
             if d < reach && !full.data[r * w + c].is_nan() {
                 change[r * w + c] =
                     case.amplitude_m * (-(d * d) / (2.0 * case.sigma_m * case.sigma_m)).exp();
@@ -326,7 +306,7 @@ fn make_case(
     // Strokes: the target's silhouettes formed by changed terrain.
     let change_at = |p: [f64; 3]| -> f64 {
         let Some((x, y)) = to_px(p) else { return 0.0 };
-        let d = distance_to_polyline_m(&curve_px, x, y, cell.hx, cell.hy);
+        let d = distance_m(centre, x, y, cell.hx, cell.hy);
         if d < reach {
             case.amplitude_m * (-(d * d) / (2.0 * case.sigma_m * case.sigma_m)).exp()
         } else {
@@ -400,14 +380,12 @@ fn make_case(
     let target_name = format!("{}_target.tif", case.name);
     write_f32_tiff(&crop, &out_dir.join(&target_name))?;
 
-    let centre = curve_px[curve_px.len() / 2];
     let (cx, cy) = gt.pixel_to_crs(centre.0, centre.1);
     Ok(json!({
         "name": case.name,
         "fixture": case.fixture,
         "change": case.what,
-        "shape": match case.shape { Shape::Peak { .. } => "peak", Shape::Ridge { .. } => "ridge" },
-        "anchor_column": anchor_col,
+        "anchor_column": column,
         "centre_crs": [round2(cx), round2(cy)],
         "sigma_m": case.sigma_m,
         "amplitude_m": case.amplitude_m,
@@ -424,27 +402,10 @@ fn round2(v: f64) -> f64 {
     (v * 100.0).round() / 100.0
 }
 
-/// Distance in metres from pixel `(x, y)` to a polyline of pixel points,
-/// with cells `hx` x `hy` metres.
-fn distance_to_polyline_m(pts: &[(f64, f64)], x: f64, y: f64, hx: f64, hy: f64) -> f64 {
-    let p = (x * hx, y * hy);
-    if pts.len() == 1 {
-        return (p.0 - pts[0].0 * hx).hypot(p.1 - pts[0].1 * hy);
-    }
-    pts.windows(2)
-        .map(|s| {
-            let a = (s[0].0 * hx, s[0].1 * hy);
-            let b = (s[1].0 * hx, s[1].1 * hy);
-            let (ex, ey) = (b.0 - a.0, b.1 - a.1);
-            let l2 = ex * ex + ey * ey;
-            let t = if l2 > 0.0 {
-                (((p.0 - a.0) * ex + (p.1 - a.1) * ey) / l2).clamp(0.0, 1.0)
-            } else {
-                0.0
-            };
-            (p.0 - a.0 - t * ex).hypot(p.1 - a.1 - t * ey)
-        })
-        .fold(f64::INFINITY, f64::min)
+/// Distance in metres from pixel `(x, y)` to pixel point `c`, with cells
+/// `hx` x `hy` metres.
+fn distance_m(c: (f64, f64), x: f64, y: f64, hx: f64, hy: f64) -> f64 {
+    ((x - c.0) * hx).hypot((y - c.1) * hy)
 }
 
 /// Rows of the occlusion boundaries of column `i` of a rendered view:

@@ -18,34 +18,39 @@
 //! For every stroke that does not fit yet (a stroke column without an
 //! occlusion boundary within [`FIT_TOLERANCE_PX`] of the stroke) this module
 //! chooses the heights of the vertices that decide the contour along it,
-//! working in image rows (a vertex's row is monotonic in its height):
+//! working in image rows (a vertex's row is monotonic in its height; the
+//! stroke is continued along its end segments for the few pixels of
+//! [`END_PAD_PX`] beyond its ends):
 //!
-//! - the **carriers**, the four vertices around the placed curve's point on
-//!   every stroke column, start on the stroke's *sight surface* (the rays
-//!   from the eye through the stroke), [`BELOW_STROKE_PX`] under the stroke;
-//! - the **neighbourhood**, every vertex within [`NEAR_FRONT`] in front of
-//!   and [`NEAR_BEHIND`] behind the placed curve's depth on its image column,
-//!   keeps its height unless it is above the stroke (by more than
-//!   [`ABOVE_STROKE_PX`]): in front of the curve it would hide the stroke,
-//!   behind it it would continue the surface above the stroke so that there
-//!   is no depth discontinuity there. Terrain farther in front is the
-//!   paper's protruding silhouettes (section 6.2, [`super::lowering`]);
-//!   terrain farther behind is another mountain seen above the stroke, which
-//!   is fine;
+//! - the **neighbourhood**: every vertex within [`NEAR_FRONT`] in front of
+//!   and [`NEAR_BEHIND`] behind the placed curve's depth on the image column
+//!   it projects to. Such a vertex above the stroke is brought onto it: in
+//!   front of the curve it would hide the stroke (it is put
+//!   [`FRONT_BELOW_PX`] under it, so that it does not cover it), behind the
+//!   curve it would continue the surface above the stroke with no depth
+//!   discontinuity there. Terrain farther in front is the paper's
+//!   protruding silhouettes (section 6.2, [`super::lowering`]); terrain
+//!   farther behind is another mountain seen above the stroke, which is
+//!   fine;
+//! - the **carriers**: on an unfitted column where the terrain under the
+//!   placed curve point lies below it (by more than half a pixel), the four
+//!   vertices around that point are put on the stroke's *sight surface*
+//!   (the rays from the eye through the stroke), so that the terrain comes
+//!   up to the stroke there; vertices constrained in an earlier round start
+//!   there again too;
 //! - then no mesh edge between two of these vertices may rise above the
-//!   stroke by more than [`ABOVE_STROKE_PX`] anywhere along its segment: a
-//!   vertex is lowered to the highest row its edges allow (given the other
-//!   ends), sweeping until nothing moves. Rows only ever go down, so this
-//!   converges to the highest arrangement without any edge above the
-//!   stroke, in which the carriers form the contour on the stroke wherever
-//!   the mesh can follow it.
+//!   stroke by more than [`ABOVE_STROKE_PX`] anywhere along its segment (a
+//!   traced stroke cuts the corners of a contour a little), and none in
+//!   front of the curve may cover it: each vertex is lowered to the highest
+//!   row its edges allow given the other ends, sweeping until nothing moves.
+//!   Rows only ever go down, so this converges to the highest arrangement
+//!   in which no edge rises above the stroke, and the contour runs along
+//!   the stroke wherever the mesh's vertices can follow it.
 //!
 //! The vertices that moved become [`CellConstraint`]s; the pipeline adds
 //! them to the constraints, solves again, re-renders and repeats a few times
 //! (the diffusion moves the free cells around them, which may need another
-//! correction). With the contour's vertices on the sight surface and no edge
-//! above it, the contour runs along the stroke within a fraction of a pixel
-//! wherever the mesh's vertices are dense enough in the image to follow it.
+//! correction), and reports the number of such rounds.
 
 use super::fit::{FIT_TOLERANCE_PX, HIDDEN_MARGIN};
 use super::rendered_view::{RenderedView, StrokeCurve};
@@ -55,24 +60,28 @@ use crate::view::{Camera, CameraModel};
 use std::collections::HashMap;
 
 /// Depth neighbourhood of the placed curve, in front of it, as a fraction of
-/// its depth (terrain nearer than that is the paper's protruding
-/// silhouettes, found with the same margin).
-pub const NEAR_FRONT: f64 = HIDDEN_MARGIN;
-/// ... and behind it.
-pub const NEAR_BEHIND: f64 = 0.02;
-/// A vertex of the neighbourhood projecting higher than this above the
-/// stroke is lowered.
+/// its depth: twice the margin within which terrain in front is not counted
+/// as hiding the stroke (and not lowered as a protruding silhouette), so the
+/// two overlap.
+pub const NEAR_FRONT: f64 = 2.0 * HIDDEN_MARGIN;
+/// ... and behind it: the depth jump the contour gets at least, well above
+/// the silhouette extractor's 0.5 %.
+pub const NEAR_BEHIND: f64 = 0.04;
+/// A segment between two vertices of the neighbourhood may rise this far
+/// above the stroke (a stroke traced with straight segments cuts the
+/// corners of a contour) ...
 pub const ABOVE_STROKE_PX: f64 = 0.9;
-/// A vertex of the neighbourhood itself may lie this little above the
-/// stroke (the segments between vertices may rise up to
-/// [`ABOVE_STROKE_PX`], where a traced stroke cuts the corner of the
-/// contour).
+/// ... a vertex only this far.
 pub const VERTEX_ABOVE_PX: f64 = 0.1;
-/// Constrained vertices are put this far under the stroke.
-pub const BELOW_STROKE_PX: f64 = 0.0;
-/// The clearance also covers this many pixels beyond each end of the stroke
-/// (at the end's height), so that the contour does not climb into the last
-/// columns from just outside.
+/// A vertex nearer than the placed curve by more than this fraction of its
+/// depth is *in front* of it ...
+pub const FRONT_DEPTH: f64 = 0.005;
+/// ... and must stay this many pixels under the stroke (and so must a
+/// segment between two such vertices), so that it does not cover it.
+pub const FRONT_BELOW_PX: f64 = 0.5;
+/// The neighbourhood also covers this many pixels beyond each end of the
+/// stroke, so that the contour does not climb into the last columns from
+/// just outside.
 pub const END_PAD_PX: f64 = 2.0;
 
 /// The image columns of `stroke` (column, stroke y, curve depth) where the
@@ -91,8 +100,9 @@ pub fn unfitted_columns(stroke: &StrokeCurve, view: &RenderedView) -> Vec<(usize
 
 /// Cell constraints that make the strokes of `view` its occluding contours
 /// (see the module documentation). `window_offset` is where the window the
-/// view's terrain was built from lies in the DEM grid. Only strokes with an
-/// unfitted column contribute; an empty result means every stroke fits.
+/// view's terrain was built from lies in the DEM grid; `constrained` tells
+/// which DEM cells earlier rounds constrained. Only strokes with an unfitted
+/// column contribute; an empty result means every stroke fits.
 pub fn contour_constraints(
     view: &RenderedView,
     strokes: &[StrokeCurve],
@@ -120,6 +130,10 @@ struct Vertex {
     y0: f64,
     /// Chosen image row.
     y: f64,
+    /// Rows under the stroke this vertex must keep at least (negative:
+    /// may lie above it): [`FRONT_BELOW_PX`] in front of the curve, where
+    /// the terrain must not cover the stroke, else `-VERTEX_ABOVE_PX`.
+    clear: f64,
 }
 
 /// The cell constraints of one stroke.
@@ -147,7 +161,7 @@ fn stroke_constraints(
         if let Some(&k) = index.get(&(c, r)) {
             let v = &mut verts[k];
             if carrier && v.x >= xs0 && v.x <= xs1 {
-                v.y = target(v.x) + BELOW_STROKE_PX;
+                v.y = target(v.x) + v.clear.max(0.0);
             }
             return;
         }
@@ -160,10 +174,18 @@ fn stroke_constraints(
         let stroke_y = target(px[0]);
         let (col, row) = dem_cell(c, r);
         let on_stroke = px[0] >= xs0 && px[0] <= xs1;
+        let in_front = s
+            .depth_at(px[0])
+            .is_some_and(|d| norm(p) < d * (1.0 - FRONT_DEPTH));
+        let clear = if in_front {
+            FRONT_BELOW_PX
+        } else {
+            -VERTEX_ABOVE_PX
+        };
         let y = if on_stroke && (carrier || constrained(col, row)) {
-            stroke_y + BELOW_STROKE_PX
-        } else if px[1] < stroke_y - VERTEX_ABOVE_PX {
-            stroke_y + BELOW_STROKE_PX
+            stroke_y + clear.max(0.0)
+        } else if px[1] < stroke_y + clear {
+            stroke_y + clear.max(0.0)
         } else {
             px[1]
         };
@@ -175,6 +197,7 @@ fn stroke_constraints(
             x: px[0],
             y0: px[1],
             y,
+            clear,
         });
     };
     // The neighbourhood in depth.
@@ -242,7 +265,7 @@ fn stroke_constraints(
     for _ in 0..MAX_SWEEPS {
         let mut moved = false;
         for k in 0..verts.len() {
-            let mut need = target(verts[k].x) - VERTEX_ABOVE_PX;
+            let mut need = target(verts[k].x) + verts[k].clear;
             for &w in &edges[k] {
                 need = need.max(edge_bound(&verts[k], &verts[w], &xs, (x0, x1), &target));
             }
@@ -329,8 +352,15 @@ fn edge_bound(
         if !(0.0..=0.9).contains(&f) {
             continue;
         }
-        // (1 - f) y_v + f y_w >= target(x) - ABOVE_STROKE_PX
-        need = need.max((target(x) - ABOVE_STROKE_PX - f * w.y) / (1.0 - f));
+        // (1 - f) y_v + f y_w >= target(x) + clear, where a segment in
+        // front of the curve must not cover the stroke and others may rise
+        // ABOVE_STROKE_PX above it.
+        let clear = if v.clear > 0.0 && w.clear > 0.0 {
+            v.clear.min(w.clear)
+        } else {
+            -ABOVE_STROKE_PX
+        };
+        need = need.max((target(x) + clear - f * w.y) / (1.0 - f));
     }
     need
 }
@@ -360,4 +390,68 @@ fn height_at_row(camera: &Camera, p: [f64; 3], row: f64) -> Option<f64> {
 
 fn norm(p: [f64; 3]) -> f64 {
     (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sketch::{prepare_stroke, FoldBackPolicy};
+
+    fn stroke(points: &[[f64; 2]]) -> crate::sketch::Stroke {
+        prepare_stroke("s", 0, points, 2.0, 3.0, FoldBackPolicy::Split)
+            .expect("a valid stroke")
+            .remove(0)
+    }
+
+    fn vertex(x: f64, y: f64, clear: f64) -> Vertex {
+        Vertex {
+            c: 0,
+            r: 0,
+            p: [0.0; 3],
+            x,
+            y0: y,
+            y,
+            clear,
+        }
+    }
+
+    #[test]
+    fn stroke_row_follows_the_end_segments_beyond_the_ends() {
+        let s = stroke(&[[10.0, 50.0], [20.0, 40.0], [30.0, 40.0]]);
+        assert!((stroke_row(&s, 15.0) - 45.0).abs() < 1e-9);
+        // Left of the start: the first segment's slope (-1 px per px).
+        assert!((stroke_row(&s, 8.0) - 52.0).abs() < 1e-9);
+        // Right of the end: flat like the last segment.
+        assert!((stroke_row(&s, 33.0) - 40.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn an_edge_may_not_rise_above_the_stroke_between_its_ends() {
+        // A stroke with a dip at x = 20 (rows grow downwards).
+        let s = stroke(&[[0.0, 100.0], [20.0, 110.0], [40.0, 100.0]]);
+        let target = |x: f64| stroke_row(&s, x);
+        let xs: Vec<f64> = s.points.iter().map(|p| p[0]).collect();
+        // Both ends on the stroke: the segment passes 10 rows above the dip.
+        let v = vertex(0.0, 100.0, -VERTEX_ABOVE_PX);
+        let w = vertex(40.0, 100.0, -VERTEX_ABOVE_PX);
+        let need = edge_bound(&v, &w, &xs, (0.0, 40.0), &target);
+        // With w fixed, v must come down so that the segment passes at most
+        // ABOVE_STROKE_PX above the dip: (1 - f) y_v + f y_w >= 110 - 0.9
+        // at f = 0.5, i.e. y_v >= 118.2 (a little less: the resampled
+        // stroke cuts the dip's corner).
+        let exact = 2.0 * (110.0 - ABOVE_STROKE_PX) - 100.0;
+        assert!(need <= exact + 1e-9 && need > exact - 0.2, "{need}");
+        // Two vertices in front of the curve must stay under the stroke.
+        let v = vertex(0.0, 100.0 + FRONT_BELOW_PX, FRONT_BELOW_PX);
+        let w = vertex(40.0, 100.0 + FRONT_BELOW_PX, FRONT_BELOW_PX);
+        let need = edge_bound(&v, &w, &xs, (0.0, 40.0), &target);
+        let exact = 2.0 * (110.0 + FRONT_BELOW_PX) - (100.0 + FRONT_BELOW_PX);
+        assert!(need <= exact + 1e-9 && need > exact - 0.2, "{need}");
+        // A vertical edge (both ends on one column) gives no bound.
+        let w = vertex(0.2, 90.0, -VERTEX_ABOVE_PX);
+        assert_eq!(
+            edge_bound(&v, &w, &xs, (0.0, 40.0), &target),
+            f64::NEG_INFINITY
+        );
+    }
 }
