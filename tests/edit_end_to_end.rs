@@ -139,10 +139,9 @@ fn bundled_sketch_edits_zion_with_full_report() {
 }
 
 /// Strokes traced from the DEM's own skyline and lifted a little: the edit
-/// must leave them fully visible, on average within 1 px, and most columns
-/// within 1 px. (Issue 5's acceptance asks for fitted_fraction >= 0.95 on
-/// traced targets; `FITTED_MIN` is raised to it once the deform branch's
-/// sub-cell constraint rasterisation is in.)
+/// must leave them fully visible, on average within 1 px, and at least 95 %
+/// of their columns within 1 px (issue 5's bar; the target-DEM cases of
+/// `tests/edit_fit_cases.rs` check it together with the height error).
 #[test]
 fn strokes_traced_from_the_skyline_are_fitted_and_visible() {
     let dem_path = fixture(DEM);
@@ -198,7 +197,7 @@ fn strokes_traced_from_the_skyline_are_fitted_and_visible() {
     std::fs::write(&sk, serde_json::to_string(&sketch).unwrap()).unwrap();
     let opts = demsketch::edit::EditOptions::new(Destination::Path(tmp.path().join("o.tif")));
     let rep = demsketch::edit::run(&dem_path, &sk, &opts).unwrap();
-    const FITTED_MIN: f64 = 0.7;
+    const FITTED_MIN: f64 = 0.95;
     for s in &rep.views[0].strokes {
         eprintln!(
             "{}: {:?}, fitted {:.3}, mean {:.2} px, max {:.2} px, visible {:.3}",

@@ -45,6 +45,10 @@ pub struct EditArgs {
     /// Most re-solves per view while lowering protruding silhouettes.
     #[arg(long, default_value_t = 4)]
     pub max_lowering_iterations: usize,
+    /// Most re-solves per view while making the strokes the terrain's
+    /// occluding contours (0: the paper's constraints and lowering only).
+    #[arg(long, default_value_t = 6)]
+    pub max_contour_iterations: usize,
     /// Print the report on stdout.
     #[arg(long)]
     pub json: bool,
@@ -62,6 +66,7 @@ pub fn run(args: EditArgs) -> anyhow::Result<()> {
     opts.max_distance_m = Some(args.max_distance);
     opts.refraction = args.refraction;
     opts.max_lowering_iterations = args.max_lowering_iterations;
+    opts.max_contour_iterations = args.max_contour_iterations;
     opts.progress = std::io::stderr().is_terminal();
     let report = match run_edit(&args.dem, &args.sketch, &opts) {
         Ok(r) => r,

@@ -61,6 +61,18 @@ pub struct CurveConstraint {
     pub points: Vec<[f64; 3]>,
 }
 
+/// A height prescribed on one cell of the DEM grid (`col`, `row` in the
+/// whole DEM's pixel space): the edited terrain `H' = H + M` is held at
+/// `height` (absolute metres) there. The edit pipeline uses these to put the
+/// mesh vertices around a placed stroke exactly where the stroke needs them
+/// (see `edit::contour`).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct CellConstraint {
+    pub col: i64,
+    pub row: i64,
+    pub height: f64,
+}
+
 /// Size of one grid cell in metres: `hx` along a row (between columns), `hy`
 /// along a column (between rows).
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
@@ -179,6 +191,37 @@ pub fn rasterise(base: &HeightMap, curves: &[CurveConstraint], cell: CellSize) -
         delta,
         count,
         max_abs_delta,
+    }
+}
+
+/// Adds the cell constraints `cells` (whole-DEM pixel coordinates) to
+/// `cons`, rasterised on `base`, the window `window` of the DEM: each cell
+/// inside the window and not nodata is constrained to `delta = height - H`,
+/// replacing what the curves asked there. When a cell is listed twice the
+/// last entry wins.
+pub fn apply_cells(
+    cons: &mut ConstraintRaster,
+    base: &HeightMap,
+    window: crate::raster::Window,
+    cells: &[CellConstraint],
+) {
+    for c in cells {
+        let (x, y) = (c.col - window.col, c.row - window.row);
+        if x < 0 || y < 0 || x as usize >= cons.width || y as usize >= cons.height {
+            continue;
+        }
+        let k = y as usize * cons.width + x as usize;
+        let h = base.data[k];
+        let d = c.height - h as f64;
+        if h.is_nan() || !d.is_finite() {
+            continue;
+        }
+        if !cons.constrained[k] {
+            cons.constrained[k] = true;
+            cons.count += 1;
+        }
+        cons.delta[k] = d as f32;
+        cons.max_abs_delta = cons.max_abs_delta.max(d.abs());
     }
 }
 

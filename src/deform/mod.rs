@@ -29,7 +29,7 @@ pub mod constraints;
 pub mod locality;
 pub mod multigrid;
 
-pub use constraints::{CellSize, ConstraintRaster, CurveConstraint};
+pub use constraints::{CellConstraint, CellSize, ConstraintRaster, CurveConstraint};
 
 use std::time::Instant;
 
@@ -281,11 +281,26 @@ pub fn deform(
     curves: &[CurveConstraint],
     opts: &DeformOptions,
 ) -> Result<Deformation, DeformError> {
+    deform_with_cells(dem, curves, &[], opts)
+}
+
+/// [`deform`] with, in addition to the curves, heights prescribed on single
+/// DEM cells ([`CellConstraint`]): such a cell is held at its height,
+/// whatever the curves ask there (see [`constraints::apply_cells`]). The
+/// affected window is planned from the curves alone; cells outside it, or
+/// on nodata, are ignored.
+pub fn deform_with_cells(
+    dem: &Dem,
+    curves: &[CurveConstraint],
+    cells: &[CellConstraint],
+    opts: &DeformOptions,
+) -> Result<Deformation, DeformError> {
     let plan = plan(dem, curves, opts)?;
     let t0 = Instant::now();
     let base = dem.read_height_map(plan.window)?;
     let t1 = Instant::now();
-    let cons = constraints::rasterise(&base, curves, plan.cell);
+    let mut cons = constraints::rasterise(&base, curves, plan.cell);
+    constraints::apply_cells(&mut cons, &base, plan.window, cells);
     if cons.count == 0 {
         return Err(DeformError::NothingConstrained {
             path: dem.path.clone(),

@@ -11,6 +11,7 @@
 //! tiles back atomically, and finally the pictures ([`renders`]) and the
 //! report ([`report`]). Nothing is written unless every step succeeded.
 
+pub mod contour;
 pub mod fit;
 pub mod lowering;
 pub mod pipeline;

@@ -11,17 +11,21 @@
 //! 4. `deformation`: displacement constraints diffused by multigrid,
 //!    `H' = H + M` on the affected window.
 //! 5. `lowering`: each view re-rendered on the edited terrain; protruding
-//!    silhouettes lowered by the paper's `h` as new constraints, re-solve
-//!    with the union, repeat until none remain (or the iteration limit);
-//!    fit and visibility measured on the final terrain.
+//!    silhouettes lowered by the paper's `h` as new constraints, and the
+//!    mesh vertices that decide the contour along strokes that do not fit
+//!    yet put on the strokes' sight surfaces ([`super::contour`]); re-solve
+//!    with the union, repeat until neither asks for more (or the iteration
+//!    limits); fit and visibility measured on the final terrain.
 //! 6. `write`: affected tiles written back atomically, then the pictures
 //!    and the report.
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
+use super::contour::contour_constraints;
 use super::fit::measure;
 use super::lowering::find_protruding;
 use super::rendered_view::{RenderedView, StrokeCurve};
@@ -30,7 +34,10 @@ use super::report::{
     DeformationReport, EditReport, FeatureCounts, MatchReport, StagedFile, StrokeReport, Timings,
 };
 use super::EditError;
-use crate::deform::{deform, CurveConstraint, DeformError, DeformOptions, Deformation};
+use crate::deform::{
+    deform, deform_with_cells, CellConstraint, CurveConstraint, DeformError, DeformOptions,
+    Deformation,
+};
 use crate::features::{detect_ridges, RidgeNetwork, RidgeParams};
 use crate::raster::{Dem, Destination, HeightMap, Provenance, Window};
 use crate::render::Scene;
@@ -56,12 +63,16 @@ pub struct EditOptions {
     pub refraction: f64,
     /// Most re-solves per view while lowering protruding silhouettes.
     pub max_lowering_iterations: usize,
+    /// Most re-solves per view while fitting the strokes' contours
+    /// ([`super::contour`]).
+    pub max_contour_iterations: usize,
     /// Show progress on stderr (only drawn when stderr is a terminal).
     pub progress: bool,
 }
 
 impl EditOptions {
-    /// Defaults: 50 km view distance, k = 1/7, 4 lowering iterations.
+    /// Defaults: 50 km view distance, k = 1/7, 4 lowering iterations, 6
+    /// contour iterations.
     pub fn new(destination: Destination) -> EditOptions {
         EditOptions {
             destination,
@@ -70,10 +81,15 @@ impl EditOptions {
             max_distance_m: Some(50_000.0),
             refraction: 1.0 / 7.0,
             max_lowering_iterations: 4,
+            max_contour_iterations: 6,
             progress: false,
         }
     }
 }
+
+/// A cell constraint counts as new when its height moved by more than this
+/// (metres).
+const CELL_CHANGE_M: f64 = 0.01;
 
 /// A view of the sketch set up on the DEM.
 struct ViewState<'a> {
@@ -289,46 +305,83 @@ pub fn run(
     let mut deformation = deform(&dem, &constraints, &dopts).map_err(deform_err)?;
     timings.deformation = secs(t);
 
-    // 5. Lowering protruding silhouettes, one view at a time.
+    // 5. Lowering protruding silhouettes (section 6.2) and making every
+    //    stroke the occluding contour ([`contour`]): each round re-renders
+    //    every view on the current terrain, collects the new constraints of
+    //    all views and solves once; it stops when no view asks for more.
     pb.set_message("lowering protruding silhouettes");
     let t = Instant::now();
     let mut iterations = vec![0usize; views.len()];
     let mut lowered = vec![0usize; views.len()];
-    let mut generation = 0usize;
-    let mut finals: Vec<Option<(usize, RenderedView)>> = (0..views.len()).map(|_| None).collect();
-    for (k, v) in views.iter().enumerate() {
-        loop {
+    let mut contour_rounds = vec![0usize; views.len()];
+    let mut cells: BTreeMap<(i64, i64), f64> = BTreeMap::new();
+    let mut rendered: Vec<RenderedView> = Vec::new();
+    loop {
+        rendered.clear();
+        let mut changed = false;
+        for (k, v) in views.iter().enumerate() {
             let after = render_edited(v, &deformation, max_d)?;
-            let protruding = find_protruding(&after, &curves[k]);
-            if protruding.is_empty() || iterations[k] >= opts.max_lowering_iterations {
-                finals[k] = Some((generation, after));
-                break;
-            }
-            for p in &protruding {
-                if !p.lowered.is_empty() {
-                    constraints.push(CurveConstraint {
-                        points: p.lowered.clone(),
-                    });
+            if iterations[k] < opts.max_lowering_iterations {
+                let protruding = find_protruding(&after, &curves[k]);
+                if !protruding.is_empty() {
+                    for p in &protruding {
+                        if !p.lowered.is_empty() {
+                            constraints.push(CurveConstraint {
+                                points: p.lowered.clone(),
+                            });
+                        }
+                    }
+                    lowered[k] += protruding.len();
+                    iterations[k] += 1;
+                    changed = true;
                 }
             }
-            lowered[k] += protruding.len();
-            iterations[k] += 1;
-            generation += 1;
-            pb.set_message(format!(
-                "lowering protruding silhouettes: view \"{}\", iteration {}",
-                v.spec.name, iterations[k]
-            ));
-            deformation = deform(&dem, &constraints, &dopts).map_err(deform_err)?;
+            if contour_rounds[k] < opts.max_contour_iterations {
+                let mut moved = false;
+                let mut round: BTreeMap<(i64, i64), f64> = BTreeMap::new();
+                let known = |col: i64, row: i64| cells.contains_key(&(col, row));
+                for c in contour_constraints(&after, &curves[k], v.window_offset, &known) {
+                    let h = round.entry((c.col, c.row)).or_insert(c.height);
+                    *h = h.min(c.height);
+                }
+                for c in
+                    round
+                        .iter()
+                        .map(|(&(col, row), &height)| CellConstraint { col, row, height })
+                {
+                    let old = cells.insert((c.col, c.row), c.height);
+                    moved |= old.is_none_or(|h| (h - c.height).abs() > CELL_CHANGE_M);
+                }
+                if moved {
+                    contour_rounds[k] += 1;
+                    changed = true;
+                }
+            }
+            rendered.push(after);
         }
+        if !changed {
+            break;
+        }
+        pb.set_message(format!(
+            "lowering protruding silhouettes, fitting contours: round {}",
+            iterations
+                .iter()
+                .chain(&contour_rounds)
+                .max()
+                .copied()
+                .unwrap_or(0)
+        ));
+        let cell_list: Vec<CellConstraint> = cells
+            .iter()
+            .map(|(&(col, row), &height)| CellConstraint { col, row, height })
+            .collect();
+        deformation =
+            deform_with_cells(&dem, &constraints, &cell_list, &dopts).map_err(deform_err)?;
     }
     // Fit and visibility on the final terrain.
     let mut view_reports = Vec::new();
     let mut after_views = Vec::new();
-    for ((k, v), m) in views.iter().enumerate().zip(&matched.views) {
-        let after = match finals[k].take() {
-            Some((g, r)) if g == generation => r,
-            _ => render_edited(v, &deformation, max_d)?,
-        };
+    for (((k, v), m), after) in views.iter().enumerate().zip(&matched.views).zip(rendered) {
         let strokes = curves[k]
             .iter()
             .zip(&m.strokes)
@@ -357,6 +410,7 @@ pub fn run(
             strokes,
             lowering_iterations: iterations[k],
             silhouettes_lowered: lowered[k],
+            contour_iterations: contour_rounds[k],
             features: counts[k],
         });
         after_views.push(after);

@@ -41,6 +41,9 @@ pub struct ViewReport {
     pub lowering_iterations: usize,
     /// Protruding silhouettes lowered, over all iterations.
     pub silhouettes_lowered: usize,
+    /// Re-solves that moved mesh vertices to make the strokes this view's
+    /// occluding contours (`edit::contour`).
+    pub contour_iterations: usize,
     /// Features offered to matching (silhouettes, ridges).
     pub features: FeatureCounts,
 }

@@ -163,6 +163,13 @@ fn closest_on_ray(eye: [f64; 3], ray: [f64; 3], p: [f64; 3], d: [f64; 3]) -> Opt
 /// of `step_m`, until a point reaches the terrain (it is then put on it), the
 /// terrain is undefined, or `max_m` is reached. Returns the completed curve
 /// (completion points first and last, marked [`PointSource::Completion`]).
+///
+/// The extension is there to bring the curve down to the terrain; where the
+/// terrain falls away faster than the tangent (a stroke ending over a
+/// valley), the tangent never gets closer to it, and constraining it would
+/// lift the valley under a line in mid-air. So the extension also stops,
+/// without that point, as soon as it is higher above the terrain than the
+/// end point it started from.
 pub fn complete_feature(
     placed: &[PlacedPoint],
     proj: &dyn ViewProjection,
@@ -189,16 +196,21 @@ pub fn complete_feature(
         let mut s = step_m;
         let start = placed[end].world;
         // Already on or below the terrain: nothing to complete.
+        let mut gap0 = f64::INFINITY;
         if let Some(g) = proj.terrain_height(start[0], start[1]) {
             if start[2] <= g {
                 return out;
             }
+            gap0 = start[2] - g;
         }
         while s <= max_m + 1e-9 {
             let mut p = add(start, scale(u, s));
             let Some(g) = proj.terrain_height(p[0], p[1]) else {
                 break;
             };
+            if p[2] - g > gap0 {
+                break;
+            }
             let reached = p[2] <= g;
             if reached {
                 p[2] = g;
