@@ -124,9 +124,13 @@ fn main() {
         mix(nd.degree as u64);
     }
     println!(
-        "{n}x{h}: best of {repeats}: {:.2} ms (dropping the previous result {:.2} ms); {} candidates, {} lines, {} nodes, {:.1} km, fingerprint {fp:016x}",
+        "{n}x{h}: best of {repeats}: {:.2} ms (dropping the previous result {}); {} candidates, {} lines, {} nodes, {:.1} km, fingerprint {fp:016x}",
         best * 1e3,
-        best_drop * 1e3,
+        if best_drop.is_finite() {
+            format!("{:.2} ms", best_drop * 1e3)
+        } else {
+            "not timed".to_string()
+        },
         net.candidate_cells,
         net.lines.len(),
         net.nodes.len(),

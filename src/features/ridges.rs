@@ -9,10 +9,14 @@
 //! points, which the sketch matcher uses as candidate features alongside the
 //! view silhouettes.
 //!
-//! Every pass is linear in the number of cells except the sort of the candidate
-//! segments; profile recognition and segment construction run in parallel by
-//! rows (rayon), the forest, pruning and tracing work on an 8-bit adjacency
-//! mask per cell.
+//! Profile recognition runs in parallel by bands of rows (an AVX2 kernel where
+//! the CPU has one) into a bitmap of candidates; from there on every
+//! candidate has a compact id (its rank in row-major order, see
+//! [`super::candidates`]) and the forest, pruning and tracing work on an 8-bit
+//! adjacency mask per candidate. The forest is built strip by strip in
+//! parallel (see [`super::spanning_forest`]); the walks of pruning and the
+//! lines are traced in parallel; only the ordered pruning pass is sequential.
+//! The result does not depend on the number of threads.
 
 use rayon::prelude::*;
 

@@ -237,3 +237,65 @@ pub fn complete_feature(
     out.extend(tail);
     out
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sketch::projection::SimplePinhole;
+    use std::sync::Arc;
+
+    /// A placed curve 100 m above flat ground, heading away from the eye
+    /// (+y) and rising gently.
+    fn placed(proj: &SimplePinhole) -> Vec<PlacedPoint> {
+        (0..5)
+            .map(|k| {
+                let world = [0.0, 1000.0 + 10.0 * k as f64, 100.0 + k as f64];
+                let (px, depth) = proj.project(world).expect("in front of the camera");
+                PlacedPoint {
+                    pixel: Some(px),
+                    world,
+                    depth,
+                    source: PointSource::Feature,
+                }
+            })
+            .collect()
+    }
+
+    #[test]
+    fn completion_comes_down_to_the_terrain() {
+        let flat: crate::sketch::HeightFn = Arc::new(|_, _| Some(0.0));
+        let proj =
+            SimplePinhole::new([0.0, 0.0, 10.0], 0.0, 0.0, 60.0, 800, 400).with_terrain(flat);
+        let done = complete_feature(&placed(&proj), &proj, 5.0, 3000.0, 0.25);
+        let last = done.last().expect("points");
+        assert_eq!(last.source, PointSource::Completion);
+        assert!(last.world[2].abs() < 1e-9, "ends on the ground: {last:?}");
+    }
+
+    #[test]
+    fn completion_stops_where_the_terrain_falls_away_faster() {
+        // The ground drops at 1:1 beyond y = 1040: the tangent, turned down
+        // at slope 0.25, never gets closer to it.
+        let cliff: crate::sketch::HeightFn = Arc::new(|_, y| {
+            Some(if y < 1040.0 {
+                90.0
+            } else {
+                90.0 - (y - 1040.0)
+            })
+        });
+        let proj =
+            SimplePinhole::new([0.0, 0.0, 10.0], 0.0, 0.0, 60.0, 800, 400).with_terrain(cliff);
+        let curve = placed(&proj);
+        let done = complete_feature(&curve, &proj, 5.0, 3000.0, 0.25);
+        // Nothing is added after the last placed point: no constraint in
+        // mid-air over the drop.
+        let tail = done.len()
+            - done
+                .iter()
+                .rposition(|p| p.source != PointSource::Completion)
+                .expect("placed points")
+            - 1;
+        assert!(tail <= 1, "{tail} completion points over the drop");
+        assert!(done.len() < curve.len() + 40);
+    }
+}

@@ -20,9 +20,14 @@
 //! f64, once per solve) sees the constraints where they really are, including
 //! one-cell-wide diagonal curves that no coarse point lies on. Away from
 //! every constraint and from the grid's edge the stencils are all equal, so
-//! only the "irregular" coarse points (within 3 fine points of an irregular
+//! only the "special" coarse points (within 2 fine points of an irregular
 //! fine point) get their own stencil; the others share the level's constant
-//! one.
+//! one. Two fine points is exact: the stencil of `(I, J)` reads the weights
+//! of the fine points within 2 of `(2I, 2J)`, and a weight reads the fine
+//! stencil of its own point, or for a cell point (odd, odd), those of its
+//! 3 x 3 neighbourhood, which for the cell points of the window (at distance
+//! 1) stays within 2 as well; the same holds for the weights that the
+//! transfers use around a regular point.
 //!
 //! The weights of the four fine points `(2I + a, 2J + b)` of coarse point
 //! `(I, J)` are kept together as its [`BlockWeights`]; [`block_weights`]

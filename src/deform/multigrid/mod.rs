@@ -25,7 +25,10 @@
 //!
 //! - the finest level keeps the 5-point operator in red-black split storage
 //!   (`level.rs`): red-black Gauss-Seidel, parallel over row bands with rayon,
-//!   contiguous AVX2 kernels, f32 storage with f64 norms;
+//!   contiguous AVX2 kernels, f32 storage with f64 norms; the last
+//!   pre-smoothing sweep restricts the residual and the last post-smoothing
+//!   sweep sums the residual norm as the rows become final, so neither needs
+//!   a pass of its own;
 //! - coarsening is vertex-centred (coarse point `(I, J)` on fine point
 //!   `(2I, 2J)`), with operator-dependent interpolation read off the fine
 //!   operator's rows, in which the couplings to fixed cells are eliminated:
@@ -33,12 +36,13 @@
 //!   the solution does, whatever the constraint's shape (`galerkin.rs`);
 //! - coarse operators are `A_c = P^T A P`, computed once per solve in f64,
 //!   9-point; restriction is `P^T`. Away from constraints and from the grid's
-//!   edge every stencil is the same, so only coarse points within 3 fine
-//!   points of an irregular one store a stencil (a few % of them); the others
-//!   share the level's constant stencil and are smoothed by a vectorised
-//!   constant-coefficient kernel (`coarse.rs`);
+//!   edge every stencil is the same, so only coarse points within 2 fine
+//!   points of an irregular one store a stencil and weights (a few % of
+//!   them); the others share the level's constant stencil and weights and
+//!   are handled by vectorised constant-coefficient kernels (`coarse.rs`);
 //! - coarse levels are smoothed by four-colour Gauss-Seidel (even rows, then
-//!   odd rows; even, then odd columns), parallel over rows.
+//!   odd rows; even, then odd columns) in storage split by column parity,
+//!   one pass over memory per sweep, parallel over row bands.
 //!
 //! A V-cycle is V(2,2) by default (`pre_smooth`, `post_smooth`); the
 //! coarsest level (at most 4 x 4) is solved by sweeps to a 1e-6 residual
