@@ -279,8 +279,9 @@ fn column_samples(
 
 /// Outcome of following the near surface along a column's plane.
 enum Walk {
-    /// The occluding contour: image row coordinate, local point, triangle.
-    Contour { y: f64, local: [f64; 3], tri: u32 },
+    /// The occluding contours within the pixel bracket, nearest first:
+    /// image row coordinate, local point, triangle.
+    Contours(Vec<(f64, [f64; 3], u32)>),
     /// The surface rises continuously to the far pixel's ray: a crease.
     Crease,
     /// Numerically inconclusive (fall back to bisection).
@@ -301,7 +302,10 @@ const MAX_WALK: usize = 512;
 /// consequence); the grazing ray there is the silhouette's sub-pixel row. A
 /// polyline that rises to the far pixel's ray is a crease. This is the limit
 /// the bisection of [`refine_bracket`] converges to, at the cost of a few
-/// triangle steps.
+/// triangle steps. Beyond it the walk goes on while farther terrain could
+/// still rise above that contour's ray before the far pixel's hit (bounded
+/// by the terrain's highest point): where it does, a second contour lies
+/// within the same pixel (stacked ridges, T-junctions), found the same way.
 fn walk_to_contour(
     terrain: &LocalTerrain,
     db: &DepthBuffer,
@@ -331,7 +335,13 @@ fn walk_to_contour(
         return Walk::Inconclusive;
     };
     let far_y = y as f64 - 0.5;
+    let t_b = db.depth[(y - 1) * db.width + x] as f64;
+    let zmax = terrain.height_range().1;
     let (mut best_y, mut best, mut best_tri, mut best_d) = (y as f64 + 0.5, q0, tri0, t_a);
+    let mut found: Vec<(f64, [f64; 3], u32)> = Vec::new();
+    // tracking a rising stretch (best_*), or seeking terrain above `floor`
+    let mut tracking = true;
+    let mut floor = f64::INFINITY;
     let (cx, cy) = (terrain.cells_x(), terrain.ny.saturating_sub(1));
     if cx == 0 || tri0 == crate::render::SKY {
         return Walk::Inconclusive;
@@ -351,11 +361,10 @@ fn walk_to_contour(
                 Some(p) => pv[i] = p,
                 // a hole: the surface ends at the best point so far
                 None if entry.is_some() => {
-                    return Walk::Contour {
-                        y: best_y,
-                        local: best,
-                        tri: best_tri,
+                    if tracking {
+                        found.push((best_y, best, best_tri));
                     }
+                    return Walk::Contours(found);
                 }
                 None => return Walk::Inconclusive,
             }
@@ -392,17 +401,32 @@ fn walk_to_contour(
         };
         let dx = dot(xp, xp).sqrt();
         let tri = (2 * (r * cx + c) + half as usize) as u32;
-        if yx < best_y {
-            if yx <= far_y {
-                return Walk::Crease;
+        if tracking {
+            if yx < best_y {
+                if yx <= far_y {
+                    // rises to the far pixel's ray: a crease (or the far
+                    // surface itself behind an earlier contour)
+                    return if found.is_empty() {
+                        Walk::Crease
+                    } else {
+                        Walk::Contours(found)
+                    };
+                }
+                (best_y, best, best_tri, best_d) = (yx, xp, tri, dx);
+            } else if dx > best_d * (1.0 + min_jump) {
+                found.push((best_y, best, best_tri));
+                floor = best_y;
+                tracking = false;
             }
+        } else if yx < floor {
+            if yx <= far_y {
+                return Walk::Contours(found);
+            }
+            tracking = true;
             (best_y, best, best_tri, best_d) = (yx, xp, tri, dx);
-        } else if dx > best_d * (1.0 + min_jump) {
-            return Walk::Contour {
-                y: best_y,
-                local: best,
-                tri: best_tri,
-            };
+        } else if dx >= t_b || row_of([xp[0], xp[1], zmax]).is_none_or(|top| top >= floor) {
+            // nothing farther can rise above the contour's ray in view
+            return Walk::Contours(found);
         }
         // Step across the exit edge (see the triangle layout of LocalTerrain).
         let next = match (half, e) {
@@ -414,16 +438,19 @@ fn walk_to_contour(
         };
         let Some((nc, nr, nh)) = next else {
             // the edge of the terrain: an occlusion boundary
-            return Walk::Contour {
-                y: best_y,
-                local: best,
-                tri: best_tri,
-            };
+            if tracking {
+                found.push((best_y, best, best_tri));
+            }
+            return Walk::Contours(found);
         };
         entry = Some([g[e], g[(e + 1) % 3]]);
         (c, r, half) = (nc, nr, nh);
     }
-    Walk::Inconclusive
+    if found.is_empty() {
+        Walk::Inconclusive
+    } else {
+        Walk::Contours(found)
+    }
 }
 
 /// The point at distance `t` along the ray through pixel coordinates `(px, py)`.
@@ -473,22 +500,30 @@ fn refine(
     let w = db.width;
     match walk_to_contour(terrain, db, x, y, p.min_jump) {
         Walk::Crease => return,
-        Walk::Contour { y: yc, local, tri } => {
-            let fb = db.depth[(y - 1) * w + x];
-            let (cx, cy, cz) = terrain.frame.local_to_crs(local);
-            let (c, r, _) = terrain.triangle_cell(tri);
-            out.push(SilhouetteSample {
-                pixel: [x as f64 + 0.5, yc],
-                depth: dot(local, local).sqrt(),
-                local,
-                world: [cx, cy, cz],
-                cell: [c as u32, r as u32],
-                depth_behind: if fb.is_finite() {
-                    fb as f64
-                } else {
-                    f64::INFINITY
-                },
-            });
+        Walk::Contours(found) => {
+            for (k, &(yc, local, tri)) in found.iter().enumerate() {
+                let behind = match found.get(k + 1) {
+                    Some(next) => dot(next.1, next.1).sqrt(),
+                    None => {
+                        let fb = db.depth[(y - 1) * w + x];
+                        if fb.is_finite() {
+                            fb as f64
+                        } else {
+                            f64::INFINITY
+                        }
+                    }
+                };
+                let (cx, cy, cz) = terrain.frame.local_to_crs(local);
+                let (c, r, _) = terrain.triangle_cell(tri);
+                out.push(SilhouetteSample {
+                    pixel: [x as f64 + 0.5, yc],
+                    depth: dot(local, local).sqrt(),
+                    local,
+                    world: [cx, cy, cz],
+                    cell: [c as u32, r as u32],
+                    depth_behind: behind,
+                });
+            }
             return;
         }
         Walk::Inconclusive => {}
