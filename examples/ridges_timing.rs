@@ -5,58 +5,12 @@
 //! Run: `cargo run --release --example ridges_timing -- [width] [repeats] [height]`.
 
 use demsketch::features::{detect_ridges, RidgeParams};
-use demsketch::raster::{Crs, GeoTransform, HeightMap};
-use std::time::Instant;
+use demsketch::raster::{GeoTransform, HeightMap};
 
-/// The benchmark's deterministic multi-octave value noise (benches/features.rs).
-fn fractal(w: usize, h: usize) -> HeightMap {
-    fn hash(x: i64, y: i64, o: u64) -> f64 {
-        let mut h = (x as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
-            ^ (y as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)
-            ^ o.wrapping_mul(0x1656_67B1_9E37_79F9);
-        h ^= h >> 29;
-        h = h.wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        h ^= h >> 32;
-        (h >> 11) as f64 / (1u64 << 53) as f64
-    }
-    fn noise(x: f64, y: f64, o: u64) -> f64 {
-        let (xi, yi) = (x.floor(), y.floor());
-        let (fx, fy) = (x - xi, y - yi);
-        let (sx, sy) = (fx * fx * (3.0 - 2.0 * fx), fy * fy * (3.0 - 2.0 * fy));
-        let (xi, yi) = (xi as i64, yi as i64);
-        let a = hash(xi, yi, o) + sx * (hash(xi + 1, yi, o) - hash(xi, yi, o));
-        let b = hash(xi, yi + 1, o) + sx * (hash(xi + 1, yi + 1, o) - hash(xi, yi + 1, o));
-        a + sy * (b - a)
-    }
-    let mut data = vec![0f32; w * h];
-    use rayon::prelude::*;
-    data.par_chunks_mut(w).enumerate().for_each(|(r, row)| {
-        for (c, v) in row.iter_mut().enumerate() {
-            let (x, y) = (c as f64 / 300.0, r as f64 / 300.0);
-            let mut h = 0.0;
-            let mut amp = 1000.0;
-            let mut f = 1.0;
-            for o in 0..7 {
-                h += amp * noise(x * f, y * f, o);
-                amp *= 0.5;
-                f *= 2.0;
-            }
-            *v = h as f32;
-        }
-    });
-    HeightMap {
-        width: w,
-        height: h,
-        data,
-        geotransform: GeoTransform::north_up(500_000.0, 4_000_000.0 + 30.0 * h as f64, 30.0, 30.0),
-        crs: Crs {
-            epsg: Some(32632),
-            wkt: String::new(),
-            proj: None,
-            geographic: false,
-        },
-    }
-}
+#[path = "../benches/support/fractal.rs"]
+mod fractal;
+use fractal::fractal_rect as fractal;
+use std::time::Instant;
 
 /// The fractal DEM, kept in the temporary directory between runs (so that
 /// profiles of this example show ridge detection, not the noise).

@@ -1,11 +1,19 @@
 //! The synthetic DEM of the feature benchmarks: deterministic multi-octave
-//! value noise on a 30 m grid in UTM 32N, shared by `benches/features.rs`
-//! and `examples/features_profile.rs`.
+//! value noise on a 30 m grid in UTM 32N, shared by `benches/features.rs`,
+//! `examples/features_profile.rs` and `examples/ridges_timing.rs`.
+
+// Each includer uses only some of the generators.
+#![allow(dead_code)]
 
 use demsketch::raster::{Crs, GeoTransform, HeightMap};
 
 /// Deterministic multi-octave value noise, mountains of ~1500 m relief.
 pub fn fractal(n: usize) -> HeightMap {
+    fractal_rect(n, n)
+}
+
+/// The same noise on a `w` x `h` grid.
+pub fn fractal_rect(w: usize, h: usize) -> HeightMap {
     fn hash(x: i64, y: i64, o: u64) -> f64 {
         let mut h = (x as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
             ^ (y as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)
@@ -24,28 +32,28 @@ pub fn fractal(n: usize) -> HeightMap {
         let b = hash(xi, yi + 1, o) + sx * (hash(xi + 1, yi + 1, o) - hash(xi, yi + 1, o));
         a + sy * (b - a)
     }
-    let mut data = vec![0f32; n * n];
+    let mut data = vec![0f32; w * h];
     use rayon::prelude::*;
-    data.par_chunks_mut(n).enumerate().for_each(|(r, row)| {
+    data.par_chunks_mut(w).enumerate().for_each(|(r, row)| {
         for (c, v) in row.iter_mut().enumerate() {
             // features ~ 9 km at the coarsest octave, whatever the DEM size
             let (x, y) = (c as f64 / 300.0, r as f64 / 300.0);
-            let mut h = 0.0;
+            let mut z = 0.0;
             let mut amp = 1000.0;
             let mut f = 1.0;
             for o in 0..7 {
-                h += amp * noise(x * f, y * f, o);
+                z += amp * noise(x * f, y * f, o);
                 amp *= 0.5;
                 f *= 2.0;
             }
-            *v = h as f32;
+            *v = z as f32;
         }
     });
     HeightMap {
-        width: n,
-        height: n,
+        width: w,
+        height: h,
         data,
-        geotransform: GeoTransform::north_up(500_000.0, 4_000_000.0 + 30.0 * n as f64, 30.0, 30.0),
+        geotransform: GeoTransform::north_up(500_000.0, 4_000_000.0 + 30.0 * h as f64, 30.0, 30.0),
         crs: Crs {
             epsg: Some(32632),
             wkt: String::new(),
