@@ -82,5 +82,7 @@ pub fn measure(stroke: &StrokeCurve, view: &RenderedView) -> (StrokeFit, f64) {
 /// nearer terrain?
 pub fn is_hidden(view: &RenderedView, x: f64, y: f64, d: f64) -> bool {
     let dir = view.camera.unproject([x, y]);
-    view.terrain.cast_within(dir, d * (1.0 - HIDDEN_MARGIN)).is_some()
+    view.terrain
+        .cast_within(dir, d * (1.0 - HIDDEN_MARGIN))
+        .is_some()
 }
