@@ -33,7 +33,7 @@ use rayon::prelude::*;
 
 use super::FeatureError;
 use crate::render::{DepthBuffer, LocalTerrain};
-use crate::view::CameraModel;
+use crate::view::{cross, dot, CameraModel};
 
 /// Parameters of silhouette extraction.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -460,20 +460,6 @@ fn ray_point(cam: &crate::view::Camera, px: f64, py: f64, t: f64) -> Option<[f64
     }
     let d = cam.unproject([px, py]);
     Some([d[0] * t, d[1] * t, d[2] * t])
-}
-
-#[inline]
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-#[inline]
-fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
 }
 
 /// One side of a bisection bracket: row coordinate, hit distance (infinite

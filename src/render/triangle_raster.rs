@@ -34,7 +34,7 @@
 
 use super::depth_buffer::SKY;
 use super::terrain::LocalTerrain;
-use crate::view::Camera;
+use crate::view::{cross, dot, Camera};
 use rayon::prelude::*;
 
 /// Block edge in cells for ordering and culling.
@@ -589,18 +589,4 @@ fn floor_i32(v: f64) -> i32 {
 #[inline]
 fn ceil_i32(v: f64) -> i32 {
     -floor_i32(-v)
-}
-
-#[inline]
-fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-
-#[inline]
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }

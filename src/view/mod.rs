@@ -14,6 +14,7 @@ mod camera;
 mod curvature;
 mod viewpoint;
 
+pub(crate) use camera::{cross, dot};
 pub use camera::{Camera, CameraModel};
 pub use curvature::Curvature;
 pub use viewpoint::{EyeHeight, Georef, LocalFrame, Viewpoint};
