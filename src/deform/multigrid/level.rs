@@ -27,6 +27,7 @@
 use rayon::prelude::*;
 
 use super::coarse::{prolongate, CoarseLevel};
+use super::workspace;
 
 /// Below this many cells a level is processed on one thread: the rayon
 /// hand-off costs more than it saves.
@@ -298,6 +299,14 @@ dispatch!(pub(super) interleave, interleave_avx2, interleave_kernel,
 dispatch!(load_row, load_row_avx2, load_row_kernel,
     (vals: &[f32], fix: &[bool], up: (&[f32], &[bool]), dn: (&[f32], &[bool]), even: &mut [f32], odd: &mut [f32], b: &mut [f32], coef: (f32, f32)) -> (usize, f64, bool, bool));
 
+impl Drop for Level {
+    fn drop(&mut self) {
+        for u in &mut self.u {
+            workspace::recycle_f32(std::mem::take(u));
+        }
+    }
+}
+
 impl Level {
     /// An empty `nx x ny` level of cells of size `hx x hy` with screening `c`.
     pub fn new(nx: usize, ny: usize, hx: f64, hy: f64, screening: f64) -> Level {
@@ -326,7 +335,7 @@ impl Level {
             ay: ay as f32,
             diag: diag as f32,
             inv_diag: (1.0 / diag) as f32,
-            u: [vec![0.0; len], vec![0.0; len]],
+            u: [workspace::zeroed_f32(len), workspace::zeroed_f32(len)],
             fixed_start: vec![0; 2 * ny + 1],
             fixed_k: Vec::new(),
             fixed_value: Vec::new(),

@@ -115,6 +115,7 @@ mod coarse;
 mod galerkin;
 mod level;
 pub mod synthetic;
+pub mod workspace;
 
 use coarse::{prolongate_coarse, restrict_coarse, CoarseLevel, RestrictTarget};
 use galerkin::StencilSource;
