@@ -55,7 +55,7 @@ pub struct LocalTerrain {
 }
 
 /// The max-height pyramid every cast traverses: level l holds the max over
-/// blocks of 2^l x 2^l cells.
+/// blocks of 2^(l+1) x 2^(l+1) cells.
 #[derive(Debug, Clone)]
 struct CastIndex {
     mip: Vec<Vec<f32>>,
@@ -180,11 +180,12 @@ impl LocalTerrain {
         }
         let cells = self.cells_x() * (self.ny - 1);
         let mut level = 0;
-        while level + 1 < mips.len() && (cells >> (2 * level)) > 300_000 {
+        while level + 1 < mips.len() && (cells >> (2 * (level + 1))) > 300_000 {
             level += 1;
         }
         let (mw, mh) = dims[level];
-        let s = 1usize << level;
+        // level l: blocks of 2^(l + 1) cells (see `build_mip`)
+        let s = 2usize << level;
         let cell_m = self.cell_m();
         let (wx, wy) = ((self.nx - 1) as f64, (self.ny - 1) as f64);
         let mut max_dh = 0f64;
@@ -229,31 +230,46 @@ impl LocalTerrain {
         self.eye_v
     }
 
+    /// The max-height pyramid: level 0 holds the highest vertex of each
+    /// block of 2 x 2 cells (its 3 x 3 vertices, nodata skipped, `-inf`
+    /// when all are nodata), level `l` that of blocks of `2^(l+1)` cells.
+    /// There is no per-cell level: a cast tests the cells of a 2 x 2 block
+    /// exactly instead, and the pyramid costs a quarter of the memory.
     #[allow(clippy::type_complexity)]
     fn build_mip(&self) -> (Vec<Vec<f32>>, Vec<(usize, usize)>) {
         let (cx, cy) = (
             self.nx.saturating_sub(1).max(1),
             self.ny.saturating_sub(1).max(1),
         );
-        let nx = self.nx;
+        let (nx, ny) = (self.nx, self.ny);
         let z = &self.z;
-        let mut l0 = vec![f32::NEG_INFINITY; cx * cy];
-        l0.par_chunks_mut(cx).enumerate().for_each(|(r, row)| {
-            if r + 1 >= self.ny {
-                return;
-            }
-            for (c, out) in row.iter_mut().enumerate() {
-                if c + 1 >= nx {
-                    continue;
+        let (w0, h0) = (cx.div_ceil(2), cy.div_ceil(2));
+        let mut l0 = vec![f32::NEG_INFINITY; w0 * h0];
+        l0.par_chunks_mut(w0).enumerate().for_each_init(
+            || vec![f32::NAN; nx + 2],
+            |colmax, (by, out)| {
+                // column maxima of vertex rows 2 by ..= 2 by + 2
+                let rows = 2 * by..(2 * by + 3).min(ny);
+                colmax[..nx].copy_from_slice(&z[rows.start * nx..(rows.start + 1) * nx]);
+                for r in rows.start + 1..rows.end {
+                    for (m, &v) in colmax[..nx].iter_mut().zip(&z[r * nx..(r + 1) * nx]) {
+                        // f32::max skips NaN and vectorises
+                        *m = m.max(v);
+                    }
                 }
-                let i = r * nx + c;
-                let m = z[i].max(z[i + 1]).max(z[i + nx]).max(z[i + nx + 1]);
-                // f32::max ignores NaN unless all are NaN.
-                *out = if m.is_nan() { f32::NEG_INFINITY } else { m };
-            }
-        });
+                // padding past the last vertex column
+                colmax[nx] = f32::NAN;
+                colmax[nx + 1] = f32::NAN;
+                for (bx, o) in out.iter_mut().enumerate() {
+                    let m = colmax[2 * bx]
+                        .max(colmax[2 * bx + 1])
+                        .max(colmax[2 * bx + 2]);
+                    *o = if m.is_nan() { f32::NEG_INFINITY } else { m };
+                }
+            },
+        );
         let mut mip = vec![l0];
-        let mut dims = vec![(cx, cy)];
+        let mut dims = vec![(w0, h0)];
         while {
             let (w, h) = dims[dims.len() - 1];
             w > 1 || h > 1
@@ -479,13 +495,16 @@ impl LocalTerrain {
         }
         let CastIndex { mip, mip_dims, .. } = self.index();
         let top = mip.len() - 1;
-        let mut level = top.min(3);
+        // level l: blocks of 2^(l + 1) cells (see `build_mip`)
+        let mut level = top.min(2);
         let mut t = t0;
         let eps = 1e-7 * (1.0 + t1.min(1e7));
+        let ray = (ox, oy, gx, gy, dz);
+        let (cells_x, cells_y) = (self.nx - 1, self.ny - 1);
         while t < t1 {
             let tp = t + eps;
             let (px, py) = (ox + gx * tp, oy + gy * tp);
-            let s = (1usize << level) as f64;
+            let s = (2usize << level) as f64;
             let (mw, mh) = mip_dims[level];
             let (Some((bx, tx)), Some((by, ty))) = (
                 axis_block(ox, gx, px, s, wx, mw, tp),
@@ -506,16 +525,28 @@ impl LocalTerrain {
                 level -= 1;
                 continue;
             }
-            if let Some(hit) = self.cell_hit(bx, by, t, te, (ox, oy, gx, gy, dz)) {
-                return Some(hit);
+            // The cells of the 2 x 2 block, in the order the ray crosses them.
+            while t < te {
+                let tq = t + eps;
+                let (qx, qy) = (ox + gx * tq, oy + gy * tq);
+                let (Some((c, cx_exit)), Some((r, cy_exit))) = (
+                    axis_block(ox, gx, qx, 1.0, wx, cells_x, tq),
+                    axis_block(oy, gy, qy, 1.0, wy, cells_y, tq),
+                ) else {
+                    return None;
+                };
+                let tc = cx_exit.min(cy_exit).min(te).max(tq);
+                if let Some(hit) = self.cell_hit(c, r, t, tc, ray) {
+                    return Some(hit);
+                }
+                t = tc;
             }
-            t = te;
-            // Ascend when leaving the parent block.
+            // Ascend when leaving the parent block (of 4 x 4 cells).
             if level < top {
                 let tq = t + eps;
                 let (qx, qy) = (ox + gx * tq, oy + gy * tq);
                 // (truncation is floor for the non-negative values kept by max)
-                if (qx.max(0.0) as usize) >> 1 != bx >> 1 || (qy.max(0.0) as usize) >> 1 != by >> 1
+                if (qx.max(0.0) as usize) >> 2 != bx >> 1 || (qy.max(0.0) as usize) >> 2 != by >> 1
                 {
                     level += 1;
                 }
