@@ -302,10 +302,11 @@ const MAX_WALK: usize = 512;
 /// consequence); the grazing ray there is the silhouette's sub-pixel row. A
 /// polyline that rises to the far pixel's ray is a crease. This is the limit
 /// the bisection of [`refine_bracket`] converges to, at the cost of a few
-/// triangle steps. Beyond it the walk goes on while farther terrain could
-/// still rise above that contour's ray before the far pixel's hit (bounded
-/// by the terrain's highest point): where it does, a second contour lies
-/// within the same pixel (stacked ridges, T-junctions), found the same way.
+/// triangle steps. Where farther terrain rises above that contour's ray
+/// before the far pixel's hit, a second contour lies within the same pixel
+/// (stacked ridges, T-junctions): the contour's ray is cast on from there
+/// (skipping the empty space below it with the cast index) and the walk
+/// resumes where it meets the terrain.
 fn walk_to_contour(
     terrain: &LocalTerrain,
     db: &DepthBuffer,
@@ -336,12 +337,9 @@ fn walk_to_contour(
     };
     let far_y = y as f64 - 0.5;
     let t_b = db.depth[(y - 1) * db.width + x] as f64;
-    let zmax = terrain.height_range().1;
+    // the highest point so far of the rising stretch being followed
     let (mut best_y, mut best, mut best_tri, mut best_d) = (y as f64 + 0.5, q0, tri0, t_a);
     let mut found: Vec<(f64, [f64; 3], u32)> = Vec::new();
-    // tracking a rising stretch (best_*), or seeking terrain above `floor`
-    let mut tracking = true;
-    let mut floor = f64::INFINITY;
     let (cx, cy) = (terrain.cells_x(), terrain.ny.saturating_sub(1));
     if cx == 0 || tri0 == crate::render::SKY {
         return Walk::Inconclusive;
@@ -361,9 +359,7 @@ fn walk_to_contour(
                 Some(p) => pv[i] = p,
                 // a hole: the surface ends at the best point so far
                 None if entry.is_some() => {
-                    if tracking {
-                        found.push((best_y, best, best_tri));
-                    }
+                    found.push((best_y, best, best_tri));
                     return Walk::Contours(found);
                 }
                 None => return Walk::Inconclusive,
@@ -401,32 +397,35 @@ fn walk_to_contour(
         };
         let dx = dot(xp, xp).sqrt();
         let tri = (2 * (r * cx + c) + half as usize) as u32;
-        if tracking {
-            if yx < best_y {
-                if yx <= far_y {
-                    // rises to the far pixel's ray: a crease (or the far
-                    // surface itself behind an earlier contour)
-                    return if found.is_empty() {
-                        Walk::Crease
-                    } else {
-                        Walk::Contours(found)
-                    };
-                }
-                (best_y, best, best_tri, best_d) = (yx, xp, tri, dx);
-            } else if dx > best_d * (1.0 + min_jump) {
-                found.push((best_y, best, best_tri));
-                floor = best_y;
-                tracking = false;
-            }
-        } else if yx < floor {
+        if yx < best_y {
             if yx <= far_y {
-                return Walk::Contours(found);
+                // rises to the far pixel's ray: a crease (or the far
+                // surface itself behind an earlier contour)
+                return if found.is_empty() {
+                    Walk::Crease
+                } else {
+                    Walk::Contours(found)
+                };
             }
-            tracking = true;
             (best_y, best, best_tri, best_d) = (yx, xp, tri, dx);
-        } else if dx >= t_b || row_of([xp[0], xp[1], zmax]).is_none_or(|top| top >= floor) {
-            // nothing farther can rise above the contour's ray in view
-            return Walk::Contours(found);
+        } else if dx > best_d * (1.0 + min_jump) {
+            found.push((best_y, best, best_tri));
+            // Farther terrain that rises above this contour's ray before
+            // the far pixel's hit holds another contour within the pixel:
+            // it starts exactly where that ray first meets the terrain
+            // beyond here (the ray lies in the column plane, so the hit is
+            // on the walked polyline), found by the cast index instead of
+            // walking every triangle in between.
+            let d = cam.unproject([px, best_y]);
+            let Some(hit) = terrain.cast_segment(d, dx, t_b) else {
+                return Walk::Contours(found);
+            };
+            let q = [d[0] * hit.t, d[1] * hit.t, d[2] * hit.t];
+            (best, best_tri, best_d) = (q, hit.triangle, hit.t);
+            let cell = (hit.triangle / 2) as usize;
+            (c, r, half) = (cell % cx, cell / cx, hit.triangle % 2);
+            entry = None;
+            continue;
         }
         // Step across the exit edge (see the triangle layout of LocalTerrain).
         let next = match (half, e) {
@@ -438,9 +437,7 @@ fn walk_to_contour(
         };
         let Some((nc, nr, nh)) = next else {
             // the edge of the terrain: an occlusion boundary
-            if tracking {
-                found.push((best_y, best, best_tri));
-            }
+            found.push((best_y, best, best_tri));
             return Walk::Contours(found);
         };
         entry = Some([g[e], g[(e + 1) % 3]]);

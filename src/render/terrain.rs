@@ -434,6 +434,14 @@ impl LocalTerrain {
         self.traverse(d, 0.0, t_limit)
     }
 
+    /// The first intersection with the terrain of the segment
+    /// `[t_start, t_limit]` of the ray from the eye along unit direction `d`
+    /// (distances in metres), by the cast index (built on first use) but
+    /// without the horizon index.
+    pub fn cast_segment(&self, d: [f64; 3], t_start: f64, t_limit: f64) -> Option<RayHit> {
+        self.traverse(d, t_start, t_limit)
+    }
+
     /// The first intersection of the ray from the eye along unit direction
     /// `d` (local frame) with the triangulated terrain, within distance
     /// `t_limit` and the maximum view distance. `None`: the ray escapes (sky).

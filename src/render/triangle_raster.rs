@@ -172,84 +172,94 @@ fn block_boxes(terrain: &LocalTerrain, camera: &Camera, m: &VertexToCamera) -> B
     let near = 1e-3;
     let rows: Vec<Vec<(u32, BlockBox)>> = (0..bh)
         .into_par_iter()
-        .map(|by| {
-            let mut out = Vec::new();
-            let r0 = by * BLOCK;
-            let r1 = ((by + 1) * BLOCK).min(cy);
-            for bx in 0..bw {
-                let c0 = bx * BLOCK;
-                let c1 = ((bx + 1) * BLOCK).min(cx);
-                let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+        .map_init(
+            || (vec![0f32; nx], vec![0f32; nx]),
+            |(col_lo, col_hi), by| {
+                let mut out = Vec::new();
+                let r0 = by * BLOCK;
+                let r1 = ((by + 1) * BLOCK).min(cy);
+                // lowest and highest vertex of each column over rows r0..=r1
+                // (comparisons skip NaN (nodata) and vectorise)
+                col_lo.fill(f32::INFINITY);
+                col_hi.fill(f32::NEG_INFINITY);
                 for r in r0..=r1 {
-                    for &v in &z[r * nx + c0..=r * nx + c1] {
-                        // comparisons skip NaN (nodata) and vectorise
-                        lo = if v < lo { v } else { lo };
-                        hi = if v > hi { v } else { hi };
+                    let row = &z[r * nx..(r + 1) * nx];
+                    for ((l, h), &v) in col_lo.iter_mut().zip(col_hi.iter_mut()).zip(row) {
+                        *l = if v < *l { v } else { *l };
+                        *h = if v > *h { v } else { *h };
                     }
                 }
-                if !(hi >= lo) {
-                    continue;
-                }
-                let (mut sx0, mut sx1, mut sy0, mut sy1) = (
-                    f64::INFINITY,
-                    f64::NEG_INFINITY,
-                    f64::INFINITY,
-                    f64::NEG_INFINITY,
-                );
-                let mut behind = 0;
-                let mut straddles = false;
-                for (c, r) in [(c0, r0), (c1, r0), (c0, r1), (c1, r1)] {
-                    for zz in [lo, hi] {
-                        let p = m.apply(c as f64, r as f64, zz as f64);
-                        if p[2] <= near {
-                            straddles = true;
-                            if p[2] <= 0.0 {
-                                behind += 1;
-                            }
-                            continue;
-                        }
-                        let sx = w / 2.0 + f * p[0] / p[2];
-                        let sy = h / 2.0 - f * p[1] / p[2];
-                        sx0 = sx0.min(sx);
-                        sx1 = sx1.max(sx);
-                        sy0 = sy0.min(sy);
-                        sy1 = sy1.max(sy);
-                    }
-                }
-                if behind == 8 {
-                    continue;
-                }
-                let bb = if straddles {
-                    BlockBox {
-                        bx: bx as u32,
-                        by: by as u32,
-                        x0: 0,
-                        x1: camera.width as i32 - 1,
-                        y0: 0,
-                    }
-                } else {
-                    // Pixel i's centre is i + 0.5; a margin of one pixel
-                    // absorbs rounding.
-                    let x0 = (sx0 - 1.5).ceil().max(0.0);
-                    let x1 = (sx1 + 0.5).floor().min(w - 1.0);
-                    let y0 = (sy0 - 1.5).ceil().max(0.0);
-                    let y1 = (sy1 + 0.5).floor().min(h - 1.0);
-                    if x0 > x1 || y0 > y1 {
+                for bx in 0..bw {
+                    let c0 = bx * BLOCK;
+                    let c1 = ((bx + 1) * BLOCK).min(cx);
+                    let lo = col_lo[c0..=c1].iter().fold(f32::INFINITY, |a, &v| a.min(v));
+                    let hi = col_hi[c0..=c1]
+                        .iter()
+                        .fold(f32::NEG_INFINITY, |a, &v| a.max(v));
+                    if !(hi >= lo) {
                         continue;
                     }
-                    BlockBox {
-                        bx: bx as u32,
-                        by: by as u32,
-                        x0: x0 as i32,
-                        x1: x1 as i32,
-                        y0: y0 as i32,
+                    let (mut sx0, mut sx1, mut sy0, mut sy1) = (
+                        f64::INFINITY,
+                        f64::NEG_INFINITY,
+                        f64::INFINITY,
+                        f64::NEG_INFINITY,
+                    );
+                    let mut behind = 0;
+                    let mut straddles = false;
+                    for (c, r) in [(c0, r0), (c1, r0), (c0, r1), (c1, r1)] {
+                        for zz in [lo, hi] {
+                            let p = m.apply(c as f64, r as f64, zz as f64);
+                            if p[2] <= near {
+                                straddles = true;
+                                if p[2] <= 0.0 {
+                                    behind += 1;
+                                }
+                                continue;
+                            }
+                            let sx = w / 2.0 + f * p[0] / p[2];
+                            let sy = h / 2.0 - f * p[1] / p[2];
+                            sx0 = sx0.min(sx);
+                            sx1 = sx1.max(sx);
+                            sy0 = sy0.min(sy);
+                            sy1 = sy1.max(sy);
+                        }
                     }
-                };
-                let ring = (bx as i64 - ebx).unsigned_abs() + (by as i64 - eby).unsigned_abs();
-                out.push((ring as u32, bb));
-            }
-            out
-        })
+                    if behind == 8 {
+                        continue;
+                    }
+                    let bb = if straddles {
+                        BlockBox {
+                            bx: bx as u32,
+                            by: by as u32,
+                            x0: 0,
+                            x1: camera.width as i32 - 1,
+                            y0: 0,
+                        }
+                    } else {
+                        // Pixel i's centre is i + 0.5; a margin of one pixel
+                        // absorbs rounding.
+                        let x0 = (sx0 - 1.5).ceil().max(0.0);
+                        let x1 = (sx1 + 0.5).floor().min(w - 1.0);
+                        let y0 = (sy0 - 1.5).ceil().max(0.0);
+                        let y1 = (sy1 + 0.5).floor().min(h - 1.0);
+                        if x0 > x1 || y0 > y1 {
+                            continue;
+                        }
+                        BlockBox {
+                            bx: bx as u32,
+                            by: by as u32,
+                            x0: x0 as i32,
+                            x1: x1 as i32,
+                            y0: y0 as i32,
+                        }
+                    };
+                    let ring = (bx as i64 - ebx).unsigned_abs() + (by as i64 - eby).unsigned_abs();
+                    out.push((ring as u32, bb));
+                }
+                out
+            },
+        )
         .collect();
     // Counting sort by ring.
     let max_ring = rows
@@ -400,13 +410,43 @@ impl Raster<'_> {
         for r in r0..r1 {
             for c in c0..c1 {
                 let k = (r - r0) * vw + (c - c0);
-                let (a, bq, cq, d) = (verts[k], verts[k + 1], verts[k + vw], verts[k + vw + 1]);
+                let (a, bq, cq, d) = (&verts[k], &verts[k + 1], &verts[k + vw], &verts[k + vw + 1]);
+                // Most far cells cover no pixel centre or lie behind what is
+                // drawn: one test of the cell's box rejects both triangles
+                // (whose boxes lie inside it).
+                if a.state | bq.state | cq.state | d.state == 0
+                    && self.box_hidden_or_empty([a, bq, cq, d], ytop)
+                {
+                    continue;
+                }
                 let id = 2 * (r as u32 * cells_x + c as u32);
                 // triangle 0: (c,r) (c+1,r) (c+1,r+1); 1: (c,r) (c,r+1) (c+1,r+1)
-                self.draw_triangle(&a, &bq, &d, id, ytop, tbuf, ibuf);
-                self.draw_triangle(&a, &cq, &d, id + 1, ytop, tbuf, ibuf);
+                self.draw_triangle(a, bq, d, id, ytop, tbuf, ibuf);
+                self.draw_triangle(a, cq, d, id + 1, ytop, tbuf, ibuf);
             }
         }
+    }
+
+    /// Whether the screen box of projected vertices (all in front of the
+    /// camera) holds no pixel centre of the strip, or only pixels that are
+    /// final already.
+    #[inline]
+    fn box_hidden_or_empty(&self, v: [&PVertex; 4], ytop: &[i32]) -> bool {
+        let sx0 = v[0].sx.min(v[1].sx).min(v[2].sx.min(v[3].sx));
+        let sx1 = v[0].sx.max(v[1].sx).max(v[2].sx.max(v[3].sx));
+        let px0 = ceil_i32(sx0 - 0.5 - 1e-7).max(self.x0);
+        let px1 = floor_i32(sx1 - 0.5 + 1e-7).min(self.x1);
+        if px0 > px1 {
+            return true;
+        }
+        let sy0 = v[0].sy.min(v[1].sy).min(v[2].sy.min(v[3].sy));
+        let sy1 = v[0].sy.max(v[1].sy).max(v[2].sy.max(v[3].sy));
+        let py0 = ceil_i32(sy0 - 0.5 - 1e-7).max(0);
+        let py1 = floor_i32(sy1 - 0.5 + 1e-7).min(self.h - 1);
+        py0 > py1
+            || ytop[(px0 - self.x0) as usize..=(px1 - self.x0) as usize]
+                .iter()
+                .all(|&t| t <= py0)
     }
 
     #[inline]
