@@ -14,7 +14,7 @@
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
 use demsketch::features::{detect_ridges, extract_silhouettes, RidgeParams, SilhouetteParams};
 use demsketch::render::{DepthBuffer, LocalTerrain};
-use demsketch::view::{Camera, Curvature, LocalFrame};
+use demsketch::view::Camera;
 use std::time::Duration;
 
 #[path = "support/fractal.rs"]
@@ -39,18 +39,7 @@ fn bench(c: &mut Criterion) {
         .measurement_time(Duration::from_secs(5));
     for n in [512usize, 4096] {
         let map = fractal(n);
-        // Eye 1.7 m above the ground a quarter of the way up from the south
-        // edge, looking north across the DEM.
-        let (ex, ey) = (500_000.0 + 15.0 * n as f64, 4_000_000.0 + 7.5 * n as f64);
-        let (px, py) = map.geotransform.crs_to_pixel(ex, ey).unwrap_or((0.0, 0.0));
-        let ground = map.bilinear(px, py).unwrap_or(0.0);
-        let frame = LocalFrame::planar(
-            &map,
-            (ex, ey),
-            ground + 1.7,
-            Curvature::at_latitude(46.0, 1.0 / 7.0),
-        );
-        let camera = Camera::new(vw, vh, 10.0, 1.0, 0.0, 60.0).expect("camera");
+        let (frame, camera) = fractal::bench_view(&map, n, vw, vh);
         let render = || {
             let t = LocalTerrain::new(&map, &frame, None);
             let db = DepthBuffer::render(&t, &camera);

@@ -10,7 +10,6 @@ mod fractal;
 
 use demsketch::features::{detect_ridges, extract_silhouettes, RidgeParams, SilhouetteParams};
 use demsketch::render::{DepthBuffer, LocalTerrain};
-use demsketch::view::{Camera, Curvature, LocalFrame};
 use std::time::Instant;
 
 /// Process CPU time (user + system, all threads) in seconds, from
@@ -53,16 +52,7 @@ fn main() {
         .unwrap_or((800usize, 450usize));
     let runs: usize = args.get(3).and_then(|s| s.parse().ok()).unwrap_or(10);
     let map = fractal::fractal(n);
-    let (ex, ey) = (500_000.0 + 15.0 * n as f64, 4_000_000.0 + 7.5 * n as f64);
-    let (px, py) = map.geotransform.crs_to_pixel(ex, ey).unwrap_or((0.0, 0.0));
-    let ground = map.bilinear(px, py).unwrap_or(0.0);
-    let frame = LocalFrame::planar(
-        &map,
-        (ex, ey),
-        ground + 1.7,
-        Curvature::at_latitude(46.0, 1.0 / 7.0),
-    );
-    let camera = Camera::new(vw, vh, 10.0, 1.0, 0.0, 60.0).expect("camera");
+    let (frame, camera) = fractal::bench_view(&map, n, vw, vh);
     // STAGE=terrain|depth|silhouettes|ridges: run only that stage `runs`
     // times after one set-up run (for `perf stat`, whose counts do not
     // depend on the machine's load).

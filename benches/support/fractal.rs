@@ -1,11 +1,31 @@
-//! The synthetic DEM of the feature benchmarks: deterministic multi-octave
-//! value noise on a 30 m grid in UTM 32N, shared by `benches/features.rs`,
-//! `examples/features_profile.rs` and `examples/ridges_timing.rs`.
+//! The synthetic DEM of the feature benchmarks (deterministic multi-octave
+//! value noise on a 30 m grid in UTM 32N) and their viewpoint, shared by
+//! `benches/features.rs`, `examples/features_profile.rs` and
+//! `examples/ridges_timing.rs`.
 
 // Each includer uses only some of the generators.
 #![allow(dead_code)]
 
 use demsketch::raster::{Crs, GeoTransform, HeightMap};
+use demsketch::view::{Camera, Curvature, LocalFrame};
+
+/// The benchmarks' view of the `n` x `n` fractal DEM `map`: the eye 1.7 m
+/// above the ground a quarter of the way up from the south edge, looking
+/// north across the DEM (heading 10, pitch 1 degree, hfov 60), in a `vw` x
+/// `vh` image.
+pub fn bench_view(map: &HeightMap, n: usize, vw: usize, vh: usize) -> (LocalFrame, Camera) {
+    let (ex, ey) = (500_000.0 + 15.0 * n as f64, 4_000_000.0 + 7.5 * n as f64);
+    let (px, py) = map.geotransform.crs_to_pixel(ex, ey).unwrap_or((0.0, 0.0));
+    let ground = map.bilinear(px, py).unwrap_or(0.0);
+    let frame = LocalFrame::planar(
+        map,
+        (ex, ey),
+        ground + 1.7,
+        Curvature::at_latitude(46.0, 1.0 / 7.0),
+    );
+    let camera = Camera::new(vw, vh, 10.0, 1.0, 0.0, 60.0).expect("camera");
+    (frame, camera)
+}
 
 /// Deterministic multi-octave value noise, mountains of ~1500 m relief.
 pub fn fractal(n: usize) -> HeightMap {
