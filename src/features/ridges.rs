@@ -62,14 +62,16 @@ impl Default for RidgeParams {
 }
 
 /// One ridge line between two graph nodes (end points or branch points).
+/// Its vertices are a range of the network's vertex arrays (one buffer for
+/// all lines): see [`RidgeNetwork::line_points`] and
+/// [`RidgeNetwork::line_pixels`].
 #[derive(Debug, Clone, PartialEq)]
 pub struct RidgeLine {
     /// Index of the line in [`RidgeNetwork::lines`].
     pub id: u32,
-    /// Vertices in CRS coordinates with the height: `[x, y, z]`.
-    pub points: Vec<[f64; 3]>,
-    /// The same vertices in DEM pixel space (cell centres at `col + 0.5, row + 0.5`).
-    pub pixels: Vec<[f64; 2]>,
+    /// Indices of the line's vertices in [`RidgeNetwork::points`] and
+    /// [`RidgeNetwork::pixels`].
+    pub vertices: std::ops::Range<usize>,
     /// 3D length in metres (horizontal metres computed on the ellipsoid's local
     /// scale for geographic CRSs).
     pub length_m: f64,
@@ -94,6 +96,11 @@ pub struct RidgeNode {
 pub struct RidgeNetwork {
     pub lines: Vec<RidgeLine>,
     pub nodes: Vec<RidgeNode>,
+    /// Vertices of all lines, line after line, in CRS coordinates with the
+    /// height: `[x, y, z]`.
+    pub points: Vec<[f64; 3]>,
+    /// The same vertices in DEM pixel space (cell centres at `col + 0.5, row + 0.5`).
+    pub pixels: Vec<[f64; 2]>,
     /// Number of candidate cells found by profile recognition.
     pub candidate_cells: usize,
 }
@@ -102,6 +109,16 @@ impl RidgeNetwork {
     /// Total length of all lines in metres.
     pub fn total_length_m(&self) -> f64 {
         self.lines.iter().map(|l| l.length_m).sum()
+    }
+
+    /// Vertices of `line` in CRS coordinates with the height.
+    pub fn line_points(&self, line: &RidgeLine) -> &[[f64; 3]] {
+        &self.points[line.vertices.clone()]
+    }
+
+    /// Vertices of `line` in DEM pixel space.
+    pub fn line_pixels(&self, line: &RidgeLine) -> &[[f64; 2]] {
+        &self.pixels[line.vertices.clone()]
     }
 }
 
@@ -165,8 +182,12 @@ pub fn detect_ridges(map: &HeightMap, params: &RidgeParams) -> Result<RidgeNetwo
     let min_branch = params.min_branch_m.unwrap_or(3.0 * cell_m);
     let min_line = params.min_line_m.unwrap_or(5.0 * cell_m);
 
+    let timing = std::env::var_os("RIDGE_TIMING").is_some();
+    let t0 = std::time::Instant::now();
     let cand = profile_recognition(map, params);
+    let t1 = std::time::Instant::now();
     let mut mask = spanning_forest(&map.data, &cand, w, h);
+    let t2 = std::time::Instant::now();
     let forest = Forest::new(&cand, w);
     prune(
         &forest,
@@ -175,8 +196,18 @@ pub fn detect_ridges(map: &HeightMap, params: &RidgeParams) -> Result<RidgeNetwo
         (min_branch, min_line),
         params.prune_passes,
     );
+    let t3 = std::time::Instant::now();
     let mut net = trace(map, &forest, &mask, &metric, params.smooth_iterations);
     net.candidate_cells = cand.len();
+    if timing {
+        eprintln!(
+            "ridges: profile {:?} forest {:?} prune {:?} trace {:?}",
+            t1 - t0,
+            t2 - t1,
+            t3 - t2,
+            t3.elapsed()
+        );
+    }
     Ok(net)
 }
 
@@ -533,15 +564,17 @@ impl<'a> Forest<'a> {
     }
 
     /// Id of the first cell of degree other than 2 on the walk from `cell`
-    /// along direction `d`.
+    /// along direction `d`, and the number of steps to it.
     #[inline]
-    fn end(&self, mask: &[u8], mut cell: usize, mut d: usize) -> usize {
+    fn end(&self, mask: &[u8], mut cell: usize, mut d: usize) -> (usize, usize) {
+        let mut steps = 1;
         loop {
             let (nc, nid) = self.step(cell, d);
             let m = mask[nid];
             if degree(m) != 2 {
-                return nid;
+                return (nid, steps);
             }
+            steps += 1;
             d = (m & !(1 << ((d + 4) % 8))).trailing_zeros() as usize;
             cell = nc;
         }
@@ -794,7 +827,9 @@ fn prune(
 /// Trace the forest into lines between nodes, smooth them and convert them
 /// to CRS coordinates. Each line is traced from its node of lower cell index
 /// (in parallel over the nodes; the walk from the other end is dropped), so
-/// the lines come in the order of their first node and direction.
+/// the lines come in the order of their first node and direction. The walks
+/// count the vertices of each line first; the lines then write their
+/// vertices in parallel into their ranges of one buffer.
 #[inline(never)]
 fn trace(
     map: &HeightMap,
@@ -822,10 +857,10 @@ fn trace(
             }
         })
         .collect();
-    // The lines as first node (index) << 3 | direction: walked from both
-    // ends, kept from the lower one.
+    // The lines as first node (index) << 3 | direction, with their vertex
+    // counts: walked from both ends, kept from the lower one.
     const CHUNK: usize = 1024;
-    let firsts: Vec<Vec<u32>> = node_ids
+    let firsts: Vec<Vec<(u32, u32)>> = node_ids
         .par_chunks(CHUNK)
         .enumerate()
         .map(|(k, chunk)| {
@@ -833,8 +868,9 @@ fn trace(
             for (i, &id) in chunk.iter().enumerate() {
                 let (m, cell) = (mask[id as usize], cand.cells[id as usize] as usize);
                 for d in (0..8).filter(|d| m & (1 << d) != 0) {
-                    if forest.end(mask, cell, d) > id as usize {
-                        firsts.push(((k * CHUNK + i) as u32) << 3 | d as u32);
+                    let (end, steps) = forest.end(mask, cell, d);
+                    if end > id as usize {
+                        firsts.push((((k * CHUNK + i) as u32) << 3 | d as u32, steps as u32 + 1));
                     }
                 }
             }
@@ -842,95 +878,129 @@ fn trace(
         })
         .collect();
     let firsts = firsts.concat();
-    let mut lines = Vec::new();
-    firsts
-        .par_iter()
-        .enumerate()
-        .map_init(
-            || (Vec::new(), Vec::new()),
-            |(ids, dirs), (line, &first)| {
+    let mut lines = Vec::with_capacity(firsts.len());
+    let mut vertices = 0usize;
+    for (i, &(first, count)) in firsts.iter().enumerate() {
+        let next = vertices + count as usize;
+        lines.push(RidgeLine {
+            id: i as u32,
+            vertices: vertices..next,
+            length_m: 0.0,
+            nodes: [first >> 3, u32::MAX],
+        });
+        vertices = next;
+    }
+    let mut points = vec![[0.0f64; 3]; vertices];
+    let mut pixels = vec![[0.0f64; 2]; vertices];
+    // Groups of lines and their vertex ranges, filled in parallel.
+    const LINES: usize = 256;
+    let bounds: Vec<usize> = (0..=lines.len().div_ceil(LINES))
+        .map(|g| lines.get(g * LINES).map_or(vertices, |l| l.vertices.start))
+        .collect();
+    lines
+        .par_chunks_mut(LINES)
+        .zip(firsts.par_chunks(LINES))
+        .zip(split_at(&mut points, &bounds))
+        .zip(split_at(&mut pixels, &bounds))
+        .for_each(|(((lines, firsts), points), pixels)| {
+            let base = lines[0].vertices.start;
+            for (line, &(first, _)) in lines.iter_mut().zip(firsts) {
+                let range = line.vertices.start - base..line.vertices.end - base;
                 let (node, d0) = ((first >> 3) as usize, (first & 7) as usize);
-                let id = node_ids[node];
-                let cell = cand.cells[id as usize] as usize;
-                ids.clear();
-                dirs.clear();
-                ids.push(id);
-                let (mut c, mut d) = (cell, d0);
-                let end = loop {
-                    let (nc, nid) = forest.step(c, d);
-                    ids.push(nid as u32);
-                    dirs.push(d as u8);
-                    c = nc;
-                    let m = mask[nid];
-                    if degree(m) != 2 {
-                        break nid as u32;
-                    }
-                    d = (m & !(1 << ((d + 4) % 8))).trailing_zeros() as usize;
-                };
-                let far = node_ids.binary_search(&end).map_or(u32::MAX, |j| j as u32);
-                let mut l = polyline(
+                let id = node_ids[node] as usize;
+                let end = walk_line(
+                    map,
+                    forest,
+                    mask,
+                    (cand.cells[id] as usize, id, d0),
+                    &mut points[range.clone()],
+                );
+                let far = node_ids
+                    .binary_search(&(end as u32))
+                    .map_or(u32::MAX, |j| j as u32);
+                line.nodes[1] = far;
+                line.length_m = polyline(
                     map,
                     metric,
-                    cand,
-                    (cell, ids, dirs),
                     smooth,
-                    [node as u32, far],
+                    &mut points[range.clone()],
+                    &mut pixels[range],
                 );
-                l.id = line as u32;
-                l
-            },
-        )
-        .collect_into_vec(&mut lines);
+            }
+        });
     RidgeNetwork {
         lines,
         nodes,
+        points,
+        pixels,
         candidate_cells: 0,
     }
 }
 
-/// The smoothed line from cell `cell` through the candidates `ids` (the
-/// first one, then one step along each of `dirs`) in pixel and CRS
-/// coordinates.
+/// `s` cut into the consecutive pieces `bounds[i]..bounds[i + 1]`.
+fn split_at<'a, T>(mut s: &'a mut [T], bounds: &[usize]) -> Vec<&'a mut [T]> {
+    let mut parts = Vec::with_capacity(bounds.len().saturating_sub(1));
+    for b in bounds.windows(2) {
+        let (part, rest) = std::mem::take(&mut s).split_at_mut(b[1] - b[0]);
+        parts.push(part);
+        s = rest;
+    }
+    parts
+}
+
+/// Walks the line from candidate `id` at cell `cell` along direction `d`
+/// and writes its vertices as `[col + 0.5, row + 0.5, height]` into `px`
+/// (as long as the line, as counted by [`Forest::end`]); returns the id of
+/// the last candidate.
+#[inline]
+fn walk_line(
+    map: &HeightMap,
+    forest: &Forest,
+    mask: &[u8],
+    (cell, id, d): (usize, usize, usize),
+    px: &mut [[f64; 3]],
+) -> usize {
+    let w = map.width;
+    let heights = &forest.cand.heights;
+    let (mut col, mut row) = ((cell % w) as isize, (cell / w) as isize);
+    px[0] = [col as f64 + 0.5, row as f64 + 0.5, heights[id] as f64];
+    let (mut c, mut d, mut last) = (cell, d, id);
+    for p in px[1..].iter_mut() {
+        let (nc, nid) = forest.step(c, d);
+        let (dx, dy) = DIRS[d];
+        (col, row) = (col + dx, row + dy);
+        *p = [col as f64 + 0.5, row as f64 + 0.5, heights[nid] as f64];
+        // Past the last vertex `d` is not used (8 at a leaf).
+        d = (mask[nid] & !(1 << ((d + 4) % 8))).trailing_zeros() as usize;
+        (c, last) = (nc, nid);
+    }
+    last
+}
+
+/// Smooths the line of pixel vertices `points` (with heights) in place,
+/// copies the pixel coordinates into `pixels`, converts `points` to CRS
+/// coordinates and returns the line's length in metres.
 #[inline(never)]
 fn polyline(
     map: &HeightMap,
     metric: &Metric,
-    cand: &CandidateSet,
-    (cell, ids, dirs): (usize, &[u32], &[u8]),
     smooth: usize,
-    nodes: [u32; 2],
-) -> RidgeLine {
-    let w = map.width;
-    let (mut col, mut row) = ((cell % w) as isize, (cell / w) as isize);
-    let z = |id: u32| cand.heights[id as usize] as f64;
-    let mut px: Vec<[f64; 3]> = Vec::with_capacity(ids.len());
-    px.push([col as f64 + 0.5, row as f64 + 0.5, z(ids[0])]);
-    for (&id, &d) in ids[1..].iter().zip(dirs) {
-        let (dx, dy) = DIRS[d as usize];
-        (col, row) = (col + dx, row + dy);
-        px.push([col as f64 + 0.5, row as f64 + 0.5, z(id)]);
-    }
-    smooth_polyline(&mut px, smooth);
-    let pixels: Vec<[f64; 2]> = px.iter().map(|p| [p[0], p[1]]).collect();
-    let mut points = px;
-    for p in points.iter_mut() {
+    points: &mut [[f64; 3]],
+    pixels: &mut [[f64; 2]],
+) -> f64 {
+    smooth_polyline(points, smooth);
+    for (p, q) in points.iter_mut().zip(pixels.iter_mut()) {
+        *q = [p[0], p[1]];
         (p[0], p[1]) = map.geotransform.pixel_to_crs(p[0], p[1]);
     }
-    let length_m = pixels
+    pixels
         .windows(2)
         .zip(points.windows(2))
         .map(|(a, b)| {
             let hm = metric.step_m(a[1][0] - a[0][0], a[1][1] - a[0][1], b[0][1]);
             hm.hypot(b[1][2] - b[0][2])
         })
-        .sum();
-    RidgeLine {
-        id: 0,
-        points,
-        pixels,
-        length_m,
-        nodes,
-    }
+        .sum()
 }
 
 /// [1 2 1]/4 smoothing of interior vertices, `iterations` times, in place.
