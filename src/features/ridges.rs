@@ -186,7 +186,7 @@ pub fn detect_ridges(map: &HeightMap, params: &RidgeParams) -> Result<RidgeNetwo
     let t0 = std::time::Instant::now();
     let cand = profile_recognition(map, params);
     let t1 = std::time::Instant::now();
-    let mut mask = spanning_forest(&map.data, &cand, w, h);
+    let mut mask = spanning_forest(&cand, w, h);
     let t2 = std::time::Instant::now();
     let forest = Forest::new(&cand, w);
     prune(
@@ -280,11 +280,13 @@ fn profile_band(
     for r in r0i - hwi..r0i + hwi {
         fill(&mut ring, r);
     }
-    let mut bits = vec![0u8; w8 / 8];
+    // Whole words of flags, so that the candidates are read 64 at a time.
+    let mut bits = vec![0u8; w8.next_multiple_of(64) / 8];
     let mut own_centre = vec![f32::NAN; w8];
     let mut starts = Vec::with_capacity(8 * hw);
     // The band's candidates: cells and heights.
-    let (mut cells, mut heights) = (Vec::new(), Vec::new());
+    let reserve = (r1 - r0) * w / 8;
+    let (mut cells, mut heights) = (Vec::with_capacity(reserve), Vec::with_capacity(reserve));
     for r in r0..r1 {
         let ri = r as isize;
         fill(&mut ring, ri + hwi);
@@ -316,11 +318,11 @@ fn profile_band(
         };
         row.flags(&mut bits, simd);
         append_bits(words, (r - r0) * w, &bits, w);
-        for (j, &b) in bits.iter().enumerate() {
-            let mut b = b;
-            while b != 0 {
-                let col = 8 * j + b.trailing_zeros() as usize;
-                b &= b - 1;
+        for (j, word) in bits.chunks_exact(8).enumerate() {
+            let mut word = u64::from_le_bytes(std::array::from_fn(|i| word[i]));
+            while word != 0 {
+                let col = 64 * j + word.trailing_zeros() as usize;
+                word &= word - 1;
                 if col < w {
                     cells.push((r * w + col) as u32);
                     heights.push(src[col]);

@@ -115,16 +115,11 @@ fn with_sentinel(cells: &[u32], out: &mut Vec<u32>) {
 }
 
 /// The segments from the candidates of a row to their east / south-east /
-/// south / south-west neighbours, as `f(bit, (cell a, cell b), (id a, id b))`,
+/// south / south-west neighbours, as `f(bit, (id a, id b))`,
 /// in segment-id order. Of two crossing diagonals only the higher is kept
-/// (ties to the south-west one).
+/// (ties to the south-west one). `z` holds the heights by candidate id.
 #[inline]
-fn row_segments(
-    z: &[f32],
-    w: usize,
-    rows: &RowPair,
-    mut f: impl FnMut(usize, (usize, usize), (u32, u32)),
-) {
+fn row_segments(z: &[f32], w: usize, rows: &RowPair, mut f: impl FnMut(usize, (u32, u32))) {
     let (cur, next) = (rows.cur, rows.next);
     let mut j = 0usize;
     for i in 0..cur.len() - 1 {
@@ -133,9 +128,9 @@ fn row_segments(
         let ida = rows.cur_id0 + i as u32;
         let east = cur[i + 1] == a + 1;
         let west = i > 0 && cur[i - 1] + 1 == a;
-        let (a, s) = (a as usize, a as usize + w);
+        let s = a as usize + w;
         if east {
-            f(0, (a, a + 1), (ida, ida + 1));
+            f(0, (ida, ida + 1));
         }
         // Candidates below at s - 1, s, s + 1 (the sentinel ends the scans).
         while (next[j] as usize) + 1 < s {
@@ -147,14 +142,18 @@ fn row_segments(
         let k_east = k + south as usize;
         let south_east = next[k_east] as usize == s + 1;
         let id = |k: usize| rows.next_id0 + k as u32;
-        if south_east && !(east && south && z[a + 1] + z[s] > z[a] + z[s + 1]) {
-            f(1, (a, s + 1), (ida, id(k_east)));
+        // Heights of the candidates by id: a, east, west, south, south-east
+        // and south-west (read only when they are candidates).
+        let za = |o: isize| z[(ida as isize + o) as usize];
+        let zb = |k: usize| z[id(k) as usize];
+        if south_east && !(east && south && za(1) + zb(k) > za(0) + zb(k_east)) {
+            f(1, (ida, id(k_east)));
         }
         if south {
-            f(2, (a, s), (ida, id(k)));
+            f(2, (ida, id(k)));
         }
-        if south_west && !(west && south && z[a - 1] + z[s] >= z[a] + z[s - 1]) {
-            f(3, (a, s - 1), (ida, id(j)));
+        if south_west && !(west && south && za(-1) + zb(k) >= za(0) + zb(j)) {
+            f(3, (ida, id(j)));
         }
     }
 }
@@ -223,7 +222,7 @@ struct Contracted {
 
 /// Candidate ids of the `b` ends of the segments from row `row` to the row
 /// below, in the order in which [`strip_forest`] lists them as crossing.
-fn crossing_ends(z: &[f32], cand: &CandidateSet, w: usize, row: usize) -> Vec<u32> {
+fn crossing_ends(cand: &CandidateSet, w: usize, row: usize) -> Vec<u32> {
     let ids = |r: usize| cand.before(r * w)..cand.before((r + 1) * w);
     let (cur, next) = (ids(row), ids(row + 1));
     let (mut cur_cells, mut next_cells) = (Vec::new(), Vec::new());
@@ -242,7 +241,7 @@ fn crossing_ends(z: &[f32], cand: &CandidateSet, w: usize, row: usize) -> Vec<u3
         next_id0: next.start,
     };
     let mut ends = Vec::new();
-    row_segments(z, w, &rows, |d, _, (_, idb)| {
+    row_segments(&cand.heights, w, &rows, |d, (_, idb)| {
         if d != 0 {
             ends.push(idb);
         }
@@ -270,7 +269,7 @@ struct Scratch {
 /// Maximum spanning forest of the candidate segments: the adjacency mask of
 /// each candidate id.
 #[inline(never)]
-pub(super) fn spanning_forest(z: &[f32], cand: &CandidateSet, w: usize, h: usize) -> Vec<u8> {
+pub(super) fn spanning_forest(cand: &CandidateSet, w: usize, h: usize) -> Vec<u8> {
     let mut mask = vec![0u8; cand.len()];
     let strips = h.div_ceil(STRIP);
     let first_id: Vec<u32> = (0..=strips)
@@ -285,10 +284,10 @@ pub(super) fn spanning_forest(z: &[f32], cand: &CandidateSet, w: usize, h: usize
             .enumerate()
             .map_init(Scratch::default, |scratch, (s, smask)| {
                 let id0 = first_id[s];
-                let down = strip_forest(z, cand, (w, h), (s, id0), smask, scratch);
+                let down = strip_forest(cand, (w, h), (s, id0), smask, scratch);
                 let contracted = if several {
                     let up = if s > 0 {
-                        crossing_ends(z, cand, w, s * STRIP - 1)
+                        crossing_ends(cand, w, s * STRIP - 1)
                     } else {
                         Vec::new()
                     };
@@ -349,7 +348,6 @@ pub(super) fn spanning_forest(z: &[f32], cand: &CandidateSet, w: usize, h: usize
 /// `smask`); returns the segments from its last row to the next strip.
 #[inline(never)]
 fn strip_forest(
-    z: &[f32],
     cand: &CandidateSet,
     (w, h): (usize, usize),
     (s, id0): (usize, u32),
@@ -358,6 +356,7 @@ fn strip_forest(
 ) -> Vec<Segment> {
     let (r0, r1) = (s * STRIP, ((s + 1) * STRIP).min(h));
     let n = smask.len();
+    let z = &cand.heights[..];
     // Sort items: weight key above, index into `segs` below.
     let Scratch {
         items,
@@ -396,8 +395,8 @@ fn strip_forest(
             next_id0: next_ids.start,
         };
         let inside = row + 1 < r1;
-        row_segments(z, w, &rows, |d, (a, b), (ida, idb)| {
-            let weight = weight_key(z, a, b);
+        row_segments(z, w, &rows, |d, (ida, idb)| {
+            let weight = weight_key(z, ida as usize, idb as usize);
             if d == 0 || inside {
                 let item = (weight as u64) << 32 | segs.len() as u64;
                 let (la, lb) = ((ida - id0) as usize, (idb - id0) as usize);
@@ -683,7 +682,7 @@ mod tests {
             let z: Vec<f32> = (0..w * h).map(|_| (rnd() * 50.0).round() as f32).collect();
             let flags: Vec<bool> = (0..w * h).map(|_| rnd() < density).collect();
             let set = CandidateSet::from_flags(&flags, &z, w, h);
-            let by_id = spanning_forest(&z, &set, w, h);
+            let by_id = spanning_forest(&set, w, h);
             let want = global_kruskal(&z, &flags, w, h);
             let got: Vec<u8> = (0..w * h)
                 .map(|c| {
