@@ -769,6 +769,7 @@ fn prune(
         min_line,
         enough: min_branch.max(min_line),
     };
+    let t0 = std::time::Instant::now();
     // Records of the walks of the leaves that reach their end.
     const CHUNK: usize = 1 << 14;
     let walks: Vec<Vec<u64>> = mask
@@ -785,6 +786,7 @@ fn prune(
             walks
         })
         .collect();
+    let t1 = std::time::Instant::now();
     // The leaves to visit in the next pass, with their walks.
     let mut revisit: Vec<u64> = Vec::new();
     for &walk in walks.iter().flatten() {
@@ -802,7 +804,10 @@ fn prune(
             revisit.push(walk);
         }
     }
+    let nwalks: usize = walks.iter().map(|w| w.len()).sum();
     drop(walks);
+    let t2 = std::time::Instant::now();
+    let nrevisit = revisit.len();
     // A kept walk whose end kept its class is kept again.
     for _ in 1..passes {
         let mut kept = 0;
@@ -824,6 +829,14 @@ fn prune(
         }
         revisit.truncate(kept);
     }
+    if std::env::var_os("RIDGE_TIMING").is_some() {
+        eprintln!(
+            "prune: walks {:?} ({nwalks}) ordered {:?} ({nrevisit} kept) later passes {:?}",
+            t1 - t0,
+            t2 - t1,
+            t2.elapsed()
+        );
+    }
 }
 
 /// Trace the forest into lines between nodes, smooth them and convert them
@@ -843,6 +856,7 @@ fn trace(
     let w = map.width;
     let gt = &map.geotransform;
     let cand = forest.cand;
+    let t0 = std::time::Instant::now();
     let node_ids = select(mask, |m| m != 0 && degree(m) != 2);
     let nodes: Vec<RidgeNode> = node_ids
         .par_iter()
@@ -879,6 +893,7 @@ fn trace(
             firsts
         })
         .collect();
+    let t1 = std::time::Instant::now();
     let firsts = firsts.concat();
     let mut lines = Vec::with_capacity(firsts.len());
     let mut vertices = 0usize;
@@ -894,6 +909,7 @@ fn trace(
     }
     let mut points = vec![[0.0f64; 3]; vertices];
     let mut pixels = vec![[0.0f64; 2]; vertices];
+    let t2 = std::time::Instant::now();
     // Groups of lines and their vertex ranges, filled in parallel.
     const LINES: usize = 256;
     let bounds: Vec<usize> = (0..=lines.len().div_ceil(LINES))
@@ -930,6 +946,14 @@ fn trace(
                 );
             }
         });
+    if std::env::var_os("RIDGE_TIMING").is_some() {
+        eprintln!(
+            "trace: nodes and walks {:?} ranges {:?} lines {:?}",
+            t1 - t0,
+            t2 - t1,
+            t2.elapsed()
+        );
+    }
     RidgeNetwork {
         lines,
         nodes,

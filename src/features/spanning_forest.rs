@@ -158,6 +158,93 @@ fn row_segments(z: &[f32], w: usize, rows: &RowPair, mut f: impl FnMut(usize, (u
     }
 }
 
+/// The segment lists of a strip under construction: sort items (weight key
+/// above, index into `segs` below), segments as `[a << 2 | bit, b]` by
+/// strip-local ids, and the best (first in Kruskal order) item of each
+/// candidate.
+struct StripLists<'a> {
+    items: &'a mut Vec<u64>,
+    segs: &'a mut Vec<[u32; 2]>,
+    best: &'a mut [u64],
+    /// Id of the strip's first candidate.
+    id0: u32,
+}
+
+/// [`row_segments`] for a row whose next row lies in the same strip,
+/// appending the segments to `lists`: the same segments in the same order,
+/// but found with the candidate bitmap and written without branches on the
+/// data (whether a segment exists is a coin toss that a branch predictor
+/// loses).
+#[inline(never)]
+fn inside_row_segments(
+    cand: &CandidateSet,
+    w: usize,
+    row: usize,
+    rows: &RowPair,
+    lists: StripLists,
+) {
+    let StripLists {
+        items,
+        segs,
+        best,
+        id0,
+    } = lists;
+    let z = &cand.heights[..];
+    let last = z.len() - 1;
+    let zi = |id: u32| z[(id as usize).min(last)];
+    let cur = rows.cur;
+    let n = cur.len() - 1;
+    let start = items.len();
+    items.resize(start + 4 * n, 0);
+    segs.resize(start + 4 * n, [0, 0]);
+    let (row_start, row_end) = (row * w, (row + 1) * w);
+    let mut len = start;
+    for i in 0..n {
+        let a = cur[i] as usize;
+        let ida = rows.cur_id0 + i as u32;
+        let la = ida - id0;
+        let east = cur[i + 1] as usize == a + 1;
+        let west = i > 0 && cur[i - 1] as usize + 1 == a;
+        // Candidates below at s - 1, s and s + 1 (bits 0 to 2 of `below`),
+        // and the id of the first candidate at or after s - 1.
+        let s = a + w;
+        let (has_west, has_east) = (a > row_start, a + 1 < row_end);
+        let x = s - has_west as usize;
+        let below = cand.three_from(x) << (!has_west) as u32;
+        let first = cand.id(x);
+        let south_west = below & 1 != 0;
+        let south = below & 2 != 0;
+        let south_east = has_east && below & 4 != 0;
+        let (id_sw, id_s) = (first, first + south_west as u32);
+        let id_se = id_s + south as u32;
+        let za = z[ida as usize];
+        let (z_e, z_w) = (zi(ida + 1), z[(ida as usize).saturating_sub(1)]);
+        let (z_s, z_se, z_sw) = (zi(id_s), zi(id_se), zi(id_sw));
+        // Of two crossing diagonals only the higher is kept (ties to the
+        // south-west one), as in `row_segments`.
+        let keep_se = south_east & !(east & south & (z_e + z_s > za + z_se));
+        let keep_sw = south_west & !(west & south & (z_w + z_s >= za + z_sw));
+        for (keep, bit, idb, zb) in [
+            (east, 0u32, ida + 1, z_e),
+            (keep_se, 1, id_se, z_se),
+            (south, 2, id_s, z_s),
+            (keep_sw, 3, id_sw, z_sw),
+        ] {
+            let weight = !f32_key(za + zb);
+            let lb = if keep { idb.wrapping_sub(id0) } else { la };
+            let item = (weight as u64) << 32 | len as u64;
+            items[len] = item;
+            segs[len] = [la << 2 | bit, lb];
+            let candidate = if keep { item } else { u64::MAX };
+            best[la as usize] = best[la as usize].min(candidate);
+            best[lb as usize] = best[lb as usize].min(candidate);
+            len += keep as usize;
+        }
+    }
+    items.truncate(len);
+    segs.truncate(len);
+}
+
 /// Stable LSD radix sort of `items` by their upper 32 bits (11-bit digits;
 /// digits equal in all items are skipped).
 fn sort_by_high_word(items: &mut Vec<u64>, tmp: &mut Vec<u64>) {
@@ -278,6 +365,7 @@ pub(super) fn spanning_forest(cand: &CandidateSet, w: usize, h: usize) -> Vec<u8
     // 1. Forest of each strip, contracted to its terminals and branch
     // points; the crossing segments to the next strip.
     let several = strips > 1;
+    let t0 = std::time::Instant::now();
     let (crossing, contracted): (Vec<Vec<Segment>>, Vec<Contracted>) =
         split_at_bounds(&mut mask, &first_id)
             .into_par_iter()
@@ -301,6 +389,7 @@ pub(super) fn spanning_forest(cand: &CandidateSet, w: usize, h: usize) -> Vec<u8
     if !several || crossing.iter().all(|c| c.is_empty()) {
         return mask;
     }
+    let t1 = std::time::Instant::now();
     // 3. Kruskal on the contracted graph.
     let mut base = Vec::with_capacity(strips + 1);
     let mut n = 0u32;
@@ -340,6 +429,13 @@ pub(super) fn spanning_forest(cand: &CandidateSet, w: usize, h: usize) -> Vec<u8
             mask[a as usize] &= !(1 << bit);
             mask[b as usize] &= !(1 << (bit + 4));
         }
+    }
+    if std::env::var_os("RIDGE_TIMING").is_some() {
+        eprintln!(
+            "forest: strips {:?} contracted graph {:?} ({n} vertices)",
+            t1 - t0,
+            t1.elapsed()
+        );
     }
     mask
 }
@@ -395,6 +491,16 @@ fn strip_forest(
             next_id0: next_ids.start,
         };
         let inside = row + 1 < r1;
+        if inside {
+            let lists = StripLists {
+                items: &mut *items,
+                segs: &mut *segs,
+                best: &mut best[..],
+                id0,
+            };
+            inside_row_segments(cand, w, row, &rows, lists);
+            continue;
+        }
         row_segments(z, w, &rows, |d, (ida, idb)| {
             let weight = weight_key(z, ida as usize, idb as usize);
             if d == 0 || inside {
