@@ -161,7 +161,7 @@ fn row_segments(z: &[f32], w: usize, rows: &RowPair, mut f: impl FnMut(usize, (u
 /// The segment lists of a strip under construction: sort items (weight key
 /// above, index into `segs` below), segments as `[a << 2 | bit, b]` by
 /// strip-local ids, and the best (first in Kruskal order) item of each
-/// candidate.
+/// candidate (and one spare entry after them).
 struct StripLists<'a> {
     items: &'a mut Vec<u64>,
     segs: &'a mut Vec<[u32; 2]>,
@@ -199,6 +199,7 @@ fn inside_row_segments(
     segs.resize(start + 4 * n, [0, 0]);
     let (row_start, row_end) = (row * w, (row + 1) * w);
     let mut len = start;
+    let spare = (best.len() - 1) as u32;
     for i in 0..n {
         let a = cur[i] as usize;
         let ida = rows.cur_id0 + i as u32;
@@ -218,6 +219,9 @@ fn inside_row_segments(
         let (id_sw, id_s) = (first, first + south_west as u32);
         let id_se = id_s + south as u32;
         let za = z[ida as usize];
+        // The best item of `a` stays in a register (no chain of stores and
+        // loads through memory).
+        let mut best_a = best[la as usize];
         let (z_e, z_w) = (zi(ida + 1), z[(ida as usize).saturating_sub(1)]);
         let (z_s, z_se, z_sw) = (zi(id_s), zi(id_se), zi(id_sw));
         // Of two crossing diagonals only the higher is kept (ties to the
@@ -231,15 +235,18 @@ fn inside_row_segments(
             (keep_sw, 3, id_sw, z_sw),
         ] {
             let weight = !f32_key(za + zb);
-            let lb = if keep { idb.wrapping_sub(id0) } else { la };
+            // A missing segment leaves `best` as it is; its `b` is clamped
+            // into `best` (the spare last entry at most), never `a`.
+            let lb = idb.wrapping_sub(id0).min(spare);
             let item = (weight as u64) << 32 | len as u64;
             items[len] = item;
             segs[len] = [la << 2 | bit, lb];
             let candidate = if keep { item } else { u64::MAX };
-            best[la as usize] = best[la as usize].min(candidate);
+            best_a = best_a.min(candidate);
             best[lb as usize] = best[lb as usize].min(candidate);
             len += keep as usize;
         }
+        best[la as usize] = best_a;
     }
     items.truncate(len);
     segs.truncate(len);
@@ -468,7 +475,9 @@ fn strip_forest(
     items.clear();
     segs.clear();
     best.clear();
-    best.resize(n, u64::MAX);
+    // One spare entry at the end for the segments that
+    // `inside_row_segments` does not write.
+    best.resize(n + 1, u64::MAX);
     let mut crossing = Vec::new();
     let row_ids = |r: usize| cand.before(r * w)..cand.before((r + 1).min(h) * w);
     let mut next_ids = row_ids(r0);
@@ -525,7 +534,7 @@ fn strip_forest(
     // whose only cycles are the pairs of candidates that chose the same
     // segment; the lower id of a pair is the root.
     parent.clear();
-    for (v, &item) in best.iter().enumerate() {
+    for (v, &item) in best[..n].iter().enumerate() {
         if item == u64::MAX {
             parent.push(v as u32);
             continue;
