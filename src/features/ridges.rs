@@ -565,23 +565,6 @@ impl<'a> Forest<'a> {
         }
     }
 
-    /// Id of the first cell of degree other than 2 on the walk from `cell`
-    /// along direction `d`, and the number of steps to it.
-    #[inline]
-    fn end(&self, mask: &[u8], mut cell: usize, mut d: usize) -> (usize, usize) {
-        let mut steps = 1;
-        loop {
-            let (nc, nid) = self.step(cell, d);
-            let m = mask[nid];
-            if degree(m) != 2 {
-                return (nid, steps);
-            }
-            steps += 1;
-            d = (m & !(1 << ((d + 4) % 8))).trailing_zeros() as usize;
-            cell = nc;
-        }
-    }
-
     /// The cell and candidate id one step from `cell` along direction `d`
     /// (which must lead to a candidate).
     #[inline]
@@ -873,77 +856,97 @@ fn trace(
             }
         })
         .collect();
-    // The lines as first node (index) << 3 | direction, with their vertex
-    // counts: walked from both ends, kept from the lower one.
+    // The lines, walked from both ends and kept from the lower one, with
+    // the steps of the kept walks, by chunks of nodes.
     const CHUNK: usize = 1024;
-    let firsts: Vec<Vec<(u32, u32)>> = node_ids
+    let walked: Vec<ChunkLines> = node_ids
         .par_chunks(CHUNK)
         .enumerate()
         .map(|(k, chunk)| {
-            let mut firsts = Vec::new();
+            let mut out = ChunkLines::default();
             for (i, &id) in chunk.iter().enumerate() {
                 let (m, cell) = (mask[id as usize], cand.cells[id as usize] as usize);
-                for d in (0..8).filter(|d| m & (1 << d) != 0) {
-                    let (end, steps) = forest.end(mask, cell, d);
+                for d0 in (0..8).filter(|d| m & (1 << d) != 0) {
+                    let mark = out.ids.len();
+                    let (mut c, mut d) = (cell, d0);
+                    let end = loop {
+                        let (nc, nid) = forest.step(c, d);
+                        out.ids.push(nid as u32);
+                        out.dirs.push(d as u8);
+                        let m = mask[nid];
+                        if degree(m) != 2 {
+                            break nid;
+                        }
+                        d = (m & !(1 << ((d + 4) % 8))).trailing_zeros() as usize;
+                        c = nc;
+                    };
                     if end > id as usize {
-                        firsts.push((((k * CHUNK + i) as u32) << 3 | d as u32, steps as u32 + 1));
+                        let first = ((k * CHUNK + i) as u32) << 3 | d0 as u32;
+                        let count = (out.ids.len() - mark + 1) as u32;
+                        out.lines.push((first, count, end as u32));
+                    } else {
+                        out.ids.truncate(mark);
+                        out.dirs.truncate(mark);
                     }
                 }
             }
-            firsts
+            out
         })
         .collect();
     let t1 = std::time::Instant::now();
-    let firsts = firsts.concat();
-    let mut lines = Vec::with_capacity(firsts.len());
+    let mut lines = Vec::with_capacity(walked.iter().map(|c| c.lines.len()).sum());
+    let (mut line_bounds, mut vertex_bounds) = (vec![0usize], vec![0usize]);
     let mut vertices = 0usize;
-    for (i, &(first, count)) in firsts.iter().enumerate() {
-        let next = vertices + count as usize;
-        lines.push(RidgeLine {
-            id: i as u32,
-            vertices: vertices..next,
-            length_m: 0.0,
-            nodes: [first >> 3, u32::MAX],
-        });
-        vertices = next;
+    for chunk in &walked {
+        for &(first, count, _) in &chunk.lines {
+            let next = vertices + count as usize;
+            lines.push(RidgeLine {
+                id: lines.len() as u32,
+                vertices: vertices..next,
+                length_m: 0.0,
+                nodes: [first >> 3, u32::MAX],
+            });
+            vertices = next;
+        }
+        line_bounds.push(lines.len());
+        vertex_bounds.push(vertices);
     }
     let mut points = vec![[0.0f64; 3]; vertices];
     let mut pixels = vec![[0.0f64; 2]; vertices];
     let t2 = std::time::Instant::now();
-    // Groups of lines and their vertex ranges, filled in parallel.
-    const LINES: usize = 256;
-    let bounds: Vec<usize> = (0..=lines.len().div_ceil(LINES))
-        .map(|g| lines.get(g * LINES).map_or(vertices, |l| l.vertices.start))
-        .collect();
-    lines
-        .par_chunks_mut(LINES)
-        .zip(firsts.par_chunks(LINES))
-        .zip(split_at(&mut points, &bounds))
-        .zip(split_at(&mut pixels, &bounds))
-        .for_each(|(((lines, firsts), points), pixels)| {
-            let base = lines[0].vertices.start;
-            for (line, &(first, _)) in lines.iter_mut().zip(firsts) {
+    // The lines of each chunk, filled in parallel from the recorded steps.
+    let heights = &cand.heights;
+    walked
+        .par_iter()
+        .zip(split_at(&mut lines, &line_bounds))
+        .zip(split_at(&mut points, &vertex_bounds))
+        .zip(split_at(&mut pixels, &vertex_bounds))
+        .for_each(|(((walked, lines), points), pixels)| {
+            let base = lines.first().map_or(0, |l| l.vertices.start);
+            let mut step = 0;
+            for (line, &(first, _, end)) in lines.iter_mut().zip(&walked.lines) {
                 let range = line.vertices.start - base..line.vertices.end - base;
-                let (node, d0) = ((first >> 3) as usize, (first & 7) as usize);
-                let id = node_ids[node] as usize;
-                let end = walk_line(
-                    map,
-                    forest,
-                    mask,
-                    (cand.cells[id] as usize, id, d0),
-                    &mut points[range.clone()],
-                );
-                let far = node_ids
-                    .binary_search(&(end as u32))
-                    .map_or(u32::MAX, |j| j as u32);
-                line.nodes[1] = far;
-                line.length_m = polyline(
-                    map,
-                    metric,
-                    smooth,
-                    &mut points[range.clone()],
-                    &mut pixels[range],
-                );
+                let id = node_ids[(first >> 3) as usize] as usize;
+                let cell = cand.cells[id] as usize;
+                let (mut col, mut row) = ((cell % w) as isize, (cell / w) as isize);
+                let px = &mut points[range.clone()];
+                px[0] = [col as f64 + 0.5, row as f64 + 0.5, heights[id] as f64];
+                let n = px.len() - 1;
+                let steps = walked.ids[step..step + n]
+                    .iter()
+                    .zip(&walked.dirs[step..step + n]);
+                for (p, (&nid, &d)) in px[1..].iter_mut().zip(steps) {
+                    let (dx, dy) = DIRS[d as usize];
+                    (col, row) = (col + dx, row + dy);
+                    *p = [
+                        col as f64 + 0.5,
+                        row as f64 + 0.5,
+                        heights[nid as usize] as f64,
+                    ];
+                }
+                step += n;
+                line.nodes[1] = node_ids.binary_search(&end).map_or(u32::MAX, |j| j as u32);
+                line.length_m = polyline(map, metric, smooth, px, &mut pixels[range]);
             }
         });
     if std::env::var_os("RIDGE_TIMING").is_some() {
@@ -974,33 +977,16 @@ fn split_at<'a, T>(mut s: &'a mut [T], bounds: &[usize]) -> Vec<&'a mut [T]> {
     parts
 }
 
-/// Walks the line from candidate `id` at cell `cell` along direction `d`
-/// and writes its vertices as `[col + 0.5, row + 0.5, height]` into `px`
-/// (as long as the line, as counted by [`Forest::end`]); returns the id of
-/// the last candidate.
-#[inline]
-fn walk_line(
-    map: &HeightMap,
-    forest: &Forest,
-    mask: &[u8],
-    (cell, id, d): (usize, usize, usize),
-    px: &mut [[f64; 3]],
-) -> usize {
-    let w = map.width;
-    let heights = &forest.cand.heights;
-    let (mut col, mut row) = ((cell % w) as isize, (cell / w) as isize);
-    px[0] = [col as f64 + 0.5, row as f64 + 0.5, heights[id] as f64];
-    let (mut c, mut d, mut last) = (cell, d, id);
-    for p in px[1..].iter_mut() {
-        let (nc, nid) = forest.step(c, d);
-        let (dx, dy) = DIRS[d];
-        (col, row) = (col + dx, row + dy);
-        *p = [col as f64 + 0.5, row as f64 + 0.5, heights[nid] as f64];
-        // Past the last vertex `d` is not used (8 at a leaf).
-        d = (mask[nid] & !(1 << ((d + 4) % 8))).trailing_zeros() as usize;
-        (c, last) = (nc, nid);
-    }
-    last
+/// The lines that start at a chunk of nodes, as walked.
+#[derive(Default)]
+struct ChunkLines {
+    /// Per line: its first node (index) << 3 | direction, its vertex count
+    /// and the candidate id of its last vertex.
+    lines: Vec<(u32, u32, u32)>,
+    /// Candidate ids of the vertices after the first, line after line.
+    ids: Vec<u32>,
+    /// The direction of the step to each of these vertices.
+    dirs: Vec<u8>,
 }
 
 /// Smooths the line of pixel vertices `points` (with heights) in place,
