@@ -18,6 +18,9 @@
 //! lines are traced in parallel; only the ordered pruning pass is sequential.
 //! The result does not depend on the number of threads.
 
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Condvar, Mutex};
+
 use rayon::prelude::*;
 
 use super::candidates::{CandidateSet, BAND};
@@ -728,8 +731,9 @@ impl LeafWalker<'_> {
 /// whose end changed class: the result is that of walking every leaf in
 /// every pass.
 ///
-/// The walks of the first pass are made beforehand in parallel on the
-/// unpruned forest. In the ordered pass, a leaf's chain is still intact
+/// The walks of the first pass are made on a copy of the unpruned forest,
+/// in parallel with the ordered pass that consumes them in order. In the
+/// ordered pass, a leaf's chain is still intact
 /// (only its own removal or that of the leaf at its other end would touch
 /// it), so its walk is unchanged as long as its end is still a branch point
 /// or still a leaf; otherwise it is walked again.
@@ -753,42 +757,79 @@ fn prune(
         enough: min_branch.max(min_line),
     };
     let t0 = std::time::Instant::now();
-    // Records of the walks of the leaves that reach their end.
+    // Records of the walks of the leaves that reach their end, by chunks of
+    // ids, made on a copy of the unpruned forest: one job walks the chunks
+    // in order while the other runs the ordered pass over the chunks walked
+    // so far (and walks a chunk itself when the next one is not there yet).
     const CHUNK: usize = 1 << 14;
-    let walks: Vec<Vec<u64>> = mask
-        .par_chunks(CHUNK)
-        .enumerate()
-        .map(|(k, chunk)| {
-            let mut walks = Vec::new();
-            for (i, _) in chunk.iter().enumerate().filter(|(_, &m)| degree(m) == 1) {
-                let leaf = k * CHUNK + i;
-                if let Some(end) = walker.walk(mask, leaf) {
-                    walks.push(walker.record(mask, leaf, end));
-                }
+    let unpruned = mask.to_vec();
+    let chunks = unpruned.len().div_ceil(CHUNK);
+    let walk_chunk = |k: usize| -> Vec<u64> {
+        let mut walks = Vec::new();
+        let chunk = &unpruned[k * CHUNK..((k + 1) * CHUNK).min(unpruned.len())];
+        for (i, _) in chunk.iter().enumerate().filter(|(_, &m)| degree(m) == 1) {
+            let leaf = k * CHUNK + i;
+            if let Some(end) = walker.walk(&unpruned, leaf) {
+                walks.push(walker.record(&unpruned, leaf, end));
             }
-            walks
-        })
-        .collect();
-    let t1 = std::time::Instant::now();
+        }
+        walks
+    };
+    let claimed = AtomicUsize::new(0);
+    let walked: Mutex<Vec<Option<Vec<u64>>>> = Mutex::new((0..chunks).map(|_| None).collect());
+    let ready = Condvar::new();
+    // The lock never sees a panic while held (no code in it can panic).
+    let lock = || walked.lock().unwrap_or_else(|e| e.into_inner());
+    let claim_and_walk = || {
+        let k = claimed.fetch_add(1, Ordering::Relaxed);
+        if k < chunks {
+            let walks = walk_chunk(k);
+            lock()[k] = Some(walks);
+            ready.notify_all();
+        }
+        k < chunks
+    };
     // The leaves to visit in the next pass, with their walks.
     let mut revisit: Vec<u64> = Vec::new();
-    for &walk in walks.iter().flatten() {
-        let (leaf, end) = ((walk & ID) as usize, (walk >> 30 & ID) as usize);
-        if degree(mask[leaf]) != 1 {
-            continue;
-        }
-        if same_class(walk, degree(mask[end])) {
-            if walk >> 63 == 1 {
-                walker.remove_walk(mask, walk);
-            } else {
-                revisit.push(walk);
+    let mut nwalks = 0;
+    let ordered = |mask: &mut [u8], revisit: &mut Vec<u64>, nwalks: &mut usize| {
+        for k in 0..chunks {
+            let walks = loop {
+                let mut slots = lock();
+                if let Some(walks) = slots[k].take() {
+                    break walks;
+                }
+                if claimed.load(Ordering::Relaxed) < chunks {
+                    drop(slots);
+                    claim_and_walk();
+                } else {
+                    while slots[k].is_none() {
+                        slots = ready.wait(slots).unwrap_or_else(|e| e.into_inner());
+                    }
+                }
+            };
+            *nwalks += walks.len();
+            for &walk in &walks {
+                let (leaf, end) = ((walk & ID) as usize, (walk >> 30 & ID) as usize);
+                if degree(mask[leaf]) != 1 {
+                    continue;
+                }
+                if same_class(walk, degree(mask[end])) {
+                    if walk >> 63 == 1 {
+                        walker.remove_walk(mask, walk);
+                    } else {
+                        revisit.push(walk);
+                    }
+                } else if let Some(walk) = walker.settle(mask, leaf) {
+                    revisit.push(walk);
+                }
             }
-        } else if let Some(walk) = walker.settle(mask, leaf) {
-            revisit.push(walk);
         }
-    }
-    let nwalks: usize = walks.iter().map(|w| w.len()).sum();
-    drop(walks);
+    };
+    rayon::join(
+        || while claim_and_walk() {},
+        || ordered(mask, &mut revisit, &mut nwalks),
+    );
     let t2 = std::time::Instant::now();
     let nrevisit = revisit.len();
     // A kept walk whose end kept its class is kept again.
@@ -814,9 +855,8 @@ fn prune(
     }
     if std::env::var_os("RIDGE_TIMING").is_some() {
         eprintln!(
-            "prune: walks {:?} ({nwalks}) ordered {:?} ({nrevisit} kept) later passes {:?}",
-            t1 - t0,
-            t2 - t1,
+            "prune: walks and ordered pass {:?} ({nwalks} walks, {nrevisit} kept) later passes {:?}",
+            t2 - t0,
             t2.elapsed()
         );
     }
