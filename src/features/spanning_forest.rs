@@ -42,11 +42,9 @@ const STRIP: usize = 64;
 #[inline]
 fn f32_key(v: f32) -> u32 {
     let b = v.to_bits();
-    if b >> 31 == 1 {
-        !b
-    } else {
-        b | 0x8000_0000
-    }
+    // Negative: all bits flipped; otherwise the sign bit set (no branch).
+    let flip = ((b as i32) >> 31) as u32 | 0x8000_0000;
+    b ^ flip
 }
 
 /// Weight part of a segment's sort key: ascending keys are descending
@@ -195,10 +193,14 @@ fn inside_row_segments(
     let cur = rows.cur;
     let n = cur.len() - 1;
     let start = items.len();
-    items.resize(start + 4 * n, 0);
-    segs.resize(start + 4 * n, [0, 0]);
+    // Every candidate writes its four possible segments after the kept
+    // ones, into the spare capacity (not cleared first).
+    items.reserve(4 * n);
+    segs.reserve(4 * n);
+    let new_items = &mut items.spare_capacity_mut()[..4 * n];
+    let new_segs = &mut segs.spare_capacity_mut()[..4 * n];
     let (row_start, row_end) = (row * w, (row + 1) * w);
-    let mut len = start;
+    let mut len = 0;
     let spare = (best.len() - 1) as u32;
     for i in 0..n {
         let a = cur[i] as usize;
@@ -238,9 +240,9 @@ fn inside_row_segments(
             // A missing segment leaves `best` as it is; its `b` is clamped
             // into `best` (the spare last entry at most), never `a`.
             let lb = idb.wrapping_sub(id0).min(spare);
-            let item = (weight as u64) << 32 | len as u64;
-            items[len] = item;
-            segs[len] = [la << 2 | bit, lb];
+            let item = (weight as u64) << 32 | (start + len) as u64;
+            new_items[len].write(item);
+            new_segs[len].write([la << 2 | bit, lb]);
             let candidate = if keep { item } else { u64::MAX };
             best_a = best_a.min(candidate);
             best[lb as usize] = best[lb as usize].min(candidate);
@@ -248,8 +250,11 @@ fn inside_row_segments(
         }
         best[la as usize] = best_a;
     }
-    items.truncate(len);
-    segs.truncate(len);
+    // SAFETY: the first `len` spare entries of both were written above.
+    unsafe {
+        items.set_len(start + len);
+        segs.set_len(start + len);
+    }
 }
 
 /// Stable LSD radix sort of `items` by their upper 32 bits (11-bit digits;
