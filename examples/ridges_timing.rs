@@ -3,6 +3,9 @@
 //! implementation can be checked to give the same lines.
 //!
 //! Run: `cargo run --release --example ridges_timing -- [width] [repeats] [height]`.
+//! With `RIDGES_DUMP=file` it also writes every value of the network (lines
+//! with their vertices, pixels, lengths and nodes; the nodes; the candidate
+//! count) to `file`, for a byte-wise comparison of two versions with `cmp`.
 
 use demsketch::features::{detect_ridges, RidgeParams};
 use demsketch::raster::{GeoTransform, HeightMap};

@@ -14,9 +14,12 @@
 //! candidate has a compact id (its rank in row-major order, see
 //! [`super::candidates`]) and the forest, pruning and tracing work on an 8-bit
 //! adjacency mask per candidate. The forest is built strip by strip in
-//! parallel (see [`super::spanning_forest`]); the walks of pruning and the
-//! lines are traced in parallel; only the ordered pruning pass is sequential.
-//! The result does not depend on the number of threads.
+//! parallel (see [`super::spanning_forest`]); the walks of pruning run
+//! alongside the ordered pruning pass (the one sequential step), which takes
+//! them in order as they come; the lines are traced in parallel and their
+//! vertices written into one buffer per network (a line holds a range of
+//! it). The result does not depend on the number of threads.
+//! `RIDGE_TIMING=1` prints the time of each stage on stderr.
 
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Condvar, Mutex};
