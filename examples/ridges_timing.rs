@@ -3,6 +3,9 @@
 //! implementation can be checked to give the same lines.
 //!
 //! Run: `cargo run --release --example ridges_timing -- [width] [repeats] [height]`.
+//! With `RIDGES_DUMP=file` it also writes every value of the network (lines
+//! with their vertices, pixels, lengths and nodes; the nodes; the candidate
+//! count) to `file`, for a byte-wise comparison of two versions with `cmp`.
 
 use demsketch::features::{detect_ridges, RidgeParams};
 use demsketch::raster::{GeoTransform, HeightMap};
@@ -66,7 +69,7 @@ fn main() {
     for l in &net.lines {
         mix(l.nodes[0] as u64);
         mix(l.nodes[1] as u64);
-        for p in &l.points {
+        for p in net.line_points(l) {
             mix(p[0].to_bits());
             mix(p[1].to_bits());
             mix(p[2].to_bits());
@@ -76,6 +79,34 @@ fn main() {
     for nd in &net.nodes {
         mix(nd.cell[0] as u64 | (nd.cell[1] as u64) << 32);
         mix(nd.degree as u64);
+    }
+    if let Some(path) = std::env::var_os("RIDGES_DUMP") {
+        // Every value of the network, in order, for a byte-wise comparison.
+        let mut out: Vec<u8> = Vec::new();
+        out.extend((net.candidate_cells as u64).to_le_bytes());
+        for l in &net.lines {
+            out.extend(l.id.to_le_bytes());
+            out.extend(l.nodes[0].to_le_bytes());
+            out.extend(l.nodes[1].to_le_bytes());
+            out.extend(l.length_m.to_bits().to_le_bytes());
+            out.extend((l.vertices.len() as u64).to_le_bytes());
+            for p in net.line_points(l) {
+                p.iter().for_each(|v| out.extend(v.to_bits().to_le_bytes()));
+            }
+            for p in net.line_pixels(l) {
+                p.iter().for_each(|v| out.extend(v.to_bits().to_le_bytes()));
+            }
+        }
+        for nd in &net.nodes {
+            out.extend(nd.id.to_le_bytes());
+            out.extend(nd.cell[0].to_le_bytes());
+            out.extend(nd.cell[1].to_le_bytes());
+            nd.point
+                .iter()
+                .for_each(|v| out.extend(v.to_bits().to_le_bytes()));
+            out.push(nd.degree);
+        }
+        std::fs::write(path, out).expect("write the dump");
     }
     println!(
         "{n}x{h}: best of {repeats}: {:.2} ms (dropping the previous result {}); {} candidates, {} lines, {} nodes, {:.1} km, fingerprint {fp:016x}",

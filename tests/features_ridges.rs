@@ -85,7 +85,7 @@ fn gaussian_ridge_is_found_within_one_cell_of_its_crest() {
         crest_len_m
     );
     for line in &net.lines {
-        for p in &line.pixels {
+        for p in net.line_pixels(line) {
             let d = dist(p[0], p[1]).abs();
             assert!(
                 d <= 1.0,
@@ -96,8 +96,9 @@ fn gaussian_ridge_is_found_within_one_cell_of_its_crest() {
         }
     }
     // CRS coordinates and heights agree with the pixel positions.
-    let p = longest.pixels[longest.pixels.len() / 2];
-    let q = longest.points[longest.pixels.len() / 2];
+    let (pixels, points) = (net.line_pixels(longest), net.line_points(longest));
+    let p = pixels[pixels.len() / 2];
+    let q = points[pixels.len() / 2];
     assert!((q[0] - (500_000.0 + p[0] * 30.0)).abs() < 1e-6);
     assert!((q[1] - (4_000_000.0 - p[1] * 30.0)).abs() < 1e-6);
     assert!(q[2] > 900.0);
@@ -146,7 +147,7 @@ fn branching_ridges_form_a_graph_with_a_branch_point() {
 fn share_on_high_ground(map: &HeightMap, net: &demsketch::features::RidgeNetwork) -> f64 {
     let (mut n, mut high) = (0usize, 0usize);
     for line in &net.lines {
-        for p in &line.pixels {
+        for p in net.line_pixels(line) {
             let (c, r) = (p[0] as usize, p[1] as usize);
             let z = match map.get(c, r) {
                 Some(z) => z as f64,
@@ -201,7 +202,7 @@ fn check_main_network(map: &HeightMap, net: &demsketch::features::RidgeNetwork, 
     let near = net
         .lines
         .iter()
-        .flat_map(|l| l.pixels.iter())
+        .flat_map(|l| net.line_pixels(l).iter())
         .map(|p| (p[0] - cx).hypot(p[1] - cy))
         .fold(f64::INFINITY, f64::min);
     assert!(
@@ -260,7 +261,7 @@ fn draw_fixture_ridges() {
             }
         }
         for l in &net.lines {
-            for seg in l.pixels.windows(2) {
+            for seg in net.line_pixels(l).windows(2) {
                 for k in 0..=8 {
                     let t = k as f64 / 8.0;
                     let px = seg[0][0] + t * (seg[1][0] - seg[0][0]);

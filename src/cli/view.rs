@@ -297,7 +297,7 @@ pub fn run(args: ViewArgs) -> anyhow::Result<()> {
     if let (true, Some(net)) = (want(Overlay::Ridges), &ridges) {
         let cell = scene.terrain.frame.p[0][0].hypot(scene.terrain.frame.p[1][0]);
         for l in &net.lines {
-            for part in visible_polylines(&scene.terrain, &depth, &l.points, 2.0 * cell) {
+            for part in visible_polylines(&scene.terrain, &depth, net.line_points(l), 2.0 * cell) {
                 draw_polyline(&mut rgb, w, h, &part, [255, 214, 0], line);
             }
         }

@@ -145,6 +145,20 @@ impl CandidateSet {
         self.rank[word] + (self.bits[word] & ((1u64 << bit) - 1)).count_ones()
     }
 
+    /// Candidate flags of the cells `cell`, `cell + 1` and `cell + 2` as bits
+    /// 0 to 2 (cells past the grid are no candidates). `cell` must lie
+    /// inside the grid.
+    #[inline]
+    pub(super) fn three_from(&self, cell: usize) -> u32 {
+        let (word, bit) = (cell >> 6, cell & 63);
+        let low = self.bits[word] >> bit;
+        let high = match self.bits.get(word + 1) {
+            Some(&next) if bit > 61 => next << (64 - bit),
+            _ => 0,
+        };
+        ((low | high) & 7) as u32
+    }
+
     /// Number of candidates among the cells before `cell` (`cell` may be the
     /// cell count).
     pub(super) fn before(&self, cell: usize) -> u32 {

@@ -126,8 +126,8 @@ pub fn ridge_features(
     net.lines
         .iter()
         .map(|l| {
-            let coords = l
-                .points
+            let coords = net
+                .line_points(l)
                 .iter()
                 .map(|&p| position(to_lonlat, p))
                 .collect::<Result<Vec<_>, _>>()?;

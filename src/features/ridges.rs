@@ -14,9 +14,15 @@
 //! candidate has a compact id (its rank in row-major order, see
 //! [`super::candidates`]) and the forest, pruning and tracing work on an 8-bit
 //! adjacency mask per candidate. The forest is built strip by strip in
-//! parallel (see [`super::spanning_forest`]); the walks of pruning and the
-//! lines are traced in parallel; only the ordered pruning pass is sequential.
-//! The result does not depend on the number of threads.
+//! parallel (see [`super::spanning_forest`]); the walks of pruning run
+//! alongside the ordered pruning pass (the one sequential step), which takes
+//! them in order as they come; the lines are traced in parallel and their
+//! vertices written into one buffer per network (a line holds a range of
+//! it). The result does not depend on the number of threads.
+//! `RIDGE_TIMING=1` prints the time of each stage on stderr.
+
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Condvar, Mutex};
 
 use rayon::prelude::*;
 
@@ -62,14 +68,16 @@ impl Default for RidgeParams {
 }
 
 /// One ridge line between two graph nodes (end points or branch points).
+/// Its vertices are a range of the network's vertex arrays (one buffer for
+/// all lines): see [`RidgeNetwork::line_points`] and
+/// [`RidgeNetwork::line_pixels`].
 #[derive(Debug, Clone, PartialEq)]
 pub struct RidgeLine {
     /// Index of the line in [`RidgeNetwork::lines`].
     pub id: u32,
-    /// Vertices in CRS coordinates with the height: `[x, y, z]`.
-    pub points: Vec<[f64; 3]>,
-    /// The same vertices in DEM pixel space (cell centres at `col + 0.5, row + 0.5`).
-    pub pixels: Vec<[f64; 2]>,
+    /// Indices of the line's vertices in [`RidgeNetwork::points`] and
+    /// [`RidgeNetwork::pixels`].
+    pub vertices: std::ops::Range<usize>,
     /// 3D length in metres (horizontal metres computed on the ellipsoid's local
     /// scale for geographic CRSs).
     pub length_m: f64,
@@ -94,6 +102,11 @@ pub struct RidgeNode {
 pub struct RidgeNetwork {
     pub lines: Vec<RidgeLine>,
     pub nodes: Vec<RidgeNode>,
+    /// Vertices of all lines, line after line, in CRS coordinates with the
+    /// height: `[x, y, z]`.
+    pub points: Vec<[f64; 3]>,
+    /// The same vertices in DEM pixel space (cell centres at `col + 0.5, row + 0.5`).
+    pub pixels: Vec<[f64; 2]>,
     /// Number of candidate cells found by profile recognition.
     pub candidate_cells: usize,
 }
@@ -102,6 +115,16 @@ impl RidgeNetwork {
     /// Total length of all lines in metres.
     pub fn total_length_m(&self) -> f64 {
         self.lines.iter().map(|l| l.length_m).sum()
+    }
+
+    /// Vertices of `line` in CRS coordinates with the height.
+    pub fn line_points(&self, line: &RidgeLine) -> &[[f64; 3]] {
+        &self.points[line.vertices.clone()]
+    }
+
+    /// Vertices of `line` in DEM pixel space.
+    pub fn line_pixels(&self, line: &RidgeLine) -> &[[f64; 2]] {
+        &self.pixels[line.vertices.clone()]
     }
 }
 
@@ -165,8 +188,12 @@ pub fn detect_ridges(map: &HeightMap, params: &RidgeParams) -> Result<RidgeNetwo
     let min_branch = params.min_branch_m.unwrap_or(3.0 * cell_m);
     let min_line = params.min_line_m.unwrap_or(5.0 * cell_m);
 
+    let timing = std::env::var_os("RIDGE_TIMING").is_some();
+    let t0 = std::time::Instant::now();
     let cand = profile_recognition(map, params);
-    let mut mask = spanning_forest(&map.data, &cand, w, h);
+    let t1 = std::time::Instant::now();
+    let mut mask = spanning_forest(&cand, w, h);
+    let t2 = std::time::Instant::now();
     let forest = Forest::new(&cand, w);
     prune(
         &forest,
@@ -175,8 +202,18 @@ pub fn detect_ridges(map: &HeightMap, params: &RidgeParams) -> Result<RidgeNetwo
         (min_branch, min_line),
         params.prune_passes,
     );
+    let t3 = std::time::Instant::now();
     let mut net = trace(map, &forest, &mask, &metric, params.smooth_iterations);
     net.candidate_cells = cand.len();
+    if timing {
+        eprintln!(
+            "ridges: profile {:?} forest {:?} prune {:?} trace {:?}",
+            t1 - t0,
+            t2 - t1,
+            t3 - t2,
+            t3.elapsed()
+        );
+    }
     Ok(net)
 }
 
@@ -249,11 +286,13 @@ fn profile_band(
     for r in r0i - hwi..r0i + hwi {
         fill(&mut ring, r);
     }
-    let mut bits = vec![0u8; w8 / 8];
+    // Whole words of flags, so that the candidates are read 64 at a time.
+    let mut bits = vec![0u8; w8.next_multiple_of(64) / 8];
     let mut own_centre = vec![f32::NAN; w8];
     let mut starts = Vec::with_capacity(8 * hw);
     // The band's candidates: cells and heights.
-    let (mut cells, mut heights) = (Vec::new(), Vec::new());
+    let reserve = (r1 - r0) * w / 8;
+    let (mut cells, mut heights) = (Vec::with_capacity(reserve), Vec::with_capacity(reserve));
     for r in r0..r1 {
         let ri = r as isize;
         fill(&mut ring, ri + hwi);
@@ -285,11 +324,11 @@ fn profile_band(
         };
         row.flags(&mut bits, simd);
         append_bits(words, (r - r0) * w, &bits, w);
-        for (j, &b) in bits.iter().enumerate() {
-            let mut b = b;
-            while b != 0 {
-                let col = 8 * j + b.trailing_zeros() as usize;
-                b &= b - 1;
+        for (j, word) in bits.chunks_exact(8).enumerate() {
+            let mut word = u64::from_le_bytes(std::array::from_fn(|i| word[i]));
+            while word != 0 {
+                let col = 64 * j + word.trailing_zeros() as usize;
+                word &= word - 1;
                 if col < w {
                     cells.push((r * w + col) as u32);
                     heights.push(src[col]);
@@ -532,21 +571,6 @@ impl<'a> Forest<'a> {
         }
     }
 
-    /// Id of the first cell of degree other than 2 on the walk from `cell`
-    /// along direction `d`.
-    #[inline]
-    fn end(&self, mask: &[u8], mut cell: usize, mut d: usize) -> usize {
-        loop {
-            let (nc, nid) = self.step(cell, d);
-            let m = mask[nid];
-            if degree(m) != 2 {
-                return nid;
-            }
-            d = (m & !(1 << ((d + 4) % 8))).trailing_zeros() as usize;
-            cell = nc;
-        }
-    }
-
     /// The cell and candidate id one step from `cell` along direction `d`
     /// (which must lead to a candidate).
     #[inline]
@@ -710,8 +734,9 @@ impl LeafWalker<'_> {
 /// whose end changed class: the result is that of walking every leaf in
 /// every pass.
 ///
-/// The walks of the first pass are made beforehand in parallel on the
-/// unpruned forest. In the ordered pass, a leaf's chain is still intact
+/// The walks of the first pass are made on a copy of the unpruned forest,
+/// in parallel with the ordered pass that consumes them in order. In the
+/// ordered pass, a leaf's chain is still intact
 /// (only its own removal or that of the leaf at its other end would touch
 /// it), so its walk is unchanged as long as its end is still a branch point
 /// or still a leaf; otherwise it is walked again.
@@ -734,40 +759,82 @@ fn prune(
         min_line,
         enough: min_branch.max(min_line),
     };
-    // Records of the walks of the leaves that reach their end.
+    let t0 = std::time::Instant::now();
+    // Records of the walks of the leaves that reach their end, by chunks of
+    // ids, made on a copy of the unpruned forest: one job walks the chunks
+    // in order while the other runs the ordered pass over the chunks walked
+    // so far (and walks a chunk itself when the next one is not there yet).
     const CHUNK: usize = 1 << 14;
-    let walks: Vec<Vec<u64>> = mask
-        .par_chunks(CHUNK)
-        .enumerate()
-        .map(|(k, chunk)| {
-            let mut walks = Vec::new();
-            for (i, _) in chunk.iter().enumerate().filter(|(_, &m)| degree(m) == 1) {
-                let leaf = k * CHUNK + i;
-                if let Some(end) = walker.walk(mask, leaf) {
-                    walks.push(walker.record(mask, leaf, end));
-                }
+    let unpruned = mask.to_vec();
+    let chunks = unpruned.len().div_ceil(CHUNK);
+    let walk_chunk = |k: usize| -> Vec<u64> {
+        let mut walks = Vec::new();
+        let chunk = &unpruned[k * CHUNK..((k + 1) * CHUNK).min(unpruned.len())];
+        for (i, _) in chunk.iter().enumerate().filter(|(_, &m)| degree(m) == 1) {
+            let leaf = k * CHUNK + i;
+            if let Some(end) = walker.walk(&unpruned, leaf) {
+                walks.push(walker.record(&unpruned, leaf, end));
             }
-            walks
-        })
-        .collect();
+        }
+        walks
+    };
+    let claimed = AtomicUsize::new(0);
+    let walked: Mutex<Vec<Option<Vec<u64>>>> = Mutex::new((0..chunks).map(|_| None).collect());
+    let ready = Condvar::new();
+    // The lock never sees a panic while held (no code in it can panic).
+    let lock = || walked.lock().unwrap_or_else(|e| e.into_inner());
+    let claim_and_walk = || {
+        let k = claimed.fetch_add(1, Ordering::Relaxed);
+        if k < chunks {
+            let walks = walk_chunk(k);
+            lock()[k] = Some(walks);
+            ready.notify_all();
+        }
+        k < chunks
+    };
     // The leaves to visit in the next pass, with their walks.
     let mut revisit: Vec<u64> = Vec::new();
-    for &walk in walks.iter().flatten() {
-        let (leaf, end) = ((walk & ID) as usize, (walk >> 30 & ID) as usize);
-        if degree(mask[leaf]) != 1 {
-            continue;
-        }
-        if same_class(walk, degree(mask[end])) {
-            if walk >> 63 == 1 {
-                walker.remove_walk(mask, walk);
-            } else {
-                revisit.push(walk);
+    let mut nwalks = 0;
+    let ordered = |mask: &mut [u8], revisit: &mut Vec<u64>, nwalks: &mut usize| {
+        for k in 0..chunks {
+            let walks = loop {
+                let mut slots = lock();
+                if let Some(walks) = slots[k].take() {
+                    break walks;
+                }
+                if claimed.load(Ordering::Relaxed) < chunks {
+                    drop(slots);
+                    claim_and_walk();
+                } else {
+                    while slots[k].is_none() {
+                        slots = ready.wait(slots).unwrap_or_else(|e| e.into_inner());
+                    }
+                }
+            };
+            *nwalks += walks.len();
+            for &walk in &walks {
+                let (leaf, end) = ((walk & ID) as usize, (walk >> 30 & ID) as usize);
+                if degree(mask[leaf]) != 1 {
+                    continue;
+                }
+                if same_class(walk, degree(mask[end])) {
+                    if walk >> 63 == 1 {
+                        walker.remove_walk(mask, walk);
+                    } else {
+                        revisit.push(walk);
+                    }
+                } else if let Some(walk) = walker.settle(mask, leaf) {
+                    revisit.push(walk);
+                }
             }
-        } else if let Some(walk) = walker.settle(mask, leaf) {
-            revisit.push(walk);
         }
-    }
-    drop(walks);
+    };
+    rayon::join(
+        || while claim_and_walk() {},
+        || ordered(mask, &mut revisit, &mut nwalks),
+    );
+    let t2 = std::time::Instant::now();
+    let nrevisit = revisit.len();
     // A kept walk whose end kept its class is kept again.
     for _ in 1..passes {
         let mut kept = 0;
@@ -789,12 +856,21 @@ fn prune(
         }
         revisit.truncate(kept);
     }
+    if std::env::var_os("RIDGE_TIMING").is_some() {
+        eprintln!(
+            "prune: walks and ordered pass {:?} ({nwalks} walks, {nrevisit} kept) later passes {:?}",
+            t2 - t0,
+            t2.elapsed()
+        );
+    }
 }
 
 /// Trace the forest into lines between nodes, smooth them and convert them
 /// to CRS coordinates. Each line is traced from its node of lower cell index
 /// (in parallel over the nodes; the walk from the other end is dropped), so
-/// the lines come in the order of their first node and direction.
+/// the lines come in the order of their first node and direction. The walks
+/// count the vertices of each line first; the lines then write their
+/// vertices in parallel into their ranges of one buffer.
 #[inline(never)]
 fn trace(
     map: &HeightMap,
@@ -806,6 +882,7 @@ fn trace(
     let w = map.width;
     let gt = &map.geotransform;
     let cand = forest.cand;
+    let t0 = std::time::Instant::now();
     let node_ids = select(mask, |m| m != 0 && degree(m) != 2);
     let nodes: Vec<RidgeNode> = node_ids
         .par_iter()
@@ -822,115 +899,163 @@ fn trace(
             }
         })
         .collect();
-    // The lines as first node (index) << 3 | direction: walked from both
-    // ends, kept from the lower one.
+    // The lines, walked from both ends and kept from the lower one, with
+    // the steps of the kept walks, by chunks of nodes.
     const CHUNK: usize = 1024;
-    let firsts: Vec<Vec<u32>> = node_ids
+    let walked: Vec<ChunkLines> = node_ids
         .par_chunks(CHUNK)
         .enumerate()
         .map(|(k, chunk)| {
-            let mut firsts = Vec::new();
+            let mut out = ChunkLines::default();
             for (i, &id) in chunk.iter().enumerate() {
                 let (m, cell) = (mask[id as usize], cand.cells[id as usize] as usize);
-                for d in (0..8).filter(|d| m & (1 << d) != 0) {
-                    if forest.end(mask, cell, d) > id as usize {
-                        firsts.push(((k * CHUNK + i) as u32) << 3 | d as u32);
+                for d0 in (0..8).filter(|d| m & (1 << d) != 0) {
+                    let mark = out.ids.len();
+                    let (mut c, mut d) = (cell, d0);
+                    let end = loop {
+                        let (nc, nid) = forest.step(c, d);
+                        out.ids.push(nid as u32);
+                        out.dirs.push(d as u8);
+                        let m = mask[nid];
+                        if degree(m) != 2 {
+                            break nid;
+                        }
+                        d = (m & !(1 << ((d + 4) % 8))).trailing_zeros() as usize;
+                        c = nc;
+                    };
+                    if end > id as usize {
+                        let first = ((k * CHUNK + i) as u32) << 3 | d0 as u32;
+                        let count = (out.ids.len() - mark + 1) as u32;
+                        out.lines.push((first, count, end as u32));
+                    } else {
+                        out.ids.truncate(mark);
+                        out.dirs.truncate(mark);
                     }
                 }
             }
-            firsts
+            out
         })
         .collect();
-    let firsts = firsts.concat();
-    let mut lines = Vec::new();
-    firsts
+    let t1 = std::time::Instant::now();
+    let mut lines = Vec::with_capacity(walked.iter().map(|c| c.lines.len()).sum());
+    let (mut line_bounds, mut vertex_bounds) = (vec![0usize], vec![0usize]);
+    let mut vertices = 0usize;
+    for chunk in &walked {
+        for &(first, count, _) in &chunk.lines {
+            let next = vertices + count as usize;
+            lines.push(RidgeLine {
+                id: lines.len() as u32,
+                vertices: vertices..next,
+                length_m: 0.0,
+                nodes: [first >> 3, u32::MAX],
+            });
+            vertices = next;
+        }
+        line_bounds.push(lines.len());
+        vertex_bounds.push(vertices);
+    }
+    let mut points = vec![[0.0f64; 3]; vertices];
+    let mut pixels = vec![[0.0f64; 2]; vertices];
+    let t2 = std::time::Instant::now();
+    // The lines of each chunk, filled in parallel from the recorded steps.
+    let heights = &cand.heights;
+    walked
         .par_iter()
-        .enumerate()
-        .map_init(
-            || (Vec::new(), Vec::new()),
-            |(ids, dirs), (line, &first)| {
-                let (node, d0) = ((first >> 3) as usize, (first & 7) as usize);
-                let id = node_ids[node];
-                let cell = cand.cells[id as usize] as usize;
-                ids.clear();
-                dirs.clear();
-                ids.push(id);
-                let (mut c, mut d) = (cell, d0);
-                let end = loop {
-                    let (nc, nid) = forest.step(c, d);
-                    ids.push(nid as u32);
-                    dirs.push(d as u8);
-                    c = nc;
-                    let m = mask[nid];
-                    if degree(m) != 2 {
-                        break nid as u32;
-                    }
-                    d = (m & !(1 << ((d + 4) % 8))).trailing_zeros() as usize;
-                };
-                let far = node_ids.binary_search(&end).map_or(u32::MAX, |j| j as u32);
-                let mut l = polyline(
-                    map,
-                    metric,
-                    cand,
-                    (cell, ids, dirs),
-                    smooth,
-                    [node as u32, far],
-                );
-                l.id = line as u32;
-                l
-            },
-        )
-        .collect_into_vec(&mut lines);
+        .zip(split_at(&mut lines, &line_bounds))
+        .zip(split_at(&mut points, &vertex_bounds))
+        .zip(split_at(&mut pixels, &vertex_bounds))
+        .for_each(|(((walked, lines), points), pixels)| {
+            let base = lines.first().map_or(0, |l| l.vertices.start);
+            let mut step = 0;
+            for (line, &(first, _, end)) in lines.iter_mut().zip(&walked.lines) {
+                let range = line.vertices.start - base..line.vertices.end - base;
+                let id = node_ids[(first >> 3) as usize] as usize;
+                let cell = cand.cells[id] as usize;
+                let (mut col, mut row) = ((cell % w) as isize, (cell / w) as isize);
+                let px = &mut points[range.clone()];
+                px[0] = [col as f64 + 0.5, row as f64 + 0.5, heights[id] as f64];
+                let n = px.len() - 1;
+                let steps = walked.ids[step..step + n]
+                    .iter()
+                    .zip(&walked.dirs[step..step + n]);
+                for (p, (&nid, &d)) in px[1..].iter_mut().zip(steps) {
+                    let (dx, dy) = DIRS[d as usize];
+                    (col, row) = (col + dx, row + dy);
+                    *p = [
+                        col as f64 + 0.5,
+                        row as f64 + 0.5,
+                        heights[nid as usize] as f64,
+                    ];
+                }
+                step += n;
+                line.nodes[1] = node_ids.binary_search(&end).map_or(u32::MAX, |j| j as u32);
+                line.length_m = polyline(map, metric, smooth, px, &mut pixels[range]);
+            }
+        });
+    if std::env::var_os("RIDGE_TIMING").is_some() {
+        eprintln!(
+            "trace: nodes and walks {:?} ranges {:?} lines {:?}",
+            t1 - t0,
+            t2 - t1,
+            t2.elapsed()
+        );
+    }
     RidgeNetwork {
         lines,
         nodes,
+        points,
+        pixels,
         candidate_cells: 0,
     }
 }
 
-/// The smoothed line from cell `cell` through the candidates `ids` (the
-/// first one, then one step along each of `dirs`) in pixel and CRS
-/// coordinates.
+/// `s` cut into the consecutive pieces `bounds[i]..bounds[i + 1]`.
+fn split_at<'a, T>(mut s: &'a mut [T], bounds: &[usize]) -> Vec<&'a mut [T]> {
+    let mut parts = Vec::with_capacity(bounds.len().saturating_sub(1));
+    for b in bounds.windows(2) {
+        let (part, rest) = std::mem::take(&mut s).split_at_mut(b[1] - b[0]);
+        parts.push(part);
+        s = rest;
+    }
+    parts
+}
+
+/// The lines that start at a chunk of nodes, as walked.
+#[derive(Default)]
+struct ChunkLines {
+    /// Per line: its first node (index) << 3 | direction, its vertex count
+    /// and the candidate id of its last vertex.
+    lines: Vec<(u32, u32, u32)>,
+    /// Candidate ids of the vertices after the first, line after line.
+    ids: Vec<u32>,
+    /// The direction of the step to each of these vertices.
+    dirs: Vec<u8>,
+}
+
+/// Smooths the line of pixel vertices `points` (with heights) in place,
+/// copies the pixel coordinates into `pixels`, converts `points` to CRS
+/// coordinates and returns the line's length in metres.
 #[inline(never)]
 fn polyline(
     map: &HeightMap,
     metric: &Metric,
-    cand: &CandidateSet,
-    (cell, ids, dirs): (usize, &[u32], &[u8]),
     smooth: usize,
-    nodes: [u32; 2],
-) -> RidgeLine {
-    let w = map.width;
-    let (mut col, mut row) = ((cell % w) as isize, (cell / w) as isize);
-    let z = |id: u32| cand.heights[id as usize] as f64;
-    let mut px: Vec<[f64; 3]> = Vec::with_capacity(ids.len());
-    px.push([col as f64 + 0.5, row as f64 + 0.5, z(ids[0])]);
-    for (&id, &d) in ids[1..].iter().zip(dirs) {
-        let (dx, dy) = DIRS[d as usize];
-        (col, row) = (col + dx, row + dy);
-        px.push([col as f64 + 0.5, row as f64 + 0.5, z(id)]);
-    }
-    smooth_polyline(&mut px, smooth);
-    let pixels: Vec<[f64; 2]> = px.iter().map(|p| [p[0], p[1]]).collect();
-    let mut points = px;
-    for p in points.iter_mut() {
+    points: &mut [[f64; 3]],
+    pixels: &mut [[f64; 2]],
+) -> f64 {
+    smooth_polyline(points, smooth);
+    for (p, q) in points.iter_mut().zip(pixels.iter_mut()) {
+        *q = [p[0], p[1]];
         (p[0], p[1]) = map.geotransform.pixel_to_crs(p[0], p[1]);
     }
-    let length_m = pixels
+    pixels
         .windows(2)
         .zip(points.windows(2))
         .map(|(a, b)| {
             let hm = metric.step_m(a[1][0] - a[0][0], a[1][1] - a[0][1], b[0][1]);
             hm.hypot(b[1][2] - b[0][2])
         })
-        .sum();
-    RidgeLine {
-        id: 0,
-        points,
-        pixels,
-        length_m,
-        nodes,
-    }
+        .sum()
 }
 
 /// [1 2 1]/4 smoothing of interior vertices, `iterations` times, in place.

@@ -42,11 +42,9 @@ const STRIP: usize = 64;
 #[inline]
 fn f32_key(v: f32) -> u32 {
     let b = v.to_bits();
-    if b >> 31 == 1 {
-        !b
-    } else {
-        b | 0x8000_0000
-    }
+    // Negative: all bits flipped; otherwise the sign bit set (no branch).
+    let flip = ((b as i32) >> 31) as u32 | 0x8000_0000;
+    b ^ flip
 }
 
 /// Weight part of a segment's sort key: ascending keys are descending
@@ -115,16 +113,11 @@ fn with_sentinel(cells: &[u32], out: &mut Vec<u32>) {
 }
 
 /// The segments from the candidates of a row to their east / south-east /
-/// south / south-west neighbours, as `f(bit, (cell a, cell b), (id a, id b))`,
+/// south / south-west neighbours, as `f(bit, (id a, id b))`,
 /// in segment-id order. Of two crossing diagonals only the higher is kept
-/// (ties to the south-west one).
+/// (ties to the south-west one). `z` holds the heights by candidate id.
 #[inline]
-fn row_segments(
-    z: &[f32],
-    w: usize,
-    rows: &RowPair,
-    mut f: impl FnMut(usize, (usize, usize), (u32, u32)),
-) {
+fn row_segments(z: &[f32], w: usize, rows: &RowPair, mut f: impl FnMut(usize, (u32, u32))) {
     let (cur, next) = (rows.cur, rows.next);
     let mut j = 0usize;
     for i in 0..cur.len() - 1 {
@@ -133,9 +126,9 @@ fn row_segments(
         let ida = rows.cur_id0 + i as u32;
         let east = cur[i + 1] == a + 1;
         let west = i > 0 && cur[i - 1] + 1 == a;
-        let (a, s) = (a as usize, a as usize + w);
+        let s = a as usize + w;
         if east {
-            f(0, (a, a + 1), (ida, ida + 1));
+            f(0, (ida, ida + 1));
         }
         // Candidates below at s - 1, s, s + 1 (the sentinel ends the scans).
         while (next[j] as usize) + 1 < s {
@@ -147,15 +140,120 @@ fn row_segments(
         let k_east = k + south as usize;
         let south_east = next[k_east] as usize == s + 1;
         let id = |k: usize| rows.next_id0 + k as u32;
-        if south_east && !(east && south && z[a + 1] + z[s] > z[a] + z[s + 1]) {
-            f(1, (a, s + 1), (ida, id(k_east)));
+        // Heights of the candidates by id: a, east, west, south, south-east
+        // and south-west (read only when they are candidates).
+        let za = |o: isize| z[(ida as isize + o) as usize];
+        let zb = |k: usize| z[id(k) as usize];
+        if south_east && !(east && south && za(1) + zb(k) > za(0) + zb(k_east)) {
+            f(1, (ida, id(k_east)));
         }
         if south {
-            f(2, (a, s), (ida, id(k)));
+            f(2, (ida, id(k)));
         }
-        if south_west && !(west && south && z[a - 1] + z[s] >= z[a] + z[s - 1]) {
-            f(3, (a, s - 1), (ida, id(j)));
+        if south_west && !(west && south && za(-1) + zb(k) >= za(0) + zb(j)) {
+            f(3, (ida, id(j)));
         }
+    }
+}
+
+/// The segment lists of a strip under construction: sort items (weight key
+/// above, index into `segs` below), segments as `[a << 2 | bit, b]` by
+/// strip-local ids, and the best (first in Kruskal order) item of each
+/// candidate (and one spare entry after them).
+struct StripLists<'a> {
+    items: &'a mut Vec<u64>,
+    segs: &'a mut Vec<[u32; 2]>,
+    best: &'a mut [u64],
+    /// Id of the strip's first candidate.
+    id0: u32,
+}
+
+/// [`row_segments`] for a row whose next row lies in the same strip,
+/// appending the segments to `lists`: the same segments in the same order,
+/// but found with the candidate bitmap and written without branches on the
+/// data (whether a segment exists is a coin toss that a branch predictor
+/// loses).
+#[inline(never)]
+fn inside_row_segments(
+    cand: &CandidateSet,
+    w: usize,
+    row: usize,
+    rows: &RowPair,
+    lists: StripLists,
+) {
+    let StripLists {
+        items,
+        segs,
+        best,
+        id0,
+    } = lists;
+    let z = &cand.heights[..];
+    let last = z.len() - 1;
+    let zi = |id: u32| z[(id as usize).min(last)];
+    let cur = rows.cur;
+    let n = cur.len() - 1;
+    let start = items.len();
+    // Every candidate writes its four possible segments after the kept
+    // ones, into the spare capacity (not cleared first).
+    items.reserve(4 * n);
+    segs.reserve(4 * n);
+    let new_items = &mut items.spare_capacity_mut()[..4 * n];
+    let new_segs = &mut segs.spare_capacity_mut()[..4 * n];
+    let (row_start, row_end) = (row * w, (row + 1) * w);
+    let mut len = 0;
+    let spare = (best.len() - 1) as u32;
+    for i in 0..n {
+        let a = cur[i] as usize;
+        let ida = rows.cur_id0 + i as u32;
+        let la = ida - id0;
+        let east = cur[i + 1] as usize == a + 1;
+        let west = i > 0 && cur[i - 1] as usize + 1 == a;
+        // Candidates below at s - 1, s and s + 1 (bits 0 to 2 of `below`),
+        // and the id of the first candidate at or after s - 1.
+        let s = a + w;
+        let (has_west, has_east) = (a > row_start, a + 1 < row_end);
+        let x = s - has_west as usize;
+        let below = cand.three_from(x) << (!has_west) as u32;
+        let first = cand.id(x);
+        let south_west = below & 1 != 0;
+        let south = below & 2 != 0;
+        let south_east = has_east && below & 4 != 0;
+        let (id_sw, id_s) = (first, first + south_west as u32);
+        let id_se = id_s + south as u32;
+        let za = z[ida as usize];
+        // The best item of `a` stays in a register (no chain of stores and
+        // loads through memory).
+        let mut best_a = best[la as usize];
+        let (z_e, z_w) = (zi(ida + 1), z[(ida as usize).saturating_sub(1)]);
+        let (z_s, z_se, z_sw) = (zi(id_s), zi(id_se), zi(id_sw));
+        // Of two crossing diagonals only the higher is kept (ties to the
+        // south-west one), as in `row_segments`.
+        let keep_se = south_east & !(east & south & (z_e + z_s > za + z_se));
+        let keep_sw = south_west & !(west & south & (z_w + z_s >= za + z_sw));
+        for (keep, bit, idb, zb) in [
+            (east, 0u32, ida + 1, z_e),
+            (keep_se, 1, id_se, z_se),
+            (south, 2, id_s, z_s),
+            (keep_sw, 3, id_sw, z_sw),
+        ] {
+            let weight = !f32_key(za + zb);
+            // A missing segment leaves `best` as it is; its `b` is clamped
+            // into `best` (the spare last entry at most), never `a`.
+            let lb = idb.wrapping_sub(id0).min(spare);
+            let item = (weight as u64) << 32 | (start + len) as u64;
+            new_items[len].write(item);
+            new_segs[len].write([la << 2 | bit, lb]);
+            let candidate = if keep { item } else { u64::MAX };
+            best_a = best_a.min(candidate);
+            best[lb as usize] = best[lb as usize].min(candidate);
+            len += keep as usize;
+        }
+        best[la as usize] = best_a;
+    }
+    // SAFETY: the first `len` spare entries of both were written above.
+    unsafe {
+        items.set_len(start + len);
+        segs.set_len(start + len);
     }
 }
 
@@ -223,7 +321,7 @@ struct Contracted {
 
 /// Candidate ids of the `b` ends of the segments from row `row` to the row
 /// below, in the order in which [`strip_forest`] lists them as crossing.
-fn crossing_ends(z: &[f32], cand: &CandidateSet, w: usize, row: usize) -> Vec<u32> {
+fn crossing_ends(cand: &CandidateSet, w: usize, row: usize) -> Vec<u32> {
     let ids = |r: usize| cand.before(r * w)..cand.before((r + 1) * w);
     let (cur, next) = (ids(row), ids(row + 1));
     let (mut cur_cells, mut next_cells) = (Vec::new(), Vec::new());
@@ -242,7 +340,7 @@ fn crossing_ends(z: &[f32], cand: &CandidateSet, w: usize, row: usize) -> Vec<u3
         next_id0: next.start,
     };
     let mut ends = Vec::new();
-    row_segments(z, w, &rows, |d, _, (_, idb)| {
+    row_segments(&cand.heights, w, &rows, |d, (_, idb)| {
         if d != 0 {
             ends.push(idb);
         }
@@ -270,7 +368,7 @@ struct Scratch {
 /// Maximum spanning forest of the candidate segments: the adjacency mask of
 /// each candidate id.
 #[inline(never)]
-pub(super) fn spanning_forest(z: &[f32], cand: &CandidateSet, w: usize, h: usize) -> Vec<u8> {
+pub(super) fn spanning_forest(cand: &CandidateSet, w: usize, h: usize) -> Vec<u8> {
     let mut mask = vec![0u8; cand.len()];
     let strips = h.div_ceil(STRIP);
     let first_id: Vec<u32> = (0..=strips)
@@ -279,16 +377,17 @@ pub(super) fn spanning_forest(z: &[f32], cand: &CandidateSet, w: usize, h: usize
     // 1. Forest of each strip, contracted to its terminals and branch
     // points; the crossing segments to the next strip.
     let several = strips > 1;
+    let t0 = std::time::Instant::now();
     let (crossing, contracted): (Vec<Vec<Segment>>, Vec<Contracted>) =
         split_at_bounds(&mut mask, &first_id)
             .into_par_iter()
             .enumerate()
             .map_init(Scratch::default, |scratch, (s, smask)| {
                 let id0 = first_id[s];
-                let down = strip_forest(z, cand, (w, h), (s, id0), smask, scratch);
+                let down = strip_forest(cand, (w, h), (s, id0), smask, scratch);
                 let contracted = if several {
                     let up = if s > 0 {
-                        crossing_ends(z, cand, w, s * STRIP - 1)
+                        crossing_ends(cand, w, s * STRIP - 1)
                     } else {
                         Vec::new()
                     };
@@ -302,6 +401,7 @@ pub(super) fn spanning_forest(z: &[f32], cand: &CandidateSet, w: usize, h: usize
     if !several || crossing.iter().all(|c| c.is_empty()) {
         return mask;
     }
+    let t1 = std::time::Instant::now();
     // 3. Kruskal on the contracted graph.
     let mut base = Vec::with_capacity(strips + 1);
     let mut n = 0u32;
@@ -342,6 +442,13 @@ pub(super) fn spanning_forest(z: &[f32], cand: &CandidateSet, w: usize, h: usize
             mask[b as usize] &= !(1 << (bit + 4));
         }
     }
+    if std::env::var_os("RIDGE_TIMING").is_some() {
+        eprintln!(
+            "forest: strips {:?} contracted graph {:?} ({n} vertices)",
+            t1 - t0,
+            t1.elapsed()
+        );
+    }
     mask
 }
 
@@ -349,7 +456,6 @@ pub(super) fn spanning_forest(z: &[f32], cand: &CandidateSet, w: usize, h: usize
 /// `smask`); returns the segments from its last row to the next strip.
 #[inline(never)]
 fn strip_forest(
-    z: &[f32],
     cand: &CandidateSet,
     (w, h): (usize, usize),
     (s, id0): (usize, u32),
@@ -358,6 +464,7 @@ fn strip_forest(
 ) -> Vec<Segment> {
     let (r0, r1) = (s * STRIP, ((s + 1) * STRIP).min(h));
     let n = smask.len();
+    let z = &cand.heights[..];
     // Sort items: weight key above, index into `segs` below.
     let Scratch {
         items,
@@ -373,7 +480,9 @@ fn strip_forest(
     items.clear();
     segs.clear();
     best.clear();
-    best.resize(n, u64::MAX);
+    // One spare entry at the end for the segments that
+    // `inside_row_segments` does not write.
+    best.resize(n + 1, u64::MAX);
     let mut crossing = Vec::new();
     let row_ids = |r: usize| cand.before(r * w)..cand.before((r + 1).min(h) * w);
     let mut next_ids = row_ids(r0);
@@ -396,8 +505,18 @@ fn strip_forest(
             next_id0: next_ids.start,
         };
         let inside = row + 1 < r1;
-        row_segments(z, w, &rows, |d, (a, b), (ida, idb)| {
-            let weight = weight_key(z, a, b);
+        if inside {
+            let lists = StripLists {
+                items: &mut *items,
+                segs: &mut *segs,
+                best: &mut best[..],
+                id0,
+            };
+            inside_row_segments(cand, w, row, &rows, lists);
+            continue;
+        }
+        row_segments(z, w, &rows, |d, (ida, idb)| {
+            let weight = weight_key(z, ida as usize, idb as usize);
             if d == 0 || inside {
                 let item = (weight as u64) << 32 | segs.len() as u64;
                 let (la, lb) = ((ida - id0) as usize, (idb - id0) as usize);
@@ -420,7 +539,7 @@ fn strip_forest(
     // whose only cycles are the pairs of candidates that chose the same
     // segment; the lower id of a pair is the root.
     parent.clear();
-    for (v, &item) in best.iter().enumerate() {
+    for (v, &item) in best[..n].iter().enumerate() {
         if item == u64::MAX {
             parent.push(v as u32);
             continue;
@@ -683,7 +802,7 @@ mod tests {
             let z: Vec<f32> = (0..w * h).map(|_| (rnd() * 50.0).round() as f32).collect();
             let flags: Vec<bool> = (0..w * h).map(|_| rnd() < density).collect();
             let set = CandidateSet::from_flags(&flags, &z, w, h);
-            let by_id = spanning_forest(&z, &set, w, h);
+            let by_id = spanning_forest(&set, w, h);
             let want = global_kruskal(&z, &flags, w, h);
             let got: Vec<u8> = (0..w * h)
                 .map(|c| {

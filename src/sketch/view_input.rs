@@ -359,7 +359,7 @@ pub fn ridge_features(
                 samples: p,
             });
         };
-        for q in &line.points {
+        for q in ridges.line_points(line) {
             let own = proj.own_frame().crs_to_local(q[0], q[1], q[2]);
             let cam_z = own[0] * proj.camera.forward[0]
                 + own[1] * proj.camera.forward[1]
