@@ -302,10 +302,12 @@ const MAX_WALK: usize = 512;
 /// consequence); the grazing ray there is the silhouette's sub-pixel row. A
 /// polyline that rises to the far pixel's ray is a crease. This is the limit
 /// the bisection of [`refine_bracket`] converges to, at the cost of a few
-/// triangle steps. Beyond it the walk goes on while farther terrain could
-/// still rise above that contour's ray before the far pixel's hit (bounded
-/// by the terrain's highest point): where it does, a second contour lies
-/// within the same pixel (stacked ridges, T-junctions), found the same way.
+/// triangle steps. Beyond it, farther terrain may still rise above that
+/// contour's grazing ray before the far pixel's hit: the ray lies in the
+/// column's plane, so one exact cast along it ([`LocalTerrain::cast_segment`])
+/// finds where the polyline next rises above it; where it does, a second
+/// contour lies within the same pixel (stacked ridges, T-junctions), found
+/// by walking on from the triangle hit.
 fn walk_to_contour(
     terrain: &LocalTerrain,
     db: &DepthBuffer,
@@ -336,7 +338,6 @@ fn walk_to_contour(
     };
     let far_y = y as f64 - 0.5;
     let t_b = db.depth[(y - 1) * db.width + x] as f64;
-    let zmax = terrain.height_range().1;
     let (mut best_y, mut best, mut best_tri, mut best_d) = (y as f64 + 0.5, q0, tri0, t_a);
     let mut found: Vec<(f64, [f64; 3], u32)> = Vec::new();
     // tracking a rising stretch (best_*), or seeking terrain above `floor`
@@ -424,9 +425,28 @@ fn walk_to_contour(
             }
             tracking = true;
             (best_y, best, best_tri, best_d) = (yx, xp, tri, dx);
-        } else if dx >= t_b || row_of([xp[0], xp[1], zmax]).is_none_or(|top| top >= floor) {
-            // nothing farther can rise above the contour's ray in view
-            return Walk::Contours(found);
+        }
+        if !tracking {
+            // Beyond a contour: the next place where the polyline rises
+            // above the contour's grazing ray is where that ray (it lies in
+            // the column's plane) next meets the terrain, before the far
+            // pixel's hit. One exact cast finds it (the max-height pyramid
+            // skips the terrain below the ray); the walk goes on from the
+            // triangle hit. No hit: nothing farther rises above the contour
+            // in view.
+            let ray = cam.unproject([px, floor]);
+            let along = dot(ray, a);
+            if along <= 0.0 {
+                return Walk::Contours(found);
+            }
+            let t_from = dot(xp, a) / along;
+            let Some(hit) = terrain.cast_segment(ray, t_from, t_b) else {
+                return Walk::Contours(found);
+            };
+            let cell = (hit.triangle / 2) as usize;
+            (c, r, half) = (cell % cx, cell / cx, hit.triangle % 2);
+            entry = None;
+            continue;
         }
         // Step across the exit edge (see the triangle layout of LocalTerrain).
         let next = match (half, e) {

@@ -418,6 +418,15 @@ impl LocalTerrain {
         self.traverse(d, 0.0, t_limit)
     }
 
+    /// The first intersection of the segment `[t_start, t_limit]` of the ray
+    /// from the eye along unit direction `d` with the terrain, by the
+    /// max-height pyramid alone (the horizon index is neither used nor
+    /// built): for rays that start far from the eye, where the index would
+    /// skip nothing.
+    pub fn cast_segment(&self, d: [f64; 3], t_start: f64, t_limit: f64) -> Option<RayHit> {
+        self.traverse(d, t_start, t_limit)
+    }
+
     /// The first intersection of the ray from the eye along unit direction
     /// `d` (local frame) with the triangulated terrain, within distance
     /// `t_limit` and the maximum view distance. `None`: the ray escapes (sky).
