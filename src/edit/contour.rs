@@ -110,13 +110,76 @@ pub fn contour_constraints(
     constrained: &dyn Fn(i64, i64) -> bool,
 ) -> Vec<CellConstraint> {
     let mut out = Vec::new();
-    for s in strokes {
-        if s.depths.is_empty() || unfitted_columns(s, view).is_empty() {
-            continue;
-        }
-        stroke_constraints(view, s, window_offset, constrained, &mut out);
+    let unfitted: Vec<&StrokeCurve> = strokes
+        .iter()
+        .filter(|s| !s.depths.is_empty() && !unfitted_columns(s, view).is_empty())
+        .collect();
+    if unfitted.is_empty() {
+        return out;
+    }
+    let near = ProjectedVertices::new(view, &unfitted);
+    for s in unfitted {
+        stroke_constraints(view, s, &near, window_offset, constrained, &mut out);
     }
     out
+}
+
+/// The vertices within the depth neighbourhood of any of the strokes, with
+/// their local point, distance and image position, sorted by image x: each
+/// stroke then looks only at the vertices over its own columns instead of
+/// projecting the whole terrain again.
+struct ProjectedVertices {
+    /// `(c, r, local point, distance, pixel)`, sorted by pixel x.
+    vertices: Vec<(usize, usize, [f64; 3], f64, [f64; 2])>,
+}
+
+impl ProjectedVertices {
+    fn new(view: &RenderedView, strokes: &[&StrokeCurve]) -> ProjectedVertices {
+        let t = &view.terrain;
+        let ranges: Vec<(f64, f64)> = strokes.iter().map(|s| depth_neighbourhood(s)).collect();
+        let (lo, hi) = ranges.iter().fold((f64::INFINITY, 0.0f64), |(a, b), r| {
+            (a.min(r.0), b.max(r.1))
+        });
+        let mut vertices = Vec::new();
+        for r in 0..t.ny {
+            for c in 0..t.nx {
+                let Some(p) = t.vertex_local(c, r) else {
+                    continue;
+                };
+                let dist = norm(p);
+                if !(dist >= lo && dist <= hi) || !ranges.iter().any(|q| dist >= q.0 && dist <= q.1)
+                {
+                    continue;
+                }
+                let Some(px) = view.camera.project(p) else {
+                    continue;
+                };
+                vertices.push((c, r, p, dist, px));
+            }
+        }
+        vertices.sort_by(|a, b| a.4[0].total_cmp(&b.4[0]));
+        ProjectedVertices { vertices }
+    }
+
+    /// The vertices whose image x lies in `[x0, x1]`, in row-major order.
+    fn over_columns(&self, x0: f64, x1: f64) -> Vec<(usize, usize, [f64; 3], f64, [f64; 2])> {
+        let v = &self.vertices;
+        let a = v.partition_point(|q| q.4[0] < x0);
+        let b = v.partition_point(|q| q.4[0] <= x1);
+        let mut out = v[a..b.max(a)].to_vec();
+        out.sort_by_key(|q| (q.1, q.0));
+        out
+    }
+}
+
+/// The depth neighbourhood of a stroke's placed curve: distances from
+/// [`NEAR_FRONT`] in front of its nearest point to [`NEAR_BEHIND`] behind
+/// its farthest.
+fn depth_neighbourhood(s: &StrokeCurve) -> (f64, f64) {
+    let (dmin, dmax) = s.depths.iter().fold((f64::INFINITY, 0.0f64), |(a, b), d| {
+        (a.min(d.1), b.max(d.1))
+    });
+    (dmin * (1.0 - NEAR_FRONT), dmax * (1.0 + NEAR_BEHIND))
 }
 
 /// A vertex whose height the relaxation may choose.
@@ -140,6 +203,7 @@ struct Vertex {
 fn stroke_constraints(
     view: &RenderedView,
     s: &StrokeCurve,
+    near: &ProjectedVertices,
     window_offset: (i64, i64),
     constrained: &dyn Fn(i64, i64) -> bool,
     out: &mut Vec<CellConstraint>,
@@ -200,32 +264,17 @@ fn stroke_constraints(
             clear,
         });
     };
-    // The neighbourhood in depth.
-    let (dmin, dmax) = s.depths.iter().fold((f64::INFINITY, 0.0f64), |(a, b), d| {
-        (a.min(d.1), b.max(d.1))
-    });
-    let (lo, hi) = (dmin * (1.0 - NEAR_FRONT), dmax * (1.0 + NEAR_BEHIND));
-    for r in 0..t.ny {
-        for c in 0..t.nx {
-            let Some(p) = t.vertex_local(c, r) else {
-                continue;
-            };
-            let dist = norm(p);
-            if !(dist >= lo && dist <= hi) {
-                continue;
-            }
-            let Some(px) = cam.project(p) else {
-                continue;
-            };
-            if !(px[0] >= x0 && px[0] <= x1) {
-                continue;
-            }
-            let Some(d) = s.depth_at(px[0]) else {
-                continue;
-            };
-            if dist >= d * (1.0 - NEAR_FRONT) && dist <= d * (1.0 + NEAR_BEHIND) {
-                add(c, r, false, &mut verts);
-            }
+    // The neighbourhood in depth (row-major, as the relaxation sweeps).
+    let (lo, hi) = depth_neighbourhood(s);
+    for (c, r, _, dist, px) in near.over_columns(x0, x1) {
+        if !(dist >= lo && dist <= hi) {
+            continue;
+        }
+        let Some(d) = s.depth_at(px[0]) else {
+            continue;
+        };
+        if dist >= d * (1.0 - NEAR_FRONT) && dist <= d * (1.0 + NEAR_BEHIND) {
+            add(c, r, false, &mut verts);
         }
     }
     // The carriers: on unfitted columns where the terrain under the placed

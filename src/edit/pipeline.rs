@@ -182,9 +182,11 @@ pub fn run(
     // 2. Features: render every view, silhouettes, ridges around all views.
     pb.set_message("rendering views, silhouettes and ridges");
     let t = Instant::now();
-    let ridges = ridge_network(&dem, &scenes)?;
-    let mut views: Vec<ViewState> = Vec::new();
-    for ((v, (scene, camera)), strokes) in sketch.views.iter().zip(scenes).zip(prepared) {
+    // The ridges and the views' renders are independent: computed side by
+    // side, each also parallel inside.
+    let mut parts = Vec::new();
+    let mut terrains = Vec::new();
+    for (scene, camera) in scenes {
         let Scene {
             window,
             window_offset,
@@ -192,7 +194,25 @@ pub fn run(
             terrain,
             ..
         } = scene;
-        let before = RenderedView::from_terrain(terrain, &camera)
+        parts.push((window, window_offset, frame, camera));
+        terrains.push((terrain, camera));
+    }
+    let windows: Vec<(&HeightMap, (i64, i64))> = parts.iter().map(|p| (&p.0, p.1)).collect();
+    let (ridges, befores) = rayon::join(
+        || ridge_network(&dem, &windows),
+        || {
+            terrains
+                .into_iter()
+                .map(|(t, c)| RenderedView::from_terrain(t, &c))
+                .collect::<Vec<_>>()
+        },
+    );
+    let ridges = ridges?;
+    let mut views: Vec<ViewState> = Vec::new();
+    for (((v, (window, window_offset, frame, camera)), strokes), before) in
+        sketch.views.iter().zip(parts).zip(prepared).zip(befores)
+    {
+        let before = before
             .map_err(|e| EditError::Internal(format!("view \"{}\": features: {e}", v.name)))?;
         views.push(ViewState {
             spec: v,
@@ -525,19 +545,16 @@ fn check_output_paths(opts: &EditOptions) -> Result<(), EditError> {
     Ok(())
 }
 
-/// Ridge network of the DEM over the union of the views' windows (one
-/// network, so that a ridge seen from two views is one feature).
-fn ridge_network(dem: &Dem, scenes: &[(Scene, Camera)]) -> Result<RidgeNetwork, EditError> {
-    let wins: Vec<Window> = scenes
+/// Ridge network of the DEM over the union of the views' windows (given
+/// with their offsets in the DEM grid; one network, so that a ridge seen
+/// from two views is one feature).
+fn ridge_network(
+    dem: &Dem,
+    windows: &[(&HeightMap, (i64, i64))],
+) -> Result<RidgeNetwork, EditError> {
+    let wins: Vec<Window> = windows
         .iter()
-        .map(|(s, _)| {
-            Window::new(
-                s.window_offset.0,
-                s.window_offset.1,
-                s.window.width,
-                s.window.height,
-            )
-        })
+        .map(|(map, offset)| Window::new(offset.0, offset.1, map.width, map.height))
         .collect();
     let Some(first) = wins.first() else {
         return Ok(RidgeNetwork::default());
@@ -552,7 +569,7 @@ fn ridge_network(dem: &Dem, scenes: &[(Scene, Camera)]) -> Result<RidgeNetwork, 
     let union = Window::new(c0, r0, (c1 - c0) as usize, (r1 - r0) as usize);
     let owned;
     let map: &HeightMap = if union == *first {
-        &scenes[0].0.window
+        windows[0].0
     } else {
         owned = dem.read_height_map(union)?;
         &owned

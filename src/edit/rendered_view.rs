@@ -55,9 +55,21 @@ impl RenderedView {
                 }
             }
         }
-        let skyline_row = (0..w)
-            .map(|i| (0..depth.height).find(|&j| depth.triangle[j * w + i] != SKY))
-            .collect();
+        // Row by row (the buffer is row-major) until every column has met
+        // the terrain.
+        let mut skyline_row = vec![None; w];
+        let mut open = w;
+        for (j, row) in depth.triangle.chunks_exact(w.max(1)).enumerate() {
+            if open == 0 {
+                break;
+            }
+            for (s, &t) in skyline_row.iter_mut().zip(row) {
+                if s.is_none() && t != SKY {
+                    *s = Some(j);
+                    open -= 1;
+                }
+            }
+        }
         Ok(RenderedView {
             terrain,
             camera: *camera,

@@ -415,12 +415,16 @@ fn encode_tile(
     provenance: &Provenance,
 ) -> Result<(), RasterError> {
     let gerr = |e: gdal::errors::GdalError| RasterError::gdal(&tile.path, e);
-    // Decode the source with all cores (GTiff's NUM_THREADS open option);
-    // "@" keeps other drivers from warning about an option they lack.
+    // Decode a compressed source with all cores (GTiff's NUM_THREADS open
+    // option; "@" keeps other drivers from warning about an option they
+    // lack). An uncompressed one has nothing to decode: the worker pool
+    // would cost more than the copy.
+    let uncompressed =
+        matches!(&tile.source, TileSource::Tiff(t) if t.encoding.compression == "NONE");
     let src = gdal::Dataset::open_ex(
         &tile.path,
         gdal::DatasetOptions {
-            open_options: Some(&["@NUM_THREADS=ALL_CPUS"]),
+            open_options: (!uncompressed).then_some(&["@NUM_THREADS=ALL_CPUS"][..]),
             ..Default::default()
         },
     )
