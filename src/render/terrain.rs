@@ -52,14 +52,34 @@ pub struct LocalTerrain {
     /// (rasterised views need neither).
     index: std::sync::OnceLock<CastIndex>,
     horizon: std::sync::OnceLock<Option<HorizonIndex>>,
+    ranges: std::sync::OnceLock<BlockRanges>,
+    coarse_index: std::sync::OnceLock<CastIndex>,
 }
 
-/// The max-height pyramid every cast traverses: level l holds the max over
-/// blocks of 2^(l+1) x 2^(l+1) cells.
+/// Edge in cells of the blocks of [`BlockRanges`].
+pub(crate) const RANGE_BLOCK: usize = 16;
+
+/// Lowest and highest vertex (nodata skipped) of every block of
+/// [`RANGE_BLOCK`] x [`RANGE_BLOCK`] cells, its boundary vertices included:
+/// the renderer's block culling and the coarse cast index both read them.
+#[derive(Debug, Clone)]
+pub(crate) struct BlockRanges {
+    /// Blocks across and down.
+    pub bw: usize,
+    pub bh: usize,
+    /// Per block, row-major: `+inf` / `-inf` where every vertex is nodata.
+    pub lo: Vec<f32>,
+    pub hi: Vec<f32>,
+}
+
+/// A max-height pyramid for casts: level `l` holds the highest vertex of
+/// each block of `2^(l + shift)` x `2^(l + shift)` cells. Casts test the
+/// cells of a bottom-level block exactly.
 #[derive(Debug, Clone)]
 struct CastIndex {
     mip: Vec<Vec<f32>>,
     mip_dims: Vec<(usize, usize)>,
+    shift: u32,
 }
 
 impl LocalTerrain {
@@ -145,6 +165,8 @@ impl LocalTerrain {
             zmax: zmax as f64,
             index: std::sync::OnceLock::new(),
             horizon: std::sync::OnceLock::new(),
+            ranges: std::sync::OnceLock::new(),
+            coarse_index: std::sync::OnceLock::new(),
         }
     }
 
@@ -152,7 +174,75 @@ impl LocalTerrain {
     fn index(&self) -> &CastIndex {
         self.index.get_or_init(|| {
             let (mip, mip_dims) = self.build_mip();
-            CastIndex { mip, mip_dims }
+            CastIndex {
+                mip,
+                mip_dims,
+                shift: 1,
+            }
+        })
+    }
+
+    /// The coarse cast index: blocks of [`RANGE_BLOCK`] cells at the
+    /// bottom, built from the block ranges (which the renderer computes
+    /// anyway) at almost no cost. Casts through it test more cells than
+    /// through [`LocalTerrain::index`]: for a few thousand casts per view.
+    fn coarse_index(&self) -> &CastIndex {
+        self.coarse_index.get_or_init(|| {
+            let r = self.block_ranges();
+            let (mip, mip_dims) = max_pyramid(r.hi.clone(), r.bw, r.bh);
+            CastIndex {
+                mip,
+                mip_dims,
+                shift: RANGE_BLOCK.trailing_zeros(),
+            }
+        })
+    }
+
+    /// The lowest and highest vertex of every block (computed on first use).
+    pub(crate) fn block_ranges(&self) -> &BlockRanges {
+        self.ranges.get_or_init(|| {
+            let (nx, cx, cy) = (self.nx, self.cells_x(), self.ny.saturating_sub(1));
+            let (bw, bh) = (cx.div_ceil(RANGE_BLOCK), cy.div_ceil(RANGE_BLOCK));
+            let z = &self.z;
+            let rows: Vec<(Vec<f32>, Vec<f32>)> = (0..bh)
+                .into_par_iter()
+                .map_init(
+                    || (vec![0f32; nx], vec![0f32; nx]),
+                    |(col_lo, col_hi), by| {
+                        let r0 = by * RANGE_BLOCK;
+                        let r1 = ((by + 1) * RANGE_BLOCK).min(cy);
+                        // lowest and highest vertex of each column over rows
+                        // r0..=r1 (comparisons skip NaN and vectorise)
+                        col_lo.fill(f32::INFINITY);
+                        col_hi.fill(f32::NEG_INFINITY);
+                        for r in r0..=r1 {
+                            let row = &z[r * nx..(r + 1) * nx];
+                            for ((l, h), &v) in col_lo.iter_mut().zip(col_hi.iter_mut()).zip(row) {
+                                *l = if v < *l { v } else { *l };
+                                *h = if v > *h { v } else { *h };
+                            }
+                        }
+                        (0..bw)
+                            .map(|bx| {
+                                let c0 = bx * RANGE_BLOCK;
+                                let c1 = ((bx + 1) * RANGE_BLOCK).min(cx);
+                                let lo =
+                                    col_lo[c0..=c1].iter().fold(f32::INFINITY, |a, &v| a.min(v));
+                                let hi = col_hi[c0..=c1]
+                                    .iter()
+                                    .fold(f32::NEG_INFINITY, |a, &v| a.max(v));
+                                (lo, hi)
+                            })
+                            .unzip()
+                    },
+                )
+                .collect();
+            let (mut lo, mut hi) = (Vec::with_capacity(bw * bh), Vec::with_capacity(bw * bh));
+            for (l, h) in rows {
+                lo.extend(l);
+                hi.extend(h);
+            }
+            BlockRanges { bw, bh, lo, hi }
         })
     }
 
@@ -268,32 +358,7 @@ impl LocalTerrain {
                 }
             },
         );
-        let mut mip = vec![l0];
-        let mut dims = vec![(w0, h0)];
-        while {
-            let (w, h) = dims[dims.len() - 1];
-            w > 1 || h > 1
-        } {
-            let (w, h) = dims[dims.len() - 1];
-            let (w2, h2) = (w.div_ceil(2), h.div_ceil(2));
-            let prev = &mip[mip.len() - 1];
-            let mut next = vec![f32::NEG_INFINITY; w2 * h2];
-            next.par_chunks_mut(w2).enumerate().for_each(|(r, out)| {
-                let a = &prev[2 * r * w..(2 * r + 1) * w];
-                let b = if 2 * r + 1 < h {
-                    &prev[(2 * r + 1) * w..(2 * r + 2) * w]
-                } else {
-                    a
-                };
-                for (c, o) in out.iter_mut().enumerate() {
-                    let c1 = (2 * c + 1).min(w - 1);
-                    *o = a[2 * c].max(a[c1]).max(b[2 * c]).max(b[c1]);
-                }
-            });
-            mip.push(next);
-            dims.push((w2, h2));
-        }
-        (mip, dims)
+        max_pyramid(l0, w0, h0)
     }
 
     /// Lowest and highest apparent vertex height (relative to the eye);
@@ -439,7 +504,8 @@ impl LocalTerrain {
     /// (distances in metres), by the cast index (built on first use) but
     /// without the horizon index.
     pub fn cast_segment(&self, d: [f64; 3], t_start: f64, t_limit: f64) -> Option<RayHit> {
-        self.traverse(d, t_start, t_limit)
+        let index = self.index.get().unwrap_or_else(|| self.coarse_index());
+        self.traverse_with(index, d, t_start, t_limit)
     }
 
     /// The first intersection of the ray from the eye along unit direction
@@ -467,6 +533,17 @@ impl LocalTerrain {
     /// (clipped to the grid, the height range and the maximum distance),
     /// by hierarchical traversal of the max-height pyramid.
     fn traverse(&self, d: [f64; 3], t_start: f64, t_limit: f64) -> Option<RayHit> {
+        self.traverse_with(self.index(), d, t_start, t_limit)
+    }
+
+    /// [`LocalTerrain::traverse`] through `index`.
+    fn traverse_with(
+        &self,
+        index: &CastIndex,
+        d: [f64; 3],
+        t_start: f64,
+        t_limit: f64,
+    ) -> Option<RayHit> {
         let m = self.en_to_v;
         let gx = m[0][0] * d[0] + m[0][1] * d[1];
         let gy = m[1][0] * d[0] + m[1][1] * d[1];
@@ -501,10 +578,15 @@ impl LocalTerrain {
         if !(t1 > t0) {
             return None;
         }
-        let CastIndex { mip, mip_dims, .. } = self.index();
+        let CastIndex {
+            mip,
+            mip_dims,
+            shift,
+        } = index;
         let top = mip.len() - 1;
-        // level l: blocks of 2^(l + 1) cells (see `build_mip`)
-        let mut level = top.min(2);
+        // level l: blocks of 2^(l + shift) cells; start at blocks of 8 or
+        // the bottom level
+        let mut level = top.min(3usize.saturating_sub(*shift as usize));
         let mut t = t0;
         let eps = 1e-7 * (1.0 + t1.min(1e7));
         let ray = (ox, oy, gx, gy, dz);
@@ -512,7 +594,7 @@ impl LocalTerrain {
         while t < t1 {
             let tp = t + eps;
             let (px, py) = (ox + gx * tp, oy + gy * tp);
-            let s = (2usize << level) as f64;
+            let s = (1usize << (level as u32 + shift)) as f64;
             let (mw, mh) = mip_dims[level];
             let (Some((bx, tx)), Some((by, ty))) = (
                 axis_block(ox, gx, px, s, wx, mw, tp),
@@ -533,7 +615,7 @@ impl LocalTerrain {
                 level -= 1;
                 continue;
             }
-            // The cells of the 2 x 2 block, in the order the ray crosses them.
+            // The cells of the bottom block, in the order the ray crosses them.
             while t < te {
                 let tq = t + eps;
                 let (qx, qy) = (ox + gx * tq, oy + gy * tq);
@@ -549,12 +631,14 @@ impl LocalTerrain {
                 }
                 t = tc;
             }
-            // Ascend when leaving the parent block (of 4 x 4 cells).
+            // Ascend when leaving the parent block.
             if level < top {
                 let tq = t + eps;
                 let (qx, qy) = (ox + gx * tq, oy + gy * tq);
+                let ps = shift + 1;
                 // (truncation is floor for the non-negative values kept by max)
-                if (qx.max(0.0) as usize) >> 2 != bx >> 1 || (qy.max(0.0) as usize) >> 2 != by >> 1
+                if (qx.max(0.0) as usize) >> ps != bx >> 1
+                    || (qy.max(0.0) as usize) >> ps != by >> 1
                 {
                     level += 1;
                 }
@@ -672,6 +756,38 @@ mod spare_heights {
             spare.push(b);
         }
     }
+}
+
+/// The pyramid over `base` (`w` x `h` block maxima): each level the max of
+/// 2 x 2 blocks of the one below, up to a single block.
+#[allow(clippy::type_complexity)]
+fn max_pyramid(base: Vec<f32>, w: usize, h: usize) -> (Vec<Vec<f32>>, Vec<(usize, usize)>) {
+    let mut mip = vec![base];
+    let mut dims = vec![(w.max(1), h.max(1))];
+    while {
+        let (w, h) = dims[dims.len() - 1];
+        w > 1 || h > 1
+    } {
+        let (w, h) = dims[dims.len() - 1];
+        let (w2, h2) = (w.div_ceil(2), h.div_ceil(2));
+        let prev = &mip[mip.len() - 1];
+        let mut next = vec![f32::NEG_INFINITY; w2 * h2];
+        next.par_chunks_mut(w2).enumerate().for_each(|(r, out)| {
+            let a = &prev[2 * r * w..(2 * r + 1) * w];
+            let b = if 2 * r + 1 < h {
+                &prev[(2 * r + 1) * w..(2 * r + 2) * w]
+            } else {
+                a
+            };
+            for (c, o) in out.iter_mut().enumerate() {
+                let c1 = (2 * c + 1).min(w - 1);
+                *o = a[2 * c].max(a[c1]).max(b[2 * c]).max(b[c1]);
+            }
+        });
+        mip.push(next);
+        dims.push((w2, h2));
+    }
+    (mip, dims)
 }
 
 /// Block index along one axis of the point `p = o + g * tp` at block size `s`

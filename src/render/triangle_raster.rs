@@ -33,12 +33,12 @@
 //!   culling state.
 
 use super::depth_buffer::SKY;
-use super::terrain::LocalTerrain;
+use super::terrain::{LocalTerrain, RANGE_BLOCK};
 use crate::view::{cross, dot, Camera};
 use rayon::prelude::*;
 
-/// Block edge in cells for ordering and culling.
-const BLOCK: usize = 16;
+/// Block edge in cells for ordering and culling: the terrain's range blocks.
+const BLOCK: usize = RANGE_BLOCK;
 
 /// Pixel columns per strip rendered by one task.
 const STRIP: usize = 128;
@@ -165,101 +165,84 @@ fn block_boxes(terrain: &LocalTerrain, camera: &Camera, m: &VertexToCamera) -> B
     let eye = terrain.eye_vertex();
     let ebx = (eye.0 / BLOCK as f64).floor() as i64;
     let eby = (eye.1 / BLOCK as f64).floor() as i64;
-    let nx = terrain.nx;
-    let z = &terrain.z;
+    let ranges = terrain.block_ranges();
+    debug_assert_eq!((ranges.bw, ranges.bh), (bw, bh));
     // Near limit for projecting a box: boxes reaching closer to the camera
     // plane than this are treated as covering the whole image.
     let near = 1e-3;
     let rows: Vec<Vec<(u32, BlockBox)>> = (0..bh)
         .into_par_iter()
-        .map_init(
-            || (vec![0f32; nx], vec![0f32; nx]),
-            |(col_lo, col_hi), by| {
-                let mut out = Vec::new();
-                let r0 = by * BLOCK;
-                let r1 = ((by + 1) * BLOCK).min(cy);
-                // lowest and highest vertex of each column over rows r0..=r1
-                // (comparisons skip NaN (nodata) and vectorise)
-                col_lo.fill(f32::INFINITY);
-                col_hi.fill(f32::NEG_INFINITY);
-                for r in r0..=r1 {
-                    let row = &z[r * nx..(r + 1) * nx];
-                    for ((l, h), &v) in col_lo.iter_mut().zip(col_hi.iter_mut()).zip(row) {
-                        *l = if v < *l { v } else { *l };
-                        *h = if v > *h { v } else { *h };
-                    }
+        .map(|by| {
+            let mut out = Vec::new();
+            let r0 = by * BLOCK;
+            let r1 = ((by + 1) * BLOCK).min(cy);
+            for bx in 0..bw {
+                let c0 = bx * BLOCK;
+                let c1 = ((bx + 1) * BLOCK).min(cx);
+                let (lo, hi) = (ranges.lo[by * bw + bx], ranges.hi[by * bw + bx]);
+                if !(hi >= lo) {
+                    continue;
                 }
-                for bx in 0..bw {
-                    let c0 = bx * BLOCK;
-                    let c1 = ((bx + 1) * BLOCK).min(cx);
-                    let lo = col_lo[c0..=c1].iter().fold(f32::INFINITY, |a, &v| a.min(v));
-                    let hi = col_hi[c0..=c1]
-                        .iter()
-                        .fold(f32::NEG_INFINITY, |a, &v| a.max(v));
-                    if !(hi >= lo) {
-                        continue;
-                    }
-                    let (mut sx0, mut sx1, mut sy0, mut sy1) = (
-                        f64::INFINITY,
-                        f64::NEG_INFINITY,
-                        f64::INFINITY,
-                        f64::NEG_INFINITY,
-                    );
-                    let mut behind = 0;
-                    let mut straddles = false;
-                    for (c, r) in [(c0, r0), (c1, r0), (c0, r1), (c1, r1)] {
-                        for zz in [lo, hi] {
-                            let p = m.apply(c as f64, r as f64, zz as f64);
-                            if p[2] <= near {
-                                straddles = true;
-                                if p[2] <= 0.0 {
-                                    behind += 1;
-                                }
-                                continue;
+                let (mut sx0, mut sx1, mut sy0, mut sy1) = (
+                    f64::INFINITY,
+                    f64::NEG_INFINITY,
+                    f64::INFINITY,
+                    f64::NEG_INFINITY,
+                );
+                let mut behind = 0;
+                let mut straddles = false;
+                for (c, r) in [(c0, r0), (c1, r0), (c0, r1), (c1, r1)] {
+                    for zz in [lo, hi] {
+                        let p = m.apply(c as f64, r as f64, zz as f64);
+                        if p[2] <= near {
+                            straddles = true;
+                            if p[2] <= 0.0 {
+                                behind += 1;
                             }
-                            let sx = w / 2.0 + f * p[0] / p[2];
-                            let sy = h / 2.0 - f * p[1] / p[2];
-                            sx0 = sx0.min(sx);
-                            sx1 = sx1.max(sx);
-                            sy0 = sy0.min(sy);
-                            sy1 = sy1.max(sy);
-                        }
-                    }
-                    if behind == 8 {
-                        continue;
-                    }
-                    let bb = if straddles {
-                        BlockBox {
-                            bx: bx as u32,
-                            by: by as u32,
-                            x0: 0,
-                            x1: camera.width as i32 - 1,
-                            y0: 0,
-                        }
-                    } else {
-                        // Pixel i's centre is i + 0.5; a margin of one pixel
-                        // absorbs rounding.
-                        let x0 = (sx0 - 1.5).ceil().max(0.0);
-                        let x1 = (sx1 + 0.5).floor().min(w - 1.0);
-                        let y0 = (sy0 - 1.5).ceil().max(0.0);
-                        let y1 = (sy1 + 0.5).floor().min(h - 1.0);
-                        if x0 > x1 || y0 > y1 {
                             continue;
                         }
-                        BlockBox {
-                            bx: bx as u32,
-                            by: by as u32,
-                            x0: x0 as i32,
-                            x1: x1 as i32,
-                            y0: y0 as i32,
-                        }
-                    };
-                    let ring = (bx as i64 - ebx).unsigned_abs() + (by as i64 - eby).unsigned_abs();
-                    out.push((ring as u32, bb));
+                        let sx = w / 2.0 + f * p[0] / p[2];
+                        let sy = h / 2.0 - f * p[1] / p[2];
+                        sx0 = sx0.min(sx);
+                        sx1 = sx1.max(sx);
+                        sy0 = sy0.min(sy);
+                        sy1 = sy1.max(sy);
+                    }
                 }
-                out
-            },
-        )
+                if behind == 8 {
+                    continue;
+                }
+                let bb = if straddles {
+                    BlockBox {
+                        bx: bx as u32,
+                        by: by as u32,
+                        x0: 0,
+                        x1: camera.width as i32 - 1,
+                        y0: 0,
+                    }
+                } else {
+                    // Pixel i's centre is i + 0.5; a margin of one pixel
+                    // absorbs rounding.
+                    let x0 = (sx0 - 1.5).ceil().max(0.0);
+                    let x1 = (sx1 + 0.5).floor().min(w - 1.0);
+                    let y0 = (sy0 - 1.5).ceil().max(0.0);
+                    let y1 = (sy1 + 0.5).floor().min(h - 1.0);
+                    if x0 > x1 || y0 > y1 {
+                        continue;
+                    }
+                    BlockBox {
+                        bx: bx as u32,
+                        by: by as u32,
+                        x0: x0 as i32,
+                        x1: x1 as i32,
+                        y0: y0 as i32,
+                    }
+                };
+                let ring = (bx as i64 - ebx).unsigned_abs() + (by as i64 - eby).unsigned_abs();
+                out.push((ring as u32, bb));
+            }
+            out
+        })
         .collect();
     // Counting sort by ring.
     let max_ring = rows
