@@ -18,6 +18,11 @@ use demsketch::view::{Camera, Viewpoint};
 use std::path::Path;
 use std::process::Command;
 
+// The allocator of the `demsketch` binary (see `src/main.rs`), so that the
+// figures are those of the command line.
+#[global_allocator]
+static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 const VIEW: (f64, f64, f64) = (-112.90, 37.40, 200.0);
 const SIZE: (usize, usize) = (1024, 512);
 

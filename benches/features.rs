@@ -17,6 +17,11 @@ use demsketch::render::{DepthBuffer, LocalTerrain};
 use demsketch::view::Camera;
 use std::time::Duration;
 
+// The allocator of the `demsketch` binary (see `src/main.rs`), so that the
+// figures are those of the command line.
+#[global_allocator]
+static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 #[path = "support/fractal.rs"]
 mod fractal;
 use fractal::fractal;

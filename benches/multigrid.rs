@@ -7,6 +7,11 @@
 use criterion::{criterion_group, criterion_main, Criterion};
 use demsketch::deform::multigrid::{solve, synthetic::scattered_constraints, MultigridOptions};
 
+// The allocator of the `demsketch` binary (see `src/main.rs`), so that the
+// figures are those of the command line.
+#[global_allocator]
+static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 fn bench_multigrid(c: &mut Criterion) {
     let mut group = c.benchmark_group("multigrid");
     group.sample_size(10);

@@ -12,6 +12,11 @@ use demsketch::features::{detect_ridges, extract_silhouettes, RidgeParams, Silho
 use demsketch::render::{DepthBuffer, LocalTerrain};
 use std::time::Instant;
 
+// The allocator of the `demsketch` binary (see `src/main.rs`), so that the
+// figures are those of the command line.
+#[global_allocator]
+static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 /// Process CPU time (user + system, all threads) in seconds, from
 /// `/proc/self/stat` (clock ticks of 10 ms; average over many runs).
 fn cpu_s() -> f64 {
@@ -60,14 +65,29 @@ fn main() {
         let terrain = LocalTerrain::new(&map, &frame, None);
         let db = DepthBuffer::render(&terrain, &camera);
         let sp = SilhouetteParams::default();
+        let mut times = Vec::with_capacity(runs);
         for _ in 0..runs {
+            let t0 = Instant::now();
             match stage.as_str() {
                 "terrain" => drop(LocalTerrain::new(&map, &frame, None)),
+                "render" => {
+                    let t = LocalTerrain::new(&map, &frame, None);
+                    drop(DepthBuffer::render(&t, &camera));
+                }
                 "depth" => drop(DepthBuffer::render(&terrain, &camera)),
                 "silhouettes" => drop(extract_silhouettes(&terrain, &db, &sp)),
                 "ridges" => drop(detect_ridges(&map, &RidgeParams::default())),
                 _ => {}
             }
+            times.push(t0.elapsed().as_secs_f64() * 1e3);
+        }
+        times.sort_by(f64::total_cmp);
+        if let (Some(first), Some(last)) = (times.first(), times.last()) {
+            let mean = times.iter().sum::<f64>() / times.len() as f64;
+            eprintln!(
+                "{stage}: mean {mean:.2} ms, min {first:.2}, median {:.2}, max {last:.2}",
+                times[times.len() / 2]
+            );
         }
         return;
     }

@@ -16,6 +16,11 @@
 use demsketch::deform::multigrid::{solve, synthetic::scattered_constraints, MultigridOptions};
 use std::time::Instant;
 
+// The allocator of the `demsketch` binary (see `src/main.rs`), so that the
+// figures are those of the command line.
+#[global_allocator]
+static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 /// CPU time (user + system, all threads) of this process in seconds, from
 /// `/proc/self/stat`; `None` where that file is unavailable.
 fn process_cpu_seconds() -> Option<f64> {

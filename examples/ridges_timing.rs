@@ -15,6 +15,11 @@ mod fractal;
 use fractal::fractal_rect as fractal;
 use std::time::Instant;
 
+// The allocator of the `demsketch` binary (see `src/main.rs`), so that the
+// figures are those of the command line.
+#[global_allocator]
+static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 /// The fractal DEM, kept in the temporary directory between runs (so that
 /// profiles of this example show ridge detection, not the noise).
 fn cached_fractal(w: usize, h: usize) -> HeightMap {

@@ -5,6 +5,13 @@
 
 mod cli;
 
+// mimalloc keeps freed pages for reuse: the renderer's and solver's large
+// per-view buffers would otherwise come back from the kernel zeroed, with a
+// page fault per 4 KB, on every view of an edit (about a third of a 512 x 512
+// render's time with glibc's allocator, `docs/benchmarks.md`).
+#[global_allocator]
+static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 use clap::Parser;
 
 fn main() {
