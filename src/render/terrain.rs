@@ -56,6 +56,10 @@ pub struct LocalTerrain {
     coarse_index: std::sync::OnceLock<CastIndex>,
 }
 
+/// Largest terrain (in vertices) on which [`LocalTerrain::cast_segment`]
+/// builds the full cast index rather than the coarse one (about 2 ms).
+const FULL_INDEX_MAX_VERTICES: usize = 1 << 21;
+
 /// Edge in cells of the blocks of [`BlockRanges`].
 pub(crate) const RANGE_BLOCK: usize = 16;
 
@@ -504,7 +508,13 @@ impl LocalTerrain {
     /// (distances in metres), by the cast index (built on first use) but
     /// without the horizon index.
     pub fn cast_segment(&self, d: [f64; 3], t_start: f64, t_limit: f64) -> Option<RayHit> {
-        let index = self.index.get().unwrap_or_else(|| self.coarse_index());
+        // The full index skips more per step; on large terrains building it
+        // costs more than a view's casts gain from it.
+        let index = match self.index.get() {
+            Some(full) => full,
+            None if self.nx * self.ny <= FULL_INDEX_MAX_VERTICES => self.index(),
+            None => self.coarse_index(),
+        };
         self.traverse_with(index, d, t_start, t_limit)
     }
 
