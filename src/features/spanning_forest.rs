@@ -188,7 +188,8 @@ fn inside_row_segments(
         id0,
     } = lists;
     let z = &cand.heights[..];
-    let last = z.len() - 1;
+    // (no candidate at all: no row has any, and `zi` is never called)
+    let last = z.len().saturating_sub(1);
     let zi = |id: u32| z[(id as usize).min(last)];
     let cur = rows.cur;
     let n = cur.len() - 1;
