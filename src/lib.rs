@@ -15,7 +15,11 @@
 //!   lowering of protruding silhouettes.
 //! - [`edit`]: one edit end to end: load, features, matching, deformation,
 //!   lowering, write-back, report and pictures.
+//!
+//! [`buffer_pool`] keeps the large per-view and per-solve buffers warm
+//! between views and solves.
 
+pub mod buffer_pool;
 pub mod deform;
 pub mod edit;
 pub mod features;

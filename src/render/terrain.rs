@@ -14,6 +14,7 @@
 //! triangles, and [`LocalTerrain::cast`] intersects rays with them exactly.
 
 use super::horizon::{Block, HorizonIndex};
+use crate::buffer_pool;
 use crate::raster::HeightMap;
 use crate::view::LocalFrame;
 use rayon::prelude::*;
@@ -109,10 +110,10 @@ impl LocalTerrain {
         let ny = r1.saturating_sub(r0).max(1);
         let coef = frame.curvature.coefficient();
         let eye_alt = frame.eye_alt;
-        // A recycled buffer (see `spare_heights`) or a zeroed allocation whose
+        // A recycled buffer (see `buffer_pool`) or a zeroed allocation whose
         // pages are mapped by the parallel fill below, which writes every
         // element.
-        let mut z = spare_heights::take(nx * ny);
+        let mut z = buffer_pool::overwritten_f32(nx * ny);
         let max_d2 = max_d * max_d * 1.0001 + 1.0;
         z.par_chunks_mut(nx).enumerate().for_each(|(r, row)| {
             let src_r = r0 + r;
@@ -712,50 +713,7 @@ impl LocalTerrain {
 
 impl Drop for LocalTerrain {
     fn drop(&mut self) {
-        spare_heights::give_back(std::mem::take(&mut self.z));
-    }
-}
-
-/// Height buffers of dropped terrains, kept for the next one: a large
-/// terrain's buffer is a fresh memory mapping each time it is allocated,
-/// and mapping its pages costs more than filling it (about 50 ms of CPU for
-/// a 4096 x 4096 DEM). Re-rendering the same DEM (benchmarks, the edit's
-/// lowering loop) reuses the buffer instead. At most two are kept.
-mod spare_heights {
-    use std::sync::Mutex;
-
-    static SPARE: Mutex<Vec<Vec<f32>>> = Mutex::new(Vec::new());
-    /// Buffers smaller than this (in elements) are not worth keeping.
-    const MIN_KEEP: usize = 1 << 20;
-
-    /// A buffer of length `n` with unspecified contents.
-    pub(super) fn take(n: usize) -> Vec<f32> {
-        if n >= MIN_KEEP {
-            if let Ok(mut spare) = SPARE.lock() {
-                if let Some(k) = spare
-                    .iter()
-                    .position(|b| b.capacity() >= n && b.capacity() <= 2 * n)
-                {
-                    let mut b = spare.swap_remove(k);
-                    b.truncate(n);
-                    b.resize(n, 0.0);
-                    return b;
-                }
-            }
-        }
-        vec![0f32; n]
-    }
-
-    pub(super) fn give_back(b: Vec<f32>) {
-        if b.capacity() < MIN_KEEP {
-            return;
-        }
-        if let Ok(mut spare) = SPARE.lock() {
-            if spare.len() >= 2 {
-                spare.remove(0);
-            }
-            spare.push(b);
-        }
+        buffer_pool::recycle_f32(std::mem::take(&mut self.z));
     }
 }
 

@@ -31,7 +31,7 @@ use rayon::prelude::*;
 
 use super::galerkin::{constant_coarse, galerkin, BlockWeights, StencilSource};
 use super::level::{deinterleave, interleave, sum_squares};
-use super::workspace;
+use crate::buffer_pool;
 
 /// Below this many points a level is processed on one thread.
 const PARALLEL_MIN_POINTS: usize = 1 << 14;
@@ -292,9 +292,9 @@ fn half_len(nx: usize, a: usize) -> usize {
 impl Drop for CoarseLevel {
     fn drop(&mut self) {
         for v in self.u.iter_mut().chain(&mut self.rhs) {
-            workspace::recycle_f32(std::mem::take(v));
+            buffer_pool::recycle_f32(std::mem::take(v));
         }
-        workspace::recycle_u32(std::mem::take(&mut self.idx));
+        buffer_pool::recycle_u32(std::mem::take(&mut self.idx));
     }
 }
 
@@ -350,7 +350,7 @@ impl CoarseLevel {
         // transfers use around it depend only on the fine stencils within 2
         // fine points (see `galerkin.rs`). Rows are done in chunks, each
         // with its own window of dilated fine rows.
-        let mut idx = workspace::overwritten_u32(nx * ny);
+        let mut idx = buffer_pool::overwritten_u32(nx * ny);
         // Per task: dilated fine rows, one fine row and its scratch, and
         // the vertical union of one coarse row.
         let scratch = || (Vec::new(), vec![0u8; fnx], vec![0u8; fnx], vec![0u8; nx]);
@@ -477,8 +477,8 @@ impl CoarseLevel {
             nx,
             ny,
             hs,
-            u: [workspace::zeroed_f32(len), workspace::zeroed_f32(len)],
-            rhs: [workspace::zeroed_f32(len), workspace::zeroed_f32(len)],
+            u: [buffer_pool::zeroed_f32(len), buffer_pool::zeroed_f32(len)],
+            rhs: [buffer_pool::zeroed_f32(len), buffer_pool::zeroed_f32(len)],
             idx,
             sp_row,
             sp_odd,

@@ -27,7 +27,7 @@
 use rayon::prelude::*;
 
 use super::coarse::{prolongate, CoarseLevel};
-use super::workspace;
+use crate::buffer_pool;
 
 /// Below this many cells a level is processed on one thread: the rayon
 /// hand-off costs more than it saves.
@@ -302,7 +302,7 @@ dispatch!(load_row, load_row_avx2, load_row_kernel,
 impl Drop for Level {
     fn drop(&mut self) {
         for u in &mut self.u {
-            workspace::recycle_f32(std::mem::take(u));
+            buffer_pool::recycle_f32(std::mem::take(u));
         }
     }
 }
@@ -335,7 +335,7 @@ impl Level {
             ay: ay as f32,
             diag: diag as f32,
             inv_diag: (1.0 / diag) as f32,
-            u: [workspace::zeroed_f32(len), workspace::zeroed_f32(len)],
+            u: [buffer_pool::zeroed_f32(len), buffer_pool::zeroed_f32(len)],
             fixed_start: vec![0; 2 * ny + 1],
             fixed_k: Vec::new(),
             fixed_value: Vec::new(),

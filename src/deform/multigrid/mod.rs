@@ -115,7 +115,6 @@ mod coarse;
 mod galerkin;
 mod level;
 pub mod synthetic;
-pub mod workspace;
 
 use coarse::{prolongate_coarse, restrict_coarse, CoarseLevel, RestrictTarget};
 use galerkin::StencilSource;

@@ -1,16 +1,18 @@
-//! Recycled buffers of the solver's levels.
+//! Large buffers recycled between views and solves.
 //!
-//! A solve on a 4096 x 4096 grid holds about 150 MB of level arrays (the
-//! finest level's two colour arrays, each coarse level's unknown,
-//! right-hand side and point map). Buffers that large come straight from
-//! the kernel: every page costs a fault and a clear when first written, and
-//! is unmapped again when the solve ends, which was a fifth of the CPU time
-//! of a 4096² solve. The levels take their large arrays from here and give
-//! them back when they are dropped, so the solves after the first one in a
-//! process (the contour rounds of an edit, a batch of tiles, a benchmark)
-//! reuse warm memory.
+//! Buffers of megabytes come straight from the kernel: every page costs a
+//! fault and a clear when first written, and is unmapped again when the
+//! buffer is freed. A 4096 x 4096 terrain's heights (64 MB) or a multigrid
+//! solve's levels (about 150 MB) paid that on every view and every solve:
+//! about 50 ms of CPU per terrain, a fifth of a solve. The terrain and the
+//! solver's levels take their large arrays from here and give them back
+//! when they are dropped, so every view or solve after the first one in a
+//! process (the rounds of an edit, a batch of tiles, a benchmark) reuses
+//! warm memory.
 //!
-//! At most [`KEEP_BYTES`] are kept between solves; [`release`] frees them.
+//! A buffer is handed out only for a request of at least half its size,
+//! and at most [`KEEP_BYTES`] of idle buffers are kept per element type;
+//! [`release`] frees them.
 
 use rayon::prelude::*;
 use std::sync::Mutex;
@@ -37,7 +39,7 @@ fn take<T>(pool: &Mutex<Vec<Vec<T>>>, len: usize) -> Option<Vec<T>> {
     let best = idle
         .iter()
         .enumerate()
-        .filter(|(_, v)| v.capacity() >= len)
+        .filter(|(_, v)| v.capacity() >= len && v.capacity() <= 2 * len)
         .min_by_key(|(_, v)| v.capacity())
         .map(|(k, _)| k)?;
     Some(idle.swap_remove(best))
@@ -61,7 +63,7 @@ fn give<T>(pool: &Mutex<Vec<Vec<T>>>, v: Vec<T>) {
 }
 
 /// A buffer of `len` zeros, recycled where possible.
-pub(super) fn zeroed_f32(len: usize) -> Vec<f32> {
+pub(crate) fn zeroed_f32(len: usize) -> Vec<f32> {
     match take(&F32, len) {
         Some(mut v) => {
             v.clear();
@@ -75,7 +77,19 @@ pub(super) fn zeroed_f32(len: usize) -> Vec<f32> {
 
 /// A buffer of `len` entries whose values are unspecified (the caller
 /// writes every entry), recycled where possible.
-pub(super) fn overwritten_u32(len: usize) -> Vec<u32> {
+pub(crate) fn overwritten_f32(len: usize) -> Vec<f32> {
+    match take(&F32, len) {
+        Some(mut v) => {
+            // Keeps the old values where the buffer was that long already.
+            v.resize(len, 0.0);
+            v
+        }
+        None => vec![0.0; len],
+    }
+}
+
+/// As [`overwritten_f32`].
+pub(crate) fn overwritten_u32(len: usize) -> Vec<u32> {
     match take(&U32, len) {
         Some(mut v) => {
             // Keeps the old values where the buffer was that long already.
@@ -86,18 +100,18 @@ pub(super) fn overwritten_u32(len: usize) -> Vec<u32> {
     }
 }
 
-/// Gives a level's buffer back for the next solve.
-pub(super) fn recycle_f32(v: Vec<f32>) {
+/// Gives a buffer back for the next view or solve.
+pub(crate) fn recycle_f32(v: Vec<f32>) {
     give(&F32, v);
 }
 
-/// Gives a level's buffer back for the next solve.
-pub(super) fn recycle_u32(v: Vec<u32>) {
+/// Gives a buffer back for the next view or solve.
+pub(crate) fn recycle_u32(v: Vec<u32>) {
     give(&U32, v);
 }
 
-/// Frees every idle buffer kept for later solves (up to [`KEEP_BYTES`] per
-/// element type are kept after a large solve).
+/// Frees every idle buffer kept for later views and solves (up to
+/// [`KEEP_BYTES`] per element type are kept).
 pub fn release() {
     F32.lock().unwrap_or_else(|e| e.into_inner()).clear();
     U32.lock().unwrap_or_else(|e| e.into_inner()).clear();
