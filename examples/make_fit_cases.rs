@@ -517,11 +517,7 @@ fn write_f32_tiff(map: &HeightMap, path: &Path) -> Result<(), String> {
         .create_with_band_type_with_options::<f32, _>(path, map.width, map.height, 1, &opts)
         .map_err(err)?;
     ds.set_geo_transform(&map.geotransform.0).map_err(err)?;
-    let srs = if !map.crs.wkt.is_empty() {
-        map.crs.wkt.clone()
-    } else {
-        map.crs.proj_definition()
-    };
+    let srs = map.crs.gdal_definition();
     if let Ok(sr) = gdal::spatial_ref::SpatialRef::from_definition(&srs) {
         ds.set_spatial_ref(&sr).map_err(err)?;
     }

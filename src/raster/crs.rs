@@ -28,6 +28,17 @@ impl Crs {
         }
     }
 
+    /// The definition to hand to GDAL when writing a raster: the WKT where
+    /// there is one (it keeps every parameter), else [`Crs::proj_definition`];
+    /// empty when the CRS is unknown.
+    pub fn gdal_definition(&self) -> String {
+        if self.wkt.is_empty() {
+            self.proj_definition()
+        } else {
+            self.wkt.clone()
+        }
+    }
+
     /// Same horizontal CRS (used to check that tiles agree).
     pub fn same_as(&self, other: &Crs) -> bool {
         match (self.epsg, other.epsg) {

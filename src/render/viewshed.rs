@@ -90,11 +90,7 @@ pub fn write_viewshed_tiff(vs: &Viewshed, path: &Path) -> Result<(), RenderError
             .create_with_band_type::<u8, _>(tmp, vs.width, vs.height, 1)
             .map_err(werr)?;
         ds.set_geo_transform(&vs.geotransform.0).map_err(werr)?;
-        let srs = if !vs.crs.wkt.is_empty() {
-            vs.crs.wkt.clone()
-        } else {
-            vs.crs.proj_definition()
-        };
+        let srs = vs.crs.gdal_definition();
         if !srs.is_empty() {
             if let Ok(sr) = gdal::spatial_ref::SpatialRef::from_definition(&srs) {
                 ds.set_spatial_ref(&sr).map_err(werr)?;
