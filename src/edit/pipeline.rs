@@ -28,7 +28,7 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use super::contour::contour_constraints;
 use super::fit::measure;
 use super::lowering::find_protruding;
-use super::rendered_view::{RenderedView, StrokeCurve};
+use super::rendered_view::{stroke_region, RenderedView, StrokeCurve};
 use super::renders::{encode_png, height_change_map, view_picture, Picture};
 use super::report::{
     DeformationReport, EditReport, FeatureCounts, MatchReport, StagedFile, StrokeReport, Timings,
@@ -102,6 +102,8 @@ struct ViewState<'a> {
     camera: Camera,
     strokes: Vec<Stroke>,
     before: RenderedView,
+    /// The part of the view the re-renders compute ([`stroke_region`]).
+    region: Vec<i32>,
 }
 
 fn secs(t: Instant) -> f64 {
@@ -222,6 +224,7 @@ pub fn run(
             camera,
             strokes,
             before,
+            region: Vec::new(),
         });
     }
     // Multi-view sketches are matched in one world frame: the first view's.
@@ -298,6 +301,9 @@ pub fn run(
         }
         curves.push(cs);
     }
+    for (v, cs) in views.iter_mut().zip(&curves) {
+        v.region = stroke_region(cs, v.camera.width, v.camera.height);
+    }
     if constraints.is_empty() {
         return Err(EditError::Unusable {
             sketch: sketch_name,
@@ -340,7 +346,7 @@ pub fn run(
         rendered.clear();
         let mut changed = false;
         for (k, v) in views.iter().enumerate() {
-            let after = render_edited(v, &deformation, max_d)?;
+            let after = render_edited(v, &deformation, max_d, false)?;
             if iterations[k] < opts.max_lowering_iterations {
                 let protruding = find_protruding(&after, &curves[k]);
                 if !protruding.is_empty() {
@@ -441,7 +447,13 @@ pub fn run(
     pb.set_message("writing corrected tiles");
     let t = Instant::now();
     let pictures = if opts.renders.is_some() {
-        pictures(&views, &after_views, &deformation)?
+        // The rounds rendered only around the strokes: the pictures show
+        // the whole view.
+        let whole = views
+            .iter()
+            .map(|v| render_edited(v, &deformation, max_d, true))
+            .collect::<Result<Vec<_>, _>>()?;
+        pictures(&views, &whole, &deformation)?
     } else {
         Vec::new()
     };
@@ -578,15 +590,21 @@ fn ridge_network(
         .map_err(|e| EditError::Internal(format!("ridges: {e}")))
 }
 
-/// Render a view on the DEM with the deformation applied.
+/// Render a view on the DEM with the deformation applied: only the part
+/// around its strokes ([`stroke_region`]) unless `whole`.
 fn render_edited(
     v: &ViewState,
     d: &Deformation,
     max_d: Option<f64>,
+    whole: bool,
 ) -> Result<RenderedView, EditError> {
     let edited = edited_window(&v.window, v.window_offset, d);
-    RenderedView::render(&edited, &v.frame, &v.camera, max_d)
-        .map_err(|e| EditError::Internal(format!("view \"{}\": features: {e}", v.spec.name)))
+    if whole {
+        RenderedView::render(&edited, &v.frame, &v.camera, max_d)
+    } else {
+        RenderedView::render_rows(&edited, &v.frame, &v.camera, max_d, &v.region)
+    }
+    .map_err(|e| EditError::Internal(format!("view \"{}\": features: {e}", v.spec.name)))
 }
 
 /// `map` (a window of the DEM at `offset`) with `H + M` swapped in where the

@@ -10,6 +10,65 @@ use crate::render::{DepthBuffer, LocalTerrain, SKY};
 use crate::sketch::{PointSource, Stroke, StrokeMatch};
 use crate::view::{Camera, LocalFrame};
 
+/// The region of the view that the edit's re-renders need: the strokes'
+/// columns widened by this many pixels on each side ...
+pub const REGION_PAD_PX: f64 = 16.0;
+/// ... from the top of the image down to this many pixels under the
+/// strokes. Everything the lowering, the contour fitting and the fit
+/// measure look at lies at or above a stroke (a boundary within
+/// [`super::fit::FIT_TOLERANCE_PX`] of it, a protruding silhouette above
+/// it, nearer terrain over it) and at most
+/// [`super::lowering::LOWERING_PAD_PX`] beside it.
+pub const REGION_BELOW_PX: f64 = 16.0;
+
+/// The last image row to render in each of the `width` image columns (-1:
+/// none) so that the region covers every stroke of `strokes` with the
+/// margins [`REGION_PAD_PX`] and [`REGION_BELOW_PX`] (see
+/// [`RenderedView::render_rows`]).
+pub fn stroke_region(strokes: &[StrokeCurve], width: usize, height: usize) -> Vec<i32> {
+    // The lowest stroke row in each column (its points and its centre) ...
+    let mut lowest = vec![f64::NEG_INFINITY; width];
+    for s in strokes {
+        let (x0, x1) = s.stroke.x_range();
+        if !(x0.is_finite() && x1.is_finite()) {
+            continue;
+        }
+        let mut put = |x: f64, y: f64| {
+            if x >= 0.0 && x < width as f64 && y.is_finite() {
+                let l = &mut lowest[x as usize];
+                *l = l.max(y);
+            }
+        };
+        for p in &s.stroke.points {
+            put(p[0], p[1]);
+        }
+        let first = x0.floor().max(0.0) as usize;
+        let end = (x1.ceil().max(0.0) as usize).min(width);
+        for i in first..end {
+            let x = (i as f64 + 0.5).clamp(x0, x1);
+            if let Some(y) = s.stroke.y_at(x) {
+                put(x, y);
+            }
+        }
+    }
+    // ... then the deepest of it within the padding on either side.
+    let pad = REGION_PAD_PX.ceil() as usize;
+    (0..width)
+        .map(|i| {
+            let y = lowest[i.saturating_sub(pad)..(i + pad + 1).min(width)]
+                .iter()
+                .fold(f64::NEG_INFINITY, |a, &b| a.max(b));
+            if y.is_finite() {
+                (y + REGION_BELOW_PX)
+                    .ceil()
+                    .clamp(-1.0, height as f64 - 1.0) as i32
+            } else {
+                -1
+            }
+        })
+        .collect()
+}
+
 /// A rendered view and its occlusion boundaries.
 pub struct RenderedView {
     pub terrain: LocalTerrain,
@@ -38,12 +97,42 @@ impl RenderedView {
         Self::from_terrain(terrain, camera)
     }
 
+    /// Render only the rows `0..=last_row[x]` of each column `x` (see
+    /// [`DepthBuffer::render_rows`] and [`stroke_region`]): the silhouettes,
+    /// boundaries and depths there are those of the whole view, except that
+    /// a silhouette is cut where it leaves the region.
+    pub fn render_rows(
+        map: &HeightMap,
+        frame: &LocalFrame,
+        camera: &Camera,
+        max_distance: Option<f64>,
+        last_row: &[i32],
+    ) -> Result<RenderedView, FeatureError> {
+        let terrain = LocalTerrain::new(map, frame, max_distance);
+        // The edit casts many rays on this terrain (silhouettes, hidden
+        // strokes): the full cast index is built beside the render.
+        let (depth, ()) = rayon::join(
+            || DepthBuffer::render_rows(&terrain, camera, last_row),
+            || terrain.build_cast_index(),
+        );
+        Self::from_depth(terrain, depth)
+    }
+
     /// Render an already built terrain.
     pub fn from_terrain(
         terrain: LocalTerrain,
         camera: &Camera,
     ) -> Result<RenderedView, FeatureError> {
-        let depth = DepthBuffer::render(&terrain, camera);
+        let (depth, ()) = rayon::join(
+            || DepthBuffer::render(&terrain, camera),
+            || terrain.build_cast_index(),
+        );
+        Self::from_depth(terrain, depth)
+    }
+
+    /// Silhouettes and boundaries of a rendered depth buffer.
+    fn from_depth(terrain: LocalTerrain, depth: DepthBuffer) -> Result<RenderedView, FeatureError> {
+        let camera = depth.camera;
         let silhouettes = extract_silhouettes(&terrain, &depth, &SilhouetteParams::default())?;
         let w = camera.width;
         let mut by_column = vec![Vec::new(); w];
@@ -72,7 +161,7 @@ impl RenderedView {
         }
         Ok(RenderedView {
             terrain,
-            camera: *camera,
+            camera,
             depth,
             silhouettes,
             by_column,

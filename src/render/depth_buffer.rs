@@ -53,7 +53,28 @@ impl DepthBuffer {
     /// rasterisation of the terrain's triangles at the pixel centres, see
     /// [`super::triangle_raster`]).
     pub fn render(terrain: &LocalTerrain, camera: &Camera) -> Self {
-        let (depth, triangle) = rasterise(terrain, camera);
+        let (depth, triangle) = rasterise(terrain, camera, None);
+        DepthBuffer {
+            camera: *camera,
+            width: camera.width,
+            height: camera.height,
+            depth,
+            triangle,
+        }
+    }
+
+    /// Render only the rows `0..=last_row[x]` of each image column `x` (none
+    /// where it is negative; `last_row` has one entry per column): those
+    /// pixels are exactly what [`DepthBuffer::render`] gives, the others
+    /// have a NaN depth and [`SKY`]. For work that only looks at part of the
+    /// view (the edit's re-renders look at and above its strokes), at a
+    /// fraction of the cost: terrain seen only outside the part is culled.
+    ///
+    /// # Panics
+    /// When `last_row.len() != camera.width`.
+    pub fn render_rows(terrain: &LocalTerrain, camera: &Camera, last_row: &[i32]) -> Self {
+        assert_eq!(last_row.len(), camera.width, "one last row per column");
+        let (depth, triangle) = rasterise(terrain, camera, Some(last_row));
         DepthBuffer {
             camera: *camera,
             width: camera.width,

@@ -99,8 +99,18 @@ struct BlockBox {
 
 /// Render the depth (distance along the unit pixel-centre ray, infinite for
 /// sky) and the triangle id of every pixel of `camera` over `terrain`.
-pub(crate) fn rasterise(terrain: &LocalTerrain, camera: &Camera) -> (Vec<f32>, Vec<u32>) {
+///
+/// With `last_row`, only rows `0..=last_row[x]` of each column `x` are
+/// rendered (none where it is negative): the culling treats the rows below
+/// as final from the start, so terrain seen only there is never drawn. The
+/// other pixels get a NaN depth and [`SKY`].
+pub(crate) fn rasterise(
+    terrain: &LocalTerrain,
+    camera: &Camera,
+    last_row: Option<&[i32]>,
+) -> (Vec<f32>, Vec<u32>) {
     let (w, h) = (camera.width, camera.height);
+    debug_assert!(last_row.is_none_or(|l| l.len() == w));
     let mut depth = vec![f32::INFINITY; w * h];
     let mut triangle = vec![SKY; w * h];
     if terrain.nx < 2 || terrain.ny < 2 {
@@ -116,7 +126,7 @@ pub(crate) fn rasterise(terrain: &LocalTerrain, camera: &Camera) -> (Vec<f32>, V
         .map(|s| {
             let x0 = s * STRIP;
             let x1 = (x0 + STRIP).min(w);
-            let (t, id) = render_strip(terrain, camera, &m, &blocks, x0, x1);
+            let (t, id) = render_strip(terrain, camera, &m, &blocks, x0, x1, last_row);
             (x0, t, id)
         })
         .collect();
@@ -288,7 +298,8 @@ struct PVertex {
 }
 
 /// Render image columns `x0..x1`: ray parameters (distance / |d|, with the
-/// unnormalised ray `d`) and triangle ids, column-strip-major rows.
+/// unnormalised ray `d`) and triangle ids, column-strip-major rows; with
+/// `last_row`, only those rows (see [`rasterise`]).
 fn render_strip(
     terrain: &LocalTerrain,
     camera: &Camera,
@@ -296,13 +307,26 @@ fn render_strip(
     blocks: &Blocks,
     x0: usize,
     x1: usize,
+    last_row: Option<&[i32]>,
 ) -> (Vec<f32>, Vec<u32>) {
     let h = camera.height;
     let sw = x1 - x0;
     let mut tbuf = vec![f32::INFINITY; sw * h];
     let mut ibuf = vec![SKY; sw * h];
-    // ytop[k]: every pixel of strip column k from this row down is final.
-    let mut ytop = vec![h as i32; sw];
+    // ytop[k]: every pixel of strip column k from this row down is final
+    // (rows not asked for count as final from the start).
+    let mut ytop: Vec<i32> = match last_row {
+        Some(l) => l[x0..x1]
+            .iter()
+            .map(|&r| (r + 1).clamp(0, h as i32))
+            .collect(),
+        None => vec![h as i32; sw],
+    };
+    let skipped = ytop.clone();
+    if ytop.iter().all(|&t| t == 0) {
+        tbuf.fill(f32::NAN);
+        return (tbuf, ibuf);
+    }
     let mut verts = vec![PVertex::default(); (BLOCK + 1) * (BLOCK + 1)];
     let ctx = Raster {
         terrain,
@@ -333,6 +357,14 @@ fn render_strip(
                 while *yt > 0 && ibuf[(*yt as usize - 1) * sw + k] != SKY {
                     *yt -= 1;
                 }
+            }
+        }
+    }
+    if last_row.is_some() {
+        for (k, &y) in skipped.iter().enumerate() {
+            for j in y as usize..h {
+                tbuf[j * sw + k] = f32::NAN;
+                ibuf[j * sw + k] = SKY;
             }
         }
     }

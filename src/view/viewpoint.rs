@@ -56,8 +56,10 @@ impl Viewpoint {
 /// (PROJ contexts are per thread); resolve a [`LocalFrame`] from it and share
 /// that instead.
 pub struct Georef {
-    to_crs: Proj,
-    to_lonlat: Proj,
+    /// WGS84 lon/lat to the DEM's CRS (forward), and back (inverse): one
+    /// PROJ object, because creating one (its own context, proj.db lookups)
+    /// costs milliseconds.
+    transform: Proj,
     geographic: bool,
     dem: String,
 }
@@ -84,11 +86,9 @@ impl Georef {
         if def.trim().is_empty() {
             return Err(perr(&"the DEM has no CRS"));
         }
-        let to_crs = Proj::new_known_crs("EPSG:4326", &def, None).map_err(|e| perr(&e))?;
-        let to_lonlat = Proj::new_known_crs(&def, "EPSG:4326", None).map_err(|e| perr(&e))?;
+        let transform = Proj::new_known_crs("EPSG:4326", &def, None).map_err(|e| perr(&e))?;
         Ok(Georef {
-            to_crs,
-            to_lonlat,
+            transform,
             geographic: crs.geographic,
             dem: dem_name.to_string(),
         })
@@ -106,7 +106,10 @@ impl Georef {
         if !(lon.is_finite() && lat.is_finite() && lat.abs() <= 90.0) {
             return Err(ViewError::BadViewpoint { lon, lat });
         }
-        let p = self.to_crs.convert((lon, lat)).map_err(|e| self.err(e))?;
+        let p = self
+            .transform
+            .convert((lon, lat))
+            .map_err(|e| self.err(e))?;
         if !(p.0.is_finite() && p.1.is_finite()) {
             return Err(self.err(format!("no finite position for lon {lon}, lat {lat}")));
         }
@@ -115,7 +118,11 @@ impl Georef {
 
     /// WGS84 `(lon, lat)` in degrees of DEM CRS coordinates `(x, y)`.
     pub fn crs_to_lonlat(&self, x: f64, y: f64) -> Result<(f64, f64), ViewError> {
-        self.to_lonlat.convert((x, y)).map_err(|e| self.err(e))
+        // `project` with `inverse` runs the same transformation backwards
+        // (`proj_trans` with `PJ_INV`), coordinates passed through as given.
+        self.transform
+            .project((x, y), true)
+            .map_err(|e| self.err(e))
     }
 
     /// Jacobian `d(x, y) / d(lon, lat)` (CRS units per degree) at a point,

@@ -1,0 +1,85 @@
+//! Stage-by-stage timing of a whole `edit` on the case of `benches/edit.rs`
+//! (512 x 512 Zion, 10 strokes): the report's stage timings, median and
+//! minimum over N runs after one warm-up run, for profiling.
+//!
+//!     cargo run --release --example edit_profile -- [runs]
+//!     perf record -g target/release/examples/edit_profile 50
+
+#[path = "../benches/support/edit_case.rs"]
+mod edit_case;
+
+use demsketch::edit::{run, EditOptions};
+use demsketch::raster::Destination;
+
+// The allocator of the `demsketch` binary (see `src/main.rs`), so that the
+// figures are those of the command line.
+#[global_allocator]
+static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
+/// Process CPU time (user + system, all threads) in seconds, from
+/// `/proc/self/stat` (clock ticks of 10 ms; average over many runs).
+fn cpu_s() -> f64 {
+    std::fs::read_to_string("/proc/self/stat")
+        .ok()
+        .and_then(|s| {
+            let rest = &s[s.rfind(')')? + 2..];
+            let f: Vec<&str> = rest.split_whitespace().collect();
+            Some((f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?) / 100.0)
+        })
+        .unwrap_or(0.0)
+}
+
+fn main() {
+    let runs: usize = std::env::args()
+        .nth(1)
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(20);
+    let tmp = tempfile::tempdir().expect("temporary directory");
+    let (dem, sketch) = edit_case::setup(tmp.path());
+    // EDIT_CASE_KEEP=DIR: keep a copy of the DEM and the sketch there.
+    if let Some(dir) = std::env::var_os("EDIT_CASE_KEEP") {
+        let dir = std::path::PathBuf::from(dir);
+        std::fs::create_dir_all(&dir).expect("EDIT_CASE_KEEP directory");
+        std::fs::copy(&dem, dir.join("zion512.tif")).expect("copy DEM");
+        std::fs::copy(&sketch, dir.join("sketch.json")).expect("copy sketch");
+    }
+    let opts = EditOptions::new(Destination::Path(tmp.path().join("out.tif")));
+    let first = run(&dem, &sketch, &opts).expect("edit");
+    eprintln!(
+        "first run: {:?}, lowering iterations {}, contour iterations {}",
+        first.timings_s, first.views[0].lowering_iterations, first.views[0].contour_iterations
+    );
+    let names = [
+        "load",
+        "features",
+        "matching",
+        "deformation",
+        "lowering",
+        "write",
+        "total",
+    ];
+    let mut rows: Vec<Vec<f64>> = vec![Vec::new(); names.len()];
+    let c0 = cpu_s();
+    for _ in 0..runs {
+        let r = run(&dem, &sketch, &opts).expect("edit");
+        let t = &r.timings_s;
+        for (row, v) in rows.iter_mut().zip([
+            t.load,
+            t.features,
+            t.matching,
+            t.deformation,
+            t.lowering,
+            t.write,
+            t.total,
+        ]) {
+            row.push(v * 1e3);
+        }
+    }
+    let cpu = (cpu_s() - c0) / runs.max(1) as f64;
+    println!("{runs} runs, CPU time per run {:.1} ms", cpu * 1e3);
+    println!("{runs} runs, ms: stage median min");
+    for (name, mut row) in names.iter().zip(rows) {
+        row.sort_by(f64::total_cmp);
+        println!("{name:>12} {:8.2} {:8.2}", row[row.len() / 2], row[0]);
+    }
+}
