@@ -28,7 +28,7 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use super::contour::contour_constraints;
 use super::fit::measure;
 use super::lowering::find_protruding;
-use super::rendered_view::{stroke_region, RenderedView, StrokeCurve};
+use super::rendered_view::{RenderedView, StrokeCurve, StrokeRegion};
 use super::renders::{encode_png, height_change_map, view_picture, Picture};
 use super::report::{
     DeformationReport, EditReport, FeatureCounts, MatchReport, StagedFile, StrokeReport, Timings,
@@ -102,8 +102,8 @@ struct ViewState<'a> {
     camera: Camera,
     strokes: Vec<Stroke>,
     before: RenderedView,
-    /// The part of the view the re-renders compute ([`stroke_region`]).
-    region: Vec<i32>,
+    /// The part of the view the re-renders compute.
+    region: StrokeRegion,
 }
 
 fn secs(t: Instant) -> f64 {
@@ -224,7 +224,7 @@ pub fn run(
             camera,
             strokes,
             before,
-            region: Vec::new(),
+            region: StrokeRegion::new(&[], 0, 0),
         });
     }
     // Multi-view sketches are matched in one world frame: the first view's.
@@ -302,7 +302,7 @@ pub fn run(
         curves.push(cs);
     }
     for (v, cs) in views.iter_mut().zip(&curves) {
-        v.region = stroke_region(cs, v.camera.width, v.camera.height);
+        v.region = StrokeRegion::new(cs, v.camera.width, v.camera.height);
     }
     if constraints.is_empty() {
         return Err(EditError::Unusable {
@@ -591,7 +591,7 @@ fn ridge_network(
 }
 
 /// Render a view on the DEM with the deformation applied: only the part
-/// around its strokes ([`stroke_region`]) unless `whole`.
+/// around its strokes ([`StrokeRegion`]) unless `whole`.
 fn render_edited(
     v: &ViewState,
     d: &Deformation,
@@ -602,7 +602,7 @@ fn render_edited(
     if whole {
         RenderedView::render(&edited, &v.frame, &v.camera, max_d)
     } else {
-        RenderedView::render_rows(&edited, &v.frame, &v.camera, max_d, &v.region)
+        RenderedView::render_region(&edited, &v.frame, &v.camera, max_d, &v.region)
     }
     .map_err(|e| EditError::Internal(format!("view \"{}\": features: {e}", v.spec.name)))
 }

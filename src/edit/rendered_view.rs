@@ -4,69 +4,125 @@
 //! (silhouette samples and the skyline). Also the placed stroke curves the
 //! fit measures and the lowering loop compare against.
 
-use crate::features::{extract_silhouettes, FeatureError, SilhouetteParams, Silhouettes};
+use crate::features::{
+    extract_silhouettes, extract_silhouettes_where, FeatureError, SilhouetteParams, Silhouettes,
+};
 use crate::raster::HeightMap;
 use crate::render::{DepthBuffer, LocalTerrain, SKY};
 use crate::sketch::{PointSource, Stroke, StrokeMatch};
 use crate::view::{Camera, LocalFrame};
 
-/// The region of the view that the edit's re-renders need: the strokes'
+/// The part of a view that the edit's re-renders compute: the strokes'
 /// columns widened by this many pixels on each side ...
 pub const REGION_PAD_PX: f64 = 16.0;
 /// ... from the top of the image down to this many pixels under the
-/// strokes. Everything the lowering, the contour fitting and the fit
-/// measure look at lies at or above a stroke (a boundary within
-/// [`super::fit::FIT_TOLERANCE_PX`] of it, a protruding silhouette above
-/// it, nearer terrain over it) and at most
-/// [`super::lowering::LOWERING_PAD_PX`] beside it.
+/// strokes ...
 pub const REGION_BELOW_PX: f64 = 16.0;
+/// ... and there, the silhouettes nearer than the strokes' placed curves
+/// (by this fraction of their depth, as a margin) or within
+/// [`REGION_NEAR_ROWS`] rows of a stroke.
+pub const REGION_DEPTH_MARGIN: f64 = 0.05;
+/// See [`REGION_DEPTH_MARGIN`].
+pub const REGION_NEAR_ROWS: f32 = 3.0;
 
-/// The last image row to render in each of the `width` image columns (-1:
-/// none) so that the region covers every stroke of `strokes` with the
-/// margins [`REGION_PAD_PX`] and [`REGION_BELOW_PX`] (see
-/// [`RenderedView::render_rows`]).
-pub fn stroke_region(strokes: &[StrokeCurve], width: usize, height: usize) -> Vec<i32> {
-    // The lowest stroke row in each column (its points and its centre) ...
-    let mut lowest = vec![f64::NEG_INFINITY; width];
-    for s in strokes {
-        let (x0, x1) = s.stroke.x_range();
-        if !(x0.is_finite() && x1.is_finite()) {
-            continue;
-        }
-        let mut put = |x: f64, y: f64| {
-            if x >= 0.0 && x < width as f64 && y.is_finite() {
-                let l = &mut lowest[x as usize];
-                *l = l.max(y);
+/// What the edit's re-renders of a view compute ([`RenderedView::render_region`]).
+///
+/// Everything the lowering ([`super::lowering`]), the contour fitting
+/// ([`super::contour`]) and the fit measure ([`super::fit`]) look at lies in
+/// the columns of a stroke (or [`super::lowering::LOWERING_PAD_PX`] beside
+/// it) at or above it: an occlusion boundary within
+/// [`super::fit::FIT_TOLERANCE_PX`] of the stroke, at any depth; a
+/// protruding silhouette, above the stroke and nearer than its placed
+/// curve; the nearer terrain over a hidden stroke. So the depth buffer is
+/// rendered only down to a little under the strokes, and silhouettes are
+/// refined only where they can be one of these.
+#[derive(Debug, Clone)]
+pub struct StrokeRegion {
+    /// Per image column, the last row rendered (-1: none).
+    pub last_row: Vec<i32>,
+    /// Per image column, silhouettes whose near side is nearer than this
+    /// (metres) are extracted; 0 where no stroke is near.
+    pub depth_limit: Vec<f32>,
+    /// Per image column, the rows of the strokes crossing it: silhouettes
+    /// within [`REGION_NEAR_ROWS`] of them are extracted at any depth.
+    pub stroke_rows: Vec<Vec<f32>>,
+}
+
+impl StrokeRegion {
+    /// The region of `strokes` in a `width` x `height` view.
+    pub fn new(strokes: &[StrokeCurve], width: usize, height: usize) -> StrokeRegion {
+        // Per column, the lowest stroke row (its points and its centre),
+        // the farthest placed depth, and the strokes' rows ...
+        let mut lowest = vec![f64::NEG_INFINITY; width];
+        let mut farthest = vec![0.0f64; width];
+        let mut stroke_rows = vec![Vec::new(); width];
+        for s in strokes {
+            let (x0, x1) = s.stroke.x_range();
+            if !(x0.is_finite() && x1.is_finite()) {
+                continue;
             }
-        };
-        for p in &s.stroke.points {
-            put(p[0], p[1]);
-        }
-        let first = x0.floor().max(0.0) as usize;
-        let end = (x1.ceil().max(0.0) as usize).min(width);
-        for i in first..end {
-            let x = (i as f64 + 0.5).clamp(x0, x1);
-            if let Some(y) = s.stroke.y_at(x) {
-                put(x, y);
+            let mut put = |x: f64, y: f64| {
+                if x >= 0.0 && x < width as f64 && y.is_finite() {
+                    let i = x as usize;
+                    lowest[i] = lowest[i].max(y);
+                    farthest[i] = farthest[i].max(s.depth_at(x).unwrap_or(0.0));
+                }
+            };
+            for p in &s.stroke.points {
+                put(p[0], p[1]);
             }
+            let first = x0.floor().max(0.0) as usize;
+            let end = (x1.ceil().max(0.0) as usize).min(width);
+            for i in first..end {
+                let x = (i as f64 + 0.5).clamp(x0, x1);
+                if let Some(y) = s.stroke.y_at(x) {
+                    put(x, y);
+                    stroke_rows[i].push(y as f32);
+                }
+            }
+        }
+        // ... then the deepest and farthest of them within the padding on
+        // either side.
+        let pad = REGION_PAD_PX.ceil() as usize;
+        let near = |i: usize| i.saturating_sub(pad)..(i + pad + 1).min(width);
+        let last_row = (0..width)
+            .map(|i| {
+                let y = lowest[near(i)]
+                    .iter()
+                    .fold(f64::NEG_INFINITY, |a, &b| a.max(b));
+                if y.is_finite() {
+                    (y + REGION_BELOW_PX)
+                        .ceil()
+                        .clamp(-1.0, height as f64 - 1.0) as i32
+                } else {
+                    -1
+                }
+            })
+            .collect();
+        let depth_limit = (0..width)
+            .map(|i| {
+                let d = farthest[near(i)].iter().fold(0.0f64, |a, &b| a.max(b));
+                (d * (1.0 + REGION_DEPTH_MARGIN)) as f32
+            })
+            .collect();
+        StrokeRegion {
+            last_row,
+            depth_limit,
+            stroke_rows,
         }
     }
-    // ... then the deepest of it within the padding on either side.
-    let pad = REGION_PAD_PX.ceil() as usize;
-    (0..width)
-        .map(|i| {
-            let y = lowest[i.saturating_sub(pad)..(i + pad + 1).min(width)]
-                .iter()
-                .fold(f64::NEG_INFINITY, |a, &b| a.max(b));
-            if y.is_finite() {
-                (y + REGION_BELOW_PX)
-                    .ceil()
-                    .clamp(-1.0, height as f64 - 1.0) as i32
-            } else {
-                -1
-            }
-        })
-        .collect()
+
+    /// Is a silhouette between rows `y - 1` and `y` of column `x`, whose
+    /// near side (row `y`) lies at distance `near` metres, in the region?
+    pub fn wants(&self, x: usize, y: usize, near: f32) -> bool {
+        let y = y as f32;
+        x < self.last_row.len()
+            && y <= self.last_row[x] as f32
+            && (near < self.depth_limit[x]
+                || self.stroke_rows[x]
+                    .iter()
+                    .any(|&r| (y - r).abs() <= REGION_NEAR_ROWS))
+    }
 }
 
 /// A rendered view and its occlusion boundaries.
@@ -97,25 +153,25 @@ impl RenderedView {
         Self::from_terrain(terrain, camera)
     }
 
-    /// Render only the rows `0..=last_row[x]` of each column `x` (see
-    /// [`DepthBuffer::render_rows`] and [`stroke_region`]): the silhouettes,
-    /// boundaries and depths there are those of the whole view, except that
-    /// a silhouette is cut where it leaves the region.
-    pub fn render_rows(
+    /// Render only `region` of the view (see [`StrokeRegion`] and
+    /// [`DepthBuffer::render_rows`]): the depths there, and the silhouette
+    /// samples it wants, are those of the whole view; a silhouette is cut
+    /// where it leaves the region.
+    pub fn render_region(
         map: &HeightMap,
         frame: &LocalFrame,
         camera: &Camera,
         max_distance: Option<f64>,
-        last_row: &[i32],
+        region: &StrokeRegion,
     ) -> Result<RenderedView, FeatureError> {
         let terrain = LocalTerrain::new(map, frame, max_distance);
         // The edit casts many rays on this terrain (silhouettes, hidden
         // strokes): the full cast index is built beside the render.
         let (depth, ()) = rayon::join(
-            || DepthBuffer::render_rows(&terrain, camera, last_row),
+            || DepthBuffer::render_rows(&terrain, camera, &region.last_row),
             || terrain.build_cast_index(),
         );
-        Self::from_depth(terrain, depth)
+        Self::from_depth(terrain, depth, Some(region))
     }
 
     /// Render an already built terrain.
@@ -127,13 +183,24 @@ impl RenderedView {
             || DepthBuffer::render(&terrain, camera),
             || terrain.build_cast_index(),
         );
-        Self::from_depth(terrain, depth)
+        Self::from_depth(terrain, depth, None)
     }
 
-    /// Silhouettes and boundaries of a rendered depth buffer.
-    fn from_depth(terrain: LocalTerrain, depth: DepthBuffer) -> Result<RenderedView, FeatureError> {
+    /// Silhouettes (those `region` wants, or all) and boundaries of a
+    /// rendered depth buffer.
+    fn from_depth(
+        terrain: LocalTerrain,
+        depth: DepthBuffer,
+        region: Option<&StrokeRegion>,
+    ) -> Result<RenderedView, FeatureError> {
         let camera = depth.camera;
-        let silhouettes = extract_silhouettes(&terrain, &depth, &SilhouetteParams::default())?;
+        let params = SilhouetteParams::default();
+        let silhouettes = match region {
+            Some(r) => extract_silhouettes_where(&terrain, &depth, &params, &|x, y, near| {
+                r.wants(x, y, near)
+            })?,
+            None => extract_silhouettes(&terrain, &depth, &params)?,
+        };
         let w = camera.width;
         let mut by_column = vec![Vec::new(); w];
         for (ci, c) in silhouettes.curves.iter().enumerate() {

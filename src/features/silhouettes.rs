@@ -178,6 +178,20 @@ pub fn extract_silhouettes(
     depth: &DepthBuffer,
     params: &SilhouetteParams,
 ) -> Result<Silhouettes, FeatureError> {
+    extract_silhouettes_where(terrain, depth, params, &|_, _, _| true)
+}
+
+/// Like [`extract_silhouettes`], refining only the candidates for which
+/// `wanted(x, y, near)` holds: an occlusion boundary between rows `y - 1`
+/// and `y` of image column `x`, whose near side (row `y`) lies `near`
+/// metres away. The samples found are exactly those of the whole
+/// extraction there; curves are linked from them alone.
+pub fn extract_silhouettes_where(
+    terrain: &LocalTerrain,
+    depth: &DepthBuffer,
+    params: &SilhouetteParams,
+    wanted: &(dyn Fn(usize, usize, f32) -> bool + Sync),
+) -> Result<Silhouettes, FeatureError> {
     let (w, h) = (depth.width, depth.height);
     if depth.depth.len() != w * h || depth.triangle.len() != w * h {
         return Err(FeatureError::InvalidInput(format!(
@@ -199,7 +213,16 @@ pub fn extract_silhouettes(
             let x1 = (x0 + COLUMN_GROUP).min(w);
             let cols = column_depths(depth, x0, x1);
             (x0..x1)
-                .map(|x| column_samples(terrain, depth, params, x, &cols[(x - x0) * h..][..h]))
+                .map(|x| {
+                    column_samples(
+                        terrain,
+                        depth,
+                        params,
+                        x,
+                        &cols[(x - x0) * h..][..h],
+                        wanted,
+                    )
+                })
                 .collect::<Vec<_>>()
         })
         .collect();
@@ -247,6 +270,7 @@ fn column_samples(
     p: &SilhouetteParams,
     x: usize,
     col: &[(f32, f32)],
+    wanted: &(dyn Fn(usize, usize, f32) -> bool + Sync),
 ) -> Vec<SilhouetteSample> {
     let h = db.height;
     let mut out = Vec::new();
@@ -270,6 +294,9 @@ fn column_samples(
             if wq > pred - p.prefilter * wp {
                 continue;
             }
+        }
+        if !wanted(x, y, near) {
+            continue;
         }
         refine(terrain, db, p, x, y, &mut out);
     }
