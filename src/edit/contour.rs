@@ -57,6 +57,7 @@ use super::rendered_view::{RenderedView, StrokeCurve};
 use crate::deform::CellConstraint;
 use crate::sketch::terrain_height_local;
 use crate::view::{Camera, CameraModel};
+use rayon::prelude::*;
 use std::collections::HashMap;
 
 /// Depth neighbourhood of the placed curve, in front of it, as a fraction of
@@ -140,23 +141,30 @@ impl ProjectedVertices {
         let (lo, hi) = ranges.iter().fold((f64::INFINITY, 0.0f64), |(a, b), r| {
             (a.min(r.0), b.max(r.1))
         });
-        let mut vertices = Vec::new();
-        for r in 0..t.ny {
-            for c in 0..t.nx {
-                let Some(p) = t.vertex_local(c, r) else {
-                    continue;
-                };
-                let dist = norm(p);
-                if !(dist >= lo && dist <= hi) || !ranges.iter().any(|q| dist >= q.0 && dist <= q.1)
-                {
-                    continue;
-                }
-                let Some(px) = view.camera.project(p) else {
-                    continue;
-                };
-                vertices.push((c, r, p, dist, px));
-            }
-        }
+        // Rows in parallel; a vertex's distance is at least its horizontal
+        // distance, which rules out most rows' vertices before the 3D
+        // distance and the projection are computed.
+        let mut vertices: Vec<_> = (0..t.ny)
+            .into_par_iter()
+            .flat_map_iter(|r| {
+                let ranges = &ranges;
+                (0..t.nx).filter_map(move |c| {
+                    let (e, n) = t.v_to_en(c as f64, r as f64);
+                    if e * e + n * n > hi * hi {
+                        return None;
+                    }
+                    let p = t.vertex_local(c, r)?;
+                    let dist = norm(p);
+                    if !(dist >= lo && dist <= hi)
+                        || !ranges.iter().any(|q| dist >= q.0 && dist <= q.1)
+                    {
+                        return None;
+                    }
+                    let px = view.camera.project(p)?;
+                    Some((c, r, p, dist, px))
+                })
+            })
+            .collect();
         vertices.sort_by(|a, b| a.4[0].total_cmp(&b.4[0]));
         ProjectedVertices { vertices }
     }

@@ -607,14 +607,17 @@ impl LocalTerrain {
         let eps = 1e-7 * (1.0 + t1.min(1e7));
         let ray = (ox, oy, gx, gy, dz);
         let (cells_x, cells_y) = (self.nx - 1, self.ny - 1);
+        let (ax, ay) = (RayAxis::new(ox, gx, wx), RayAxis::new(oy, gy, wy));
         while t < t1 {
             let tp = t + eps;
             let (px, py) = (ox + gx * tp, oy + gy * tp);
-            let s = (1usize << (level as u32 + shift)) as f64;
+            let sh = level as u32 + shift;
+            let s = (1usize << sh) as f64;
+            let inv_s = 1.0 / s;
             let (mw, mh) = mip_dims[level];
             let (Some((bx, tx)), Some((by, ty))) = (
-                axis_block(ox, gx, px, s, wx, mw, tp),
-                axis_block(oy, gy, py, s, wy, mh, tp),
+                axis_block(&ax, px, s, inv_s, mw, tp),
+                axis_block(&ay, py, s, inv_s, mh, tp),
             ) else {
                 break;
             };
@@ -636,8 +639,8 @@ impl LocalTerrain {
                 let tq = t + eps;
                 let (qx, qy) = (ox + gx * tq, oy + gy * tq);
                 let (Some((c, cx_exit)), Some((r, cy_exit))) = (
-                    axis_block(ox, gx, qx, 1.0, wx, cells_x, tq),
-                    axis_block(oy, gy, qy, 1.0, wy, cells_y, tq),
+                    axis_block(&ax, qx, 1.0, 1.0, cells_x, tq),
+                    axis_block(&ay, qy, 1.0, 1.0, cells_y, tq),
                 ) else {
                     return None;
                 };
@@ -763,27 +766,51 @@ fn max_pyramid(base: Vec<f32>, w: usize, h: usize) -> (Vec<Vec<f32>>, Vec<(usize
     (mip, dims)
 }
 
+/// One axis of a ray's horizontal track in vertex coordinates: `o + g t`,
+/// with `1 / g` precomputed (the traversal's block exits are products, not
+/// quotients) and `w` the extent of the cells along the axis.
+#[derive(Clone, Copy)]
+struct RayAxis {
+    o: f64,
+    g: f64,
+    inv_g: f64,
+    w: f64,
+}
+
+impl RayAxis {
+    fn new(o: f64, g: f64, w: f64) -> RayAxis {
+        RayAxis {
+            o,
+            g,
+            inv_g: if g != 0.0 { 1.0 / g } else { 0.0 },
+            w,
+        }
+    }
+}
+
 /// Block index along one axis of the point `p = o + g * tp` at block size `s`
-/// (`w`: extent of the cells, `n`: number of blocks) and the ray parameter at
-/// which the ray leaves that block. Robust to points lying numerically on a
-/// block boundary: the block is the one the ray is entering, so the exit lies
-/// beyond `tp`. `None` when the ray has left the grid along this axis.
+/// (a power of two, `inv_s = 1 / s`; `n`: number of blocks) and the ray
+/// parameter at which the ray leaves that block. Robust to points lying
+/// numerically on a block boundary: the block is the one the ray is
+/// entering, so the exit lies beyond `tp`. `None` when the ray has left the
+/// grid along this axis.
 #[inline]
-fn axis_block(o: f64, g: f64, p: f64, s: f64, w: f64, n: usize, tp: f64) -> Option<(usize, f64)> {
+fn axis_block(a: &RayAxis, p: f64, s: f64, inv_s: f64, n: usize, tp: f64) -> Option<(usize, f64)> {
     let exit = |b: usize| {
-        if g > 0.0 {
-            (((b + 1) as f64 * s).min(w) - o) / g
-        } else if g < 0.0 {
-            (b as f64 * s - o) / g
+        if a.g > 0.0 {
+            (((b + 1) as f64 * s).min(a.w) - a.o) * a.inv_g
+        } else if a.g < 0.0 {
+            (b as f64 * s - a.o) * a.inv_g
         } else {
             f64::INFINITY
         }
     };
-    // truncation is floor for the non-negative values kept by max
-    let mut b = ((p / s).max(0.0) as usize).min(n - 1);
+    // truncation is floor for the non-negative values kept by max (and
+    // multiplying by a power of two's reciprocal is exact)
+    let mut b = ((p * inv_s).max(0.0) as usize).min(n - 1);
     let mut te = exit(b);
     if te <= tp {
-        if g > 0.0 {
+        if a.g > 0.0 {
             if b + 1 >= n {
                 return None;
             }
