@@ -59,10 +59,14 @@ fn main() {
         "total",
     ];
     let mut rows: Vec<Vec<f64>> = vec![Vec::new(); names.len()];
+    let mut solver: Vec<[f64; 3]> = Vec::new();
     let c0 = cpu_s();
     for _ in 0..runs {
         let r = run(&dem, &sketch, &opts).expect("edit");
         let t = &r.timings_s;
+        let sv = &r.deformation.solver;
+        let get = |k: &str| sv.get(k).and_then(|v| v.as_f64()).unwrap_or(f64::NAN) * 1e3;
+        solver.push([get("read_s"), get("constraints_s"), get("solve_s")]);
         for (row, v) in rows.iter_mut().zip([
             t.load,
             t.features,
@@ -77,6 +81,11 @@ fn main() {
     }
     let cpu = (cpu_s() - c0) / runs.max(1) as f64;
     println!("{runs} runs, CPU time per run {:.1} ms", cpu * 1e3);
+    for (k, name) in ["read", "constraints", "solve"].iter().enumerate() {
+        let mut v: Vec<f64> = solver.iter().map(|s| s[k]).collect();
+        v.sort_by(f64::total_cmp);
+        println!("last deformation's {name}: median {:.2} ms", v[v.len() / 2]);
+    }
     println!("{runs} runs, ms: stage median min");
     for (name, mut row) in names.iter().zip(rows) {
         row.sort_by(f64::total_cmp);

@@ -15,7 +15,7 @@ use std::path::{Path, PathBuf};
 use std::time::{SystemTime, UNIX_EPOCH};
 
 use gdal::raster::{Buffer, RasterCreationOptions};
-use gdal::{DriverManager, Metadata};
+use gdal::{DriverManager, GdalOpenFlags, Metadata};
 use rayon::prelude::*;
 
 use super::{Dem, LayerKind, RasterError, SampleType, Tile, TileSource, Window};
@@ -405,10 +405,127 @@ fn creation_options(tile: &Tile, cog: bool) -> Vec<String> {
     o
 }
 
+/// Encode one edited tile into `tmp`: an uncompressed GeoTIFF (not a COG)
+/// by [`update_tile_copy`], anything else by [`encode_tile_copy`]. The bytes
+/// are made durable before the caller's rename makes them visible.
+fn encode_tile(
+    tile: &Tile,
+    edit: &TileEdit,
+    tmp: &Path,
+    provenance: &Provenance,
+) -> Result<(), RasterError> {
+    let uncompressed =
+        matches!(&tile.source, TileSource::Tiff(t) if t.encoding.compression == "NONE");
+    let done = if uncompressed {
+        update_tile_copy(tile, edit, tmp, provenance)
+    } else {
+        Ok(false)
+    };
+    let written = match done {
+        Ok(true) => Ok(()),
+        Ok(false) => encode_tile_copy(tile, edit, tmp, provenance),
+        Err(e) => Err(e),
+    };
+    if let Err(e) = written {
+        let _ = std::fs::remove_file(tmp);
+        return Err(e);
+    }
+    std::fs::File::open(tmp)
+        .and_then(|f| f.sync_all())
+        .map_err(|e| RasterError::io(tmp, e))?;
+    Ok(())
+}
+
+/// The window's stored values with the edit merged in: cells to keep take
+/// their stored value back (nodata stays the file's own nodata value, bit
+/// for bit).
+fn merge_edit(
+    band: &gdal::raster::RasterBand,
+    edit: &TileEdit,
+) -> gdal::errors::Result<Buffer<f64>> {
+    let size = (edit.local.width, edit.local.height);
+    let origin = (edit.local.col as isize, edit.local.row as isize);
+    let stored = band.read_as::<f64>(origin, size, size, None)?;
+    let merged: Vec<f64> = edit
+        .values
+        .iter()
+        .zip(stored.data())
+        .map(|(&v, &old)| if v.is_nan() { old } else { v })
+        .collect();
+    Ok(Buffer::new(size, merged))
+}
+
+/// Rebuild the overviews of a written tile where the source had them, as
+/// gdaladdo puts them (after the full-resolution image).
+fn rebuild_overviews(tile: &Tile, ds: &mut gdal::Dataset, tmp: &Path) -> Result<(), RasterError> {
+    if let TileSource::Tiff(t) = &tile.source {
+        if !t.overviews.is_empty() {
+            let factors: Vec<i32> = t
+                .overviews
+                .iter()
+                .map(|(w, _)| ((t.width as f64 / *w as f64).round() as i32).max(2))
+                .collect();
+            let resampling = if tile.sample_type.is_integer() {
+                "NEAREST"
+            } else {
+                "AVERAGE"
+            };
+            ds.build_overviews(resampling, &factors, &[])
+                .map_err(|e| write_err(tmp, format!("GDAL could not rebuild overviews: {e}")))?;
+        }
+    }
+    Ok(())
+}
+
+/// An uncompressed GeoTIFF is edited where it lies in a byte copy of the
+/// source: every tag, the layout and the rest of the image stay exactly as
+/// they were, and GDAL rewrites only the edited window, the provenance item
+/// and the overviews (in place: uncompressed blocks keep their size). Much
+/// cheaper than re-encoding the whole file. `Ok(false)` (and `tmp` removed)
+/// when the copy is a COG, whose layout an in-place update would break.
+fn update_tile_copy(
+    tile: &Tile,
+    edit: &TileEdit,
+    tmp: &Path,
+    provenance: &Provenance,
+) -> Result<bool, RasterError> {
+    std::fs::copy(&tile.path, tmp).map_err(|e| RasterError::io(tmp, e))?;
+    let werr = |e: gdal::errors::GdalError| write_err(tmp, e);
+    let mut ds = gdal::Dataset::open_ex(
+        tmp,
+        gdal::DatasetOptions {
+            open_flags: GdalOpenFlags::GDAL_OF_UPDATE | GdalOpenFlags::GDAL_OF_RASTER,
+            allowed_drivers: Some(&["GTiff"]),
+            ..Default::default()
+        },
+    )
+    .map_err(werr)?;
+    if ds.metadata_item("LAYOUT", "IMAGE_STRUCTURE").as_deref() == Some("COG") {
+        drop(ds);
+        let _ = std::fs::remove_file(tmp);
+        return Ok(false);
+    }
+    {
+        let mut band = ds.rasterband(1).map_err(werr)?;
+        let mut buf = merge_edit(&band, edit).map_err(werr)?;
+        band.write(
+            (edit.local.col as isize, edit.local.row as isize),
+            (edit.local.width, edit.local.height),
+            &mut buf,
+        )
+        .map_err(werr)?;
+    }
+    ds.set_metadata_item(PROVENANCE_KEY, &provenance.item(edit.changed), "")
+        .map_err(werr)?;
+    rebuild_overviews(tile, &mut ds, tmp)?;
+    ds.close().map_err(werr)?;
+    Ok(true)
+}
+
 /// Encode one edited tile into `tmp` through GDAL: the source is copied to
 /// memory with all its metadata, the edit applied, overviews rebuilt, and
 /// the result written with the source's creation options.
-fn encode_tile(
+fn encode_tile_copy(
     tile: &Tile,
     edit: &TileEdit,
     tmp: &Path,
@@ -435,20 +552,7 @@ fn encode_tile(
         .map_err(gerr)?;
     {
         let mut band = mem.rasterband(1).map_err(gerr)?;
-        // Cells to keep take their stored value back (nodata stays the
-        // file's own nodata value, bit for bit).
-        let size = (edit.local.width, edit.local.height);
-        let origin = (edit.local.col as isize, edit.local.row as isize);
-        let stored = band
-            .read_as::<f64>(origin, size, size, None)
-            .map_err(gerr)?;
-        let merged: Vec<f64> = edit
-            .values
-            .iter()
-            .zip(stored.data())
-            .map(|(&v, &old)| if v.is_nan() { old } else { v })
-            .collect();
-        let mut buf = Buffer::new(size, merged);
+        let mut buf = merge_edit(&band, edit).map_err(gerr)?;
         band.write(
             (edit.local.col as isize, edit.local.row as isize),
             (edit.local.width, edit.local.height),
@@ -462,38 +566,12 @@ fn encode_tile(
     let driver =
         DriverManager::get_driver_by_name(if cog { "COG" } else { "GTiff" }).map_err(gerr)?;
     let opts = RasterCreationOptions::from_iter(creation_options(tile, cog));
-    let written = mem
+    let mut ds = mem
         .create_copy(&driver, tmp, &opts)
-        .map_err(|e| write_err(tmp, format!("GDAL could not write the tile: {e}")))
-        .and_then(|mut ds| {
-            // Overviews go where gdaladdo puts them, after the full-resolution
-            // image (the COG driver builds its own).
-            if let TileSource::Tiff(t) = &tile.source {
-                if !t.overviews.is_empty() && !cog {
-                    let factors: Vec<i32> = t
-                        .overviews
-                        .iter()
-                        .map(|(w, _)| ((t.width as f64 / *w as f64).round() as i32).max(2))
-                        .collect();
-                    let resampling = if tile.sample_type.is_integer() {
-                        "NEAREST"
-                    } else {
-                        "AVERAGE"
-                    };
-                    ds.build_overviews(resampling, &factors, &[]).map_err(|e| {
-                        write_err(tmp, format!("GDAL could not rebuild overviews: {e}"))
-                    })?;
-                }
-            }
-            ds.close().map_err(|e| write_err(tmp, e))
-        });
-    if let Err(e) = written {
-        let _ = std::fs::remove_file(tmp);
-        return Err(e);
+        .map_err(|e| write_err(tmp, format!("GDAL could not write the tile: {e}")))?;
+    // The COG driver builds its own overviews.
+    if !cog {
+        rebuild_overviews(tile, &mut ds, tmp)?;
     }
-    // Make the bytes durable before the rename makes them visible.
-    std::fs::File::open(tmp)
-        .and_then(|f| f.sync_all())
-        .map_err(|e| RasterError::io(tmp, e))?;
-    Ok(())
+    ds.close().map_err(|e| write_err(tmp, e))
 }
