@@ -29,6 +29,7 @@
 use super::fit::{is_hidden, HIDDEN_MARGIN};
 use super::rendered_view::{RenderedView, StrokeCurve};
 use crate::view::CameraModel;
+use rayon::prelude::*;
 
 /// Pixels of the protruding silhouette kept on each side of the hidden
 /// columns when it is lowered.
@@ -58,54 +59,16 @@ pub fn find_protruding(view: &RenderedView, strokes: &[StrokeCurve]) -> Vec<Prot
     let mut range = vec![(f64::INFINITY, f64::NEG_INFINITY); n];
     let mut hidden = vec![0usize; n];
     let mut extra = Vec::new();
-    for g in strokes {
-        // Depth-buffer fallback for this stroke: (x, CRS point, h).
-        let mut fallback: Vec<([f64; 3], f64)> = Vec::new();
-        for (i, y, d) in g.columns(view.camera.width) {
-            let x = i as f64 + 0.5;
-            let ray = view.camera.unproject([x, y + BELOW_STROKE_PX]);
-            let rh = ray[0].hypot(ray[1]);
-            let above_ray = |p: [f64; 3]| {
-                if rh > 0.0 {
-                    p[2] - ray[2] * p[0].hypot(p[1]) / rh
-                } else {
-                    f64::NEG_INFINITY
-                }
-            };
-            let mut found = false;
-            for &(c, s) in &view.by_column[i] {
-                let sample = &view.silhouettes.curves[c as usize].samples[s as usize];
-                if sample.pixel[1] >= y || sample.depth >= d * (1.0 - HIDDEN_MARGIN) {
-                    continue;
-                }
-                let h = above_ray(sample.local);
-                if h.is_finite() && h > 0.0 {
-                    let c = c as usize;
-                    need[c] = need[c].max(h);
-                    range[c] = (range[c].0.min(x), range[c].1.max(x));
-                    hidden[c] += 1;
-                    found = true;
-                }
-            }
-            if found || !is_hidden(view, x, y, d) {
-                continue;
-            }
-            // Walk up from the stroke pixel through the nearer terrain.
-            let limit = (d * (1.0 - HIDDEN_MARGIN)) as f32;
-            let mut j = (y.floor().max(0.0) as usize).min(view.depth.height - 1);
-            while j > 0 && view.depth.depth_at(i, j - 1) < limit {
-                j -= 1;
-            }
-            if view.depth.depth_at(i, j) >= limit {
-                continue;
-            }
-            if let Some(hit) = view.depth.hit(&view.terrain, i, j) {
-                let h = above_ray(hit.local);
-                if h.is_finite() && h > 0.0 {
-                    fallback.push(([hit.x, hit.y, hit.z], h));
-                }
-            }
+    // Strokes in parallel (the casts of hidden columns dominate), merged in
+    // stroke order.
+    let per_stroke: Vec<StrokeHits> = strokes.par_iter().map(|g| stroke_hits(view, g)).collect();
+    for hits in per_stroke {
+        for (c, h, x) in hits.samples {
+            need[c] = need[c].max(h);
+            range[c] = (range[c].0.min(x), range[c].1.max(x));
+            hidden[c] += 1;
         }
+        let fallback = hits.fallback;
         if !fallback.is_empty() {
             let h = fallback.iter().fold(0.0f64, |a, p| a.max(p.1));
             extra.push(Protrusion {
@@ -139,4 +102,62 @@ pub fn find_protruding(view: &RenderedView, strokes: &[StrokeCurve]) -> Vec<Prot
         .collect();
     out.extend(extra);
     out
+}
+
+/// What one stroke finds: the silhouette samples over it that hide it
+/// (curve, lowering needed, column centre) and the depth-buffer fallback
+/// points (CRS point, lowering needed).
+struct StrokeHits {
+    samples: Vec<(usize, f64, f64)>,
+    fallback: Vec<([f64; 3], f64)>,
+}
+
+/// The protruding samples and fallback points over the columns of `g`.
+fn stroke_hits(view: &RenderedView, g: &StrokeCurve) -> StrokeHits {
+    let mut samples = Vec::new();
+    // Depth-buffer fallback for this stroke: (CRS point, h).
+    let mut fallback: Vec<([f64; 3], f64)> = Vec::new();
+    for (i, y, d) in g.columns(view.camera.width) {
+        let x = i as f64 + 0.5;
+        let ray = view.camera.unproject([x, y + BELOW_STROKE_PX]);
+        let rh = ray[0].hypot(ray[1]);
+        let above_ray = |p: [f64; 3]| {
+            if rh > 0.0 {
+                p[2] - ray[2] * p[0].hypot(p[1]) / rh
+            } else {
+                f64::NEG_INFINITY
+            }
+        };
+        let mut found = false;
+        for &(c, s) in &view.by_column[i] {
+            let sample = &view.silhouettes.curves[c as usize].samples[s as usize];
+            if sample.pixel[1] >= y || sample.depth >= d * (1.0 - HIDDEN_MARGIN) {
+                continue;
+            }
+            let h = above_ray(sample.local);
+            if h.is_finite() && h > 0.0 {
+                samples.push((c as usize, h, x));
+                found = true;
+            }
+        }
+        if found || !is_hidden(view, x, y, d) {
+            continue;
+        }
+        // Walk up from the stroke pixel through the nearer terrain.
+        let limit = (d * (1.0 - HIDDEN_MARGIN)) as f32;
+        let mut j = (y.floor().max(0.0) as usize).min(view.depth.height - 1);
+        while j > 0 && view.depth.depth_at(i, j - 1) < limit {
+            j -= 1;
+        }
+        if view.depth.depth_at(i, j) >= limit {
+            continue;
+        }
+        if let Some(hit) = view.depth.hit(&view.terrain, i, j) {
+            let h = above_ray(hit.local);
+            if h.is_finite() && h > 0.0 {
+                fallback.push(([hit.x, hit.y, hit.z], h));
+            }
+        }
+    }
+    StrokeHits { samples, fallback }
 }

@@ -24,6 +24,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use rayon::prelude::*;
 
 use super::contour::contour_constraints;
 use super::fit::measure;
@@ -409,7 +410,7 @@ pub fn run(
     let mut after_views = Vec::new();
     for (((k, v), m), after) in views.iter().enumerate().zip(&matched.views).zip(rendered) {
         let strokes = curves[k]
-            .iter()
+            .par_iter()
             .zip(&m.strokes)
             .map(|(c, sm)| {
                 let (fit, visible) = measure(c, &after);
