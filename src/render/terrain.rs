@@ -625,8 +625,17 @@ impl LocalTerrain {
             let ray_min = dz * if dz < 0.0 { te } else { t };
             if ray_min > mip[level][by * mw + bx] as f64 {
                 t = te;
+                // Ascend when leaving the parent block (within it, the
+                // parent was just found too high).
                 if level < top {
-                    level += 1;
+                    let tq = t + eps;
+                    let (qx, qy) = (ox + gx * tq, oy + gy * tq);
+                    let ps = sh + 1;
+                    if (qx.max(0.0) as usize) >> ps != bx >> 1
+                        || (qy.max(0.0) as usize) >> ps != by >> 1
+                    {
+                        level += 1;
+                    }
                 }
                 continue;
             }
