@@ -17,6 +17,7 @@
 use super::{Curvature, ViewError};
 use crate::raster::{Crs, HeightMap};
 use proj::Proj;
+use std::rc::Rc;
 
 /// How high the eye is.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -58,8 +59,9 @@ impl Viewpoint {
 pub struct Georef {
     /// WGS84 lon/lat to the DEM's CRS (forward), and back (inverse): one
     /// PROJ object, because creating one (its own context, proj.db lookups)
-    /// costs milliseconds.
-    transform: Proj,
+    /// costs milliseconds; shared by every `Georef` of the same CRS on this
+    /// thread (see [`transformation`]).
+    transform: Rc<Proj>,
     geographic: bool,
     dem: String,
 }
@@ -68,6 +70,39 @@ impl std::fmt::Debug for Georef {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("Georef").field("dem", &self.dem).finish()
     }
+}
+
+thread_local! {
+    /// The transformations made on this thread, by CRS definition.
+    static TRANSFORMATIONS: std::cell::RefCell<Vec<(String, Rc<Proj>)>> =
+        const { std::cell::RefCell::new(Vec::new()) };
+}
+
+/// The transformation from WGS84 lon/lat to the CRS `def`, made once per
+/// thread and CRS: opening PROJ's database and searching it for the
+/// operation costs a few milliseconds, which a batch of edits (or of views)
+/// on the same tile pyramid would otherwise pay every time. PROJ objects
+/// hold their own context and are used on the thread that made them only,
+/// so the cache is per thread.
+fn transformation(def: &str) -> Result<Rc<Proj>, proj::ProjCreateError> {
+    if let Some(p) = TRANSFORMATIONS.with(|t| {
+        t.borrow()
+            .iter()
+            .find(|(d, _)| d == def)
+            .map(|(_, p)| Rc::clone(p))
+    }) {
+        return Ok(p);
+    }
+    let p = Rc::new(Proj::new_known_crs("EPSG:4326", def, None)?);
+    TRANSFORMATIONS.with(|t| {
+        let mut t = t.borrow_mut();
+        // A handful of CRSs at most in practice; bounded all the same.
+        if t.len() >= 16 {
+            t.remove(0);
+        }
+        t.push((def.to_string(), Rc::clone(&p)));
+    });
+    Ok(p)
 }
 
 impl Georef {
@@ -86,7 +121,7 @@ impl Georef {
         if def.trim().is_empty() {
             return Err(perr(&"the DEM has no CRS"));
         }
-        let transform = Proj::new_known_crs("EPSG:4326", &def, None).map_err(|e| perr(&e))?;
+        let transform = transformation(&def).map_err(|e| perr(&e))?;
         Ok(Georef {
             transform,
             geographic: crs.geographic,
