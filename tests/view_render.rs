@@ -204,6 +204,70 @@ fn rasterised_depth_buffer_equals_exact_ray_casting() {
     }
 }
 
+/// The terrain of what a camera sees (`LocalTerrain::in_view`) renders the
+/// same view as the whole terrain: same sky, same depths (up to rounding of
+/// the shifted vertex coordinates), the same DEM cells; and it is smaller
+/// when the field of view is narrow.
+#[test]
+fn terrain_in_view_renders_the_same_view() {
+    let name = "zion_srtm_utm12n.tif";
+    let dem = load(&fixture(name));
+    let georef = Georef::new(&dem, name).unwrap();
+    let (x, y) = dem.geotransform.pixel_to_crs(210.5, 103.5);
+    let (lon, lat) = georef.crs_to_lonlat(x, y).unwrap();
+    let frame = georef
+        .local_frame(&Viewpoint::above_surface(lon, lat, 1.7), &dem, 1.0 / 7.0)
+        .unwrap();
+    let whole = LocalTerrain::new(&dem, &frame, None);
+    for (heading, pitch, roll, fov, narrower) in [
+        (20.0, 1.0, 0.0, 35.0, true),
+        (200.0, -10.0, 25.0, 60.0, true),
+        (95.0, 3.0, 0.0, 120.0, true),
+        (300.0, -89.0, 0.0, 90.0, false),
+    ] {
+        let cam = Camera::new(400, 240, heading, pitch, roll, fov).unwrap();
+        let part = LocalTerrain::in_view(&dem, &frame, None, &cam);
+        let what = format!("heading {heading}, pitch {pitch}, roll {roll}, fov {fov}");
+        assert_eq!(
+            part.nx * part.ny < whole.nx * whole.ny,
+            narrower,
+            "{what}: {} x {} of {} x {}",
+            part.nx,
+            part.ny,
+            whole.nx,
+            whole.ny
+        );
+        let (a, b) = (
+            DepthBuffer::render(&whole, &cam),
+            DepthBuffer::render(&part, &cam),
+        );
+        let mut other_cell = 0;
+        for k in 0..a.depth.len() {
+            assert_eq!(
+                a.triangle[k] == SKY,
+                b.triangle[k] == SKY,
+                "{what}: pixel {k}"
+            );
+            if a.triangle[k] == SKY {
+                continue;
+            }
+            let (da, db) = (a.depth[k] as f64, b.depth[k] as f64);
+            assert!(
+                (da - db).abs() <= 1e-5 * da,
+                "{what}: pixel {k}: {da} vs {db}"
+            );
+            // (DEM cells: `triangle_cell` adds the terrain's offset)
+            let (ca, ra, _) = whole.triangle_cell(a.triangle[k]);
+            let (cb, rb, _) = part.triangle_cell(b.triangle[k]);
+            other_cell += usize::from((ca, ra) != (cb, rb));
+        }
+        assert!(
+            other_cell * 1000 <= a.depth.len(),
+            "{what}: {other_cell} pixels on other cells"
+        );
+    }
+}
+
 #[test]
 fn depth_of_a_flat_plane_is_analytic() {
     let dem = synthetic(400, 400, 10.0, |_, _| 50.0);

@@ -177,7 +177,8 @@ pub fn run(
             v.camera.hfov_deg,
         )
         .map_err(|e| view_err(e.into()))?;
-        let scene = Scene::open(&dem, &vp, max_d, opts.refraction).map_err(view_err)?;
+        let scene =
+            Scene::open_in_view(&dem, &vp, max_d, opts.refraction, &camera).map_err(view_err)?;
         scenes.push((scene, camera));
     }
     timings.load = secs(t);

@@ -149,7 +149,7 @@ impl RenderedView {
         camera: &Camera,
         max_distance: Option<f64>,
     ) -> Result<RenderedView, FeatureError> {
-        let terrain = LocalTerrain::new(map, frame, max_distance);
+        let terrain = LocalTerrain::in_view(map, frame, max_distance, camera);
         Self::from_terrain(terrain, camera)
     }
 
@@ -164,7 +164,7 @@ impl RenderedView {
         max_distance: Option<f64>,
         region: &StrokeRegion,
     ) -> Result<RenderedView, FeatureError> {
-        let terrain = LocalTerrain::new(map, frame, max_distance);
+        let terrain = LocalTerrain::in_view(map, frame, max_distance, camera);
         // The edit casts many rays on this terrain (silhouettes, hidden
         // strokes): the full cast index is built beside the render.
         let (depth, ()) = rayon::join(

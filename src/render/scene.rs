@@ -28,6 +28,29 @@ impl Scene {
         max_distance: Option<f64>,
         k: f64,
     ) -> Result<Scene, RenderError> {
+        Self::open_for(dem, vp, max_distance, k, None)
+    }
+
+    /// Like [`Scene::open`], with the terrain built only where `camera` can
+    /// see ([`LocalTerrain::in_view`]): for work that only renders and casts
+    /// along that camera's rays (not a viewshed).
+    pub fn open_in_view(
+        dem: &Dem,
+        vp: &Viewpoint,
+        max_distance: Option<f64>,
+        k: f64,
+        camera: &crate::view::Camera,
+    ) -> Result<Scene, RenderError> {
+        Self::open_for(dem, vp, max_distance, k, Some(camera))
+    }
+
+    fn open_for(
+        dem: &Dem,
+        vp: &Viewpoint,
+        max_distance: Option<f64>,
+        k: f64,
+        camera: Option<&crate::view::Camera>,
+    ) -> Result<Scene, RenderError> {
         let name = dem.path.display().to_string();
         let georef = Georef::for_crs(&dem.crs, &name)?;
         let (x, y) = georef.lonlat_to_crs(vp.lon, vp.lat)?;
@@ -59,7 +82,10 @@ impl Scene {
         };
         let window = dem.read_height_map(win)?;
         let frame = georef.local_frame(vp, &window, k)?;
-        let terrain = LocalTerrain::new(&window, &frame, max_d);
+        let terrain = match camera {
+            Some(c) => LocalTerrain::in_view(&window, &frame, max_d, c),
+            None => LocalTerrain::new(&window, &frame, max_d),
+        };
         Ok(Scene {
             window,
             window_offset: (win.col, win.row),

@@ -88,6 +88,32 @@ impl LocalTerrain {
     /// `dem`), keeping only the cells within `max_distance` metres (`None`:
     /// all of `dem`).
     pub fn new(dem: &HeightMap, frame: &LocalFrame, max_distance: Option<f64>) -> Self {
+        Self::build(dem, frame, max_distance, None)
+    }
+
+    /// Like [`LocalTerrain::new`], keeping only the cells that `camera` can
+    /// see horizontally: the bounding box of the wedge of the azimuths of
+    /// its pixel rays (with a margin) within the maximum distance. What the
+    /// camera sees, and every cast along its pixel rays, is the same as on
+    /// the whole terrain, for a fraction of the set-up where the field of
+    /// view is narrow. Falls back to [`LocalTerrain::new`]'s extent when the
+    /// view's azimuths span more than a half-turn (or it looks straight up
+    /// or down).
+    pub fn in_view(
+        dem: &HeightMap,
+        frame: &LocalFrame,
+        max_distance: Option<f64>,
+        camera: &crate::view::Camera,
+    ) -> Self {
+        Self::build(dem, frame, max_distance, Some(camera))
+    }
+
+    fn build(
+        dem: &HeightMap,
+        frame: &LocalFrame,
+        max_distance: Option<f64>,
+        camera: Option<&crate::view::Camera>,
+    ) -> Self {
         let p = frame.p;
         let det = p[0][0] * p[1][1] - p[0][1] * p[1][0];
         let pinv = [
@@ -105,6 +131,15 @@ impl LocalTerrain {
             r0 = (ey - ry).floor().max(0.0) as usize;
             c1 = ((ex + rx).ceil().max(0.0) as usize).min(dem.width);
             r1 = ((ey + ry).ceil().max(0.0) as usize).min(dem.height);
+        }
+        if let Some((a, b, c, d)) = camera.and_then(|cam| view_wedge_box(dem, frame, max_d, cam)) {
+            (c0, r0, c1, r1) = (c0.max(a), r0.max(b), c1.min(c), r1.min(d));
+            if c1 <= c0 || r1 <= r0 {
+                // the wedge misses the DEM: keep the eye's cell
+                c0 = (ex.floor().max(0.0) as usize).min(dem.width.saturating_sub(1));
+                r0 = (ey.floor().max(0.0) as usize).min(dem.height.saturating_sub(1));
+                (c1, r1) = (c0 + 1, r0 + 1);
+            }
         }
         let nx = c1.saturating_sub(c0).max(1);
         let ny = r1.saturating_sub(r0).max(1);
@@ -746,6 +781,103 @@ impl Drop for LocalTerrain {
 /// The pyramid over `base` (`w` x `h` block maxima): each level the max of
 /// 2 x 2 blocks of the one below, up to a single block.
 #[allow(clippy::type_complexity)]
+/// The pixel box `(c0, r0, c1, r1)` (end exclusive, clipped to `dem`) of
+/// the horizontal wedge `camera` sees from `frame`'s eye out to `max_d`
+/// (the far corner of `dem` when infinite), or `None` when the azimuths of
+/// its pixel rays span more than a half-turn or a ray is nearly vertical.
+fn view_wedge_box(
+    dem: &HeightMap,
+    frame: &LocalFrame,
+    max_d: f64,
+    camera: &crate::view::Camera,
+) -> Option<(usize, usize, usize, usize)> {
+    use crate::view::CameraModel;
+    use std::f64::consts::{PI, TAU};
+    // Azimuths of the rays around the image border (the rays through a
+    // rectangle form a convex cone, whose horizontal extremes lie on its
+    // border), relative to the centre ray's.
+    let centre = camera.unproject([camera.width as f64 / 2.0, camera.height as f64 / 2.0]);
+    let azimuth = |d: [f64; 3]| {
+        let h = d[0].hypot(d[1]);
+        (h > 1e-3 * (h + d[2].abs())).then(|| d[0].atan2(d[1]))
+    };
+    let a_centre = azimuth(centre)?;
+    let (w, h) = (camera.width as f64, camera.height as f64);
+    let (mut lo, mut hi) = (0.0f64, 0.0f64);
+    let steps = 64;
+    for k in 0..=steps {
+        let f = k as f64 / steps as f64;
+        for px in [[f * w, 0.0], [f * w, h], [0.0, f * h], [w, f * h]] {
+            let a = azimuth(camera.unproject(px))?;
+            // relative to the centre, in (-pi, pi]
+            let mut r = (a - a_centre) % TAU;
+            if r > PI {
+                r -= TAU;
+            } else if r <= -PI {
+                r += TAU;
+            }
+            lo = lo.min(r);
+            hi = hi.max(r);
+        }
+    }
+    let margin = 1f64.to_radians();
+    let (lo, hi) = (lo - margin, hi + margin);
+    if hi - lo > PI {
+        return None;
+    }
+    // Radius: the maximum distance, or the farthest corner of the DEM.
+    let p = frame.p;
+    let to_en = |px: f64, py: f64| {
+        let (dx, dy) = (px - frame.eye_pixel.0, py - frame.eye_pixel.1);
+        (p[0][0] * dx + p[0][1] * dy, p[1][0] * dx + p[1][1] * dy)
+    };
+    let radius = if max_d.is_finite() {
+        max_d
+    } else {
+        let (wd, hd) = (dem.width as f64, dem.height as f64);
+        [(0.0, 0.0), (wd, 0.0), (0.0, hd), (wd, hd)]
+            .iter()
+            .map(|&(x, y)| {
+                let (e, n) = to_en(x, y);
+                e.hypot(n)
+            })
+            .fold(0.0, f64::max)
+            * 1.01
+    };
+    let det = p[0][0] * p[1][1] - p[0][1] * p[1][0];
+    let to_px = |e: f64, n: f64| {
+        (
+            frame.eye_pixel.0 + (p[1][1] * e - p[0][1] * n) / det,
+            frame.eye_pixel.1 + (-p[1][0] * e + p[0][0] * n) / det,
+        )
+    };
+    // The eye and the arc, sampled every degree (its chords fall short of
+    // the arc by under 2e-5 of the radius; the padding covers that).
+    let (mut x0, mut y0, mut x1, mut y1) = (
+        frame.eye_pixel.0,
+        frame.eye_pixel.1,
+        frame.eye_pixel.0,
+        frame.eye_pixel.1,
+    );
+    let n = ((hi - lo).to_degrees().ceil() as usize).max(1);
+    for k in 0..=n {
+        let a = a_centre + lo + (hi - lo) * k as f64 / n as f64;
+        let (x, y) = to_px(radius * a.sin(), radius * a.cos());
+        x0 = x0.min(x);
+        y0 = y0.min(y);
+        x1 = x1.max(x);
+        y1 = y1.max(y);
+    }
+    let pad = 3.0;
+    let clip = |v: f64, n: usize| (v.max(0.0) as usize).min(n);
+    Some((
+        clip((x0 - pad).floor(), dem.width),
+        clip((y0 - pad).floor(), dem.height),
+        clip((x1 + pad).ceil(), dem.width),
+        clip((y1 + pad).ceil(), dem.height),
+    ))
+}
+
 fn max_pyramid(base: Vec<f32>, w: usize, h: usize) -> (Vec<Vec<f32>>, Vec<(usize, usize)>) {
     let mut mip = vec![base];
     let mut dims = vec![(w.max(1), h.max(1))];
