@@ -22,12 +22,17 @@
 //!   track moves monotonically away from the eye along both grid axes, so
 //!   it meets the blocks of successive rings in order and never two blocks
 //!   of one ring: a pixel filled by an earlier ring is final.
+//! - **Screen boxes of blocks.** A block's box (its cells' extent times its
+//!   height range) is projected after clipping away the depths nearer than
+//!   any of its points can be seen at (its distance from the eye over the
+//!   longest pixel ray's stretch), so that blocks reaching behind the
+//!   camera, beside or below the view, still get a tight pixel box; only
+//!   blocks next to the eye count as covering the whole image.
 //! - **Occlusion culling.** Per image column the renderer keeps the
 //!   topmost row from which every pixel down to the bottom is final. A
-//!   block whose screen bounding box (its cells' extent times its height
-//!   range) lies entirely below those rows is hidden and skipped without
-//!   looking at its triangles; most of the far terrain behind the first
-//!   ridges goes this way.
+//!   block whose screen box lies entirely below those rows is hidden and
+//!   skipped without looking at its triangles; most of the far terrain
+//!   behind the first ridges goes this way.
 //! - **Parallel by image strips.** Vertical strips of the image are
 //!   rendered independently (rayon), each with its own buffers and its own
 //!   culling state.
@@ -177,9 +182,13 @@ fn block_boxes(terrain: &LocalTerrain, camera: &Camera, m: &VertexToCamera) -> B
     let eby = (eye.1 / BLOCK as f64).floor() as i64;
     let ranges = terrain.block_ranges();
     debug_assert_eq!((ranges.bw, ranges.bh), (bw, bh));
-    // Near limit for projecting a box: boxes reaching closer to the camera
-    // plane than this are treated as covering the whole image.
-    let near = 1e-3;
+    // A hit seen through a pixel centre at camera depth `z` lies within
+    // `z * ray_stretch` of the eye (`ray_stretch`: the longest pixel ray
+    // `(u, v, f)` over its depth `f`, with margin), so a block farther than
+    // `L` from the eye shows nothing nearer than depth `L / ray_stretch`:
+    // its part nearer than that (which projects far out, or not at all) is
+    // clipped away before projecting.
+    let ray_stretch = 2.0 * ((w * w + h * h) / (4.0 * f * f) + 1.0).sqrt();
     let rows: Vec<Vec<(u32, BlockBox)>> = (0..bh)
         .into_par_iter()
         .map(|by| {
@@ -193,60 +202,23 @@ fn block_boxes(terrain: &LocalTerrain, camera: &Camera, m: &VertexToCamera) -> B
                 if !(hi >= lo) {
                     continue;
                 }
-                let (mut sx0, mut sx1, mut sy0, mut sy1) = (
-                    f64::INFINITY,
-                    f64::NEG_INFINITY,
-                    f64::INFINITY,
-                    f64::NEG_INFINITY,
-                );
-                let mut behind = 0;
-                let mut straddles = false;
-                for (c, r) in [(c0, r0), (c1, r0), (c0, r1), (c1, r1)] {
-                    for zz in [lo, hi] {
-                        let p = m.apply(c as f64, r as f64, zz as f64);
-                        if p[2] <= near {
-                            straddles = true;
-                            if p[2] <= 0.0 {
-                                behind += 1;
-                            }
-                            continue;
-                        }
-                        let sx = w / 2.0 + f * p[0] / p[2];
-                        let sy = h / 2.0 - f * p[1] / p[2];
-                        sx0 = sx0.min(sx);
-                        sx1 = sx1.max(sx);
-                        sy0 = sy0.min(sy);
-                        sy1 = sy1.max(sy);
-                    }
-                }
-                if behind == 8 {
+                // corner k: column bit 1, row bit 2, height bit 4
+                let corners: [[f64; 3]; 8] = std::array::from_fn(|k| {
+                    m.apply(
+                        [c0, c1][k & 1] as f64,
+                        [r0, r1][(k >> 1) & 1] as f64,
+                        [lo, hi][k >> 2] as f64,
+                    )
+                });
+                let Some((x0, x1, y0)) = block_pixels(&corners, ray_stretch, camera) else {
                     continue;
-                }
-                let bb = if straddles {
-                    BlockBox {
-                        bx: bx as u32,
-                        by: by as u32,
-                        x0: 0,
-                        x1: camera.width as i32 - 1,
-                        y0: 0,
-                    }
-                } else {
-                    // Pixel i's centre is i + 0.5; a margin of one pixel
-                    // absorbs rounding.
-                    let x0 = (sx0 - 1.5).ceil().max(0.0);
-                    let x1 = (sx1 + 0.5).floor().min(w - 1.0);
-                    let y0 = (sy0 - 1.5).ceil().max(0.0);
-                    let y1 = (sy1 + 0.5).floor().min(h - 1.0);
-                    if x0 > x1 || y0 > y1 {
-                        continue;
-                    }
-                    BlockBox {
-                        bx: bx as u32,
-                        by: by as u32,
-                        x0: x0 as i32,
-                        x1: x1 as i32,
-                        y0: y0 as i32,
-                    }
+                };
+                let bb = BlockBox {
+                    bx: bx as u32,
+                    by: by as u32,
+                    x0,
+                    x1,
+                    y0,
                 };
                 let ring = (bx as i64 - ebx).unsigned_abs() + (by as i64 - eby).unsigned_abs();
                 out.push((ring as u32, bb));
@@ -284,6 +256,81 @@ fn block_boxes(terrain: &LocalTerrain, camera: &Camera, m: &VertexToCamera) -> B
         fill[k as usize] += 1;
     }
     Blocks { boxes, ring_start }
+}
+
+/// The least camera depth at which a block with camera-space box corners
+/// `corners` can show through a pixel centre: its least distance from the
+/// eye (bounded below along the direction of its centre) over
+/// `ray_stretch`; `None` when that bound is not positive (the eye may be in
+/// or next to the block).
+fn block_near_depth(corners: &[[f64; 3]; 8], ray_stretch: f64) -> Option<f64> {
+    let mut c = [0.0; 3];
+    for p in corners {
+        for k in 0..3 {
+            c[k] += p[k] / 8.0;
+        }
+    }
+    let len = dot(c, c).sqrt();
+    if !(len > 0.0) {
+        return None;
+    }
+    let u = [c[0] / len, c[1] / len, c[2] / len];
+    let least = corners
+        .iter()
+        .map(|&p| dot(u, p))
+        .fold(f64::INFINITY, f64::min);
+    (least > 0.0).then(|| least / ray_stretch)
+}
+
+/// The pixels that may show a block with camera-space box corners
+/// `corners` (see [`block_near_depth`]): inclusive column range and first
+/// row, `None` when it shows on none.
+fn block_pixels(
+    corners: &[[f64; 3]; 8],
+    ray_stretch: f64,
+    camera: &Camera,
+) -> Option<(i32, i32, i32)> {
+    let (w, h) = (camera.width as f64, camera.height as f64);
+    let f = camera.focal_px;
+    let Some(near) = block_near_depth(corners, ray_stretch) else {
+        // The eye may be in or next to the block: any pixel.
+        return Some((0, camera.width as i32 - 1, 0));
+    };
+    let (mut sx0, mut sx1, mut sy0, mut sy1) = (
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+    );
+    let mut add = |p: [f64; 3]| {
+        let sx = w / 2.0 + f * p[0] / p[2];
+        let sy = h / 2.0 - f * p[1] / p[2];
+        sx0 = sx0.min(sx);
+        sx1 = sx1.max(sx);
+        sy0 = sy0.min(sy);
+        sy1 = sy1.max(sy);
+    };
+    // The box clipped to depths >= near: its corners there and the
+    // crossings of its 12 edges.
+    for (k, &p) in corners.iter().enumerate() {
+        if p[2] >= near {
+            add(p);
+        }
+        for bit in [1, 2, 4] {
+            let q = corners[k | bit];
+            if k & bit == 0 && (p[2] >= near) != (q[2] >= near) {
+                let s = (near - p[2]) / (q[2] - p[2]);
+                add([p[0] + s * (q[0] - p[0]), p[1] + s * (q[1] - p[1]), near]);
+            }
+        }
+    }
+    // Pixel i's centre is i + 0.5; a margin of one pixel absorbs rounding.
+    // (No point at or beyond `near`: no pixel.)
+    let x0 = (sx0 - 1.5).ceil().max(0.0);
+    let x1 = (sx1 + 0.5).floor().min(w - 1.0);
+    let y0 = (sy0 - 1.5).ceil().max(0.0);
+    let y1 = (sy1 + 0.5).floor().min(h - 1.0);
+    (x0 <= x1 && y0 <= y1).then_some((x0 as i32, x1 as i32, y0 as i32))
 }
 
 /// A projected vertex: camera coordinates and screen position.
