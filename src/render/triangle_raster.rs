@@ -45,6 +45,10 @@ use rayon::prelude::*;
 /// Block edge in cells for ordering and culling: the terrain's range blocks.
 const BLOCK: usize = RANGE_BLOCK;
 
+/// Blocks per superblock edge: a superblock whose screen box is empty is
+/// skipped with one test instead of one per block.
+const SUPER: usize = 4;
+
 /// Pixel columns per strip rendered by one task.
 const STRIP: usize = 128;
 
@@ -175,53 +179,59 @@ impl Blocks {
 fn block_boxes(terrain: &LocalTerrain, camera: &Camera, m: &VertexToCamera) -> Blocks {
     let (cx, cy) = (terrain.nx - 1, terrain.ny - 1);
     let (bw, bh) = (cx.div_ceil(BLOCK), cy.div_ceil(BLOCK));
-    let (w, h) = (camera.width as f64, camera.height as f64);
-    let f = camera.focal_px;
     let eye = terrain.eye_vertex();
     let ebx = (eye.0 / BLOCK as f64).floor() as i64;
     let eby = (eye.1 / BLOCK as f64).floor() as i64;
     let ranges = terrain.block_ranges();
     debug_assert_eq!((ranges.bw, ranges.bh), (bw, bh));
-    // A hit seen through a pixel centre at camera depth `z` lies within
-    // `z * ray_stretch` of the eye (`ray_stretch`: the longest pixel ray
-    // `(u, v, f)` over its depth `f`, with margin), so a block farther than
-    // `L` from the eye shows nothing nearer than depth `L / ray_stretch`:
-    // its part nearer than that (which projects far out, or not at all) is
-    // clipped away before projecting.
-    let ray_stretch = 2.0 * ((w * w + h * h) / (4.0 * f * f) + 1.0).sqrt();
-    let rows: Vec<Vec<(u32, BlockBox)>> = (0..bh)
+    let projector = BoxProjector::new(m, camera);
+    // Cell range of blocks bx0..bx1 (or rows).
+    let cells = |b0: usize, b1: usize, n: usize| [b0 * BLOCK, (b1 * BLOCK).min(n)];
+    let rows: Vec<Vec<(u32, BlockBox)>> = (0..bh.div_ceil(SUPER))
         .into_par_iter()
-        .map(|by| {
+        .map(|sy| {
             let mut out = Vec::new();
-            let r0 = by * BLOCK;
-            let r1 = ((by + 1) * BLOCK).min(cy);
-            for bx in 0..bw {
-                let c0 = bx * BLOCK;
-                let c1 = ((bx + 1) * BLOCK).min(cx);
-                let (lo, hi) = (ranges.lo[by * bw + bx], ranges.hi[by * bw + bx]);
-                if !(hi >= lo) {
+            let (by0, by1) = (sy * SUPER, ((sy + 1) * SUPER).min(bh));
+            for sx in 0..bw.div_ceil(SUPER) {
+                let (bx0, bx1) = (sx * SUPER, ((sx + 1) * SUPER).min(bw));
+                // A superblock off the image: none of its blocks is seen.
+                let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+                for by in by0..by1 {
+                    for k in by * bw + bx0..by * bw + bx1 {
+                        lo = lo.min(ranges.lo[k]);
+                        hi = hi.max(ranges.hi[k]);
+                    }
+                }
+                if !(hi >= lo)
+                    || projector
+                        .pixels(cells(bx0, bx1, cx), cells(by0, by1, cy), lo, hi)
+                        .is_none()
+                {
                     continue;
                 }
-                // corner k: column bit 1, row bit 2, height bit 4
-                let corners: [[f64; 3]; 8] = std::array::from_fn(|k| {
-                    m.apply(
-                        [c0, c1][k & 1] as f64,
-                        [r0, r1][(k >> 1) & 1] as f64,
-                        [lo, hi][k >> 2] as f64,
-                    )
-                });
-                let Some((x0, x1, y0)) = block_pixels(&corners, ray_stretch, camera) else {
-                    continue;
-                };
-                let bb = BlockBox {
-                    bx: bx as u32,
-                    by: by as u32,
-                    x0,
-                    x1,
-                    y0,
-                };
-                let ring = (bx as i64 - ebx).unsigned_abs() + (by as i64 - eby).unsigned_abs();
-                out.push((ring as u32, bb));
+                for by in by0..by1 {
+                    for bx in bx0..bx1 {
+                        let (lo, hi) = (ranges.lo[by * bw + bx], ranges.hi[by * bw + bx]);
+                        if !(hi >= lo) {
+                            continue;
+                        }
+                        let Some((x0, x1, y0)) =
+                            projector.pixels(cells(bx, bx + 1, cx), cells(by, by + 1, cy), lo, hi)
+                        else {
+                            continue;
+                        };
+                        let ring =
+                            (bx as i64 - ebx).unsigned_abs() + (by as i64 - eby).unsigned_abs();
+                        let bb = BlockBox {
+                            bx: bx as u32,
+                            by: by as u32,
+                            x0,
+                            x1,
+                            y0,
+                        };
+                        out.push((ring as u32, bb));
+                    }
+                }
             }
             out
         })
@@ -258,79 +268,131 @@ fn block_boxes(terrain: &LocalTerrain, camera: &Camera, m: &VertexToCamera) -> B
     Blocks { boxes, ring_start }
 }
 
-/// The least camera depth at which a block with camera-space box corners
-/// `corners` can show through a pixel centre: its least distance from the
-/// eye (bounded below along the direction of its centre) over
-/// `ray_stretch`; `None` when that bound is not positive (the eye may be in
-/// or next to the block).
-fn block_near_depth(corners: &[[f64; 3]; 8], ray_stretch: f64) -> Option<f64> {
-    let mut c = [0.0; 3];
-    for p in corners {
-        for k in 0..3 {
-            c[k] += p[k] / 8.0;
-        }
-    }
-    let len = dot(c, c).sqrt();
-    if !(len > 0.0) {
-        return None;
-    }
-    let u = [c[0] / len, c[1] / len, c[2] / len];
-    let least = corners
-        .iter()
-        .map(|&p| dot(u, p))
-        .fold(f64::INFINITY, f64::min);
-    (least > 0.0).then(|| least / ray_stretch)
+/// Projects boxes of the grid (a cell range times a height range) to the
+/// pixels that may show them.
+///
+/// A hit seen through a pixel centre at camera depth `z` lies within
+/// `z * ray_stretch` of the eye (`ray_stretch`: the longest pixel ray
+/// `(u, v, f)` over its depth `f`, with a margin), so a box farther than `L`
+/// from the eye shows nothing nearer than depth `L / ray_stretch`: its part
+/// nearer than that (which projects far out, or not at all) is clipped away
+/// before projecting.
+struct BoxProjector<'a> {
+    m: &'a VertexToCamera,
+    w: f64,
+    h: f64,
+    f: f64,
+    ray_stretch: f64,
 }
 
-/// The pixels that may show a block with camera-space box corners
-/// `corners` (see [`block_near_depth`]): inclusive column range and first
-/// row, `None` when it shows on none.
-fn block_pixels(
-    corners: &[[f64; 3]; 8],
-    ray_stretch: f64,
-    camera: &Camera,
-) -> Option<(i32, i32, i32)> {
-    let (w, h) = (camera.width as f64, camera.height as f64);
-    let f = camera.focal_px;
-    let Some(near) = block_near_depth(corners, ray_stretch) else {
-        // The eye may be in or next to the block: any pixel.
-        return Some((0, camera.width as i32 - 1, 0));
-    };
-    let (mut sx0, mut sx1, mut sy0, mut sy1) = (
-        f64::INFINITY,
-        f64::NEG_INFINITY,
-        f64::INFINITY,
-        f64::NEG_INFINITY,
-    );
-    let mut add = |p: [f64; 3]| {
-        let sx = w / 2.0 + f * p[0] / p[2];
-        let sy = h / 2.0 - f * p[1] / p[2];
-        sx0 = sx0.min(sx);
-        sx1 = sx1.max(sx);
-        sy0 = sy0.min(sy);
-        sy1 = sy1.max(sy);
-    };
-    // The box clipped to depths >= near: its corners there and the
-    // crossings of its 12 edges.
-    for (k, &p) in corners.iter().enumerate() {
-        if p[2] >= near {
-            add(p);
-        }
-        for bit in [1, 2, 4] {
-            let q = corners[k | bit];
-            if k & bit == 0 && (p[2] >= near) != (q[2] >= near) {
-                let s = (near - p[2]) / (q[2] - p[2]);
-                add([p[0] + s * (q[0] - p[0]), p[1] + s * (q[1] - p[1]), near]);
-            }
+/// Boxes that may be seen nearer than this depth (the eye is in or next to
+/// them) count as covering the whole image.
+const MIN_NEAR: f64 = 1e-6;
+
+impl<'a> BoxProjector<'a> {
+    fn new(m: &'a VertexToCamera, camera: &Camera) -> Self {
+        let (w, h, f) = (camera.width as f64, camera.height as f64, camera.focal_px);
+        BoxProjector {
+            m,
+            w,
+            h,
+            f,
+            ray_stretch: 2.0 * ((w * w + h * h) / (4.0 * f * f) + 1.0).sqrt(),
         }
     }
-    // Pixel i's centre is i + 0.5; a margin of one pixel absorbs rounding.
-    // (No point at or beyond `near`: no pixel.)
-    let x0 = (sx0 - 1.5).ceil().max(0.0);
-    let x1 = (sx1 + 0.5).floor().min(w - 1.0);
-    let y0 = (sy0 - 1.5).ceil().max(0.0);
-    let y1 = (sy1 + 0.5).floor().min(h - 1.0);
-    (x0 <= x1 && y0 <= y1).then_some((x0 as i32, x1 as i32, y0 as i32))
+
+    /// Inclusive pixel column range and first pixel row that may show box
+    /// `c` x `r` (cell ranges) x `lo..=hi` (heights), `None` for none.
+    fn pixels(&self, c: [usize; 2], r: [usize; 2], lo: f32, hi: f32) -> Option<(i32, i32, i32)> {
+        let m = self.m;
+        // corner j + 4 l: column c[j & 1], row r[j >> 1], height [lo, hi][l]
+        let mut corners = [[0.0; 3]; 8];
+        for k in 0..3 {
+            let zg = [lo as f64 * m.gz[k], hi as f64 * m.gz[k]];
+            for j in 0..4 {
+                let xy = m.o[k] + c[j & 1] as f64 * m.gc[k] + r[j >> 1] as f64 * m.gr[k];
+                corners[j][k] = xy + zg[0];
+                corners[j + 4][k] = xy + zg[1];
+            }
+        }
+        // Least distance from the eye, bounded below along the direction
+        // of the centre (`sum` is 8 times the centre).
+        let mut sum = [0.0; 3];
+        for p in &corners {
+            for k in 0..3 {
+                sum[k] += p[k];
+            }
+        }
+        let least = corners
+            .iter()
+            .map(|&p| dot(sum, p))
+            .fold(f64::INFINITY, fmin)
+            / dot(sum, sum).sqrt();
+        let near = least / self.ray_stretch;
+        if !(near >= MIN_NEAR) {
+            return Some((0, self.w as i32 - 1, 0));
+        }
+        let (mut sx0, mut sx1, mut sy0, mut sy1) = (
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+        );
+        let mut add = |p: [f64; 3]| {
+            let q = self.f / p[2];
+            let (sx, sy) = (p[0] * q, -p[1] * q);
+            sx0 = fmin(sx0, sx);
+            sx1 = fmax(sx1, sx);
+            sy0 = fmin(sy0, sy);
+            sy1 = fmax(sy1, sy);
+        };
+        if corners.iter().all(|p| p[2] >= near) {
+            corners.iter().for_each(|&p| add(p));
+        } else {
+            // The box clipped to depths >= near: its corners there and the
+            // crossings of its 12 edges.
+            for (k, &p) in corners.iter().enumerate() {
+                if p[2] >= near {
+                    add(p);
+                }
+                for bit in [1, 2, 4] {
+                    let q = corners[k | bit];
+                    if k & bit == 0 && (p[2] >= near) != (q[2] >= near) {
+                        let s = (near - p[2]) / (q[2] - p[2]);
+                        add([p[0] + s * (q[0] - p[0]), p[1] + s * (q[1] - p[1]), near]);
+                    }
+                }
+            }
+        }
+        // Pixel i's centre is i + 0.5; a margin of one pixel absorbs
+        // rounding. (No point at or beyond `near`: no pixel.)
+        let (hw, hh) = (self.w / 2.0, self.h / 2.0);
+        let x0 = (sx0 + hw - 1.5).ceil().max(0.0);
+        let x1 = (sx1 + hw + 0.5).floor().min(self.w - 1.0);
+        let y0 = (sy0 + hh - 1.5).ceil().max(0.0);
+        let y1 = (sy1 + hh + 0.5).floor().min(self.h - 1.0);
+        (x0 <= x1 && y0 <= y1).then_some((x0 as i32, x1 as i32, y0 as i32))
+    }
+}
+
+/// `min` of two numbers that are not NaN (one instruction).
+#[inline]
+fn fmin(a: f64, b: f64) -> f64 {
+    if a < b {
+        a
+    } else {
+        b
+    }
+}
+
+/// `max` of two numbers that are not NaN.
+#[inline]
+fn fmax(a: f64, b: f64) -> f64 {
+    if a > b {
+        a
+    } else {
+        b
+    }
 }
 
 /// A projected vertex: camera coordinates and screen position.
