@@ -653,17 +653,105 @@ impl Raster<'_> {
             e0[2] + e1[2] + e2[2],
         ];
         let (na, nb, nk) = (n[0], -n[1], n[2] * f - n[0] * w2 + n[1] * h2);
-        let sw = self.sw;
         let edges = [(a0, b0, k0), (a1, b1, k1), (a2, b2, k2)];
+        let depth = (det, na, nb, nk);
+        let margin = span_margin(&edges, px1, py1);
+        if !(margin < 0.25) {
+            // Degenerate (nearly edge-on in a row): widened spans, every
+            // pixel tested.
+            self.fill_rows_tested(&edges, depth, (px0, px1, py0, py1), id, tbuf, ibuf);
+            return;
+        }
+        let sw = self.sw;
+        // Spans of more than 4 pixels skip rows whose computed bounds cross.
+        let wide = px1 - px0 > 3;
+        for py in py0..=py1 {
+            let y = py as f64 + 0.5;
+            // The span of the row inside all three edges: a pixel centre x
+            // passes edge (a, b, k) (a != 0) when a * x + b * y + k >= 0 as
+            // computed, so near -(b * y + k) / a up to `margin`.
+            let mut by = [0.0; 3];
+            let (mut xl, mut xh) = (f64::NEG_INFINITY, f64::INFINITY);
+            for (&(a, b, k), by) in edges.iter().zip(&mut by) {
+                *by = b * y;
+                let c = *by + k;
+                if a > 0.0 {
+                    xl = xl.max(-c / a);
+                } else if a < 0.0 {
+                    xh = xh.min(-c / a);
+                } else if c < 0.0 {
+                    // a = 0: the test is c >= 0 exactly
+                    xh = f64::NEG_INFINITY;
+                }
+            }
+            if wide && !(xh >= xl) {
+                continue;
+            }
+            let lo = px0.max(ceil_i32(xl - 0.5 - margin));
+            let hi = px1.min(floor_i32(xh - 0.5 + margin));
+            if lo > hi {
+                continue;
+            }
+            // Pixels farther inside than the margin pass every test (the
+            // extra 1e-9 covers the rounding of `floor_i32`).
+            let inner = margin + 1e-9;
+            let ilo = ceil_i32(xl - 0.5 + inner).clamp(lo, hi + 1);
+            let ihi = floor_i32(xh - 0.5 - inner).clamp(ilo - 1, hi);
+            let row = py as usize * sw;
+            let nby = nb * y;
+            let (trow, irow) = (&mut tbuf[row..row + sw], &mut ibuf[row..row + sw]);
+            let mut tested = |px: i32| {
+                let x = px as f64 + 0.5;
+                let covered = edges
+                    .iter()
+                    .zip(&by)
+                    .all(|(&(a, _, k), &by)| a * x + by + k >= 0.0);
+                if covered {
+                    let tt = (det / (na * x + nby + nk)) as f32;
+                    let k = (px - self.x0) as usize;
+                    if tt > 0.0 && tt < trow[k] {
+                        trow[k] = tt;
+                        irow[k] = id;
+                    }
+                }
+            };
+            (lo..ilo).for_each(&mut tested);
+            (ihi + 1..=hi).for_each(&mut tested);
+            for px in ilo..=ihi {
+                let x = px as f64 + 0.5;
+                let tt = (det / (na * x + nby + nk)) as f32;
+                let k = (px - self.x0) as usize;
+                if tt > 0.0 && tt < trow[k] {
+                    trow[k] = tt;
+                    irow[k] = id;
+                }
+            }
+        }
+    }
+
+    /// Rows `py0..=py1` of a triangle with edge functions `edges` and depth
+    /// `(det, na, nb, nk)` (ray parameter `det / (na x + nb y + nk)`) over
+    /// columns `px0..=px1`: each row's span widened by a pixel on each side,
+    /// every pixel in it tested.
+    #[allow(clippy::too_many_arguments)]
+    fn fill_rows_tested(
+        &self,
+        edges: &[(f64, f64, f64); 3],
+        (det, na, nb, nk): (f64, f64, f64, f64),
+        (px0, px1, py0, py1): (i32, i32, i32, i32),
+        id: u32,
+        tbuf: &mut [f32],
+        ibuf: &mut [u32],
+    ) {
+        let [(a0, b0, k0), (a1, b1, k1), (a2, b2, k2)] = *edges;
+        let sw = self.sw;
         for py in py0..=py1 {
             let y = py as f64 + 0.5;
             let row = py as usize * sw;
-            // The span of the row inside all three edges, widened by a pixel
-            // on each side; the exact test below decides each pixel.
             let (mut lo, mut hi) = (px0, px1);
             if px1 - px0 > 3 {
                 let (mut xl, mut xh) = (f64::NEG_INFINITY, f64::INFINITY);
-                for &(a, b, k) in &edges {
+                for &(a, b, k) in edges {
                     let c = b * y + k;
                     if a > 0.0 {
                         xl = xl.max(-c / a);
@@ -739,6 +827,25 @@ impl Raster<'_> {
         let y1 = ((sy1 + 0.5).min(h + 1.0).floor() as i32).min(self.h - 1);
         (x0 <= x1 && y0 <= y1).then_some((x0, x1, y0, y1))
     }
+}
+
+/// A bound, in pixels along a row, on where the computed edge tests
+/// `a * x + b * y + k >= 0` of a triangle can disagree with the computed
+/// row bounds `x = -(b * y + k) / a` (`a != 0`), for pixel centres
+/// `0 <= x <= px1 + 1`, `0 <= y <= py1 + 1`: the tests' rounding is below
+/// `3u (|a x| + |b y| + |k|)` and the bound's below `3u (|b y| + |k|) / |a|`
+/// (`u` = 2^-53), so `4e-15 (x + (|b y| + |k|) / |a|)` holds with room.
+/// (`a = 0` edges are exact: their test is the row's `b * y + k >= 0`.)
+fn span_margin(edges: &[(f64, f64, f64); 3], px1: i32, py1: i32) -> f64 {
+    let (xmax, ymax) = (px1 as f64 + 1.0, py1 as f64 + 1.0);
+    let mut g = 0.0;
+    for &(a, b, k) in edges {
+        if a != 0.0 {
+            // a sum, so that a NaN or infinity is kept
+            g += (b.abs() * ymax + k.abs()) / a.abs();
+        }
+    }
+    4e-15 * (xmax + g)
 }
 
 /// `floor` to i32 without a libm call or a branch, saturating far outside
