@@ -38,6 +38,7 @@
 //!   culling state.
 
 use super::depth_buffer::SKY;
+use super::strip_columns::StripColumns;
 use super::terrain::{LocalTerrain, RANGE_BLOCK};
 use crate::view::{cross, dot, Camera};
 use rayon::prelude::*;
@@ -130,36 +131,36 @@ pub(crate) fn rasterise(
     if blocks.is_empty() {
         return (depth, triangle);
     }
-    let strips: Vec<(usize, Vec<f32>, Vec<u32>)> = (0..w.div_ceil(STRIP))
+    // Each strip renders ray parameters in place, then turns them into
+    // distances (sky: an infinite parameter gives an infinite distance).
+    StripColumns::split(&mut depth, &mut triangle, w, STRIP)
         .into_par_iter()
-        .map(|s| {
-            let x0 = s * STRIP;
-            let x1 = (x0 + STRIP).min(w);
-            let (t, id) = render_strip(terrain, camera, &m, &blocks, x0, x1, last_row);
-            (x0, t, id)
-        })
-        .collect();
-    // Scatter the strips and turn ray parameters into distances (sky: an
-    // infinite parameter gives an infinite distance).
-    let f = camera.focal_px as f32;
-    depth
-        .par_chunks_mut(w)
-        .zip(triangle.par_chunks_mut(w))
-        .enumerate()
-        .for_each(|(j, (drow, trow))| {
-            let v = h as f32 / 2.0 - (j as f32 + 0.5);
-            let vf = v * v + f * f;
-            for (x0, t, id) in &strips {
-                let sw = t.len() / h;
-                let (ts, ids) = (&t[j * sw..(j + 1) * sw], &id[j * sw..(j + 1) * sw]);
-                trow[*x0..x0 + sw].copy_from_slice(ids);
-                for ((out, &tt), i) in drow[*x0..x0 + sw].iter_mut().zip(ts).zip(*x0..) {
-                    let u = i as f32 + 0.5 - w as f32 / 2.0;
-                    *out = tt * (u * u + vf).sqrt();
-                }
-            }
+        .for_each(|mut cols| {
+            render_strip(terrain, camera, &m, &blocks, &mut cols, last_row);
+            parameters_to_distances(camera, &mut cols);
         });
     (depth, triangle)
+}
+
+/// Turn the ray parameters of a strip (distance over `|d|`, with the
+/// unnormalised pixel-centre ray `d = (u, v, f)`) into distances, in `f32`.
+fn parameters_to_distances(camera: &Camera, cols: &mut StripColumns) {
+    let (w, h) = (camera.width as f32, camera.height as f32);
+    let f = camera.focal_px as f32;
+    let uu: Vec<f32> = (cols.x0()..cols.x0() + cols.width())
+        .map(|i| {
+            let u = i as f32 + 0.5 - w / 2.0;
+            u * u
+        })
+        .collect();
+    for j in 0..cols.rows() {
+        let v = h / 2.0 - (j as f32 + 0.5);
+        let vf = v * v + f * f;
+        let (t, _) = cols.row_mut(j);
+        for (t, &uu) in t.iter_mut().zip(&uu) {
+            *t *= (uu + vf).sqrt();
+        }
+    }
 }
 
 /// The blocks that may be seen, with their screen boxes, ordered by ring
@@ -406,26 +407,23 @@ struct PVertex {
     state: u8,
 }
 
-/// Render image columns `x0..x1`: ray parameters (distance / |d|, with the
-/// unnormalised ray `d`) and triangle ids, column-strip-major rows; with
-/// `last_row`, only those rows (see [`rasterise`]).
+/// Render the ray parameters (distance / |d|, with the unnormalised ray
+/// `d`) and triangle ids of the strip's columns; with `last_row`, only those
+/// rows (see [`rasterise`]).
 fn render_strip(
     terrain: &LocalTerrain,
     camera: &Camera,
     m: &VertexToCamera,
     blocks: &Blocks,
-    x0: usize,
-    x1: usize,
+    cols: &mut StripColumns,
     last_row: Option<&[i32]>,
-) -> (Vec<f32>, Vec<u32>) {
+) {
     let h = camera.height;
-    let sw = x1 - x0;
-    let mut tbuf = vec![f32::INFINITY; sw * h];
-    let mut ibuf = vec![SKY; sw * h];
+    let (x0, sw) = (cols.x0(), cols.width());
     // ytop[k]: every pixel of strip column k from this row down is final
     // (rows not asked for count as final from the start).
     let mut ytop: Vec<i32> = match last_row {
-        Some(l) => l[x0..x1]
+        Some(l) => l[x0..x0 + sw]
             .iter()
             .map(|&r| (r + 1).clamp(0, h as i32))
             .collect(),
@@ -433,16 +431,17 @@ fn render_strip(
     };
     let skipped = ytop.clone();
     if ytop.iter().all(|&t| t == 0) {
-        tbuf.fill(f32::NAN);
-        return (tbuf, ibuf);
+        for j in 0..h {
+            cols.row_mut(j).0.fill(f32::NAN);
+        }
+        return;
     }
     let mut verts = vec![PVertex::default(); (BLOCK + 1) * (BLOCK + 1)];
     let ctx = Raster {
         terrain,
         camera,
         x0: x0 as i32,
-        x1: x1 as i32 - 1,
-        sw,
+        x1: (x0 + sw) as i32 - 1,
         h: h as i32,
     };
     let rings = blocks.ring_start.len() - 1;
@@ -458,26 +457,28 @@ fn render_strip(
             if (bx0..=bx1).all(|x| ytop[(x - ctx.x0) as usize] <= b.y0) {
                 continue;
             }
-            ctx.draw_block(m, b, &mut verts, &ytop, &mut tbuf, &mut ibuf);
+            ctx.draw_block(m, b, &mut verts, &ytop, cols);
             drew = true;
         }
         if drew {
             for (k, yt) in ytop.iter_mut().enumerate() {
-                while *yt > 0 && ibuf[(*yt as usize - 1) * sw + k] != SKY {
+                while *yt > 0 && cols.id(k, *yt as usize - 1) != SKY {
                     *yt -= 1;
                 }
             }
         }
     }
     if last_row.is_some() {
-        for (k, &y) in skipped.iter().enumerate() {
-            for j in y as usize..h {
-                tbuf[j * sw + k] = f32::NAN;
-                ibuf[j * sw + k] = SKY;
+        for j in 0..h {
+            let (t, id) = cols.row_mut(j);
+            for ((t, id), &y) in t.iter_mut().zip(id.iter_mut()).zip(&skipped) {
+                if j as i32 >= y {
+                    *t = f32::NAN;
+                    *id = SKY;
+                }
             }
         }
     }
-    (tbuf, ibuf)
 }
 
 /// What one strip task draws into.
@@ -487,7 +488,6 @@ struct Raster<'a> {
     /// Inclusive pixel column range of the strip.
     x0: i32,
     x1: i32,
-    sw: usize,
     h: i32,
 }
 
@@ -498,8 +498,7 @@ impl Raster<'_> {
         b: &BlockBox,
         verts: &mut [PVertex],
         ytop: &[i32],
-        tbuf: &mut [f32],
-        ibuf: &mut [u32],
+        cols: &mut StripColumns,
     ) {
         let t = self.terrain;
         let (cx, cy) = (t.nx - 1, t.ny - 1);
@@ -545,8 +544,8 @@ impl Raster<'_> {
                 }
                 let id = 2 * (r as u32 * cells_x + c as u32);
                 // triangle 0: (c,r) (c+1,r) (c+1,r+1); 1: (c,r) (c,r+1) (c+1,r+1)
-                self.draw_triangle(a, bq, d, id, ytop, tbuf, ibuf);
-                self.draw_triangle(a, cq, d, id + 1, ytop, tbuf, ibuf);
+                self.draw_triangle(a, bq, d, id, ytop, cols);
+                self.draw_triangle(a, cq, d, id + 1, ytop, cols);
             }
         }
     }
@@ -582,8 +581,7 @@ impl Raster<'_> {
         c: &PVertex,
         id: u32,
         ytop: &[i32],
-        tbuf: &mut [f32],
-        ibuf: &mut [u32],
+        cols: &mut StripColumns,
     ) {
         if (a.state | b.state | c.state) & 1 != 0 {
             return; // hole
@@ -659,10 +657,9 @@ impl Raster<'_> {
         if !(margin < 0.25) {
             // Degenerate (nearly edge-on in a row): widened spans, every
             // pixel tested.
-            self.fill_rows_tested(&edges, depth, (px0, px1, py0, py1), id, tbuf, ibuf);
+            self.fill_rows_tested(&edges, depth, (px0, px1, py0, py1), id, cols);
             return;
         }
-        let sw = self.sw;
         // Spans of more than 4 pixels skip rows whose computed bounds cross.
         let wide = px1 - px0 > 3;
         for py in py0..=py1 {
@@ -697,9 +694,8 @@ impl Raster<'_> {
             let inner = margin + 1e-9;
             let ilo = ceil_i32(xl - 0.5 + inner).clamp(lo, hi + 1);
             let ihi = floor_i32(xh - 0.5 - inner).clamp(ilo - 1, hi);
-            let row = py as usize * sw;
             let nby = nb * y;
-            let (trow, irow) = (&mut tbuf[row..row + sw], &mut ibuf[row..row + sw]);
+            let (trow, irow) = cols.row_mut(py as usize);
             let mut tested = |px: i32| {
                 let x = px as f64 + 0.5;
                 let covered = edges
@@ -740,14 +736,11 @@ impl Raster<'_> {
         (det, na, nb, nk): (f64, f64, f64, f64),
         (px0, px1, py0, py1): (i32, i32, i32, i32),
         id: u32,
-        tbuf: &mut [f32],
-        ibuf: &mut [u32],
+        cols: &mut StripColumns,
     ) {
         let [(a0, b0, k0), (a1, b1, k1), (a2, b2, k2)] = *edges;
-        let sw = self.sw;
         for py in py0..=py1 {
             let y = py as f64 + 0.5;
-            let row = py as usize * sw;
             let (mut lo, mut hi) = (px0, px1);
             if px1 - px0 > 3 {
                 let (mut xl, mut xh) = (f64::NEG_INFINITY, f64::INFINITY);
@@ -778,10 +771,11 @@ impl Raster<'_> {
                 }
                 let nd = na * x + nb * y + nk;
                 let tt = (det / nd) as f32;
-                let k = row + (px - self.x0) as usize;
-                if tt > 0.0 && tt < tbuf[k] {
-                    tbuf[k] = tt;
-                    ibuf[k] = id;
+                let k = (px - self.x0) as usize;
+                let (trow, irow) = cols.row_mut(py as usize);
+                if tt > 0.0 && tt < trow[k] {
+                    trow[k] = tt;
+                    irow[k] = id;
                 }
             }
         }
