@@ -18,6 +18,7 @@ mod locate;
 mod overlay;
 mod scene;
 mod shaded_image;
+mod strip_columns;
 mod terrain;
 mod triangle_raster;
 mod viewshed;

@@ -22,23 +22,33 @@
 //!   track moves monotonically away from the eye along both grid axes, so
 //!   it meets the blocks of successive rings in order and never two blocks
 //!   of one ring: a pixel filled by an earlier ring is final.
+//! - **Screen boxes of blocks.** A block's box (its cells' extent times its
+//!   height range) is projected after clipping away the depths nearer than
+//!   any of its points can be seen at (its distance from the eye over the
+//!   longest pixel ray's stretch), so that blocks reaching behind the
+//!   camera, beside or below the view, still get a tight pixel box; only
+//!   blocks next to the eye count as covering the whole image.
 //! - **Occlusion culling.** Per image column the renderer keeps the
 //!   topmost row from which every pixel down to the bottom is final. A
-//!   block whose screen bounding box (its cells' extent times its height
-//!   range) lies entirely below those rows is hidden and skipped without
-//!   looking at its triangles; most of the far terrain behind the first
-//!   ridges goes this way.
+//!   block whose screen box lies entirely below those rows is hidden and
+//!   skipped without looking at its triangles; most of the far terrain
+//!   behind the first ridges goes this way.
 //! - **Parallel by image strips.** Vertical strips of the image are
 //!   rendered independently (rayon), each with its own buffers and its own
 //!   culling state.
 
 use super::depth_buffer::SKY;
+use super::strip_columns::StripColumns;
 use super::terrain::{LocalTerrain, RANGE_BLOCK};
 use crate::view::{cross, dot, Camera};
 use rayon::prelude::*;
 
 /// Block edge in cells for ordering and culling: the terrain's range blocks.
 const BLOCK: usize = RANGE_BLOCK;
+
+/// Blocks per superblock edge: a superblock whose screen box is empty is
+/// skipped with one test instead of one per block.
+const SUPER: usize = 4;
 
 /// Pixel columns per strip rendered by one task.
 const STRIP: usize = 128;
@@ -121,36 +131,36 @@ pub(crate) fn rasterise(
     if blocks.is_empty() {
         return (depth, triangle);
     }
-    let strips: Vec<(usize, Vec<f32>, Vec<u32>)> = (0..w.div_ceil(STRIP))
+    // Each strip renders ray parameters in place, then turns them into
+    // distances (sky: an infinite parameter gives an infinite distance).
+    StripColumns::split(&mut depth, &mut triangle, w, STRIP)
         .into_par_iter()
-        .map(|s| {
-            let x0 = s * STRIP;
-            let x1 = (x0 + STRIP).min(w);
-            let (t, id) = render_strip(terrain, camera, &m, &blocks, x0, x1, last_row);
-            (x0, t, id)
-        })
-        .collect();
-    // Scatter the strips and turn ray parameters into distances (sky: an
-    // infinite parameter gives an infinite distance).
-    let f = camera.focal_px as f32;
-    depth
-        .par_chunks_mut(w)
-        .zip(triangle.par_chunks_mut(w))
-        .enumerate()
-        .for_each(|(j, (drow, trow))| {
-            let v = h as f32 / 2.0 - (j as f32 + 0.5);
-            let vf = v * v + f * f;
-            for (x0, t, id) in &strips {
-                let sw = t.len() / h;
-                let (ts, ids) = (&t[j * sw..(j + 1) * sw], &id[j * sw..(j + 1) * sw]);
-                trow[*x0..x0 + sw].copy_from_slice(ids);
-                for ((out, &tt), i) in drow[*x0..x0 + sw].iter_mut().zip(ts).zip(*x0..) {
-                    let u = i as f32 + 0.5 - w as f32 / 2.0;
-                    *out = tt * (u * u + vf).sqrt();
-                }
-            }
+        .for_each(|mut cols| {
+            render_strip(terrain, camera, &m, &blocks, &mut cols, last_row);
+            parameters_to_distances(camera, &mut cols);
         });
     (depth, triangle)
+}
+
+/// Turn the ray parameters of a strip (distance over `|d|`, with the
+/// unnormalised pixel-centre ray `d = (u, v, f)`) into distances, in `f32`.
+fn parameters_to_distances(camera: &Camera, cols: &mut StripColumns) {
+    let (w, h) = (camera.width as f32, camera.height as f32);
+    let f = camera.focal_px as f32;
+    let uu: Vec<f32> = (cols.x0()..cols.x0() + cols.width())
+        .map(|i| {
+            let u = i as f32 + 0.5 - w / 2.0;
+            u * u
+        })
+        .collect();
+    for j in 0..cols.rows() {
+        let v = h / 2.0 - (j as f32 + 0.5);
+        let vf = v * v + f * f;
+        let (t, _) = cols.row_mut(j);
+        for (t, &uu) in t.iter_mut().zip(&uu) {
+            *t *= (uu + vf).sqrt();
+        }
+    }
 }
 
 /// The blocks that may be seen, with their screen boxes, ordered by ring
@@ -170,86 +180,59 @@ impl Blocks {
 fn block_boxes(terrain: &LocalTerrain, camera: &Camera, m: &VertexToCamera) -> Blocks {
     let (cx, cy) = (terrain.nx - 1, terrain.ny - 1);
     let (bw, bh) = (cx.div_ceil(BLOCK), cy.div_ceil(BLOCK));
-    let (w, h) = (camera.width as f64, camera.height as f64);
-    let f = camera.focal_px;
     let eye = terrain.eye_vertex();
     let ebx = (eye.0 / BLOCK as f64).floor() as i64;
     let eby = (eye.1 / BLOCK as f64).floor() as i64;
     let ranges = terrain.block_ranges();
     debug_assert_eq!((ranges.bw, ranges.bh), (bw, bh));
-    // Near limit for projecting a box: boxes reaching closer to the camera
-    // plane than this are treated as covering the whole image.
-    let near = 1e-3;
-    let rows: Vec<Vec<(u32, BlockBox)>> = (0..bh)
+    let projector = BoxProjector::new(m, camera);
+    // Cell range of blocks bx0..bx1 (or rows).
+    let cells = |b0: usize, b1: usize, n: usize| [b0 * BLOCK, (b1 * BLOCK).min(n)];
+    let rows: Vec<Vec<(u32, BlockBox)>> = (0..bh.div_ceil(SUPER))
         .into_par_iter()
-        .map(|by| {
+        .map(|sy| {
             let mut out = Vec::new();
-            let r0 = by * BLOCK;
-            let r1 = ((by + 1) * BLOCK).min(cy);
-            for bx in 0..bw {
-                let c0 = bx * BLOCK;
-                let c1 = ((bx + 1) * BLOCK).min(cx);
-                let (lo, hi) = (ranges.lo[by * bw + bx], ranges.hi[by * bw + bx]);
-                if !(hi >= lo) {
+            let (by0, by1) = (sy * SUPER, ((sy + 1) * SUPER).min(bh));
+            for sx in 0..bw.div_ceil(SUPER) {
+                let (bx0, bx1) = (sx * SUPER, ((sx + 1) * SUPER).min(bw));
+                // A superblock off the image: none of its blocks is seen.
+                let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+                for by in by0..by1 {
+                    for k in by * bw + bx0..by * bw + bx1 {
+                        lo = lo.min(ranges.lo[k]);
+                        hi = hi.max(ranges.hi[k]);
+                    }
+                }
+                if !(hi >= lo)
+                    || projector
+                        .pixels(cells(bx0, bx1, cx), cells(by0, by1, cy), lo, hi)
+                        .is_none()
+                {
                     continue;
                 }
-                let (mut sx0, mut sx1, mut sy0, mut sy1) = (
-                    f64::INFINITY,
-                    f64::NEG_INFINITY,
-                    f64::INFINITY,
-                    f64::NEG_INFINITY,
-                );
-                let mut behind = 0;
-                let mut straddles = false;
-                for (c, r) in [(c0, r0), (c1, r0), (c0, r1), (c1, r1)] {
-                    for zz in [lo, hi] {
-                        let p = m.apply(c as f64, r as f64, zz as f64);
-                        if p[2] <= near {
-                            straddles = true;
-                            if p[2] <= 0.0 {
-                                behind += 1;
-                            }
+                for by in by0..by1 {
+                    for bx in bx0..bx1 {
+                        let (lo, hi) = (ranges.lo[by * bw + bx], ranges.hi[by * bw + bx]);
+                        if !(hi >= lo) {
                             continue;
                         }
-                        let sx = w / 2.0 + f * p[0] / p[2];
-                        let sy = h / 2.0 - f * p[1] / p[2];
-                        sx0 = sx0.min(sx);
-                        sx1 = sx1.max(sx);
-                        sy0 = sy0.min(sy);
-                        sy1 = sy1.max(sy);
+                        let Some((x0, x1, y0)) =
+                            projector.pixels(cells(bx, bx + 1, cx), cells(by, by + 1, cy), lo, hi)
+                        else {
+                            continue;
+                        };
+                        let ring =
+                            (bx as i64 - ebx).unsigned_abs() + (by as i64 - eby).unsigned_abs();
+                        let bb = BlockBox {
+                            bx: bx as u32,
+                            by: by as u32,
+                            x0,
+                            x1,
+                            y0,
+                        };
+                        out.push((ring as u32, bb));
                     }
                 }
-                if behind == 8 {
-                    continue;
-                }
-                let bb = if straddles {
-                    BlockBox {
-                        bx: bx as u32,
-                        by: by as u32,
-                        x0: 0,
-                        x1: camera.width as i32 - 1,
-                        y0: 0,
-                    }
-                } else {
-                    // Pixel i's centre is i + 0.5; a margin of one pixel
-                    // absorbs rounding.
-                    let x0 = (sx0 - 1.5).ceil().max(0.0);
-                    let x1 = (sx1 + 0.5).floor().min(w - 1.0);
-                    let y0 = (sy0 - 1.5).ceil().max(0.0);
-                    let y1 = (sy1 + 0.5).floor().min(h - 1.0);
-                    if x0 > x1 || y0 > y1 {
-                        continue;
-                    }
-                    BlockBox {
-                        bx: bx as u32,
-                        by: by as u32,
-                        x0: x0 as i32,
-                        x1: x1 as i32,
-                        y0: y0 as i32,
-                    }
-                };
-                let ring = (bx as i64 - ebx).unsigned_abs() + (by as i64 - eby).unsigned_abs();
-                out.push((ring as u32, bb));
             }
             out
         })
@@ -286,6 +269,133 @@ fn block_boxes(terrain: &LocalTerrain, camera: &Camera, m: &VertexToCamera) -> B
     Blocks { boxes, ring_start }
 }
 
+/// Projects boxes of the grid (a cell range times a height range) to the
+/// pixels that may show them.
+///
+/// A hit seen through a pixel centre at camera depth `z` lies within
+/// `z * ray_stretch` of the eye (`ray_stretch`: the longest pixel ray
+/// `(u, v, f)` over its depth `f`, with a margin), so a box farther than `L`
+/// from the eye shows nothing nearer than depth `L / ray_stretch`: its part
+/// nearer than that (which projects far out, or not at all) is clipped away
+/// before projecting.
+struct BoxProjector<'a> {
+    m: &'a VertexToCamera,
+    w: f64,
+    h: f64,
+    f: f64,
+    ray_stretch: f64,
+}
+
+/// Boxes that may be seen nearer than this depth (the eye is in or next to
+/// them) count as covering the whole image.
+const MIN_NEAR: f64 = 1e-6;
+
+impl<'a> BoxProjector<'a> {
+    fn new(m: &'a VertexToCamera, camera: &Camera) -> Self {
+        let (w, h, f) = (camera.width as f64, camera.height as f64, camera.focal_px);
+        BoxProjector {
+            m,
+            w,
+            h,
+            f,
+            ray_stretch: 2.0 * ((w * w + h * h) / (4.0 * f * f) + 1.0).sqrt(),
+        }
+    }
+
+    /// Inclusive pixel column range and first pixel row that may show box
+    /// `c` x `r` (cell ranges) x `lo..=hi` (heights), `None` for none.
+    fn pixels(&self, c: [usize; 2], r: [usize; 2], lo: f32, hi: f32) -> Option<(i32, i32, i32)> {
+        let m = self.m;
+        // corner j + 4 l: column c[j & 1], row r[j >> 1], height [lo, hi][l]
+        let mut corners = [[0.0; 3]; 8];
+        for k in 0..3 {
+            let zg = [lo as f64 * m.gz[k], hi as f64 * m.gz[k]];
+            for j in 0..4 {
+                let xy = m.o[k] + c[j & 1] as f64 * m.gc[k] + r[j >> 1] as f64 * m.gr[k];
+                corners[j][k] = xy + zg[0];
+                corners[j + 4][k] = xy + zg[1];
+            }
+        }
+        // Least distance from the eye, bounded below along the direction
+        // of the centre (`sum` is 8 times the centre).
+        let mut sum = [0.0; 3];
+        for p in &corners {
+            for k in 0..3 {
+                sum[k] += p[k];
+            }
+        }
+        let least = corners
+            .iter()
+            .map(|&p| dot(sum, p))
+            .fold(f64::INFINITY, fmin)
+            / dot(sum, sum).sqrt();
+        let near = least / self.ray_stretch;
+        if !(near >= MIN_NEAR) {
+            return Some((0, self.w as i32 - 1, 0));
+        }
+        let (mut sx0, mut sx1, mut sy0, mut sy1) = (
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+        );
+        let mut add = |p: [f64; 3]| {
+            let q = self.f / p[2];
+            let (sx, sy) = (p[0] * q, -p[1] * q);
+            sx0 = fmin(sx0, sx);
+            sx1 = fmax(sx1, sx);
+            sy0 = fmin(sy0, sy);
+            sy1 = fmax(sy1, sy);
+        };
+        if corners.iter().all(|p| p[2] >= near) {
+            corners.iter().for_each(|&p| add(p));
+        } else {
+            // The box clipped to depths >= near: its corners there and the
+            // crossings of its 12 edges.
+            for (k, &p) in corners.iter().enumerate() {
+                if p[2] >= near {
+                    add(p);
+                }
+                for bit in [1, 2, 4] {
+                    let q = corners[k | bit];
+                    if k & bit == 0 && (p[2] >= near) != (q[2] >= near) {
+                        let s = (near - p[2]) / (q[2] - p[2]);
+                        add([p[0] + s * (q[0] - p[0]), p[1] + s * (q[1] - p[1]), near]);
+                    }
+                }
+            }
+        }
+        // Pixel i's centre is i + 0.5; a margin of one pixel absorbs
+        // rounding. (No point at or beyond `near`: no pixel.)
+        let (hw, hh) = (self.w / 2.0, self.h / 2.0);
+        let x0 = (sx0 + hw - 1.5).ceil().max(0.0);
+        let x1 = (sx1 + hw + 0.5).floor().min(self.w - 1.0);
+        let y0 = (sy0 + hh - 1.5).ceil().max(0.0);
+        let y1 = (sy1 + hh + 0.5).floor().min(self.h - 1.0);
+        (x0 <= x1 && y0 <= y1).then_some((x0 as i32, x1 as i32, y0 as i32))
+    }
+}
+
+/// `min` of two numbers that are not NaN (one instruction).
+#[inline]
+fn fmin(a: f64, b: f64) -> f64 {
+    if a < b {
+        a
+    } else {
+        b
+    }
+}
+
+/// `max` of two numbers that are not NaN.
+#[inline]
+fn fmax(a: f64, b: f64) -> f64 {
+    if a > b {
+        a
+    } else {
+        b
+    }
+}
+
 /// A projected vertex: camera coordinates and screen position.
 #[derive(Clone, Copy, Default)]
 struct PVertex {
@@ -297,26 +407,23 @@ struct PVertex {
     state: u8,
 }
 
-/// Render image columns `x0..x1`: ray parameters (distance / |d|, with the
-/// unnormalised ray `d`) and triangle ids, column-strip-major rows; with
-/// `last_row`, only those rows (see [`rasterise`]).
+/// Render the ray parameters (distance / |d|, with the unnormalised ray
+/// `d`) and triangle ids of the strip's columns; with `last_row`, only those
+/// rows (see [`rasterise`]).
 fn render_strip(
     terrain: &LocalTerrain,
     camera: &Camera,
     m: &VertexToCamera,
     blocks: &Blocks,
-    x0: usize,
-    x1: usize,
+    cols: &mut StripColumns,
     last_row: Option<&[i32]>,
-) -> (Vec<f32>, Vec<u32>) {
+) {
     let h = camera.height;
-    let sw = x1 - x0;
-    let mut tbuf = vec![f32::INFINITY; sw * h];
-    let mut ibuf = vec![SKY; sw * h];
+    let (x0, sw) = (cols.x0(), cols.width());
     // ytop[k]: every pixel of strip column k from this row down is final
     // (rows not asked for count as final from the start).
     let mut ytop: Vec<i32> = match last_row {
-        Some(l) => l[x0..x1]
+        Some(l) => l[x0..x0 + sw]
             .iter()
             .map(|&r| (r + 1).clamp(0, h as i32))
             .collect(),
@@ -324,16 +431,17 @@ fn render_strip(
     };
     let skipped = ytop.clone();
     if ytop.iter().all(|&t| t == 0) {
-        tbuf.fill(f32::NAN);
-        return (tbuf, ibuf);
+        for j in 0..h {
+            cols.row_mut(j).0.fill(f32::NAN);
+        }
+        return;
     }
     let mut verts = vec![PVertex::default(); (BLOCK + 1) * (BLOCK + 1)];
     let ctx = Raster {
         terrain,
         camera,
         x0: x0 as i32,
-        x1: x1 as i32 - 1,
-        sw,
+        x1: (x0 + sw) as i32 - 1,
         h: h as i32,
     };
     let rings = blocks.ring_start.len() - 1;
@@ -349,26 +457,28 @@ fn render_strip(
             if (bx0..=bx1).all(|x| ytop[(x - ctx.x0) as usize] <= b.y0) {
                 continue;
             }
-            ctx.draw_block(m, b, &mut verts, &ytop, &mut tbuf, &mut ibuf);
+            ctx.draw_block(m, b, &mut verts, &ytop, cols);
             drew = true;
         }
         if drew {
             for (k, yt) in ytop.iter_mut().enumerate() {
-                while *yt > 0 && ibuf[(*yt as usize - 1) * sw + k] != SKY {
+                while *yt > 0 && cols.id(k, *yt as usize - 1) != SKY {
                     *yt -= 1;
                 }
             }
         }
     }
     if last_row.is_some() {
-        for (k, &y) in skipped.iter().enumerate() {
-            for j in y as usize..h {
-                tbuf[j * sw + k] = f32::NAN;
-                ibuf[j * sw + k] = SKY;
+        for j in 0..h {
+            let (t, id) = cols.row_mut(j);
+            for ((t, id), &y) in t.iter_mut().zip(id.iter_mut()).zip(&skipped) {
+                if j as i32 >= y {
+                    *t = f32::NAN;
+                    *id = SKY;
+                }
             }
         }
     }
-    (tbuf, ibuf)
 }
 
 /// What one strip task draws into.
@@ -378,7 +488,6 @@ struct Raster<'a> {
     /// Inclusive pixel column range of the strip.
     x0: i32,
     x1: i32,
-    sw: usize,
     h: i32,
 }
 
@@ -389,8 +498,7 @@ impl Raster<'_> {
         b: &BlockBox,
         verts: &mut [PVertex],
         ytop: &[i32],
-        tbuf: &mut [f32],
-        ibuf: &mut [u32],
+        cols: &mut StripColumns,
     ) {
         let t = self.terrain;
         let (cx, cy) = (t.nx - 1, t.ny - 1);
@@ -436,8 +544,8 @@ impl Raster<'_> {
                 }
                 let id = 2 * (r as u32 * cells_x + c as u32);
                 // triangle 0: (c,r) (c+1,r) (c+1,r+1); 1: (c,r) (c,r+1) (c+1,r+1)
-                self.draw_triangle(a, bq, d, id, ytop, tbuf, ibuf);
-                self.draw_triangle(a, cq, d, id + 1, ytop, tbuf, ibuf);
+                self.draw_triangle(a, bq, d, id, ytop, cols);
+                self.draw_triangle(a, cq, d, id + 1, ytop, cols);
             }
         }
     }
@@ -473,8 +581,7 @@ impl Raster<'_> {
         c: &PVertex,
         id: u32,
         ytop: &[i32],
-        tbuf: &mut [f32],
-        ibuf: &mut [u32],
+        cols: &mut StripColumns,
     ) {
         if (a.state | b.state | c.state) & 1 != 0 {
             return; // hole
@@ -544,17 +651,100 @@ impl Raster<'_> {
             e0[2] + e1[2] + e2[2],
         ];
         let (na, nb, nk) = (n[0], -n[1], n[2] * f - n[0] * w2 + n[1] * h2);
-        let sw = self.sw;
         let edges = [(a0, b0, k0), (a1, b1, k1), (a2, b2, k2)];
+        let depth = (det, na, nb, nk);
+        let margin = span_margin(&edges, px1, py1);
+        if !(margin < 0.25) {
+            // Degenerate (nearly edge-on in a row): widened spans, every
+            // pixel tested.
+            self.fill_rows_tested(&edges, depth, (px0, px1, py0, py1), id, cols);
+            return;
+        }
+        // Spans of more than 4 pixels skip rows whose computed bounds cross.
+        let wide = px1 - px0 > 3;
         for py in py0..=py1 {
             let y = py as f64 + 0.5;
-            let row = py as usize * sw;
-            // The span of the row inside all three edges, widened by a pixel
-            // on each side; the exact test below decides each pixel.
+            // The span of the row inside all three edges: a pixel centre x
+            // passes edge (a, b, k) (a != 0) when a * x + b * y + k >= 0 as
+            // computed, so near -(b * y + k) / a up to `margin`.
+            let mut by = [0.0; 3];
+            let (mut xl, mut xh) = (f64::NEG_INFINITY, f64::INFINITY);
+            for (&(a, b, k), by) in edges.iter().zip(&mut by) {
+                *by = b * y;
+                let c = *by + k;
+                if a > 0.0 {
+                    xl = xl.max(-c / a);
+                } else if a < 0.0 {
+                    xh = xh.min(-c / a);
+                } else if c < 0.0 {
+                    // a = 0: the test is c >= 0 exactly
+                    xh = f64::NEG_INFINITY;
+                }
+            }
+            if wide && !(xh >= xl) {
+                continue;
+            }
+            let lo = px0.max(ceil_i32(xl - 0.5 - margin));
+            let hi = px1.min(floor_i32(xh - 0.5 + margin));
+            if lo > hi {
+                continue;
+            }
+            // Pixels farther inside than the margin pass every test (the
+            // extra 1e-9 covers the rounding of `floor_i32`).
+            let inner = margin + 1e-9;
+            let ilo = ceil_i32(xl - 0.5 + inner).clamp(lo, hi + 1);
+            let ihi = floor_i32(xh - 0.5 - inner).clamp(ilo - 1, hi);
+            let nby = nb * y;
+            let (trow, irow) = cols.row_mut(py as usize);
+            let mut tested = |px: i32| {
+                let x = px as f64 + 0.5;
+                let covered = edges
+                    .iter()
+                    .zip(&by)
+                    .all(|(&(a, _, k), &by)| a * x + by + k >= 0.0);
+                if covered {
+                    let tt = (det / (na * x + nby + nk)) as f32;
+                    let k = (px - self.x0) as usize;
+                    if tt > 0.0 && tt < trow[k] {
+                        trow[k] = tt;
+                        irow[k] = id;
+                    }
+                }
+            };
+            (lo..ilo).for_each(&mut tested);
+            (ihi + 1..=hi).for_each(&mut tested);
+            for px in ilo..=ihi {
+                let x = px as f64 + 0.5;
+                let tt = (det / (na * x + nby + nk)) as f32;
+                let k = (px - self.x0) as usize;
+                if tt > 0.0 && tt < trow[k] {
+                    trow[k] = tt;
+                    irow[k] = id;
+                }
+            }
+        }
+    }
+
+    /// Rows `py0..=py1` of a triangle with edge functions `edges` and depth
+    /// `(det, na, nb, nk)` (ray parameter `det / (na x + nb y + nk)`) over
+    /// columns `px0..=px1`: each row's span widened by a pixel on each side,
+    /// every pixel in it tested.
+    #[allow(clippy::too_many_arguments)]
+    fn fill_rows_tested(
+        &self,
+        edges: &[(f64, f64, f64); 3],
+        (det, na, nb, nk): (f64, f64, f64, f64),
+        (px0, px1, py0, py1): (i32, i32, i32, i32),
+        id: u32,
+        cols: &mut StripColumns,
+    ) {
+        let [(a0, b0, k0), (a1, b1, k1), (a2, b2, k2)] = *edges;
+        for py in py0..=py1 {
+            let y = py as f64 + 0.5;
             let (mut lo, mut hi) = (px0, px1);
             if px1 - px0 > 3 {
                 let (mut xl, mut xh) = (f64::NEG_INFINITY, f64::INFINITY);
-                for &(a, b, k) in &edges {
+                for &(a, b, k) in edges {
                     let c = b * y + k;
                     if a > 0.0 {
                         xl = xl.max(-c / a);
@@ -581,10 +771,11 @@ impl Raster<'_> {
                 }
                 let nd = na * x + nb * y + nk;
                 let tt = (det / nd) as f32;
-                let k = row + (px - self.x0) as usize;
-                if tt > 0.0 && tt < tbuf[k] {
-                    tbuf[k] = tt;
-                    ibuf[k] = id;
+                let k = (px - self.x0) as usize;
+                let (trow, irow) = cols.row_mut(py as usize);
+                if tt > 0.0 && tt < trow[k] {
+                    trow[k] = tt;
+                    irow[k] = id;
                 }
             }
         }
@@ -630,6 +821,25 @@ impl Raster<'_> {
         let y1 = ((sy1 + 0.5).min(h + 1.0).floor() as i32).min(self.h - 1);
         (x0 <= x1 && y0 <= y1).then_some((x0, x1, y0, y1))
     }
+}
+
+/// A bound, in pixels along a row, on where the computed edge tests
+/// `a * x + b * y + k >= 0` of a triangle can disagree with the computed
+/// row bounds `x = -(b * y + k) / a` (`a != 0`), for pixel centres
+/// `0 <= x <= px1 + 1`, `0 <= y <= py1 + 1`: the tests' rounding is below
+/// `3u (|a x| + |b y| + |k|)` and the bound's below `3u (|b y| + |k|) / |a|`
+/// (`u` = 2^-53), so `4e-15 (x + (|b y| + |k|) / |a|)` holds with room.
+/// (`a = 0` edges are exact: their test is the row's `b * y + k >= 0`.)
+fn span_margin(edges: &[(f64, f64, f64); 3], px1: i32, py1: i32) -> f64 {
+    let (xmax, ymax) = (px1 as f64 + 1.0, py1 as f64 + 1.0);
+    let mut g = 0.0;
+    for &(a, b, k) in edges {
+        if a != 0.0 {
+            // a sum, so that a NaN or infinity is kept
+            g += (b.abs() * ymax + k.abs()) / a.abs();
+        }
+    }
+    4e-15 * (xmax + g)
 }
 
 /// `floor` to i32 without a libm call or a branch, saturating far outside
