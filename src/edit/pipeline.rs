@@ -202,8 +202,13 @@ pub fn run(
         terrains.push((terrain, camera));
     }
     let windows: Vec<(&HeightMap, (i64, i64))> = parts.iter().map(|p| (&p.0, p.1)).collect();
+    let seen: Vec<Window> = parts
+        .iter()
+        .zip(&terrains)
+        .map(|(p, (t, _))| Window::new(p.1 .0 + t.col0 as i64, p.1 .1 + t.row0 as i64, t.nx, t.ny))
+        .collect();
     let (ridges, befores) = rayon::join(
-        || ridge_network(&dem, &windows),
+        || ridge_network(&dem, &windows, &seen),
         || {
             terrains
                 .into_iter()
@@ -559,36 +564,42 @@ fn check_output_paths(opts: &EditOptions) -> Result<(), EditError> {
     Ok(())
 }
 
-/// Ridge network of the DEM over the union of the views' windows (given
-/// with their offsets in the DEM grid; one network, so that a ridge seen
-/// from two views is one feature).
+/// Ridge network of the DEM over the union of what the views see (their
+/// terrains' extents, given as windows in the DEM grid) within the windows
+/// read for them (with their offsets in the DEM grid): one network, so that
+/// a ridge seen from two views is one feature; ridges beyond every view's
+/// field of view could match no stroke.
 fn ridge_network(
     dem: &Dem,
     windows: &[(&HeightMap, (i64, i64))],
+    seen: &[Window],
 ) -> Result<RidgeNetwork, EditError> {
-    let wins: Vec<Window> = windows
-        .iter()
-        .map(|(map, offset)| Window::new(offset.0, offset.1, map.width, map.height))
-        .collect();
-    let Some(first) = wins.first() else {
+    let Some(first) = seen.first() else {
         return Ok(RidgeNetwork::default());
     };
     let (mut c0, mut r0, mut c1, mut r1) = (first.col, first.row, first.col_end(), first.row_end());
-    for w in &wins {
+    for w in seen {
         c0 = c0.min(w.col);
         r0 = r0.min(w.row);
         c1 = c1.max(w.col_end());
         r1 = r1.max(w.row_end());
     }
     let union = Window::new(c0, r0, (c1 - c0) as usize, (r1 - r0) as usize);
-    let owned;
-    let map: &HeightMap = if union == *first {
-        windows[0].0
-    } else {
-        owned = dem.read_height_map(union)?;
-        &owned
+    // Within one window read already (always, for one view): cropped from
+    // it; else read from the DEM.
+    let inside = windows.iter().find(|(map, off)| {
+        Window::new(off.0, off.1, map.width, map.height).intersect(&union) == Some(union)
+    });
+    let map = match inside {
+        Some((map, off)) => map.crop(
+            (union.col - off.0) as usize,
+            (union.row - off.1) as usize,
+            union.width,
+            union.height,
+        ),
+        None => dem.read_height_map(union)?,
     };
-    detect_ridges(map, &RidgeParams::default())
+    detect_ridges(&map, &RidgeParams::default())
         .map_err(|e| EditError::Internal(format!("ridges: {e}")))
 }
 

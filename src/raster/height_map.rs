@@ -18,6 +18,33 @@ pub struct HeightMap {
 }
 
 impl HeightMap {
+    /// The cells `col..col + width`, `row..row + height` (clipped to the
+    /// map) as a height map of their own, georeferenced where they lie.
+    pub fn crop(&self, col: usize, row: usize, width: usize, height: usize) -> HeightMap {
+        let (c0, r0) = (col.min(self.width), row.min(self.height));
+        let (w, h) = (width.min(self.width - c0), height.min(self.height - r0));
+        let mut data = Vec::with_capacity(w * h);
+        for r in r0..r0 + h {
+            data.extend_from_slice(&self.data[r * self.width + c0..r * self.width + c0 + w]);
+        }
+        let g = self.geotransform.0;
+        let (c, r) = (c0 as f64, r0 as f64);
+        HeightMap {
+            width: w,
+            height: h,
+            data,
+            geotransform: GeoTransform([
+                g[0] + c * g[1] + r * g[2],
+                g[1],
+                g[2],
+                g[3] + c * g[4] + r * g[5],
+                g[4],
+                g[5],
+            ]),
+            crs: self.crs.clone(),
+        }
+    }
+
     /// Height at integer cell `(col, row)`, `None` outside or on nodata.
     #[inline]
     pub fn get(&self, col: usize, row: usize) -> Option<f32> {
