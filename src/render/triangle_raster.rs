@@ -446,7 +446,8 @@ fn render_strip(
     };
     let rings = blocks.ring_start.len() - 1;
     for ring in 0..rings {
-        let mut drew = false;
+        // strip columns of the blocks drawn in this ring
+        let (mut drawn0, mut drawn1) = (sw, 0);
         for b in &blocks.boxes[blocks.ring_start[ring]..blocks.ring_start[ring + 1]] {
             let bx0 = b.x0.max(ctx.x0);
             let bx1 = b.x1.min(ctx.x1);
@@ -458,13 +459,14 @@ fn render_strip(
                 continue;
             }
             ctx.draw_block(m, b, &mut verts, &ytop, cols);
-            drew = true;
+            drawn0 = drawn0.min((bx0 - ctx.x0) as usize);
+            drawn1 = drawn1.max((bx1 - ctx.x0) as usize + 1);
         }
-        if drew {
-            for (k, yt) in ytop.iter_mut().enumerate() {
-                while *yt > 0 && cols.id(k, *yt as usize - 1) != SKY {
-                    *yt -= 1;
-                }
+        // Only those columns can have changed (a block draws inside its box).
+        for k in drawn0..drawn1 {
+            let yt = &mut ytop[k];
+            while *yt > 0 && cols.id(k, *yt as usize - 1) != SKY {
+                *yt -= 1;
             }
         }
     }
