@@ -715,13 +715,16 @@ impl Raster<'_> {
             };
             (lo..ilo).for_each(&mut tested);
             (ihi + 1..=hi).for_each(&mut tested);
-            for px in ilo..=ihi {
-                let x = px as f64 + 0.5;
-                let tt = (det / (na * x + nby + nk)) as f32;
-                let k = (px - self.x0) as usize;
-                if tt > 0.0 && tt < trow[k] {
-                    trow[k] = tt;
-                    irow[k] = id;
+            if ilo <= ihi {
+                // Branch-free, so that occlusion mispredicts nothing.
+                let k = (ilo - self.x0) as usize..=(ihi - self.x0) as usize;
+                let (ts, is) = (&mut trow[k.clone()], &mut irow[k]);
+                for ((t, i), px) in ts.iter_mut().zip(is.iter_mut()).zip(ilo..) {
+                    let x = px as f64 + 0.5;
+                    let tt = (det / (na * x + nby + nk)) as f32;
+                    let nearer = (tt > 0.0) & (tt < *t);
+                    *t = if nearer { tt } else { *t };
+                    *i = if nearer { id } else { *i };
                 }
             }
         }
