@@ -396,15 +396,28 @@ fn fmax(a: f64, b: f64) -> f64 {
     }
 }
 
-/// A projected vertex: camera coordinates and screen position.
+/// A projected vertex: camera coordinates and the pixel columns and rows
+/// whose centres a box reaching it may hold.
 #[derive(Clone, Copy, Default)]
 struct PVertex {
     p: [f64; 3],
-    sx: f64,
-    sy: f64,
-    /// 0: in front of the camera (`sx`, `sy` valid), 1: nodata, 2: at or
+    /// For screen position `(sx, sy)`: `ceil(sx - 0.5 - 1e-7)` and
+    /// `floor(sx - 0.5 + 1e-7)` (as [`ceil_i32`], [`floor_i32`]), so that a
+    /// box's pixel range is the least first and greatest second entry of
+    /// its vertices (both roundings are monotonic).
+    ix: [i32; 2],
+    /// The same for `sy`.
+    iy: [i32; 2],
+    /// 0: in front of the camera (`ix`, `iy` valid), 1: nodata, 2: at or
     /// behind the camera plane.
     state: u8,
+}
+
+/// Pixel indices `i` whose centre `i + 0.5` may be at screen coordinate
+/// `s` or beyond, and at `s` or before (with a rounding margin).
+#[inline]
+fn pixel_bounds(s: f64) -> [i32; 2] {
+    [ceil_i32(s - 0.5 - 1e-7), floor_i32(s - 0.5 + 1e-7)]
 }
 
 /// Render the ray parameters (distance / |d|, with the unnormalised ray
@@ -446,7 +459,8 @@ fn render_strip(
     };
     let rings = blocks.ring_start.len() - 1;
     for ring in 0..rings {
-        let mut drew = false;
+        // strip columns of the blocks drawn in this ring
+        let (mut drawn0, mut drawn1) = (sw, 0);
         for b in &blocks.boxes[blocks.ring_start[ring]..blocks.ring_start[ring + 1]] {
             let bx0 = b.x0.max(ctx.x0);
             let bx1 = b.x1.min(ctx.x1);
@@ -458,13 +472,14 @@ fn render_strip(
                 continue;
             }
             ctx.draw_block(m, b, &mut verts, &ytop, cols);
-            drew = true;
+            drawn0 = drawn0.min((bx0 - ctx.x0) as usize);
+            drawn1 = drawn1.max((bx1 - ctx.x0) as usize + 1);
         }
-        if drew {
-            for (k, yt) in ytop.iter_mut().enumerate() {
-                while *yt > 0 && cols.id(k, *yt as usize - 1) != SKY {
-                    *yt -= 1;
-                }
+        // Only those columns can have changed (a block draws inside its box).
+        for k in drawn0..drawn1 {
+            let yt = &mut ytop[k];
+            while *yt > 0 && cols.id(k, *yt as usize - 1) != SKY {
+                *yt -= 1;
             }
         }
     }
@@ -522,8 +537,8 @@ impl Raster<'_> {
                 if p[2] > 0.0 {
                     v.state = 0;
                     let q = f / p[2];
-                    v.sx = w / 2.0 + p[0] * q;
-                    v.sy = h / 2.0 - p[1] * q;
+                    v.ix = pixel_bounds(w / 2.0 + p[0] * q);
+                    v.iy = pixel_bounds(h / 2.0 - p[1] * q);
                 } else {
                     v.state = 2;
                 }
@@ -555,17 +570,15 @@ impl Raster<'_> {
     /// final already.
     #[inline]
     fn box_hidden_or_empty(&self, v: [&PVertex; 4], ytop: &[i32]) -> bool {
-        let sx0 = v[0].sx.min(v[1].sx).min(v[2].sx.min(v[3].sx));
-        let sx1 = v[0].sx.max(v[1].sx).max(v[2].sx.max(v[3].sx));
-        let px0 = ceil_i32(sx0 - 0.5 - 1e-7).max(self.x0);
-        let px1 = floor_i32(sx1 - 0.5 + 1e-7).min(self.x1);
+        let px0 = v[0].ix[0].min(v[1].ix[0]).min(v[2].ix[0].min(v[3].ix[0]));
+        let px1 = v[0].ix[1].max(v[1].ix[1]).max(v[2].ix[1].max(v[3].ix[1]));
+        let (px0, px1) = (px0.max(self.x0), px1.min(self.x1));
         if px0 > px1 {
             return true;
         }
-        let sy0 = v[0].sy.min(v[1].sy).min(v[2].sy.min(v[3].sy));
-        let sy1 = v[0].sy.max(v[1].sy).max(v[2].sy.max(v[3].sy));
-        let py0 = ceil_i32(sy0 - 0.5 - 1e-7).max(0);
-        let py1 = floor_i32(sy1 - 0.5 + 1e-7).min(self.h - 1);
+        let py0 = v[0].iy[0].min(v[1].iy[0]).min(v[2].iy[0].min(v[3].iy[0]));
+        let py1 = v[0].iy[1].max(v[1].iy[1]).max(v[2].iy[1].max(v[3].iy[1]));
+        let (py0, py1) = (py0.max(0), py1.min(self.h - 1));
         py0 > py1
             || ytop[(px0 - self.x0) as usize..=(px1 - self.x0) as usize]
                 .iter()
@@ -588,16 +601,14 @@ impl Raster<'_> {
         }
         let (px0, px1, py0, py1);
         if a.state | b.state | c.state == 0 {
-            let (sx0, sx1) = (a.sx.min(b.sx).min(c.sx), a.sx.max(b.sx).max(c.sx));
-            let (sy0, sy1) = (a.sy.min(b.sy).min(c.sy), a.sy.max(b.sy).max(c.sy));
-            // pixel centres i + 0.5 within [s0, s1], with a rounding margin
-            px0 = ceil_i32(sx0 - 0.5 - 1e-7).max(self.x0);
-            px1 = floor_i32(sx1 - 0.5 + 1e-7).min(self.x1);
+            // pixel centres within the screen box, with a rounding margin
+            px0 = a.ix[0].min(b.ix[0]).min(c.ix[0]).max(self.x0);
+            px1 = a.ix[1].max(b.ix[1]).max(c.ix[1]).min(self.x1);
             if px0 > px1 {
                 return;
             }
-            py0 = ceil_i32(sy0 - 0.5 - 1e-7).max(0);
-            py1 = floor_i32(sy1 - 0.5 + 1e-7).min(self.h - 1);
+            py0 = a.iy[0].min(b.iy[0]).min(c.iy[0]).max(0);
+            py1 = a.iy[1].max(b.iy[1]).max(c.iy[1]).min(self.h - 1);
             if py0 > py1 {
                 return;
             }
@@ -713,13 +724,16 @@ impl Raster<'_> {
             };
             (lo..ilo).for_each(&mut tested);
             (ihi + 1..=hi).for_each(&mut tested);
-            for px in ilo..=ihi {
-                let x = px as f64 + 0.5;
-                let tt = (det / (na * x + nby + nk)) as f32;
-                let k = (px - self.x0) as usize;
-                if tt > 0.0 && tt < trow[k] {
-                    trow[k] = tt;
-                    irow[k] = id;
+            if ilo <= ihi {
+                // Branch-free, so that occlusion mispredicts nothing.
+                let k = (ilo - self.x0) as usize..=(ihi - self.x0) as usize;
+                let (ts, is) = (&mut trow[k.clone()], &mut irow[k]);
+                for ((t, i), px) in ts.iter_mut().zip(is.iter_mut()).zip(ilo..) {
+                    let x = px as f64 + 0.5;
+                    let tt = (det / (na * x + nby + nk)) as f32;
+                    let nearer = (tt > 0.0) & (tt < *t);
+                    *t = if nearer { tt } else { *t };
+                    *i = if nearer { id } else { *i };
                 }
             }
         }
