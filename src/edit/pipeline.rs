@@ -133,6 +133,13 @@ pub fn run(
     sketch_path: &Path,
     opts: &EditOptions,
 ) -> Result<EditReport, EditError> {
+    // On a worker thread of rayon's pool: the many parallel loops of an
+    // edit (a few hundred, most of them short: the multigrid levels, the
+    // silhouette columns) then split work between the workers directly
+    // instead of each waking the pool from outside and waiting for it.
+    if rayon::current_thread_index().is_none() {
+        return rayon::join(|| run(dem_path, sketch_path, opts), || ()).0;
+    }
     let t_all = Instant::now();
     let pb = progress_bar(opts.progress);
     let mut timings = Timings::default();
