@@ -5,6 +5,8 @@
 //!     cargo run --release --example edit_profile -- [runs]
 //!     perf record -g target/release/examples/edit_profile 50
 
+#[path = "../benches/support/cpu_time.rs"]
+mod cpu_time;
 #[path = "../benches/support/edit_case.rs"]
 mod edit_case;
 
@@ -15,19 +17,6 @@ use demsketch::raster::Destination;
 // figures are those of the command line.
 #[global_allocator]
 static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
-
-/// Process CPU time (user + system, all threads) in seconds, from
-/// `/proc/self/stat` (clock ticks of 10 ms; average over many runs).
-fn cpu_s() -> f64 {
-    std::fs::read_to_string("/proc/self/stat")
-        .ok()
-        .and_then(|s| {
-            let rest = &s[s.rfind(')')? + 2..];
-            let f: Vec<&str> = rest.split_whitespace().collect();
-            Some((f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?) / 100.0)
-        })
-        .unwrap_or(0.0)
-}
 
 fn main() {
     let runs: usize = std::env::args()
@@ -60,7 +49,7 @@ fn main() {
     ];
     let mut rows: Vec<Vec<f64>> = vec![Vec::new(); names.len()];
     let mut solver: Vec<[f64; 3]> = Vec::new();
-    let c0 = cpu_s();
+    let c0 = cpu_time::cpu_s();
     for _ in 0..runs {
         let r = run(&dem, &sketch, &opts).expect("edit");
         let t = &r.timings_s;
@@ -79,7 +68,7 @@ fn main() {
             row.push(v * 1e3);
         }
     }
-    let cpu = (cpu_s() - c0) / runs.max(1) as f64;
+    let cpu = (cpu_time::cpu_s() - c0) / runs.max(1) as f64;
     println!("{runs} runs, CPU time per run {:.1} ms", cpu * 1e3);
     for (k, name) in ["read", "constraints", "solve"].iter().enumerate() {
         let mut v: Vec<f64> = solver.iter().map(|s| s[k]).collect();

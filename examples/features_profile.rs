@@ -5,6 +5,8 @@
 //!     cargo run --release --example features_profile -- 4096 [800x450] [runs]
 //!     perf record -g target/release/examples/features_profile 4096
 
+#[path = "../benches/support/cpu_time.rs"]
+mod cpu_time;
 #[path = "../benches/support/fractal.rs"]
 mod fractal;
 
@@ -17,31 +19,18 @@ use std::time::Instant;
 #[global_allocator]
 static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
-/// Process CPU time (user + system, all threads) in seconds, from
-/// `/proc/self/stat` (clock ticks of 10 ms; average over many runs).
-fn cpu_s() -> f64 {
-    std::fs::read_to_string("/proc/self/stat")
-        .ok()
-        .and_then(|s| {
-            let rest = &s[s.rfind(')')? + 2..];
-            let f: Vec<&str> = rest.split_whitespace().collect();
-            Some((f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?) / 100.0)
-        })
-        .unwrap_or(0.0)
-}
-
 /// Best wall time (ms) and mean CPU time per run (ms) over `runs` runs.
 fn best<T>(runs: usize, mut f: impl FnMut() -> T) -> ((f64, f64), T) {
     let mut best = f64::INFINITY;
     let mut out = None;
-    let c0 = cpu_s();
+    let c0 = cpu_time::cpu_s();
     for _ in 0..runs {
         let t = Instant::now();
         let v = f();
         best = best.min(t.elapsed().as_secs_f64());
         out = Some(v);
     }
-    let cpu = (cpu_s() - c0) / runs as f64;
+    let cpu = (cpu_time::cpu_s() - c0) / runs as f64;
     ((best * 1e3, cpu * 1e3), out.expect("at least one run"))
 }
 

@@ -436,13 +436,11 @@ fn encode_tile(
     Ok(())
 }
 
-/// The window's stored values with the edit merged in: cells to keep take
-/// their stored value back (nodata stays the file's own nodata value, bit
-/// for bit).
-fn merge_edit(
-    band: &gdal::raster::RasterBand,
-    edit: &TileEdit,
-) -> gdal::errors::Result<Buffer<f64>> {
+/// Write the edit into band 1 of `ds`: over its window, the stored values
+/// with the edit merged in (cells to keep take their stored value back, so
+/// nodata stays the file's own nodata value, bit for bit).
+fn write_edit(ds: &gdal::Dataset, edit: &TileEdit) -> gdal::errors::Result<()> {
+    let mut band = ds.rasterband(1)?;
     let size = (edit.local.width, edit.local.height);
     let origin = (edit.local.col as isize, edit.local.row as isize);
     let stored = band.read_as::<f64>(origin, size, size, None)?;
@@ -452,7 +450,7 @@ fn merge_edit(
         .zip(stored.data())
         .map(|(&v, &old)| if v.is_nan() { old } else { v })
         .collect();
-    Ok(Buffer::new(size, merged))
+    band.write(origin, size, &mut Buffer::new(size, merged))
 }
 
 /// Rebuild the overviews of a written tile where the source had them, as
@@ -505,16 +503,7 @@ fn update_tile_copy(
         let _ = std::fs::remove_file(tmp);
         return Ok(false);
     }
-    {
-        let mut band = ds.rasterband(1).map_err(werr)?;
-        let mut buf = merge_edit(&band, edit).map_err(werr)?;
-        band.write(
-            (edit.local.col as isize, edit.local.row as isize),
-            (edit.local.width, edit.local.height),
-            &mut buf,
-        )
-        .map_err(werr)?;
-    }
+    write_edit(&ds, edit).map_err(werr)?;
     ds.set_metadata_item(PROVENANCE_KEY, &provenance.item(edit.changed), "")
         .map_err(werr)?;
     rebuild_overviews(tile, &mut ds, tmp)?;
@@ -550,16 +539,7 @@ fn encode_tile_copy(
     let mut mem = src
         .create_copy(&mem_driver, "", &RasterCreationOptions::default())
         .map_err(gerr)?;
-    {
-        let mut band = mem.rasterband(1).map_err(gerr)?;
-        let mut buf = merge_edit(&band, edit).map_err(gerr)?;
-        band.write(
-            (edit.local.col as isize, edit.local.row as isize),
-            (edit.local.width, edit.local.height),
-            &mut buf,
-        )
-        .map_err(gerr)?;
-    }
+    write_edit(&mem, edit).map_err(gerr)?;
     mem.set_metadata_item(PROVENANCE_KEY, &provenance.item(edit.changed), "")
         .map_err(gerr)?;
     let cog = src.metadata_item("LAYOUT", "IMAGE_STRUCTURE").as_deref() == Some("COG");

@@ -53,7 +53,11 @@ impl DepthBuffer {
     /// rasterisation of the terrain's triangles at the pixel centres, see
     /// [`super::triangle_raster`]).
     pub fn render(terrain: &LocalTerrain, camera: &Camera) -> Self {
-        let (depth, triangle) = rasterise(terrain, camera, None);
+        Self::of(camera, rasterise(terrain, camera, None))
+    }
+
+    /// The buffer of `camera` from the rasteriser's depths and triangles.
+    fn of(camera: &Camera, (depth, triangle): (Vec<f32>, Vec<u32>)) -> Self {
         DepthBuffer {
             camera: *camera,
             width: camera.width,
@@ -74,14 +78,7 @@ impl DepthBuffer {
     /// When `last_row.len() != camera.width`.
     pub fn render_rows(terrain: &LocalTerrain, camera: &Camera, last_row: &[i32]) -> Self {
         assert_eq!(last_row.len(), camera.width, "one last row per column");
-        let (depth, triangle) = rasterise(terrain, camera, Some(last_row));
-        DepthBuffer {
-            camera: *camera,
-            width: camera.width,
-            height: camera.height,
-            depth,
-            triangle,
-        }
+        Self::of(camera, rasterise(terrain, camera, Some(last_row)))
     }
 
     /// Render by casting one exact ray per pixel ([`LocalTerrain::cast`]):
