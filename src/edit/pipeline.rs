@@ -103,8 +103,6 @@ struct ViewState<'a> {
     camera: Camera,
     strokes: Vec<Stroke>,
     before: RenderedView,
-    /// The part of the view the re-renders compute.
-    region: StrokeRegion,
 }
 
 fn secs(t: Instant) -> f64 {
@@ -238,7 +236,6 @@ pub fn run(
             camera,
             strokes,
             before,
-            region: StrokeRegion::new(&[], 0, 0),
         });
     }
     // Multi-view sketches are matched in one world frame: the first view's.
@@ -315,9 +312,12 @@ pub fn run(
         }
         curves.push(cs);
     }
-    for (v, cs) in views.iter_mut().zip(&curves) {
-        v.region = StrokeRegion::new(cs, v.camera.width, v.camera.height);
-    }
+    // The part of each view the re-renders compute.
+    let regions: Vec<StrokeRegion> = views
+        .iter()
+        .zip(&curves)
+        .map(|(v, cs)| StrokeRegion::new(cs, v.camera.width, v.camera.height))
+        .collect();
     if constraints.is_empty() {
         return Err(EditError::Unusable {
             sketch: sketch_name,
@@ -360,7 +360,7 @@ pub fn run(
         rendered.clear();
         let mut changed = false;
         for (k, v) in views.iter().enumerate() {
-            let after = render_edited(v, &deformation, max_d, false)?;
+            let after = render_edited(v, &deformation, max_d, Some(&regions[k]))?;
             if iterations[k] < opts.max_lowering_iterations {
                 let protruding = find_protruding(&after, &curves[k]);
                 if !protruding.is_empty() {
@@ -465,7 +465,7 @@ pub fn run(
         // the whole view.
         let whole = views
             .iter()
-            .map(|v| render_edited(v, &deformation, max_d, true))
+            .map(|v| render_edited(v, &deformation, max_d, None))
             .collect::<Result<Vec<_>, _>>()?;
         pictures(&views, &whole, &deformation)?
     } else {
@@ -610,19 +610,18 @@ fn ridge_network(
         .map_err(|e| EditError::Internal(format!("ridges: {e}")))
 }
 
-/// Render a view on the DEM with the deformation applied: only the part
-/// around its strokes ([`StrokeRegion`]) unless `whole`.
+/// Render a view on the DEM with the deformation applied: only `region` of
+/// it ([`StrokeRegion`]), or the whole view.
 fn render_edited(
     v: &ViewState,
     d: &Deformation,
     max_d: Option<f64>,
-    whole: bool,
+    region: Option<&StrokeRegion>,
 ) -> Result<RenderedView, EditError> {
     let edited = edited_window(&v.window, v.window_offset, d);
-    if whole {
-        RenderedView::render(&edited, &v.frame, &v.camera, max_d)
-    } else {
-        RenderedView::render_region(&edited, &v.frame, &v.camera, max_d, &v.region)
+    match region {
+        Some(r) => RenderedView::render_region(&edited, &v.frame, &v.camera, max_d, r),
+        None => RenderedView::render(&edited, &v.frame, &v.camera, max_d),
     }
     .map_err(|e| EditError::Internal(format!("view \"{}\": features: {e}", v.spec.name)))
 }
