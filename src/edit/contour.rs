@@ -89,7 +89,7 @@ pub const END_PAD_PX: f64 = 2.0;
 /// view has no occlusion boundary within [`FIT_TOLERANCE_PX`].
 pub fn unfitted_columns(stroke: &StrokeCurve, view: &RenderedView) -> Vec<(usize, f64, f64)> {
     stroke
-        .columns(view.camera.width)
+        .free_columns(view.camera.width)
         .into_iter()
         .filter(|&(i, y, _)| {
             !view

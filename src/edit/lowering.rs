@@ -117,7 +117,9 @@ fn stroke_hits(view: &RenderedView, g: &StrokeCurve) -> StrokeHits {
     let mut samples = Vec::new();
     // Depth-buffer fallback for this stroke: (CRS point, h).
     let mut fallback: Vec<([f64; 3], f64)> = Vec::new();
-    for (i, y, d) in g.columns(view.camera.width) {
+    // Anchored columns lie on a silhouette of the unedited terrain that
+    // nothing hid: what is above them stays.
+    for (i, y, d) in g.free_columns(view.camera.width) {
         let x = i as f64 + 0.5;
         let ray = view.camera.unproject([x, y + BELOW_STROKE_PX]);
         let rh = ray[0].hypot(ray[1]);

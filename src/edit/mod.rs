@@ -14,6 +14,7 @@
 pub mod contour;
 pub mod fit;
 pub mod lowering;
+pub mod on_silhouette;
 pub mod pipeline;
 pub mod rendered_view;
 pub mod renders;

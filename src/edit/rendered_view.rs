@@ -256,25 +256,59 @@ pub struct StrokeCurve {
     pub stroke: Stroke,
     /// `(pixel x, depth)` of the placed points on the stroke, sorted by x.
     pub depths: Vec<(f64, f64)>,
+    /// Beside each entry of `depths`: the point lies on a silhouette of
+    /// the unedited view ([`super::on_silhouette`]) and is kept as it is.
+    pub anchored: Vec<bool>,
 }
 
 impl StrokeCurve {
     /// The stroke and its placement.
     pub fn new(stroke: &Stroke, placed: &StrokeMatch) -> StrokeCurve {
-        let mut depths: Vec<(f64, f64)> = placed
+        let mut points: Vec<(f64, f64, bool)> = placed
             .points
             .iter()
             .filter(|p| p.source != PointSource::Completion)
-            .filter_map(|p| p.pixel.map(|px| (px[0], p.depth)))
-            .filter(|(x, d)| x.is_finite() && d.is_finite() && *d > 0.0)
+            .filter_map(|p| {
+                p.pixel
+                    .map(|px| (px[0], p.depth, p.source == PointSource::Silhouette))
+            })
+            .filter(|(x, d, _)| x.is_finite() && d.is_finite() && *d > 0.0)
             .collect();
-        depths.sort_by(|a, b| a.0.total_cmp(&b.0));
+        points.sort_by(|a, b| a.0.total_cmp(&b.0));
         StrokeCurve {
             id: stroke.id.clone(),
             source_id: stroke.source_id.clone(),
             stroke: stroke.clone(),
-            depths,
+            depths: points.iter().map(|p| (p.0, p.1)).collect(),
+            anchored: points.iter().map(|p| p.2).collect(),
         }
+    }
+
+    /// True when image x lies on an anchored stretch of the stroke: the
+    /// placed points on both sides of it are anchored (beyond the ends:
+    /// the end point is).
+    pub fn is_anchored(&self, x: f64) -> bool {
+        let d = &self.depths;
+        if d.is_empty() {
+            return false;
+        }
+        let k = d.partition_point(|p| p.0 < x);
+        let left = k.saturating_sub(1);
+        let right = k.min(d.len() - 1);
+        self.anchored[left] && self.anchored[right]
+    }
+
+    /// True when every placed point of the stroke is anchored.
+    pub fn fully_anchored(&self) -> bool {
+        !self.anchored.is_empty() && self.anchored.iter().all(|&a| a)
+    }
+
+    /// [`StrokeCurve::columns`] without the anchored ones: the columns an
+    /// edit may still have to change.
+    pub fn free_columns(&self, width: usize) -> Vec<(usize, f64, f64)> {
+        let mut cols = self.columns(width);
+        cols.retain(|&(i, _, _)| !self.is_anchored(i as f64 + 0.5));
+        cols
     }
 
     /// Depth of the placed curve at image x (clamped at the ends).

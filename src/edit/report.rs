@@ -36,6 +36,10 @@ pub struct EditReport {
 #[derive(Debug, Clone, Serialize)]
 pub struct ViewReport {
     pub name: String,
+    /// Absolute eye altitude every render, fit and picture of the edit used
+    /// (metres, the DEM's vertical datum): resolved once on the unedited
+    /// DEM, above the surface the renderer draws.
+    pub eye_alt_m: f64,
     pub strokes: Vec<StrokeReport>,
     /// Re-solves triggered by protruding silhouettes seen from this view.
     pub lowering_iterations: usize,
@@ -64,6 +68,9 @@ pub struct StrokeReport {
     pub matched: MatchReport,
     pub fit: StrokeFit,
     pub visible_fraction: f64,
+    /// Share of the stroke that already lay on a silhouette of the
+    /// unedited terrain (within about a pixel) and was kept as it was.
+    pub on_silhouette: f64,
 }
 
 /// What a stroke was matched to.

@@ -185,6 +185,11 @@ pub struct SketchOptions {
     /// Radius of influence of the deformation, metres (read by `deform`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub influence_m: Option<f64>,
+    /// Radius around each viewpoint within which the ground is held at its
+    /// input height, metres (the observer stands on it). `None`: 100 m, and
+    /// at least two cells.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub observer_radius_m: Option<f64>,
     /// Weights of the matching cost terms.
     #[serde(default)]
     pub weights: CostWeights,
@@ -258,6 +263,7 @@ impl Default for SketchOptions {
     fn default() -> Self {
         SketchOptions {
             influence_m: None,
+            observer_radius_m: None,
             weights: CostWeights::default(),
             t_junction_px: default_t_junction(),
             resample_px: default_resample(),
@@ -431,6 +437,11 @@ fn validate_options(o: &SketchOptions) -> Result<(), String> {
     if let Some(r) = o.influence_m {
         if !(r.is_finite() && r > 0.0) {
             return Err(format!("influence_m {r} is not a positive number"));
+        }
+    }
+    if let Some(r) = o.observer_radius_m {
+        if !(r.is_finite() && r >= 0.0) {
+            return Err(format!("observer_radius_m {r} is not a number >= 0"));
         }
     }
     let w = &o.weights;
