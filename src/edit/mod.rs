@@ -19,6 +19,7 @@ pub mod pipeline;
 pub mod rendered_view;
 pub mod renders;
 pub mod report;
+pub mod spikes;
 
 pub use pipeline::{run, EditOptions};
 pub use report::EditReport;

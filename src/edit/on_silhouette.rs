@@ -77,6 +77,47 @@ fn nearest_boundary(view: &RenderedView, pixel: [f64; 2], tol: f64) -> Option<Bo
     })
 }
 
+/// Runs of anchored points narrower than this (pixels of x) are a stroke
+/// crossing a silhouette, not following it, unless they are the whole
+/// stroke.
+pub const MIN_RUN_PX: f64 = 8.0;
+/// Neighbouring anchored points follow one silhouette when their depths
+/// differ by less than this fraction.
+pub const RUN_DEPTH_STEP: f64 = 0.05;
+
+/// Removes the anchors of runs (consecutive points on boundaries whose
+/// depths continue each other) that span less than [`MIN_RUN_PX`] of
+/// image x, unless a run is the whole stroke: a stroke crossing a
+/// silhouette is not drawn along it. `xs` are the points' image x.
+fn drop_short_runs(hits: &mut [Option<BoundaryPoint>], xs: &[f64]) {
+    let n = hits.len();
+    let mut a = 0;
+    while a < n {
+        let Some(first) = hits[a] else {
+            a += 1;
+            continue;
+        };
+        let mut b = a + 1;
+        let mut last = first;
+        while b < n {
+            match hits[b] {
+                Some(h) if (h.depth - last.depth).abs() <= RUN_DEPTH_STEP * last.depth => {
+                    last = h;
+                    b += 1;
+                }
+                _ => break,
+            }
+        }
+        let whole = a == 0 && b == n;
+        if !whole && (xs[b - 1] - xs[a]).abs() < MIN_RUN_PX {
+            for h in &mut hits[a..b] {
+                *h = None;
+            }
+        }
+        a = b;
+    }
+}
+
 /// Anchors the points of `placed` that lie on a boundary of `before` (the
 /// unedited view the stroke was drawn on; see the module documentation).
 /// Returns the share of the stroke's points anchored (0 to 1).
@@ -97,8 +138,12 @@ pub fn anchor_on_silhouettes(
         .iter()
         .map(|&k| nearest_boundary(before, px(k), ON_SILHOUETTE_PX))
         .collect();
-    // Short stretches beside anchored points, within the looser tolerance.
     let n = on_stroke.len();
+    drop_short_runs(
+        &mut hits,
+        &on_stroke.iter().map(|&k| px(k)[0]).collect::<Vec<_>>(),
+    );
+    // Short stretches beside anchored points, within the looser tolerance.
     let mut a = 0;
     while a < n {
         if hits[a].is_some() {

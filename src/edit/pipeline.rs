@@ -35,6 +35,7 @@ use super::renders::{encode_png, height_change_map, view_picture, Picture};
 use super::report::{
     DeformationReport, EditReport, FeatureCounts, MatchReport, StagedFile, StrokeReport, Timings,
 };
+use super::spikes::flatten_spikes;
 use super::EditError;
 use crate::deform::{
     deform_with_cells, CellConstraint, CurveConstraint, DeformError, DeformOptions, Deformation,
@@ -432,6 +433,14 @@ pub fn run(
             }
         }
     }
+    // No spikes: a lone apex (or pit) of the change field gets a
+    // neighbour behind it within half a cell.
+    if flatten_final_spikes(&views, &mut deformation, &fixed) > 0 {
+        rendered.clear();
+        for (k, v) in views.iter().enumerate() {
+            rendered.push(render_edited(v, &deformation, max_d, Some(&regions[k]))?);
+        }
+    }
     // Fit and visibility on the final terrain.
     let mut view_reports = Vec::new();
     let mut after_views = Vec::new();
@@ -645,6 +654,28 @@ fn free_stretches(points: &[[f64; 3]], anchored: &[bool]) -> Vec<CurveConstraint
         a = b;
     }
     out
+}
+
+/// [`flatten_spikes`] on the final deformation, with the viewpoints as
+/// eyes and the constrained and fixed cells held.
+fn flatten_final_spikes(
+    views: &[ViewState],
+    deformation: &mut Deformation,
+    fixed: &[CellConstraint],
+) -> usize {
+    let gt = &deformation.base.geotransform;
+    let eyes: Vec<(f64, f64)> = views
+        .iter()
+        .filter_map(|v| gt.crs_to_pixel(v.frame.eye_crs.0, v.frame.eye_crs.1))
+        .collect();
+    let w = deformation.window;
+    let fixed: std::collections::HashSet<(i64, i64)> =
+        fixed.iter().map(|c| (c.col, c.row)).collect();
+    let constrained = deformation.constrained.clone();
+    let held = |c: usize, r: usize| {
+        constrained[r * w.width + c] || fixed.contains(&(w.col + c as i64, w.row + r as i64))
+    };
+    flatten_spikes(deformation, &eyes, &held)
 }
 
 /// Share of the strokes' columns fitted, summed over all views' strokes:
