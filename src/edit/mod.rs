@@ -20,6 +20,7 @@ pub mod rendered_view;
 pub mod renders;
 pub mod report;
 pub mod spikes;
+pub mod stretch_placement;
 
 pub use pipeline::{run, EditOptions};
 pub use report::EditReport;

@@ -36,6 +36,7 @@ use super::report::{
     DeformationReport, EditReport, FeatureCounts, MatchReport, StagedFile, StrokeReport, Timings,
 };
 use super::spikes::flatten_spikes;
+use super::stretch_placement::{place_free_stretches, StretchPlacement};
 use super::EditError;
 use crate::deform::{
     deform_with_cells, CellConstraint, CurveConstraint, DeformError, DeformOptions, Deformation,
@@ -303,6 +304,7 @@ pub fn run(
     let demands = place_demands(&views, &scene_views, &mut matched.views, &sketch.options);
     let curves = demands.strokes;
     let on_silhouette = demands.on_silhouette;
+    let placement = demands.placement;
     let fixed = demands.fixed;
     let mut constraints = demands.curves;
     // The part of each view the re-renders compute.
@@ -467,6 +469,7 @@ pub fn run(
                     fit,
                     visible_fraction: visible,
                     on_silhouette: on_silhouette[k][j],
+                    placement: placement[k][j],
                 }
             })
             .collect();
@@ -586,6 +589,8 @@ struct Demands {
     strokes: Vec<Vec<StrokeCurve>>,
     /// Per view, per stroke: share of its points on an existing silhouette.
     on_silhouette: Vec<Vec<f64>>,
+    /// Per view, per stroke: how its free stretches were placed.
+    placement: Vec<Vec<StretchPlacement>>,
 }
 
 /// Anchors the matched strokes where they already lie on a silhouette and
@@ -602,12 +607,20 @@ fn place_demands(
         fixed: Vec::new(),
         strokes: Vec::new(),
         on_silhouette: Vec::new(),
+        placement: Vec::new(),
     };
     for ((v, sv), m) in views.iter().zip(scene_views).zip(matched.iter_mut()) {
         let mut cs = Vec::new();
         let mut fractions = Vec::new();
+        let mut placements = Vec::new();
         for (s, sm) in v.strokes.iter().zip(m.strokes.iter_mut()) {
             fractions.push(anchor_on_silhouettes(&v.before, &sv.projection, sm));
+            placements.push(place_free_stretches(
+                &v.before,
+                &sv.projection,
+                &sv.features,
+                sm,
+            ));
             let dem_points = sv.projection.placed_to_dem(&sm.points);
             let anchored: Vec<bool> = sm
                 .points
@@ -622,6 +635,7 @@ fn place_demands(
         }
         d.strokes.push(cs);
         d.on_silhouette.push(fractions);
+        d.placement.push(placements);
     }
     for v in views {
         d.fixed.extend(v.observer_cells(options.observer_radius_m));

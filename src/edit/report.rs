@@ -71,6 +71,9 @@ pub struct StrokeReport {
     /// Share of the stroke that already lay on a silhouette of the
     /// unedited terrain (within about a pixel) and was kept as it was.
     pub on_silhouette: f64,
+    /// How the points not on a silhouette were placed (counts of stroke
+    /// points; see `edit::stretch_placement`).
+    pub placement: super::stretch_placement::StretchPlacement,
 }
 
 /// What a stroke was matched to.
