@@ -93,8 +93,8 @@ pub fn unfitted_columns(stroke: &StrokeCurve, view: &RenderedView) -> Vec<(usize
         .into_iter()
         .filter(|&(i, y, _)| {
             !view
-                .boundaries(i)
-                .any(|b| (b - y).abs() <= FIT_TOLERANCE_PX)
+                .boundaries_with_slack(i)
+                .any(|(b, slack)| (b - y).abs() <= FIT_TOLERANCE_PX + slack)
         })
         .collect()
 }

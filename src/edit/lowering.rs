@@ -137,8 +137,13 @@ fn stroke_hits(view: &RenderedView, g: &StrokeCurve) -> StrokeHits {
                 continue;
             }
             let h = above_ray(sample.local);
+            // Above the stroke by no more than the DEM leaves open there:
+            // not a protrusion to lower.
+            let slack = view.interpolation_px(sample.cell, sample.depth);
             if h.is_finite() && h > 0.0 {
-                samples.push((c as usize, h, x));
+                if h * view.camera.focal_px > slack * sample.depth {
+                    samples.push((c as usize, h, x));
+                }
                 found = true;
             }
         }

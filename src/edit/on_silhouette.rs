@@ -54,7 +54,7 @@ fn nearest_boundary(view: &RenderedView, pixel: [f64; 2], tol: f64) -> Option<Bo
     for &(c, s) in &view.by_column[i] {
         let sample = &view.silhouettes.curves[c as usize].samples[s as usize];
         let dy = (sample.pixel[1] - pixel[1]).abs();
-        let tol = tol + interpolation_px(view, sample.cell, sample.depth);
+        let tol = tol + view.interpolation_px(sample.cell, sample.depth);
         if dy <= tol && best.is_none_or(|b| dy < (b.row - pixel[1]).abs()) {
             best = Some(BoundaryPoint {
                 row: sample.pixel[1],
@@ -118,46 +118,6 @@ fn drop_short_runs(hits: &mut [Option<BoundaryPoint>], xs: &[f64]) {
         a = b;
     }
 }
-
-/// The most the DEM itself leaves a boundary's image row open: the
-/// renderer draws two triangles per cell, a bilinear reading of the same
-/// heights (DESIGN.md's surface) differs from them by up to a quarter of a
-/// cell's twist `|h00 + h11 - h10 - h01|`, and so may the silhouette both
-/// form, seen from `depth`. The largest twist of the 3 x 3 cells around the
-/// boundary's cell (window coordinates), in pixels, at most
-/// [`MAX_INTERPOLATION_PX`].
-fn interpolation_px(view: &RenderedView, cell: [u32; 2], depth: f64) -> f64 {
-    let t = &view.terrain;
-    let (c, r) = (
-        cell[0] as i64 - t.col0 as i64,
-        cell[1] as i64 - t.row0 as i64,
-    );
-    let z = |c: i64, r: i64| {
-        if c < 0 || r < 0 {
-            None
-        } else {
-            t.vertex_z(c as usize, r as usize)
-        }
-    };
-    let mut twist = 0.0f64;
-    for dr in -1..=1 {
-        for dc in -1..=1 {
-            let (c, r) = (c + dc, r + dr);
-            if let (Some(a), Some(b), Some(cc), Some(d)) =
-                (z(c, r), z(c + 1, r), z(c, r + 1), z(c + 1, r + 1))
-            {
-                twist = twist.max((a + d - b - cc).abs());
-            }
-        }
-    }
-    if !(depth > 0.0) {
-        return 0.0;
-    }
-    (0.25 * twist * view.camera.focal_px / depth).min(MAX_INTERPOLATION_PX)
-}
-
-/// The widest opening [`interpolation_px`] grants, pixels.
-pub const MAX_INTERPOLATION_PX: f64 = 8.0;
 
 /// Anchors the points of `placed` that lie on a boundary of `before` (the
 /// unedited view the stroke was drawn on; see the module documentation).
