@@ -88,7 +88,20 @@ def pick_viewpoint(dem, vp_class, rng):
             else:
                 i, j, inward = int(rng.integers(nx // 6, 5 * nx // 6)), ny - 1 - dist, 0.0
             if not _valid_around(dem, i, j):
-                continue
+                # a grid edge that is nodata (sea): stand near the data's edge instead
+                i = int(rng.integers(nx // 7, 6 * nx // 7))
+                j = int(rng.integers(ny // 7, 6 * ny // 7))
+                if not _valid_around(dem, i, j):
+                    continue
+                r = int(rng.integers(3, 7))
+                win = dem.h[max(0, j - r):j + r + 1, max(0, i - r):i + r + 1]
+                if np.isfinite(win).all() or not _valid_around(dem, i, j, 2):
+                    continue
+                jj, ii = np.nonzero(np.isfinite(win))
+                # heading away from the nodata: toward the valid cells' centroid
+                e = (ii.mean() - min(i, r)) * dem.cell_x_m
+                n = -(jj.mean() - min(j, r)) * dem.cell_y_m
+                inward = math.degrees(math.atan2(e, n))
             lon, lat = _cell_ll(dem, i, j, rng)
             return lon, lat, (inward + rng.uniform(-35, 35)) % 360
         if vp_class == "interior":
@@ -147,15 +160,18 @@ def gaussian(dem, ci, cj, sigma_m, amp):
 
 
 def pick_peak(dem, rng):
-    for _ in range(100):
+    """The highest cell of a random window (valid, with valid surroundings)."""
+    for _ in range(300):
         w = max(6, min(dem.nx, dem.ny) // 8)
         i0 = int(rng.integers(dem.nx // 6, 5 * dem.nx // 6 - w))
         j0 = int(rng.integers(dem.ny // 6, 5 * dem.ny // 6 - w))
         sub = dem.h[j0:j0 + w, i0:i0 + w]
-        if not np.isfinite(sub).all():
+        if np.isfinite(sub).mean() < 0.8:
             continue
-        k = int(np.argmax(sub))
-        return i0 + k % w, j0 + k // w
+        k = int(np.nanargmax(sub))
+        i, j = i0 + k % w, j0 + k // w
+        if _valid_around(dem, i, j, 3):
+            return i, j
     raise RuntimeError("no peak")
 
 

@@ -180,9 +180,12 @@ class Dem:
         X, Y = self.pixel_to_crs(px[None, :], py[:, None])
         if self.geographic:
             m = math.pi / 180 * earth_radius(lat0)
-            return (X - X0[0]) * m * math.cos(math.radians(lat0)), (Y - Y0[0]) * m
-        u = self.srs.GetLinearUnits()
-        return (X - X0[0]) * u * np.ones_like(Y), (Y - Y0[0]) * u * np.ones_like(X)
+            ex, ny = (X - X0[0]) * m * math.cos(math.radians(lat0)), (Y - Y0[0]) * m
+        else:
+            u = self.srs.GetLinearUnits()
+            ex, ny = (X - X0[0]) * u, (Y - Y0[0]) * u
+        shape = (self.ny, self.nx)
+        return np.broadcast_to(ex, shape).copy(), np.broadcast_to(ny, shape).copy()
 
 
 _WGS = None

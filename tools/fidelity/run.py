@@ -286,13 +286,14 @@ def run_group(args):
     g, styles, pictures, keep = args
     work = tempfile.mkdtemp(prefix="fidelity-")
     t = time.time()
+    g0 = g
     try:
         g = cases.build_group(dict(g), os.path.join(ROOT, "fixtures"), work)
     except Exception as e:  # the suite reports, it does not stop
         return [{"group": g["id"], "dem": g["dem"], "kind": g["kind"], "vp_class": g["vp_class"],
                  "style": "-", "status": "n/a", "reason": "setup error: %r" % (e,)}]
     if "error" in g:
-        return [{"group": g["id"], "dem": g["dem"], "kind": g["kind"], "vp_class": g["vp_class"],
+        return [{"group": g0["id"], "dem": g0["dem"], "kind": g0["kind"], "vp_class": g0["vp_class"],
                  "style": "-", "status": "n/a", "reason": g["error"]}]
     out = []
     for style in styles or g["styles"]:
