@@ -27,6 +27,7 @@ VP_CLASSES = ("interior", "edge", "valley", "close")
 CHANGES = ("peak_raised", "ridge_cut", "new_hill", "void_fill")
 CAMERA = {"hfov_deg": 60.0, "width": 640, "height": 360}
 EYE_HEIGHT = 1.7
+MAX_DIST = 50000.0  # the judge's and the edit's (--max-distance) view distance
 
 
 def seed_of(*parts):
@@ -148,7 +149,7 @@ def eye_alt(dem, lon, lat, h=None):
 
 def render_view(dem, v, h=None, **kw):
     return judge.render(dem, v["lon"], v["lat"], v["alt"], v["heading"], CAMERA["hfov_deg"],
-                        CAMERA["width"], CAMERA["height"], h=h, **kw)
+                        CAMERA["width"], CAMERA["height"], h=h, max_dist=kw.pop("max_dist", MAX_DIST), **kw)
 
 
 # --- changes -------------------------------------------------------------------

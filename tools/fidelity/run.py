@@ -60,7 +60,7 @@ def allow_partial_flag():
 
 def run_edit(dem_path, sketch_path, out_path, report_path):
     cmd = [demsketch(), "edit", dem_path, "--sketch", sketch_path, "--out", out_path,
-           "--report", report_path] + allow_partial_flag()
+           "--report", report_path, "--max-distance", str(cases.MAX_DIST)] + allow_partial_flag()
     t = time.time()
     try:
         p = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
@@ -175,7 +175,7 @@ def evaluate(g, style, work, pictures):
         tc = np.array(s["truth_cols"])
         td = np.array(s["truth_depth"])
         m = np.isin(tc, list(cols.keys()))
-        t_near, t_far = (float(np.percentile(td[m], 5)), float(np.percentile(td[m], 95))) if m.any() else (np.nan, np.nan)
+        t_near, t_far = (float(td[m].min()), float(td[m].max())) if m.any() else (np.nan, np.nan)
         far_max = max(far_max, t_far if np.isfinite(t_far) else 0.0)
         rs = rep_strokes.get("s%d" % i, {})
         pd = depth_of_report(rs)
