@@ -221,15 +221,14 @@ def void_filled(dem, ci, cj, radius_m, workdir):
     return out
 
 
-def changed_columns(r_truth, r_base, chains_truth):
-    """Columns where a robust truth boundary has no base boundary within 1.5 px."""
-    out = set()
-    for ch in chains_truth:
-        for c, row in zip(ch["col"], ch["row"]):
-            rows, _, _, _ = judge.boundaries_in(r_base, int(c))
-            if len(rows) == 0 or np.min(np.abs(rows - row)) > 1.5:
-                out.add(int(c))
-    return out
+def changed_mask(r_base, ch):
+    """Per column of a truth chain: True where the base view has no boundary
+    within 1.5 px of the chain's row (the change is visible there)."""
+    m = np.zeros(len(ch["col"]), bool)
+    for n, (c, row) in enumerate(zip(ch["col"], ch["row"])):
+        rows, _, _, _ = judge.boundaries_in(r_base, int(c))
+        m[n] = len(rows) == 0 or np.min(np.abs(rows - row)) > 1.5
+    return m
 
 
 def groups():
@@ -314,10 +313,9 @@ def build_group(g, fixtures_dir, workdir):
             r_truth = render_view(dem, v, h=truth_h)
             r_base = render_view(dem, v, h=base_h)
             chs = trace.chains(r_truth)
-            cc = changed_columns(r_truth, r_base, chs)
             chs_focus = []
             for ch in chs:
-                m = np.isin(ch["col"], list(cc))
+                m = changed_mask(r_base, ch)
                 if m.sum() >= 6:
                     cols = ch["col"][m]
                     chs_focus.append((ch, int(cols.min()), int(cols.max())))
