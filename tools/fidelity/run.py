@@ -169,6 +169,7 @@ def evaluate(g, style, work, pictures):
     # spikes
     n_sp, ex_sp = spike_stats(dz, dem.cell_m)
     res["spikes"], res["spike_excess_m"] = n_sp, round(ex_sp, 2)
+    res["spike_excess_half_cells"] = round(ex_sp / (dem.cell_m / 2), 3)
     # judge the after-view
     v2 = dict(v, alt=eye)
     r_after = cases.render_view(dem, v2, h=edited.h)
@@ -352,7 +353,7 @@ def summary(results):
          len(ev), "max %.1f m" % max(r["ground_dz_100m"] for r in edited) if edited else "")
     line("known change: no change beyond the influence distance", sum(r.get("beyond_influence", 0) == 0 for r in kn), len(known))
     line("no spike, all cases", sum(r["spikes"] == 0 for r in edited), len(ev),
-         "max excess %.0f m" % max(r["spike_excess_m"] for r in edited) if edited else "")
+         "largest excess over all 8 neighbours: %.2f half-cells" % max(r["spike_excess_half_cells"] for r in edited) if edited else "")
     idm = [r for r in edited if r.get("idempotence_max_dz") is not None]
     line("idempotence (re-edit moves <= 0.5 m), all cases", sum(r["idempotence_max_dz"] <= IDEMPOTENT_MAX for r in idm), len(ev),
          "max %.1f m" % max(r["idempotence_max_dz"] for r in idm) if idm else "")
@@ -370,6 +371,10 @@ def fmt(x, p=2):
     return str(x)
 
 
+def esc(x):
+    return str(x).replace("|", "\\|")
+
+
 def write_md(path, results, lines, meta):
     L = []
     L.append("# Fidelity of `demsketch edit`: an evaluation nobody tuned to\n")
@@ -381,7 +386,7 @@ def write_md(path, results, lines, meta):
     L.append("| acceptance line | cases meeting it | of | met | detail |")
     L.append("| --- | --- | --- | --- | --- |")
     for l in lines:
-        L.append("| %s | %d | %d | %s | %s |" % (l["line"], l["ok"], l["total"], "yes" if l["pass"] else "**no**", l["detail"]))
+        L.append("| %s | %d | %d | %s | %s |" % (esc(l["line"]), l["ok"], l["total"], "yes" if l["pass"] else "**no**", esc(l["detail"])))
     n_pass = sum(r.get("status") == "pass" for r in results)
     L.append("\nCases passing every line: **%d of %d** (n/a: %d).\n" % (
         n_pass, len(results), sum(r.get("status") in ("n/a", "error") for r in results)))
@@ -396,7 +401,7 @@ def write_md(path, results, lines, meta):
     for n, r in enumerate(results):
         if r.get("status") not in ("pass", "fail") or "fit_min" not in r:
             L.append("| %d | %s | %s | %s | %s | %s | - | - | - | - | - | - | - | - | %s: %s |" % (
-                n + 1, r["dem"], r["kind"], r["vp_class"], r["style"], r.get("n_strokes", "-"), r.get("status"), r.get("reason", "")))
+                n + 1, r["dem"], r["kind"], r["vp_class"], r["style"], r.get("n_strokes", "-"), r.get("status"), esc(r.get("reason", ""))))
             continue
         dr = ", ".join("%.2f/%.2f" % tuple(s["depth_ratio"]) for s in r["strokes"] if "depth_ratio" in s) or "-"
         rm = "-"
@@ -406,7 +411,7 @@ def write_md(path, results, lines, meta):
             n + 1, r["dem"], r["kind"], r["vp_class"], r["style"], r["n_strokes"], r["fit_min"], r["max_abs_dz"],
             r["ground_dz_vp"], r["ground_dz_100m"], dr, rm,
             r.get("beyond_influence", "-") if r["kind"] != "identity" else "-", r["spikes"],
-            fmt(r.get("idempotence_max_dz"), 2), "pass" if r["status"] == "pass" else "fail: " + r["reason"]))
+            fmt(r.get("idempotence_max_dz"), 2), "pass" if r["status"] == "pass" else "fail: " + esc(r["reason"])))
     L.append("")
     tail = open(os.path.join(HERE, "README.md")).read().split("<!-- table -->")
     if len(tail) > 1:
