@@ -390,6 +390,28 @@ def write_md(path, results, lines, meta):
     n_pass = sum(r.get("status") == "pass" for r in results)
     L.append("\nCases passing every line: **%d of %d** (n/a: %d).\n" % (
         n_pass, len(results), sum(r.get("status") in ("n/a", "error") for r in results)))
+    ev = [r for r in results if "fit_min" in r]
+    for key, title in (("kind", "kind"), ("style", "stroke style"), ("dem", "DEM"), ("vp_class", "viewpoint class")):
+        L.append("| %s | cases | pass | every stroke judge-fitted >= 0.95 | median max\\|dz\\| m | re-edit <= 0.5 m |" % title)
+        L.append("| --- | --- | --- | --- | --- | --- |")
+        for val in sorted({r[key] for r in ev}):
+            cs = [r for r in ev if r[key] == val]
+            L.append("| %s | %d | %d | %d | %.1f | %d |" % (
+                val, len(cs), sum(r["status"] == "pass" for r in cs), sum(r["fit_min"] >= FIT_MIN for r in cs),
+                float(np.median([r["max_abs_dz"] for r in cs])),
+                sum((r.get("idempotence_max_dz") is not None and r["idempotence_max_dz"] <= IDEMPOTENT_MAX) for r in cs)))
+        L.append("")
+    q = [s["depth_ratio"] for r in ev if r["kind"] != "identity" for s in r["strokes"] if "depth_ratio" in s]
+    if q:
+        qn = np.array([a for a, b in q])
+        qf = np.array([b for a, b in q])
+        L.append("Known change, placed / true depth over %d strokes: near end p10 / p50 / p90 = %.2f / %.2f / %.2f, "
+                 "far end %.2f / %.2f / %.2f.\n" % ((len(q),) + tuple(np.percentile(qn, [10, 50, 90])) + tuple(np.percentile(qf, [10, 50, 90]))))
+    d = [(s["report_fit"], s["judge_fit"]) for r in ev for s in r["strokes"] if s.get("report_fit") is not None]
+    if d:
+        L.append("The report's own `fit.fitted_fraction` against the judge's, over %d strokes: report >= 0.95 but judge < 0.95 "
+                 "on %d, report < 0.95 but judge >= 0.95 on %d.\n" % (
+                     len(d), sum(a >= FIT_MIN and b < FIT_MIN for a, b in d), sum(a < FIT_MIN and b >= FIT_MIN for a, b in d)))
     L.append("## Every case\n")
     L.append("Columns: judge fit = the judge's fitted fraction of the worst stroke (1 px, any boundary); "
              "max|dz| over the DEM; ground: change at the viewpoint (bilinear) / max within 100 m; depth ratio = "
