@@ -178,7 +178,7 @@ def evaluate(g, style, work, pictures):
     per_stroke = []
     far_max = 0.0
     for i, s in enumerate(strokes):
-        fr, _, _ = judge.fit(r_after, s["points"])
+        fr, after_depth, _ = judge.fit(r_after, s["points"])
         fits.append(fr)
         cols = judge.stroke_columns(s["points"], r_after.width)
         tc = np.array(s["truth_cols"])
@@ -186,11 +186,16 @@ def evaluate(g, style, work, pictures):
         m = np.isin(tc, list(cols.keys()))
         t_near, t_far = (float(td[m].min()), float(td[m].max())) if m.any() else (np.nan, np.nan)
         far_max = max(far_max, t_far if np.isfinite(t_far) else 0.0)
+        # the judge's own reading of where the stroke ended up: depth of the edited terrain's
+        # boundary under the stroke / the truth boundary's depth, column by column
+        tmap = dict(zip(tc.tolist(), td.tolist()))
+        jq = [after_depth[c] / tmap[c] for c in after_depth if c in tmap and tmap[c] > 0]
         rs = rep_strokes.get("s%d" % i, {})
         pd = depth_of_report(rs)
         entry = {"id": "s%d" % i, "judge_fit": round(fr, 3), "truth_depth_m": [round(t_near, 1), round(t_far, 1)],
                  "report_fit": (rs.get("fit") or {}).get("fitted_fraction"),
-                 "match_kind": (rs.get("match") or rs.get("matched") or {}).get("kind")}
+                 "match_kind": (rs.get("match") or rs.get("matched") or {}).get("kind"),
+                 "judge_depth_ratio_median": round(float(np.median(jq)), 3) if jq else None}
         if pd is not None and np.isfinite(t_near):
             qn, qf = pd[0] / t_near, pd[1] / t_far
             entry["placed_depth_m"] = [round(pd[0], 1), round(pd[1], 1)]
@@ -407,6 +412,12 @@ def write_md(path, results, lines, meta):
         qf = np.array([b for a, b in q])
         L.append("Known change, placed / true depth over %d strokes: near end p10 / p50 / p90 = %.2f / %.2f / %.2f, "
                  "far end %.2f / %.2f / %.2f.\n" % ((len(q),) + tuple(np.percentile(qn, [10, 50, 90])) + tuple(np.percentile(qf, [10, 50, 90]))))
+    jq = [s["judge_depth_ratio_median"] for r in ev if r["kind"] != "identity" for s in r["strokes"]
+          if s.get("judge_depth_ratio_median") is not None]
+    if jq:
+        L.append("Known change, the judge's own reading (depth of the edited boundary under each fitted stroke / true "
+                 "depth, median per stroke): within 15%% on %d of %d strokes with fitted columns.\n" % (
+                     sum(abs(x - 1) <= DEPTH_TOL for x in jq), len(jq)))
     d = [(s["report_fit"], s["judge_fit"]) for r in ev for s in r["strokes"] if s.get("report_fit") is not None]
     if d:
         L.append("The report's own `fit.fitted_fraction` against the judge's, over %d strokes: report >= 0.95 but judge < 0.95 "
@@ -416,28 +427,34 @@ def write_md(path, results, lines, meta):
     L.append("Columns: judge fit = the judge's fitted fraction of the worst stroke (1 px, any boundary); "
              "max|dz| over the DEM; ground: change at the viewpoint (bilinear) / max within 100 m; depth ratio = "
              "placed / true depth of each stroke ([near, far], report `match.depth_m` vs the judge's boundary "
-             "depths on the truth); RMSE: before -> after (fall) in the visible changed region; "
+             "depths on the truth); judge depth ratio = median over the fitted columns of the depth of the edited "
+             "terrain's boundary under the stroke / the truth boundary's depth (the judge's own reading of the placement); RMSE: before -> after (fall) in the visible changed region; "
              "spike: cells; idem: max change on re-editing the output.\n")
-    L.append("| case | DEM | kind | viewpoint | style | strokes | judge fit min | max\\|dz\\| m | ground vp / 100 m | depth ratios | RMSE m | beyond infl. | spike | idem m | result |")
-    L.append("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    L.append("| case | DEM | kind | viewpoint | style | strokes | judge fit min | max\\|dz\\| m | ground vp / 100 m | depth ratios | judge depth ratio | RMSE m | beyond infl. | spike | idem m | result |")
+    L.append("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     for n, r in enumerate(results):
         if r.get("status") not in ("pass", "fail") or "fit_min" not in r:
-            L.append("| %d | %s | %s | %s | %s | %s | - | - | - | - | - | - | - | - | %s: %s |" % (
+            L.append("| %d | %s | %s | %s | %s | %s | - | - | - | - | - | - | - | - | - | %s: %s |" % (
                 n + 1, r["dem"], r["kind"], r["vp_class"], r["style"], r.get("n_strokes", "-"), r.get("status"), esc(r.get("reason", ""))))
             continue
         dr = ", ".join("%.2f/%.2f" % tuple(s["depth_ratio"]) for s in r["strokes"] if "depth_ratio" in s) or "-"
+        jr = ", ".join("%.2f" % s["judge_depth_ratio_median"] for s in r["strokes"]
+                       if s.get("judge_depth_ratio_median") is not None) or "-"
         rm = "-"
         if r.get("rmse_before") is not None:
             rm = "%.1f -> %.1f (%+.0f%%)" % (r["rmse_before"], r["rmse_after"], -100 * r["rmse_fall"])
-        L.append("| %d | %s | %s | %s | %s | %d | %.2f | %.1f | %.2f / %.2f | %s | %s | %s | %d | %s | %s |" % (
+        L.append("| %d | %s | %s | %s | %s | %d | %.2f | %.1f | %.2f / %.2f | %s | %s | %s | %s | %d | %s | %s |" % (
             n + 1, r["dem"], r["kind"], r["vp_class"], r["style"], r["n_strokes"], r["fit_min"], r["max_abs_dz"],
-            r["ground_dz_vp"], r["ground_dz_100m"], dr, rm,
+            r["ground_dz_vp"], r["ground_dz_100m"], dr, jr, rm,
             r.get("beyond_influence", "-") if r["kind"] != "identity" else "-", r["spikes"],
             fmt(r.get("idempotence_max_dz"), 2), "pass" if r["status"] == "pass" else "fail: " + esc(r["reason"])))
     L.append("")
     tail = open(os.path.join(HERE, "README.md")).read().split("<!-- table -->")
     if len(tail) > 1:
         L.append(tail[1])
+    fpath = os.path.join(HERE, "findings.md")
+    if os.path.exists(fpath):
+        L.append(open(fpath).read())
     if meta.get("validation"):
         L.append(meta["validation"])
     with open(path, "w") as f:
@@ -454,7 +471,17 @@ def main():
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--only", default=None, help="run only groups whose id contains this")
     ap.add_argument("--keep", action="store_true", help="keep the work directories")
+    ap.add_argument("--from-json", default=None, metavar="FILE",
+                    help="do not run: rewrite the table (--md, default docs/fidelity.md) from a results JSON")
     a = ap.parse_args()
+    if a.from_json:
+        j = json.load(open(a.from_json))
+        meta = j["meta"]
+        vpath = os.path.join(HERE, "validation.md")
+        if os.path.exists(vpath):
+            meta["validation"] = open(vpath).read()
+        write_md(a.md or os.path.join(ROOT, "docs", "fidelity.md"), j["cases"], summary(j["cases"]), meta)
+        return
     if not os.path.exists(demsketch()):
         sys.exit("fidelity: no demsketch binary at %s (set DEMSKETCH)" % demsketch())
     gs = cases.groups()
