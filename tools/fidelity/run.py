@@ -195,6 +195,7 @@ def evaluate(g, style, work, pictures):
         entry = {"id": "s%d" % i, "judge_fit": round(fr, 3), "truth_depth_m": [round(t_near, 1), round(t_far, 1)],
                  "report_fit": (rs.get("fit") or {}).get("fitted_fraction"),
                  "match_kind": (rs.get("match") or rs.get("matched") or {}).get("kind"),
+                 "report_on_silhouette": rs.get("on_silhouette"),
                  "judge_depth_ratio_median": round(float(np.median(jq)), 3) if jq else None}
         if pd is not None and np.isfinite(t_near):
             qn, qf = pd[0] / t_near, pd[1] / t_far
@@ -418,6 +419,15 @@ def write_md(path, results, lines, meta):
         L.append("Known change, the judge's own reading (depth of the edited boundary under each fitted stroke / true "
                  "depth, median per stroke): within 15%% on %d of %d strokes with fitted columns.\n" % (
                      sum(abs(x - 1) <= DEPTH_TOL for x in jq), len(jq)))
+    ons = [(r, s) for r in ev if r["kind"] == "identity" for s in r["strokes"] if s.get("report_on_silhouette") is not None]
+    if ons:
+        L.append("Identity strokes (traced by the judge on robust boundaries of the unedited DEM) that the report says lie "
+                 "on one of demsketch's own silhouettes before the edit (`on_silhouette` >= 0.95): %d of %d; median "
+                 "`on_silhouette` %.2f; on the NZ 1 km DEM %s.\n" % (
+                     sum(s["report_on_silhouette"] >= 0.95 for r, s in ons), len(ons),
+                     float(np.median([s["report_on_silhouette"] for r, s in ons])),
+                     ("%.2f" % float(np.median([s["report_on_silhouette"] for r, s in ons if r["dem"].startswith("nz")])))
+                     if any(r["dem"].startswith("nz") for r, s in ons) else "-"))
     d = [(s["report_fit"], s["judge_fit"]) for r in ev for s in r["strokes"] if s.get("report_fit") is not None]
     if d:
         L.append("The report's own `fit.fitted_fraction` against the judge's, over %d strokes: report >= 0.95 but judge < 0.95 "
