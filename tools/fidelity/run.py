@@ -497,6 +497,12 @@ def main():
     gs = cases.groups()
     styles = {}
     if a.subset == "ci":
+        # the judge itself first: a broken judge fails CI even with --report-only
+        st = subprocess.run(["/usr/bin/python3", os.path.join(HERE, "selftest.py")], capture_output=True, text=True)
+        sys.stdout.write(st.stdout)
+        if st.returncode != 0:
+            sys.stderr.write(st.stderr)
+            sys.exit(2)
         gs = [g for g in gs if g["id"] in CI_GROUPS]
         styles = CI_STYLES
     if a.only:
