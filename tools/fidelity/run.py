@@ -45,7 +45,7 @@ CI_STYLES = {
     "texas_srtm90m_tiled_int16-new_hill-interior0": ["dense"],
     "arenal_aster30m_epsg4326-void_fill-toward-change0": ["dense"],
 }
-CI_GROUPS = list(CI_STYLES)
+CI_GROUPS = list(CI_STYLES) + ["demo-zion_dome"]
 
 
 def demsketch():
@@ -297,8 +297,57 @@ def verdict(res):
     res["reason"] = "; ".join(reasons)
 
 
+DEMO = {"id": "demo-zion_dome", "dem": "zion_srtm_utm12n", "kind": "demo", "vp_class": "bundled",
+        "sketch": os.path.join(ROOT, "fixtures", "sketches", "zion_dome.json")}
+
+
+def evaluate_demo(work):
+    """The bundled demo (tools/demo.sh): its sketch as it is (pitch -1, eye height 1.7 m, which the
+    judge does not render), checked for exit status, spikes, the observer's ground and idempotence."""
+    g = DEMO
+    res = {"group": g["id"], "dem": g["dem"], "kind": "demo", "vp_class": "bundled", "style": "bundled sketch"}
+    base = judge.Dem(os.path.join(ROOT, "fixtures", g["dem"] + ".tif"))
+    out1, rep1 = os.path.join(work, "demo.tif"), os.path.join(work, "demo.json")
+    rc, err, dt = run_edit(base.path, g["sketch"], out1, rep1)
+    res.update(rc=rc, edit_s=round(dt, 2))
+    if rc != 0 or not os.path.exists(out1):
+        res.update(status="fail", reason="edit exit %s: %s" % (rc, err[:160]))
+        return res
+    ed = judge.Dem(out1)
+    dz = ed.h - base.h
+    res["max_abs_dz"] = float(np.nanmax(np.abs(dz)))
+    n_sp, ex_sp = spike_stats(dz, base.cell_m)
+    res["spikes"], res["spike_excess_m"] = n_sp, round(ex_sp, 2)
+    res["spike_excess_half_cells"] = round(ex_sp / (base.cell_m / 2), 3)
+    sk = json.load(open(g["sketch"]))
+    vp = sk["views"][0]["viewpoint"]
+    ex, ny_ = base.local_xy_m(vp["lon"], vp["lat"])
+    near = np.hypot(ex, ny_) <= 100.0
+    res["ground_dz_vp"] = ed.height_ll(vp["lon"], vp["lat"]) - base.height_ll(vp["lon"], vp["lat"])
+    res["ground_dz_100m"] = float(np.nanmax(np.abs(dz[near]))) if near.any() else abs(res["ground_dz_vp"])
+    out2, rep2 = os.path.join(work, "demo2.tif"), os.path.join(work, "demo2.json")
+    rc2, err2, _ = run_edit(out1, g["sketch"], out2, rep2)
+    res["idempotence_max_dz"] = float(np.nanmax(np.abs(judge.Dem(out2).h - ed.h))) if rc2 == 0 and os.path.exists(out2) else None
+    reasons = []
+    if n_sp:
+        reasons.append("%d spike cells (+%.0f m)" % (n_sp, ex_sp))
+    if res["ground_dz_100m"] >= GROUND_MAX:
+        reasons.append("ground within 100 m moved %.1f m" % res["ground_dz_100m"])
+    if res["idempotence_max_dz"] is None or res["idempotence_max_dz"] > IDEMPOTENT_MAX:
+        reasons.append("re-edit %s" % ("failed" if res["idempotence_max_dz"] is None else "moves %.1f m" % res["idempotence_max_dz"]))
+    res["status"] = "pass" if not reasons else "fail"
+    res["reason"] = "; ".join(reasons)
+    return res
+
+
 def run_group(args):
     g, styles, pictures, keep = args
+    if g.get("kind") == "demo":
+        work = tempfile.mkdtemp(prefix="fidelity-demo-")
+        try:
+            return [evaluate_demo(work)]
+        finally:
+            subprocess.run(["rm", "-rf", work])
     work = tempfile.mkdtemp(prefix="fidelity-")
     t = time.time()
     g0 = g
@@ -329,7 +378,7 @@ def run_group(args):
 
 
 def summary(results):
-    ev = [r for r in results if r.get("status") in ("pass", "fail")]
+    ev = [r for r in results if r.get("status") in ("pass", "fail") and r.get("kind") != "demo"]
     ident = [r for r in ev if r["kind"] == "identity"]
     known = [r for r in ev if r["kind"] != "identity"]
     edited = [r for r in ev if "fit_min" in r]
@@ -364,6 +413,14 @@ def summary(results):
     line("idempotence (re-edit moves <= 0.5 m), all cases", sum(r["idempotence_max_dz"] <= IDEMPOTENT_MAX for r in idm), len(ev),
          "max %.1f m" % max(r["idempotence_max_dz"] for r in idm) if idm else "")
     line("edit exits 0 and writes", len(edited), len(ev))
+    demo = [r for r in results if r.get("kind") == "demo"]
+    if demo:
+        d = demo[0]
+        lines.append({"line": "bundled demo (zion_dome.json): no spike, observer's ground fixed, idempotent",
+                      "ok": int(d.get("status") == "pass"), "total": 1, "pass": d.get("status") == "pass",
+                      "detail": "max|dz| %s m, spikes %s, re-edit %s m%s" % (
+                          fmt(d.get("max_abs_dz"), 1), d.get("spikes", "-"), fmt(d.get("idempotence_max_dz"), 1),
+                          ("; " + d["reason"]) if d.get("reason") else "")})
     return lines
 
 
@@ -443,6 +500,12 @@ def write_md(path, results, lines, meta):
     L.append("| case | DEM | kind | viewpoint | style | strokes | judge fit min | max\\|dz\\| m | ground vp / 100 m | depth ratios | judge depth ratio | RMSE m | beyond infl. | spike | idem m | result |")
     L.append("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     for n, r in enumerate(results):
+        if r.get("kind") == "demo":
+            L.append("| %d | %s | demo | bundled | zion_dome.json | 2 | (pitch -1: not rendered) | %s | %.2f / %.2f | - | - | - | - | %s | %s | %s |" % (
+                n + 1, r["dem"], fmt(r.get("max_abs_dz"), 1), r.get("ground_dz_vp", float("nan")), r.get("ground_dz_100m", float("nan")),
+                r.get("spikes", "-"), fmt(r.get("idempotence_max_dz"), 2),
+                "pass" if r["status"] == "pass" else "fail: " + esc(r.get("reason", ""))))
+            continue
         if r.get("status") not in ("pass", "fail") or "fit_min" not in r:
             L.append("| %d | %s | %s | %s | %s | %s | - | - | - | - | - | - | - | - | - | %s: %s |" % (
                 n + 1, r["dem"], r["kind"], r["vp_class"], r["style"], r.get("n_strokes", "-"), r.get("status"), esc(r.get("reason", ""))))
@@ -494,7 +557,7 @@ def main():
         return
     if not os.path.exists(demsketch()):
         sys.exit("fidelity: no demsketch binary at %s (set DEMSKETCH)" % demsketch())
-    gs = cases.groups()
+    gs = cases.groups() + [DEMO]
     styles = {}
     if a.subset == "ci":
         # the judge itself first: a broken judge fails CI even with --report-only
