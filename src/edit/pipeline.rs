@@ -301,6 +301,28 @@ pub fn run(
             ));
         }
     }
+    if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
+        for m in &matched.views {
+            for (k, l) in m.lists.iter().enumerate() {
+                for c in l.candidates.iter().take(6) {
+                    let d: Vec<f64> = c.points.iter().map(|p| p.depth).collect();
+                    eprintln!(
+                        "stroke {k}: feature {} {:?} depth {:.0}..{:.0} cost {:.2} = dis {:.2} def {:.2} sam {:.2} ext {:.2} cov {:.2}",
+                        c.feature_id % (1 << 40),
+                        c.kind,
+                        d.iter().cloned().fold(f64::INFINITY, f64::min),
+                        d.iter().cloned().fold(0.0, f64::max),
+                        c.costs.total,
+                        c.costs.dissimilarity,
+                        c.costs.deformation,
+                        c.costs.sampling,
+                        c.costs.extension,
+                        c.coverage
+                    );
+                }
+            }
+        }
+    }
     let demands = place_demands(&views, &scene_views, &mut matched.views, &sketch.options);
     let curves = demands.strokes;
     let on_silhouette = demands.on_silhouette;
