@@ -39,7 +39,9 @@
 /// Search nodes [`branch_and_bound`] visits at most by default
 /// ([`branch_and_bound_with_budget`]): once that many are visited and a
 /// complete solution is known, the search stops and keeps the best solution
-/// found ([`Solution::stopped_early`]). The first solution (every stroke
+/// found ([`Solution::stopped_early`]). With [`Bound::ForwardChecking`]
+/// each compatibility row computed (one per candidate tried, cached) counts
+/// as a node too. The first solution (every stroke
 /// takes its cheapest available entry, front to back) is always completed,
 /// whatever the budget.
 pub const DEFAULT_NODE_BUDGET: u64 = 20_000;
@@ -197,8 +199,7 @@ where
         }
         let mut any = false;
         for k in 0..self.sorted[depth].len() {
-            if self.stopped || out_of_budget(self.nodes, self.budget, self.best_cost) {
-                self.stopped = true;
+            if self.stopped {
                 return;
             }
             let b = self.sorted[depth][k];
@@ -211,18 +212,22 @@ where
                 // Lists are visited by increasing cost: the rest is worse.
                 break;
             }
+            if out_of_budget(self.nodes, self.budget, self.best_cost) {
+                self.stopped = true;
+                return;
+            }
             self.nodes += 1;
             self.current[depth] = Some(b);
             self.visit(depth + 1, c);
             self.current[depth] = None;
         }
-        if !any {
-            if self.stopped || out_of_budget(self.nodes, self.budget, self.best_cost) {
-                self.stopped = true;
-                return;
-            }
+        if !any && !self.stopped {
             let c = cost + EMPTY_LIST_COST;
             if self.prune && c + self.suffix[depth + 1] >= self.best_cost {
+                return;
+            }
+            if out_of_budget(self.nodes, self.budget, self.best_cost) {
+                self.stopped = true;
                 return;
             }
             self.nodes += 1;
@@ -353,6 +358,9 @@ struct Forward<'a, F: ?Sized> {
     best: Vec<Option<usize>>,
     best_cost: f64,
     nodes: u64,
+    /// Compatibility rows computed: each costs about as much as a node
+    /// (more, on long lists) and counts against the budget too.
+    rows_computed: u64,
     budget: u64,
     stopped: bool,
 }
@@ -384,6 +392,7 @@ where
             })
             .collect();
         let row = std::sync::Arc::new(row);
+        self.rows_computed += 1;
         self.rows[i][r] = Some(row.clone());
         row
     }
@@ -408,8 +417,7 @@ where
             }
             return;
         }
-        if self.stopped || out_of_budget(self.nodes, self.budget, self.best_cost) {
-            self.stopped = true;
+        if self.stopped {
             return;
         }
         let rest = self.remaining(depth + 1, &masks[1..]);
@@ -419,6 +427,10 @@ where
             if c + rest >= self.best_cost {
                 return;
             }
+            if out_of_budget(self.nodes + self.rows_computed, self.budget, self.best_cost) {
+                self.stopped = true;
+                return;
+            }
             self.nodes += 1;
             self.visit(depth + 1, c, &masks[1..]);
             return;
@@ -426,8 +438,7 @@ where
         for (w, &word) in here.iter().enumerate() {
             let mut bits = word;
             while bits != 0 {
-                if self.stopped || out_of_budget(self.nodes, self.budget, self.best_cost) {
-                    self.stopped = true;
+                if self.stopped {
                     return;
                 }
                 let r = 64 * w + bits.trailing_zeros() as usize;
@@ -438,6 +449,12 @@ where
                 if c + rest >= self.best_cost {
                     return;
                 }
+                if self.rows[depth][r].is_none()
+                    && out_of_budget(self.nodes + self.rows_computed, self.budget, self.best_cost)
+                {
+                    self.stopped = true;
+                    return;
+                }
                 let row = self.row(depth, r);
                 let next: Vec<Mask> = masks[1..]
                     .iter()
@@ -446,6 +463,10 @@ where
                     .collect();
                 if c + self.remaining(depth + 1, &next) >= self.best_cost {
                     continue;
+                }
+                if out_of_budget(self.nodes + self.rows_computed, self.budget, self.best_cost) {
+                    self.stopped = true;
+                    return;
                 }
                 self.nodes += 1;
                 self.current[depth] = Some(self.sorted[depth][r]);
@@ -489,6 +510,7 @@ where
         best: vec![None; n],
         best_cost: f64::INFINITY,
         nodes: 0,
+        rows_computed: 0,
         budget,
         stopped: false,
     };
