@@ -717,7 +717,7 @@ fn stroke_outcome(
     let below = format!("fit {f:.2} below --min-fit {min_fit}");
     let reason = match issue {
         Some(i) => format!("{i}; {below}"),
-        None if visible < min_fit => {
+        None if visible < min_fit.min(1.0) => {
             format!("hidden by nearer terrain (visible {visible:.2}); {below}")
         }
         None => below,
