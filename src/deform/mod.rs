@@ -162,6 +162,44 @@ impl Deformation {
     }
 }
 
+impl Deformation {
+    /// No deformation at all, over `window` of `dem` (an edit whose
+    /// strokes all lie where the terrain already shows them): `M = 0`
+    /// everywhere, so [`Deformation::write_values`] keeps every cell.
+    pub fn none(dem: &Dem, window: Window) -> Result<Deformation, DeformError> {
+        let base = dem.read_height_map(window)?;
+        // (Nothing is solved: the cell size is only reported.)
+        let cell = locality::cell_size_m(&dem.geotransform, dem.crs.geographic, 0.0);
+        let displacement = base
+            .data
+            .iter()
+            .map(|h| if h.is_nan() { f32::NAN } else { 0.0 })
+            .collect();
+        Ok(Deformation {
+            window,
+            displacement,
+            affected_tiles: Vec::new(),
+            constrained: vec![false; window.len()],
+            stats: DeformStats {
+                constrained_cells: 0,
+                free_cells: 0,
+                changed_cells: 0,
+                max_abs_displacement_m: 0.0,
+                max_abs_constraint_m: 0.0,
+                influence_m: 0.0,
+                cell_size_m: cell,
+                cycles: 0,
+                relative_residual: 0.0,
+                levels: 0,
+                read_s: 0.0,
+                constraints_s: 0.0,
+                solve_s: 0.0,
+            },
+            base,
+        })
+    }
+}
+
 /// Why [`deform`] failed.
 #[derive(Debug, thiserror::Error)]
 pub enum DeformError {

@@ -89,12 +89,12 @@ pub const END_PAD_PX: f64 = 2.0;
 /// view has no occlusion boundary within [`FIT_TOLERANCE_PX`].
 pub fn unfitted_columns(stroke: &StrokeCurve, view: &RenderedView) -> Vec<(usize, f64, f64)> {
     stroke
-        .columns(view.camera.width)
+        .free_columns(view.camera.width)
         .into_iter()
         .filter(|&(i, y, _)| {
             !view
-                .boundaries(i)
-                .any(|b| (b - y).abs() <= FIT_TOLERANCE_PX)
+                .boundaries_with_slack(i)
+                .any(|(b, slack)| (b - y).abs() <= FIT_TOLERANCE_PX + slack)
         })
         .collect()
 }

@@ -3,7 +3,10 @@
 //!
 //! - `fitted_fraction`: share of the stroke's pixel columns where the edited
 //!   terrain has an occlusion boundary (a silhouette sample) or the skyline
-//!   within [`FIT_TOLERANCE_PX`] of the stroke;
+//!   within [`FIT_TOLERANCE_PX`] of the stroke, plus what the DEM itself
+//!   leaves the boundary's row open where its cells look large
+//!   ([`RenderedView::interpolation_px`]: the renderer's two triangles per
+//!   cell and a bilinear reading of the same heights differ by that much);
 //! - `mean_px`, `max_px`: distance from the stroke to the nearest boundary
 //!   of each column that has one;
 //! - `visible_fraction`: share of the stroke's columns where the ray through
@@ -46,15 +49,17 @@ pub fn measure(stroke: &StrokeCurve, view: &RenderedView) -> (StrokeFit, f64) {
     let (mut fitted, mut visible, mut sum, mut max, mut measured) =
         (0usize, 0usize, 0.0, 0.0f64, 0);
     for &(i, y, d) in &cols {
-        let nearest = view
-            .boundaries(i)
-            .map(|b| (b - y).abs())
-            .fold(f64::INFINITY, f64::min);
+        let (nearest, within) =
+            view.boundaries_with_slack(i)
+                .fold((f64::INFINITY, false), |(n, ok), (b, slack)| {
+                    let d = (b - y).abs();
+                    (n.min(d), ok || d <= FIT_TOLERANCE_PX + slack)
+                });
         if nearest.is_finite() {
             measured += 1;
             sum += nearest;
             max = max.max(nearest);
-            if nearest <= FIT_TOLERANCE_PX {
+            if within {
                 fitted += 1;
             }
         }

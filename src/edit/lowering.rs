@@ -117,7 +117,9 @@ fn stroke_hits(view: &RenderedView, g: &StrokeCurve) -> StrokeHits {
     let mut samples = Vec::new();
     // Depth-buffer fallback for this stroke: (CRS point, h).
     let mut fallback: Vec<([f64; 3], f64)> = Vec::new();
-    for (i, y, d) in g.columns(view.camera.width) {
+    // Anchored columns lie on a silhouette of the unedited terrain that
+    // nothing hid: what is above them stays.
+    for (i, y, d) in g.free_columns(view.camera.width) {
         let x = i as f64 + 0.5;
         let ray = view.camera.unproject([x, y + BELOW_STROKE_PX]);
         let rh = ray[0].hypot(ray[1]);
@@ -135,8 +137,13 @@ fn stroke_hits(view: &RenderedView, g: &StrokeCurve) -> StrokeHits {
                 continue;
             }
             let h = above_ray(sample.local);
+            // Above the stroke by no more than the DEM leaves open there:
+            // not a protrusion to lower.
+            let slack = view.interpolation_px(sample.cell, sample.depth);
             if h.is_finite() && h > 0.0 {
-                samples.push((c as usize, h, x));
+                if h * view.camera.focal_px > slack * sample.depth {
+                    samples.push((c as usize, h, x));
+                }
                 found = true;
             }
         }

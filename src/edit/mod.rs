@@ -14,10 +14,13 @@
 pub mod contour;
 pub mod fit;
 pub mod lowering;
+pub mod on_silhouette;
 pub mod pipeline;
 pub mod rendered_view;
 pub mod renders;
 pub mod report;
+pub mod spikes;
+pub mod stretch_placement;
 
 pub use pipeline::{run, EditOptions, DEFAULT_MIN_FIT, TERRAIN_TOUCH_PX};
 pub use report::{EditReport, MatchingReport, StrokeStatus};

@@ -29,22 +29,24 @@ use rayon::prelude::*;
 use super::contour::contour_constraints;
 use super::fit::measure;
 use super::lowering::find_protruding;
+use super::on_silhouette::anchor_on_silhouettes;
 use super::rendered_view::{RenderedView, StrokeCurve, StrokeRegion};
 use super::renders::{encode_png, height_change_map, view_picture, Picture};
 use super::report::{
     DeformationReport, EditReport, FeatureCounts, MatchReport, MatchingReport, StagedFile,
     StrokeReport, StrokeStatus, Timings,
 };
+use super::spikes::flatten_spikes;
+use super::stretch_placement::{place_free_stretches, StretchPlacement};
 use super::EditError;
 use crate::deform::{
-    deform, deform_with_cells, CellConstraint, CurveConstraint, DeformError, DeformOptions,
-    Deformation,
+    deform_with_cells, CellConstraint, CurveConstraint, DeformError, DeformOptions, Deformation,
 };
 use crate::features::{detect_ridges, RidgeNetwork, RidgeParams};
 use crate::raster::{Dem, Destination, HeightMap, Provenance, Window};
 use crate::render::Scene;
 use crate::sketch::{
-    match_sketch, EyeHeightSpec, SceneProjection, SceneView, SketchFile, Stroke,
+    match_sketch, EyeHeightSpec, PointSource, SceneProjection, SceneView, SketchFile, Stroke,
     ViewFeatureOptions, ViewInput, ViewSpec,
 };
 use crate::view::{Camera, EyeHeight, LocalFrame, Viewpoint};
@@ -108,6 +110,10 @@ pub const DEFAULT_MIN_FIT: f64 = 0.9;
 /// A stroke end touches the terrain when a terrain pixel lies within this
 /// many rows below it (or a column beside it) in the view before the edit.
 pub const TERRAIN_TOUCH_PX: f64 = 5.0;
+
+/// Default radius of the ground held fixed around each viewpoint, metres
+/// (at least two cells; the sketch's `observer_radius_m` overrides it).
+pub const OBSERVER_RADIUS_M: f64 = 100.0;
 
 /// A cell constraint counts as new when its height moved by more than this
 /// (metres).
@@ -317,10 +323,11 @@ pub fn run(
         .zip(&scene_views)
         .map(|(v, sv)| sv.input(v.strokes.clone()))
         .collect();
-    let matched = match_sketch(&inputs, &sketch.options).map_err(|source| EditError::Match {
-        sketch: sketch_name.clone(),
-        source,
-    })?;
+    let mut matched =
+        match_sketch(&inputs, &sketch.options).map_err(|source| EditError::Match {
+            sketch: sketch_name.clone(),
+            source,
+        })?;
     for (v, m) in views.iter().zip(&matched.views) {
         for c in &m.ordering.conflicts {
             notes.push(format!(
@@ -335,34 +342,32 @@ pub fn run(
             matched.node_budget
         ));
     }
-    let mut constraints: Vec<CurveConstraint> = Vec::new();
-    let mut curves: Vec<Vec<StrokeCurve>> = Vec::new();
-    let mut placement_issues: Vec<Vec<Option<&'static str>>> = Vec::new();
-    for ((v, sv), m) in views.iter().zip(&scene_views).zip(&matched.views) {
-        let mut cs = Vec::new();
-        let mut issues = Vec::new();
-        for (s, sm) in v.strokes.iter().zip(&m.strokes) {
-            let all = sv.projection.placed_to_dem(&sm.points);
-            issues.push(placement_issue(&dem, &sm.points, &all, max_d));
-            let points: Vec<[f64; 3]> = all
-                .into_iter()
-                .filter(|p| p.iter().all(|c| c.is_finite()))
-                .collect();
-            if points.len() >= 2 {
-                constraints.push(CurveConstraint { points });
-            }
-            cs.push(StrokeCurve::new(s, sm));
-        }
-        curves.push(cs);
-        placement_issues.push(issues);
-    }
+    let demands = place_demands(&views, &scene_views, &mut matched.views, &sketch.options);
+    let curves = demands.strokes;
+    let on_silhouette = demands.on_silhouette;
+    let placement = demands.placement;
+    let fixed = demands.fixed;
+    let mut constraints = demands.curves;
+    let placement_issues: Vec<Vec<Option<&'static str>>> = scene_views
+        .iter()
+        .zip(&matched.views)
+        .map(|(sv, m)| {
+            m.strokes
+                .iter()
+                .map(|sm| {
+                    let all = sv.projection.placed_to_dem(&sm.points);
+                    placement_issue(&dem, &sm.points, &all, max_d)
+                })
+                .collect()
+        })
+        .collect();
     // The part of each view the re-renders compute.
     let regions: Vec<StrokeRegion> = views
         .iter()
         .zip(&curves)
         .map(|(v, cs)| StrokeRegion::new(cs, v.camera.width, v.camera.height))
         .collect();
-    if constraints.is_empty() {
+    if curves.iter().flatten().all(|c| c.depths.is_empty()) {
         return Err(EditError::Unusable {
             sketch: sketch_name,
             message: "no stroke could be placed on the terrain".into(),
@@ -378,21 +383,22 @@ pub fn run(
         ..DeformOptions::default()
     };
     let dem_name = dem_path.display().to_string();
-    let deform_err = |e: DeformError| match e {
-        DeformError::Raster(r) => EditError::Raster(r),
-        source => EditError::Deform {
-            dem: dem_name.clone(),
-            source,
-        },
+    let solver = Solver {
+        dem: &dem,
+        dem_name: &dem_name,
+        opts: &dopts,
+        fixed: &fixed,
+        idle: views[0].eye_cell(),
     };
     let user_constraints = constraints.len();
-    let mut deformation = deform(&dem, &constraints, &dopts).map_err(deform_err)?;
+    let mut deformation = solver.solve(&constraints, &[])?;
     timings.deformation = secs(t);
 
     // 5. Lowering protruding silhouettes (section 6.2) and making every
     //    stroke the occluding contour ([`contour`]): each round re-renders
     //    every view on the current terrain, collects the new constraints of
-    //    all views and solves once; it stops when no view asks for more.
+    //    all views and solves once; it stops when no view asks for more, or
+    //    when a round stops helping (the best terrain so far is kept).
     pb.set_message("lowering protruding silhouettes");
     let t = Instant::now();
     let mut iterations = vec![0usize; views.len()];
@@ -400,13 +406,30 @@ pub fn run(
     let mut contour_rounds = vec![0usize; views.len()];
     let mut cells: BTreeMap<(i64, i64), f64> = BTreeMap::new();
     let mut rendered: Vec<RenderedView> = Vec::new();
+    let mut best: Option<(f64, Deformation)> = None;
+    let mut stalled = 0;
     loop {
         rendered.clear();
-        let mut changed = false;
         for (k, v) in views.iter().enumerate() {
-            let after = render_edited(v, &deformation, max_d, Some(&regions[k]))?;
+            rendered.push(render_edited(v, &deformation, max_d, Some(&regions[k]))?);
+        }
+        let score = fit_score(&curves, &rendered);
+        match &best {
+            Some((b, _)) if score <= *b + 1e-9 => {
+                stalled += 1;
+                if score < *b - 1e-9 || stalled >= 2 {
+                    break;
+                }
+            }
+            _ => {
+                stalled = 0;
+                best = Some((score, deformation.clone()));
+            }
+        }
+        let mut changed = false;
+        for (k, (v, after)) in views.iter().zip(&rendered).enumerate() {
             if iterations[k] < opts.max_lowering_iterations {
-                let protruding = find_protruding(&after, &curves[k]);
+                let protruding = find_protruding(after, &curves[k]);
                 if !protruding.is_empty() {
                     for p in &protruding {
                         if !p.lowered.is_empty() {
@@ -424,24 +447,19 @@ pub fn run(
                 let mut moved = false;
                 let mut round: BTreeMap<(i64, i64), f64> = BTreeMap::new();
                 let known = |col: i64, row: i64| cells.contains_key(&(col, row));
-                for c in contour_constraints(&after, &curves[k], v.window_offset, &known) {
+                for c in contour_constraints(after, &curves[k], v.window_offset, &known) {
                     let h = round.entry((c.col, c.row)).or_insert(c.height);
                     *h = h.min(c.height);
                 }
-                for c in
-                    round
-                        .iter()
-                        .map(|(&(col, row), &height)| CellConstraint { col, row, height })
-                {
-                    let old = cells.insert((c.col, c.row), c.height);
-                    moved |= old.is_none_or(|h| (h - c.height).abs() > CELL_CHANGE_M);
+                for (&(col, row), &height) in &round {
+                    let old = cells.insert((col, row), height);
+                    moved |= old.is_none_or(|h| (h - height).abs() > CELL_CHANGE_M);
                 }
                 if moved {
                     contour_rounds[k] += 1;
                     changed = true;
                 }
             }
-            rendered.push(after);
         }
         if !changed {
             break;
@@ -459,8 +477,25 @@ pub fn run(
             .iter()
             .map(|(&(col, row), &height)| CellConstraint { col, row, height })
             .collect();
-        deformation =
-            deform_with_cells(&dem, &constraints, &cell_list, &dopts).map_err(deform_err)?;
+        deformation = solver.solve(&constraints, &cell_list)?;
+    }
+    // The best round's terrain, if a later one did worse.
+    if let Some((b, d)) = best {
+        if fit_score(&curves, &rendered) < b - 1e-9 {
+            deformation = d;
+            rendered.clear();
+            for (k, v) in views.iter().enumerate() {
+                rendered.push(render_edited(v, &deformation, max_d, Some(&regions[k]))?);
+            }
+        }
+    }
+    // No spikes: a lone apex (or pit) of the change field gets a
+    // neighbour behind it within half a cell.
+    if flatten_final_spikes(&views, &mut deformation, &fixed) > 0 {
+        rendered.clear();
+        for (k, v) in views.iter().enumerate() {
+            rendered.push(render_edited(v, &deformation, max_d, Some(&regions[k]))?);
+        }
     }
     // Fit and visibility on the final terrain.
     let mut view_reports = Vec::new();
@@ -470,7 +505,8 @@ pub fn run(
             .par_iter()
             .zip(&m.strokes)
             .zip(&placement_issues[k])
-            .map(|((c, sm), issue)| {
+            .enumerate()
+            .map(|(j, ((c, sm), issue))| {
                 let (fit, visible) = measure(c, &after);
                 let (status, reason) = stroke_outcome(&fit, visible, *issue, opts.min_fit);
                 let (lo, hi) = c.depths.iter().fold((f64::INFINITY, 0.0f64), |(a, b), d| {
@@ -490,11 +526,14 @@ pub fn run(
                     visible_fraction: visible,
                     status,
                     reason,
+                    on_silhouette: on_silhouette[k][j],
+                    placement: placement[k][j],
                 }
             })
             .collect();
         view_reports.push(super::report::ViewReport {
             name: v.spec.name.clone(),
+            eye_alt_m: v.frame.eye_alt,
             strokes,
             lowering_iterations: iterations[k],
             silhouettes_lowered: lowered[k],
@@ -782,6 +821,250 @@ fn check_strokes_touch_terrain(
         });
     }
     Ok(())
+}
+
+/// What the placed strokes ask of the terrain.
+struct Demands {
+    /// Curve constraints: the stretches of placed strokes that do not lie
+    /// on a silhouette already ([`super::on_silhouette`]).
+    curves: Vec<CurveConstraint>,
+    /// Cells held at their input heights: under anchored stroke points and
+    /// around every viewpoint. Applied after every other constraint, so
+    /// nothing in the edit moves them.
+    fixed: Vec<CellConstraint>,
+    /// Per view, per stroke: the placed stroke.
+    strokes: Vec<Vec<StrokeCurve>>,
+    /// Per view, per stroke: share of its points on an existing silhouette.
+    on_silhouette: Vec<Vec<f64>>,
+    /// Per view, per stroke: how its free stretches were placed.
+    placement: Vec<Vec<StretchPlacement>>,
+}
+
+/// Anchors the matched strokes where they already lie on a silhouette and
+/// turns the rest into curve constraints in the DEM's CRS; adds the
+/// observer's ground.
+fn place_demands(
+    views: &[ViewState],
+    scene_views: &[SceneView],
+    matched: &mut [crate::sketch::ViewMatch],
+    options: &crate::sketch::SketchOptions,
+) -> Demands {
+    let mut d = Demands {
+        curves: Vec::new(),
+        fixed: Vec::new(),
+        strokes: Vec::new(),
+        on_silhouette: Vec::new(),
+        placement: Vec::new(),
+    };
+    for ((v, sv), m) in views.iter().zip(scene_views).zip(matched.iter_mut()) {
+        let mut cs = Vec::new();
+        let mut fractions = Vec::new();
+        let mut placements = Vec::new();
+        for (s, sm) in v.strokes.iter().zip(m.strokes.iter_mut()) {
+            fractions.push(anchor_on_silhouettes(&v.before, &sv.projection, sm));
+            placements.push(place_free_stretches(
+                &v.before,
+                &sv.projection,
+                &sv.features,
+                sm,
+            ));
+            let dem_points = sv.projection.placed_to_dem(&sm.points);
+            let anchored: Vec<bool> = sm
+                .points
+                .iter()
+                .map(|p| p.source == PointSource::Silhouette)
+                .collect();
+            d.curves.extend(free_stretches(&dem_points, &anchored));
+            for (p, _) in dem_points.iter().zip(&anchored).filter(|(_, &a)| a) {
+                d.fixed.extend(v.stencil_cells(p[0], p[1]));
+            }
+            cs.push(StrokeCurve::new(s, sm));
+        }
+        d.strokes.push(cs);
+        d.on_silhouette.push(fractions);
+        d.placement.push(placements);
+    }
+    for v in views {
+        d.fixed.extend(v.observer_cells(options.observer_radius_m));
+    }
+    d
+}
+
+/// The stretches of a placed stroke (DEM CRS points) between anchored
+/// points, each with the anchored point on either side so that the curve
+/// meets the terrain it continues.
+fn free_stretches(points: &[[f64; 3]], anchored: &[bool]) -> Vec<CurveConstraint> {
+    let finite = |p: &[f64; 3]| p.iter().all(|c| c.is_finite());
+    let mut out = Vec::new();
+    let n = points.len();
+    let mut a = 0;
+    while a < n {
+        if anchored[a] {
+            a += 1;
+            continue;
+        }
+        let mut b = a;
+        while b < n && !anchored[b] {
+            b += 1;
+        }
+        let (lo, hi) = (a.saturating_sub(1), b.min(n - 1));
+        let pts: Vec<[f64; 3]> = points[lo..=hi].iter().copied().filter(finite).collect();
+        if pts.len() >= 2 {
+            out.push(CurveConstraint { points: pts });
+        }
+        a = b;
+    }
+    out
+}
+
+/// [`flatten_spikes`] on the final deformation, with the viewpoints as
+/// eyes and the constrained and fixed cells held.
+fn flatten_final_spikes(
+    views: &[ViewState],
+    deformation: &mut Deformation,
+    fixed: &[CellConstraint],
+) -> usize {
+    let gt = &deformation.base.geotransform;
+    let eyes: Vec<(f64, f64)> = views
+        .iter()
+        .filter_map(|v| gt.crs_to_pixel(v.frame.eye_crs.0, v.frame.eye_crs.1))
+        .collect();
+    let w = deformation.window;
+    let fixed: std::collections::HashSet<(i64, i64)> =
+        fixed.iter().map(|c| (c.col, c.row)).collect();
+    let constrained = deformation.constrained.clone();
+    let held = |c: usize, r: usize| {
+        constrained[r * w.width + c] || fixed.contains(&(w.col + c as i64, w.row + r as i64))
+    };
+    flatten_spikes(deformation, &eyes, &held)
+}
+
+/// Share of the strokes' columns fitted, summed over all views' strokes:
+/// what a round of lowering or contour fitting must improve.
+fn fit_score(curves: &[Vec<StrokeCurve>], rendered: &[RenderedView]) -> f64 {
+    curves
+        .iter()
+        .zip(rendered)
+        .map(|(cs, view)| {
+            cs.par_iter()
+                .map(|c| measure(c, view).0.fitted_fraction)
+                .sum::<f64>()
+        })
+        .sum()
+}
+
+/// The solves of one edit: the DEM, the options, and the cells held fixed
+/// in every solve.
+struct Solver<'a> {
+    dem: &'a Dem,
+    dem_name: &'a str,
+    opts: &'a DeformOptions,
+    fixed: &'a [CellConstraint],
+    /// Window of the deformation when nothing needs to move.
+    idle: Window,
+}
+
+impl Solver<'_> {
+    /// Deform the DEM through `curves` with the cells `cells` (then the
+    /// fixed ones) held; no curve: no deformation at all.
+    fn solve(
+        &self,
+        curves: &[CurveConstraint],
+        cells: &[CellConstraint],
+    ) -> Result<Deformation, EditError> {
+        let err = |e: DeformError| match e {
+            DeformError::Raster(r) => EditError::Raster(r),
+            source => EditError::Deform {
+                dem: self.dem_name.to_string(),
+                source,
+            },
+        };
+        if curves.is_empty() {
+            return Deformation::none(self.dem, self.idle).map_err(err);
+        }
+        let all: Vec<CellConstraint> = cells.iter().chain(self.fixed).copied().collect();
+        deform_with_cells(self.dem, curves, &all, self.opts).map_err(err)
+    }
+}
+
+impl ViewState<'_> {
+    /// Metres per cell of the view's window along its columns and rows.
+    fn cell_m(&self) -> (f64, f64) {
+        let p = self.frame.p;
+        (p[0][0].hypot(p[1][0]), p[0][1].hypot(p[1][1]))
+    }
+
+    /// The DEM cell under the eye, as a one-cell window.
+    fn eye_cell(&self) -> Window {
+        let (ex, ey) = self.frame.eye_pixel;
+        Window::new(
+            self.window_offset.0 + ex.floor() as i64,
+            self.window_offset.1 + ey.floor() as i64,
+            1,
+            1,
+        )
+    }
+
+    /// The cells of the bilinear stencil of DEM CRS point `(x, y)`, held
+    /// at their input heights.
+    fn stencil_cells(&self, x: f64, y: f64) -> Vec<CellConstraint> {
+        let Some((px, py)) = self.window.geotransform.crs_to_pixel(x, y) else {
+            return Vec::new();
+        };
+        let (c0, r0) = ((px - 0.5).floor() as i64, (py - 0.5).floor() as i64);
+        let mut out = Vec::with_capacity(4);
+        for (c, r) in [(c0, r0), (c0 + 1, r0), (c0, r0 + 1), (c0 + 1, r0 + 1)] {
+            if c < 0 || r < 0 {
+                continue;
+            }
+            if let Some(h) = self.window.get(c as usize, r as usize) {
+                out.push(CellConstraint {
+                    col: c + self.window_offset.0,
+                    row: r + self.window_offset.1,
+                    height: h as f64,
+                });
+            }
+        }
+        out
+    }
+
+    /// The ground the observer stands on: every cell whose surface reaches
+    /// within `radius_m` of the viewpoint (default 100 m, at least two
+    /// cells), held at its input height.
+    fn observer_cells(&self, radius_m: Option<f64>) -> Vec<CellConstraint> {
+        let (hx, hy) = self.cell_m();
+        let radius = radius_m.unwrap_or(OBSERVER_RADIUS_M.max(2.0 * hx.max(hy)));
+        if !(hx > 0.0 && hy > 0.0 && radius.is_finite()) {
+            return Vec::new();
+        }
+        let reach = radius + hx.hypot(hy);
+        let (ex, ey) = self.frame.eye_pixel;
+        let (nc, nr) = (
+            (reach / hx).ceil() as i64 + 1,
+            (reach / hy).ceil() as i64 + 1,
+        );
+        let (c_eye, r_eye) = (ex.floor() as i64, ey.floor() as i64);
+        let mut out = Vec::new();
+        for r in r_eye - nr..=r_eye + nr {
+            for c in c_eye - nc..=c_eye + nc {
+                if c < 0 || r < 0 {
+                    continue;
+                }
+                let (e, n) = self.frame.pixel_to_en(c as f64 + 0.5, r as f64 + 0.5);
+                if e.hypot(n) > reach {
+                    continue;
+                }
+                if let Some(h) = self.window.get(c as usize, r as usize) {
+                    out.push(CellConstraint {
+                        col: c + self.window_offset.0,
+                        row: r + self.window_offset.1,
+                        height: h as f64,
+                    });
+                }
+            }
+        }
+        out
+    }
 }
 
 /// Fail early, before any work, when an output cannot be written: its

@@ -236,6 +236,58 @@ impl RenderedView {
         })
     }
 
+    /// The most the DEM itself leaves a boundary's image row open: the
+    /// renderer draws two triangles per cell, a bilinear reading of the same
+    /// heights (DESIGN.md's surface) differs from them by up to a quarter of a
+    /// cell's twist `|h00 + h11 - h10 - h01|`, and so may the silhouette both
+    /// form, seen from `depth`. The largest twist of the 3 x 3 cells around the
+    /// boundary's cell (window coordinates), in pixels, at most
+    /// [`MAX_INTERPOLATION_PX`].
+    pub fn interpolation_px(&self, cell: [u32; 2], depth: f64) -> f64 {
+        let t = &self.terrain;
+        let (c, r) = (
+            cell[0] as i64 - t.col0 as i64,
+            cell[1] as i64 - t.row0 as i64,
+        );
+        let z = |c: i64, r: i64| {
+            if c < 0 || r < 0 {
+                None
+            } else {
+                t.vertex_z(c as usize, r as usize)
+            }
+        };
+        let mut twist = 0.0f64;
+        for dr in -1..=1 {
+            for dc in -1..=1 {
+                let (c, r) = (c + dc, r + dr);
+                if let (Some(a), Some(b), Some(cc), Some(d)) =
+                    (z(c, r), z(c + 1, r), z(c, r + 1), z(c + 1, r + 1))
+                {
+                    twist = twist.max((a + d - b - cc).abs());
+                }
+            }
+        }
+        if !(depth > 0.0) {
+            return 0.0;
+        }
+        (0.25 * twist * self.camera.focal_px / depth).min(MAX_INTERPOLATION_PX)
+    }
+
+    /// [`RenderedView::boundaries`] with each boundary's slack: how far, in
+    /// pixels, the DEM itself leaves its row open
+    /// ([`RenderedView::interpolation_px`]; 0 for the skyline row of the
+    /// depth buffer).
+    pub fn boundaries_with_slack(&self, i: usize) -> impl Iterator<Item = (f64, f64)> + '_ {
+        let sil = self.by_column[i].iter().map(move |&(c, s)| {
+            let s = &self.silhouettes.curves[c as usize].samples[s as usize];
+            (s.pixel[1], self.interpolation_px(s.cell, s.depth))
+        });
+        let sky = self.skyline_row[i]
+            .filter(|&j| j > 0)
+            .map(|j| (j as f64, 0.0));
+        sil.chain(sky)
+    }
+
     /// Image rows of every occlusion boundary in column `i`: silhouette
     /// samples and the skyline.
     pub fn boundaries(&self, i: usize) -> impl Iterator<Item = f64> + '_ {
@@ -247,6 +299,9 @@ impl RenderedView {
     }
 }
 
+/// The widest opening [`RenderedView::interpolation_px`] grants, pixels.
+pub const MAX_INTERPOLATION_PX: f64 = 8.0;
+
 /// A stroke as drawn (x-monotone, prepared) with the depth of its placed
 /// 3D curve along image x.
 #[derive(Debug, Clone)]
@@ -256,25 +311,59 @@ pub struct StrokeCurve {
     pub stroke: Stroke,
     /// `(pixel x, depth)` of the placed points on the stroke, sorted by x.
     pub depths: Vec<(f64, f64)>,
+    /// Beside each entry of `depths`: the point lies on a silhouette of
+    /// the unedited view ([`super::on_silhouette`]) and is kept as it is.
+    pub anchored: Vec<bool>,
 }
 
 impl StrokeCurve {
     /// The stroke and its placement.
     pub fn new(stroke: &Stroke, placed: &StrokeMatch) -> StrokeCurve {
-        let mut depths: Vec<(f64, f64)> = placed
+        let mut points: Vec<(f64, f64, bool)> = placed
             .points
             .iter()
             .filter(|p| p.source != PointSource::Completion)
-            .filter_map(|p| p.pixel.map(|px| (px[0], p.depth)))
-            .filter(|(x, d)| x.is_finite() && d.is_finite() && *d > 0.0)
+            .filter_map(|p| {
+                p.pixel
+                    .map(|px| (px[0], p.depth, p.source == PointSource::Silhouette))
+            })
+            .filter(|(x, d, _)| x.is_finite() && d.is_finite() && *d > 0.0)
             .collect();
-        depths.sort_by(|a, b| a.0.total_cmp(&b.0));
+        points.sort_by(|a, b| a.0.total_cmp(&b.0));
         StrokeCurve {
             id: stroke.id.clone(),
             source_id: stroke.source_id.clone(),
             stroke: stroke.clone(),
-            depths,
+            depths: points.iter().map(|p| (p.0, p.1)).collect(),
+            anchored: points.iter().map(|p| p.2).collect(),
         }
+    }
+
+    /// True when image x lies on an anchored stretch of the stroke: the
+    /// placed points on both sides of it are anchored (beyond the ends:
+    /// the end point is).
+    pub fn is_anchored(&self, x: f64) -> bool {
+        let d = &self.depths;
+        if d.is_empty() {
+            return false;
+        }
+        let k = d.partition_point(|p| p.0 < x);
+        let left = k.saturating_sub(1);
+        let right = k.min(d.len() - 1);
+        self.anchored[left] && self.anchored[right]
+    }
+
+    /// True when every placed point of the stroke is anchored.
+    pub fn fully_anchored(&self) -> bool {
+        !self.anchored.is_empty() && self.anchored.iter().all(|&a| a)
+    }
+
+    /// [`StrokeCurve::columns`] without the anchored ones: the columns an
+    /// edit may still have to change.
+    pub fn free_columns(&self, width: usize) -> Vec<(usize, f64, f64)> {
+        let mut cols = self.columns(width);
+        cols.retain(|&(i, _, _)| !self.is_anchored(i as f64 + 0.5));
+        cols
     }
 
     /// Depth of the placed curve at image x (clamped at the ends).

@@ -69,6 +69,10 @@ pub enum StrokeStatus {
 #[derive(Debug, Clone, Serialize)]
 pub struct ViewReport {
     pub name: String,
+    /// Absolute eye altitude every render, fit and picture of the edit used
+    /// (metres, the DEM's vertical datum): resolved once on the unedited
+    /// DEM, above the surface the renderer draws.
+    pub eye_alt_m: f64,
     pub strokes: Vec<StrokeReport>,
     /// Re-solves triggered by protruding silhouettes seen from this view.
     pub lowering_iterations: usize,
@@ -103,6 +107,12 @@ pub struct StrokeReport {
     /// Why the stroke is not fitted (absent when it is).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub reason: Option<String>,
+    /// Share of the stroke that already lay on a silhouette of the
+    /// unedited terrain (within about a pixel) and was kept as it was.
+    pub on_silhouette: f64,
+    /// How the points not on a silhouette were placed (counts of stroke
+    /// points; see `edit::stretch_placement`).
+    pub placement: super::stretch_placement::StretchPlacement,
 }
 
 /// What a stroke was matched to.

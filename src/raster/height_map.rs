@@ -79,6 +79,33 @@ impl HeightMap {
         )
     }
 
+    /// Height at pixel-space `(px, py)` of the surface the renderer draws:
+    /// two triangles per cell between the cell centres, split along the
+    /// diagonal from `(c, r)` to `(c + 1, r + 1)` (see
+    /// `render::terrain`). Differs from [`HeightMap::bilinear`] inside a
+    /// cell by up to a quarter of the cell's twist; `None` where
+    /// `bilinear` is `None`.
+    pub fn triangle_surface(&self, px: f64, py: f64) -> Option<f64> {
+        let x = px - 0.5;
+        let y = py - 0.5;
+        if !(x >= 0.0 && y >= 0.0) {
+            return None;
+        }
+        let (c0, r0) = (x.floor() as usize, y.floor() as usize);
+        let (fx, fy) = (x - c0 as f64, y - r0 as f64);
+        let c1 = if fx > 0.0 { c0 + 1 } else { c0 };
+        let r1 = if fy > 0.0 { r0 + 1 } else { r0 };
+        let h00 = self.get(c0, r0)? as f64;
+        let h10 = self.get(c1, r0)? as f64;
+        let h01 = self.get(c0, r1)? as f64;
+        let h11 = self.get(c1, r1)? as f64;
+        Some(if fx >= fy {
+            h00 + (h10 - h00) * fx + (h11 - h10) * fy
+        } else {
+            h00 + (h01 - h00) * fy + (h11 - h01) * fx
+        })
+    }
+
     /// Smallest and largest valid height, `None` when everything is nodata.
     pub fn min_max(&self) -> Option<(f32, f32)> {
         let mut it = self.data.iter().copied().filter(|v| !v.is_nan());

@@ -219,8 +219,9 @@ pub struct SketchOptions {
     /// in `(0, MAX_INFLUENCE_M]`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub influence_m: Option<f64>,
-    /// Radius of the ground kept fixed around each viewpoint, metres
-    /// (`None`: the edit's default).
+    /// Radius around each viewpoint within which the ground is held at its
+    /// input height, metres (the observer stands on it). `None`: 100 m, and
+    /// at least two cells.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub observer_radius_m: Option<f64>,
     /// Weights of the matching cost terms.

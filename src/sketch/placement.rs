@@ -27,6 +27,10 @@ pub enum PointSource {
     Fallback,
     /// Feature completion down to the terrain (not on the stroke).
     Completion,
+    /// The stroke lies on a silhouette of the unedited terrain here: the
+    /// point is the terrain point forming it, kept where it is (see
+    /// `edit::on_silhouette`).
+    Silhouette,
 }
 
 /// One point of a stroke placed in world space.

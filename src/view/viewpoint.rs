@@ -236,8 +236,13 @@ impl Georef {
             lon: vp.lon,
             lat: vp.lat,
         })?;
+        // The eye stands above the surface the renderer draws (two
+        // triangles per cell), not only above the bilinear one: where the
+        // triangles are higher, an eye over the bilinear ground would look
+        // out from under the rendered terrain.
+        let drawn = dem.triangle_surface(cx, cy).unwrap_or(ground);
         let eye_alt = match vp.height {
-            EyeHeight::AboveSurface(h) => ground + h,
+            EyeHeight::AboveSurface(h) => ground.max(drawn) + h,
             EyeHeight::Absolute(a) => a,
         };
         if !eye_alt.is_finite() {

@@ -1,0 +1,200 @@
+//! Strokes that already lie on the unedited terrain's silhouettes (issue 11,
+//! Tassé et al. 2014 section 5.2: a stroke "already satisfied" by a feature
+//! needs no deformation there).
+//!
+//! A person tracing a silhouette that is already right draws within about a
+//! pixel of it, whichever feature the matcher then picks for the stroke and
+//! at whatever depth it would place the rest. Those parts of a stroke are
+//! *anchored*: each placed point whose pixel column of the unedited view
+//! has an occlusion boundary within [`ON_SILHOUETTE_PX`] of it takes the
+//! terrain point that forms that boundary (its position and depth), and
+//! becomes a [`PointSource::Silhouette`] point. The pipeline holds the
+//! terrain under anchored points where it is (cell constraints at the input
+//! heights) instead of constraining a curve there, so an edit whose strokes
+//! all lie on existing silhouettes changes nothing, and a stroke that
+//! follows the skyline except where a peak should rise moves only the
+//! peak.
+//!
+//! Hand-drawn strokes wander: a short stretch (at most [`MAX_GAP_PX`] wide)
+//! between anchored points, or between one and the stroke's end, is
+//! anchored too where it stays within [`GAP_TOLERANCE_PX`] of a boundary.
+//! Feature completion at an anchored end is dropped: that end already sits
+//! on the terrain.
+
+use super::rendered_view::RenderedView;
+use crate::sketch::{PlacedPoint, PointSource, SceneProjection, StrokeMatch};
+
+/// A stroke point lies on a silhouette when one is this close in its column.
+pub const ON_SILHOUETTE_PX: f64 = 1.5;
+/// ... or this close, inside a short stretch next to anchored points.
+pub const GAP_TOLERANCE_PX: f64 = 3.0;
+/// The widest such stretch, pixels.
+pub const MAX_GAP_PX: f64 = 12.0;
+
+/// The terrain point forming an occlusion boundary of a view.
+#[derive(Debug, Clone, Copy)]
+struct BoundaryPoint {
+    /// Image row of the boundary.
+    row: f64,
+    /// Local frame of the view (eye at the origin), metres.
+    local: [f64; 3],
+    depth: f64,
+}
+
+/// The boundary of `view`'s column under `pixel` nearest to it, if within
+/// `tol` pixels: a silhouette sample, or else the skyline (terrain point
+/// from the depth buffer).
+fn nearest_boundary(view: &RenderedView, pixel: [f64; 2], tol: f64) -> Option<BoundaryPoint> {
+    let w = view.camera.width;
+    if !(pixel[0] >= 0.0 && pixel[0].is_finite()) {
+        return None;
+    }
+    let i = (pixel[0].floor() as usize).min(w.saturating_sub(1));
+    let mut best: Option<BoundaryPoint> = None;
+    for &(c, s) in &view.by_column[i] {
+        let sample = &view.silhouettes.curves[c as usize].samples[s as usize];
+        let dy = (sample.pixel[1] - pixel[1]).abs();
+        let tol = tol + view.interpolation_px(sample.cell, sample.depth);
+        if dy <= tol && best.is_none_or(|b| dy < (b.row - pixel[1]).abs()) {
+            best = Some(BoundaryPoint {
+                row: sample.pixel[1],
+                local: sample.local,
+                depth: sample.depth,
+            });
+        }
+    }
+    if best.is_some() {
+        return best;
+    }
+    let j = view.skyline_row[i].filter(|&j| j > 0)?;
+    if (j as f64 - pixel[1]).abs() > tol {
+        return None;
+    }
+    let hit = view.depth.hit(&view.terrain, i, j)?;
+    Some(BoundaryPoint {
+        row: j as f64,
+        local: hit.local,
+        depth: hit.distance,
+    })
+}
+
+/// Runs of anchored points narrower than this (pixels of x) are a stroke
+/// crossing a silhouette, not following it, unless they are the whole
+/// stroke.
+pub const MIN_RUN_PX: f64 = 8.0;
+/// Neighbouring anchored points follow one silhouette when their depths
+/// differ by less than this fraction.
+pub const RUN_DEPTH_STEP: f64 = 0.05;
+
+/// Removes the anchors of runs (consecutive points on boundaries whose
+/// depths continue each other) that span less than [`MIN_RUN_PX`] of
+/// image x, unless a run is the whole stroke: a stroke crossing a
+/// silhouette is not drawn along it. `xs` are the points' image x.
+fn drop_short_runs(hits: &mut [Option<BoundaryPoint>], xs: &[f64]) {
+    let n = hits.len();
+    let mut a = 0;
+    while a < n {
+        let Some(first) = hits[a] else {
+            a += 1;
+            continue;
+        };
+        let mut b = a + 1;
+        let mut last = first;
+        while b < n {
+            match hits[b] {
+                Some(h) if (h.depth - last.depth).abs() <= RUN_DEPTH_STEP * last.depth => {
+                    last = h;
+                    b += 1;
+                }
+                _ => break,
+            }
+        }
+        let whole = a == 0 && b == n;
+        if !whole && (xs[b - 1] - xs[a]).abs() < MIN_RUN_PX {
+            for h in &mut hits[a..b] {
+                *h = None;
+            }
+        }
+        a = b;
+    }
+}
+
+/// Anchors the points of `placed` that lie on a boundary of `before` (the
+/// unedited view the stroke was drawn on; see the module documentation).
+/// Returns the share of the stroke's points anchored (0 to 1).
+pub fn anchor_on_silhouettes(
+    before: &RenderedView,
+    proj: &SceneProjection,
+    placed: &mut StrokeMatch,
+) -> f64 {
+    let on_stroke: Vec<usize> = (0..placed.points.len())
+        .filter(|&k| placed.points[k].source != PointSource::Completion)
+        .filter(|&k| placed.points[k].pixel.is_some())
+        .collect();
+    if on_stroke.is_empty() {
+        return 0.0;
+    }
+    let px = |k: usize| placed.points[k].pixel.unwrap_or([f64::NAN; 2]);
+    let mut hits: Vec<Option<BoundaryPoint>> = on_stroke
+        .iter()
+        .map(|&k| nearest_boundary(before, px(k), ON_SILHOUETTE_PX))
+        .collect();
+    let n = on_stroke.len();
+    drop_short_runs(
+        &mut hits,
+        &on_stroke.iter().map(|&k| px(k)[0]).collect::<Vec<_>>(),
+    );
+    // Short stretches beside anchored points, within the looser tolerance.
+    let mut a = 0;
+    while a < n {
+        if hits[a].is_some() {
+            a += 1;
+            continue;
+        }
+        let mut b = a;
+        while b < n && hits[b].is_none() {
+            b += 1;
+        }
+        // Unanchored run a..b, bounded by anchors (or the stroke's ends).
+        let left = if a > 0 { Some(a - 1) } else { None };
+        let right = (b < n).then_some(b);
+        let x0 = px(on_stroke[left.unwrap_or(a)])[0];
+        let x1 = px(on_stroke[right.unwrap_or(b - 1)])[0];
+        if (left.is_some() || right.is_some()) && (x1 - x0).abs() <= MAX_GAP_PX {
+            let loose: Vec<Option<BoundaryPoint>> = (a..b)
+                .map(|m| nearest_boundary(before, px(on_stroke[m]), GAP_TOLERANCE_PX))
+                .collect();
+            if loose.iter().all(|h| h.is_some()) {
+                for (m, h) in (a..b).zip(loose) {
+                    hits[m] = h;
+                }
+            }
+        }
+        a = b;
+    }
+    let mut anchored = 0;
+    for (&k, hit) in on_stroke.iter().zip(&hits) {
+        if let Some(h) = hit {
+            let p = &mut placed.points[k];
+            *p = PlacedPoint {
+                pixel: p.pixel,
+                world: proj.own_to_world(h.local),
+                depth: h.depth,
+                source: PointSource::Silhouette,
+            };
+            anchored += 1;
+        }
+    }
+    // Completion at an anchored end: that end is on the terrain already.
+    let first_anchored = hits.first().is_some_and(|h| h.is_some());
+    let last_anchored = hits.last().is_some_and(|h| h.is_some());
+    let (first, last) = (on_stroke[0], on_stroke[n - 1]);
+    let mut k = 0;
+    placed.points.retain(|p| {
+        let keep = p.source != PointSource::Completion
+            || !((k < first && first_anchored) || (k > last && last_anchored));
+        k += 1;
+        keep
+    });
+    anchored as f64 / n as f64
+}

@@ -1,0 +1,155 @@
+//! No spikes in the change field (issue 11, item 5): no cell's change may
+//! exceed, or fall below, the changes of all its 8 neighbours by more than
+//! half a cell size.
+//!
+//! Harmonic diffusion of curve constraints keeps the change smooth between
+//! curves, but at the apex of a sharp stroke (a peak drawn over a few cells
+//! of a coarse DEM) the constrained cell stands alone above neighbours that
+//! the curve itself pulls down, and a cell held at its input height (the
+//! observer's ground, a stroke lying on a silhouette already) can stand
+//! alone below raised neighbours. Such a cell is not moved: the cell
+//! beside it farthest from the nearest eye is brought to within half a cell
+//! of it instead. Seen from the sketch's views that neighbour lies behind
+//! the apex, under the line of sight that grazes it, so the silhouette the
+//! user drew is unchanged (the pipeline measures the fit afterwards).
+
+use crate::deform::Deformation;
+
+/// Cells whose change is more than half a cell above, or below, the changes
+/// of all their valid neighbours: `(column, row)` in the deformation's
+/// window.
+pub fn find_spikes(d: &Deformation) -> Vec<(usize, usize)> {
+    let limit = 0.5 * d.stats.cell_size_m.hx.min(d.stats.cell_size_m.hy);
+    let (w, h) = (d.window.width, d.window.height);
+    let mut out = Vec::new();
+    for r in 0..h {
+        for c in 0..w {
+            if let Some((above, below)) = excess(d, c, r) {
+                if above > limit || below > limit {
+                    out.push((c, r));
+                }
+            }
+        }
+    }
+    out
+}
+
+/// How far the change at `(c, r)` lies above the largest, and below the
+/// smallest, change of its valid neighbours (`None`: nodata, or no valid
+/// neighbour).
+fn excess(d: &Deformation, c: usize, r: usize) -> Option<(f64, f64)> {
+    let (w, h) = (d.window.width, d.window.height);
+    let m = d.displacement[r * w + c];
+    if m.is_nan() {
+        return None;
+    }
+    let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+    for (dc, dr) in NEIGHBOURS {
+        let (x, y) = (c as i64 + dc, r as i64 + dr);
+        if x < 0 || y < 0 || x as usize >= w || y as usize >= h {
+            continue;
+        }
+        let v = d.displacement[y as usize * w + x as usize];
+        if !v.is_nan() {
+            lo = lo.min(v);
+            hi = hi.max(v);
+        }
+    }
+    hi.is_finite().then(|| ((m - hi) as f64, (lo - m) as f64))
+}
+
+const NEIGHBOURS: [(i64, i64); 8] = [
+    (-1, -1),
+    (0, -1),
+    (1, -1),
+    (-1, 0),
+    (1, 0),
+    (-1, 1),
+    (0, 1),
+    (1, 1),
+];
+
+/// Removes the spikes of `d` (see the module documentation): `eyes` are the
+/// viewpoints in the window's pixel space, `held(c, r)` tells which cells
+/// may not change. Returns how many cells were changed; spikes that have
+/// no free neighbour stay (and [`find_spikes`] still reports them).
+pub fn flatten_spikes(
+    d: &mut Deformation,
+    eyes: &[(f64, f64)],
+    held: &dyn Fn(usize, usize) -> bool,
+) -> usize {
+    let cell = d.stats.cell_size_m;
+    let limit = 0.5 * cell.hx.min(cell.hy);
+    let w = d.window.width;
+    let mut changed = 0;
+    // Each pass can only move neighbours towards a spike; a few passes
+    // settle what one pass's changes start.
+    for _ in 0..8 {
+        let spikes = find_spikes(d);
+        if spikes.is_empty() {
+            break;
+        }
+        let mut moved = false;
+        for (c, r) in spikes {
+            let Some((above, below)) = excess(d, c, r) else {
+                continue;
+            };
+            let m = d.displacement[r * w + c];
+            // Neighbours, farthest from the nearest eye first.
+            let dist = |x: f64, y: f64| {
+                eyes.iter()
+                    .map(|e| ((x - e.0) * cell.hx).hypot((y - e.1) * cell.hy))
+                    .fold(f64::INFINITY, f64::min)
+            };
+            let here = dist(c as f64 + 0.5, r as f64 + 0.5);
+            let mut order: Vec<(f64, usize)> = NEIGHBOURS
+                .iter()
+                .filter_map(|&(dc, dr)| {
+                    let (x, y) = (c as i64 + dc, r as i64 + dr);
+                    if x < 0 || y < 0 || x as usize >= w || y as usize >= d.window.height {
+                        return None;
+                    }
+                    let (x, y) = (x as usize, y as usize);
+                    let k = y * w + x;
+                    if d.displacement[k].is_nan() || held(x, y) {
+                        return None;
+                    }
+                    Some((dist(x as f64 + 0.5, y as f64 + 0.5), k))
+                })
+                .filter(|&(dn, _)| dn >= here)
+                .collect();
+            order.sort_by(|a, b| b.0.total_cmp(&a.0));
+            let Some(&(_, k)) = order.first() else {
+                continue;
+            };
+            // (Within 0.9 of the limit: the written values are rounded to
+            // the DEM's sample type.)
+            let target = if above > limit {
+                m - (0.9 * limit) as f32
+            } else if below > limit {
+                m + (0.9 * limit) as f32
+            } else {
+                continue;
+            };
+            d.displacement[k] = target;
+            changed += 1;
+            moved = true;
+        }
+        if !moved {
+            break;
+        }
+    }
+    if changed > 0 {
+        let mut n = 0;
+        let mut max_abs = 0f64;
+        for &v in &d.displacement {
+            if !v.is_nan() && v != 0.0 {
+                n += 1;
+                max_abs = max_abs.max(v.abs() as f64);
+            }
+        }
+        d.stats.changed_cells = n;
+        d.stats.max_abs_displacement_m = max_abs;
+    }
+    changed
+}

@@ -1,0 +1,355 @@
+//! Where the parts of a stroke that are not on a silhouette go in depth
+//! (issue 11, item 3: the depth a person means).
+//!
+//! After anchoring ([`super::on_silhouette`]) a stroke is a sequence of
+//! anchored runs, which lie on the unedited terrain's silhouettes, and
+//! *free stretches* between them (or between one and a stroke end), which
+//! ask for new terrain. The matcher placed a free stretch at the depth of
+//! its feature (Tassé et al. section 5.2.3). That depth is kept where the
+//! feature lies near the stretch in the image (it is the landform being
+//! reshaped) and no stroke end stands on terrain clearly nearer than it (a
+//! new landform in front of a far one). Otherwise the
+//! stretch is placed as Gain et al. (2009, section 3.1) place a silhouette
+//! curve: on the vertical surface through the terrain points at its two
+//! ends: the anchored silhouette points beside it, or, at a stroke end,
+//! the first terrain the view shows at or below the end pixel. With
+//! terrain under only one end, the stretch stands on the drawing plane
+//! through that point (normal: the horizontal view direction). A person
+//! raising a peak starts and ends the stroke on the shoulders that stay;
+//! a person adding a hill in front of a far range starts and ends it on
+//! the ground at its foot: either way the ends say where the landform is,
+//! whatever far feature happens to lie near the stroke in the image.
+
+use super::rendered_view::RenderedView;
+use crate::render::SKY;
+use crate::sketch::{
+    PlacedPoint, PointSource, SceneProjection, StrokeMatch, ViewFeature, ViewProjection,
+};
+
+/// The matched feature is near the stretch in the image when its mean
+/// vertical distance to the stretch's points is at most this angle
+/// (radians; about 1.5 degrees)...
+pub const NEAR_IN_IMAGE_RAD: f64 = 0.026;
+/// ... and it projects under at least this share of them.
+pub const NEAR_COVERAGE: f64 = 0.5;
+/// Terrain under a stroke end nearer than the feature by more than this
+/// fraction of the feature's depth contradicts it: the stroke stands on
+/// that nearer ground.
+pub const AGREEMENT: f64 = 0.15;
+
+/// How the free stretches of one stroke were placed.
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
+pub struct StretchPlacement {
+    /// Points kept at their matched feature's depth.
+    pub feature: usize,
+    /// Points put on the vertical surface through the terrain at both ends.
+    pub end_points: usize,
+    /// Points put on the drawing plane through the terrain at one end.
+    pub drawing_plane: usize,
+    /// Points with no terrain at either end, left as matched.
+    pub unsupported: usize,
+}
+
+/// A terrain point bounding a free stretch, in the world frame, and its
+/// depth from the eye.
+#[derive(Debug, Clone, Copy)]
+struct Bound {
+    world: [f64; 3],
+    depth: f64,
+}
+
+/// A stroke end stands on the terrain when the first terrain under it is
+/// at most this many pixels lower.
+pub const END_TOUCH_PX: f64 = 3.0;
+
+/// The ground a stroke end stands on, in the view's own frame (point and
+/// depth): the first terrain at or below the end pixel, when it is within
+/// [`END_TOUCH_PX`] and not an occlusion boundary. An end that stops on a
+/// nearer silhouette is a T-junction: the stroke goes on behind it, and
+/// that silhouette says nothing about its depth.
+fn ground_under_end(view: &RenderedView, pixel: [f64; 2]) -> Option<([f64; 3], f64)> {
+    let (local, depth, row) = terrain_below(view, pixel)?;
+    if row - pixel[1] > END_TOUCH_PX {
+        return None;
+    }
+    let i = (pixel[0].floor().max(0.0) as usize).min(view.camera.width.saturating_sub(1));
+    if view.boundaries(i).any(|b| (b - row).abs() <= END_TOUCH_PX) {
+        return None;
+    }
+    Some((local, depth))
+}
+
+/// The first terrain point the view shows at or below `pixel`, in the
+/// view's own frame, its depth and image row.
+fn terrain_below(view: &RenderedView, pixel: [f64; 2]) -> Option<([f64; 3], f64, f64)> {
+    let (w, h) = (view.camera.width, view.camera.height);
+    if !(pixel[0].is_finite() && pixel[1].is_finite()) {
+        return None;
+    }
+    let i = (pixel[0].floor().max(0.0) as usize).min(w.saturating_sub(1));
+    let j0 = (pixel[1].floor().max(0.0) as usize).min(h.saturating_sub(1));
+    let j = (j0..h).find(|&j| view.depth.triangle[j * w + i] != SKY)?;
+    let hit = view.depth.hit(&view.terrain, i, j)?;
+    Some((hit.local, hit.distance, j as f64))
+}
+
+/// Re-places the free stretches of `placed` (see the module
+/// documentation) on the unedited view `before`.
+pub fn place_free_stretches(
+    before: &RenderedView,
+    proj: &SceneProjection,
+    features: &[ViewFeature],
+    placed: &mut StrokeMatch,
+) -> StretchPlacement {
+    let feature = placed
+        .feature_id
+        .and_then(|id| features.iter().find(|f| f.id == id));
+    let near_px = NEAR_IN_IMAGE_RAD * proj.focal_px();
+    let mut out = StretchPlacement::default();
+    let on: Vec<usize> = (0..placed.points.len())
+        .filter(|&k| {
+            placed.points[k].source != PointSource::Completion && placed.points[k].pixel.is_some()
+        })
+        .collect();
+    let n = on.len();
+    let anchored = |k: usize| placed.points[k].source == PointSource::Silhouette;
+    let bound_at = |k: usize, end: bool| -> Option<Bound> {
+        let p = &placed.points[k];
+        if anchored(k) {
+            return Some(Bound {
+                world: p.world,
+                depth: p.depth,
+            });
+        }
+        if !end {
+            return None;
+        }
+        let (local, depth) = ground_under_end(before, p.pixel?)?;
+        Some(Bound {
+            world: proj.own_to_world(local),
+            depth,
+        })
+    };
+    // The free runs, their bounds (the anchors beside them, or the terrain
+    // under the stroke's end) and whether the matched depth agrees.
+    let mut runs: Vec<(usize, usize, Option<Bound>, Option<Bound>, bool)> = Vec::new();
+    let mut a = 0;
+    while a < n {
+        if anchored(on[a]) {
+            a += 1;
+            continue;
+        }
+        let mut b = a;
+        while b < n && !anchored(on[b]) {
+            b += 1;
+        }
+        let left = if a > 0 {
+            bound_at(on[a - 1], false)
+        } else {
+            bound_at(on[a], true)
+        };
+        let right = if b < n {
+            bound_at(on[b], false)
+        } else {
+            bound_at(on[b - 1], true)
+        };
+        // Stroke ends (not anchors) standing on nearer ground contradict.
+        let contradicts = |bound: Option<Bound>, k: usize, is_end: bool| {
+            let p = &placed.points[k];
+            is_end && bound.is_some_and(|q| q.depth < p.depth * (1.0 - AGREEMENT))
+        };
+        let run_points: Vec<&PlacedPoint> = on[a..b].iter().map(|&k| &placed.points[k]).collect();
+        let on_feature = run_points
+            .iter()
+            .filter(|p| p.source == PointSource::Feature)
+            .count();
+        let feature_ok = on_feature as f64 >= NEAR_COVERAGE * run_points.len() as f64
+            && feature.is_some_and(|f| near_in_image(f, &run_points, near_px))
+            && !contradicts(left, on[a], a == 0)
+            && !contradicts(right, on[b - 1], b == n);
+        if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
+            eprintln!(
+                "stretch {a}..{b} of {n}: on_feature {on_feature} near {:?} left {:?} right {:?} depth {} {}",
+                feature.map(|f| near_in_image(f, &run_points, near_px)),
+                left.map(|q| q.depth),
+                right.map(|q| q.depth),
+                placed.points[on[a]].depth,
+                placed.points[on[b - 1]].depth
+            );
+        }
+        runs.push((a, b, left, right, feature_ok));
+        a = b;
+    }
+    let mut replaced_ends = (false, false);
+    for (a, b, left, right, feature_ok) in runs {
+        let count = b - a;
+        if feature_ok {
+            out.feature += count;
+            hold_extension_depth(proj, placed, &on[a..b]);
+            continue;
+        }
+        if left.is_none() && right.is_none() {
+            out.unsupported += count;
+            continue;
+        }
+        let surface = Surface::new(proj, left, right);
+        for &k in &on[a..b] {
+            let Some(px) = placed.points[k].pixel else {
+                continue;
+            };
+            if let Some(depth) = surface.depth(proj, px) {
+                placed.points[k] = PlacedPoint {
+                    pixel: Some(px),
+                    world: proj.unproject(px, depth),
+                    depth,
+                    source: PointSource::Fallback,
+                };
+            }
+        }
+        if left.is_some() && right.is_some() {
+            out.end_points += count;
+        } else {
+            out.drawing_plane += count;
+        }
+        replaced_ends.0 |= a == 0;
+        replaced_ends.1 |= b == n;
+    }
+    // Completion at a re-placed end: that end stands on the terrain.
+    if n > 0 && (replaced_ends.0 || replaced_ends.1) {
+        let (first, last) = (on[0], on[n - 1]);
+        let mut k = 0;
+        placed.points.retain(|p| {
+            let drop = p.source == PointSource::Completion
+                && ((k < first && replaced_ends.0) || (k > last && replaced_ends.1));
+            k += 1;
+            !drop
+        });
+    }
+    out
+}
+
+/// Points of a run beyond its feature's ends (placed along the feature's
+/// 3D end tangent by the matcher) keep the depth of the nearest point on
+/// the feature instead: the feature says nothing about where its tangent
+/// goes, and a tangent that runs toward or away from the eye builds walls.
+fn hold_extension_depth(proj: &SceneProjection, placed: &mut StrokeMatch, run: &[usize]) {
+    let on_feature: Vec<usize> = run
+        .iter()
+        .copied()
+        .filter(|&k| placed.points[k].source == PointSource::Feature)
+        .collect();
+    for &k in run {
+        if placed.points[k].source == PointSource::Feature {
+            continue;
+        }
+        let Some(&nearest) = on_feature.iter().min_by_key(|&&j| j.abs_diff(k)) else {
+            continue;
+        };
+        let depth = placed.points[nearest].depth;
+        if let Some(px) = placed.points[k].pixel {
+            placed.points[k] = PlacedPoint {
+                pixel: Some(px),
+                world: proj.unproject(px, depth),
+                depth,
+                source: PointSource::Tangent,
+            };
+        }
+    }
+}
+
+/// True when `feature` projects under at least [`NEAR_COVERAGE`] of the
+/// points, at a mean vertical distance of at most `near_px`.
+fn near_in_image(feature: &ViewFeature, points: &[&PlacedPoint], near_px: f64) -> bool {
+    let s = &feature.samples;
+    let (mut sum, mut count) = (0.0, 0usize);
+    for p in points {
+        let Some([x, y]) = p.pixel else { continue };
+        let k = s.partition_point(|q| q.pixel[0] < x);
+        if k == 0 || k >= s.len() {
+            continue;
+        }
+        let (l, r) = (&s[k - 1], &s[k]);
+        let t = if r.pixel[0] > l.pixel[0] {
+            (x - l.pixel[0]) / (r.pixel[0] - l.pixel[0])
+        } else {
+            0.0
+        };
+        let fy = l.pixel[1] + t * (r.pixel[1] - l.pixel[1]);
+        sum += (fy - y).abs();
+        count += 1;
+    }
+    count > 0
+        && count as f64 >= NEAR_COVERAGE * points.len() as f64
+        && sum / count as f64 <= near_px
+}
+
+/// The surface a free stretch is placed on: the vertical plane through two
+/// terrain points, or the drawing plane through one.
+struct Surface {
+    point: [f64; 3],
+    normal: [f64; 3],
+    /// Depth used where a ray runs parallel to the surface.
+    depth: f64,
+}
+
+impl Surface {
+    fn new(proj: &SceneProjection, left: Option<Bound>, right: Option<Bound>) -> Surface {
+        let eye = proj.eye();
+        let horizontal = |v: [f64; 3]| [v[0], v[1], 0.0];
+        match (left, right) {
+            (Some(l), Some(r)) => {
+                let along = horizontal(sub(r.world, l.world));
+                let len = along[0].hypot(along[1]);
+                // Two points on one line of sight: the drawing plane
+                // through the nearer.
+                if len > 1e-6 * l.depth.max(r.depth) {
+                    return Surface {
+                        point: l.world,
+                        normal: [-along[1] / len, along[0] / len, 0.0],
+                        depth: 0.5 * (l.depth + r.depth),
+                    };
+                }
+                let near = if l.depth <= r.depth { l } else { r };
+                Self::drawing_plane(eye, near)
+            }
+            (Some(q), None) | (None, Some(q)) => Self::drawing_plane(eye, q),
+            (None, None) => Surface {
+                point: eye,
+                normal: [0.0, 0.0, 1.0],
+                depth: 1.0,
+            },
+        }
+    }
+
+    /// The vertical plane through `q` facing the eye.
+    fn drawing_plane(eye: [f64; 3], q: Bound) -> Surface {
+        let v = sub(q.world, eye);
+        let len = v[0].hypot(v[1]).max(1e-9);
+        Surface {
+            point: q.world,
+            normal: [v[0] / len, v[1] / len, 0.0],
+            depth: q.depth,
+        }
+    }
+
+    /// Depth along the ray of `pixel` where it meets the surface.
+    fn depth(&self, proj: &SceneProjection, pixel: [f64; 2]) -> Option<f64> {
+        let eye = proj.eye();
+        let dir = sub(proj.unproject(pixel, 1.0), eye);
+        let den = dot(dir, self.normal);
+        let t = if den.abs() > 1e-9 {
+            dot(sub(self.point, eye), self.normal) / den
+        } else {
+            self.depth
+        };
+        (t.is_finite() && t > 0.0).then_some(t)
+    }
+}
+
+fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
