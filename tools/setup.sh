@@ -1,9 +1,9 @@
 #!/usr/bin/env bash
 # Installs what demsketch needs on a fresh Debian machine (GDAL, PROJ, clang
 # for the bindings, pkg-config, the GDAL command-line tools the tests compare
-# against), only where it is missing. Needs root for apt-get.
+# against, and numpy + GDAL's Python bindings for tools/fidelity), only where it is missing. Needs root for apt-get.
 set -euo pipefail
-pkgs=(libgdal-dev libproj-dev libclang-dev pkg-config gdal-bin proj-bin)
+pkgs=(libgdal-dev libproj-dev libclang-dev pkg-config gdal-bin proj-bin python3-numpy python3-gdal)
 missing=()
 for p in "${pkgs[@]}"; do
   dpkg -s "$p" >/dev/null 2>&1 || missing+=("$p")

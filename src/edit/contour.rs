@@ -92,9 +92,9 @@ pub fn unfitted_columns(stroke: &StrokeCurve, view: &RenderedView) -> Vec<(usize
         .free_columns(view.camera.width)
         .into_iter()
         .filter(|&(i, y, _)| {
-            !view
-                .boundaries_with_slack(i)
-                .any(|(b, slack)| (b - y).abs() <= FIT_TOLERANCE_PX + slack)
+            !view.boundary_rows(i).any(|(drawn, bilinear)| {
+                (drawn - y).abs().min((bilinear - y).abs()) <= FIT_TOLERANCE_PX
+            })
         })
         .collect()
 }

@@ -3,10 +3,10 @@
 //!
 //! - `fitted_fraction`: share of the stroke's pixel columns where the edited
 //!   terrain has an occlusion boundary (a silhouette sample) or the skyline
-//!   within [`FIT_TOLERANCE_PX`] of the stroke, plus what the DEM itself
-//!   leaves the boundary's row open where its cells look large
-//!   ([`RenderedView::interpolation_px`]: the renderer's two triangles per
-//!   cell and a bilinear reading of the same heights differ by that much);
+//!   within [`FIT_TOLERANCE_PX`] of the stroke, as the renderer draws it or
+//!   as the bilinear surface of DESIGN.md has it
+//!   ([`RenderedView::bilinear_row`]; the two differ by a few pixels where
+//!   cells look large);
 //! - `mean_px`, `max_px`: distance from the stroke to the nearest boundary
 //!   of each column that has one;
 //! - `visible_fraction`: share of the stroke's columns where the ray through
@@ -50,10 +50,10 @@ pub fn measure(stroke: &StrokeCurve, view: &RenderedView) -> (StrokeFit, f64) {
         (0usize, 0usize, 0.0, 0.0f64, 0);
     for &(i, y, d) in &cols {
         let (nearest, within) =
-            view.boundaries_with_slack(i)
-                .fold((f64::INFINITY, false), |(n, ok), (b, slack)| {
-                    let d = (b - y).abs();
-                    (n.min(d), ok || d <= FIT_TOLERANCE_PX + slack)
+            view.boundary_rows(i)
+                .fold((f64::INFINITY, false), |(n, ok), (drawn, bilinear)| {
+                    let d = (drawn - y).abs().min((bilinear - y).abs());
+                    (n.min(d), ok || d <= FIT_TOLERANCE_PX)
                 });
         if nearest.is_finite() {
             measured += 1;

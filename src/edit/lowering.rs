@@ -137,11 +137,11 @@ fn stroke_hits(view: &RenderedView, g: &StrokeCurve) -> StrokeHits {
                 continue;
             }
             let h = above_ray(sample.local);
-            // Above the stroke by no more than the DEM leaves open there:
-            // not a protrusion to lower.
-            let slack = view.interpolation_px(sample.cell, sample.depth);
             if h.is_finite() && h > 0.0 {
-                if h * view.camera.focal_px > slack * sample.depth {
+                // On the bilinear surface it does not rise above the
+                // stroke: not a protrusion to lower.
+                let bilinear = view.bilinear_row(i, sample).unwrap_or(sample.pixel[1]);
+                if bilinear < y - BELOW_STROKE_PX {
                     samples.push((c as usize, h, x));
                 }
                 found = true;

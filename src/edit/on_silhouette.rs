@@ -53,11 +53,15 @@ fn nearest_boundary(view: &RenderedView, pixel: [f64; 2], tol: f64) -> Option<Bo
     let mut best: Option<BoundaryPoint> = None;
     for &(c, s) in &view.by_column[i] {
         let sample = &view.silhouettes.curves[c as usize].samples[s as usize];
-        let dy = (sample.pixel[1] - pixel[1]).abs();
-        let tol = tol + view.interpolation_px(sample.cell, sample.depth);
+        // The row as drawn, or as the bilinear surface has it.
+        let row = view
+            .bilinear_row(i, sample)
+            .filter(|b| (b - pixel[1]).abs() < (sample.pixel[1] - pixel[1]).abs())
+            .unwrap_or(sample.pixel[1]);
+        let dy = (row - pixel[1]).abs();
         if dy <= tol && best.is_none_or(|b| dy < (b.row - pixel[1]).abs()) {
             best = Some(BoundaryPoint {
-                row: sample.pixel[1],
+                row,
                 local: sample.local,
                 depth: sample.depth,
             });

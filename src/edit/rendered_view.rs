@@ -5,12 +5,13 @@
 //! fit measures and the lowering loop compare against.
 
 use crate::features::{
-    extract_silhouettes, extract_silhouettes_where, FeatureError, SilhouetteParams, Silhouettes,
+    extract_silhouettes, extract_silhouettes_where, FeatureError, SilhouetteParams,
+    SilhouetteSample, Silhouettes,
 };
 use crate::raster::HeightMap;
 use crate::render::{DepthBuffer, LocalTerrain, SKY};
 use crate::sketch::{PointSource, Stroke, StrokeMatch};
-use crate::view::{Camera, LocalFrame};
+use crate::view::{Camera, CameraModel, LocalFrame};
 
 /// The part of a view that the edit's re-renders compute: the strokes'
 /// columns widened by this many pixels on each side ...
@@ -236,55 +237,74 @@ impl RenderedView {
         })
     }
 
-    /// The most the DEM itself leaves a boundary's image row open: the
-    /// renderer draws two triangles per cell, a bilinear reading of the same
-    /// heights (DESIGN.md's surface) differs from them by up to a quarter of a
-    /// cell's twist `|h00 + h11 - h10 - h01|`, and so may the silhouette both
-    /// form, seen from `depth`. The largest twist of the 3 x 3 cells around the
-    /// boundary's cell (window coordinates), in pixels, at most
-    /// [`MAX_INTERPOLATION_PX`].
-    pub fn interpolation_px(&self, cell: [u32; 2], depth: f64) -> f64 {
+    /// The image row, in column `i`, of the silhouette of `sample` on
+    /// DESIGN.md's surface: the bilinear height field of the DEM's cells,
+    /// which the renderer's two triangles per cell approximate (they differ
+    /// by up to a quarter of a cell's twist, a few pixels where cells look
+    /// large). Rays of the column near the sample's row are tested against
+    /// the bilinear surface within [`BILINEAR_REACH_CELLS`] cells of the
+    /// sample's terrain point, and the row where they stop clearing it is
+    /// found by bisection. `None` when the rows around the sample do not
+    /// bracket such a change (the triangle row stands).
+    pub fn bilinear_row(&self, i: usize, sample: &SilhouetteSample) -> Option<f64> {
+        let x = i as f64 + 0.5;
+        let y0 = sample.pixel[1];
+        let t_p = sample.depth;
         let t = &self.terrain;
-        let (c, r) = (
-            cell[0] as i64 - t.col0 as i64,
-            cell[1] as i64 - t.row0 as i64,
-        );
-        let z = |c: i64, r: i64| {
-            if c < 0 || r < 0 {
-                None
-            } else {
-                t.vertex_z(c as usize, r as usize)
-            }
-        };
-        let mut twist = 0.0f64;
-        for dr in -1..=1 {
-            for dc in -1..=1 {
-                let (c, r) = (c + dc, r + dr);
-                if let (Some(a), Some(b), Some(cc), Some(d)) =
-                    (z(c, r), z(c + 1, r), z(c, r + 1), z(c + 1, r + 1))
-                {
-                    twist = twist.max((a + d - b - cc).abs());
+        // The ray span around the sample's point: a few cells either way.
+        let (e, n) = (sample.local[0], sample.local[1]);
+        let (ve, vn) = t.en_to_v(e, n);
+        let (ve1, vn1) = t.en_to_v(e + 1.0, n);
+        let (ve2, vn2) = t.en_to_v(e, n + 1.0);
+        let cells_per_m = (ve1 - ve).hypot(vn1 - vn).max((ve2 - ve).hypot(vn2 - vn));
+        if !(cells_per_m > 0.0 && ve.is_finite() && vn.is_finite()) {
+            return None;
+        }
+        let reach = BILINEAR_REACH_CELLS / cells_per_m;
+        let (ta, tb) = ((t_p - reach).max(0.5 * t_p), t_p + reach);
+        let steps = (4.0 * BILINEAR_REACH_CELLS * 2.0) as usize * 4;
+        // Least clearance of the ray through row y above the bilinear
+        // surface over the span (negative: it hits the occluder).
+        let clearance = |y: f64| -> Option<f64> {
+            let d = self.camera.unproject([x, y]);
+            let mut least = f64::INFINITY;
+            for k in 0..=steps {
+                let tt = ta + (tb - ta) * k as f64 / steps as f64;
+                let p = [d[0] * tt, d[1] * tt, d[2] * tt];
+                let (vx, vy) = t.en_to_v(p[0], p[1]);
+                if let Some(h) = bilinear_vertex_z(t, vx, vy) {
+                    least = least.min(p[2] - h);
                 }
             }
+            least.is_finite().then_some(least)
+        };
+        let (mut above, mut below) = (y0 - BILINEAR_SEARCH_PX, y0 + BILINEAR_SEARCH_PX);
+        if !(clearance(above)? > 0.0 && clearance(below)? <= 0.0) {
+            return None;
         }
-        if !(depth > 0.0) {
-            return 0.0;
+        for _ in 0..16 {
+            let mid = 0.5 * (above + below);
+            if clearance(mid)? > 0.0 {
+                above = mid;
+            } else {
+                below = mid;
+            }
         }
-        (0.25 * twist * self.camera.focal_px / depth).min(MAX_INTERPOLATION_PX)
+        Some(0.5 * (above + below))
     }
 
-    /// [`RenderedView::boundaries`] with each boundary's slack: how far, in
-    /// pixels, the DEM itself leaves its row open
-    /// ([`RenderedView::interpolation_px`]; 0 for the skyline row of the
-    /// depth buffer).
-    pub fn boundaries_with_slack(&self, i: usize) -> impl Iterator<Item = (f64, f64)> + '_ {
+    /// Rows of the occlusion boundaries of column `i`, each as the renderer
+    /// draws it and as the bilinear surface has it
+    /// ([`RenderedView::bilinear_row`]; the same row when it cannot be
+    /// refined, and for the skyline row of the depth buffer).
+    pub fn boundary_rows(&self, i: usize) -> impl Iterator<Item = (f64, f64)> + '_ {
         let sil = self.by_column[i].iter().map(move |&(c, s)| {
             let s = &self.silhouettes.curves[c as usize].samples[s as usize];
-            (s.pixel[1], self.interpolation_px(s.cell, s.depth))
+            (s.pixel[1], self.bilinear_row(i, s).unwrap_or(s.pixel[1]))
         });
         let sky = self.skyline_row[i]
             .filter(|&j| j > 0)
-            .map(|j| (j as f64, 0.0));
+            .map(|j| (j as f64, j as f64));
         sil.chain(sky)
     }
 
@@ -299,8 +319,31 @@ impl RenderedView {
     }
 }
 
-/// The widest opening [`RenderedView::interpolation_px`] grants, pixels.
-pub const MAX_INTERPOLATION_PX: f64 = 8.0;
+/// [`RenderedView::bilinear_row`] looks this many cells either way of a
+/// silhouette's terrain point ...
+pub const BILINEAR_REACH_CELLS: f64 = 2.0;
+/// ... and this many pixels either way of its row.
+pub const BILINEAR_SEARCH_PX: f64 = 8.0;
+
+/// Bilinear interpolation of the vertex heights of `t` at vertex
+/// coordinates `(vx, vy)`; `None` outside or next to a hole.
+fn bilinear_vertex_z(t: &LocalTerrain, vx: f64, vy: f64) -> Option<f64> {
+    if !(vx >= 0.0 && vy >= 0.0) {
+        return None;
+    }
+    let (c, r) = (vx.floor() as usize, vy.floor() as usize);
+    let (fx, fy) = (vx - c as f64, vy - r as f64);
+    let z00 = t.vertex_z(c, r)?;
+    let z10 = t.vertex_z(c + 1, r)?;
+    let z01 = t.vertex_z(c, r + 1)?;
+    let z11 = t.vertex_z(c + 1, r + 1)?;
+    Some(
+        z00 * (1.0 - fx) * (1.0 - fy)
+            + z10 * fx * (1.0 - fy)
+            + z01 * (1.0 - fx) * fy
+            + z11 * fx * fy,
+    )
+}
 
 /// A stroke as drawn (x-monotone, prepared) with the depth of its placed
 /// 3D curve along image x.
