@@ -299,3 +299,70 @@ fn dry_run_writes_report_and_pictures_only() {
     assert!(!case.path("out.tif").exists());
     assert!(case.path("report.json").is_file());
 }
+
+/// Heights the sample type cannot hold are an error at write-back, never
+/// clamped: nothing is written (a Byte copy of the fixture, heights 0 to
+/// 255, written 300 and -5; a UInt16 one written 70,000).
+#[test]
+fn heights_outside_the_sample_type_are_refused_at_write_back() {
+    use demsketch::raster::{Dem, Destination, Provenance, Window};
+    let tmp = tempfile::tempdir().unwrap();
+    let byte = tmp.path().join("byte.tif");
+    gdal_translate(
+        &fixture(DEM),
+        &byte,
+        &[
+            "-ot",
+            "Byte",
+            "-scale",
+            "1000",
+            "3000",
+            "1",
+            "254",
+            "-a_nodata",
+            "0",
+        ],
+    );
+    let cases: [(&Path, f64, &str); 3] = [
+        (&byte, 300.0, "Byte"),
+        (&byte, -5.0, "Byte"),
+        (&fixture(DEM), 70_000.0, "UInt16"),
+    ];
+    for (input, value, type_name) in cases {
+        let dem = Dem::open(input).unwrap();
+        let win = Window::new(100, 100, 8, 8);
+        let old = dem.read_window::<f64>(win).unwrap();
+        let mut new = old.data.clone();
+        let k = (0..new.len())
+            .find(|&i| old.valid[i])
+            .expect("a valid cell");
+        new[k] = value;
+        let out = tmp.path().join("out.tif");
+        let bytes = std::fs::read(input).unwrap();
+        let e = dem
+            .write_back(
+                win,
+                &new,
+                &Destination::Path(out.clone()),
+                &Provenance {
+                    edit_id: "t".into(),
+                },
+            )
+            .expect_err("out of range");
+        let msg = e.to_string();
+        assert!(
+            msg.contains("outside the") && msg.contains(type_name) && !msg.contains('\n'),
+            "{value}: {msg}"
+        );
+        assert!(!out.exists(), "{value}: output written");
+        assert_eq!(
+            std::fs::read(input).unwrap(),
+            bytes,
+            "{value}: input changed"
+        );
+        assert!(dem.check_write_back(win, &new).is_err());
+        // A value in range is fine.
+        new[k] = if type_name == "Byte" { 200.0 } else { 2000.0 };
+        assert!(dem.check_write_back(win, &new).is_ok());
+    }
+}
