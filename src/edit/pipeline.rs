@@ -348,6 +348,7 @@ pub fn run(
     let placement = demands.placement;
     let fixed = demands.fixed;
     let mut constraints = demands.curves;
+    notes.extend(depth_notes(&views, &curves));
     let placement_issues: Vec<Vec<Option<&'static str>>> = scene_views
         .iter()
         .zip(&matched.views)
@@ -735,6 +736,35 @@ fn placement_issue(
         }
     }
     None
+}
+
+/// Notes for the strokes whose `depth_m` (the author's distance) the
+/// placement did not follow: placement does not use `depth_m` yet, it only
+/// lifts the refusal of strokes drawn in empty sky
+/// ([`check_strokes_touch_terrain`]); the report says where they went.
+fn depth_notes(views: &[ViewState], curves: &[Vec<StrokeCurve>]) -> Vec<String> {
+    let mut out = Vec::new();
+    for (v, cs) in views.iter().zip(curves) {
+        for c in cs {
+            let Some(spec) = v.spec.strokes.get(c.stroke.source_index) else {
+                continue;
+            };
+            let Some(d) = spec.depth_m else { continue };
+            let [near, far] = d.range();
+            let (lo, hi) = c.depths.iter().fold((f64::INFINITY, 0.0f64), |(a, b), p| {
+                (a.min(p.1), b.max(p.1))
+            });
+            // Within 10 % of the range given counts as followed.
+            if lo.is_finite() && lo >= 0.9 * near && hi <= 1.1 * far {
+                continue;
+            }
+            out.push(format!(
+                "view \"{}\" stroke \"{}\": placed at {:.0} to {:.0} m, not at its depth_m {near}..{far} m (placement does not use depth_m yet)",
+                v.spec.name, c.id, if lo.is_finite() { lo } else { 0.0 }, hi
+            ));
+        }
+    }
+    out
 }
 
 /// A stroke's status and, when it is not fitted, why.
