@@ -904,7 +904,9 @@ fn place_demands(
                 .iter()
                 .map(|p| p.source == PointSource::Silhouette)
                 .collect();
-            d.curves.extend(free_stretches(&dem_points, &anchored));
+            let depths: Vec<f64> = sm.points.iter().map(|p| p.depth).collect();
+            d.curves
+                .extend(free_stretches(&dem_points, &depths, &anchored));
             for (p, _) in dem_points.iter().zip(&anchored).filter(|(_, &a)| a) {
                 d.fixed.extend(v.stencil_cells(p[0], p[1]));
             }
@@ -920,11 +922,22 @@ fn place_demands(
     d
 }
 
-/// The stretches of a placed stroke (DEM CRS points) between anchored
-/// points, each with the anchored point on either side so that the curve
-/// meets the terrain it continues.
-fn free_stretches(points: &[[f64; 3]], anchored: &[bool]) -> Vec<CurveConstraint> {
+/// Neighbouring points of a placed stroke whose depths differ by more than
+/// this fraction are not joined by a curve constraint: the stroke passes
+/// from one landform to another there (a segment between them would be a
+/// wall across the ground in between).
+pub const DEPTH_BREAK: f64 = 0.15;
+
+/// The stretches of a placed stroke (DEM CRS points, with their depths)
+/// between anchored points, each with the anchored point on either side
+/// where its depth continues the stretch, so that the curve meets the
+/// terrain it continues; cut where the depth jumps ([`DEPTH_BREAK`]).
+fn free_stretches(points: &[[f64; 3]], depths: &[f64], anchored: &[bool]) -> Vec<CurveConstraint> {
     let finite = |p: &[f64; 3]| p.iter().all(|c| c.is_finite());
+    let joined = |i: usize, j: usize| {
+        let (a, b) = (depths[i], depths[j]);
+        (a - b).abs() <= DEPTH_BREAK * a.min(b)
+    };
     let mut out = Vec::new();
     let n = points.len();
     let mut a = 0;
@@ -937,10 +950,24 @@ fn free_stretches(points: &[[f64; 3]], anchored: &[bool]) -> Vec<CurveConstraint
         while b < n && !anchored[b] {
             b += 1;
         }
-        let (lo, hi) = (a.saturating_sub(1), b.min(n - 1));
-        let pts: Vec<[f64; 3]> = points[lo..=hi].iter().copied().filter(finite).collect();
-        if pts.len() >= 2 {
-            out.push(CurveConstraint { points: pts });
+        let lo = if a > 0 && joined(a - 1, a) { a - 1 } else { a };
+        let hi = if b < n && joined(b - 1, b) { b } else { b - 1 };
+        let mut piece: Vec<[f64; 3]> = Vec::new();
+        for k in lo..=hi {
+            if k > lo && !joined(k - 1, k) {
+                if piece.len() >= 2 {
+                    out.push(CurveConstraint {
+                        points: std::mem::take(&mut piece),
+                    });
+                }
+                piece.clear();
+            }
+            if finite(&points[k]) {
+                piece.push(points[k]);
+            }
+        }
+        if piece.len() >= 2 {
+            out.push(CurveConstraint { points: piece });
         }
         a = b;
     }

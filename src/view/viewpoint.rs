@@ -239,10 +239,15 @@ impl Georef {
         // The eye stands above the surface the renderer draws (two
         // triangles per cell), not only above the bilinear one: where the
         // triangles are higher, an eye over the bilinear ground would look
-        // out from under the rendered terrain.
+        // out from under the rendered terrain. It is resolved here, once,
+        // and every render of an edit uses it (the report gives it as
+        // `eye_alt_m`).
         let drawn = dem.triangle_surface(cx, cy).unwrap_or(ground);
         let eye_alt = match vp.height {
             EyeHeight::AboveSurface(h) => ground.max(drawn) + h,
+            // An absolute eye above the bilinear ground but under (or just
+            // over) the drawn surface is lifted to stand on it.
+            EyeHeight::Absolute(a) if a >= ground => a.max(drawn + MIN_EYE_CLEARANCE_M),
             EyeHeight::Absolute(a) => a,
         };
         if !eye_alt.is_finite() {
@@ -265,6 +270,10 @@ impl Georef {
         ))
     }
 }
+
+/// An absolute eye (`alt_m`) is at least this far above the surface the
+/// renderer draws, metres.
+pub const MIN_EYE_CLEARANCE_M: f64 = 0.5;
 
 /// The local frame of a resolved viewpoint: east-north-up metres centred at
 /// the eye, `z` apparent (curvature and refraction subtracted). Plain data,
