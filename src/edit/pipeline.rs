@@ -1368,3 +1368,41 @@ impl Drop for StagedDir {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::free_stretches;
+
+    fn pts(n: usize) -> Vec<[f64; 3]> {
+        (0..n).map(|i| [i as f64, 0.0, 10.0]).collect()
+    }
+
+    #[test]
+    fn free_stretches_take_the_anchors_beside_them_where_depth_continues() {
+        let p = pts(6);
+        let depths = [1000.0, 1000.0, 1010.0, 1020.0, 1030.0, 1030.0];
+        let anchored = [true, true, false, false, true, true];
+        let c = free_stretches(&p, &depths, &anchored);
+        assert_eq!(c.len(), 1);
+        assert_eq!(c[0].points, p[1..=4].to_vec());
+    }
+
+    #[test]
+    fn free_stretches_break_where_the_depth_jumps() {
+        let p = pts(6);
+        // An anchor far behind, then a stretch that jumps in depth midway.
+        let depths = [27000.0, 8000.0, 8100.0, 5000.0, 5050.0, 5100.0];
+        let anchored = [true, false, false, false, false, false];
+        let c = free_stretches(&p, &depths, &anchored);
+        let lens: Vec<usize> = c.iter().map(|c| c.points.len()).collect();
+        assert_eq!(lens, vec![2, 3]);
+        assert_eq!(c[0].points[0], p[1], "no segment back to the far anchor");
+    }
+
+    #[test]
+    fn a_stroke_all_on_silhouettes_asks_for_no_curve() {
+        let p = pts(4);
+        let c = free_stretches(&p, &[1.0e3; 4], &[true; 4]);
+        assert!(c.is_empty());
+    }
+}

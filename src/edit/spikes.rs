@@ -153,3 +153,74 @@ pub fn flatten_spikes(
     }
     changed
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::deform::{CellSize, DeformStats};
+    use crate::raster::{Crs, GeoTransform, HeightMap, Window};
+
+    fn deformation(w: usize, h: usize, m: Vec<f32>) -> Deformation {
+        let cell = CellSize { hx: 10.0, hy: 10.0 };
+        Deformation {
+            window: Window::new(0, 0, w, h),
+            displacement: m,
+            base: HeightMap {
+                width: w,
+                height: h,
+                data: vec![100.0; w * h],
+                geotransform: GeoTransform([0.0, 10.0, 0.0, 0.0, 0.0, -10.0]),
+                crs: Crs {
+                    epsg: None,
+                    wkt: String::new(),
+                    proj: None,
+                    geographic: false,
+                },
+            },
+            affected_tiles: Vec::new(),
+            constrained: vec![false; w * h],
+            stats: DeformStats {
+                constrained_cells: 0,
+                free_cells: 0,
+                changed_cells: 0,
+                max_abs_displacement_m: 0.0,
+                max_abs_constraint_m: 0.0,
+                influence_m: 100.0,
+                cell_size_m: cell,
+                cycles: 0,
+                relative_residual: 0.0,
+                levels: 0,
+                read_s: 0.0,
+                constraints_s: 0.0,
+                solve_s: 0.0,
+            },
+        }
+    }
+
+    #[test]
+    fn a_lone_apex_gets_a_neighbour_behind_it_and_is_kept() {
+        // 5 x 5, apex +40 m in the middle (half a cell is 5 m), eye at the
+        // left edge: the neighbour farthest from it (to the right) rises.
+        let mut m = vec![0.0f32; 25];
+        m[12] = 40.0;
+        let mut d = deformation(5, 5, m);
+        assert_eq!(find_spikes(&d), vec![(2, 2)]);
+        let n = flatten_spikes(&mut d, &[(0.0, 2.5)], &|_, _| false);
+        assert!(n >= 1);
+        assert!(find_spikes(&d).is_empty(), "{:?}", d.displacement);
+        assert_eq!(d.displacement[12], 40.0, "the apex itself is kept");
+        let right = [8usize, 13, 18];
+        assert!(right.iter().any(|&k| d.displacement[k] >= 35.0));
+    }
+
+    #[test]
+    fn a_held_pit_is_filled_around_not_moved() {
+        let mut m = vec![30.0f32; 25];
+        m[12] = 0.0;
+        let mut d = deformation(5, 5, m);
+        assert_eq!(find_spikes(&d), vec![(2, 2)]);
+        flatten_spikes(&mut d, &[(2.5, 0.0)], &|c, r| (c, r) == (2, 2));
+        assert_eq!(d.displacement[12], 0.0);
+        assert!(find_spikes(&d).is_empty(), "{:?}", d.displacement);
+    }
+}

@@ -538,6 +538,8 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--subset", choices=["all", "ci"], default="all")
     ap.add_argument("--report-only", action="store_true", help="always exit 0 (CI before the edit meets the lines)")
+    ap.add_argument("--require", default="",
+                    help="comma-separated parts of line names that must pass even with --report-only")
     ap.add_argument("--json", default=None, help="results JSON (default: tools/fidelity/results[-ci].json)")
     ap.add_argument("--md", default=None, help="table (default docs/fidelity.md for the whole suite, none for ci)")
     ap.add_argument("--save-pictures", default=None, metavar="DIR")
@@ -598,6 +600,11 @@ def main():
         print("%-4s %4d/%-4d %s  %s" % ("ok" if l["pass"] else "FAIL", l["ok"], l["total"], l["line"], l["detail"]))
     print("fidelity: %d cases, %d pass, %.0f s" % (len(results), sum(r.get("status") == "pass" for r in results), time.time() - t0))
     failed = not all(l["pass"] for l in lines)
+    required = [q.strip() for q in (a.require or "").split(",") if q.strip()]
+    missed = [l["line"] for l in lines if not l["pass"] and any(q in l["line"] for q in required)]
+    if missed:
+        print("fidelity: required lines failed: " + "; ".join(missed))
+        sys.exit(1)
     if failed and not a.report_only:
         sys.exit(1)
 
