@@ -14,6 +14,12 @@
 //! `match_view`: depth ordering, priority lists (all 1,000 features for each
 //! stroke), branch-and-bound, placement and feature completion.
 //!
+//! A second case (issue 11: 100 strokes against 1,000 features in under a
+//! second) splits each range into 10 pieces along x (a gap of 16 px
+//! between pieces), each its own feature, with 900 other features drawn as
+//! above; the 100 strokes are traced from the pieces. Both cases run side by
+//! side so that their ratio is measured on the same machine state.
+//!
 //! Run: `cargo bench --bench matching`.
 
 use criterion::{criterion_group, criterion_main, Criterion};
@@ -66,7 +72,9 @@ fn feature(
     ViewFeature::from_world(id, kind, &pts, cam)
 }
 
-fn scene() -> (SimplePinhole, Vec<ViewFeature>, Vec<Stroke>) {
+/// The scene with each of the 10 ranges split into `pieces` features (and
+/// strokes); `pieces = 1` is the 10-stroke case.
+fn scene(pieces: usize) -> (SimplePinhole, Vec<ViewFeature>, Vec<Stroke>) {
     let cam = SimplePinhole::new([0.0, 0.0, 10.0], 0.0, 0.0, 60.0, 1600, 900)
         .with_terrain(Arc::new(|_, _| Some(0.0)));
     let mut rng = Rng(0x5eed_1234_abcd_ef01);
@@ -77,19 +85,24 @@ fn scene() -> (SimplePinhole, Vec<ViewFeature>, Vec<Stroke>) {
         let base = 520.0 - 28.0 * k as f64;
         let (xa, xb) = (60.0 + 45.0 * k as f64, 1540.0 - 40.0 * k as f64);
         let ph = rng.range(0.0, 6.0);
-        features.push(feature(
-            k,
-            FeatureKind::Ridge,
-            &cam,
-            xa,
-            xb,
-            move |x| base - 12.0 * (x / 90.0 + ph).sin(),
-            move |x| d0 * (1.0 + 0.05 * (x / 200.0).cos()),
-        ));
+        for j in 0..pieces {
+            let w = (xb - xa) / pieces as f64;
+            let gap = if pieces > 1 { 8.0 } else { 0.0 };
+            features.push(feature(
+                k * pieces + j,
+                FeatureKind::Ridge,
+                &cam,
+                xa + w * j as f64 + gap,
+                xa + w * (j + 1) as f64 - gap,
+                move |x| base - 12.0 * (x / 90.0 + ph).sin(),
+                move |x| d0 * (1.0 + 0.05 * (x / 200.0).cos()),
+            ));
+        }
     }
+    let n = 10 * pieces;
     // Other ridges and short silhouettes.
-    for id in 10..1000 {
-        let long = id < 100;
+    for id in n..1000 {
+        let long = id < n + 90;
         let w = if long {
             rng.range(300.0, 1200.0)
         } else {
@@ -119,9 +132,9 @@ fn scene() -> (SimplePinhole, Vec<ViewFeature>, Vec<Stroke>) {
         ));
     }
     // Strokes traced from the ranges, lifted by 2 to 6 px.
-    let strokes: Vec<Stroke> = (0..10)
+    let strokes: Vec<Stroke> = (0..n)
         .map(|k| {
-            let lift = 2.0 + 0.4 * k as f64;
+            let lift = 2.0 + 0.4 * (k / pieces) as f64;
             let pts: Vec<[f64; 2]> = features[k]
                 .samples
                 .iter()
@@ -136,7 +149,8 @@ fn scene() -> (SimplePinhole, Vec<ViewFeature>, Vec<Stroke>) {
 }
 
 fn bench(c: &mut Criterion) {
-    let (cam, features, strokes) = scene();
+    let (cam, features, strokes) = scene(1);
+    let (cam100, features100, strokes100) = scene(10);
     let opts = SketchOptions::default();
     let view = ViewInput {
         name: "bench".into(),
@@ -144,8 +158,33 @@ fn bench(c: &mut Criterion) {
         features: &features,
         projection: &cam,
     };
-    // Sanity: each stroke matches its range.
-    let m = match_sketch(std::slice::from_ref(&view), &opts).expect("match");
+    let view100 = ViewInput {
+        name: "bench100".into(),
+        strokes: strokes100,
+        features: &features100,
+        projection: &cam100,
+    };
+    for v in [&view, &view100] {
+        report(v, &opts);
+    }
+    let mut g = c.benchmark_group("matching");
+    g.sample_size(20).measurement_time(Duration::from_secs(5));
+    g.bench_function("10_strokes_1000_features", |b| {
+        b.iter(|| match_view(&view, &opts).expect("match"))
+    });
+    g.sample_size(10).measurement_time(Duration::from_secs(10));
+    g.bench_function("100_strokes_1000_features", |b| {
+        b.iter(|| match_view(&view100, &opts).expect("match"))
+    });
+    g.finish();
+}
+
+/// Sanity: how many strokes match the feature they were traced from.
+fn report(view: &ViewInput, opts: &SketchOptions) {
+    let features = view.features;
+    let t = std::time::Instant::now();
+    let m = match_sketch(std::slice::from_ref(view), opts).expect("match");
+    let secs = t.elapsed().as_secs_f64();
     let matched = m.views[0]
         .strokes
         .iter()
@@ -158,18 +197,14 @@ fn bench(c: &mut Criterion) {
         .filter(|(k, s)| s.feature_id == Some(*k))
         .count();
     eprintln!(
-        "matching bench: {} strokes, {} features: {matched} matched ({own} on the range they were traced from; \
-         E_def in metres favours nearer features), {} B&B nodes",
+        "matching bench: {} strokes, {} features: {matched} matched ({own} on the feature they were traced from; \
+         E_def in metres favours nearer features), {} B&B nodes of a budget of {}{}, first run {secs:.3} s",
         view.strokes.len(),
         features.len(),
-        m.nodes
+        m.nodes,
+        m.node_budget,
+        if m.stopped_early { " (stopped early)" } else { "" }
     );
-    let mut g = c.benchmark_group("matching");
-    g.sample_size(20).measurement_time(Duration::from_secs(5));
-    g.bench_function("10_strokes_1000_features", |b| {
-        b.iter(|| match_view(&view, &opts).expect("match"))
-    });
-    g.finish();
 }
 
 criterion_group!(benches, bench);

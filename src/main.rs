@@ -1,7 +1,8 @@
 //! The `demsketch` command line: a thin layer over the library. Each
 //! subcommand lives in `cli/` and only parses flags, calls the library and
 //! prints. Exit codes: 0 success, 1 user error (one line naming the file and
-//! the problem), 2 internal error.
+//! the problem), 2 internal error, 3 an edit whose fit is below `--min-fit`
+//! (nothing written).
 
 mod cli;
 

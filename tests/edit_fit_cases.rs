@@ -59,7 +59,10 @@ fn run_case(case: &Value) -> Outcome {
     );
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("edited.tif");
-    let opts = demsketch::edit::EditOptions::new(Destination::Path(out.clone()));
+    let mut opts = demsketch::edit::EditOptions::new(Destination::Path(out.clone()));
+    // This test judges the fit itself (FITTED_MIN, with the height error):
+    // the edit is written whatever its fit.
+    opts.allow_partial = true;
     let t = std::time::Instant::now();
     let rep = demsketch::edit::run(&dem_path, &sketch, &opts)
         .unwrap_or_else(|e| panic!("{name}: edit failed: {e}"));

@@ -1,8 +1,9 @@
 //! `demsketch edit DEM --sketch FILE --out OUT [--report R] [--renders DIR]
-//! [--in-place]`: correct a DEM so that its silhouettes match the strokes of
-//! a sketch file, write the corrected GeoTIFF (or the full tile set for a
-//! tile directory), the report and the pictures. Nothing is written when
-//! anything fails.
+//! [--in-place] [--min-fit F] [--allow-partial] [--dry-run]`: correct a DEM
+//! so that its silhouettes match the strokes of a sketch file, write the
+//! corrected GeoTIFF (or the full tile set for a tile directory), the report
+//! and the pictures. Nothing is written when anything fails; when a stroke's
+//! fit is below `--min-fit` only the report and pictures are (exit 3).
 
 use anyhow::Context;
 use demsketch::edit::{run as run_edit, EditError, EditOptions};
@@ -10,7 +11,22 @@ use demsketch::raster::Destination;
 use std::io::IsTerminal;
 use std::path::PathBuf;
 
-use super::InternalError;
+use super::{BelowMinFit, InternalError};
+
+/// Exit codes of `edit`, shown by `--help`.
+pub const EDIT_AFTER_HELP: &str = "\
+Exit codes:
+  0  the edit was written (with --dry-run: a real run would write it)
+  1  a user error (bad DEM, sketch or flags): one line naming the file and the
+     problem; nothing written
+  2  an internal error; nothing written
+  3  the edit ran but a stroke's fit (fitted_fraction) is below --min-fit and
+     --allow-partial was not given: the DEM is not written, the report and the
+     pictures are (each stroke has a status and a reason); with --dry-run, the
+     same: a real run would not write
+
+A dry run computes the whole edit and writes the report and pictures, never
+the DEM: its exit code says what a real run with the same flags would do.";
 
 #[derive(clap::Args, Debug)]
 pub struct EditArgs {
@@ -49,9 +65,33 @@ pub struct EditArgs {
     /// occluding contours (0: the paper's constraints and lowering only).
     #[arg(long, default_value_t = 6)]
     pub max_contour_iterations: usize,
+    /// Least share of a stroke's pixel columns that must be fitted (the
+    /// report's fit.fitted_fraction) for the edit to be written; below it
+    /// the DEM is not written and the exit code is 3. Above 1: never written.
+    #[arg(long, default_value_t = demsketch::edit::DEFAULT_MIN_FIT, value_parser = parse_min_fit)]
+    pub min_fit: f64,
+    /// Write the edit even when a stroke's fit is below --min-fit (the
+    /// report still marks those strokes "partial" or "unfitted").
+    #[arg(long)]
+    pub allow_partial: bool,
+    /// Compute the edit, write the report and pictures, never the DEM; the
+    /// exit code is the one a real run would give (0 or 3).
+    #[arg(long)]
+    pub dry_run: bool,
     /// Print the report on stdout.
     #[arg(long)]
     pub json: bool,
+}
+
+fn parse_min_fit(s: &str) -> Result<f64, String> {
+    let v: f64 = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("--min-fit '{s}' is not a number"))?;
+    if !(v.is_finite() && v >= 0.0) {
+        return Err(format!("--min-fit {v} is not a non-negative number"));
+    }
+    Ok(v)
 }
 
 pub fn run(args: EditArgs) -> anyhow::Result<()> {
@@ -68,8 +108,20 @@ pub fn run(args: EditArgs) -> anyhow::Result<()> {
     opts.max_lowering_iterations = args.max_lowering_iterations;
     opts.max_contour_iterations = args.max_contour_iterations;
     opts.progress = std::io::stderr().is_terminal();
+    opts.min_fit = args.min_fit;
+    opts.allow_partial = args.allow_partial;
+    opts.dry_run = args.dry_run;
     let report = match run_edit(&args.dem, &args.sketch, &opts) {
         Ok(r) => r,
+        Err(e @ EditError::BelowMinFit { .. }) => {
+            if let (true, EditError::BelowMinFit { report, .. }) = (args.json, &e) {
+                println!(
+                    "{}",
+                    serde_json::to_string_pretty(report).context("report")?
+                );
+            }
+            return Err(BelowMinFit(e.to_string()).into());
+        }
         Err(e) if e.is_user_error() => return Err(e.into()),
         Err(EditError::Internal(m)) => return Err(InternalError(m).into()),
         Err(e) => return Err(InternalError(e.to_string()).into()),
@@ -83,23 +135,40 @@ pub fn run(args: EditArgs) -> anyhow::Result<()> {
         for v in &report.views {
             for s in &v.strokes {
                 eprintln!(
-                    "view \"{}\" stroke \"{}\": {:?}, fitted {:.2}, visible {:.2}, mean {:.2} px",
+                    "view \"{}\" stroke \"{}\": {:?}, fitted {:.2}, visible {:.2}, mean {:.2} px{}",
                     v.name,
                     s.id,
                     s.matched.kind,
                     s.fit.fitted_fraction,
                     s.visible_fraction,
-                    s.fit.mean_px
+                    s.fit.mean_px,
+                    s.reason
+                        .as_deref()
+                        .map(|r| format!(" ({r})"))
+                        .unwrap_or_default()
                 );
             }
         }
-        eprintln!(
-            "{} cells changed (max |dz| {:.1} m) in {} file(s), {:.2} s",
-            report.changed_cells,
-            report.max_abs_displacement_m,
-            report.tiles_written.len(),
-            report.timings_s.total
-        );
+        if report.matching.stopped_early {
+            eprintln!(
+                "matching stopped at its budget of {} nodes (best assignment found kept)",
+                report.matching.node_budget
+            );
+        }
+        if report.written {
+            eprintln!(
+                "{} cells changed (max |dz| {:.1} m) in {} file(s), {:.2} s",
+                report.changed_cells,
+                report.max_abs_displacement_m,
+                report.tiles_written.len(),
+                report.timings_s.total
+            );
+        } else {
+            eprintln!(
+                "dry run: nothing written; a real run would change {} cells (max |dz| {:.1} m), {:.2} s",
+                report.changed_cells, report.max_abs_displacement_m, report.timings_s.total
+            );
+        }
     }
     Ok(())
 }

@@ -26,6 +26,7 @@ pub enum Command {
     /// Print the terrain point (lon, lat, height, distance) seen at a pixel of a view, as JSON.
     Locate(locate::LocateArgs),
     /// Correct a DEM so that its silhouettes match a sketch: corrected GeoTIFF/tiles, report, pictures.
+    #[command(after_help = edit::EDIT_AFTER_HELP)]
     Edit(edit::EditArgs),
 }
 
@@ -43,12 +44,21 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
 #[error("internal error: {0}")]
 pub struct InternalError(pub String);
 
-/// 2 for internal errors, 1 for everything caused by the input.
+/// An edit ran but a stroke's fit is below `--min-fit`, so nothing was
+/// written (exit code 3).
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct BelowMinFit(pub String);
+
+/// 2 for internal errors, 3 for an edit below `--min-fit`, 1 for everything
+/// caused by the input.
 pub fn exit_code(e: &anyhow::Error) -> i32 {
     if e.chain()
         .any(|c| c.downcast_ref::<InternalError>().is_some())
     {
         2
+    } else if e.chain().any(|c| c.downcast_ref::<BelowMinFit>().is_some()) {
+        3
     } else {
         1
     }

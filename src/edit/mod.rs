@@ -22,8 +22,8 @@ pub mod report;
 pub mod spikes;
 pub mod stretch_placement;
 
-pub use pipeline::{run, EditOptions};
-pub use report::EditReport;
+pub use pipeline::{run, EditOptions, DEFAULT_MIN_FIT, TERRAIN_TOUCH_PX};
+pub use report::{EditReport, MatchingReport, StrokeStatus};
 
 /// Errors of an edit. One line naming the file and the problem.
 #[derive(Debug, thiserror::Error)]
@@ -52,6 +52,18 @@ pub enum EditError {
         dem: String,
         #[source]
         source: crate::deform::DeformError,
+    },
+    /// A stroke's fit is below the minimum: nothing was written (but the
+    /// report and pictures were). Exit code 3.
+    #[error("{sketch}: view \"{view}\" stroke \"{stroke}\": {reason}; nothing written (the report says why for every stroke; --allow-partial writes anyway)")]
+    BelowMinFit {
+        sketch: String,
+        view: String,
+        stroke: String,
+        fit: f64,
+        min_fit: f64,
+        reason: String,
+        report: Box<EditReport>,
     },
     #[error("{path}: cannot write: {message}")]
     Write { path: String, message: String },

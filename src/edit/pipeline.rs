@@ -33,7 +33,8 @@ use super::on_silhouette::anchor_on_silhouettes;
 use super::rendered_view::{RenderedView, StrokeCurve, StrokeRegion};
 use super::renders::{encode_png, height_change_map, view_picture, Picture};
 use super::report::{
-    DeformationReport, EditReport, FeatureCounts, MatchReport, StagedFile, StrokeReport, Timings,
+    DeformationReport, EditReport, FeatureCounts, MatchReport, MatchingReport, StagedFile,
+    StrokeReport, StrokeStatus, Timings,
 };
 use super::spikes::flatten_spikes;
 use super::stretch_placement::{place_free_stretches, StretchPlacement};
@@ -71,11 +72,21 @@ pub struct EditOptions {
     pub max_contour_iterations: usize,
     /// Show progress on stderr (only drawn when stderr is a terminal).
     pub progress: bool,
+    /// A stroke is fitted when at least this share of its columns is
+    /// (`fitted_fraction`); below it, nothing is written
+    /// ([`EditError::BelowMinFit`]) unless `allow_partial`.
+    pub min_fit: f64,
+    /// Write the edit even when a stroke's fit is below `min_fit`.
+    pub allow_partial: bool,
+    /// Compute everything and write the report and pictures, but not the
+    /// DEM. Fails as a real run would (bad heights, fit below `min_fit`).
+    pub dry_run: bool,
 }
 
 impl EditOptions {
     /// Defaults: 50 km view distance, k = 1/7, 4 lowering iterations, 6
-    /// contour iterations.
+    /// contour iterations, minimum fit [`DEFAULT_MIN_FIT`], no partial
+    /// writes, not a dry run.
     pub fn new(destination: Destination) -> EditOptions {
         EditOptions {
             destination,
@@ -86,9 +97,19 @@ impl EditOptions {
             max_lowering_iterations: 4,
             max_contour_iterations: 6,
             progress: false,
+            min_fit: DEFAULT_MIN_FIT,
+            allow_partial: false,
+            dry_run: false,
         }
     }
 }
+
+/// Default of [`EditOptions::min_fit`] (`--min-fit`).
+pub const DEFAULT_MIN_FIT: f64 = 0.9;
+
+/// A stroke end touches the terrain when a terrain pixel lies within this
+/// many rows below it (or a column beside it) in the view before the edit.
+pub const TERRAIN_TOUCH_PX: f64 = 5.0;
 
 /// Default radius of the ground held fixed around each viewpoint, metres
 /// (at least two cells; the sketch's `observer_radius_m` overrides it).
@@ -190,6 +211,17 @@ pub fn run(
         .map_err(|e| view_err(e.into()))?;
         let scene =
             Scene::open_in_view(&dem, &vp, max_d, opts.refraction, &camera).map_err(view_err)?;
+        if let EyeHeightSpec::Absolute(a) = v.viewpoint.height() {
+            if a <= scene.frame.ground {
+                return Err(EditError::Unusable {
+                    sketch: sketch_name.clone(),
+                    message: format!(
+                        "view \"{}\": viewpoint alt_m {a} is not above the ground ({:.2} m) at the viewpoint",
+                        v.name, scene.frame.ground
+                    ),
+                });
+            }
+        }
         scenes.push((scene, camera));
     }
     timings.load = secs(t);
@@ -243,6 +275,9 @@ pub fn run(
             strokes,
             before,
         });
+    }
+    for v in &views {
+        check_strokes_touch_terrain(v, &dem, max_d, &sketch_name)?;
     }
     // Multi-view sketches are matched in one world frame: the first view's.
     let world = (views.len() > 1).then(|| views[0].frame);
@@ -301,6 +336,12 @@ pub fn run(
             ));
         }
     }
+    if matched.stopped_early {
+        notes.push(format!(
+            "matching: branch-and-bound stopped after its budget of {} nodes; the assignment is the best found within it (raise options.node_budget to search further)",
+            matched.node_budget
+        ));
+    }
     if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
         for m in &matched.views {
             for (k, l) in m.lists.iter().enumerate() {
@@ -329,6 +370,20 @@ pub fn run(
     let placement = demands.placement;
     let fixed = demands.fixed;
     let mut constraints = demands.curves;
+    notes.extend(depth_notes(&views, &curves));
+    let placement_issues: Vec<Vec<Option<&'static str>>> = scene_views
+        .iter()
+        .zip(&matched.views)
+        .map(|(sv, m)| {
+            m.strokes
+                .iter()
+                .map(|sm| {
+                    let all = sv.projection.placed_to_dem(&sm.points);
+                    placement_issue(&dem, &sm.points, &all, max_d)
+                })
+                .collect()
+        })
+        .collect();
     // The part of each view the re-renders compute.
     let regions: Vec<StrokeRegion> = views
         .iter()
@@ -472,9 +527,11 @@ pub fn run(
         let strokes = curves[k]
             .par_iter()
             .zip(&m.strokes)
+            .zip(&placement_issues[k])
             .enumerate()
-            .map(|(j, (c, sm))| {
+            .map(|(j, ((c, sm), issue))| {
                 let (fit, visible) = measure(c, &after);
+                let (status, reason) = stroke_outcome(&fit, visible, *issue, opts.min_fit);
                 let (lo, hi) = c.depths.iter().fold((f64::INFINITY, 0.0f64), |(a, b), d| {
                     (a.min(d.1), b.max(d.1))
                 });
@@ -490,6 +547,8 @@ pub fn run(
                     },
                     fit,
                     visible_fraction: visible,
+                    status,
+                    reason,
                     on_silhouette: on_silhouette[k][j],
                     placement: placement[k][j],
                 }
@@ -503,6 +562,7 @@ pub fn run(
             silhouettes_lowered: lowered[k],
             contour_iterations: contour_rounds[k],
             features: counts[k],
+            matching_stopped_early: matched.stopped_early,
         });
         after_views.push(after);
     }
@@ -544,7 +604,49 @@ pub fn run(
         ),
     };
     let values = deformation.write_values();
-    let written = dem.write_back(deformation.window, &values, &opts.destination, &provenance)?;
+    // Honest outcome: the worst stroke below the minimum fit stops the
+    // write (the report and pictures still come, to show why).
+    let worst = view_reports
+        .iter()
+        .flat_map(|v| v.strokes.iter().map(move |s| (v, s)))
+        .filter(|(_, s)| s.status != StrokeStatus::Fitted)
+        .min_by(|a, b| a.1.fit.fitted_fraction.total_cmp(&b.1.fit.fitted_fraction));
+    let below = worst.filter(|_| !opts.allow_partial).map(|(v, s)| {
+        (
+            v.name.clone(),
+            s.id.clone(),
+            s.fit.fitted_fraction,
+            s.reason.clone().unwrap_or_default(),
+        )
+    });
+    let write = below.is_none() && !opts.dry_run;
+    let written = if write {
+        dem.write_back(deformation.window, &values, &opts.destination, &provenance)?
+    } else {
+        // Not written: what a real run would change (a dry run fails as the
+        // real run would on heights the DEM cannot store).
+        let changed = match dem.check_write_back(deformation.window, &values) {
+            Ok(n) => n,
+            Err(e) if below.is_none() => return Err(e.into()),
+            Err(e) => {
+                notes.push(format!("the write-back would also fail: {e}"));
+                0
+            }
+        };
+        crate::raster::WriteReport {
+            tiles_written: Vec::new(),
+            tiles_unchanged: Vec::new(),
+            changed_cells: changed,
+        }
+    };
+    if let Some((view, stroke, fit, _)) = &below {
+        notes.push(format!(
+            "nothing written: view \"{view}\" stroke \"{stroke}\" fitted {fit:.2}, below --min-fit {} (--allow-partial writes anyway)",
+            opts.min_fit
+        ));
+    } else if opts.dry_run {
+        notes.push("dry run: nothing written".into());
+    }
     if let Some(s) = staged_renders {
         s.commit()?;
     }
@@ -582,6 +684,14 @@ pub fn run(
         },
         timings_s: timings,
         notes,
+        written: write,
+        dry_run: opts.dry_run,
+        min_fit: opts.min_fit,
+        matching: MatchingReport {
+            nodes: matched.nodes,
+            node_budget: matched.node_budget,
+            stopped_early: matched.stopped_early,
+        },
     };
     if let (Some(staged), Some(path)) = (staged_report, &opts.report) {
         let mut text = serde_json::to_string_pretty(&report)
@@ -595,7 +705,174 @@ pub fn run(
             })?;
     }
     pb.finish_and_clear();
+    if let Some((view, stroke, fit, reason)) = below {
+        return Err(EditError::BelowMinFit {
+            sketch: report.sketch.clone(),
+            view,
+            stroke,
+            fit,
+            min_fit: opts.min_fit,
+            reason,
+            report: Box::new(report),
+        });
+    }
     Ok(report)
+}
+
+/// Why a placed stroke cannot be fitted whatever the deformation does, if
+/// anything: `points` its placed points, `dem_points` the same in the DEM's
+/// CRS (absolute heights).
+fn placement_issue(
+    dem: &Dem,
+    points: &[crate::sketch::PlacedPoint],
+    dem_points: &[[f64; 3]],
+    max_d: Option<f64>,
+) -> Option<&'static str> {
+    use crate::sketch::PointSource;
+    let on_stroke = |p: &&crate::sketch::PlacedPoint| p.source != PointSource::Completion;
+    if points.iter().filter(on_stroke).count() == 0 {
+        return Some("could not be placed on the terrain");
+    }
+    if points
+        .iter()
+        .filter(on_stroke)
+        .any(|p| p.pixel.is_none() || !(p.depth > 0.0))
+    {
+        return Some("behind the eye");
+    }
+    let outside = points.iter().zip(dem_points).any(|(p, q)| {
+        on_stroke(&p)
+            && match dem.geotransform.crs_to_pixel(q[0], q[1]) {
+                Some((px, py)) if q.iter().all(|c| c.is_finite()) => {
+                    !(px >= 0.0 && py >= 0.0 && px < dem.width as f64 && py < dem.height as f64)
+                }
+                _ => true,
+            }
+    });
+    if outside {
+        return Some("outside the DEM");
+    }
+    if let Some(d) = max_d {
+        if points.iter().filter(on_stroke).any(|p| p.depth > d) {
+            return Some("beyond --max-distance");
+        }
+    }
+    None
+}
+
+/// Notes for the strokes whose `depth_m` (the author's distance) the
+/// placement did not follow: placement does not use `depth_m` yet, it only
+/// lifts the refusal of strokes drawn in empty sky
+/// ([`check_strokes_touch_terrain`]); the report says where they went.
+fn depth_notes(views: &[ViewState], curves: &[Vec<StrokeCurve>]) -> Vec<String> {
+    let mut out = Vec::new();
+    for (v, cs) in views.iter().zip(curves) {
+        for c in cs {
+            let Some(spec) = v.spec.strokes.get(c.stroke.source_index) else {
+                continue;
+            };
+            let Some(d) = spec.depth_m else { continue };
+            let [near, far] = d.range();
+            let (lo, hi) = c.depths.iter().fold((f64::INFINITY, 0.0f64), |(a, b), p| {
+                (a.min(p.1), b.max(p.1))
+            });
+            // Within 10 % of the range given counts as followed.
+            if lo.is_finite() && lo >= 0.9 * near && hi <= 1.1 * far {
+                continue;
+            }
+            out.push(format!(
+                "view \"{}\" stroke \"{}\": placed at {:.0} to {:.0} m, not at its depth_m {near}..{far} m (placement does not use depth_m yet)",
+                v.spec.name, c.id, if lo.is_finite() { lo } else { 0.0 }, hi
+            ));
+        }
+    }
+    out
+}
+
+/// A stroke's status and, when it is not fitted, why.
+fn stroke_outcome(
+    fit: &super::fit::StrokeFit,
+    visible: f64,
+    issue: Option<&'static str>,
+    min_fit: f64,
+) -> (StrokeStatus, Option<String>) {
+    let f = fit.fitted_fraction;
+    if f >= min_fit {
+        return (StrokeStatus::Fitted, None);
+    }
+    let status = if f > 0.0 {
+        StrokeStatus::Partial
+    } else {
+        StrokeStatus::Unfitted
+    };
+    let below = format!("fit {f:.2} below --min-fit {min_fit}");
+    let reason = match issue {
+        Some(i) => format!("{i}; {below}"),
+        None if visible < min_fit.min(1.0) => {
+            format!("hidden by nearer terrain (visible {visible:.2}); {below}")
+        }
+        None => below,
+    };
+    (status, Some(reason))
+}
+
+/// Refuse a stroke (without `depth_m`) whose end points both lie in empty
+/// sky in the view before the edit: nothing says how far it is. Names the
+/// view and the stroke, and whether the terrain lies beyond
+/// `--max-distance` or nowhere on the DEM.
+fn check_strokes_touch_terrain(
+    v: &ViewState,
+    dem: &Dem,
+    max_d: Option<f64>,
+    sketch: &str,
+) -> Result<(), EditError> {
+    let depth = &v.before.depth;
+    let (w, h) = (v.camera.width, v.camera.height);
+    let touches = |p: [f64; 2]| -> bool {
+        let i0 = (p[0].floor() as i64).clamp(0, w as i64 - 1);
+        let j0 = (p[1].floor() as i64).clamp(0, h as i64 - 1);
+        let rows = TERRAIN_TOUCH_PX.ceil() as i64;
+        (i0 - 1..=i0 + 1).any(|i| {
+            (j0 - 1..=j0 + rows)
+                .any(|j| i >= 0 && j >= 0 && depth.depth_at(i as usize, j as usize).is_finite())
+        })
+    };
+    for s in &v.spec.strokes {
+        if s.depth_m.is_some() {
+            continue;
+        }
+        let (Some(&a), Some(&b)) = (s.points.first(), s.points.last()) else {
+            continue;
+        };
+        if touches(a) || touches(b) {
+            continue;
+        }
+        // Would the DEM go on beyond --max-distance along the end's ray?
+        let beyond = max_d.is_some_and(|d| {
+            [a, b].iter().any(|p| {
+                let r = v.camera.ray(p[0], p[1]);
+                let n = r[0].hypot(r[1]);
+                if n <= 0.0 {
+                    return false;
+                }
+                let (x, y) = v.frame.en_to_crs(r[0] / n * d, r[1] / n * d);
+                dem.geotransform.crs_to_pixel(x, y).is_some_and(|(px, py)| {
+                    px >= 0.0 && py >= 0.0 && px < dem.width as f64 && py < dem.height as f64
+                })
+            })
+        });
+        let problem = match (beyond, max_d) {
+            (true, Some(d)) => format!(
+                "the rays through its end points hit no terrain within --max-distance {d} m (the DEM goes on beyond it): raise --max-distance, or give the stroke's depth_m"
+            ),
+            _ => "drawn in empty sky: the rays through its end points hit no terrain of the DEM; give the stroke's depth_m (distance from the eye, metres) to place it".to_string(),
+        };
+        return Err(EditError::Unusable {
+            sketch: sketch.to_string(),
+            message: format!("view \"{}\" stroke \"{}\": {problem}", v.spec.name, s.id),
+        });
+    }
+    Ok(())
 }
 
 /// What the placed strokes ask of the terrain.

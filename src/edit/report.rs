@@ -28,8 +28,41 @@ pub struct EditReport {
     pub max_abs_displacement_m: f64,
     pub deformation: DeformationReport,
     pub timings_s: Timings,
-    /// Notes (split strokes, depth-order conflicts).
+    /// Notes (split strokes, depth-order conflicts, early stop of the
+    /// matching, why nothing was written).
     pub notes: Vec<String>,
+    /// Whether the corrected DEM was written (false for a dry run and when
+    /// a stroke's fit is below `min_fit` without `--allow-partial`; then
+    /// `changed_cells` counts what a write would have changed).
+    pub written: bool,
+    pub dry_run: bool,
+    /// The `--min-fit` every stroke's `status` was judged against.
+    pub min_fit: f64,
+    /// The stroke-feature search of the whole sketch (its views are
+    /// matched jointly).
+    pub matching: MatchingReport,
+}
+
+/// Branch-and-bound of the matching.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct MatchingReport {
+    /// Search nodes visited.
+    pub nodes: u64,
+    /// Most nodes allowed (`options.node_budget`).
+    pub node_budget: u64,
+    /// The budget ran out: the assignment is the best found within it, not
+    /// proven optimal.
+    pub stopped_early: bool,
+}
+
+/// Whether a stroke is fitted (`fit.fitted_fraction >= min_fit`), partly
+/// fitted (below it, above 0) or not at all.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum StrokeStatus {
+    Fitted,
+    Partial,
+    Unfitted,
 }
 
 /// One view of the sketch.
@@ -50,6 +83,8 @@ pub struct ViewReport {
     pub contour_iterations: usize,
     /// Features offered to matching (silhouettes, ridges).
     pub features: FeatureCounts,
+    /// The matching (joint over all views) stopped at its node budget.
+    pub matching_stopped_early: bool,
 }
 
 /// Features of a view.
@@ -68,6 +103,10 @@ pub struct StrokeReport {
     pub matched: MatchReport,
     pub fit: StrokeFit,
     pub visible_fraction: f64,
+    pub status: StrokeStatus,
+    /// Why the stroke is not fitted (absent when it is).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub reason: Option<String>,
     /// Share of the stroke that already lay on a silhouette of the
     /// unedited terrain (within about a pixel) and was kept as it was.
     pub on_silhouette: f64,

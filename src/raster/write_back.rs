@@ -103,6 +103,31 @@ fn temp_beside(target: &Path) -> PathBuf {
     target.with_file_name(format!(".{name}.demsketch-{}.tmp", std::process::id()))
 }
 
+/// Can `v` be stored in `t` as itself? Not when it is outside the type's
+/// range (integers: after rounding to nearest; Float32: beyond its largest
+/// finite value) or when it lands on the nodata value `nodata` (quantized).
+fn storable(t: SampleType, nodata: Option<f64>, v: f64) -> Result<(), String> {
+    if !v.is_finite() {
+        return Err("is not a finite number".into());
+    }
+    if let Some((lo, hi)) = t.integer_range() {
+        let q = v.round();
+        if q < lo || q > hi {
+            return Err(format!("is outside the {t} range [{lo}, {hi}]"));
+        }
+    } else if t == SampleType::Float32 && v.abs() > f32::MAX as f64 {
+        return Err(format!("is outside the {t} range"));
+    }
+    if let Some(nd) = nodata {
+        if t.quantize(v) == nd {
+            return Err(format!(
+                "lands on the nodata value {nd} (it would turn a valid cell into a hole)"
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// The new values of one tile: its full extent, quantized to its type.
 struct TileEdit {
     tile: usize,
@@ -136,6 +161,33 @@ impl Dem {
             ));
         }
         self.check_destination(dest)?;
+        let edits = self.tile_edits(window, values)?;
+        let changed_cells = edits.iter().map(|e| e.changed).sum();
+        self.commit_edits(edits, changed_cells, dest, provenance)
+    }
+
+    /// What [`Dem::write_back`] would change, without writing anything:
+    /// the number of cells whose stored value would change, or the error a
+    /// write-back would give (a height the sample type cannot hold, or one
+    /// that lands on the nodata value). For dry runs.
+    pub fn check_write_back(&self, window: Window, values: &[f64]) -> Result<usize, RasterError> {
+        if values.len() != window.len() {
+            return Err(write_err(
+                &self.path,
+                format!(
+                    "{} values for a window of {} cells",
+                    values.len(),
+                    window.len()
+                ),
+            ));
+        }
+        let edits = self.tile_edits(window, values)?;
+        Ok(edits.iter().map(|e| e.changed).sum())
+    }
+
+    /// The quantized edits of every tile `window` touches (tiles without a
+    /// changed cell left out).
+    fn tile_edits(&self, window: Window, values: &[f64]) -> Result<Vec<TileEdit>, RasterError> {
         let window =
             window
                 .intersect(&self.full_window())
@@ -146,8 +198,11 @@ impl Dem {
                     height: self.height,
                 })?;
         let original = self.read_window::<f64>(window)?;
-        // Per tile: which cells change once quantized.
-        let edits: Vec<TileEdit> = self
+        // Per tile: which cells change once quantized. A new height the
+        // tile's type cannot hold, or one that lands on its nodata value, is
+        // an error (never clamped: that would write a wrong height, or turn
+        // a valid cell into a hole).
+        let edits: Vec<Result<TileEdit, RasterError>> = self
             .tiles_touching(&window)
             .into_par_iter()
             .filter_map(|ti| {
@@ -155,6 +210,7 @@ impl Dem {
                 let ov = tile.extent.intersect(&window)?;
                 let mut vals = vec![0.0; ov.len()];
                 let mut changed = 0;
+                let nodata = tile.nodata.map(|v| tile.sample_type.quantize(v));
                 for r in 0..ov.height {
                     for c in 0..ov.width {
                         let wi = ((ov.row - window.row) as usize + r) * window.width
@@ -167,6 +223,16 @@ impl Dem {
                         let v = if !original.valid[wi] || new.is_nan() {
                             f64::NAN
                         } else {
+                            let cell = (ov.col + c as i64, ov.row + r as i64);
+                            if let Err(problem) = storable(tile.sample_type, nodata, new) {
+                                return Some(Err(RasterError::Write {
+                                    path: tile.path.clone(),
+                                    message: format!(
+                                        "cell (col {}, row {}): new height {new} {problem}; nothing written",
+                                        cell.0, cell.1
+                                    ),
+                                }));
+                            }
                             tile.sample_type.quantize(new)
                         };
                         if !v.is_nan() && v != old {
@@ -175,7 +241,7 @@ impl Dem {
                         vals[r * ov.width + c] = v;
                     }
                 }
-                (changed > 0).then(|| TileEdit {
+                (changed > 0).then(|| Ok(TileEdit {
                     tile: ti,
                     local: Window::new(
                         ov.col - tile.extent.col,
@@ -185,10 +251,21 @@ impl Dem {
                     ),
                     values: vals,
                     changed,
-                })
+                }))
             })
             .collect();
-        let changed_cells = edits.iter().map(|e| e.changed).sum();
+        let edits: Vec<TileEdit> = edits.into_iter().collect::<Result<_, _>>()?;
+        Ok(edits)
+    }
+
+    /// Write the tile edits to `dest`.
+    fn commit_edits(
+        &self,
+        edits: Vec<TileEdit>,
+        changed_cells: usize,
+        dest: &Destination,
+        provenance: &Provenance,
+    ) -> Result<WriteReport, RasterError> {
         match (dest, self.kind) {
             (Destination::InPlace, LayerKind::Gdal) => Err(RasterError::Unsupported {
                 path: self.path.clone(),

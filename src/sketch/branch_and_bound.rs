@@ -36,6 +36,16 @@
 //! assert!((bb.cost - bf.cost).abs() < 1e-12);
 //! ```
 
+/// Search nodes [`branch_and_bound`] visits at most by default
+/// ([`branch_and_bound_with_budget`]): once that many are visited and a
+/// complete solution is known, the search stops and keeps the best solution
+/// found ([`Solution::stopped_early`]). With [`Bound::ForwardChecking`]
+/// each compatibility row computed (one per candidate tried, cached) counts
+/// as a node too. The first solution (every stroke
+/// takes its cheapest available entry, front to back) is always completed,
+/// whatever the budget.
+pub const DEFAULT_NODE_BUDGET: u64 = 20_000;
+
 /// Cost of a stroke left with an empty priority list (effectively infinite,
 /// but finite so that solutions with fewer empty lists are preferred).
 pub const EMPTY_LIST_COST: f64 = 1.0e9;
@@ -77,18 +87,37 @@ pub struct Solution {
     pub nodes: u64,
     /// Strokes left without a feature.
     pub empty: usize,
+    /// The node budget ran out before the search could prove the solution
+    /// optimal: `choice` is the best found within the budget.
+    pub stopped_early: bool,
 }
 
 /// Minimises the total cost by branch-and-bound. `lists[i]` is stroke i's
 /// priority list (strokes front to back; lists need not be sorted);
 /// `conflicts(i, a, j, b)` with `i < j` says that candidate `a` of stroke `i`
-/// and candidate `b` of stroke `j` cannot both be chosen.
+/// and candidate `b` of stroke `j` cannot both be chosen. Visits at most
+/// [`DEFAULT_NODE_BUDGET`] nodes.
 pub fn branch_and_bound<F>(lists: &[Vec<Choice>], conflicts: &F, bound: Bound) -> Solution
 where
     F: Fn(usize, usize, usize, usize) -> bool + Sync + ?Sized,
 {
+    branch_and_bound_with_budget(lists, conflicts, bound, DEFAULT_NODE_BUDGET)
+}
+
+/// [`branch_and_bound`] with a node budget: the search stops once `budget`
+/// nodes are visited and a complete solution is known, keeping the best one
+/// found, and says so in [`Solution::stopped_early`] (`u64::MAX`: exact).
+pub fn branch_and_bound_with_budget<F>(
+    lists: &[Vec<Choice>],
+    conflicts: &F,
+    bound: Bound,
+    budget: u64,
+) -> Solution
+where
+    F: Fn(usize, usize, usize, usize) -> bool + Sync + ?Sized,
+{
     if bound == Bound::ForwardChecking {
-        return forward_checking(lists, conflicts);
+        return forward_checking(lists, conflicts, budget);
     }
     let n = lists.len();
     // Candidate indices of each list by increasing cost.
@@ -121,6 +150,8 @@ where
         best: vec![None; n],
         best_cost: f64::INFINITY,
         nodes: 0,
+        budget,
+        stopped: false,
     };
     st.visit(0, 0.0);
     let empty = st.best.iter().filter(|c| c.is_none()).count();
@@ -129,6 +160,7 @@ where
         cost: st.best_cost,
         nodes: st.nodes,
         empty,
+        stopped_early: st.stopped,
     }
 }
 
@@ -142,6 +174,14 @@ struct Search<'a, F: ?Sized> {
     best: Vec<Option<usize>>,
     best_cost: f64,
     nodes: u64,
+    budget: u64,
+    stopped: bool,
+}
+
+/// Out of budget: `nodes` visited and a complete solution known (the first
+/// descent always completes).
+fn out_of_budget(nodes: u64, budget: u64, best_cost: f64) -> bool {
+    nodes >= budget && best_cost.is_finite()
 }
 
 impl<F> Search<'_, F>
@@ -159,6 +199,9 @@ where
         }
         let mut any = false;
         for k in 0..self.sorted[depth].len() {
+            if self.stopped {
+                return;
+            }
             let b = self.sorted[depth][k];
             if !self.available(depth, b) {
                 continue;
@@ -169,14 +212,22 @@ where
                 // Lists are visited by increasing cost: the rest is worse.
                 break;
             }
+            if out_of_budget(self.nodes, self.budget, self.best_cost) {
+                self.stopped = true;
+                return;
+            }
             self.nodes += 1;
             self.current[depth] = Some(b);
             self.visit(depth + 1, c);
             self.current[depth] = None;
         }
-        if !any {
+        if !any && !self.stopped {
             let c = cost + EMPTY_LIST_COST;
             if self.prune && c + self.suffix[depth + 1] >= self.best_cost {
+                return;
+            }
+            if out_of_budget(self.nodes, self.budget, self.best_cost) {
+                self.stopped = true;
                 return;
             }
             self.nodes += 1;
@@ -236,6 +287,7 @@ where
                     cost,
                     nodes,
                     empty,
+                    stopped_early: false,
                 };
             }
             idx[i] += 1;
@@ -306,6 +358,11 @@ struct Forward<'a, F: ?Sized> {
     best: Vec<Option<usize>>,
     best_cost: f64,
     nodes: u64,
+    /// Compatibility rows computed: each costs about as much as a node
+    /// (more, on long lists) and counts against the budget too.
+    rows_computed: u64,
+    budget: u64,
+    stopped: bool,
 }
 
 impl<F> Forward<'_, F>
@@ -335,6 +392,7 @@ where
             })
             .collect();
         let row = std::sync::Arc::new(row);
+        self.rows_computed += 1;
         self.rows[i][r] = Some(row.clone());
         row
     }
@@ -359,11 +417,18 @@ where
             }
             return;
         }
+        if self.stopped {
+            return;
+        }
         let rest = self.remaining(depth + 1, &masks[1..]);
         let here = masks[0].clone();
         if mask_first(&here).is_none() {
             let c = cost + EMPTY_LIST_COST;
             if c + rest >= self.best_cost {
+                return;
+            }
+            if out_of_budget(self.nodes + self.rows_computed, self.budget, self.best_cost) {
+                self.stopped = true;
                 return;
             }
             self.nodes += 1;
@@ -373,12 +438,21 @@ where
         for (w, &word) in here.iter().enumerate() {
             let mut bits = word;
             while bits != 0 {
+                if self.stopped {
+                    return;
+                }
                 let r = 64 * w + bits.trailing_zeros() as usize;
                 bits &= bits - 1;
                 let c = cost + self.lists[depth][self.sorted[depth][r]].cost;
                 // Entries come by increasing cost and `rest` only grows
                 // once the lists behind are filtered: stop here.
                 if c + rest >= self.best_cost {
+                    return;
+                }
+                if self.rows[depth][r].is_none()
+                    && out_of_budget(self.nodes + self.rows_computed, self.budget, self.best_cost)
+                {
+                    self.stopped = true;
                     return;
                 }
                 let row = self.row(depth, r);
@@ -390,6 +464,10 @@ where
                 if c + self.remaining(depth + 1, &next) >= self.best_cost {
                     continue;
                 }
+                if out_of_budget(self.nodes + self.rows_computed, self.budget, self.best_cost) {
+                    self.stopped = true;
+                    return;
+                }
                 self.nodes += 1;
                 self.current[depth] = Some(self.sorted[depth][r]);
                 self.visit(depth + 1, c, &next);
@@ -399,7 +477,7 @@ where
     }
 }
 
-fn forward_checking<F>(lists: &[Vec<Choice>], conflicts: &F) -> Solution
+fn forward_checking<F>(lists: &[Vec<Choice>], conflicts: &F, budget: u64) -> Solution
 where
     F: Fn(usize, usize, usize, usize) -> bool + Sync + ?Sized,
 {
@@ -432,6 +510,9 @@ where
         best: vec![None; n],
         best_cost: f64::INFINITY,
         nodes: 0,
+        rows_computed: 0,
+        budget,
+        stopped: false,
     };
     st.visit(0, 0.0, &masks);
     let empty = st.best.iter().filter(|c| c.is_none()).count();
@@ -440,5 +521,6 @@ where
         cost: st.best_cost,
         nodes: st.nodes,
         empty,
+        stopped_early: st.stopped,
     }
 }

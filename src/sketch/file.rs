@@ -130,13 +130,44 @@ fn default_height() -> u32 {
     900
 }
 
-/// One stroke: an id unique within its view and a polyline in pixels.
+/// One stroke: an id unique within its view and a polyline in pixels,
+/// optionally with the distance from the eye the author means (`depth_m`),
+/// for a landform drawn where nothing in the image says how far it is.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct StrokeSpec {
     pub id: String,
     pub points: Vec<[f64; 2]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub depth_m: Option<DepthSpec>,
 }
+
+/// A stroke's depth: one distance from the eye, or a `[near, far]` range,
+/// metres.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum DepthSpec {
+    Distance(f64),
+    Range([f64; 2]),
+}
+
+impl DepthSpec {
+    /// `[near, far]` (equal for a single distance).
+    pub fn range(self) -> [f64; 2] {
+        match self {
+            DepthSpec::Distance(d) => [d, d],
+            DepthSpec::Range(r) => r,
+        }
+    }
+}
+
+/// Largest `eye_height_m` accepted, metres (higher eyes: give `alt_m`).
+pub const MAX_EYE_HEIGHT_M: f64 = 10_000.0;
+/// Largest `influence_m` accepted, metres: the default `--max-distance`
+/// (the edit never reads farther from a viewpoint than that by default).
+pub const MAX_INFLUENCE_M: f64 = 50_000.0;
+/// Largest `observer_radius_m` accepted, metres.
+pub const MAX_OBSERVER_RADIUS_M: f64 = 10_000.0;
 
 /// Weights w1..w4 of the four matching cost terms (section 5.2.1); the paper
 /// uses 1 for all.
@@ -179,10 +210,13 @@ pub enum FoldBackPolicy {
     Reject,
 }
 
-/// Options of a sketch. Unknown keys are kept in `extra` for other stages.
+/// Options of a sketch. Unknown keys are an error, as everywhere else in
+/// the sketch.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct SketchOptions {
-    /// Radius of influence of the deformation, metres (read by `deform`).
+    /// Radius of influence of the deformation, metres (read by `deform`),
+    /// in `(0, MAX_INFLUENCE_M]`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub influence_m: Option<f64>,
     /// Radius around each viewpoint within which the ground is held at its
@@ -213,6 +247,11 @@ pub struct SketchOptions {
     /// Length of each stroke's priority list after sorting by cost.
     #[serde(default = "default_max_candidates")]
     pub max_candidates: usize,
+    /// Most branch-and-bound search nodes of the matching; once spent, the
+    /// best assignment found is kept and the report says the search stopped
+    /// early.
+    #[serde(default = "default_node_budget")]
+    pub node_budget: u64,
     /// Fallback embedding without a neighbour on one side: depth ratio to the
     /// neighbour on the other side.
     #[serde(default = "default_fallback_ratio")]
@@ -226,9 +265,6 @@ pub struct SketchOptions {
     /// Longest completion at each end, metres.
     #[serde(default = "default_completion_max")]
     pub completion_max_m: f64,
-    /// Other stages' options.
-    #[serde(flatten)]
-    pub extra: serde_json::Map<String, serde_json::Value>,
 }
 
 fn default_t_junction() -> f64 {
@@ -245,6 +281,9 @@ fn default_min_coverage() -> f64 {
 }
 fn default_max_candidates() -> usize {
     32
+}
+fn default_node_budget() -> u64 {
+    super::branch_and_bound::DEFAULT_NODE_BUDGET
 }
 fn default_fallback_ratio() -> f64 {
     1.25
@@ -271,11 +310,11 @@ impl Default for SketchOptions {
             fold_back: FoldBackPolicy::Split,
             min_coverage: default_min_coverage(),
             max_candidates: default_max_candidates(),
+            node_budget: default_node_budget(),
             fallback_depth_ratio: default_fallback_ratio(),
             feature_completion: true,
             completion_step_m: default_completion_step(),
             completion_max_m: default_completion_max(),
-            extra: serde_json::Map::new(),
         }
     }
 }
@@ -359,6 +398,17 @@ impl SketchFile {
                         ));
                     }
                 }
+                if let Some(d) = stroke.depth_m {
+                    let [near, far] = d.range();
+                    if !(near.is_finite() && far.is_finite() && near > 0.0 && far >= near) {
+                        return Err(err(
+                            sloc,
+                            format!(
+                                "depth_m {near}..{far} is not a positive distance (or a [near, far] range with near <= far)"
+                            ),
+                        ));
+                    }
+                }
                 let (x0, x1) = stroke
                     .points
                     .iter()
@@ -397,6 +447,11 @@ fn validate_viewpoint(v: &ViewpointSpec) -> Result<(), String> {
     if let Some(h) = v.eye_height_m {
         if !h.is_finite() {
             return Err("viewpoint eye_height_m is not a finite number".into());
+        }
+        if !(h > 0.0 && h <= MAX_EYE_HEIGHT_M) {
+            return Err(format!(
+                "viewpoint eye_height_m {h} is not in (0, {MAX_EYE_HEIGHT_M}] metres above the ground (for a higher eye give alt_m)"
+            ));
         }
     }
     if let Some(a) = v.alt_m {
@@ -438,10 +493,17 @@ fn validate_options(o: &SketchOptions) -> Result<(), String> {
         if !(r.is_finite() && r > 0.0) {
             return Err(format!("influence_m {r} is not a positive number"));
         }
+        if r > MAX_INFLUENCE_M {
+            return Err(format!(
+                "influence_m {r} exceeds the maximum of {MAX_INFLUENCE_M} m"
+            ));
+        }
     }
     if let Some(r) = o.observer_radius_m {
-        if !(r.is_finite() && r >= 0.0) {
-            return Err(format!("observer_radius_m {r} is not a number >= 0"));
+        if !(r.is_finite() && r >= 0.0 && r <= MAX_OBSERVER_RADIUS_M) {
+            return Err(format!(
+                "observer_radius_m {r} is not in [0, {MAX_OBSERVER_RADIUS_M}] metres"
+            ));
         }
     }
     let w = &o.weights;
@@ -476,6 +538,9 @@ fn validate_options(o: &SketchOptions) -> Result<(), String> {
     }
     if o.max_candidates == 0 {
         return Err("max_candidates must be at least 1".into());
+    }
+    if o.node_budget == 0 {
+        return Err("node_budget must be at least 1".into());
     }
     if o.fallback_depth_ratio <= 1.0 {
         return Err("fallback_depth_ratio must be greater than 1".into());

@@ -35,7 +35,8 @@ pub mod stroke;
 pub mod view_input;
 
 pub use branch_and_bound::{
-    branch_and_bound, brute_force, valid, Bound, Choice, Solution, EMPTY_LIST_COST,
+    branch_and_bound, branch_and_bound_with_budget, brute_force, valid, Bound, Choice, Solution,
+    DEFAULT_NODE_BUDGET, EMPTY_LIST_COST,
 };
 pub use candidates::{
     build_candidate, priority_list, Candidate, CandidateOptions, CandidatePoint, CostTerms,
@@ -47,8 +48,9 @@ pub use depth_order::{
 };
 pub use fallback::{embed_on_plane, embed_unmatched, fallback_depths, terrain_touching_point};
 pub use file::{
-    CameraSpec, CostWeights, EyeHeightSpec, FoldBackPolicy, SketchError, SketchFile, SketchOptions,
-    StrokeSpec, ViewSpec, ViewpointSpec,
+    CameraSpec, CostWeights, DepthSpec, EyeHeightSpec, FoldBackPolicy, SketchError, SketchFile,
+    SketchOptions, StrokeSpec, ViewSpec, ViewpointSpec, MAX_EYE_HEIGHT_M, MAX_INFLUENCE_M,
+    MAX_OBSERVER_RADIUS_M,
 };
 pub use multi_view::{
     check_intersections, match_sketch, match_view, occludes_across_views, occludes_within_view,

@@ -27,7 +27,7 @@
 
 use rayon::prelude::*;
 
-use super::branch_and_bound::{branch_and_bound, Bound, Choice};
+use super::branch_and_bound::{branch_and_bound_with_budget, Bound, Choice};
 use super::candidates::{priority_list, Candidate, CandidateOptions, CostTerms, PriorityList};
 use super::depth_order::{order_strokes, DepthOrdering};
 use super::fallback::{embed_unmatched, placed_depth_at};
@@ -99,6 +99,11 @@ pub struct SketchMatch {
     pub total_cost: f64,
     /// Branch-and-bound nodes visited.
     pub nodes: u64,
+    /// The node budget (`SketchOptions::node_budget`).
+    pub node_budget: u64,
+    /// Branch-and-bound ran out of its node budget: the assignment is the
+    /// best found within it, not proven optimal.
+    pub stopped_early: bool,
 }
 
 /// Errors of matching.
@@ -315,7 +320,7 @@ pub fn match_sketch(views: &[ViewInput], opts: &SketchOptions) -> Result<SketchM
     if views.len() > 1 {
         let mut alone: Vec<Vec<Option<usize>>> = Vec::with_capacity(views.len());
         for t in 0..views.len() {
-            let (a, _) = solve(views, &orderings, &lists, &[t]);
+            let (a, _) = solve(views, &orderings, &lists, &[t], opts.node_budget);
             alone.push(a.into_iter().nth(t).unwrap_or_default());
         }
         let placed = place_views(views, &orderings, &lists, &alone, opts);
@@ -323,11 +328,13 @@ pub fn match_sketch(views: &[ViewInput], opts: &SketchOptions) -> Result<SketchM
             views: placed,
             total_cost: 0.0,
             nodes: 0,
+            node_budget: opts.node_budget,
+            stopped_early: false,
         };
         check_intersections(views, &m)?;
     }
     let all: Vec<usize> = (0..views.len()).collect();
-    let (assigned, sol) = solve(views, &orderings, &lists, &all);
+    let (assigned, sol) = solve(views, &orderings, &lists, &all, opts.node_budget);
     let mut out_views = place_views(views, &orderings, &lists, &assigned, opts);
     for (t, l) in lists.into_iter().enumerate() {
         out_views[t].lists = l;
@@ -336,6 +343,8 @@ pub fn match_sketch(views: &[ViewInput], opts: &SketchOptions) -> Result<SketchM
         views: out_views,
         total_cost: sol.cost,
         nodes: sol.nodes,
+        node_budget: opts.node_budget,
+        stopped_early: sol.stopped_early,
     };
     check_intersections(views, &result)?;
     Ok(result)
@@ -343,13 +352,15 @@ pub fn match_sketch(views: &[ViewInput], opts: &SketchOptions) -> Result<SketchM
 
 /// Branch-and-bound over the strokes of the views `which` (in that order,
 /// front to back within a view) with the within-view and cross-view
-/// occlusion constraints. Returns the chosen candidate per view and stroke
-/// (`None` for views not in `which` and for emptied lists).
+/// occlusion constraints, within `budget` search nodes. Returns the chosen
+/// candidate per view and stroke (`None` for views not in `which` and for
+/// emptied lists).
 fn solve(
     views: &[ViewInput],
     orderings: &[DepthOrdering],
     lists: &[Vec<PriorityList>],
     which: &[usize],
+    budget: u64,
 ) -> (Vec<Vec<Option<usize>>>, super::branch_and_bound::Solution) {
     // Global stroke list: (view, stroke), view by view, front to back.
     let global: Vec<(usize, usize)> = which
@@ -427,7 +438,7 @@ fn solve(
                 || occludes_projected(&views[tj].strokes[sj], cb, &projected[i][a][slot(tj)])
         }
     };
-    let sol = branch_and_bound(&choices, &conflicts, Bound::ForwardChecking);
+    let sol = branch_and_bound_with_budget(&choices, &conflicts, Bound::ForwardChecking, budget);
 
     let mut assigned: Vec<Vec<Option<usize>>> =
         views.iter().map(|v| vec![None; v.strokes.len()]).collect();
