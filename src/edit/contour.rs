@@ -91,11 +91,7 @@ pub fn unfitted_columns(stroke: &StrokeCurve, view: &RenderedView) -> Vec<(usize
     stroke
         .free_columns(view.camera.width)
         .into_iter()
-        .filter(|&(i, y, _)| {
-            !view.boundary_rows(i).any(|(drawn, bilinear)| {
-                (drawn - y).abs().min((bilinear - y).abs()) <= FIT_TOLERANCE_PX
-            })
-        })
+        .filter(|&(i, y, _)| !view.boundary_near(i, y, FIT_TOLERANCE_PX).1)
         .collect()
 }
 

@@ -49,12 +49,7 @@ pub fn measure(stroke: &StrokeCurve, view: &RenderedView) -> (StrokeFit, f64) {
     let (mut fitted, mut visible, mut sum, mut max, mut measured) =
         (0usize, 0usize, 0.0, 0.0f64, 0);
     for &(i, y, d) in &cols {
-        let (nearest, within) =
-            view.boundary_rows(i)
-                .fold((f64::INFINITY, false), |(n, ok), (drawn, bilinear)| {
-                    let d = (drawn - y).abs().min((bilinear - y).abs());
-                    (n.min(d), ok || d <= FIT_TOLERANCE_PX)
-                });
+        let (nearest, within) = view.boundary_near(i, y, FIT_TOLERANCE_PX);
         if nearest.is_finite() {
             measured += 1;
             sum += nearest;

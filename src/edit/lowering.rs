@@ -140,7 +140,12 @@ fn stroke_hits(view: &RenderedView, g: &StrokeCurve) -> StrokeHits {
             if h.is_finite() && h > 0.0 {
                 // On the bilinear surface it does not rise above the
                 // stroke: not a protrusion to lower.
-                let bilinear = view.bilinear_row(i, sample).unwrap_or(sample.pixel[1]);
+                let open = view.interpolation_bound_px(sample.cell, sample.depth);
+                let bilinear = if sample.pixel[1] < y - BELOW_STROKE_PX - open {
+                    sample.pixel[1]
+                } else {
+                    view.bilinear_row(i, sample).unwrap_or(sample.pixel[1])
+                };
                 if bilinear < y - BELOW_STROKE_PX {
                     samples.push((c as usize, h, x));
                 }

@@ -29,7 +29,7 @@ pub const ON_SILHOUETTE_PX: f64 = 1.5;
 /// ... or this close, inside a short stretch next to anchored points.
 pub const GAP_TOLERANCE_PX: f64 = 3.0;
 /// The widest such stretch, pixels.
-pub const MAX_GAP_PX: f64 = 12.0;
+pub const MAX_GAP_PX: f64 = 40.0;
 
 /// The terrain point forming an occlusion boundary of a view.
 #[derive(Debug, Clone, Copy)]
@@ -54,10 +54,16 @@ fn nearest_boundary(view: &RenderedView, pixel: [f64; 2], tol: f64) -> Option<Bo
     for &(c, s) in &view.by_column[i] {
         let sample = &view.silhouettes.curves[c as usize].samples[s as usize];
         // The row as drawn, or as the bilinear surface has it.
-        let row = view
-            .bilinear_row(i, sample)
-            .filter(|b| (b - pixel[1]).abs() < (sample.pixel[1] - pixel[1]).abs())
-            .unwrap_or(sample.pixel[1]);
+        let drawn = (sample.pixel[1] - pixel[1]).abs();
+        let row = if drawn <= tol
+            || drawn > tol + view.interpolation_bound_px(sample.cell, sample.depth)
+        {
+            sample.pixel[1]
+        } else {
+            view.bilinear_row(i, sample)
+                .filter(|b| (b - pixel[1]).abs() < drawn)
+                .unwrap_or(sample.pixel[1])
+        };
         let dy = (row - pixel[1]).abs();
         if dy <= tol && best.is_none_or(|b| dy < (b.row - pixel[1]).abs()) {
             best = Some(BoundaryPoint {

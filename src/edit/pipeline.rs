@@ -437,6 +437,14 @@ pub fn run(
             rendered.push(render_edited(v, &deformation, max_d, Some(&regions[k]))?);
         }
         let score = fit_score(&curves, &rendered);
+        if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
+            eprintln!(
+                "round: fit score {score:.3} (best {:?}), lowering {:?}, contour {:?}",
+                best.as_ref().map(|b| b.0),
+                iterations,
+                contour_rounds
+            );
+        }
         match &best {
             Some((b, _)) if score <= *b + 1e-9 => {
                 stalled += 1;
@@ -908,6 +916,7 @@ fn place_demands(
         on_silhouette: Vec::new(),
         placement: Vec::new(),
     };
+    let mut held = Vec::new();
     for ((v, sv), m) in views.iter().zip(scene_views).zip(matched.iter_mut()) {
         let mut cs = Vec::new();
         let mut fractions = Vec::new();
@@ -930,7 +939,7 @@ fn place_demands(
             d.curves
                 .extend(free_stretches(&dem_points, &depths, &anchored));
             for (p, _) in dem_points.iter().zip(&anchored).filter(|(_, &a)| a) {
-                d.fixed.extend(v.stencil_cells(p[0], p[1]));
+                held.extend(v.stencil_cells(p[0], p[1]));
             }
             cs.push(StrokeCurve::new(s, sm));
         }
@@ -938,10 +947,66 @@ fn place_demands(
         d.on_silhouette.push(fractions);
         d.placement.push(placements);
     }
+    // Cells under anchored points are held, except next to a free
+    // stretch: on a coarse DEM one cell spans many pixels of a stroke, and
+    // holding it would keep the free stretch beside it from rising. There
+    // the free stretch's own curve, which starts on the anchor, decides.
+    if let Some(v) = views.first() {
+        let near = cells_near_curves(v, &d.curves, ANCHOR_CLEARANCE_CELLS);
+        d.fixed
+            .extend(held.into_iter().filter(|c| !near.contains(&(c.col, c.row))));
+    }
     for v in views {
         d.fixed.extend(v.observer_cells(options.observer_radius_m));
     }
     d
+}
+
+/// Anchored cells within this many cells of a free stretch are not held.
+pub const ANCHOR_CLEARANCE_CELLS: i64 = 2;
+
+/// The DEM cells (whole-DEM grid, through `v`'s window) within `reach`
+/// cells of the curves' points and of the segments between them.
+fn cells_near_curves(
+    v: &ViewState,
+    curves: &[CurveConstraint],
+    reach: i64,
+) -> std::collections::HashSet<(i64, i64)> {
+    let gt = &v.window.geotransform;
+    let mut near = std::collections::HashSet::new();
+    let mut mark = |x: f64, y: f64| {
+        if let Some((px, py)) = gt.crs_to_pixel(x, y) {
+            let (c, r) = (
+                (px - 0.5).floor() as i64 + v.window_offset.0,
+                (py - 0.5).floor() as i64 + v.window_offset.1,
+            );
+            for dr in -reach..=reach + 1 {
+                for dc in -reach..=reach + 1 {
+                    near.insert((c + dc, r + dr));
+                }
+            }
+        }
+    };
+    for curve in curves {
+        for w in curve.points.windows(2) {
+            let (a, b) = (w[0], w[1]);
+            // Half-cell steps along the segment.
+            let steps = gt
+                .crs_to_pixel(a[0], a[1])
+                .zip(gt.crs_to_pixel(b[0], b[1]))
+                .map(|(p, q)| (2.0 * (q.0 - p.0).hypot(q.1 - p.1)).ceil() as usize)
+                .unwrap_or(1)
+                .clamp(1, 10_000);
+            for k in 0..=steps {
+                let t = k as f64 / steps as f64;
+                mark(a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1]));
+            }
+        }
+        if let [p] = curve.points.as_slice() {
+            mark(p[0], p[1]);
+        }
+    }
+    near
 }
 
 /// Neighbouring points of a placed stroke whose depths differ by more than

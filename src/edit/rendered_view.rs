@@ -251,6 +251,12 @@ impl RenderedView {
         let y0 = sample.pixel[1];
         let t_p = sample.depth;
         let t = &self.terrain;
+        // The two surfaces cannot put this boundary farther apart than
+        // this: nothing to refine where it is a fraction of a pixel.
+        let open = self.interpolation_bound_px(sample.cell, sample.depth);
+        if open < 0.05 {
+            return Some(y0);
+        }
         // The ray span around the sample's point: a few cells either way.
         let (e, n) = (sample.local[0], sample.local[1]);
         let (ve, vn) = t.en_to_v(e, n);
@@ -278,11 +284,12 @@ impl RenderedView {
             }
             least.is_finite().then_some(least)
         };
-        let (mut above, mut below) = (y0 - BILINEAR_SEARCH_PX, y0 + BILINEAR_SEARCH_PX);
+        let reach_px = open + 1.0;
+        let (mut above, mut below) = (y0 - reach_px, y0 + reach_px);
         if !(clearance(above)? > 0.0 && clearance(below)? <= 0.0) {
             return None;
         }
-        for _ in 0..16 {
+        for _ in 0..12 {
             let mid = 0.5 * (above + below);
             if clearance(mid)? > 0.0 {
                 above = mid;
@@ -293,19 +300,69 @@ impl RenderedView {
         Some(0.5 * (above + below))
     }
 
-    /// Rows of the occlusion boundaries of column `i`, each as the renderer
-    /// draws it and as the bilinear surface has it
-    /// ([`RenderedView::bilinear_row`]; the same row when it cannot be
-    /// refined, and for the skyline row of the depth buffer).
-    pub fn boundary_rows(&self, i: usize) -> impl Iterator<Item = (f64, f64)> + '_ {
-        let sil = self.by_column[i].iter().map(move |&(c, s)| {
+    /// How far apart, in pixels, the renderer's two triangles per cell and
+    /// the bilinear surface can put a boundary formed in `cell` (window
+    /// coordinates) seen from `depth`: a quarter of the largest twist
+    /// `|h00 + h11 - h10 - h01|` of the 3 x 3 cells around it, projected,
+    /// at most [`BILINEAR_SEARCH_PX`]. Cheap: it gates
+    /// [`RenderedView::bilinear_row`].
+    pub fn interpolation_bound_px(&self, cell: [u32; 2], depth: f64) -> f64 {
+        let t = &self.terrain;
+        let (c, r) = (
+            cell[0] as i64 - t.col0 as i64,
+            cell[1] as i64 - t.row0 as i64,
+        );
+        let z = |c: i64, r: i64| {
+            if c < 0 || r < 0 {
+                None
+            } else {
+                t.vertex_z(c as usize, r as usize)
+            }
+        };
+        let mut twist = 0.0f64;
+        for dr in -1..=1 {
+            for dc in -1..=1 {
+                let (c, r) = (c + dc, r + dr);
+                if let (Some(a), Some(b), Some(cc), Some(d)) =
+                    (z(c, r), z(c + 1, r), z(c, r + 1), z(c + 1, r + 1))
+                {
+                    twist = twist.max((a + d - b - cc).abs());
+                }
+            }
+        }
+        if !(depth > 0.0) {
+            return 0.0;
+        }
+        (0.25 * twist * self.camera.focal_px / depth).min(BILINEAR_SEARCH_PX)
+    }
+
+    /// Distance from row `y` of column `i` to its nearest occlusion
+    /// boundary as the renderer draws it, and whether a boundary lies
+    /// within `tol` pixels of `y` as drawn or as the bilinear surface has
+    /// it ([`RenderedView::bilinear_row`], computed only where it could
+    /// make the difference).
+    pub fn boundary_near(&self, i: usize, y: f64, tol: f64) -> (f64, bool) {
+        let mut nearest = f64::INFINITY;
+        let mut within = false;
+        for &(c, s) in &self.by_column[i] {
             let s = &self.silhouettes.curves[c as usize].samples[s as usize];
-            (s.pixel[1], self.bilinear_row(i, s).unwrap_or(s.pixel[1]))
-        });
-        let sky = self.skyline_row[i]
-            .filter(|&j| j > 0)
-            .map(|j| (j as f64, j as f64));
-        sil.chain(sky)
+            let d = (s.pixel[1] - y).abs();
+            nearest = nearest.min(d);
+            if within {
+                continue;
+            }
+            within = d <= tol
+                || (d <= tol + self.interpolation_bound_px(s.cell, s.depth)
+                    && self
+                        .bilinear_row(i, s)
+                        .is_some_and(|b| (b - y).abs() <= tol));
+        }
+        if let Some(j) = self.skyline_row[i].filter(|&j| j > 0) {
+            let d = (j as f64 - y).abs();
+            nearest = nearest.min(d);
+            within |= d <= tol;
+        }
+        (nearest, within)
     }
 
     /// Image rows of every occlusion boundary in column `i`: silhouette
