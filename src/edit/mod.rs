@@ -22,7 +22,7 @@ pub mod report;
 pub mod spikes;
 pub mod stretch_placement;
 
-pub use pipeline::{run, EditOptions, DEFAULT_MIN_FIT, TERRAIN_TOUCH_PX};
+pub use pipeline::{run, EditOptions, DEFAULT_MIN_FIT};
 pub use report::{EditReport, MatchingReport, StrokeStatus};
 
 /// Errors of an edit. One line naming the file and the problem.

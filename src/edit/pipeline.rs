@@ -104,12 +104,15 @@ impl EditOptions {
     }
 }
 
+/// A stroke end touches the terrain when a terrain pixel lies within this
+/// share of the image height below it (or a column beside it) in the view
+/// before the edit ...
+pub const TERRAIN_TOUCH_SHARE: f64 = 0.05;
+/// ... and at least this many rows.
+pub const TERRAIN_TOUCH_PX: f64 = 5.0;
+
 /// Default of [`EditOptions::min_fit`] (`--min-fit`).
 pub const DEFAULT_MIN_FIT: f64 = 0.9;
-
-/// A stroke end touches the terrain when a terrain pixel lies within this
-/// many rows below it (or a column beside it) in the view before the edit.
-pub const TERRAIN_TOUCH_PX: f64 = 5.0;
 
 /// Default radius of the ground held fixed around each viewpoint, metres
 /// (at least two cells; the sketch's `observer_radius_m` overrides it).
@@ -825,7 +828,8 @@ fn stroke_outcome(
 }
 
 /// Refuse a stroke (without `depth_m`) whose end points both lie in empty
-/// sky in the view before the edit: nothing says how far it is. Names the
+/// sky in the view before the edit, with no terrain close under them
+/// ([`TERRAIN_TOUCH_SHARE`]): nothing says how far it is. Names the
 /// view and the stroke, and whether the terrain lies beyond
 /// `--max-distance` or nowhere on the DEM.
 fn check_strokes_touch_terrain(
@@ -839,7 +843,9 @@ fn check_strokes_touch_terrain(
     let touches = |p: [f64; 2]| -> bool {
         let i0 = (p[0].floor() as i64).clamp(0, w as i64 - 1);
         let j0 = (p[1].floor() as i64).clamp(0, h as i64 - 1);
-        let rows = TERRAIN_TOUCH_PX.ceil() as i64;
+        let rows = (TERRAIN_TOUCH_SHARE * h as f64)
+            .max(TERRAIN_TOUCH_PX)
+            .ceil() as i64;
         (i0 - 1..=i0 + 1).any(|i| {
             (j0 - 1..=j0 + rows)
                 .any(|j| i >= 0 && j >= 0 && depth.depth_at(i as usize, j as usize).is_finite())
