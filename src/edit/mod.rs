@@ -6,19 +6,22 @@
 //! the ridge network, matches the strokes of all views jointly, turns the
 //! placed strokes into curve constraints in the DEM's CRS and deforms the
 //! DEM ([`pipeline`]). It then re-renders each view and lowers protruding
-//! silhouettes until every stroke is visible ([`lowering`]), measures how
-//! well the edited terrain shows each stroke ([`fit`]), writes the affected
-//! tiles back atomically, and finally the pictures ([`renders`]) and the
-//! report ([`report`]). Nothing is written unless every step succeeded.
+//! silhouettes until every stroke is visible ([`lowering`], in the rounds
+//! of `rounds`), measures how well the edited terrain shows each stroke
+//! ([`fit`]), writes the affected tiles back atomically, and finally the
+//! pictures ([`renders`]) and the report ([`report`]) (`outputs`). Nothing
+//! is written unless every step succeeded.
 
 pub mod contour;
 pub mod fit;
 pub mod lowering;
 pub mod on_silhouette;
+mod outputs;
 pub mod pipeline;
 pub mod rendered_view;
 pub mod renders;
 pub mod report;
+mod rounds;
 pub mod spikes;
 pub mod stretch_placement;
 

@@ -1,53 +1,54 @@
-//! The edit pipeline, stage by stage (timings in the report use these
-//! names):
+//! The edit pipeline, stage by stage. [`run`] calls one function per
+//! stage, in order; the timings in the report use the names in
+//! backquotes:
 //!
-//! 1. `load`: open the DEM (tile layer), read and validate the sketch,
-//!    resolve every view's viewpoint (PROJ) and read the DEM window within
-//!    the maximum view distance ([`Scene::open`]).
-//! 2. `features`: render each view (exact depth buffer), extract its
-//!    silhouettes, and the ridge network of the DEM around all views.
-//! 3. `matching`: strokes of all views matched jointly
-//!    ([`match_sketch`]), placed in 3D, converted to the DEM's CRS.
-//! 4. `deformation`: displacement constraints diffused by multigrid,
-//!    `H' = H + M` on the affected window.
-//! 5. `lowering`: each view re-rendered on the edited terrain; protruding
-//!    silhouettes lowered by the paper's `h` as new constraints, and the
-//!    mesh vertices that decide the contour along strokes that do not fit
-//!    yet put on the strokes' sight surfaces ([`super::contour`]); re-solve
-//!    with the union, repeat until neither asks for more (or the iteration
-//!    limits); fit and visibility measured on the final terrain.
-//! 6. `write`: affected tiles written back atomically, then the pictures
-//!    and the report.
+//! 1. `load` (`load_views`): open the DEM (tile layer), read and
+//!    validate the sketch, resolve every view's viewpoint (PROJ) and read
+//!    the DEM window within the maximum view distance ([`Scene::open`]).
+//! 2. `features` (`render_and_extract`, `scene_features`): render each
+//!    view (exact depth buffer), extract its silhouettes, and the ridge
+//!    network of the DEM around all views.
+//! 3. `matching` (`match_strokes`): strokes of all views matched jointly
+//!    ([`match_sketch`]), placed in 3D, converted to the DEM's CRS
+//!    (`place_demands`).
+//! 4. `deformation` (`deform`): displacement constraints diffused by
+//!    multigrid, `H' = H + M` on the affected window.
+//! 5. `lowering` (`super::rounds::refine`, `measure_strokes`): each
+//!    view re-rendered on the edited terrain; protruding silhouettes
+//!    lowered by the paper's `h` as new constraints, and the mesh vertices
+//!    that decide the contour along strokes that do not fit yet put on the
+//!    strokes' sight surfaces ([`super::contour`]); re-solve with the
+//!    union, repeat until neither asks for more (or the iteration limits);
+//!    fit and visibility measured on the final terrain.
+//! 6. `write` (`super::outputs::write_outputs`): affected tiles written
+//!    back atomically, then the pictures and the report.
 
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use rayon::prelude::*;
 
-use super::contour::contour_constraints;
 use super::fit::measure;
-use super::lowering::find_protruding;
 use super::on_silhouette::anchor_on_silhouettes;
+use super::outputs::{write_outputs, Outcome, Sources};
 use super::rendered_view::{RenderedView, StrokeCurve, StrokeRegion};
-use super::renders::{encode_png, height_change_map, view_picture, Picture};
 use super::report::{
-    DeformationReport, EditReport, FeatureCounts, MatchReport, MatchingReport, StagedFile,
-    StrokeReport, StrokeStatus, Timings,
+    EditReport, FeatureCounts, MatchReport, MatchingReport, StrokeReport, StrokeStatus, Timings,
+    ViewReport,
 };
-use super::spikes::flatten_spikes;
+use super::rounds::{refine, Rounds};
 use super::stretch_placement::{place_free_stretches, StretchPlacement};
 use super::EditError;
 use crate::deform::{
     deform_with_cells, CellConstraint, CurveConstraint, DeformError, DeformOptions, Deformation,
 };
 use crate::features::{detect_ridges, RidgeNetwork, RidgeParams};
-use crate::raster::{Dem, Destination, HeightMap, Provenance, Window};
+use crate::raster::{Dem, Destination, HeightMap, Window};
 use crate::render::Scene;
 use crate::sketch::{
-    match_sketch, EyeHeightSpec, PointSource, SceneProjection, SceneView, SketchFile, Stroke,
-    ViewFeatureOptions, ViewInput, ViewSpec,
+    match_sketch, EyeHeightSpec, PointSource, SceneProjection, SceneView, SketchFile, SketchMatch,
+    SketchOptions, Stroke, ViewFeatureOptions, ViewInput, ViewSpec,
 };
 use crate::view::{Camera, EyeHeight, LocalFrame, Viewpoint};
 
@@ -118,24 +119,30 @@ pub const DEFAULT_MIN_FIT: f64 = 0.9;
 /// (at least two cells; the sketch's `observer_radius_m` overrides it).
 pub const OBSERVER_RADIUS_M: f64 = 100.0;
 
-/// A cell constraint counts as new when its height moved by more than this
-/// (metres).
-const CELL_CHANGE_M: f64 = 0.01;
-
 /// A view of the sketch set up on the DEM.
-struct ViewState<'a> {
-    spec: &'a ViewSpec,
+pub(super) struct ViewState<'a> {
+    pub(super) spec: &'a ViewSpec,
     /// The DEM window read around the viewpoint, where it lies on the DEM
     /// grid, and the view's local frame (resolved on that window).
-    window: HeightMap,
-    window_offset: (i64, i64),
-    frame: LocalFrame,
-    camera: Camera,
-    strokes: Vec<Stroke>,
-    before: RenderedView,
+    pub(super) window: HeightMap,
+    pub(super) window_offset: (i64, i64),
+    pub(super) frame: LocalFrame,
+    pub(super) camera: Camera,
+    pub(super) strokes: Vec<Stroke>,
+    pub(super) before: RenderedView,
 }
 
-fn secs(t: Instant) -> f64 {
+/// What every stage of one edit reads: the options, the sketch's name for
+/// messages, the view distance in force and the progress spinner.
+pub(super) struct Edit<'o> {
+    pub(super) opts: &'o EditOptions,
+    pub(super) sketch_name: String,
+    /// [`EditOptions::max_distance_m`] when finite and positive.
+    pub(super) max_d: Option<f64>,
+    pub(super) pb: ProgressBar,
+}
+
+pub(super) fn secs(t: Instant) -> f64 {
     t.elapsed().as_secs_f64()
 }
 
@@ -169,25 +176,96 @@ pub fn run(
         return rayon::join(|| run(dem_path, sketch_path, opts), || ()).0;
     }
     let t_all = Instant::now();
-    let pb = progress_bar(opts.progress);
+    let edit = Edit {
+        opts,
+        sketch_name: sketch_path.display().to_string(),
+        max_d: opts.max_distance_m.filter(|d| d.is_finite() && *d > 0.0),
+        pb: progress_bar(opts.progress),
+    };
     let mut timings = Timings::default();
-    let sketch_name = sketch_path.display().to_string();
-
     check_output_paths(opts)?;
 
-    // 1. Load.
-    pb.set_message("loading DEM and sketch");
     let t = Instant::now();
+    let Loaded {
+        sketch,
+        dem,
+        mut notes,
+        prepared,
+        scenes,
+    } = load_views(&edit, dem_path, sketch_path)?;
+    timings.load = secs(t);
+
+    let t = Instant::now();
+    let extracted = render_and_extract(&edit, &sketch, &dem, scenes, prepared)?;
+    let views = &extracted.views;
+    let features = scene_features(views, &extracted.ridges);
+    timings.features = secs(t);
+
+    let t = Instant::now();
+    let placed = match_strokes(&edit, &sketch.options, &dem, views, &features, &mut notes)?;
+    timings.matching = secs(t);
+
+    let t = Instant::now();
+    let dem_name = dem_path.display().to_string();
+    let (solver, deformation) = deform(&edit, &dem, &dem_name, &sketch.options, views, &placed)?;
+    timings.deformation = secs(t);
+
+    let t = Instant::now();
+    let rounds = refine(&edit, views, &solver, &placed, deformation)?;
+    let view_reports = measure_strokes(&edit, views, &features, &placed, &rounds);
+    timings.lowering = secs(t);
+
+    let outcome = Outcome {
+        views: view_reports,
+        notes,
+        curve_constraints: placed.demands.curves.len(),
+        lowering_constraints: rounds.lowering_constraints,
+        matching: MatchingReport {
+            nodes: placed.matched.nodes,
+            node_budget: placed.matched.node_budget,
+            stopped_early: placed.matched.stopped_early,
+        },
+        deformation: rounds.deformation,
+    };
+    let sources = Sources {
+        dem_path,
+        sketch_path,
+        dem: &dem,
+        sketch: &sketch,
+    };
+    write_outputs(edit, &sources, views, outcome, timings, t_all)
+}
+
+/// The inputs of an edit, read and checked ([`load_views`]).
+struct Loaded {
+    sketch: SketchFile,
+    dem: Dem,
+    /// Notes for the report, so far from preparing the strokes.
+    notes: Vec<String>,
+    /// Per view: its strokes, prepared for matching.
+    prepared: Vec<Vec<Stroke>>,
+    /// Per view: the DEM around its viewpoint and its camera.
+    scenes: Vec<(Scene, Camera)>,
+}
+
+/// Stage 1, `load`: reads the sketch and opens the DEM, prepares every
+/// view's strokes, and sets up each view on the DEM: its viewpoint
+/// resolved, its camera built, and the DEM window within the maximum view
+/// distance read around it ([`Scene::open_in_view`]). Refuses a viewpoint
+/// whose absolute altitude is not above the ground. Everything later
+/// stages read comes from here; nothing is rendered yet.
+fn load_views(edit: &Edit, dem_path: &Path, sketch_path: &Path) -> Result<Loaded, EditError> {
+    let sketch_name = &edit.sketch_name;
+    edit.pb.set_message("loading DEM and sketch");
     let sketch = SketchFile::from_path(sketch_path)?;
     let dem = Dem::open(dem_path)?;
     let mut notes = Vec::new();
     let mut prepared = Vec::new();
     for v in &sketch.views {
-        let (strokes, n) = v.prepared_strokes(&sketch.options, &sketch_name)?;
+        let (strokes, n) = v.prepared_strokes(&sketch.options, sketch_name)?;
         notes.extend(n);
         prepared.push(strokes);
     }
-    let max_d = opts.max_distance_m.filter(|d| d.is_finite() && *d > 0.0);
     let mut scenes = Vec::new();
     for v in &sketch.views {
         let vp = Viewpoint {
@@ -212,8 +290,8 @@ pub fn run(
             v.camera.hfov_deg,
         )
         .map_err(|e| view_err(e.into()))?;
-        let scene =
-            Scene::open_in_view(&dem, &vp, max_d, opts.refraction, &camera).map_err(view_err)?;
+        let scene = Scene::open_in_view(&dem, &vp, edit.max_d, edit.opts.refraction, &camera)
+            .map_err(view_err)?;
         if let EyeHeightSpec::Absolute(a) = v.viewpoint.height() {
             if a <= scene.frame.ground {
                 return Err(EditError::Unusable {
@@ -227,11 +305,38 @@ pub fn run(
         }
         scenes.push((scene, camera));
     }
-    timings.load = secs(t);
+    Ok(Loaded {
+        sketch,
+        dem,
+        notes,
+        prepared,
+        scenes,
+    })
+}
 
-    // 2. Features: render every view, silhouettes, ridges around all views.
-    pb.set_message("rendering views, silhouettes and ridges");
-    let t = Instant::now();
+/// The views rendered before the edit, and the ridges around them
+/// ([`render_and_extract`]).
+struct Extracted<'a> {
+    views: Vec<ViewState<'a>>,
+    ridges: RidgeNetwork,
+}
+
+/// Stage 2, `features` (first half): renders every view of `sketch` on its
+/// scene before the edit (exact depth buffer and silhouettes) and, side by
+/// side, detects one ridge network over what all views see
+/// ([`ridge_network`]). Pairs each render with its view's window, frame,
+/// camera and prepared strokes into a [`ViewState`], which every later
+/// stage works on, and refuses strokes drawn in empty sky
+/// ([`check_strokes_touch_terrain`]).
+fn render_and_extract<'a>(
+    edit: &Edit,
+    sketch: &'a SketchFile,
+    dem: &Dem,
+    scenes: Vec<(Scene, Camera)>,
+    prepared: Vec<Vec<Stroke>>,
+) -> Result<Extracted<'a>, EditError> {
+    edit.pb
+        .set_message("rendering views, silhouettes and ridges");
     // The ridges and the views' renders are independent: computed side by
     // side, each also parallel inside.
     let mut parts = Vec::new();
@@ -254,7 +359,7 @@ pub fn run(
         .map(|(p, (t, _))| Window::new(p.1 .0 + t.col0 as i64, p.1 .1 + t.row0 as i64, t.nx, t.ny))
         .collect();
     let (ridges, befores) = rayon::join(
-        || ridge_network(&dem, &windows, &seen),
+        || ridge_network(dem, &windows, &seen),
         || {
             terrains
                 .into_iter()
@@ -280,8 +385,24 @@ pub fn run(
         });
     }
     for v in &views {
-        check_strokes_touch_terrain(v, &dem, max_d, &sketch_name)?;
+        check_strokes_touch_terrain(v, dem, edit.max_d, &edit.sketch_name)?;
     }
+    Ok(Extracted { views, ridges })
+}
+
+/// The terrain features each view offers the strokes ([`scene_features`]).
+struct Features<'v> {
+    /// Per view: its projection and its silhouettes and ridges as seen.
+    scene_views: Vec<SceneView<'v>>,
+    /// Per view: how many of each kind, for the report.
+    counts: Vec<FeatureCounts>,
+}
+
+/// Stage 2, `features` (second half): each view's silhouettes and the
+/// ridges it sees, as the features its strokes are matched against
+/// ([`SceneView`]); multi-view sketches in one world frame, the first
+/// view's. Also counts them per view for the report.
+fn scene_features<'v>(views: &'v [ViewState], ridges: &RidgeNetwork) -> Features<'v> {
     // Multi-view sketches are matched in one world frame: the first view's.
     let world = (views.len() > 1).then(|| views[0].frame);
     let scene_views: Vec<SceneView> = views
@@ -297,7 +418,7 @@ pub fn run(
                 k,
                 p,
                 &v.before.silhouettes,
-                &ridges,
+                ridges,
                 &ViewFeatureOptions::default(),
             )
         })
@@ -316,21 +437,51 @@ pub fn run(
             }
         })
         .collect();
-    timings.features = secs(t);
+    Features {
+        scene_views,
+        counts,
+    }
+}
 
-    // 3. Matching, all views jointly.
-    pb.set_message("matching strokes to terrain features");
-    let t = Instant::now();
+/// The strokes matched and placed on the terrain ([`match_strokes`]).
+pub(super) struct Placed {
+    /// The joint matching of all views (the stroke points as placed).
+    pub(super) matched: SketchMatch,
+    /// What the placed strokes ask of the terrain.
+    pub(super) demands: Demands,
+    /// Per view, per stroke: why it cannot be fitted whatever the
+    /// deformation does ([`placement_issue`]), if anything.
+    pub(super) issues: Vec<Vec<Option<&'static str>>>,
+    /// Per view: the part of the view the re-renders compute.
+    pub(super) regions: Vec<StrokeRegion>,
+}
+
+/// Stage 3, `matching`: matches the strokes of all views jointly to the
+/// views' features ([`match_sketch`]), notes depth-order conflicts and an
+/// exhausted node budget, then places the strokes in 3D and turns them
+/// into constraints in the DEM's CRS ([`place_demands`]). Also finds the
+/// strokes that cannot be fitted whatever the deformation does and the
+/// image regions the later re-renders need. Fails when no stroke could be
+/// placed at all.
+fn match_strokes(
+    edit: &Edit,
+    options: &SketchOptions,
+    dem: &Dem,
+    views: &[ViewState],
+    features: &Features,
+    notes: &mut Vec<String>,
+) -> Result<Placed, EditError> {
+    edit.pb.set_message("matching strokes to terrain features");
+    let scene_views = &features.scene_views;
     let inputs: Vec<ViewInput> = views
         .iter()
-        .zip(&scene_views)
+        .zip(scene_views)
         .map(|(v, sv)| sv.input(v.strokes.clone()))
         .collect();
-    let mut matched =
-        match_sketch(&inputs, &sketch.options).map_err(|source| EditError::Match {
-            sketch: sketch_name.clone(),
-            source,
-        })?;
+    let mut matched = match_sketch(&inputs, options).map_err(|source| EditError::Match {
+        sketch: edit.sketch_name.clone(),
+        source,
+    })?;
     for (v, m) in views.iter().zip(&matched.views) {
         for c in &m.ordering.conflicts {
             notes.push(format!(
@@ -346,35 +497,11 @@ pub fn run(
         ));
     }
     if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
-        for m in &matched.views {
-            for (k, l) in m.lists.iter().enumerate() {
-                for c in l.candidates.iter().take(6) {
-                    let d: Vec<f64> = c.points.iter().map(|p| p.depth).collect();
-                    eprintln!(
-                        "stroke {k}: feature {} {:?} depth {:.0}..{:.0} cost {:.2} = dis {:.2} def {:.2} sam {:.2} ext {:.2} cov {:.2}",
-                        c.feature_id % (1 << 40),
-                        c.kind,
-                        d.iter().cloned().fold(f64::INFINITY, f64::min),
-                        d.iter().cloned().fold(0.0, f64::max),
-                        c.costs.total,
-                        c.costs.dissimilarity,
-                        c.costs.deformation,
-                        c.costs.sampling,
-                        c.costs.extension,
-                        c.coverage
-                    );
-                }
-            }
-        }
+        trace_candidates(&matched);
     }
-    let demands = place_demands(&views, &scene_views, &mut matched.views, &sketch.options);
-    let curves = demands.strokes;
-    let on_silhouette = demands.on_silhouette;
-    let placement = demands.placement;
-    let fixed = demands.fixed;
-    let mut constraints = demands.curves;
-    notes.extend(depth_notes(&views, &curves));
-    let placement_issues: Vec<Vec<Option<&'static str>>> = scene_views
+    let demands = place_demands(views, scene_views, &mut matched.views, options);
+    notes.extend(depth_notes(views, &demands.strokes));
+    let issues: Vec<Vec<Option<&'static str>>> = scene_views
         .iter()
         .zip(&matched.views)
         .map(|(sv, m)| {
@@ -382,7 +509,7 @@ pub fn run(
                 .iter()
                 .map(|sm| {
                     let all = sv.projection.placed_to_dem(&sm.points);
-                    placement_issue(&dem, &sm.points, &all, max_d)
+                    placement_issue(dem, &sm.points, &all, edit.max_d)
                 })
                 .collect()
         })
@@ -390,159 +517,110 @@ pub fn run(
     // The part of each view the re-renders compute.
     let regions: Vec<StrokeRegion> = views
         .iter()
-        .zip(&curves)
+        .zip(&demands.strokes)
         .map(|(v, cs)| StrokeRegion::new(cs, v.camera.width, v.camera.height))
         .collect();
-    if curves.iter().flatten().all(|c| c.depths.is_empty()) {
+    if demands
+        .strokes
+        .iter()
+        .flatten()
+        .all(|c| c.depths.is_empty())
+    {
         return Err(EditError::Unusable {
-            sketch: sketch_name,
+            sketch: edit.sketch_name.clone(),
             message: "no stroke could be placed on the terrain".into(),
         });
     }
-    timings.matching = secs(t);
+    Ok(Placed {
+        matched,
+        demands,
+        issues,
+        regions,
+    })
+}
 
-    // 4. Deformation.
-    pb.set_message("deforming the DEM (multigrid)");
-    let t = Instant::now();
-    let dopts = DeformOptions {
-        influence_m: sketch.options.influence_m,
-        ..DeformOptions::default()
-    };
-    let dem_name = dem_path.display().to_string();
+/// Under `DEMSKETCH_DEBUG`: the best candidates of every stroke, with
+/// their depths and costs, on stderr.
+fn trace_candidates(matched: &SketchMatch) {
+    for m in &matched.views {
+        for (k, l) in m.lists.iter().enumerate() {
+            for c in l.candidates.iter().take(6) {
+                let d: Vec<f64> = c.points.iter().map(|p| p.depth).collect();
+                eprintln!(
+                    "stroke {k}: feature {} {:?} depth {:.0}..{:.0} cost {:.2} = dis {:.2} def {:.2} sam {:.2} ext {:.2} cov {:.2}",
+                    c.feature_id % (1 << 40),
+                    c.kind,
+                    d.iter().cloned().fold(f64::INFINITY, f64::min),
+                    d.iter().cloned().fold(0.0, f64::max),
+                    c.costs.total,
+                    c.costs.dissimilarity,
+                    c.costs.deformation,
+                    c.costs.sampling,
+                    c.costs.extension,
+                    c.coverage
+                );
+            }
+        }
+    }
+}
+
+/// Stage 4, `deformation`: the initial solve. Sets up the [`Solver`] every
+/// later solve goes through (the DEM, the sketch's influence radius, the
+/// cells held fixed) and deforms the DEM through the placed strokes'
+/// curve constraints alone; the refinement rounds
+/// ([`super::rounds::refine`]) start from this terrain.
+fn deform<'a>(
+    edit: &Edit,
+    dem: &'a Dem,
+    dem_name: &'a str,
+    options: &SketchOptions,
+    views: &[ViewState],
+    placed: &'a Placed,
+) -> Result<(Solver<'a>, Deformation), EditError> {
+    edit.pb.set_message("deforming the DEM (multigrid)");
     let solver = Solver {
-        dem: &dem,
-        dem_name: &dem_name,
-        opts: &dopts,
-        fixed: &fixed,
+        dem,
+        dem_name,
+        opts: DeformOptions {
+            influence_m: options.influence_m,
+            ..DeformOptions::default()
+        },
+        fixed: &placed.demands.fixed,
         idle: views[0].eye_cell(),
     };
-    let user_constraints = constraints.len();
-    let mut deformation = solver.solve(&constraints, &[])?;
-    timings.deformation = secs(t);
+    let deformation = solver.solve(&placed.demands.curves, &[])?;
+    Ok((solver, deformation))
+}
 
-    // 5. Lowering protruding silhouettes (section 6.2) and making every
-    //    stroke the occluding contour ([`contour`]): each round re-renders
-    //    every view on the current terrain, collects the new constraints of
-    //    all views and solves once; it stops when no view asks for more, or
-    //    when a round stops helping (the best terrain so far is kept).
-    pb.set_message("lowering protruding silhouettes");
-    let t = Instant::now();
-    let mut iterations = vec![0usize; views.len()];
-    let mut lowered = vec![0usize; views.len()];
-    let mut contour_rounds = vec![0usize; views.len()];
-    let mut cells: BTreeMap<(i64, i64), f64> = BTreeMap::new();
-    let mut rendered: Vec<RenderedView> = Vec::new();
-    let mut best: Option<(f64, Deformation)> = None;
-    let mut stalled = 0;
-    loop {
-        rendered.clear();
-        for (k, v) in views.iter().enumerate() {
-            rendered.push(render_edited(v, &deformation, max_d, Some(&regions[k]))?);
-        }
-        let score = fit_score(&curves, &rendered);
-        if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
-            eprintln!(
-                "round: fit score {score:.3} (best {:?}), lowering {:?}, contour {:?}",
-                best.as_ref().map(|b| b.0),
-                iterations,
-                contour_rounds
-            );
-        }
-        match &best {
-            Some((b, _)) if score <= *b + 1e-9 => {
-                stalled += 1;
-                if score < *b - 1e-9 || stalled >= 2 {
-                    break;
-                }
-            }
-            _ => {
-                stalled = 0;
-                best = Some((score, deformation.clone()));
-            }
-        }
-        let mut changed = false;
-        for (k, (v, after)) in views.iter().zip(&rendered).enumerate() {
-            if iterations[k] < opts.max_lowering_iterations {
-                let protruding = find_protruding(after, &curves[k]);
-                if !protruding.is_empty() {
-                    for p in &protruding {
-                        if !p.lowered.is_empty() {
-                            constraints.push(CurveConstraint {
-                                points: p.lowered.clone(),
-                            });
-                        }
-                    }
-                    lowered[k] += protruding.len();
-                    iterations[k] += 1;
-                    changed = true;
-                }
-            }
-            if contour_rounds[k] < opts.max_contour_iterations {
-                let mut moved = false;
-                let mut round: BTreeMap<(i64, i64), f64> = BTreeMap::new();
-                let known = |col: i64, row: i64| cells.contains_key(&(col, row));
-                for c in contour_constraints(after, &curves[k], v.window_offset, &known) {
-                    let h = round.entry((c.col, c.row)).or_insert(c.height);
-                    *h = h.min(c.height);
-                }
-                for (&(col, row), &height) in &round {
-                    let old = cells.insert((col, row), height);
-                    moved |= old.is_none_or(|h| (h - height).abs() > CELL_CHANGE_M);
-                }
-                if moved {
-                    contour_rounds[k] += 1;
-                    changed = true;
-                }
-            }
-        }
-        if !changed {
-            break;
-        }
-        pb.set_message(format!(
-            "lowering protruding silhouettes, fitting contours: round {}",
-            iterations
-                .iter()
-                .chain(&contour_rounds)
-                .max()
-                .copied()
-                .unwrap_or(0)
-        ));
-        let cell_list: Vec<CellConstraint> = cells
-            .iter()
-            .map(|(&(col, row), &height)| CellConstraint { col, row, height })
-            .collect();
-        deformation = solver.solve(&constraints, &cell_list)?;
-    }
-    // The best round's terrain, if a later one did worse.
-    if let Some((b, d)) = best {
-        if fit_score(&curves, &rendered) < b - 1e-9 {
-            deformation = d;
-            rendered.clear();
-            for (k, v) in views.iter().enumerate() {
-                rendered.push(render_edited(v, &deformation, max_d, Some(&regions[k]))?);
-            }
-        }
-    }
-    // No spikes: a lone apex (or pit) of the change field gets a
-    // neighbour behind it within half a cell.
-    if flatten_final_spikes(&views, &mut deformation, &fixed) > 0 {
-        rendered.clear();
-        for (k, v) in views.iter().enumerate() {
-            rendered.push(render_edited(v, &deformation, max_d, Some(&regions[k]))?);
-        }
-    }
-    // Fit and visibility on the final terrain.
+/// Stage 5, `lowering` (last step): measures on the final terrain of the
+/// refinement rounds how well each view shows each of its strokes (fit and
+/// visibility, [`measure`]), decides each stroke's status against
+/// `--min-fit` ([`stroke_outcome`]), and assembles the per-view reports
+/// with the matching, the placement and the rounds' counts. The write
+/// stage gates on these statuses.
+fn measure_strokes(
+    edit: &Edit,
+    views: &[ViewState],
+    features: &Features,
+    placed: &Placed,
+    rounds: &Rounds,
+) -> Vec<ViewReport> {
+    let demands = &placed.demands;
     let mut view_reports = Vec::new();
-    let mut after_views = Vec::new();
-    for (((k, v), m), after) in views.iter().enumerate().zip(&matched.views).zip(rendered) {
-        let strokes = curves[k]
+    for (((k, v), m), after) in views
+        .iter()
+        .enumerate()
+        .zip(&placed.matched.views)
+        .zip(&rounds.rendered)
+    {
+        let strokes = demands.strokes[k]
             .par_iter()
             .zip(&m.strokes)
-            .zip(&placement_issues[k])
+            .zip(&placed.issues[k])
             .enumerate()
             .map(|(j, ((c, sm), issue))| {
-                let (fit, visible) = measure(c, &after);
-                let (status, reason) = stroke_outcome(&fit, visible, *issue, opts.min_fit);
+                let (fit, visible) = measure(c, after);
+                let (status, reason) = stroke_outcome(&fit, visible, *issue, edit.opts.min_fit);
                 let (lo, hi) = c.depths.iter().fold((f64::INFINITY, 0.0f64), |(a, b), d| {
                     (a.min(d.1), b.max(d.1))
                 });
@@ -560,174 +638,23 @@ pub fn run(
                     visible_fraction: visible,
                     status,
                     reason,
-                    on_silhouette: on_silhouette[k][j],
-                    placement: placement[k][j],
+                    on_silhouette: demands.on_silhouette[k][j],
+                    placement: demands.placement[k][j],
                 }
             })
             .collect();
-        view_reports.push(super::report::ViewReport {
+        view_reports.push(ViewReport {
             name: v.spec.name.clone(),
             eye_alt_m: v.frame.eye_alt,
             strokes,
-            lowering_iterations: iterations[k],
-            silhouettes_lowered: lowered[k],
-            contour_iterations: contour_rounds[k],
-            features: counts[k],
-            matching_stopped_early: matched.stopped_early,
-        });
-        after_views.push(after);
-    }
-    timings.lowering = secs(t);
-
-    // 6. Write: pictures staged first, then the DEM, then pictures and report.
-    pb.set_message("writing corrected tiles");
-    let t = Instant::now();
-    let pictures = if opts.renders.is_some() {
-        // The rounds rendered only around the strokes: the pictures show
-        // the whole view.
-        let whole = views
-            .iter()
-            .map(|v| render_edited(v, &deformation, max_d, None))
-            .collect::<Result<Vec<_>, _>>()?;
-        pictures(&views, &whole, &deformation)?
-    } else {
-        Vec::new()
-    };
-    let staged_report = match &opts.report {
-        Some(p) => Some(StagedFile::create(p).map_err(|e| EditError::Write {
-            path: p.display().to_string(),
-            message: e.to_string(),
-        })?),
-        None => None,
-    };
-    let staged_renders = match &opts.renders {
-        Some(dir) => Some(StagedDir::create(dir, &pictures)?),
-        None => None,
-    };
-    let provenance = Provenance {
-        edit_id: format!(
-            "{}:{}",
-            sketch_path
-                .file_name()
-                .map(|n| n.to_string_lossy().into_owned())
-                .unwrap_or_default(),
-            content_hash(&sketch)
-        ),
-    };
-    let values = deformation.write_values();
-    // Honest outcome: the worst stroke below the minimum fit stops the
-    // write (the report and pictures still come, to show why).
-    let worst = view_reports
-        .iter()
-        .flat_map(|v| v.strokes.iter().map(move |s| (v, s)))
-        .filter(|(_, s)| s.status != StrokeStatus::Fitted)
-        .min_by(|a, b| a.1.fit.fitted_fraction.total_cmp(&b.1.fit.fitted_fraction));
-    let below = worst.filter(|_| !opts.allow_partial).map(|(v, s)| {
-        (
-            v.name.clone(),
-            s.id.clone(),
-            s.fit.fitted_fraction,
-            s.reason.clone().unwrap_or_default(),
-        )
-    });
-    let write = below.is_none() && !opts.dry_run;
-    let written = if write {
-        dem.write_back(deformation.window, &values, &opts.destination, &provenance)?
-    } else {
-        // Not written: what a real run would change (a dry run fails as the
-        // real run would on heights the DEM cannot store).
-        let changed = match dem.check_write_back(deformation.window, &values) {
-            Ok(n) => n,
-            Err(e) if below.is_none() => return Err(e.into()),
-            Err(e) => {
-                notes.push(format!("the write-back would also fail: {e}"));
-                0
-            }
-        };
-        crate::raster::WriteReport {
-            tiles_written: Vec::new(),
-            tiles_unchanged: Vec::new(),
-            changed_cells: changed,
-        }
-    };
-    if let Some((view, stroke, fit, _)) = &below {
-        notes.push(format!(
-            "nothing written: view \"{view}\" stroke \"{stroke}\" fitted {fit:.2}, below --min-fit {} (--allow-partial writes anyway)",
-            opts.min_fit
-        ));
-    } else if opts.dry_run {
-        notes.push("dry run: nothing written".into());
-    }
-    if let Some(s) = staged_renders {
-        s.commit()?;
-    }
-    timings.write = secs(t);
-    timings.total = secs(t_all);
-
-    let max_abs = deformation.stats.max_abs_displacement_m;
-    let w = deformation.window;
-    let report = EditReport {
-        dem: dem_path.display().to_string(),
-        sketch: sketch_name,
-        output: match &opts.destination {
-            Destination::InPlace => dem_path.display().to_string(),
-            Destination::Path(p) => p.display().to_string(),
-        },
-        views: view_reports,
-        tiles_written: written
-            .tiles_written
-            .iter()
-            .map(|p| p.display().to_string())
-            .collect(),
-        tiles_unchanged: written
-            .tiles_unchanged
-            .iter()
-            .map(|p| p.display().to_string())
-            .collect(),
-        changed_cells: written.changed_cells,
-        max_abs_displacement_m: max_abs,
-        deformation: DeformationReport {
-            window: [w.col, w.row, w.width as i64, w.height as i64],
-            curve_constraints: user_constraints,
-            lowering_constraints: constraints.len() - user_constraints,
-            influence_m: deformation.stats.influence_m,
-            solver: serde_json::to_value(&deformation.stats).unwrap_or_default(),
-        },
-        timings_s: timings,
-        notes,
-        written: write,
-        dry_run: opts.dry_run,
-        min_fit: opts.min_fit,
-        matching: MatchingReport {
-            nodes: matched.nodes,
-            node_budget: matched.node_budget,
-            stopped_early: matched.stopped_early,
-        },
-    };
-    if let (Some(staged), Some(path)) = (staged_report, &opts.report) {
-        let mut text = serde_json::to_string_pretty(&report)
-            .map_err(|e| EditError::Internal(format!("report: {e}")))?;
-        text.push('\n');
-        staged
-            .commit(text.as_bytes())
-            .map_err(|e| EditError::Write {
-                path: path.display().to_string(),
-                message: e.to_string(),
-            })?;
-    }
-    pb.finish_and_clear();
-    if let Some((view, stroke, fit, reason)) = below {
-        return Err(EditError::BelowMinFit {
-            sketch: report.sketch.clone(),
-            view,
-            stroke,
-            fit,
-            min_fit: opts.min_fit,
-            reason,
-            report: Box::new(report),
+            lowering_iterations: rounds.lowering_iterations[k],
+            silhouettes_lowered: rounds.silhouettes_lowered[k],
+            contour_iterations: rounds.contour_iterations[k],
+            features: features.counts[k],
+            matching_stopped_early: placed.matched.stopped_early,
         });
     }
-    Ok(report)
+    view_reports
 }
 
 /// Why a placed stroke cannot be fitted whatever the deformation does, if
@@ -890,20 +817,20 @@ fn check_strokes_touch_terrain(
 }
 
 /// What the placed strokes ask of the terrain.
-struct Demands {
+pub(super) struct Demands {
     /// Curve constraints: the stretches of placed strokes that do not lie
     /// on a silhouette already ([`super::on_silhouette`]).
-    curves: Vec<CurveConstraint>,
+    pub(super) curves: Vec<CurveConstraint>,
     /// Cells held at their input heights: under anchored stroke points and
     /// around every viewpoint. Applied after every other constraint, so
     /// nothing in the edit moves them.
-    fixed: Vec<CellConstraint>,
+    pub(super) fixed: Vec<CellConstraint>,
     /// Per view, per stroke: the placed stroke.
-    strokes: Vec<Vec<StrokeCurve>>,
+    pub(super) strokes: Vec<Vec<StrokeCurve>>,
     /// Per view, per stroke: share of its points on an existing silhouette.
-    on_silhouette: Vec<Vec<f64>>,
+    pub(super) on_silhouette: Vec<Vec<f64>>,
     /// Per view, per stroke: how its free stretches were placed.
-    placement: Vec<Vec<StretchPlacement>>,
+    pub(super) placement: Vec<Vec<StretchPlacement>>,
 }
 
 /// Anchors the matched strokes where they already lie on a silhouette and
@@ -913,7 +840,7 @@ fn place_demands(
     views: &[ViewState],
     scene_views: &[SceneView],
     matched: &mut [crate::sketch::ViewMatch],
-    options: &crate::sketch::SketchOptions,
+    options: &SketchOptions,
 ) -> Demands {
     let mut d = Demands {
         curves: Vec::new(),
@@ -1067,48 +994,12 @@ fn free_stretches(points: &[[f64; 3]], depths: &[f64], anchored: &[bool]) -> Vec
     out
 }
 
-/// [`flatten_spikes`] on the final deformation, with the viewpoints as
-/// eyes and the constrained and fixed cells held.
-fn flatten_final_spikes(
-    views: &[ViewState],
-    deformation: &mut Deformation,
-    fixed: &[CellConstraint],
-) -> usize {
-    let gt = &deformation.base.geotransform;
-    let eyes: Vec<(f64, f64)> = views
-        .iter()
-        .filter_map(|v| gt.crs_to_pixel(v.frame.eye_crs.0, v.frame.eye_crs.1))
-        .collect();
-    let w = deformation.window;
-    let fixed: std::collections::HashSet<(i64, i64)> =
-        fixed.iter().map(|c| (c.col, c.row)).collect();
-    let constrained = deformation.constrained.clone();
-    let held = |c: usize, r: usize| {
-        constrained[r * w.width + c] || fixed.contains(&(w.col + c as i64, w.row + r as i64))
-    };
-    flatten_spikes(deformation, &eyes, &held)
-}
-
-/// Share of the strokes' columns fitted, summed over all views' strokes:
-/// what a round of lowering or contour fitting must improve.
-fn fit_score(curves: &[Vec<StrokeCurve>], rendered: &[RenderedView]) -> f64 {
-    curves
-        .iter()
-        .zip(rendered)
-        .map(|(cs, view)| {
-            cs.par_iter()
-                .map(|c| measure(c, view).0.fitted_fraction)
-                .sum::<f64>()
-        })
-        .sum()
-}
-
 /// The solves of one edit: the DEM, the options, and the cells held fixed
 /// in every solve.
-struct Solver<'a> {
+pub(super) struct Solver<'a> {
     dem: &'a Dem,
     dem_name: &'a str,
-    opts: &'a DeformOptions,
+    opts: DeformOptions,
     fixed: &'a [CellConstraint],
     /// Window of the deformation when nothing needs to move.
     idle: Window,
@@ -1117,7 +1008,7 @@ struct Solver<'a> {
 impl Solver<'_> {
     /// Deform the DEM through `curves` with the cells `cells` (then the
     /// fixed ones) held; no curve: no deformation at all.
-    fn solve(
+    pub(super) fn solve(
         &self,
         curves: &[CurveConstraint],
         cells: &[CellConstraint],
@@ -1133,7 +1024,7 @@ impl Solver<'_> {
             return Deformation::none(self.dem, self.idle).map_err(err);
         }
         let all: Vec<CellConstraint> = cells.iter().chain(self.fixed).copied().collect();
-        deform_with_cells(self.dem, curves, &all, self.opts).map_err(err)
+        deform_with_cells(self.dem, curves, &all, &self.opts).map_err(err)
     }
 }
 
@@ -1282,7 +1173,7 @@ fn ridge_network(
 
 /// Render a view on the DEM with the deformation applied: only `region` of
 /// it ([`StrokeRegion`]), or the whole view.
-fn render_edited(
+pub(super) fn render_edited(
     v: &ViewState,
     d: &Deformation,
     max_d: Option<f64>,
@@ -1317,149 +1208,6 @@ pub(crate) fn edited_window(map: &HeightMap, offset: (i64, i64), d: &Deformation
         }
     }
     out
-}
-
-/// Before/after views with the strokes, and the height-change map.
-fn pictures(
-    views: &[ViewState],
-    after: &[RenderedView],
-    d: &Deformation,
-) -> Result<Vec<Picture>, EditError> {
-    let enc = |w, h, rgb: &[u8]| encode_png(w, h, rgb).map_err(|e| EditError::Internal(e));
-    let mut out = Vec::new();
-    for (v, a) in views.iter().zip(after) {
-        let strokes: Vec<Vec<[f64; 2]>> = v.spec.strokes.iter().map(|s| s.points.clone()).collect();
-        let (w, h) = (v.camera.width, v.camera.height);
-        let name = sanitize(&v.spec.name);
-        out.push(Picture {
-            name: format!("{name}_before.png"),
-            png: enc(w, h, &view_picture(&v.before, &strokes))?,
-        });
-        out.push(Picture {
-            name: format!("{name}_after.png"),
-            png: enc(w, h, &view_picture(a, &strokes))?,
-        });
-    }
-    let (gx, gy) = d.base.geotransform.pixel_size();
-    let cell_m = if d.base.crs.geographic {
-        let lat = d.base.geotransform.0[3].to_radians();
-        (
-            gx.abs() * 111_320.0 * lat.cos().max(0.01),
-            gy.abs() * 110_540.0,
-        )
-    } else {
-        (gx.abs(), gy.abs())
-    };
-    let (w, h, rgb) = height_change_map(
-        d.window.width,
-        d.window.height,
-        cell_m,
-        &d.base.data,
-        &d.displacement,
-    );
-    out.push(Picture {
-        name: "height_change.png".into(),
-        png: enc(w, h, &rgb)?,
-    });
-    Ok(out)
-}
-
-/// A file-name-safe version of a view name.
-fn sanitize(name: &str) -> String {
-    let s: String = name
-        .chars()
-        .map(|c| {
-            if c.is_ascii_alphanumeric() || c == '-' || c == '_' {
-                c
-            } else {
-                '_'
-            }
-        })
-        .collect();
-    if s.is_empty() {
-        "view".into()
-    } else {
-        s
-    }
-}
-
-/// A short hash of the sketch content (FNV-1a of its JSON), for provenance.
-fn content_hash(sketch: &SketchFile) -> String {
-    let text = serde_json::to_string(sketch).unwrap_or_default();
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for b in text.bytes() {
-        h ^= b as u64;
-        h = h.wrapping_mul(0x0100_0000_01b3);
-    }
-    format!("{h:016x}")
-}
-
-/// Pictures written into a staging directory beside the target, moved into
-/// the target directory on commit; removed if dropped uncommitted.
-struct StagedDir {
-    target: PathBuf,
-    stage: PathBuf,
-    names: Vec<String>,
-    done: bool,
-}
-
-impl StagedDir {
-    fn create(target: &Path, pictures: &[Picture]) -> Result<StagedDir, EditError> {
-        let werr = |p: &Path, e: std::io::Error| EditError::Write {
-            path: p.display().to_string(),
-            message: e.to_string(),
-        };
-        if target.exists() && !target.is_dir() {
-            return Err(EditError::Write {
-                path: target.display().to_string(),
-                message: "exists and is not a directory".into(),
-            });
-        }
-        let name = target
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_else(|| "renders".into());
-        let stage = target.with_file_name(format!(".{name}.demsketch-{}.tmp", std::process::id()));
-        std::fs::create_dir_all(&stage).map_err(|e| werr(&stage, e))?;
-        let mut staged = StagedDir {
-            target: target.to_path_buf(),
-            stage,
-            names: Vec::new(),
-            done: false,
-        };
-        for p in pictures {
-            let path = staged.stage.join(&p.name);
-            std::fs::write(&path, &p.png).map_err(|e| werr(&path, e))?;
-            staged.names.push(p.name.clone());
-        }
-        Ok(staged)
-    }
-
-    fn commit(mut self) -> Result<(), EditError> {
-        let werr = |p: &Path, e: std::io::Error| EditError::Write {
-            path: p.display().to_string(),
-            message: e.to_string(),
-        };
-        if !self.target.exists() {
-            std::fs::rename(&self.stage, &self.target).map_err(|e| werr(&self.target, e))?;
-        } else {
-            for n in &self.names {
-                let to = self.target.join(n);
-                std::fs::rename(self.stage.join(n), &to).map_err(|e| werr(&to, e))?;
-            }
-            let _ = std::fs::remove_dir(&self.stage);
-        }
-        self.done = true;
-        Ok(())
-    }
-}
-
-impl Drop for StagedDir {
-    fn drop(&mut self) {
-        if !self.done {
-            let _ = std::fs::remove_dir_all(&self.stage);
-        }
-    }
 }
 
 #[cfg(test)]

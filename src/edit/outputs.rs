@@ -1,0 +1,369 @@
+//! Stage 6 of the edit pipeline, `write`: pictures and report staged
+//! first, then the honest-outcome gate (`--min-fit`, `--dry-run`), the
+//! atomic write-back of the affected tiles, and last the pictures and the
+//! report moved into place.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use super::pipeline::{render_edited, secs, Edit, ViewState};
+use super::rendered_view::RenderedView;
+use super::renders::{encode_png, height_change_map, view_picture, Picture};
+use super::report::{
+    DeformationReport, EditReport, MatchingReport, StagedFile, StrokeStatus, Timings, ViewReport,
+};
+use super::EditError;
+use crate::deform::Deformation;
+use crate::raster::{Dem, Destination, Provenance, WriteReport};
+use crate::sketch::SketchFile;
+
+/// The inputs of the edit, as loaded.
+pub(super) struct Sources<'a> {
+    pub(super) dem_path: &'a Path,
+    pub(super) sketch_path: &'a Path,
+    pub(super) dem: &'a Dem,
+    pub(super) sketch: &'a SketchFile,
+}
+
+/// What the edit computed, ready to be written and reported.
+pub(super) struct Outcome {
+    /// The final deformation.
+    pub(super) deformation: Deformation,
+    /// Per view: its strokes' fit and visibility, and its rounds.
+    pub(super) views: Vec<ViewReport>,
+    pub(super) notes: Vec<String>,
+    /// Curve constraints from the strokes, and those the lowering added.
+    pub(super) curve_constraints: usize,
+    pub(super) lowering_constraints: usize,
+    pub(super) matching: MatchingReport,
+}
+
+/// The worst stroke below the minimum fit, which stops the write.
+struct BelowMinFit {
+    view: String,
+    stroke: String,
+    fit: f64,
+    reason: String,
+}
+
+/// Write everything the edit produced, or nothing of the DEM: renders the
+/// whole views for the pictures (when `--renders`), stages the pictures
+/// and the report (proving their directories writable), then writes the
+/// deformation back atomically unless a stroke's fit is below
+/// `--min-fit` (without `--allow-partial`) or it is a dry run, in which
+/// case it only checks what a real write would change. The pictures and
+/// the report are moved into place last, whatever the gate said; a stroke
+/// below the minimum fit then ends the edit with
+/// [`EditError::BelowMinFit`], carrying the report. `timings` gets the
+/// write and total times (`t_all`: the start of the edit).
+pub(super) fn write_outputs(
+    edit: Edit,
+    src: &Sources,
+    views: &[ViewState],
+    outcome: Outcome,
+    mut timings: Timings,
+    t_all: Instant,
+) -> Result<EditReport, EditError> {
+    let opts = edit.opts;
+    let Outcome {
+        deformation,
+        views: view_reports,
+        mut notes,
+        curve_constraints,
+        lowering_constraints,
+        matching,
+    } = outcome;
+    edit.pb.set_message("writing corrected tiles");
+    let t = Instant::now();
+    let pictures = if opts.renders.is_some() {
+        // The rounds rendered only around the strokes: the pictures show
+        // the whole view.
+        let whole = views
+            .iter()
+            .map(|v| render_edited(v, &deformation, edit.max_d, None))
+            .collect::<Result<Vec<_>, _>>()?;
+        pictures(views, &whole, &deformation)?
+    } else {
+        Vec::new()
+    };
+    let staged_report = match &opts.report {
+        Some(p) => Some(StagedFile::create(p).map_err(|e| EditError::Write {
+            path: p.display().to_string(),
+            message: e.to_string(),
+        })?),
+        None => None,
+    };
+    let staged_renders = match &opts.renders {
+        Some(dir) => Some(StagedDir::create(dir, &pictures)?),
+        None => None,
+    };
+    let provenance = Provenance {
+        edit_id: format!(
+            "{}:{}",
+            src.sketch_path
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default(),
+            content_hash(src.sketch)
+        ),
+    };
+    let below = (!opts.allow_partial)
+        .then(|| worst_below_min_fit(&view_reports))
+        .flatten();
+    let write = below.is_none() && !opts.dry_run;
+    let values = deformation.write_values();
+    let written = if write {
+        src.dem
+            .write_back(deformation.window, &values, &opts.destination, &provenance)?
+    } else {
+        // Not written: what a real run would change (a dry run fails as the
+        // real run would on heights the DEM cannot store).
+        let changed = match src.dem.check_write_back(deformation.window, &values) {
+            Ok(n) => n,
+            Err(e) if below.is_none() => return Err(e.into()),
+            Err(e) => {
+                notes.push(format!("the write-back would also fail: {e}"));
+                0
+            }
+        };
+        WriteReport {
+            tiles_written: Vec::new(),
+            tiles_unchanged: Vec::new(),
+            changed_cells: changed,
+        }
+    };
+    if let Some(b) = &below {
+        notes.push(format!(
+            "nothing written: view \"{}\" stroke \"{}\" fitted {:.2}, below --min-fit {} (--allow-partial writes anyway)",
+            b.view, b.stroke, b.fit, opts.min_fit
+        ));
+    } else if opts.dry_run {
+        notes.push("dry run: nothing written".into());
+    }
+    if let Some(s) = staged_renders {
+        s.commit()?;
+    }
+    timings.write = secs(t);
+    timings.total = secs(t_all);
+
+    let max_abs = deformation.stats.max_abs_displacement_m;
+    let w = deformation.window;
+    let report = EditReport {
+        dem: src.dem_path.display().to_string(),
+        sketch: edit.sketch_name,
+        output: match &opts.destination {
+            Destination::InPlace => src.dem_path.display().to_string(),
+            Destination::Path(p) => p.display().to_string(),
+        },
+        views: view_reports,
+        tiles_written: written
+            .tiles_written
+            .iter()
+            .map(|p| p.display().to_string())
+            .collect(),
+        tiles_unchanged: written
+            .tiles_unchanged
+            .iter()
+            .map(|p| p.display().to_string())
+            .collect(),
+        changed_cells: written.changed_cells,
+        max_abs_displacement_m: max_abs,
+        deformation: DeformationReport {
+            window: [w.col, w.row, w.width as i64, w.height as i64],
+            curve_constraints,
+            lowering_constraints,
+            influence_m: deformation.stats.influence_m,
+            solver: serde_json::to_value(&deformation.stats).unwrap_or_default(),
+        },
+        timings_s: timings,
+        notes,
+        written: write,
+        dry_run: opts.dry_run,
+        min_fit: opts.min_fit,
+        matching,
+    };
+    if let (Some(staged), Some(path)) = (staged_report, &opts.report) {
+        let mut text = serde_json::to_string_pretty(&report)
+            .map_err(|e| EditError::Internal(format!("report: {e}")))?;
+        text.push('\n');
+        staged
+            .commit(text.as_bytes())
+            .map_err(|e| EditError::Write {
+                path: path.display().to_string(),
+                message: e.to_string(),
+            })?;
+    }
+    edit.pb.finish_and_clear();
+    if let Some(b) = below {
+        return Err(EditError::BelowMinFit {
+            sketch: report.sketch.clone(),
+            view: b.view,
+            stroke: b.stroke,
+            fit: b.fit,
+            min_fit: opts.min_fit,
+            reason: b.reason,
+            report: Box::new(report),
+        });
+    }
+    Ok(report)
+}
+
+/// Honest outcome: the stroke with the lowest fit among those not fitted
+/// (below `--min-fit`), if any; it stops the write (the report and
+/// pictures still come, to show why).
+fn worst_below_min_fit(views: &[ViewReport]) -> Option<BelowMinFit> {
+    views
+        .iter()
+        .flat_map(|v| v.strokes.iter().map(move |s| (v, s)))
+        .filter(|(_, s)| s.status != StrokeStatus::Fitted)
+        .min_by(|a, b| a.1.fit.fitted_fraction.total_cmp(&b.1.fit.fitted_fraction))
+        .map(|(v, s)| BelowMinFit {
+            view: v.name.clone(),
+            stroke: s.id.clone(),
+            fit: s.fit.fitted_fraction,
+            reason: s.reason.clone().unwrap_or_default(),
+        })
+}
+
+/// Before/after views with the strokes, and the height-change map.
+fn pictures(
+    views: &[ViewState],
+    after: &[RenderedView],
+    d: &Deformation,
+) -> Result<Vec<Picture>, EditError> {
+    let enc = |w, h, rgb: &[u8]| encode_png(w, h, rgb).map_err(|e| EditError::Internal(e));
+    let mut out = Vec::new();
+    for (v, a) in views.iter().zip(after) {
+        let strokes: Vec<Vec<[f64; 2]>> = v.spec.strokes.iter().map(|s| s.points.clone()).collect();
+        let (w, h) = (v.camera.width, v.camera.height);
+        let name = sanitize(&v.spec.name);
+        out.push(Picture {
+            name: format!("{name}_before.png"),
+            png: enc(w, h, &view_picture(&v.before, &strokes))?,
+        });
+        out.push(Picture {
+            name: format!("{name}_after.png"),
+            png: enc(w, h, &view_picture(a, &strokes))?,
+        });
+    }
+    let (gx, gy) = d.base.geotransform.pixel_size();
+    let cell_m = if d.base.crs.geographic {
+        let lat = d.base.geotransform.0[3].to_radians();
+        (
+            gx.abs() * 111_320.0 * lat.cos().max(0.01),
+            gy.abs() * 110_540.0,
+        )
+    } else {
+        (gx.abs(), gy.abs())
+    };
+    let (w, h, rgb) = height_change_map(
+        d.window.width,
+        d.window.height,
+        cell_m,
+        &d.base.data,
+        &d.displacement,
+    );
+    out.push(Picture {
+        name: "height_change.png".into(),
+        png: enc(w, h, &rgb)?,
+    });
+    Ok(out)
+}
+
+/// A file-name-safe version of a view name.
+fn sanitize(name: &str) -> String {
+    let s: String = name
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '-' || c == '_' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    if s.is_empty() {
+        "view".into()
+    } else {
+        s
+    }
+}
+
+/// A short hash of the sketch content (FNV-1a of its JSON), for provenance.
+fn content_hash(sketch: &SketchFile) -> String {
+    let text = serde_json::to_string(sketch).unwrap_or_default();
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for b in text.bytes() {
+        h ^= b as u64;
+        h = h.wrapping_mul(0x0100_0000_01b3);
+    }
+    format!("{h:016x}")
+}
+
+/// Pictures written into a staging directory beside the target, moved into
+/// the target directory on commit; removed if dropped uncommitted.
+struct StagedDir {
+    target: PathBuf,
+    stage: PathBuf,
+    names: Vec<String>,
+    done: bool,
+}
+
+impl StagedDir {
+    fn create(target: &Path, pictures: &[Picture]) -> Result<StagedDir, EditError> {
+        let werr = |p: &Path, e: std::io::Error| EditError::Write {
+            path: p.display().to_string(),
+            message: e.to_string(),
+        };
+        if target.exists() && !target.is_dir() {
+            return Err(EditError::Write {
+                path: target.display().to_string(),
+                message: "exists and is not a directory".into(),
+            });
+        }
+        let name = target
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "renders".into());
+        let stage = target.with_file_name(format!(".{name}.demsketch-{}.tmp", std::process::id()));
+        std::fs::create_dir_all(&stage).map_err(|e| werr(&stage, e))?;
+        let mut staged = StagedDir {
+            target: target.to_path_buf(),
+            stage,
+            names: Vec::new(),
+            done: false,
+        };
+        for p in pictures {
+            let path = staged.stage.join(&p.name);
+            std::fs::write(&path, &p.png).map_err(|e| werr(&path, e))?;
+            staged.names.push(p.name.clone());
+        }
+        Ok(staged)
+    }
+
+    fn commit(mut self) -> Result<(), EditError> {
+        let werr = |p: &Path, e: std::io::Error| EditError::Write {
+            path: p.display().to_string(),
+            message: e.to_string(),
+        };
+        if !self.target.exists() {
+            std::fs::rename(&self.stage, &self.target).map_err(|e| werr(&self.target, e))?;
+        } else {
+            for n in &self.names {
+                let to = self.target.join(n);
+                std::fs::rename(self.stage.join(n), &to).map_err(|e| werr(&to, e))?;
+            }
+            let _ = std::fs::remove_dir(&self.stage);
+        }
+        self.done = true;
+        Ok(())
+    }
+}
+
+impl Drop for StagedDir {
+    fn drop(&mut self) {
+        if !self.done {
+            let _ = std::fs::remove_dir_all(&self.stage);
+        }
+    }
+}

@@ -1,0 +1,214 @@
+//! Stage 5 of the edit pipeline, `lowering`: the refinement rounds after
+//! the initial solve.
+//!
+//! Each round re-renders every view on the current terrain, lowers the
+//! silhouettes that protrude above the strokes (section 6.2,
+//! [`super::lowering`]) and puts the mesh vertices that decide the contour
+//! along strokes that do not fit yet on the strokes' sight surfaces
+//! ([`super::contour`]), collects the new constraints of all views and
+//! solves once. It stops when no view asks for more, or when a round stops
+//! helping; the best terrain so far is kept. Lone spikes of the change
+//! field are flattened at the end ([`super::spikes`]).
+
+use std::collections::{BTreeMap, HashSet};
+
+use rayon::prelude::*;
+
+use super::contour::contour_constraints;
+use super::fit::measure;
+use super::lowering::find_protruding;
+use super::pipeline::{render_edited, Edit, Placed, Solver, ViewState};
+use super::rendered_view::{RenderedView, StrokeCurve};
+use super::spikes::flatten_spikes;
+use super::EditError;
+use crate::deform::{CellConstraint, CurveConstraint, Deformation};
+
+/// A cell constraint counts as new when its height moved by more than this
+/// (metres).
+const CELL_CHANGE_M: f64 = 0.01;
+
+/// What the refinement rounds leave: the final terrain, its renders, and
+/// per view how many rounds each kind of refinement took.
+pub(super) struct Rounds {
+    /// The final deformation (the best round's, spikes flattened).
+    pub(super) deformation: Deformation,
+    /// Each view rendered on it, within its [`super::rendered_view::StrokeRegion`].
+    pub(super) rendered: Vec<RenderedView>,
+    /// Per view: lowering rounds that found protruding silhouettes.
+    pub(super) lowering_iterations: Vec<usize>,
+    /// Per view: protruding silhouettes lowered, over all rounds.
+    pub(super) silhouettes_lowered: Vec<usize>,
+    /// Per view: contour rounds that moved a cell.
+    pub(super) contour_iterations: Vec<usize>,
+    /// Curve constraints the lowering added to the user's.
+    pub(super) lowering_constraints: usize,
+}
+
+/// Refine the initial `deformation` round by round until every stroke is
+/// the occluding contour of its view, or the iteration limits
+/// ([`super::EditOptions::max_lowering_iterations`],
+/// [`super::EditOptions::max_contour_iterations`]) are reached, or a round
+/// no longer raises the fit score ([`fit_score`]); then keep the best
+/// round's terrain and flatten its lone spikes ([`flatten_final_spikes`]).
+/// Every solve goes through `solver`, with the user's curve constraints of
+/// `placed` plus the lowering curves and the contour cells gathered so far;
+/// the result feeds the fit measurement and the write.
+pub(super) fn refine(
+    edit: &Edit,
+    views: &[ViewState],
+    solver: &Solver,
+    placed: &Placed,
+    mut deformation: Deformation,
+) -> Result<Rounds, EditError> {
+    let opts = edit.opts;
+    let curves = &placed.demands.strokes;
+    let regions = &placed.regions;
+    let render_all = |deformation: &Deformation| -> Result<Vec<RenderedView>, EditError> {
+        views
+            .iter()
+            .zip(regions)
+            .map(|(v, r)| render_edited(v, deformation, edit.max_d, Some(r)))
+            .collect()
+    };
+    edit.pb.set_message("lowering protruding silhouettes");
+    let mut constraints = placed.demands.curves.clone();
+    let user_constraints = constraints.len();
+    let mut iterations = vec![0usize; views.len()];
+    let mut lowered = vec![0usize; views.len()];
+    let mut contour_rounds = vec![0usize; views.len()];
+    let mut cells: BTreeMap<(i64, i64), f64> = BTreeMap::new();
+    let mut rendered: Vec<RenderedView>;
+    let mut best: Option<(f64, Deformation)> = None;
+    let mut stalled = 0;
+    loop {
+        rendered = render_all(&deformation)?;
+        let score = fit_score(curves, &rendered);
+        if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
+            eprintln!(
+                "round: fit score {score:.3} (best {:?}), lowering {:?}, contour {:?}",
+                best.as_ref().map(|b| b.0),
+                iterations,
+                contour_rounds
+            );
+        }
+        match &best {
+            Some((b, _)) if score <= *b + 1e-9 => {
+                stalled += 1;
+                if score < *b - 1e-9 || stalled >= 2 {
+                    break;
+                }
+            }
+            _ => {
+                stalled = 0;
+                best = Some((score, deformation.clone()));
+            }
+        }
+        let mut changed = false;
+        for (k, (v, after)) in views.iter().zip(&rendered).enumerate() {
+            if iterations[k] < opts.max_lowering_iterations {
+                let protruding = find_protruding(after, &curves[k]);
+                if !protruding.is_empty() {
+                    for p in &protruding {
+                        if !p.lowered.is_empty() {
+                            constraints.push(CurveConstraint {
+                                points: p.lowered.clone(),
+                            });
+                        }
+                    }
+                    lowered[k] += protruding.len();
+                    iterations[k] += 1;
+                    changed = true;
+                }
+            }
+            if contour_rounds[k] < opts.max_contour_iterations {
+                let mut moved = false;
+                let mut round: BTreeMap<(i64, i64), f64> = BTreeMap::new();
+                let known = |col: i64, row: i64| cells.contains_key(&(col, row));
+                for c in contour_constraints(after, &curves[k], v.window_offset, &known) {
+                    let h = round.entry((c.col, c.row)).or_insert(c.height);
+                    *h = h.min(c.height);
+                }
+                for (&(col, row), &height) in &round {
+                    let old = cells.insert((col, row), height);
+                    moved |= old.is_none_or(|h| (h - height).abs() > CELL_CHANGE_M);
+                }
+                if moved {
+                    contour_rounds[k] += 1;
+                    changed = true;
+                }
+            }
+        }
+        if !changed {
+            break;
+        }
+        edit.pb.set_message(format!(
+            "lowering protruding silhouettes, fitting contours: round {}",
+            iterations
+                .iter()
+                .chain(&contour_rounds)
+                .max()
+                .copied()
+                .unwrap_or(0)
+        ));
+        let cell_list: Vec<CellConstraint> = cells
+            .iter()
+            .map(|(&(col, row), &height)| CellConstraint { col, row, height })
+            .collect();
+        deformation = solver.solve(&constraints, &cell_list)?;
+    }
+    // The best round's terrain, if a later one did worse.
+    if let Some((b, d)) = best {
+        if fit_score(curves, &rendered) < b - 1e-9 {
+            deformation = d;
+            rendered = render_all(&deformation)?;
+        }
+    }
+    // No spikes: a lone apex (or pit) of the change field gets a
+    // neighbour behind it within half a cell.
+    if flatten_final_spikes(views, &mut deformation, &placed.demands.fixed) > 0 {
+        rendered = render_all(&deformation)?;
+    }
+    Ok(Rounds {
+        deformation,
+        rendered,
+        lowering_iterations: iterations,
+        silhouettes_lowered: lowered,
+        contour_iterations: contour_rounds,
+        lowering_constraints: constraints.len() - user_constraints,
+    })
+}
+
+/// [`flatten_spikes`] on the final deformation, with the viewpoints as
+/// eyes and the constrained and fixed cells held.
+fn flatten_final_spikes(
+    views: &[ViewState],
+    deformation: &mut Deformation,
+    fixed: &[CellConstraint],
+) -> usize {
+    let gt = &deformation.base.geotransform;
+    let eyes: Vec<(f64, f64)> = views
+        .iter()
+        .filter_map(|v| gt.crs_to_pixel(v.frame.eye_crs.0, v.frame.eye_crs.1))
+        .collect();
+    let w = deformation.window;
+    let fixed: HashSet<(i64, i64)> = fixed.iter().map(|c| (c.col, c.row)).collect();
+    let constrained = deformation.constrained.clone();
+    let held = |c: usize, r: usize| {
+        constrained[r * w.width + c] || fixed.contains(&(w.col + c as i64, w.row + r as i64))
+    };
+    flatten_spikes(deformation, &eyes, &held)
+}
+
+/// Share of the strokes' columns fitted, summed over all views' strokes:
+/// what a round of lowering or contour fitting must improve.
+fn fit_score(curves: &[Vec<StrokeCurve>], rendered: &[RenderedView]) -> f64 {
+    curves
+        .iter()
+        .zip(rendered)
+        .map(|(cs, view)| {
+            cs.par_iter()
+                .map(|c| measure(c, view).0.fitted_fraction)
+                .sum::<f64>()
+        })
+        .sum()
+}
