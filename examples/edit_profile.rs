@@ -32,7 +32,9 @@ fn main() {
         std::fs::copy(&dem, dir.join("zion512.tif")).expect("copy DEM");
         std::fs::copy(&sketch, dir.join("sketch.json")).expect("copy sketch");
     }
-    let opts = EditOptions::new(Destination::Path(tmp.path().join("out.tif")));
+    let mut opts = EditOptions::new(Destination::Path(tmp.path().join("out.tif")));
+    // The figures are those of a whole edit, written whatever its fit.
+    opts.allow_partial = true;
     let first = run(&dem, &sketch, &opts).expect("edit");
     eprintln!(
         "first run: {:?}, lowering iterations {}, contour iterations {}",

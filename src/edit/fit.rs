@@ -32,6 +32,20 @@ pub struct StrokeFit {
     pub columns: usize,
 }
 
+/// [`measure`]'s `fitted_fraction` alone (no visibility casts): what the
+/// refinement rounds compare.
+pub fn fitted_fraction(stroke: &StrokeCurve, view: &RenderedView) -> f64 {
+    let cols = stroke.columns(view.camera.width);
+    if cols.is_empty() {
+        return 0.0;
+    }
+    let fitted = cols
+        .iter()
+        .filter(|&&(i, y, _)| view.boundary_near(i, y, FIT_TOLERANCE_PX).1)
+        .count();
+    fitted as f64 / cols.len() as f64
+}
+
 /// Measure the fit and visibility of `stroke` in `view`.
 pub fn measure(stroke: &StrokeCurve, view: &RenderedView) -> (StrokeFit, f64) {
     let cols = stroke.columns(view.camera.width);

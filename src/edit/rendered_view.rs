@@ -268,7 +268,8 @@ impl RenderedView {
         }
         let reach = BILINEAR_REACH_CELLS / cells_per_m;
         let (ta, tb) = ((t_p - reach).max(0.5 * t_p), t_p + reach);
-        let steps = (4.0 * BILINEAR_REACH_CELLS * 2.0) as usize * 4;
+        // Quarter-cell steps over the span.
+        let steps = (4.0 * 2.0 * BILINEAR_REACH_CELLS) as usize;
         // Least clearance of the ray through row y above the bilinear
         // surface over the span (negative: it hits the occluder).
         let clearance = |y: f64| -> Option<f64> {
@@ -289,7 +290,7 @@ impl RenderedView {
         if !(clearance(above)? > 0.0 && clearance(below)? <= 0.0) {
             return None;
         }
-        for _ in 0..12 {
+        for _ in 0..10 {
             let mid = 0.5 * (above + below);
             if clearance(mid)? > 0.0 {
                 above = mid;

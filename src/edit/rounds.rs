@@ -15,7 +15,7 @@ use std::collections::{BTreeMap, HashSet};
 use rayon::prelude::*;
 
 use super::contour::contour_constraints;
-use super::fit::measure;
+use super::fit::fitted_fraction;
 use super::lowering::find_protruding;
 use super::pipeline::{render_edited, Edit, Placed, Solver, ViewState};
 use super::rendered_view::{RenderedView, StrokeCurve};
@@ -94,7 +94,7 @@ pub(super) fn refine(
         match &best {
             Some((b, _)) if score <= *b + 1e-9 => {
                 stalled += 1;
-                if score < *b - 1e-9 || stalled >= 2 {
+                if score < *b - 1e-9 || stalled >= STALLED_ROUNDS {
                     break;
                 }
             }
@@ -199,16 +199,16 @@ fn flatten_final_spikes(
     flatten_spikes(deformation, &eyes, &held)
 }
 
+/// The rounds stop at the first one that does not improve the strokes'
+/// fit (the best terrain so far is kept).
+pub const STALLED_ROUNDS: usize = 1;
+
 /// Share of the strokes' columns fitted, summed over all views' strokes:
 /// what a round of lowering or contour fitting must improve.
 fn fit_score(curves: &[Vec<StrokeCurve>], rendered: &[RenderedView]) -> f64 {
     curves
         .iter()
         .zip(rendered)
-        .map(|(cs, view)| {
-            cs.par_iter()
-                .map(|c| measure(c, view).0.fitted_fraction)
-                .sum::<f64>()
-        })
+        .map(|(cs, view)| cs.par_iter().map(|c| fitted_fraction(c, view)).sum::<f64>())
         .sum()
 }
