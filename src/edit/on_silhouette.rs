@@ -17,7 +17,9 @@
 //!
 //! Hand-drawn strokes wander: a short stretch (at most [`MAX_GAP_PX`] wide)
 //! between anchored points, or between one and the stroke's end, is
-//! anchored too where it stays within [`GAP_TOLERANCE_PX`] of a boundary.
+//! anchored too where it stays within [`GAP_TOLERANCE_PX`] of a boundary;
+//! so is a stretch between two anchors on one silhouette that is narrower
+//! than one DEM cell seen from there (the DEM cannot draw such a detail).
 //! Feature completion at an anchored end is dropped: that end already sits
 //! on the terrain.
 
@@ -177,6 +179,29 @@ pub fn anchor_on_silhouettes(
             if loose.iter().all(|h| h.is_some()) {
                 for (m, h) in (a..b).zip(loose) {
                     hits[m] = h;
+                }
+                a = b;
+                continue;
+            }
+        }
+        // Narrower than one cell of the DEM seen from there, between two
+        // anchors on one silhouette: the DEM cannot draw such a detail, so
+        // the stretch stays as the silhouette beside it has it.
+        if let (Some(l), Some(r)) = (left.and_then(|l| hits[l]), right.and_then(|r| hits[r])) {
+            let same = (l.depth - r.depth).abs() <= RUN_DEPTH_STEP * l.depth.min(r.depth);
+            if same && (x1 - x0).abs() < before.cell_px(0.5 * (l.depth + r.depth)) {
+                for m in a..b {
+                    let t = (px(on_stroke[m])[0] - x0) / (x1 - x0).max(1e-9);
+                    let lerp = |u: f64, v: f64| u + t.clamp(0.0, 1.0) * (v - u);
+                    hits[m] = Some(BoundaryPoint {
+                        row: lerp(l.row, r.row),
+                        local: [
+                            lerp(l.local[0], r.local[0]),
+                            lerp(l.local[1], r.local[1]),
+                            lerp(l.local[2], r.local[2]),
+                        ],
+                        depth: lerp(l.depth, r.depth),
+                    });
                 }
             }
         }

@@ -337,6 +337,17 @@ impl RenderedView {
         (0.25 * twist * self.camera.focal_px / depth).min(BILINEAR_SEARCH_PX)
     }
 
+    /// Width in pixels of one DEM cell seen from `depth` metres (the larger
+    /// of its two sides).
+    pub fn cell_px(&self, depth: f64) -> f64 {
+        let p = self.terrain.frame.p;
+        let cell_m = p[0][0].hypot(p[1][0]).max(p[0][1].hypot(p[1][1]));
+        if !(depth > 0.0) {
+            return f64::INFINITY;
+        }
+        cell_m * self.camera.focal_px / depth
+    }
+
     /// Distance from row `y` of column `i` to its nearest occlusion
     /// boundary as the renderer draws it, and whether a boundary lies
     /// within `tol` pixels of `y` as drawn or as the bilinear surface has
