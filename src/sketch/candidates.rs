@@ -23,7 +23,10 @@
 //!      `h_fp` the vertical pixel distance between `f_p` and `s` (pixels);
 //!    - `E_def = w2 / CurveLength(f) * integral over f of h_f`, with `h_f`
 //!      the altitude difference between the deformed `f` and the terrain
-//!      below it (metres);
+//!      below it, seen from the eye: `h_f * focal / depth`, pixels (the
+//!      paper gives metres; in metres a feature near the eye wins only
+//!      because lifting it there is cheap, so the terms are put in one
+//!      unit, that of `E_dis`);
 //!    - `E_sam = w3 * LongestEdge(f) / max over the list of LongestEdge(g)`;
 //!    - `E_ext = w4 * ExtendedCurveLength(f) / CurveLength(f)`.
 //!
@@ -343,7 +346,9 @@ pub fn build_candidate(
             .unwrap_or(([pixel[0], ys], dist(deformed, eye)));
         let ground = proj.terrain_height(world[0], world[1]).unwrap_or(world[2]);
         hfp.push(dv.abs());
-        hf.push((deformed[2] - ground).abs());
+        // In pixels (the lift seen from the eye): in metres a near feature
+        // would win only because lifting it is cheap close to the eye.
+        hf.push((deformed[2] - ground).abs() * f / depth.max(1e-9));
         cpoints.push(CandidatePoint {
             pixel,
             deformed_pixel,
