@@ -119,13 +119,9 @@ fn cost_terms_follow_the_paper() {
     let c = build_candidate(&s, &features[1], &cam, &opts).unwrap();
     // E_dis: mean pixel distance to the stroke = 20 px.
     assert!((c.costs.dissimilarity - 20.0).abs() < 0.2, "{:?}", c.costs);
-    // E_def: mean altitude change, 20 px at ~3 km with f = 693 px: ~87 m.
-    let f = cam.focal_px();
-    assert!(
-        (c.costs.deformation - 20.0 * 3000.0 / f).abs() < 5.0,
-        "{:?}",
-        c.costs
-    );
+    // E_def: the mean altitude change (20 px at ~3 km with f = 693 px:
+    // ~87 m) seen from the eye, in pixels: ~20 px whatever the depth.
+    assert!((c.costs.deformation - 20.0).abs() < 1.5, "{:?}", c.costs);
     assert_eq!(c.costs.extension, 0.0);
     // A stroke wider than a feature's projection: the feature is extended
     // (ridge 0 spans the whole image, so take its part between 200 and 600 px).
