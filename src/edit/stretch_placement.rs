@@ -163,8 +163,18 @@ pub fn place_free_stretches(
             .iter()
             .filter(|p| p.source == PointSource::Feature)
             .count();
+        // An anchor beside the stretch at the feature's depth: the stroke
+        // leaves that silhouette along the feature's landform.
+        let meets_anchor = |bound: Option<Bound>, k: usize, is_end: bool| {
+            let p = &placed.points[k];
+            !is_end
+                && p.source == PointSource::Feature
+                && bound.is_some_and(|q| (q.depth - p.depth).abs() <= AGREEMENT * q.depth)
+        };
         let feature_ok = on_feature as f64 >= NEAR_COVERAGE * run_points.len() as f64
-            && feature.is_some_and(|f| near_in_image(f, &run_points, near_px))
+            && (feature.is_some_and(|f| near_in_image(f, &run_points, near_px))
+                || meets_anchor(left, on[a], a == 0)
+                || meets_anchor(right, on[b - 1], b == n))
             && !contradicts(left, on[a], a == 0)
             && !contradicts(right, on[b - 1], b == n);
         if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
@@ -297,6 +307,12 @@ impl Surface {
         let eye = proj.eye();
         let horizontal = |v: [f64; 3]| [v[0], v[1], 0.0];
         match (left, right) {
+            // Ends far apart in depth: the nearer is a silhouette the
+            // stroke passes behind (a T-junction), the farther its own
+            // landform.
+            (Some(l), Some(r)) if (l.depth - r.depth).abs() > AGREEMENT * l.depth.min(r.depth) => {
+                Self::drawing_plane(eye, if l.depth > r.depth { l } else { r })
+            }
             (Some(l), Some(r)) => {
                 let along = horizontal(sub(r.world, l.world));
                 let len = along[0].hypot(along[1]);
