@@ -860,6 +860,7 @@ fn place_demands(
                 &v.before,
                 &sv.projection,
                 &sv.features,
+                options.observer_radius_m.unwrap_or(OBSERVER_RADIUS_M),
                 sm,
             ));
             let dem_points = sv.projection.placed_to_dem(&sm.points);

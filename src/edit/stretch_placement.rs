@@ -99,6 +99,7 @@ pub fn place_free_stretches(
     before: &RenderedView,
     proj: &SceneProjection,
     features: &[ViewFeature],
+    observer_radius_m: f64,
     placed: &mut StrokeMatch,
 ) -> StretchPlacement {
     let feature = placed
@@ -115,8 +116,9 @@ pub fn place_free_stretches(
     let anchored = |k: usize| placed.points[k].source == PointSource::Silhouette;
     let bound_at = |k: usize, end: bool| -> Option<Bound> {
         let p = &placed.points[k];
+        // Nothing on the observer's fixed ground is a landform's foot.
         if anchored(k) {
-            return Some(Bound {
+            return (p.depth > observer_radius_m).then_some(Bound {
                 world: p.world,
                 depth: p.depth,
             });
@@ -125,7 +127,7 @@ pub fn place_free_stretches(
             return None;
         }
         let (local, depth) = ground_under_end(before, p.pixel?)?;
-        Some(Bound {
+        (depth > observer_radius_m).then_some(Bound {
             world: proj.own_to_world(local),
             depth,
         })
