@@ -860,7 +860,7 @@ fn place_demands(
                 &v.before,
                 &sv.projection,
                 &sv.features,
-                options.observer_radius_m.unwrap_or(OBSERVER_RADIUS_M),
+                v.observer_radius(options.observer_radius_m),
                 sm,
             ));
             let dem_points = sv.projection.placed_to_dem(&sm.points);
@@ -1054,20 +1054,32 @@ impl ViewState<'_> {
             return Vec::new();
         };
         let (c0, r0) = ((px - 0.5).floor() as i64, (py - 0.5).floor() as i64);
-        let mut out = Vec::with_capacity(4);
-        for (c, r) in [(c0, r0), (c0 + 1, r0), (c0, r0 + 1), (c0 + 1, r0 + 1)] {
-            if c < 0 || r < 0 {
-                continue;
-            }
-            if let Some(h) = self.window.get(c as usize, r as usize) {
-                out.push(CellConstraint {
-                    col: c + self.window_offset.0,
-                    row: r + self.window_offset.1,
-                    height: h as f64,
-                });
-            }
+        [(c0, r0), (c0 + 1, r0), (c0, r0 + 1), (c0 + 1, r0 + 1)]
+            .into_iter()
+            .filter_map(|(c, r)| self.held_cell(c, r))
+            .collect()
+    }
+
+    /// Window cell `(c, r)` held at its input height (in whole-DEM
+    /// coordinates); `None` outside the window or on nodata.
+    fn held_cell(&self, c: i64, r: i64) -> Option<CellConstraint> {
+        if c < 0 || r < 0 {
+            return None;
         }
-        out
+        let h = self.window.get(c as usize, r as usize)?;
+        Some(CellConstraint {
+            col: c + self.window_offset.0,
+            row: r + self.window_offset.1,
+            height: h as f64,
+        })
+    }
+
+    /// The radius of the observer's fixed ground: `radius_m` (the sketch's
+    /// `observer_radius_m`), else [`OBSERVER_RADIUS_M`] and at least two
+    /// cells.
+    fn observer_radius(&self, radius_m: Option<f64>) -> f64 {
+        let (hx, hy) = self.cell_m();
+        radius_m.unwrap_or(OBSERVER_RADIUS_M.max(2.0 * hx.max(hy)))
     }
 
     /// The ground the observer stands on: every cell whose surface reaches
@@ -1075,7 +1087,7 @@ impl ViewState<'_> {
     /// cells), held at its input height.
     fn observer_cells(&self, radius_m: Option<f64>) -> Vec<CellConstraint> {
         let (hx, hy) = self.cell_m();
-        let radius = radius_m.unwrap_or(OBSERVER_RADIUS_M.max(2.0 * hx.max(hy)));
+        let radius = self.observer_radius(radius_m);
         if !(hx > 0.0 && hy > 0.0 && radius.is_finite()) {
             return Vec::new();
         }
@@ -1089,20 +1101,11 @@ impl ViewState<'_> {
         let mut out = Vec::new();
         for r in r_eye - nr..=r_eye + nr {
             for c in c_eye - nc..=c_eye + nc {
-                if c < 0 || r < 0 {
-                    continue;
-                }
                 let (e, n) = self.frame.pixel_to_en(c as f64 + 0.5, r as f64 + 0.5);
                 if e.hypot(n) > reach {
                     continue;
                 }
-                if let Some(h) = self.window.get(c as usize, r as usize) {
-                    out.push(CellConstraint {
-                        col: c + self.window_offset.0,
-                        row: r + self.window_offset.1,
-                        height: h as f64,
-                    });
-                }
+                out.extend(self.held_cell(c, r));
             }
         }
         out

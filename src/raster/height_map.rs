@@ -58,6 +58,19 @@ impl HeightMap {
     /// Bilinear height at pixel-space `(px, py)` (cell centres at +0.5), or
     /// `None` outside the grid or next to nodata.
     pub fn bilinear(&self, px: f64, py: f64) -> Option<f64> {
+        let ([h00, h10, h01, h11], fx, fy) = self.stencil(px, py)?;
+        Some(
+            h00 * (1.0 - fx) * (1.0 - fy)
+                + h10 * fx * (1.0 - fy)
+                + h01 * (1.0 - fx) * fy
+                + h11 * fx * fy,
+        )
+    }
+
+    /// The four cell-centre heights around pixel-space `(px, py)` (`h00`,
+    /// `h10`, `h01`, `h11`) and the position between them, `None` outside
+    /// the grid or next to nodata.
+    fn stencil(&self, px: f64, py: f64) -> Option<([f64; 4], f64, f64)> {
         let x = px - 0.5;
         let y = py - 0.5;
         if !(x >= 0.0 && y >= 0.0) {
@@ -67,16 +80,8 @@ impl HeightMap {
         let (fx, fy) = (x - c0 as f64, y - r0 as f64);
         let c1 = if fx > 0.0 { c0 + 1 } else { c0 };
         let r1 = if fy > 0.0 { r0 + 1 } else { r0 };
-        let h00 = self.get(c0, r0)? as f64;
-        let h10 = self.get(c1, r0)? as f64;
-        let h01 = self.get(c0, r1)? as f64;
-        let h11 = self.get(c1, r1)? as f64;
-        Some(
-            h00 * (1.0 - fx) * (1.0 - fy)
-                + h10 * fx * (1.0 - fy)
-                + h01 * (1.0 - fx) * fy
-                + h11 * fx * fy,
-        )
+        let h = |c, r| self.get(c, r).map(|v| v as f64);
+        Some(([h(c0, r0)?, h(c1, r0)?, h(c0, r1)?, h(c1, r1)?], fx, fy))
     }
 
     /// Height at pixel-space `(px, py)` of the surface the renderer draws:
@@ -86,19 +91,7 @@ impl HeightMap {
     /// cell by up to a quarter of the cell's twist; `None` where
     /// `bilinear` is `None`.
     pub fn triangle_surface(&self, px: f64, py: f64) -> Option<f64> {
-        let x = px - 0.5;
-        let y = py - 0.5;
-        if !(x >= 0.0 && y >= 0.0) {
-            return None;
-        }
-        let (c0, r0) = (x.floor() as usize, y.floor() as usize);
-        let (fx, fy) = (x - c0 as f64, y - r0 as f64);
-        let c1 = if fx > 0.0 { c0 + 1 } else { c0 };
-        let r1 = if fy > 0.0 { r0 + 1 } else { r0 };
-        let h00 = self.get(c0, r0)? as f64;
-        let h10 = self.get(c1, r0)? as f64;
-        let h01 = self.get(c0, r1)? as f64;
-        let h11 = self.get(c1, r1)? as f64;
+        let ([h00, h10, h01, h11], fx, fy) = self.stencil(px, py)?;
         Some(if fx >= fy {
             h00 + (h10 - h00) * fx + (h11 - h10) * fy
         } else {
