@@ -22,6 +22,7 @@
 
 use super::rendered_view::RenderedView;
 use crate::render::SKY;
+use crate::sketch::projection::{dot, sub};
 use crate::sketch::{
     PlacedPoint, PointSource, SceneProjection, StrokeMatch, ViewFeature, ViewProjection,
 };
@@ -362,12 +363,4 @@ impl Surface {
         };
         (t.is_finite() && t > 0.0).then_some(t)
     }
-}
-
-fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
