@@ -2,13 +2,18 @@
 //! corrected tiles, a report and pictures out (the pipeline of DESIGN.md).
 //!
 //! [`run`] loads the DEM and the sketch, renders every view (reading only
-//! the DEM within the maximum view distance), extracts its silhouettes and
-//! the ridge network, matches the strokes of all views jointly, turns the
-//! placed strokes into curve constraints in the DEM's CRS and deforms the
-//! DEM ([`pipeline`]). It then re-renders each view and lowers protruding
+//! the DEM within the maximum view distance, the eye resolved once above
+//! the drawn surface), extracts its silhouettes and the ridge network, and
+//! matches the strokes of all views jointly. What a stroke draws where the
+//! unedited view already has a silhouette is kept as it is
+//! ([`on_silhouette`]); the rest is placed at the depth the evidence gives
+//! ([`stretch_placement`]) and turned into curve constraints in the DEM's
+//! CRS, with the observer's ground and the anchored cells held, and the DEM
+//! is deformed ([`pipeline`]). It then re-renders each view and lowers protruding
 //! silhouettes until every stroke is visible ([`lowering`], in the rounds
 //! of `rounds`), measures how well the edited terrain shows each stroke
-//! ([`fit`]), writes the affected tiles back atomically, and finally the
+//! ([`fit`]) after removing lone spikes of the change ([`spikes`]),
+//! writes the affected tiles back atomically, and finally the
 //! pictures ([`renders`]) and the report ([`report`]) (`outputs`). Nothing
 //! is written unless every step succeeded.
 
