@@ -17,7 +17,7 @@
 //! 2. **Cues without junctions**: where the two strokes share pixel columns
 //!    and one is drawn above the other there, it is behind (the paper's
 //!    first observation, "if a silhouette lies above another, it ...
-//!    (is) farther away", applied column by column, where it is exact for a
+//!    \[is\] farther away", applied column by column, where it is exact for a
 //!    height field); otherwise, if the x interval of `r` lies inside that of
 //!    `s`, `s` is behind `r`; otherwise the stroke whose lowest extremity is
 //!    higher on screen is behind.
