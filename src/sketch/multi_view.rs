@@ -5,7 +5,7 @@
 //! each gets its priority list from the view's own features
 //! ([`priority_list`]). The strokes of all views are then put in one list,
 //! view after view (in file order) and front to back within a view, and a
-//! single branch-and-bound ([`branch_and_bound`]) chooses all features at
+//! single branch-and-bound ([`branch_and_bound`](super::branch_and_bound)) chooses all features at
 //! once under two constraints:
 //!
 //! - within a view, a feature assigned to a nearer stroke is not hidden by
