@@ -114,6 +114,28 @@ pub struct DeformStats {
     pub solve_s: f64,
 }
 
+impl DeformStats {
+    /// The figures of a deformation that solved nothing: cell size and
+    /// influence distance, every count and time zero.
+    pub fn unsolved(cell_size_m: CellSize, influence_m: f64) -> DeformStats {
+        DeformStats {
+            constrained_cells: 0,
+            free_cells: 0,
+            changed_cells: 0,
+            max_abs_displacement_m: 0.0,
+            max_abs_constraint_m: 0.0,
+            influence_m,
+            cell_size_m,
+            cycles: 0,
+            relative_residual: 0.0,
+            levels: 0,
+            read_s: 0.0,
+            constraints_s: 0.0,
+            solve_s: 0.0,
+        }
+    }
+}
+
 /// The result of [`deform`] on the affected window.
 #[derive(Debug, Clone)]
 pub struct Deformation {
@@ -180,21 +202,7 @@ impl Deformation {
             displacement,
             affected_tiles: Vec::new(),
             constrained: vec![false; window.len()],
-            stats: DeformStats {
-                constrained_cells: 0,
-                free_cells: 0,
-                changed_cells: 0,
-                max_abs_displacement_m: 0.0,
-                max_abs_constraint_m: 0.0,
-                influence_m: 0.0,
-                cell_size_m: cell,
-                cycles: 0,
-                relative_residual: 0.0,
-                levels: 0,
-                read_s: 0.0,
-                constraints_s: 0.0,
-                solve_s: 0.0,
-            },
+            stats: DeformStats::unsolved(cell, 0.0),
             base,
         })
     }

@@ -179,21 +179,7 @@ mod tests {
             },
             affected_tiles: Vec::new(),
             constrained: vec![false; w * h],
-            stats: DeformStats {
-                constrained_cells: 0,
-                free_cells: 0,
-                changed_cells: 0,
-                max_abs_displacement_m: 0.0,
-                max_abs_constraint_m: 0.0,
-                influence_m: 100.0,
-                cell_size_m: cell,
-                cycles: 0,
-                relative_residual: 0.0,
-                levels: 0,
-                read_s: 0.0,
-                constraints_s: 0.0,
-                solve_s: 0.0,
-            },
+            stats: DeformStats::unsolved(cell, 100.0),
         }
     }
 

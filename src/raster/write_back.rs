@@ -150,16 +150,6 @@ impl Dem {
         dest: &Destination,
         provenance: &Provenance,
     ) -> Result<WriteReport, RasterError> {
-        if values.len() != window.len() {
-            return Err(write_err(
-                &self.path,
-                format!(
-                    "{} values for a window of {} cells",
-                    values.len(),
-                    window.len()
-                ),
-            ));
-        }
         self.check_destination(dest)?;
         let edits = self.tile_edits(window, values)?;
         let changed_cells = edits.iter().map(|e| e.changed).sum();
@@ -171,6 +161,13 @@ impl Dem {
     /// write-back would give (a height the sample type cannot hold, or one
     /// that lands on the nodata value). For dry runs.
     pub fn check_write_back(&self, window: Window, values: &[f64]) -> Result<usize, RasterError> {
+        let edits = self.tile_edits(window, values)?;
+        Ok(edits.iter().map(|e| e.changed).sum())
+    }
+
+    /// The quantized edits of every tile `window` touches (tiles without a
+    /// changed cell left out).
+    fn tile_edits(&self, window: Window, values: &[f64]) -> Result<Vec<TileEdit>, RasterError> {
         if values.len() != window.len() {
             return Err(write_err(
                 &self.path,
@@ -181,13 +178,6 @@ impl Dem {
                 ),
             ));
         }
-        let edits = self.tile_edits(window, values)?;
-        Ok(edits.iter().map(|e| e.changed).sum())
-    }
-
-    /// The quantized edits of every tile `window` touches (tiles without a
-    /// changed cell left out).
-    fn tile_edits(&self, window: Window, values: &[f64]) -> Result<Vec<TileEdit>, RasterError> {
         let window =
             window
                 .intersect(&self.full_window())
