@@ -29,7 +29,9 @@ use std::path::Path;
 use gdal::raster::{Buffer, RasterCreationOptions};
 use gdal::{Dataset, DriverManager, GdalOpenFlags, Metadata};
 
-use super::overviews::{rebuild_all, refresh_overviews, resampling_for, RefreshStats};
+use super::overviews::{
+    rebuild_all, record_resampling, refresh_overviews, resampling_for, RefreshStats,
+};
 use super::provenance::history_items;
 use super::{sidecars, RasterError, Window};
 
@@ -181,7 +183,12 @@ pub fn edit_dataset(
         settings.external_overviews,
         target,
     ) {
-        Ok(stats) => Ok(stats),
+        Ok(stats) => {
+            if stats.levels > 0 {
+                record_resampling(ds, resampling).map_err(werr)?;
+            }
+            Ok(stats)
+        }
         // A pyramid gdaladdo would not make (odd level sizes): rebuilt whole.
         Err(RasterError::Write { .. }) if !settings.external_overviews => {
             let band = ds.rasterband(1).map_err(werr)?;

@@ -41,6 +41,10 @@ pub const DEFAULT_OVERVIEW_RESAMPLING: &str = "AVERAGE";
 /// the resampling of the pyramid.
 pub const RESAMPLING_ITEM: &str = "RESAMPLING";
 
+/// The dataset item (default domain) that records it too: the COG driver
+/// does not copy overview metadata, the main image's it does.
+pub const DATASET_RESAMPLING_ITEM: &str = "DEMSKETCH_OVERVIEW_RESAMPLING";
+
 /// The resampling methods GDAL's overview builder accepts.
 pub const RESAMPLINGS: [&str; 10] = [
     "NEAREST",
@@ -72,15 +76,33 @@ pub fn parse_resampling(s: &str) -> Result<&'static str, String> {
 }
 
 /// The resampling a dataset's pyramid records, if any: the `RESAMPLING`
-/// item of its first overview band (default or IMAGE_STRUCTURE domain), or
-/// of the dataset's IMAGE_STRUCTURE domain.
+/// item of its first overview band (default or IMAGE_STRUCTURE domain), of
+/// the dataset's IMAGE_STRUCTURE domain, or [`DATASET_RESAMPLING_ITEM`].
 pub fn recorded_resampling(ds: &Dataset) -> Option<&'static str> {
     let band = ds.rasterband(1).ok()?;
-    let ovr = band.overview(0).ok()?;
-    ovr.metadata_item(RESAMPLING_ITEM, "")
-        .or_else(|| ovr.metadata_item(RESAMPLING_ITEM, "IMAGE_STRUCTURE"))
+    let ovr = band.overview(0).ok();
+    ovr.as_ref()
+        .and_then(|o| o.metadata_item(RESAMPLING_ITEM, ""))
+        .or_else(|| {
+            ovr.as_ref()
+                .and_then(|o| o.metadata_item(RESAMPLING_ITEM, "IMAGE_STRUCTURE"))
+        })
         .or_else(|| ds.metadata_item(RESAMPLING_ITEM, "IMAGE_STRUCTURE"))
+        .or_else(|| ds.metadata_item(DATASET_RESAMPLING_ITEM, ""))
         .and_then(|r| parse_resampling(&r).ok())
+}
+
+/// Record `resampling` as the pyramid's on `ds` (open for update, or in
+/// memory): on every overview band and as [`DATASET_RESAMPLING_ITEM`].
+pub fn record_resampling(ds: &mut Dataset, resampling: &str) -> gdal::errors::Result<()> {
+    {
+        let band = ds.rasterband(1)?;
+        for k in 0..band.overview_count()?.max(0) as usize {
+            band.overview(k)?
+                .set_metadata_item(RESAMPLING_ITEM, resampling, "")?;
+        }
+    }
+    ds.set_metadata_item(DATASET_RESAMPLING_ITEM, resampling, "")
 }
 
 /// The resampling to use: `chosen`, else the recorded one, else AVERAGE.
@@ -116,7 +138,7 @@ pub struct RefreshStats {
 
 /// Refresh the overviews of band 1 of `ds` (open for update, the edit
 /// already written) over `changed` (full-resolution pixels), with
-/// `resampling`, and record the resampling on each overview. `external`
+/// `resampling` (the caller records it, [`record_resampling`]). `external`
 /// says the overviews live in an `.ovr` (built as `gdaladdo -ro` builds
 /// them). `target` names the file in errors.
 pub fn refresh_overviews(
@@ -202,8 +224,6 @@ pub fn refresh_overviews(
             &mut Buffer::new(size, values),
         )
         .map_err(gerr)?;
-        ovr.set_metadata_item(RESAMPLING_ITEM, resampling, "")
-            .map_err(gerr)?;
         stats.cells += win.len();
     }
     Ok(stats)
@@ -344,12 +364,5 @@ pub fn rebuild_all(
         message: format!("GDAL could not rebuild overviews: {e}"),
     };
     ds.build_overviews(resampling, factors, &[]).map_err(gerr)?;
-    let band = ds.rasterband(1).map_err(gerr)?;
-    for k in 0..band.overview_count().map_err(gerr)?.max(0) as usize {
-        band.overview(k)
-            .map_err(gerr)?
-            .set_metadata_item(RESAMPLING_ITEM, resampling, "")
-            .map_err(gerr)?;
-    }
-    Ok(())
+    record_resampling(ds, resampling).map_err(gerr)
 }
