@@ -51,6 +51,9 @@ pub struct PatchSettings<'a> {
     pub overview_resampling: Option<&'a str>,
     /// Overviews are in an external `.ovr` (staged as `TMP.ovr`).
     pub external_overviews: bool,
+    /// The file being written, as errors name it (never the temporary
+    /// file).
+    pub target: &'a Path,
 }
 
 fn update_flags() -> GdalOpenFlags {
@@ -83,9 +86,10 @@ pub fn patch_copy(
     edit: &BlockEdit,
     settings: &PatchSettings,
 ) -> Result<Option<RefreshStats>, RasterError> {
-    std::fs::copy(source, tmp).map_err(|e| RasterError::io(tmp, e))?;
+    let target = settings.target;
+    std::fs::copy(source, tmp).map_err(|e| RasterError::io(target, e))?;
     let werr = |e: gdal::errors::GdalError| RasterError::Write {
-        path: tmp.to_path_buf(),
+        path: target.to_path_buf(),
         message: e.to_string(),
     };
     let mut ds = open_update(tmp).map_err(werr)?;
@@ -94,7 +98,7 @@ pub fn patch_copy(
         let _ = std::fs::remove_file(tmp);
         return Ok(None);
     }
-    let stats = edit_dataset(&mut ds, edit, settings, tmp)?;
+    let stats = edit_dataset(&mut ds, edit, settings, target)?;
     ds.close().map_err(werr)?;
     Ok(Some(stats))
 }
@@ -109,15 +113,16 @@ pub fn patch_cog(
     settings: &PatchSettings,
     cog_options: &[String],
 ) -> Result<RefreshStats, RasterError> {
+    let target = settings.target;
     let werr = |e: gdal::errors::GdalError| RasterError::Write {
-        path: tmp.to_path_buf(),
+        path: target.to_path_buf(),
         message: e.to_string(),
     };
     let bytes = std::fs::read(source).map_err(|e| RasterError::io(source, e))?;
     let mem = MemCopy::new(bytes).map_err(werr)?;
     let stats = {
         let mut ds = open_update(Path::new(&mem.name)).map_err(werr)?;
-        let stats = edit_dataset(&mut ds, edit, settings, tmp)?;
+        let stats = edit_dataset(&mut ds, edit, settings, target)?;
         ds.flush_cache().map_err(werr)?;
         let driver = DriverManager::get_driver_by_name("COG").map_err(werr)?;
         let mut opts: Vec<String> = cog_options.to_vec();
@@ -125,7 +130,7 @@ pub fn patch_cog(
         let out = ds
             .create_copy(&driver, tmp, &RasterCreationOptions::from_iter(opts))
             .map_err(|e| RasterError::Write {
-                path: tmp.to_path_buf(),
+                path: target.to_path_buf(),
                 message: format!("GDAL could not write the COG: {e}"),
             })?;
         out.close().map_err(werr)?;

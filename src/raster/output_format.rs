@@ -182,7 +182,7 @@ pub fn write_copy(
             .create_copy(&d, &main, &opts)
             .map_err(|e| werr(format!("GDAL could not write the {driver} file: {e}")))?;
         ds.close().map_err(|e| werr(e.to_string()))?;
-        std::fs::rename(&main, tmp).map_err(|e| RasterError::io(tmp, e))?;
+        std::fs::rename(&main, tmp).map_err(|e| RasterError::io(target, e))?;
         let mut extra = Vec::new();
         for entry in std::fs::read_dir(&stage).map_err(|e| RasterError::io(&stage, e))? {
             let p = entry.map_err(|e| RasterError::io(&stage, e))?.path();
@@ -191,7 +191,7 @@ pub fn write_copy(
                 p.file_name().unwrap_or_default().to_string_lossy(),
                 std::process::id()
             ));
-            std::fs::rename(&p, &staged).map_err(|e| RasterError::io(&staged, e))?;
+            std::fs::rename(&p, &staged).map_err(|e| RasterError::io(target, e))?;
             extra.push((staged, parent.join(p.file_name().unwrap_or_default())));
         }
         Ok(extra)
@@ -199,6 +199,98 @@ pub fn write_copy(
     let r = run();
     let _ = std::fs::remove_dir_all(&stage);
     r
+}
+
+/// A single-band raster to write: size, georeference and nodata.
+#[derive(Debug, Clone, Default)]
+pub struct RasterSpec {
+    pub width: usize,
+    pub height: usize,
+    /// GDAL geotransform (`None`: image space, no georeference).
+    pub geotransform: Option<[f64; 6]>,
+    /// CRS as GDAL reads it (WKT or PROJ string; empty: none).
+    pub crs: String,
+    pub nodata: Option<f64>,
+    /// Band description (`gdalinfo` "Description").
+    pub description: Option<String>,
+    /// `-of` (`None`: from the extension).
+    pub format: Option<String>,
+    /// `-co NAME=VALUE`.
+    pub creation_options: Vec<String>,
+}
+
+/// Write `bands` (each row-major `width * height`) to `path` in the format
+/// `-of` or its extension names, atomically (a temporary file beside it,
+/// renamed; a driver's extra files moved after it).
+pub fn write_raster<T: gdal::raster::GdalType + Copy>(
+    path: &Path,
+    spec: &RasterSpec,
+    bands: Vec<Vec<T>>,
+) -> Result<(), RasterError> {
+    let werr = |m: String| RasterError::Write {
+        path: path.to_path_buf(),
+        message: m,
+    };
+    let gerr = |e: gdal::errors::GdalError| werr(e.to_string());
+    let driver = output_driver(path, spec.format.as_deref()).map_err(|m| {
+        werr(
+            m.strip_prefix(&format!("{}: ", path.display()))
+                .unwrap_or(&m)
+                .to_string(),
+        )
+    })?;
+    check_creation_options(&spec.creation_options).map_err(werr)?;
+    let mem_driver = DriverManager::get_driver_by_name("MEM").map_err(gerr)?;
+    let mut mem = mem_driver
+        .create_with_band_type::<T, _>("", spec.width, spec.height, bands.len())
+        .map_err(gerr)?;
+    if let Some(gt) = spec.geotransform {
+        mem.set_geo_transform(&gt).map_err(gerr)?;
+    }
+    if !spec.crs.is_empty() {
+        if let Ok(sr) = gdal::spatial_ref::SpatialRef::from_definition(&spec.crs) {
+            mem.set_spatial_ref(&sr).map_err(gerr)?;
+        }
+    }
+    for (i, data) in bands.into_iter().enumerate() {
+        let mut band = mem.rasterband(i + 1).map_err(gerr)?;
+        if let Some(nd) = spec.nodata {
+            band.set_no_data_value(Some(nd)).map_err(gerr)?;
+        }
+        if let Some(d) = &spec.description {
+            band.set_description(d).map_err(gerr)?;
+        }
+        let size = (spec.width, spec.height);
+        band.write((0, 0), size, &mut gdal::raster::Buffer::new(size, data))
+            .map_err(gerr)?;
+    }
+    let base: Vec<String> = if driver == "GTiff" {
+        vec!["TILED=YES".into(), "COMPRESS=DEFLATE".into()]
+    } else {
+        Vec::new()
+    };
+    let options = merge_options(base, &spec.creation_options);
+    let tmp = path.with_file_name(format!(
+        ".{}.demsketch-{}.tmp",
+        path.file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default(),
+        std::process::id()
+    ));
+    let result = write_copy(&mem, &driver, &options, &tmp, path).and_then(|extra| {
+        std::fs::File::open(&tmp)
+            .and_then(|f| f.sync_all())
+            .and_then(|_| std::fs::rename(&tmp, path))
+            .map_err(|e| RasterError::io(path, e))?;
+        for (staged, target) in &extra {
+            std::fs::rename(staged, target).map_err(|e| RasterError::io(target, e))?;
+        }
+        Ok(())
+    });
+    if result.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    result
 }
 
 #[cfg(test)]

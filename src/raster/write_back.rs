@@ -538,6 +538,7 @@ fn encode_tile(
         entry: &entry,
         overview_resampling: opts.overview_resampling.as_deref(),
         external_overviews: sidecars.overviews.is_some(),
+        target: error_name(tile, target),
     };
     let written = (|| -> Result<(), RasterError> {
         if native && opts.keeps_geotiff(out_path) {
@@ -558,8 +559,23 @@ fn encode_tile(
     }
     std::fs::File::open(tmp)
         .and_then(|f| f.sync_all())
-        .map_err(|e| RasterError::io(tmp, e))?;
+        .map_err(|e| RasterError::io(settings.target, e))?;
     Ok(sidecars)
+}
+
+/// The name errors give for a tile written to `target`: the tile itself
+/// for a tile directory's staging copy (a name the user knows), else the
+/// target.
+fn error_name<'a>(tile: &'a Tile, target: &'a Path) -> &'a Path {
+    let staged = target
+        .parent()
+        .and_then(|p| p.file_name())
+        .is_some_and(|n| n.to_string_lossy().contains(".demsketch-"));
+    if staged {
+        &tile.path
+    } else {
+        target
+    }
 }
 
 /// Encode one edited tile into `tmp` through GDAL: the source is copied to
@@ -625,7 +641,7 @@ fn encode_tile_copy(
                 .collect(),
             TileSource::Gdal(_) => Vec::new(),
         };
-        let werr = |e: gdal::errors::GdalError| write_err(tmp, e);
+        let werr = |e: gdal::errors::GdalError| write_err(settings.target, e);
         let mut ds = gdal::Dataset::open_ex(
             tmp,
             gdal::DatasetOptions {
@@ -636,9 +652,9 @@ fn encode_tile_copy(
         )
         .map_err(werr)?;
         if !factors.is_empty() {
-            super::overviews::rebuild_all(&mut ds, &factors, resampling, tmp)?;
+            super::overviews::rebuild_all(&mut ds, &factors, resampling, settings.target)?;
         } else if settings.external_overviews {
-            super::overviews::refresh_overviews(&ds, edit.local, resampling, true, tmp)?;
+            super::overviews::refresh_overviews(&ds, edit.local, resampling, true, settings.target)?;
         }
         ds.close().map_err(werr)?;
     }
