@@ -107,16 +107,21 @@ pub fn check_creation_options(items: &[String]) -> Result<(), String> {
     Ok(())
 }
 
-/// `base` with `user` options on top (same name: the user's wins).
+/// `base` with `user` options on top (same name: the user's wins; a user
+/// option about the block layout replaces all of the base's, which
+/// describe another layout).
 pub fn merge_options(base: Vec<String>, user: &[String]) -> Vec<String> {
     let key = |s: &str| {
         s.split_once('=')
             .map(|(k, _)| k.trim().to_ascii_uppercase())
             .unwrap_or_default()
     };
+    const LAYOUT: [&str; 4] = ["TILED", "BLOCKXSIZE", "BLOCKYSIZE", "BLOCKSIZE"];
+    let user_layout = user.iter().any(|u| LAYOUT.contains(&key(u).as_str()));
     let mut out: Vec<String> = base
         .into_iter()
         .filter(|b| !user.iter().any(|u| key(u) == key(b)))
+        .filter(|b| !(user_layout && LAYOUT.contains(&key(b).as_str())))
         .collect();
     out.extend(user.iter().cloned());
     out
