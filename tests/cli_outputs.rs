@@ -133,6 +133,17 @@ fn unwritable_formats_are_refused_before_any_work() {
         &s(&dir.path().join("f.shp")),
     ]);
     one_line_error(&r, "f.shp");
+    // A creation option GDAL rejects: GDAL's own error, in our one line,
+    // naming the output (not a temporary file), nothing left behind.
+    let out = dir.path().join("bad_co.tif");
+    let before = snapshot(dir.path());
+    let r = demsketch(&[
+        "edit", &d, "--sketch", &k, "--out", &s(&out), "-co", "TILED=YES", "-co", "BLOCKXSIZE=7",
+    ]);
+    one_line_error(&r, "bad_co.tif");
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(!err.contains(".demsketch-"), "names the target: {err}");
+    assert_eq!(snapshot(dir.path()), before, "nothing written");
 }
 
 #[test]

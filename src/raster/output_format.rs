@@ -203,7 +203,16 @@ pub fn write_copy(
     };
     let r = run();
     let _ = std::fs::remove_dir_all(&stage);
-    r
+    r.map_err(|e| match e {
+        RasterError::Write { path, message } => RasterError::Write {
+            path,
+            message: message.replace(
+                stage.join(target.file_name().unwrap_or_default()).to_string_lossy().as_ref(),
+                target.to_string_lossy().as_ref(),
+            ),
+        },
+        other => other,
+    })
 }
 
 /// A single-band raster to write: size, georeference and nodata.
@@ -295,7 +304,16 @@ pub fn write_raster<T: gdal::raster::GdalType + Copy>(
     if result.is_err() {
         let _ = std::fs::remove_file(&tmp);
     }
-    result
+    result.map_err(|e| match e {
+        RasterError::Write { message, .. } => RasterError::Write {
+            path: path.to_path_buf(),
+            message: message.replace(
+                tmp.to_string_lossy().as_ref(),
+                path.to_string_lossy().as_ref(),
+            ),
+        },
+        other => other,
+    })
 }
 
 #[cfg(test)]

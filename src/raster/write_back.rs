@@ -555,12 +555,34 @@ fn encode_tile(
     if let Err(e) = written {
         let _ = std::fs::remove_file(tmp);
         sidecars.discard();
-        return Err(e);
+        return Err(name_the_target(e, tmp, settings.target));
     }
     std::fs::File::open(tmp)
         .and_then(|f| f.sync_all())
         .map_err(|e| RasterError::io(settings.target, e))?;
     Ok(sidecars)
+}
+
+/// `e` with every mention of the temporary file `tmp` (GDAL's messages
+/// name the file it writes) replaced by `target`, the file the user named.
+fn name_the_target(e: RasterError, tmp: &Path, target: &Path) -> RasterError {
+    let fix = |m: String| {
+        m.replace(
+            tmp.to_string_lossy().as_ref(),
+            target.to_string_lossy().as_ref(),
+        )
+    };
+    match e {
+        RasterError::Write { message, .. } => RasterError::Write {
+            path: target.to_path_buf(),
+            message: fix(message),
+        },
+        RasterError::Gdal { path, message } => RasterError::Gdal {
+            path,
+            message: fix(message),
+        },
+        other => other,
+    }
 }
 
 /// The name errors give for a tile written to `target`: the tile itself
