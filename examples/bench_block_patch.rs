@@ -15,13 +15,20 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let out_dir = PathBuf::from(args.get(2).ok_or("usage: DEM OUTDIR")?);
     let dem = Dem::open(&dem_path)?;
     // A 30 x 25 window (750 cells) in the middle, raised by 5 m.
-    let win = Window::new(dem.width as i64 / 2 - 15, dem.height as i64 / 2 - 12, 30, 25);
+    let win = Window::new(
+        dem.width as i64 / 2 - 15,
+        dem.height as i64 / 2 - 12,
+        30,
+        25,
+    );
     let old = dem.read_window::<f64>(win)?;
     let new: Vec<f64> = old.data.iter().map(|v| v + 5.0).collect();
     let prov = Provenance {
         edit_id: "bench".into(),
     };
-    let mut time = |name: &str, opts: &WriteOptions| -> Result<(f64, usize), Box<dyn std::error::Error>> {
+    let mut time = |name: &str,
+                    opts: &WriteOptions|
+     -> Result<(f64, usize), Box<dyn std::error::Error>> {
         let out = out_dir.join(name);
         let mut best = f64::INFINITY;
         let mut changed = 0;

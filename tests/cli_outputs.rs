@@ -53,16 +53,47 @@ fn edit_out_format_follows_the_extension_and_flags() {
     let report = dir.path().join("r.json");
     let (d, k) = (s(&dem()), s(&sketch()));
     ok(&demsketch(&[
-        "edit", &d, "--sketch", &k, "--out", &s(&tif), "--dz", &s(&dz), "--report", &s(&report),
+        "edit",
+        &d,
+        "--sketch",
+        &k,
+        "--out",
+        &s(&tif),
+        "--dz",
+        &s(&dz),
+        "--report",
+        &s(&report),
     ]));
-    ok(&demsketch(&["edit", &d, "--sketch", &k, "--out", &s(&asc), "--quiet"]));
     ok(&demsketch(&[
-        "edit", &d, "--sketch", &k, "--out", &s(&dat), "-of", "GTiff", "-co", "COMPRESS=ZSTD", "-co",
+        "edit",
+        &d,
+        "--sketch",
+        &k,
+        "--out",
+        &s(&asc),
+        "--quiet",
+    ]));
+    ok(&demsketch(&[
+        "edit",
+        &d,
+        "--sketch",
+        &k,
+        "--out",
+        &s(&dat),
+        "-of",
+        "GTiff",
+        "-co",
+        "COMPRESS=ZSTD",
+        "-co",
         "TILED=YES",
     ]));
     // .asc: an Arc/Info ASCII grid with its .prj, the same heights.
     let ia = gdalinfo(&asc);
-    assert_eq!(ia["driverShortName"], "AAIGrid", "{}", ia["driverShortName"]);
+    assert_eq!(
+        ia["driverShortName"], "AAIGrid",
+        "{}",
+        ia["driverShortName"]
+    );
     assert!(dir.path().join("a.prj").is_file(), "the .prj beside it");
     let (_, _, va, _) = gdal_values(&asc);
     let (w, h, vt, _) = gdal_values(&tif);
@@ -76,7 +107,8 @@ fn edit_out_format_follows_the_extension_and_flags() {
     let iz = gdalinfo(&dz);
     assert_eq!(iz["bands"][0]["type"], "Float32");
     assert_eq!(iz["bands"][0]["noDataValue"].as_f64(), Some(-9999.0));
-    let rep: Value = serde_json::from_slice(&std::fs::read(&report).expect("report")).expect("json");
+    let rep: Value =
+        serde_json::from_slice(&std::fs::read(&report).expect("report")).expect("json");
     let win = &rep["deformation"]["window"];
     let (c0, r0, ww, wh) = (
         win[0].as_i64().unwrap() as usize,
@@ -101,7 +133,10 @@ fn edit_out_format_follows_the_extension_and_flags() {
             let change = vt[i] - vin[i];
             if z != -9999.0 && change != 0.0 {
                 // UInt16 heights: the stored change is dz rounded.
-                assert!((change - z as f64).abs() <= 0.5 + 1e-3, "({c}, {r}): dz {z}, stored change {change}");
+                assert!(
+                    (change - z).abs() <= 0.5 + 1e-3,
+                    "({c}, {r}): dz {z}, stored change {change}"
+                );
                 seen += 1;
             }
         }
@@ -109,15 +144,26 @@ fn edit_out_format_follows_the_extension_and_flags() {
     assert!(seen > 0 && h > 0, "dz matches the stored change");
     // Provenance names the input, the sketch's digest and the parameters.
     let md = &gdalinfo(&tif)["metadata"][""];
-    let p1 = md["DEMSKETCH_PROVENANCE_1"].as_str().expect("history entry 1");
-    assert!(p1.contains("input=") && p1.contains("sketch_sha256=") && p1.contains("parameters=--max-distance"), "{p1}");
+    let p1 = md["DEMSKETCH_PROVENANCE_1"]
+        .as_str()
+        .expect("history entry 1");
+    assert!(
+        p1.contains("input=")
+            && p1.contains("sketch_sha256=")
+            && p1.contains("parameters=--max-distance"),
+        "{p1}"
+    );
 }
 
 #[test]
 fn unwritable_formats_are_refused_before_any_work() {
     let dir = tempfile::tempdir().expect("tempdir");
     let (d, k) = (s(&dem()), s(&sketch()));
-    for (name, extra) in [("o.vrt", vec![]), ("o.qqq", vec![]), ("o.tif", vec!["-of", "NoSuchFormat"])] {
+    for (name, extra) in [
+        ("o.vrt", vec![]),
+        ("o.qqq", vec![]),
+        ("o.tif", vec!["-of", "NoSuchFormat"]),
+    ] {
         let out = dir.path().join(name);
         let mut args = vec!["edit", &d, "--sketch", &k];
         let o = s(&out);
@@ -129,7 +175,13 @@ fn unwritable_formats_are_refused_before_any_work() {
         assert_eq!(snapshot(dir.path()), before, "nothing written");
     }
     let r = demsketch(&[
-        "view", &d, "--sketch", &k, "--out", &s(&dir.path().join("v.png")), "--features",
+        "view",
+        &d,
+        "--sketch",
+        &k,
+        "--out",
+        &s(&dir.path().join("v.png")),
+        "--features",
         &s(&dir.path().join("f.shp")),
     ]);
     one_line_error(&r, "f.shp");
@@ -138,7 +190,16 @@ fn unwritable_formats_are_refused_before_any_work() {
     let out = dir.path().join("bad_co.tif");
     let before = snapshot(dir.path());
     let r = demsketch(&[
-        "edit", &d, "--sketch", &k, "--out", &s(&out), "-co", "TILED=YES", "-co", "BLOCKXSIZE=7",
+        "edit",
+        &d,
+        "--sketch",
+        &k,
+        "--out",
+        &s(&out),
+        "-co",
+        "TILED=YES",
+        "-co",
+        "BLOCKXSIZE=7",
     ]);
     one_line_error(&r, "bad_co.tif");
     let err = String::from_utf8_lossy(&r.stderr);
@@ -164,16 +225,40 @@ fn provenance_is_a_history() {
             },
             ..Default::default()
         };
-        dem.write_back_with(win, &new, &Destination::InPlace, &Provenance { edit_id: format!("e{k}") }, &opts)
-            .expect("write");
+        dem.write_back_with(
+            win,
+            &new,
+            &Destination::InPlace,
+            &Provenance {
+                edit_id: format!("e{k}"),
+            },
+            &opts,
+        )
+        .expect("write");
     }
     let md = gdalinfo(&copy)["metadata"][""].clone();
-    let e1 = md["DEMSKETCH_PROVENANCE_1"].as_str().expect("entry 1").to_string();
-    let e2 = md["DEMSKETCH_PROVENANCE_2"].as_str().expect("entry 2").to_string();
+    let e1 = md["DEMSKETCH_PROVENANCE_1"]
+        .as_str()
+        .expect("entry 1")
+        .to_string();
+    let e2 = md["DEMSKETCH_PROVENANCE_2"]
+        .as_str()
+        .expect("entry 2")
+        .to_string();
     assert!(md["DEMSKETCH_PROVENANCE_3"].is_null());
-    assert_eq!(md["DEMSKETCH_PROVENANCE"].as_str(), Some(e2.as_str()), "latest repeated");
-    assert!(e1.contains("edit=e1") && e1.contains("input=edit 1"), "{e1}");
-    assert!(e2.contains("edit=e2") && e2.contains("input=edit 2"), "{e2}");
+    assert_eq!(
+        md["DEMSKETCH_PROVENANCE"].as_str(),
+        Some(e2.as_str()),
+        "latest repeated"
+    );
+    assert!(
+        e1.contains("edit=e1") && e1.contains("input=edit 1"),
+        "{e1}"
+    );
+    assert!(
+        e2.contains("edit=e2") && e2.contains("input=edit 2"),
+        "{e2}"
+    );
     for e in [&e1, &e2] {
         assert!(e.contains("tool=demsketch") && e.contains("time="), "{e}");
     }
@@ -188,8 +273,20 @@ fn view_outputs_depth_nodata_formats_and_feature_ids() {
     let feats = dir.path().join("f.geojson");
     let report = dir.path().join("r.json");
     ok(&demsketch(&[
-        "view", &d, "--sketch", &k, "--out", &s(&dir.path().join("v.tif")), "--depth", &s(&depth),
-        "--viewshed", &s(&vis), "--features", &s(&feats), "-co", "COMPRESS=LZW",
+        "view",
+        &d,
+        "--sketch",
+        &k,
+        "--out",
+        &s(&dir.path().join("v.tif")),
+        "--depth",
+        &s(&depth),
+        "--viewshed",
+        &s(&vis),
+        "--features",
+        &s(&feats),
+        "-co",
+        "COMPRESS=LZW",
     ]));
     let i = gdalinfo(&depth);
     assert_eq!(i["bands"][0]["noDataValue"].as_f64(), Some(-9999.0));
@@ -197,7 +294,12 @@ fn view_outputs_depth_nodata_formats_and_feature_ids() {
     assert!(v.iter().all(|x| x.is_finite()), "no bare inf");
     assert!(v.contains(&-9999.0), "sky is nodata");
     assert_eq!(gdalinfo(&vis)["driverShortName"], "AAIGrid");
-    assert_eq!(gdalinfo(&dir.path().join("v.tif"))["bands"].as_array().map(|b| b.len()), Some(3));
+    assert_eq!(
+        gdalinfo(&dir.path().join("v.tif"))["bands"]
+            .as_array()
+            .map(|b| b.len()),
+        Some(3)
+    );
     // Feature ids: unique, and the report's feature_id of an edit with the
     // same sketch names features of the file.
     let fc: Value = serde_json::from_slice(&std::fs::read(&feats).expect("geojson")).expect("json");
@@ -216,10 +318,19 @@ fn view_outputs_depth_nodata_formats_and_feature_ids() {
     uniq.dedup();
     assert_eq!(uniq.len(), ids.len(), "unique ids");
     ok(&demsketch(&[
-        "edit", &d, "--sketch", &k, "--out", &s(&dir.path().join("o.tif")), "--report", &s(&report),
-        "--dry-run", "--allow-partial",
+        "edit",
+        &d,
+        "--sketch",
+        &k,
+        "--out",
+        &s(&dir.path().join("o.tif")),
+        "--report",
+        &s(&report),
+        "--dry-run",
+        "--allow-partial",
     ]));
-    let rep: Value = serde_json::from_slice(&std::fs::read(&report).expect("report")).expect("json");
+    let rep: Value =
+        serde_json::from_slice(&std::fs::read(&report).expect("report")).expect("json");
     let mut matched = 0;
     for st in rep["views"][0]["strokes"].as_array().expect("strokes") {
         if let Some(fid) = st["match"]["feature_id"].as_u64() {
@@ -244,30 +355,63 @@ fn broken_pipe_quiet_and_verbose() {
     let bin = env!("CARGO_BIN_EXE_demsketch");
     let out = s(&dir.path().join("o.tif"));
     let cmd = format!("'{bin}' edit '{d}' --sketch '{k}' --out '{out}' --json | true; echo \"${{PIPESTATUS[0]}}\"");
-    let r = std::process::Command::new("bash").args(["-c", &cmd]).output().expect("bash");
+    let r = std::process::Command::new("bash")
+        .args(["-c", &cmd])
+        .output()
+        .expect("bash");
     let code = String::from_utf8_lossy(&r.stdout).trim().to_string();
     let err = String::from_utf8_lossy(&r.stderr);
     assert!(code == "0" || code == "141", "exit {code}: {err}");
     assert!(!err.contains("internal error"), "{err}");
     let cmd = format!("'{bin}' info --json '{d}' | true; echo \"${{PIPESTATUS[0]}}\"");
-    let r = std::process::Command::new("bash").args(["-c", &cmd]).output().expect("bash");
+    let r = std::process::Command::new("bash")
+        .args(["-c", &cmd])
+        .output()
+        .expect("bash");
     let code = String::from_utf8_lossy(&r.stdout).trim().to_string();
     assert!(code == "0" || code == "141", "info exit {code}");
     // --quiet: nothing on stderr; --verbose: stage timings.
-    let q = demsketch(&["--quiet", "edit", &d, "--sketch", &k, "--out", &out, "--dry-run"]);
+    let q = demsketch(&[
+        "--quiet",
+        "edit",
+        &d,
+        "--sketch",
+        &k,
+        "--out",
+        &out,
+        "--dry-run",
+    ]);
     ok(&q);
-    assert!(q.stderr.is_empty(), "{}", String::from_utf8_lossy(&q.stderr));
-    let v = demsketch(&["edit", &d, "--sketch", &k, "--out", &out, "--dry-run", "--verbose"]);
+    assert!(
+        q.stderr.is_empty(),
+        "{}",
+        String::from_utf8_lossy(&q.stderr)
+    );
+    let v = demsketch(&[
+        "edit",
+        &d,
+        "--sketch",
+        &k,
+        "--out",
+        &out,
+        "--dry-run",
+        "--verbose",
+    ]);
     ok(&v);
     let e = String::from_utf8_lossy(&v.stderr);
-    assert!(e.contains("demsketch: total:") && e.contains("demsketch: matching:"), "{e}");
+    assert!(
+        e.contains("demsketch: total:") && e.contains("demsketch: matching:"),
+        "{e}"
+    );
 }
 
 #[test]
 fn non_utf8_name_and_corrupt_nodata() {
     use std::os::unix::ffi::OsStrExt;
     let dir = tempfile::tempdir().expect("tempdir");
-    let odd = dir.path().join(std::ffi::OsStr::from_bytes(b"dem_\xff.tif"));
+    let odd = dir
+        .path()
+        .join(std::ffi::OsStr::from_bytes(b"dem_\xff.tif"));
     std::fs::copy(dem(), &odd).expect("copy");
     for json in [false, true] {
         let mut c = std::process::Command::new(env!("CARGO_BIN_EXE_demsketch"));
@@ -280,9 +424,16 @@ fn non_utf8_name_and_corrupt_nodata() {
     }
     // A GDAL_NODATA tag whose text is not UTF-8 (nor a number).
     let nd = dir.path().join("nd.tif");
-    common::gdal_translate(&fixture("vinschgau_250m_utm32n.tif"), &nd, &["-a_nodata", "-9999"]);
+    common::gdal_translate(
+        &fixture("vinschgau_250m_utm32n.tif"),
+        &nd,
+        &["-a_nodata", "-9999"],
+    );
     let mut b = std::fs::read(&nd).expect("read");
-    let i = b.windows(6).position(|w| w == b"-9999\0").expect("the GDAL_NODATA text");
+    let i = b
+        .windows(6)
+        .position(|w| w == b"-9999\0")
+        .expect("the GDAL_NODATA text");
     b[i..i + 6].copy_from_slice(b"\xff\xfe999\0");
     let bad = dir.path().join("bad_nodata.tif");
     std::fs::write(&bad, &b).expect("write");

@@ -43,7 +43,11 @@ fn osgeo_bits(path: &Path) -> Vec<u32> {
         ])
         .output()
         .expect("run python3 with osgeo");
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     out.stdout
         .chunks_exact(4)
         .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
@@ -59,7 +63,14 @@ fn check(src: &Path, out: &Path, win: Window, dest: &Destination) {
     let old = dem.read_window::<f64>(win).expect("read");
     let new: Vec<f64> = old.data.iter().map(|v| v + 7.0).collect();
     let report = dem
-        .write_back(win, &new, dest, &Provenance { edit_id: "patch".into() })
+        .write_back(
+            win,
+            &new,
+            dest,
+            &Provenance {
+                edit_id: "patch".into(),
+            },
+        )
         .expect("write back");
     drop(dem);
     assert!(report.changed_cells > 0);
@@ -81,11 +92,17 @@ fn check(src: &Path, out: &Path, win: Window, dest: &Destination) {
             assert_ne!(a, b, "block ({bx}, {by}) over the edit re-encoded");
             rewritten += 1;
         } else {
-            assert_eq!(a, b, "block ({bx}, {by}) away from the edit keeps its compressed bytes");
+            assert_eq!(
+                a, b,
+                "block ({bx}, {by}) away from the edit keeps its compressed bytes"
+            );
             kept += 1;
         }
     }
-    assert!(kept > rewritten && rewritten > 0, "{kept} kept, {rewritten} rewritten");
+    assert!(
+        kept > rewritten && rewritten > 0,
+        "{kept} kept, {rewritten} rewritten"
+    );
     // Every pixel, as GDAL's Python bindings read it.
     let after_px = osgeo_bits(out);
     assert_eq!(after_px.len(), w * h);
@@ -110,7 +127,10 @@ fn check(src: &Path, out: &Path, win: Window, dest: &Destination) {
     // Layout and encoding as before.
     let (a, b) = (gdalinfo(src), gdalinfo(out));
     assert_eq!(a["bands"][0]["block"], b["bands"][0]["block"]);
-    assert_eq!(a["metadata"]["IMAGE_STRUCTURE"], b["metadata"]["IMAGE_STRUCTURE"]);
+    assert_eq!(
+        a["metadata"]["IMAGE_STRUCTURE"],
+        b["metadata"]["IMAGE_STRUCTURE"]
+    );
 }
 
 #[test]
@@ -121,8 +141,16 @@ fn tiled_deflate_geotiff_rewrites_only_the_touched_tiles() {
         &fixture("nz_1km_nan_nodata.tif"),
         &src,
         &[
-            "-co", "TILED=YES", "-co", "BLOCKXSIZE=128", "-co", "BLOCKYSIZE=128", "-co",
-            "COMPRESS=DEFLATE", "-co", "PREDICTOR=3",
+            "-co",
+            "TILED=YES",
+            "-co",
+            "BLOCKXSIZE=128",
+            "-co",
+            "BLOCKYSIZE=128",
+            "-co",
+            "COMPRESS=DEFLATE",
+            "-co",
+            "PREDICTOR=3",
         ],
     );
     let out = dir.path().join("out.tif");
@@ -137,7 +165,14 @@ fn striped_lzw_geotiff_in_place_rewrites_only_the_touched_strips() {
     gdal_translate(
         &fixture("vinschgau_250m_utm32n.tif"),
         &src,
-        &["-co", "COMPRESS=LZW", "-co", "PREDICTOR=2", "-co", "BLOCKYSIZE=8"],
+        &[
+            "-co",
+            "COMPRESS=LZW",
+            "-co",
+            "PREDICTOR=2",
+            "-co",
+            "BLOCKYSIZE=8",
+        ],
     );
     // In place: `check` reads the input before the write.
     let win = Window::new(100, 100, 50, 20);
@@ -151,15 +186,32 @@ fn bigtiff_stays_bigtiff() {
     gdal_translate(
         &fixture("zion_srtm_utm12n.tif"),
         &src,
-        &["-co", "BIGTIFF=YES", "-co", "TILED=YES", "-co", "COMPRESS=ZSTD"],
+        &[
+            "-co",
+            "BIGTIFF=YES",
+            "-co",
+            "TILED=YES",
+            "-co",
+            "COMPRESS=ZSTD",
+        ],
     );
     let out = dir.path().join("out.tif");
     let dem = Dem::open(&src).expect("open");
     let win = Window::new(10, 10, 20, 20);
     let old = dem.read_window::<f64>(win).expect("read");
     let new: Vec<f64> = old.data.iter().map(|v| v + 3.0).collect();
-    dem.write_back(win, &new, &Destination::Path(out.clone()), &Provenance { edit_id: "big".into() })
-        .expect("write");
+    dem.write_back(
+        win,
+        &new,
+        &Destination::Path(out.clone()),
+        &Provenance {
+            edit_id: "big".into(),
+        },
+    )
+    .expect("write");
     let head = std::fs::read(&out).expect("read")[..4].to_vec();
-    assert!(head == b"II+\0" || head == b"MM\0+", "BigTIFF kept: {head:?}");
+    assert!(
+        head == b"II+\0" || head == b"MM\0+",
+        "BigTIFF kept: {head:?}"
+    );
 }

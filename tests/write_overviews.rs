@@ -35,7 +35,13 @@ fn same(a: f64, b: f64) -> bool {
 
 /// Is overview cell (c, r) of a `w` x `h` level of a `fw` x `fh` image
 /// clear of `win` (its footprint, grown by one overview cell, misses it)?
-fn clear_of(c: usize, r: usize, (w, h): (usize, usize), (fw, fh): (usize, usize), win: Window) -> bool {
+fn clear_of(
+    c: usize,
+    r: usize,
+    (w, h): (usize, usize),
+    (fw, fh): (usize, usize),
+    win: Window,
+) -> bool {
     let (rx, ry) = (fw as f64 / w as f64, fh as f64 / h as f64);
     let (x0, x1) = ((c as f64 - 1.0) * rx, (c as f64 + 2.0) * rx);
     let (y0, y1) = ((r as f64 - 1.0) * ry, (r as f64 + 2.0) * ry);
@@ -83,24 +89,46 @@ fn check_levels(
             for c in 0..a.0 {
                 let i = r * a.0 + c;
                 if clear_of(c, r, (a.0, a.1), full, win) {
-                    assert!(same(a.2[i], b.2[i]), "level {k} cell ({c}, {r}) away from the edit changed: {} -> {}", b.2[i], a.2[i]);
+                    assert!(
+                        same(a.2[i], b.2[i]),
+                        "level {k} cell ({c}, {r}) away from the edit changed: {} -> {}",
+                        b.2[i],
+                        a.2[i]
+                    );
                     outside += 1;
                 } else {
-                    assert!(same(a.2[i], g.2[i]), "level {k} cell ({c}, {r}) over the edit: {} but gdaladdo gives {}", a.2[i], g.2[i]);
+                    assert!(
+                        same(a.2[i], g.2[i]),
+                        "level {k} cell ({c}, {r}) over the edit: {} but gdaladdo gives {}",
+                        a.2[i],
+                        g.2[i]
+                    );
                     inside += 1;
                     differ += usize::from(!same(a.2[i], b.2[i]));
                 }
             }
         }
-        assert!(outside > 0 && inside > 0, "level {k}: {outside} outside, {inside} inside");
+        assert!(
+            outside > 0 && inside > 0,
+            "level {k}: {outside} outside, {inside} inside"
+        );
         assert!(differ > 0, "level {k}: no cell over the edit changed");
     }
 }
 
 /// A copy of `path` (and nothing else) with its overviews rebuilt by
 /// gdaladdo with `-r resampling` (`external`: as `-ro` makes them).
-fn gdaladdo_reference(path: &Path, dir: &Path, resampling: &str, factors: &[&str], external: bool) -> PathBuf {
-    let copy = dir.join(format!("reference_{}.tif", if external { "ext" } else { "int" }));
+fn gdaladdo_reference(
+    path: &Path,
+    dir: &Path,
+    resampling: &str,
+    factors: &[&str],
+    external: bool,
+) -> PathBuf {
+    let copy = dir.join(format!(
+        "reference_{}.tif",
+        if external { "ext" } else { "int" }
+    ));
     if external {
         gdal_translate(path, &copy, &["-co", "TILED=YES"]);
     } else {
@@ -147,8 +175,16 @@ fn cog_with_average_overviews_keeps_average_and_stays_a_cog() {
         &fixture("nz_1km_nan_nodata.tif"),
         &cog,
         &[
-            "-of", "COG", "-co", "BLOCKSIZE=256", "-co", "COMPRESS=DEFLATE", "-co",
-            "PREDICTOR=YES", "-co", "RESAMPLING=AVERAGE",
+            "-of",
+            "COG",
+            "-co",
+            "BLOCKSIZE=256",
+            "-co",
+            "COMPRESS=DEFLATE",
+            "-co",
+            "PREDICTOR=YES",
+            "-co",
+            "RESAMPLING=AVERAGE",
         ],
     );
     assert!(validate_cog(&cog).0, "the input is a COG");
@@ -188,9 +224,22 @@ fn internal_overviews_of_an_evenly_divided_image_are_refreshed_in_a_window() {
     gdal_translate(
         &fixture("nz_1km_nan_nodata.tif"),
         &src,
-        &["-srcwin", "0", "0", "1024", "1024", "-co", "TILED=YES", "-co", "COMPRESS=LZW"],
+        &[
+            "-srcwin",
+            "0",
+            "0",
+            "1024",
+            "1024",
+            "-co",
+            "TILED=YES",
+            "-co",
+            "COMPRESS=LZW",
+        ],
     );
-    run("gdaladdo", &["-q", "-r", "nearest", &src.to_string_lossy(), "2", "4", "8"]);
+    run(
+        "gdaladdo",
+        &["-q", "-r", "nearest", &src.to_string_lossy(), "2", "4", "8"],
+    );
     let before = levels(&src);
     let win = Window::new(600, 700, 70, 33);
     let opts = WriteOptions {
@@ -199,7 +248,13 @@ fn internal_overviews_of_an_evenly_divided_image_are_refreshed_in_a_window() {
     };
     edit(&src, win, &Destination::InPlace, &opts);
     let after = levels(&src);
-    let reference = levels(&gdaladdo_reference(&src, dir.path(), "nearest", &["2", "4", "8"], false));
+    let reference = levels(&gdaladdo_reference(
+        &src,
+        dir.path(),
+        "nearest",
+        &["2", "4", "8"],
+        false,
+    ));
     check_levels(&before, &after, &reference, (1024, 1024), win);
 }
 
@@ -211,9 +266,29 @@ fn external_ovr_is_rebuilt_and_stale_statistics_removed() {
         gdal_translate(
             &fixture("vinschgau_250m_utm32n.tif"),
             &src,
-            &["-co", "TILED=YES", "-co", "BLOCKXSIZE=64", "-co", "BLOCKYSIZE=64", "-co", "COMPRESS=DEFLATE"],
+            &[
+                "-co",
+                "TILED=YES",
+                "-co",
+                "BLOCKXSIZE=64",
+                "-co",
+                "BLOCKYSIZE=64",
+                "-co",
+                "COMPRESS=DEFLATE",
+            ],
         );
-        run("gdaladdo", &["-q", "-ro", "-r", "average", &src.to_string_lossy(), "2", "4"]);
+        run(
+            "gdaladdo",
+            &[
+                "-q",
+                "-ro",
+                "-r",
+                "average",
+                &src.to_string_lossy(),
+                "2",
+                "4",
+            ],
+        );
         // Statistics in a PAM sidecar, as `gdalinfo -stats` leaves them,
         // beside a user's own item.
         let aux = dir.path().join("dem.tif.aux.xml");
@@ -238,15 +313,29 @@ fn external_ovr_is_rebuilt_and_stale_statistics_removed() {
         let out_ovr = PathBuf::from(format!("{}.ovr", out.display()));
         assert!(out_ovr.is_file(), "{} written", out_ovr.display());
         if !in_place {
-            assert_eq!(std::fs::read(&ovr).expect("read ovr"), ovr_before, "the input's .ovr untouched");
+            assert_eq!(
+                std::fs::read(&ovr).expect("read ovr"),
+                ovr_before,
+                "the input's .ovr untouched"
+            );
         }
         let after = levels(&out);
-        let reference = levels(&gdaladdo_reference(&out, dir.path(), "average", &["2", "4"], true));
+        let reference = levels(&gdaladdo_reference(
+            &out,
+            dir.path(),
+            "average",
+            &["2", "4"],
+            true,
+        ));
         check_levels(&before, &after, &reference, (w, h), win);
         // No stale statistics beside the output, nor in it.
         let out_aux = PathBuf::from(format!("{}.aux.xml", out.display()));
         let t = std::fs::read_to_string(&out_aux).expect("the sidecar follows the output");
-        assert!(!t.contains("STATISTICS_"), "stale statistics in {}: {t}", out_aux.display());
+        assert!(
+            !t.contains("STATISTICS_"),
+            "stale statistics in {}: {t}",
+            out_aux.display()
+        );
         assert!(t.contains("SURVEY"), "the user's item kept: {t}");
         let md = gdalinfo(&out)["bands"][0]["metadata"].clone();
         assert!(!md.to_string().contains("STATISTICS_MAXIMUM"), "{md}");
@@ -255,6 +344,11 @@ fn external_ovr_is_rebuilt_and_stale_statistics_removed() {
             .flatten()
             .map(|e| e.file_name().to_string_lossy().into_owned())
             .collect();
-        assert!(names.iter().all(|n| !n.contains(".tmp") && !n.contains("demsketch-")), "{names:?}");
+        assert!(
+            names
+                .iter()
+                .all(|n| !n.contains(".tmp") && !n.contains("demsketch-")),
+            "{names:?}"
+        );
     }
 }

@@ -10,14 +10,13 @@ use anyhow::Context;
 use demsketch::features::geojson::{
     feature_collection_of_view, to_lonlat_with_georef, write_geojson,
 };
-use demsketch::raster::output_format::{output_driver, write_raster, RasterSpec};
 use demsketch::features::{
     detect_ridges, extract_silhouettes, RidgeNetwork, RidgeParams, SilhouetteParams, Silhouettes,
 };
+use demsketch::raster::output_format::{output_driver, write_raster, RasterSpec};
 use demsketch::raster::Dem;
 use demsketch::render::{
-    draw_polyline, shade, viewshed, visible_polylines, write_png, DepthBuffer, Scene,
-    ShadeOptions,
+    draw_polyline, shade, viewshed, visible_polylines, write_png, DepthBuffer, Scene, ShadeOptions,
 };
 use demsketch::view::{Camera, EyeHeight, Viewpoint};
 use serde::Deserialize;
@@ -253,8 +252,7 @@ fn check_outputs(args: &ViewArgs) -> anyhow::Result<()> {
 }
 
 fn is_png(p: &Path) -> bool {
-    p.extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("png"))
+    p.extension().is_some_and(|e| e.eq_ignore_ascii_case("png"))
 }
 
 /// Write the picture: PNG natively, any other format through GDAL
@@ -403,7 +401,13 @@ pub fn run(args: ViewArgs) -> anyhow::Result<()> {
         let data: Vec<f32> = depth
             .depth
             .iter()
-            .map(|&d| if d.is_finite() { d } else { DEPTH_NODATA as f32 })
+            .map(|&d| {
+                if d.is_finite() {
+                    d
+                } else {
+                    DEPTH_NODATA as f32
+                }
+            })
             .collect();
         let spec = RasterSpec {
             width: depth.width,

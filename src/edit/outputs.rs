@@ -116,9 +116,7 @@ pub(super) fn write_outputs(
     let mut write_opts = opts.write.clone();
     write_opts.record = ProvenanceRecord {
         input: Some(src.dem_path.display().to_string()),
-        sketch_sha256: std::fs::read(src.sketch_path)
-            .ok()
-            .map(|b| sha256_hex(&b)),
+        sketch_sha256: std::fs::read(src.sketch_path).ok().map(|b| sha256_hex(&b)),
         parameters: Some(opts.parameters()),
     };
     let written = if write {

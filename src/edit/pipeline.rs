@@ -114,7 +114,10 @@ impl EditOptions {
     /// The edit's parameters as flags, for the provenance record.
     pub fn parameters(&self) -> String {
         let mut p = vec![
-            format!("--max-distance {}", self.max_distance_m.unwrap_or(f64::INFINITY)),
+            format!(
+                "--max-distance {}",
+                self.max_distance_m.unwrap_or(f64::INFINITY)
+            ),
             format!("--refraction {}", self.refraction),
             format!("--max-lowering-iterations {}", self.max_lowering_iterations),
             format!("--max-contour-iterations {}", self.max_contour_iterations),

@@ -205,7 +205,6 @@ pub fn edit_dataset(
                 })
                 .collect::<Result<_, _>>()
                 .map_err(werr)?;
-            drop(band);
             rebuild_all(ds, &factors, resampling, target)?;
             Ok(RefreshStats {
                 levels: factors.len(),

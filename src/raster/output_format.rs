@@ -45,10 +45,15 @@ impl WriteOptions {
         }
         match out {
             None => true,
-            Some(p) => matches!(
-                output_driver(p, self.format.as_deref()).as_deref(),
-                Ok("GTiff") | Ok("COG")
-            ) && self.format.as_deref().is_none_or(|f| f.eq_ignore_ascii_case("GTiff")),
+            Some(p) => {
+                matches!(
+                    output_driver(p, self.format.as_deref()).as_deref(),
+                    Ok("GTiff") | Ok("COG")
+                ) && self
+                    .format
+                    .as_deref()
+                    .is_none_or(|f| f.eq_ignore_ascii_case("GTiff"))
+            }
         }
     }
 }
@@ -71,7 +76,9 @@ pub fn output_driver(out: &Path, format: Option<&str>) -> Result<String, String>
             || (d.metadata_item("DCAP_CREATE", "").is_none()
                 && d.metadata_item("DCAP_CREATECOPY", "").is_none())
         {
-            return Err(format!("{name}: -of {short}: GDAL cannot write rasters in this format"));
+            return Err(format!(
+                "{name}: -of {short}: GDAL cannot write rasters in this format"
+            ));
         }
         return Ok(short);
     }
@@ -83,8 +90,8 @@ pub fn output_driver(out: &Path, format: Option<&str>) -> Result<String, String>
         "" | "tif" | "tiff" | "gtiff" => return Ok("GTiff".into()),
         "vrt" => {
             return Err(format!(
-                "{name}: VRT output is not supported (a VRT only points at other files); give a .tif"
-            ))
+            "{name}: VRT output is not supported (a VRT only points at other files); give a .tif"
+        ))
         }
         _ => {}
     }
@@ -207,7 +214,10 @@ pub fn write_copy(
         RasterError::Write { path, message } => RasterError::Write {
             path,
             message: message.replace(
-                stage.join(target.file_name().unwrap_or_default()).to_string_lossy().as_ref(),
+                stage
+                    .join(target.file_name().unwrap_or_default())
+                    .to_string_lossy()
+                    .as_ref(),
                 target.to_string_lossy().as_ref(),
             ),
         },
@@ -342,6 +352,9 @@ mod tests {
             vec!["COMPRESS=LZW".into(), "TILED=YES".into()],
             &["compress=ZSTD".into()],
         );
-        assert_eq!(m, vec!["TILED=YES".to_string(), "compress=ZSTD".to_string()]);
+        assert_eq!(
+            m,
+            vec!["TILED=YES".to_string(), "compress=ZSTD".to_string()]
+        );
     }
 }

@@ -177,8 +177,7 @@ pub fn refresh_overviews(
         }
     }
     let coarsest = factors.iter().copied().max().unwrap_or(1);
-    let windowed =
-        kernel_radius(resampling) == 0 && w % coarsest == 0 && h % coarsest == 0;
+    let windowed = kernel_radius(resampling) == 0 && w % coarsest == 0 && h % coarsest == 0;
     let changed = changed
         .intersect(&Window::new(0, 0, w, h))
         .unwrap_or(changed);
@@ -207,7 +206,8 @@ pub fn refresh_overviews(
         let rx = w as f64 / ow as f64;
         let ry = h as f64 / oh as f64;
         let lo = |v: i64, r: f64| ((v as f64 / r).floor() as i64 - margin as i64).max(0);
-        let hi = |v: i64, r: f64, n: usize| ((v as f64 / r).ceil() as i64 + margin as i64).min(n as i64);
+        let hi =
+            |v: i64, r: f64, n: usize| ((v as f64 / r).ceil() as i64 + margin as i64).min(n as i64);
         let (c0, c1) = (lo(changed.col, rx), hi(changed.col_end(), rx, ow));
         let (r0, r1) = (lo(changed.row, ry), hi(changed.row_end(), ry, oh));
         if c1 <= c0 || r1 <= r0 {
@@ -274,8 +274,12 @@ impl FreshPyramid {
             if let Some(nd) = nodata {
                 b.set_no_data_value(Some(nd)).map_err(gerr)?;
             }
-            b.write((0, 0), size, &mut Buffer::new(size, data.into_shape_and_vec().1))
-                .map_err(gerr)?;
+            b.write(
+                (0, 0),
+                size,
+                &mut Buffer::new(size, data.into_shape_and_vec().1),
+            )
+            .map_err(gerr)?;
         }
         let levels: Vec<i32> = factors.iter().map(|&f| f as i32).collect();
         let mut built = if external {
@@ -291,7 +295,9 @@ impl FreshPyramid {
         } else {
             mem
         };
-        built.build_overviews(resampling, &levels, &[]).map_err(gerr)?;
+        built
+            .build_overviews(resampling, &levels, &[])
+            .map_err(gerr)?;
         fresh.ds = Some(built);
         Ok(fresh)
     }

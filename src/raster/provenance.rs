@@ -66,7 +66,10 @@ pub fn history_items(existing: &[String], new_entry: &str) -> Vec<(String, Strin
         };
         if k == PROVENANCE_KEY {
             latest = Some(v.to_string());
-        } else if let Some(n) = k.strip_prefix(&prefix).and_then(|n| n.parse::<usize>().ok()) {
+        } else if let Some(n) = k
+            .strip_prefix(&prefix)
+            .and_then(|n| n.parse::<usize>().ok())
+        {
             numbered = numbered.max(n);
         }
     }

@@ -184,7 +184,8 @@ impl Sidecars {
         if let Some((text, target)) = &self.aux {
             match text {
                 Some(t) => {
-                    let tmp = with_suffix(target, &format!(".demsketch-{}.tmp", std::process::id()));
+                    let tmp =
+                        with_suffix(target, &format!(".demsketch-{}.tmp", std::process::id()));
                     std::fs::write(&tmp, t)
                         .and_then(|_| std::fs::rename(&tmp, target))
                         .map_err(|e| {

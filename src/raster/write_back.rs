@@ -640,8 +640,9 @@ fn encode_tile_copy(
         Some(_) => super::output_format::output_driver(target, opts.format.as_deref())
             .map_err(|m| write_err(target, m))?,
         None if src_cog => "COG".to_string(),
-        None => super::output_format::output_driver(target, None)
-            .map_err(|m| write_err(target, m))?,
+        None => {
+            super::output_format::output_driver(target, None).map_err(|m| write_err(target, m))?
+        }
     };
     let cog = driver == "COG";
     let base = if cog || driver == "GTiff" {
@@ -653,8 +654,7 @@ fn encode_tile_copy(
     let extra = super::output_format::write_copy(&mem, &driver, &options, tmp, target)?;
     // The COG driver builds its own overviews; a GeoTIFF gets the source's.
     if driver == "GTiff" {
-        let resampling =
-            super::overviews::resampling_for(&src, settings.overview_resampling);
+        let resampling = super::overviews::resampling_for(&src, settings.overview_resampling);
         let factors: Vec<i32> = match &tile.source {
             TileSource::Tiff(t) => t
                 .overviews
@@ -667,7 +667,8 @@ fn encode_tile_copy(
         let mut ds = gdal::Dataset::open_ex(
             tmp,
             gdal::DatasetOptions {
-                open_flags: gdal::GdalOpenFlags::GDAL_OF_UPDATE | gdal::GdalOpenFlags::GDAL_OF_RASTER,
+                open_flags: gdal::GdalOpenFlags::GDAL_OF_UPDATE
+                    | gdal::GdalOpenFlags::GDAL_OF_RASTER,
                 allowed_drivers: Some(&["GTiff"]),
                 ..Default::default()
             },
@@ -676,7 +677,13 @@ fn encode_tile_copy(
         if !factors.is_empty() {
             super::overviews::rebuild_all(&mut ds, &factors, resampling, settings.target)?;
         } else if settings.external_overviews {
-            super::overviews::refresh_overviews(&ds, edit.local, resampling, true, settings.target)?;
+            super::overviews::refresh_overviews(
+                &ds,
+                edit.local,
+                resampling,
+                true,
+                settings.target,
+            )?;
         }
         ds.close().map_err(werr)?;
     }

@@ -430,7 +430,10 @@ impl GeoTiff {
                     .map_err(|_| corrupt("the GDAL_NODATA tag is not text".into()))?;
                 let s = s.trim_end_matches('\0');
                 Some(parse_nodata(s).ok_or_else(|| {
-                    corrupt(format!("GDAL_NODATA '{}' is not a number", s.escape_debug()))
+                    corrupt(format!(
+                        "GDAL_NODATA '{}' is not a number",
+                        s.escape_debug()
+                    ))
                 })?)
             }
             Err(e) => return Err(corrupt(format!("the GDAL_NODATA tag is unreadable: {e}"))),
