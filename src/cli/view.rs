@@ -16,15 +16,13 @@ use demsketch::features::{
 use demsketch::raster::output_format::{output_driver, write_raster, RasterSpec};
 use demsketch::raster::Dem;
 use demsketch::render::{
-    draw_polyline, shade, viewshed, visible_polylines, write_png, DepthBuffer, Scene, ShadeOptions,
+    depth_for_file, draw_polyline, shade, viewshed, visible_polylines, write_png, DepthBuffer,
+    Scene, ShadeOptions, DEPTH_NODATA,
 };
 use demsketch::view::{Camera, EyeHeight, Viewpoint};
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
-
-/// Nodata of the depth GeoTIFF: sky (and nothing else) has it.
-pub const DEPTH_NODATA: f64 = -9999.0;
 
 /// Viewpoint and camera flags (DESIGN.md "Camera flags").
 #[derive(clap::Args, Debug, Clone)]
@@ -398,17 +396,7 @@ pub fn run(args: ViewArgs) -> anyhow::Result<()> {
     }
     write_picture(&args.out, w, h, &rgb)?;
     if let Some(p) = &args.depth {
-        let data: Vec<f32> = depth
-            .depth
-            .iter()
-            .map(|&d| {
-                if d.is_finite() {
-                    d
-                } else {
-                    DEPTH_NODATA as f32
-                }
-            })
-            .collect();
+        let data = depth_for_file(&depth);
         let spec = RasterSpec {
             width: depth.width,
             height: depth.height,
