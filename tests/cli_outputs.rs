@@ -441,3 +441,53 @@ fn non_utf8_name_and_corrupt_nodata() {
     one_line_error(&r, "bad_nodata.tif");
     assert!(String::from_utf8_lossy(&r.stderr).contains("GDAL_NODATA"));
 }
+
+#[test]
+fn cog_edited_in_place_by_the_binary_stays_a_valid_cog() {
+    // Through the binary (its allocator is not GDAL's): the COG is patched
+    // in GDAL's memory file system, which GDAL must own.
+    let dir = tempfile::tempdir().expect("tempdir");
+    let cog = dir.path().join("cog.tif");
+    common::gdal_translate(
+        &dem(),
+        &cog,
+        &[
+            "-of",
+            "COG",
+            "-co",
+            "RESAMPLING=AVERAGE",
+            "-co",
+            "BLOCKSIZE=128",
+            "-co",
+            "COMPRESS=DEFLATE",
+        ],
+    );
+    let before = std::fs::read(&cog).expect("read");
+    let r = demsketch(&[
+        "edit",
+        &s(&cog),
+        "--sketch",
+        &s(&sketch()),
+        "--in-place",
+        "--allow-partial",
+        "-q",
+    ]);
+    ok(&r);
+    assert_ne!(std::fs::read(&cog).expect("read"), before, "edited");
+    let script = [
+        "/usr/lib/python3/dist-packages/osgeo_utils/samples/validate_cloud_optimized_geotiff.py",
+        "/usr/share/doc/python3-gdal/examples/validate_cloud_optimized_geotiff.py",
+    ]
+    .into_iter()
+    .find(|p| Path::new(p).is_file())
+    .expect("GDAL's COG validator");
+    let v = std::process::Command::new("/usr/bin/python3")
+        .args([script, &s(&cog)])
+        .output()
+        .expect("validate");
+    assert!(v.status.success(), "{}", String::from_utf8_lossy(&v.stdout));
+    assert_eq!(
+        gdalinfo(&cog)["metadata"][""]["DEMSKETCH_OVERVIEW_RESAMPLING"],
+        "AVERAGE"
+    );
+}

@@ -153,8 +153,38 @@ impl MemCopy {
             std::process::id(),
             N.fetch_add(1, Ordering::Relaxed)
         );
-        gdal::vsi::create_mem_file(&name, bytes)?;
-        Ok(MemCopy { name })
+        // Written through GDAL's own file API, so that GDAL owns (and may
+        // grow) a buffer from its allocator: a buffer handed over from Rust
+        // comes from ours (mimalloc in the binary), and GDAL's realloc of
+        // it would corrupt the heap.
+        let c_name = std::ffi::CString::new(name.as_str())?;
+        // SAFETY: valid C strings; the handle is checked and closed; the
+        // write reads `bytes.len()` bytes from a live slice.
+        let written = unsafe {
+            let fp = gdal_sys::VSIFOpenL(c_name.as_ptr(), c"wb".as_ptr());
+            if fp.is_null() {
+                return Err(gdal::errors::GdalError::NullPointer {
+                    method_name: "VSIFOpenL",
+                    msg: name.clone(),
+                });
+            }
+            let n = gdal_sys::VSIFWriteL(bytes.as_ptr().cast(), 1, bytes.len(), fp);
+            gdal_sys::VSIFCloseL(fp);
+            n
+        };
+        let copy = MemCopy { name };
+        if written != bytes.len() {
+            return Err(gdal::errors::GdalError::NullPointer {
+                method_name: "VSIFWriteL",
+                msg: format!(
+                    "{} of {} bytes written to {}",
+                    written,
+                    bytes.len(),
+                    copy.name
+                ),
+            });
+        }
+        Ok(copy)
     }
 }
 
