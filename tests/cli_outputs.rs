@@ -491,3 +491,29 @@ fn cog_edited_in_place_by_the_binary_stays_a_valid_cog() {
         "AVERAGE"
     );
 }
+
+#[test]
+fn an_edit_that_changes_nothing_still_writes_the_format_asked_for() {
+    use demsketch::raster::{Dem, Destination, Provenance, Window};
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = dir.path().join("same.asc");
+    let dem = Dem::open(&dem()).expect("open");
+    let win = Window::new(10, 10, 5, 5);
+    let old = dem.read_window::<f64>(win).expect("read");
+    let r = dem
+        .write_back(
+            win,
+            &old.data,
+            &Destination::Path(out.clone()),
+            &Provenance {
+                edit_id: "none".into(),
+            },
+        )
+        .expect("write");
+    assert_eq!(r.changed_cells, 0);
+    assert_eq!(gdalinfo(&out)["driverShortName"], "AAIGrid");
+    assert_eq!(
+        gdal_values(&out).2,
+        gdal_values(&fixture("zion_srtm_utm12n.tif")).2
+    );
+}

@@ -302,12 +302,31 @@ impl Dem {
             }
             (Destination::Path(out), LayerKind::GeoTiff | LayerKind::Gdal) => {
                 let targets = vec![out.clone()];
+                let same_format = matches!(self.kind, LayerKind::GeoTiff)
+                    && opts.keeps_geotiff(Some(out.as_path()));
+                if edits.is_empty() && !same_format {
+                    // Nothing changed, but another format: converted.
+                    let keep_all = TileEdit {
+                        tile: 0,
+                        local: Window::new(0, 0, 1, 1),
+                        values: vec![f64::NAN],
+                        changed: 0,
+                    };
+                    self.encode_and_commit(&[keep_all], &targets, provenance, opts)?;
+                    return Ok(WriteReport {
+                        tiles_written: targets,
+                        tiles_unchanged: vec![],
+                        changed_cells,
+                    });
+                }
                 if edits.is_empty() {
-                    // Nothing changed: the output is a byte copy of the input.
+                    // Nothing changed: the output is a byte copy of the input
+                    // (its sidecars too).
                     let tmp = temp_beside(out);
                     std::fs::copy(&self.tiles[0].path, &tmp)
                         .map_err(|e| RasterError::io(out, e))?;
                     std::fs::rename(&tmp, out).map_err(|e| RasterError::io(out, e))?;
+                    super::sidecars::copy_unchanged(&self.tiles[0].path, out)?;
                     return Ok(WriteReport {
                         tiles_written: vec![],
                         tiles_unchanged: targets,
