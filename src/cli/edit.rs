@@ -214,7 +214,8 @@ pub fn run(args: EditArgs) -> anyhow::Result<()> {
         }
         if report.written {
             eprintln!(
-                "{} cells changed (max |dz| {:.1} m) in {} file(s), {:.2} s",
+                "{}: {} cells changed (max |dz| {:.1} m) in {} file(s), {:.2} s",
+                report.output,
                 report.changed_cells,
                 report.max_abs_displacement_m,
                 report.tiles_written.len(),
@@ -222,8 +223,11 @@ pub fn run(args: EditArgs) -> anyhow::Result<()> {
             );
         } else {
             eprintln!(
-                "dry run: nothing written; a real run would change {} cells (max |dz| {:.1} m), {:.2} s",
-                report.changed_cells, report.max_abs_displacement_m, report.timings_s.total
+                "{}: dry run, nothing written; a real run would change {} cells (max |dz| {:.1} m), {:.2} s",
+                report.output,
+                report.changed_cells,
+                report.max_abs_displacement_m,
+                report.timings_s.total
             );
         }
     }

@@ -568,7 +568,15 @@ fn encode_tile(
             }
             return Ok(());
         }
-        sidecars.extra = encode_tile_copy(tile, edit, tmp, target, &settings, opts)?;
+        let (extra, driver) = encode_tile_copy(tile, edit, tmp, target, &settings, opts)?;
+        sidecars.extra = extra;
+        if driver != "GTiff" {
+            // Another format has its own overviews (or none): the input's
+            // external ones do not describe it.
+            if let Some((staged, _)) = sidecars.overviews.take() {
+                let _ = std::fs::remove_file(staged);
+            }
+        }
         Ok(())
     })();
     if let Err(e) = written {
@@ -623,7 +631,8 @@ fn error_name<'a>(tile: &'a Tile, target: &'a Path) -> &'a Path {
 /// memory with all its metadata, the edit applied, and the result written
 /// in the output's format (the source's creation options for a GeoTIFF,
 /// the user's `-co` over them); a GeoTIFF's overviews are rebuilt with the
-/// recorded resampling. Returns the extra files the driver wrote, staged.
+/// recorded resampling. Returns the extra files the driver wrote, staged,
+/// and the driver.
 fn encode_tile_copy(
     tile: &Tile,
     edit: &TileEdit,
@@ -631,7 +640,7 @@ fn encode_tile_copy(
     target: &Path,
     settings: &PatchSettings,
     opts: &WriteOptions,
-) -> Result<super::output_format::StagedFiles, RasterError> {
+) -> Result<(super::output_format::StagedFiles, String), RasterError> {
     let gerr = |e: gdal::errors::GdalError| RasterError::gdal(&tile.path, e);
     // Decode a compressed source with all cores (GTiff's NUM_THREADS open
     // option; "@" keeps other drivers from warning about an option they
@@ -706,5 +715,5 @@ fn encode_tile_copy(
         }
         ds.close().map_err(werr)?;
     }
-    Ok(extra)
+    Ok((extra, driver))
 }
