@@ -26,7 +26,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let prov = Provenance {
         edit_id: "bench".into(),
     };
-    let mut time = |name: &str,
+    let time = |name: &str,
                     opts: &WriteOptions|
      -> Result<(f64, usize), Box<dyn std::error::Error>> {
         let out = out_dir.join(name);
