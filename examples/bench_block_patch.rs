@@ -27,7 +27,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         edit_id: "bench".into(),
     };
     let time = |name: &str,
-                    opts: &WriteOptions|
+                opts: &WriteOptions|
      -> Result<(f64, usize), Box<dyn std::error::Error>> {
         let out = out_dir.join(name);
         let mut best = f64::INFINITY;

@@ -217,45 +217,47 @@ fn cog_with_average_overviews_keeps_average_and_stays_a_cog() {
 
 #[test]
 fn internal_overviews_of_an_evenly_divided_image_are_refreshed_in_a_window() {
-    // 1024 x 1024 with levels 2, 4, 8: the windowed path; the user's choice
-    // of NEAREST over the recorded (none: AVERAGE) default.
-    let dir = tempfile::tempdir().expect("tempdir");
-    let src = dir.path().join("even.tif");
-    gdal_translate(
-        &fixture("nz_1km_nan_nodata.tif"),
-        &src,
-        &[
-            "-srcwin",
-            "0",
-            "0",
-            "1024",
-            "1024",
-            "-co",
-            "TILED=YES",
-            "-co",
-            "COMPRESS=LZW",
-        ],
-    );
-    run(
-        "gdaladdo",
-        &["-q", "-r", "nearest", &src.to_string_lossy(), "2", "4", "8"],
-    );
-    let before = levels(&src);
-    let win = Window::new(600, 700, 70, 33);
-    let opts = WriteOptions {
-        overview_resampling: Some("NEAREST".into()),
-        ..Default::default()
-    };
-    edit(&src, win, &Destination::InPlace, &opts);
-    let after = levels(&src);
-    let reference = levels(&gdaladdo_reference(
-        &src,
-        dir.path(),
-        "nearest",
-        &["2", "4", "8"],
-        false,
-    ));
-    check_levels(&before, &after, &reference, (1024, 1024), win);
+    // 1024 x 1024 with levels 2, 4, 8: the windowed path, with the user's
+    // choice (--overview-resampling) of NEAREST, and of AVERAGE.
+    for (r, upper) in [("nearest", "NEAREST"), ("average", "AVERAGE")] {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let src = dir.path().join("even.tif");
+        gdal_translate(
+            &fixture("nz_1km_nan_nodata.tif"),
+            &src,
+            &[
+                "-srcwin",
+                "0",
+                "0",
+                "1024",
+                "1024",
+                "-co",
+                "TILED=YES",
+                "-co",
+                "COMPRESS=LZW",
+            ],
+        );
+        run(
+            "gdaladdo",
+            &["-q", "-r", r, &src.to_string_lossy(), "2", "4", "8"],
+        );
+        let before = levels(&src);
+        let win = Window::new(600, 700, 70, 33);
+        let opts = WriteOptions {
+            overview_resampling: Some(upper.into()),
+            ..Default::default()
+        };
+        edit(&src, win, &Destination::InPlace, &opts);
+        let after = levels(&src);
+        let reference = levels(&gdaladdo_reference(
+            &src,
+            dir.path(),
+            r,
+            &["2", "4", "8"],
+            false,
+        ));
+        check_levels(&before, &after, &reference, (1024, 1024), win);
+    }
 }
 
 #[test]

@@ -18,7 +18,7 @@
 //! external). When every level's size divides the image evenly and the
 //! kernel reads no neighbours (NEAREST, AVERAGE, RMS, MODE), each overview
 //! cell depends on its own block of source cells only, so a window aligned
-//! to the coarsest factor gives the same cells as the whole image; otherwise
+//! to every factor gives the same cells as the whole image; otherwise
 //! the whole image is used. Either way the cells over the change equal a
 //! full `gdaladdo` on the result and the rest are never written.
 //!
@@ -176,13 +176,17 @@ pub fn refresh_overviews(
             )));
         }
     }
-    let coarsest = factors.iter().copied().max().unwrap_or(1);
-    let windowed = kernel_radius(resampling) == 0 && w % coarsest == 0 && h % coarsest == 0;
+    // Every level's ratio an integer: a window aligned to all factors gives
+    // the whole image's cells.
+    let align = factors.iter().fold(1usize, |a, &f| lcm(a, f));
+    let windowed = kernel_radius(resampling) == 0
+        && factors.iter().all(|&f| w % f == 0 && h % f == 0)
+        && align <= w.min(h);
     let changed = changed
         .intersect(&Window::new(0, 0, w, h))
         .unwrap_or(changed);
     let region = if windowed {
-        let f = coarsest as i64;
+        let f = align as i64;
         let c0 = changed.col.div_euclid(f) * f;
         let r0 = changed.row.div_euclid(f) * f;
         let c1 = (changed.col_end() + f - 1).div_euclid(f) * f;
@@ -227,6 +231,18 @@ pub fn refresh_overviews(
         stats.cells += win.len();
     }
     Ok(stats)
+}
+
+fn gcd(a: usize, b: usize) -> usize {
+    if b == 0 {
+        a
+    } else {
+        gcd(b, a % b)
+    }
+}
+
+fn lcm(a: usize, b: usize) -> usize {
+    a / gcd(a, b) * b
 }
 
 /// A unique name in GDAL's memory file system.
