@@ -1,0 +1,199 @@
+//! Rivers (hydro-flattening practice): from a centreline and a width, a
+//! water surface that is flat across the river and never rises downstream.
+//! Stations every half cell along the centreline take the lower of the two
+//! bank heights (the DEM sampled bilinearly one cell beyond each bank); the
+//! surface is their running minimum from the source to the outlet. Every
+//! cell whose centre is within half the width of the centreline gets the
+//! surface at the arc length of its nearest centreline point (interpolated
+//! linearly between stations, so it is affine across a straight reach and
+//! the bilinear surface is flat along its normals); the banks are blended
+//! as for lakes ([`super::water::flatten_and_blend`]).
+//!
+//! The flow runs in the line's order, or with `flow: "auto"` from the higher
+//! end (current DEM height at the end points) to the lower.
+
+use super::grid::Grid;
+use super::water::{self, Change};
+
+/// What a river did.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RiverResult {
+    /// Water surface at the source and at the outlet, metres.
+    pub surface_start_m: f64,
+    pub surface_end_m: f64,
+    /// True when the centreline was reversed (`flow: "auto"`).
+    pub reversed: bool,
+    pub change: Change,
+}
+
+/// Why a river could not be applied (a user error).
+#[derive(Debug, thiserror::Error)]
+pub enum RiverError {
+    #[error("no valid DEM height along the river to take the surface from")]
+    NoHeights,
+    #[error("no cell centre lies within half the width of the centreline over valid DEM cells")]
+    NoCells,
+    #[error("blend solver: {0}")]
+    Solver(#[from] crate::deform::multigrid::MultigridError),
+}
+
+/// Arc length (metres) of stations and the water surface there.
+struct Profile {
+    s: Vec<f64>,
+    z: Vec<f64>,
+}
+
+impl Profile {
+    fn at(&self, s: f64) -> f64 {
+        let k = self.s.partition_point(|&v| v <= s);
+        if k == 0 {
+            return self.z[0];
+        }
+        if k >= self.s.len() {
+            return self.z[self.z.len() - 1];
+        }
+        let (s0, s1) = (self.s[k - 1], self.s[k]);
+        let t = if s1 > s0 { (s - s0) / (s1 - s0) } else { 0.0 };
+        self.z[k - 1] + t * (self.z[k] - self.z[k - 1])
+    }
+}
+
+/// The centreline in window pixel space, upstream first.
+fn oriented(grid: &Grid, line: &[[f64; 2]], flow_auto: bool) -> (Vec<[f64; 2]>, bool) {
+    let mut pts: Vec<[f64; 2]> = line.iter().map(|&p| grid.local(p)).collect();
+    let mut reversed = false;
+    if flow_auto {
+        let first = grid.bilinear(pts[0]);
+        let last = grid.bilinear(pts[pts.len() - 1]);
+        if let (Some(a), Some(b)) = (first, last) {
+            if a < b {
+                pts.reverse();
+                reversed = true;
+            }
+        }
+    }
+    (pts, reversed)
+}
+
+/// Stations along the centreline and the running minimum of the bank
+/// heights there.
+fn profile(grid: &Grid, pts: &[[f64; 2]], width_m: f64) -> Option<Profile> {
+    let (hx, hy) = (grid.cell.hx, grid.cell.hy);
+    let offset = 0.5 * width_m + hx.max(hy);
+    let (mut s, mut z) = (Vec::new(), Vec::new());
+    let mut s0 = 0.0;
+    for (k, seg) in pts.windows(2).enumerate() {
+        let (a, b) = (seg[0], seg[1]);
+        let len = grid.metres(a, b);
+        if len == 0.0 {
+            continue;
+        }
+        let (tx, ty) = ((b[0] - a[0]) * hx / len, (b[1] - a[1]) * hy / len);
+        let (nx, ny) = (-ty, tx);
+        let n = ((b[0] - a[0]).hypot(b[1] - a[1]) / 0.5).ceil().max(1.0) as usize;
+        let last = k + 2 == pts.len();
+        for j in 0..n + usize::from(last) {
+            let t = j as f64 / n as f64;
+            let c = [a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])];
+            let side = |sign: f64| {
+                grid.bilinear([
+                    c[0] + sign * nx * offset / hx,
+                    c[1] + sign * ny * offset / hy,
+                ])
+            };
+            let bank = match (side(1.0), side(-1.0)) {
+                (Some(l), Some(r)) => Some(l.min(r)),
+                (l, r) => l.or(r).or_else(|| grid.bilinear(c)),
+            };
+            s.push(s0 + t * len);
+            z.push(bank.unwrap_or(f64::NAN));
+        }
+        s0 += len;
+    }
+    let first = z.iter().copied().find(|v| !v.is_nan())?;
+    let mut run = first;
+    for v in z.iter_mut() {
+        if !v.is_nan() {
+            run = run.min(*v);
+        }
+        *v = run;
+    }
+    Some(Profile { s, z })
+}
+
+/// Distance (metres) from `p` to the polyline and the arc length of the
+/// nearest point.
+fn nearest(grid: &Grid, pts: &[[f64; 2]], p: [f64; 2]) -> (f64, f64) {
+    let (hx, hy) = (grid.cell.hx, grid.cell.hy);
+    let (mut best, mut best_s, mut s0) = (f64::INFINITY, 0.0, 0.0);
+    for seg in pts.windows(2) {
+        let (a, b) = (seg[0], seg[1]);
+        let (dx, dy) = ((b[0] - a[0]) * hx, (b[1] - a[1]) * hy);
+        let (px, py) = ((p[0] - a[0]) * hx, (p[1] - a[1]) * hy);
+        let l2 = dx * dx + dy * dy;
+        let t = if l2 > 0.0 {
+            ((px * dx + py * dy) / l2).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        let d = (px - t * dx).hypot(py - t * dy);
+        if d < best {
+            best = d;
+            best_s = s0 + t * l2.sqrt();
+        }
+        s0 += l2.sqrt();
+    }
+    (best, best_s)
+}
+
+/// Flattens the river and blends its banks.
+pub fn apply(
+    grid: &mut Grid,
+    line: &[[f64; 2]],
+    width_m: f64,
+    flow_auto: bool,
+    blend_m: f64,
+) -> Result<RiverResult, RiverError> {
+    let (pts, reversed) = oriented(grid, line, flow_auto);
+    let prof = profile(grid, &pts, width_m).ok_or(RiverError::NoHeights)?;
+    let half = 0.5 * width_m;
+    let (gx, gy) = (half / grid.cell.hx + 1.0, half / grid.cell.hy + 1.0);
+    let (w, h) = (grid.width() as f64, grid.height() as f64);
+    let xs = pts.iter().map(|p| p[0]);
+    let ys = pts.iter().map(|p| p[1]);
+    let c0 = (xs.clone().fold(f64::INFINITY, f64::min) - gx)
+        .floor()
+        .clamp(0.0, w) as usize;
+    let c1 = (xs.fold(f64::NEG_INFINITY, f64::max) + gx)
+        .ceil()
+        .clamp(0.0, w) as usize;
+    let r0 = (ys.clone().fold(f64::INFINITY, f64::min) - gy)
+        .floor()
+        .clamp(0.0, h) as usize;
+    let r1 = (ys.fold(f64::NEG_INFINITY, f64::max) + gy)
+        .ceil()
+        .clamp(0.0, h) as usize;
+    let mut water = Vec::new();
+    for r in r0..r1 {
+        for c in c0..c1 {
+            let i = r * grid.width() + c;
+            if grid.values[i].is_nan() {
+                continue;
+            }
+            let (d, s) = nearest(grid, &pts, [c as f64 + 0.5, r as f64 + 0.5]);
+            if d <= half {
+                water.push((i, prof.at(s)));
+            }
+        }
+    }
+    if water.is_empty() {
+        return Err(RiverError::NoCells);
+    }
+    let change = water::flatten_and_blend(grid, &water, blend_m)?;
+    Ok(RiverResult {
+        surface_start_m: prof.z[0],
+        surface_end_m: prof.z[prof.z.len() - 1],
+        reversed,
+        change,
+    })
+}
