@@ -335,6 +335,7 @@ fn apply_one(
             r.surface_start_m = Some(res.surface_start_m);
             r.surface_end_m = Some(res.surface_end_m);
             r.reversed = Some(res.reversed);
+            r.surface_knots_m = Some(res.knots.clone());
             r.water_cells = Some(res.change.water_cells);
             r.cells_changed = res.change.cells_changed;
             r.max_abs_dz_m = res.change.max_abs_dz_m;

@@ -37,6 +37,10 @@ pub struct FeatureReport {
     pub surface_start_m: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub surface_end_m: Option<f64>,
+    /// Rivers: `[arc length from the source, surface]` in metres where the
+    /// surface profile bends; linear (so flat across) in between.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub surface_knots_m: Option<Vec<[f64; 2]>>,
     /// True when `flow: "auto"` reversed the centreline.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub reversed: Option<bool>,
@@ -63,6 +67,7 @@ impl FeatureReport {
             level_from_shoreline: None,
             surface_start_m: None,
             surface_end_m: None,
+            surface_knots_m: None,
             reversed: None,
             influence_m: None,
             max_curve_error_m: None,

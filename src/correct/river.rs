@@ -2,7 +2,9 @@
 //! water surface that is flat across the river and never rises downstream.
 //! Stations every half cell along the centreline take the lower of the two
 //! bank heights (the DEM sampled bilinearly one cell beyond each bank); the
-//! surface is their running minimum from the source to the outlet. Every
+//! surface is the lower convex hull of their running minimum from the
+//! source to the outlet (never above a bank, non-increasing, and linear in
+//! the arc length between a few kinks). Every
 //! cell whose centre is within half the width of the centreline gets the
 //! surface at the arc length of its nearest centreline point (interpolated
 //! linearly between stations, so it is affine across a straight reach and
@@ -16,13 +18,16 @@ use super::grid::Grid;
 use super::water::{self, Change};
 
 /// What a river did.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct RiverResult {
     /// Water surface at the source and at the outlet, metres.
     pub surface_start_m: f64,
     pub surface_end_m: f64,
     /// True when the centreline was reversed (`flow: "auto"`).
     pub reversed: bool,
+    /// `[arc length from the source, surface]` in metres where the surface
+    /// profile bends (first and last: the ends); linear in between.
+    pub knots: Vec<[f64; 2]>,
     pub change: Change,
 }
 
@@ -41,6 +46,8 @@ pub enum RiverError {
 struct Profile {
     s: Vec<f64>,
     z: Vec<f64>,
+    /// The hull's vertices `[s, z]`: the surface is linear between them.
+    knots: Vec<[f64; 2]>,
 }
 
 impl Profile {
@@ -118,7 +125,49 @@ fn profile(grid: &Grid, pts: &[[f64; 2]], width_m: f64) -> Option<Profile> {
         }
         *v = run;
     }
-    Some(Profile { s, z })
+    Some(lower_hull(Profile {
+        s,
+        z,
+        knots: Vec::new(),
+    }))
+}
+
+/// The lower convex hull of the running minimum, sampled back at the
+/// stations: piecewise linear with few kinks (so the surface is affine in
+/// the arc length over long reaches, and flat across them), never above the
+/// running minimum (so never above a bank), and non-increasing (a convex
+/// function whose last point is its minimum).
+fn lower_hull(p: Profile) -> Profile {
+    let mut hull: Vec<usize> = Vec::new();
+    for i in 0..p.s.len() {
+        while hull.len() >= 2 {
+            let (a, b) = (hull[hull.len() - 2], hull[hull.len() - 1]);
+            let cross =
+                (p.s[b] - p.s[a]) * (p.z[i] - p.z[a]) - (p.z[b] - p.z[a]) * (p.s[i] - p.s[a]);
+            if cross <= 0.0 {
+                hull.pop();
+            } else {
+                break;
+            }
+        }
+        hull.push(i);
+    }
+    let knots = Profile {
+        s: hull.iter().map(|&i| p.s[i]).collect(),
+        z: hull.iter().map(|&i| p.z[i]).collect(),
+        knots: Vec::new(),
+    };
+    let z = p.s.iter().map(|&s| knots.at(s)).collect();
+    Profile {
+        s: p.s,
+        z,
+        knots: knots
+            .s
+            .iter()
+            .zip(&knots.z)
+            .map(|(&s, &z)| [s, z])
+            .collect(),
+    }
 }
 
 /// Distance (metres) from `p` to the polyline and the arc length of the
@@ -194,6 +243,7 @@ pub fn apply(
         surface_start_m: prof.z[0],
         surface_end_m: prof.z[prof.z.len() - 1],
         reversed,
+        knots: prof.knots,
         change,
     })
 }
