@@ -68,26 +68,56 @@ pub fn apply(
         (win.row - grid.window.row) as usize,
     );
     let hm = grid.current().crop(lc, lr, win.width, win.height);
-    let cons = constraints::rasterise(&hm, std::slice::from_ref(&curve), cell);
+    let curves = std::slice::from_ref(&curve);
+    let cons = constraints::rasterise(&hm, curves, cell);
     if cons.count == 0 {
         return Err(CurveError::NothingConstrained);
     }
     let inside = influence_mask(&cons, cell, influence_m);
     let n = win.len();
     let mut fixed = vec![true; n];
-    let mut values = vec![0f32; n];
     for i in 0..n {
-        if cons.constrained[i] {
-            values[i] = cons.delta[i];
-        } else if inside[i] && !hm.data[i].is_nan() {
+        if !cons.constrained[i] && inside[i] && !hm.data[i].is_nan() {
             fixed[i] = false;
         }
     }
     let opts = MultigridOptions {
         tolerance: 1e-6,
-        max_cycles: 200,
+        max_cycles: 300,
         ..MultigridOptions::default()
     };
+    // Positional constraints as the paper's least-squares fit asks: the
+    // heights of the constrained cells that make the bilinear surface pass
+    // through the curve ([`super::curve_fit`]), starting from the curve's
+    // height at each cell's closest curve point (the rasteriser run on a
+    // zero surface gives exactly `z(q*)`); the displacement they ask for is
+    // then diffused over the free cells.
+    let mut zero = hm.clone();
+    for h in zero.data.iter_mut().filter(|h| !h.is_nan()) {
+        *h = 0.0;
+    }
+    let at_curve = constraints::rasterise(&zero, curves, cell);
+    let keep: Vec<bool> = (0..n)
+        .map(|i| cons.constrained[i] && at_curve.constrained[i])
+        .collect();
+    let h0: Vec<f64> = (0..n).map(|i| at_curve.delta[i] as f64).collect();
+    let gt = hm.geotransform;
+    let local: Vec<[f64; 3]> = points
+        .iter()
+        .filter_map(|p| gt.crs_to_pixel(p[0], p[1]).map(|(x, y)| [x, y, p[2]]))
+        .collect();
+    let (fitted, _) = super::curve_fit::fit(win.width, win.height, &keep, &h0, &local);
+    let mut values: Vec<f32> = (0..n)
+        .map(|i| {
+            if keep[i] {
+                (fitted[i] - hm.data[i] as f64) as f32
+            } else if cons.constrained[i] {
+                cons.delta[i]
+            } else {
+                0.0
+            }
+        })
+        .collect();
     multigrid::solve(
         win.width,
         win.height,

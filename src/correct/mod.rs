@@ -13,6 +13,7 @@
 //! when any feature is invalid or fails.
 
 pub mod control_curve;
+pub mod curve_fit;
 pub mod geojson_input;
 pub mod grid;
 pub mod lake;

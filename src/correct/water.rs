@@ -80,7 +80,7 @@ pub fn flatten_and_blend(
     }
     if any_free {
         let opts = MultigridOptions {
-            tolerance: 1e-7,
+            tolerance: 1e-6,
             max_cycles: 300,
             ..MultigridOptions::default()
         };
