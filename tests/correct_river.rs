@@ -1,5 +1,5 @@
-//! Rivers on a real DEM: the floor of the Vinschgau valley (the Etsch/Adige
-//! between Mals and Schlanders) in `fixtures/vinschgau_250m_utm32n.tif`,
+//! Rivers on a real DEM: the floor of the upper Vinschgau valley (the
+//! Etsch/Adige, south from the Malser Haide, then east) in `fixtures/vinschgau_250m_utm32n.tif`,
 //! drawn as a 1250 m wide centreline in the DEM's CRS (legacy `crs`
 //! member). Checked with GDAL: along the centreline the water surface
 //! never rises downstream; across it (bilinear along the normals of the
@@ -18,12 +18,14 @@ use serde_json::{json, Value};
 const DEM: &str = "vinschgau_250m_utm32n.tif";
 const WIDTH_M: f64 = 1250.0;
 /// Pixel-space centreline, upstream first (the valley floor's lowest cells).
-const LINE_PX: [[f64; 2]; 5] = [
-    [74.5, 93.5],
-    [90.5, 106.5],
-    [106.5, 112.5],
-    [122.5, 114.5],
-    [138.5, 117.5],
+const LINE_PX: [[f64; 2]; 7] = [
+    [86.5, 91.5],
+    [87.5, 100.5],
+    [91.5, 108.5],
+    [100.5, 113.5],
+    [115.5, 114.5],
+    [128.5, 115.5],
+    [140.5, 114.5],
 ];
 
 fn run_river(tmp: &Path, name: &str, line: &[[f64; 2]], flow: &str) -> (PathBuf, Value) {
