@@ -2,14 +2,23 @@
 //! rewritten, each with its own layout (tiled or striped, block size),
 //! compression, predictor, sample type, georeference, CRS, nodata and
 //! metadata, plus a provenance item that `gdalinfo` shows. Overviews in the
-//! input are rebuilt. Unchanged tiles are hard-linked (or copied) byte for
-//! byte, never re-encoded.
+//! input are rebuilt. Unchanged tiles of a tile-directory output are copied
+//! byte for byte (a reflink where the file system has them; hard links
+//! only on request, [`WriteOptions::link_unchanged`]), never re-encoded.
 //!
-//! Every write is atomic: tiles are encoded to temporary files in the target
-//! directory and renamed into place only once all of them are complete; a
-//! tile directory output is staged beside `OUT` and renamed to `OUT` at the
-//! end. An interruption leaves each file either old or new, and a failure
-//! leaves nothing behind.
+//! Every write is staged and verified before it replaces anything: each
+//! new tile is encoded into a staging directory beside its target
+//! ([`super::atomic_file::Staging`]: exclusive, unpredictable name), with
+//! GDAL's failures captured ([`super::gdal_errors`]); then it is re-read
+//! (non-empty, opened by GDAL and by the native reader, the written window
+//! equal to the values meant) and flushed to disk. Only when every tile
+//! passed are they renamed into place: in place through the edit journal
+//! ([`super::journal`]), so a kill between renames is finished by the next
+//! run; a single-file output by one rename; a tile-directory output as the
+//! whole staged directory. In-place rewrites keep each file's mode, owner
+//! and extended attributes. Any failure (a full disk included) leaves
+//! every input and output as it was, no temporary file behind, and one
+//! error naming the target.
 
 use std::path::{Path, PathBuf};
 use std::time::{SystemTime, UNIX_EPOCH};
@@ -18,6 +27,8 @@ use gdal::raster::{Buffer, RasterCreationOptions};
 use gdal::{DriverManager, GdalOpenFlags, Metadata};
 use rayon::prelude::*;
 
+use super::atomic_file::{commit_guard, copy_file_attributes, parent_dir, sync_dir, Staging};
+use super::{gdal_errors, journal};
 use super::{Dem, LayerKind, RasterError, SampleType, Tile, TileSource, Window};
 
 /// The metadata item written into every rewritten tile.
@@ -49,6 +60,16 @@ pub enum Destination {
     /// A new GeoTIFF (single-file input) or a new directory receiving the
     /// full tile set (tile-directory input).
     Path(PathBuf),
+}
+
+/// How a write-back writes.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct WriteOptions {
+    /// Hard-link the unchanged tiles of a tile-directory output to the
+    /// input's instead of copying them (`--link`): faster and free of
+    /// space, but a tool that later modifies an output tile in place then
+    /// modifies the input too.
+    pub link_unchanged: bool,
 }
 
 /// What a write-back did.
@@ -94,13 +115,21 @@ fn write_err(path: &Path, message: impl std::fmt::Display) -> RasterError {
     }
 }
 
-/// A temporary path beside `target`, unique to this process.
-fn temp_beside(target: &Path) -> PathBuf {
-    let name = target
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "tile".into());
-    target.with_file_name(format!(".{name}.demsketch-{}.tmp", std::process::id()))
+/// A failure while writing `tmp`, told as a failure of `target`: the
+/// temporary file is never named to the user.
+fn retarget(e: RasterError, tmp: &Path, target: &Path) -> RasterError {
+    let t = target.display().to_string();
+    let text = e.to_string().replace(&tmp.display().to_string(), &t);
+    let text = text
+        .strip_prefix(&format!("{t}: "))
+        .unwrap_or(&text)
+        .to_string();
+    write_err(target, format!("{}; nothing changed", super::atomic_file::one_line(&text)))
+}
+
+/// The file name of a path (for staging it under the same name).
+fn file_name(p: &Path) -> &std::ffi::OsStr {
+    p.file_name().unwrap_or(std::ffi::OsStr::new("tile.tif"))
 }
 
 /// Can `v` be stored in `t` as itself? Not when it is outside the type's
@@ -150,10 +179,22 @@ impl Dem {
         dest: &Destination,
         provenance: &Provenance,
     ) -> Result<WriteReport, RasterError> {
+        self.write_back_with(window, values, dest, provenance, &WriteOptions::default())
+    }
+
+    /// [`Dem::write_back`] with [`WriteOptions`].
+    pub fn write_back_with(
+        &self,
+        window: Window,
+        values: &[f64],
+        dest: &Destination,
+        provenance: &Provenance,
+        options: &WriteOptions,
+    ) -> Result<WriteReport, RasterError> {
         self.check_destination(dest)?;
         let edits = self.tile_edits(window, values)?;
         let changed_cells = edits.iter().map(|e| e.changed).sum();
-        self.commit_edits(edits, changed_cells, dest, provenance)
+        self.commit_edits(edits, changed_cells, dest, provenance, options)
     }
 
     /// What [`Dem::write_back`] would change, without writing anything:
@@ -255,6 +296,7 @@ impl Dem {
         changed_cells: usize,
         dest: &Destination,
         provenance: &Provenance,
+        options: &WriteOptions,
     ) -> Result<WriteReport, RasterError> {
         match (dest, self.kind) {
             (Destination::InPlace, LayerKind::Gdal) => Err(RasterError::Unsupported {
@@ -263,11 +305,7 @@ impl Dem {
                     .into(),
             }),
             (Destination::InPlace, _) => {
-                let targets: Vec<PathBuf> = edits
-                    .iter()
-                    .map(|e| self.tiles[e.tile].path.clone())
-                    .collect();
-                self.encode_and_commit(&edits, &targets, provenance)?;
+                let targets = self.write_in_place(&edits, provenance)?;
                 for e in &edits {
                     self.invalidate_tile(e.tile);
                 }
@@ -278,30 +316,157 @@ impl Dem {
                 })
             }
             (Destination::Path(out), LayerKind::GeoTiff | LayerKind::Gdal) => {
-                let targets = vec![out.clone()];
-                if edits.is_empty() {
-                    // Nothing changed: the output is a byte copy of the input.
-                    let tmp = temp_beside(out);
-                    std::fs::copy(&self.tiles[0].path, &tmp)
-                        .map_err(|e| RasterError::io(out, e))?;
-                    std::fs::rename(&tmp, out).map_err(|e| RasterError::io(out, e))?;
-                    return Ok(WriteReport {
-                        tiles_written: vec![],
-                        tiles_unchanged: targets,
-                        changed_cells,
-                    });
-                }
-                self.encode_and_commit(&edits, &targets, provenance)?;
-                Ok(WriteReport {
-                    tiles_written: targets,
-                    tiles_unchanged: vec![],
-                    changed_cells,
-                })
+                self.write_single(out, &edits, provenance, changed_cells)
             }
             (Destination::Path(out), LayerKind::TileDirectory) => {
-                self.write_directory(out, &edits, provenance, changed_cells)
+                self.write_directory(out, &edits, provenance, changed_cells, options)
             }
         }
+    }
+
+    /// Encode every edit into `staging` (under its tile's file name, or
+    /// `name` for a single output), verified, in parallel. `targets` give
+    /// the path each is told as in errors.
+    fn stage_edits(
+        &self,
+        edits: &[TileEdit],
+        staging: &Staging,
+        targets: &[PathBuf],
+        provenance: &Provenance,
+        keep_attributes: bool,
+    ) -> Result<(), RasterError> {
+        edits
+            .par_iter()
+            .zip(targets.par_iter())
+            .try_for_each(|(e, target)| {
+                let tile = &self.tiles[e.tile];
+                let tmp = staging.file(file_name(target));
+                stage_tile(tile, e, &tmp, target, provenance)?;
+                if keep_attributes {
+                    copy_file_attributes(&tile.path, &tmp)
+                        .map_err(|err| write_err(target, format!("cannot keep its mode and owner: {err}; nothing changed")))?;
+                }
+                Ok(())
+            })
+    }
+
+    /// Rewrite the edited tiles of the input: staged and verified beside
+    /// them, then renamed through the journal. Returns the tiles written.
+    fn write_in_place(
+        &self,
+        edits: &[TileEdit],
+        provenance: &Provenance,
+    ) -> Result<Vec<PathBuf>, RasterError> {
+        let targets: Vec<PathBuf> = edits
+            .iter()
+            .map(|e| self.tiles[e.tile].path.clone())
+            .collect();
+        if targets.is_empty() {
+            return Ok(targets);
+        }
+        let dir = parent_dir(&targets[0]).to_path_buf();
+        if let Some(t) = targets.iter().find(|t| parent_dir(t) != dir.as_path()) {
+            return Err(write_err(t, "tiles of one DEM in different directories cannot be rewritten in place"));
+        }
+        let staging = Staging::new_in(&dir)
+            .map_err(|e| write_err(&self.path, format!("cannot create a temporary file in {}: {e}; nothing changed", dir.display())))?;
+        self.stage_edits(edits, &staging, &targets, provenance, true)?;
+        let names: Vec<String> = targets
+            .iter()
+            .map(|t| file_name(t).to_string_lossy().into_owned())
+            .collect();
+        journal::commit(&self.path, &dir, staging, &names)?;
+        Ok(targets)
+    }
+
+    /// A single-file output: the edited file (or a byte copy of the input
+    /// when nothing changed), staged, verified and renamed to `out`.
+    fn write_single(
+        &self,
+        out: &Path,
+        edits: &[TileEdit],
+        provenance: &Provenance,
+        changed_cells: usize,
+    ) -> Result<WriteReport, RasterError> {
+        let dir = parent_dir(out);
+        super::atomic_file::clean_stale(dir);
+        let staging = Staging::new_in(dir).map_err(|e| write_err(out, format!("cannot create a temporary file: {e}; nothing written")))?;
+        let tmp = staging.file(file_name(out));
+        let targets = vec![out.to_path_buf()];
+        let unchanged = edits.is_empty();
+        if unchanged {
+            copy_verified(&self.tiles[0].path, &tmp, out, false)?;
+        } else {
+            self.stage_edits(edits, &staging, &targets, provenance, false)?;
+        }
+        {
+            let _commit = commit_guard();
+            std::fs::rename(&tmp, out).map_err(|e| write_err(out, format!("{e}; nothing written")))?;
+            let _ = sync_dir(dir);
+        }
+        Ok(WriteReport {
+            tiles_written: if unchanged { vec![] } else { targets.clone() },
+            tiles_unchanged: if unchanged { targets } else { vec![] },
+            changed_cells,
+        })
+    }
+
+    /// A tile-directory output: the full tile set staged in a directory
+    /// beside `out` (unchanged tiles copied, edited ones encoded and
+    /// verified), which then becomes `out` by one rename.
+    fn write_directory(
+        &self,
+        out: &Path,
+        edits: &[TileEdit],
+        provenance: &Provenance,
+        changed_cells: usize,
+        options: &WriteOptions,
+    ) -> Result<WriteReport, RasterError> {
+        let parent = parent_dir(out);
+        super::atomic_file::clean_stale(parent);
+        let staging = Staging::new_in(parent).map_err(|e| write_err(out, format!("cannot create a staging directory: {e}; nothing written")))?;
+        let mut report = WriteReport {
+            changed_cells,
+            ..Default::default()
+        };
+        let edited: std::collections::HashSet<usize> = edits.iter().map(|e| e.tile).collect();
+        let unchanged: Vec<&Tile> = self
+            .tiles
+            .iter()
+            .enumerate()
+            .filter(|(ti, _)| !edited.contains(ti))
+            .map(|(_, t)| t)
+            .collect();
+        unchanged.par_iter().try_for_each(|tile| {
+            let name = file_name(&tile.path);
+            copy_verified(&tile.path, &staging.file(name), &out.join(name), options.link_unchanged)
+        })?;
+        report.tiles_unchanged = unchanged.iter().map(|t| out.join(file_name(&t.path))).collect();
+        let targets: Vec<PathBuf> = edits
+            .iter()
+            .map(|e| out.join(file_name(&self.tiles[e.tile].path)))
+            .collect();
+        self.stage_edits(edits, &staging, &targets, provenance, false)?;
+        report.tiles_written = targets;
+        // The staging directory is made mode 700; the output gets the mode
+        // a new directory gets.
+        let mode = 0o777 & !current_umask();
+        {
+            use std::os::unix::fs::PermissionsExt;
+            std::fs::set_permissions(staging.path(), std::fs::Permissions::from_mode(mode))
+                .map_err(|e| write_err(out, format!("{e}; nothing written")))?;
+        }
+        let _commit = commit_guard();
+        if out.is_dir() {
+            std::fs::remove_dir(out).map_err(|e| write_err(out, format!("{e}; nothing written")))?;
+        }
+        let kept = staging.keep();
+        if let Err(e) = std::fs::rename(&kept, out) {
+            let _ = std::fs::remove_dir_all(&kept);
+            return Err(write_err(out, format!("{e}; nothing written")));
+        }
+        let _ = sync_dir(parent);
+        Ok(report)
     }
 
     /// Refuse destinations that would overwrite the input or a non-empty
@@ -362,86 +527,35 @@ impl Dem {
         }
         Ok(())
     }
+}
 
-    /// Encode every edited tile to a temporary file beside its target, then,
-    /// once all succeeded, rename them into place.
-    fn encode_and_commit(
-        &self,
-        edits: &[TileEdit],
-        targets: &[PathBuf],
-        provenance: &Provenance,
-    ) -> Result<(), RasterError> {
-        let temps: Vec<PathBuf> = targets.iter().map(|t| temp_beside(t)).collect();
-        let result = edits
-            .par_iter()
-            .zip(temps.par_iter())
-            .try_for_each(|(e, tmp)| encode_tile(&self.tiles[e.tile], e, tmp, provenance));
-        if let Err(err) = result {
-            for t in &temps {
-                let _ = std::fs::remove_file(t);
-            }
-            return Err(err);
-        }
-        for (tmp, target) in temps.iter().zip(targets) {
-            if let Err(e) = std::fs::rename(tmp, target) {
-                for t in &temps {
-                    let _ = std::fs::remove_file(t);
-                }
-                return Err(RasterError::io(target, e));
-            }
-        }
-        Ok(())
+/// The process's file mode creation mask (read without changing it for
+/// longer than the call).
+fn current_umask() -> u32 {
+    use rustix::fs::Mode;
+    let old = rustix::process::umask(Mode::from_raw_mode(0o022));
+    rustix::process::umask(old);
+    old.as_raw_mode() as u32
+}
+
+/// Copy an unchanged file `src` to `dst` (a staging path; `target` is what
+/// errors name): a reflink or a byte copy of the file a symlink points to,
+/// or with `link` a hard link to that file (a copy where linking fails).
+/// Checked: same size as the source.
+fn copy_verified(src: &Path, dst: &Path, target: &Path, link: bool) -> Result<(), RasterError> {
+    let real = src.canonicalize().map_err(|e| retarget(RasterError::io(src, e), dst, target))?;
+    let linked = link && std::fs::hard_link(&real, dst).is_ok();
+    if !linked {
+        reflink_copy::reflink_or_copy(&real, dst)
+            .map_err(|e| write_err(target, format!("cannot copy {}: {e}; nothing written", src.display())))?;
+        std::fs::File::open(dst)
+            .and_then(|f| f.sync_all())
+            .map_err(|e| write_err(target, format!("{e}; nothing written")))?;
     }
-
-    fn write_directory(
-        &self,
-        out: &Path,
-        edits: &[TileEdit],
-        provenance: &Provenance,
-        changed_cells: usize,
-    ) -> Result<WriteReport, RasterError> {
-        let stage = temp_beside(out);
-        if stage.exists() {
-            let _ = std::fs::remove_dir_all(&stage);
-        }
-        std::fs::create_dir(&stage).map_err(|e| RasterError::io(&stage, e))?;
-        let run = || -> Result<WriteReport, RasterError> {
-            let mut report = WriteReport {
-                changed_cells,
-                ..Default::default()
-            };
-            let edited: std::collections::HashSet<usize> = edits.iter().map(|e| e.tile).collect();
-            for (ti, tile) in self.tiles.iter().enumerate() {
-                if edited.contains(&ti) {
-                    continue;
-                }
-                let name = tile.path.file_name().unwrap_or_default();
-                let target = stage.join(name);
-                if std::fs::hard_link(&tile.path, &target).is_err() {
-                    std::fs::copy(&tile.path, &target).map_err(|e| RasterError::io(&target, e))?;
-                }
-                report.tiles_unchanged.push(out.join(name));
-            }
-            let targets: Vec<PathBuf> = edits
-                .iter()
-                .map(|e| stage.join(self.tiles[e.tile].path.file_name().unwrap_or_default()))
-                .collect();
-            self.encode_and_commit(edits, &targets, provenance)?;
-            report.tiles_written = edits
-                .iter()
-                .map(|e| out.join(self.tiles[e.tile].path.file_name().unwrap_or_default()))
-                .collect();
-            if out.is_dir() {
-                std::fs::remove_dir(out).map_err(|e| RasterError::io(out, e))?;
-            }
-            std::fs::rename(&stage, out).map_err(|e| RasterError::io(out, e))?;
-            Ok(report)
-        };
-        let r = run();
-        if r.is_err() {
-            let _ = std::fs::remove_dir_all(&stage);
-        }
-        r
+    let (a, b) = (std::fs::metadata(&real), std::fs::metadata(dst));
+    match (a, b) {
+        (Ok(a), Ok(b)) if a.len() == b.len() => Ok(()),
+        _ => Err(write_err(target, format!("the copy of {} is incomplete; nothing written", src.display()))),
     }
 }
 
@@ -472,41 +586,117 @@ fn creation_options(tile: &Tile, cog: bool) -> Vec<String> {
     o
 }
 
+/// Stage one edited tile: encode it into `tmp` with GDAL's failures
+/// captured, then re-read and check it ([`verify_tile`]). Errors name
+/// `target`.
+fn stage_tile(
+    tile: &Tile,
+    edit: &TileEdit,
+    tmp: &Path,
+    target: &Path,
+    provenance: &Provenance,
+) -> Result<(), RasterError> {
+    let (written, errors) = gdal_errors::capture(|| encode_tile(tile, edit, tmp, provenance));
+    let written = written.map_err(|e| retarget(e, tmp, target))?;
+    if let Some(e) = gdal_errors::first_failure(&errors, tmp, target) {
+        return Err(write_err(target, format!("GDAL could not write it: {e}; nothing changed")));
+    }
+    verify_tile(tile, edit, tmp, &written)
+        .map_err(|m| write_err(target, format!("the written file does not read back: {m}; nothing changed")))?;
+    std::fs::File::open(tmp)
+        .and_then(|f| f.sync_all())
+        .map_err(|e| retarget(RasterError::io(tmp, e), tmp, target))
+}
+
+/// Check a staged tile before it may replace anything: not empty, opened
+/// by GDAL with the tile's size, its edited window read back by GDAL equal
+/// to `written` (the raw values written, as the sample type stores them),
+/// and the same window decoded by the native reader agreeing with GDAL.
+fn verify_tile(tile: &Tile, edit: &TileEdit, tmp: &Path, written: &[f64]) -> Result<(), String> {
+    let size = std::fs::metadata(tmp).map_err(|e| e.to_string())?.len();
+    if size == 0 {
+        return Err("it is empty".into());
+    }
+    let (ds, errors) = gdal_errors::capture(|| gdal::Dataset::open(tmp));
+    let ds = ds.map_err(|e| format!("GDAL cannot open it: {}", super::atomic_file::one_line(&e.to_string())))?;
+    let (w, h) = ds.raster_size();
+    if (w, h) != (tile.extent.width, tile.extent.height) {
+        return Err(format!("{w} x {h} pixels instead of {} x {}", tile.extent.width, tile.extent.height));
+    }
+    let win = edit.local;
+    let (read, more) = gdal_errors::capture(|| {
+        let band = ds.rasterband(1)?;
+        band.read_as::<f64>(
+            (win.col as isize, win.row as isize),
+            (win.width, win.height),
+            (win.width, win.height),
+            None,
+        )
+    });
+    let read = read.map_err(|e| format!("GDAL cannot read it: {}", super::atomic_file::one_line(&e.to_string())))?;
+    if let Some(e) = errors.iter().chain(&more).next() {
+        return Err(format!("GDAL: {e}"));
+    }
+    drop(ds);
+    let same = |a: f64, b: f64| a == b || (a.is_nan() && b.is_nan());
+    let got = read.data();
+    if let Some(i) = (0..got.len()).find(|&i| !same(got[i], tile.sample_type.quantize(written[i]))) {
+        return Err(format!(
+            "cell (col {}, row {}) reads {} instead of {}",
+            win.col + (i % win.width) as i64,
+            win.row + (i / win.width) as i64,
+            got[i],
+            written[i]
+        ));
+    }
+    let native = super::Dem::open(tmp)
+        .and_then(|d| d.read_window::<f64>(win))
+        .map_err(|e| format!("demsketch cannot read it back: {e}"))?;
+    let nodata = tile.nodata.map(|v| tile.sample_type.quantize(v));
+    for i in 0..got.len() {
+        let ok = if native.valid[i] {
+            same(native.data[i], got[i])
+        } else {
+            got[i].is_nan() || Some(got[i]) == nodata
+        };
+        if !ok {
+            return Err(format!(
+                "cell (col {}, row {}): the native reader and GDAL disagree",
+                win.col + (i % win.width) as i64,
+                win.row + (i / win.width) as i64
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// Encode one edited tile into `tmp`: an uncompressed GeoTIFF (not a COG)
-/// by [`update_tile_copy`], anything else by [`encode_tile_copy`]. The bytes
-/// are made durable before the caller's rename makes them visible.
+/// by [`update_tile_copy`], anything else by [`encode_tile_copy`]. Returns
+/// the raw values written over the edit's window.
 fn encode_tile(
     tile: &Tile,
     edit: &TileEdit,
     tmp: &Path,
     provenance: &Provenance,
-) -> Result<(), RasterError> {
+) -> Result<Vec<f64>, RasterError> {
     let uncompressed =
         matches!(&tile.source, TileSource::Tiff(t) if t.encoding.compression == "NONE");
     let done = if uncompressed {
         update_tile_copy(tile, edit, tmp, provenance)
     } else {
-        Ok(false)
+        Ok(None)
     };
-    let written = match done {
-        Ok(true) => Ok(()),
-        Ok(false) => encode_tile_copy(tile, edit, tmp, provenance),
-        Err(e) => Err(e),
-    };
-    if let Err(e) = written {
-        let _ = std::fs::remove_file(tmp);
-        return Err(e);
+    match done? {
+        Some(written) => Ok(written),
+        None => encode_tile_copy(tile, edit, tmp, provenance),
     }
-    std::fs::File::open(tmp)
-        .and_then(|f| f.sync_all())
-        .map_err(|e| RasterError::io(tmp, e))?;
-    Ok(())
 }
 
 /// Write the edit into band 1 of `ds`: over its window, the stored values
 /// with the edit merged in (cells to keep take their stored value back, so
-/// nodata stays the file's own nodata value, bit for bit).
-fn write_edit(ds: &gdal::Dataset, edit: &TileEdit) -> gdal::errors::Result<()> {
+/// nodata stays the file's own nodata value, bit for bit). Returns the
+/// values written.
+fn write_edit(ds: &gdal::Dataset, edit: &TileEdit) -> gdal::errors::Result<Vec<f64>> {
     let mut band = ds.rasterband(1)?;
     let size = (edit.local.width, edit.local.height);
     let origin = (edit.local.col as isize, edit.local.row as isize);
@@ -517,7 +707,8 @@ fn write_edit(ds: &gdal::Dataset, edit: &TileEdit) -> gdal::errors::Result<()> {
         .zip(stored.data())
         .map(|(&v, &old)| if v.is_nan() { old } else { v })
         .collect();
-    band.write(origin, size, &mut Buffer::new(size, merged))
+    band.write(origin, size, &mut Buffer::new(size, merged.clone()))?;
+    Ok(merged)
 }
 
 /// Rebuild the overviews of a written tile where the source had them, as
@@ -546,14 +737,16 @@ fn rebuild_overviews(tile: &Tile, ds: &mut gdal::Dataset, tmp: &Path) -> Result<
 /// source: every tag, the layout and the rest of the image stay exactly as
 /// they were, and GDAL rewrites only the edited window, the provenance item
 /// and the overviews (in place: uncompressed blocks keep their size). Much
-/// cheaper than re-encoding the whole file. `Ok(false)` (and `tmp` removed)
-/// when the copy is a COG, whose layout an in-place update would break.
+/// cheaper than re-encoding the whole file. Returns the values written, or
+/// `None` (and `tmp` removed) when the copy is a COG, whose layout an
+/// in-place update would break. Write failures GDAL reports only through
+/// its error handler are the caller's to collect.
 fn update_tile_copy(
     tile: &Tile,
     edit: &TileEdit,
     tmp: &Path,
     provenance: &Provenance,
-) -> Result<bool, RasterError> {
+) -> Result<Option<Vec<f64>>, RasterError> {
     std::fs::copy(&tile.path, tmp).map_err(|e| RasterError::io(tmp, e))?;
     let werr = |e: gdal::errors::GdalError| write_err(tmp, e);
     let mut ds = gdal::Dataset::open_ex(
@@ -568,25 +761,27 @@ fn update_tile_copy(
     if ds.metadata_item("LAYOUT", "IMAGE_STRUCTURE").as_deref() == Some("COG") {
         drop(ds);
         let _ = std::fs::remove_file(tmp);
-        return Ok(false);
+        return Ok(None);
     }
-    write_edit(&ds, edit).map_err(werr)?;
+    let written = write_edit(&ds, edit).map_err(werr)?;
     ds.set_metadata_item(PROVENANCE_KEY, &provenance.item(edit.changed), "")
         .map_err(werr)?;
     rebuild_overviews(tile, &mut ds, tmp)?;
+    ds.flush_cache().map_err(werr)?;
     ds.close().map_err(werr)?;
-    Ok(true)
+    Ok(Some(written))
 }
 
 /// Encode one edited tile into `tmp` through GDAL: the source is copied to
 /// memory with all its metadata, the edit applied, overviews rebuilt, and
-/// the result written with the source's creation options.
+/// the result written with the source's creation options. Returns the
+/// values written over the edit's window.
 fn encode_tile_copy(
     tile: &Tile,
     edit: &TileEdit,
     tmp: &Path,
     provenance: &Provenance,
-) -> Result<(), RasterError> {
+) -> Result<Vec<f64>, RasterError> {
     let gerr = |e: gdal::errors::GdalError| RasterError::gdal(&tile.path, e);
     // Decode a compressed source with all cores (GTiff's NUM_THREADS open
     // option; "@" keeps other drivers from warning about an option they
@@ -606,7 +801,7 @@ fn encode_tile_copy(
     let mut mem = src
         .create_copy(&mem_driver, "", &RasterCreationOptions::default())
         .map_err(gerr)?;
-    write_edit(&mem, edit).map_err(gerr)?;
+    let written = write_edit(&mem, edit).map_err(gerr)?;
     mem.set_metadata_item(PROVENANCE_KEY, &provenance.item(edit.changed), "")
         .map_err(gerr)?;
     let cog = src.metadata_item("LAYOUT", "IMAGE_STRUCTURE").as_deref() == Some("COG");
@@ -620,5 +815,7 @@ fn encode_tile_copy(
     if !cog {
         rebuild_overviews(tile, &mut ds, tmp)?;
     }
-    ds.close().map_err(|e| write_err(tmp, e))
+    ds.flush_cache().map_err(|e| write_err(tmp, e))?;
+    ds.close().map_err(|e| write_err(tmp, e))?;
+    Ok(written)
 }
