@@ -31,6 +31,10 @@ fn main() {
         eprintln!("demsketch: internal error: {msg}{loc}");
         std::process::exit(2);
     }));
+    // GDAL's failures are captured (a write that GDAL reports as failed
+    // fails), not printed; SIGINT/SIGTERM remove temporary files.
+    demsketch::raster::gdal_errors::install();
+    demsketch::raster::atomic_file::install_signal_cleanup();
     // Bad flags are user errors (exit 1, as DESIGN.md says), not clap's
     // default 2, which demsketch keeps for internal errors.
     let args = match cli::Cli::try_parse() {

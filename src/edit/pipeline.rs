@@ -82,6 +82,9 @@ pub struct EditOptions {
     /// Compute everything and write the report and pictures, but not the
     /// DEM. Fails as a real run would (bad heights, fit below `min_fit`).
     pub dry_run: bool,
+    /// Hard-link the unchanged tiles of a tile-directory output to the
+    /// input's instead of copying them (`--link`).
+    pub link_unchanged: bool,
 }
 
 impl EditOptions {
@@ -101,6 +104,7 @@ impl EditOptions {
             min_fit: DEFAULT_MIN_FIT,
             allow_partial: false,
             dry_run: false,
+            link_unchanged: false,
         }
     }
 }

@@ -268,3 +268,21 @@ pub fn replace_file(
 pub fn one_line(m: &str) -> String {
     m.lines().next().unwrap_or("").trim().to_string()
 }
+
+/// Write `bytes` to a new file `path` (never an existing one: `O_EXCL`),
+/// flush it to disk and read it back: an error unless it holds exactly
+/// `bytes`.
+pub fn write_bytes_verified(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    use std::io::Write;
+    let mut f = std::fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(path)?;
+    f.write_all(bytes)?;
+    f.sync_all()?;
+    drop(f);
+    if std::fs::read(path)? != bytes {
+        return Err(std::io::Error::other("the written file does not read back"));
+    }
+    Ok(())
+}

@@ -4,8 +4,8 @@
 //! with the other outputs, after canonicalisation (symlinks and `..`
 //! resolved; an output that does not exist yet by its directory) and by
 //! file identity (device and inode, so a hard link is caught too). An
-//! output directory may not contain an input, and nothing may be written
-//! inside an input tile directory. The refusal is one line naming the
+//! output directory may not contain an input, and `--out` may not lie
+//! inside an input tile directory (its tiles would join the input). The refusal is one line naming the
 //! output.
 
 use std::os::unix::fs::MetadataExt;
@@ -63,21 +63,25 @@ pub fn check_outputs(inputs: &[Input], outputs: &[Output]) -> Result<(), RasterE
     for (i, o) in outputs.iter().enumerate() {
         let oc = canonical(&o.path);
         for inp in inputs {
-            let ic = canonical(&inp.path);
             if same(&o.path, &inp.path) {
-                return Err(refuse(o, format!("{} names {}", o.flag, inp.what)));
+                let hint = if o.flag == "--out" && !inp.what.starts_with("the sketch") {
+                    " (--in-place rewrites the input)"
+                } else {
+                    ""
+                };
+                return Err(refuse(o, format!("{} names {}{hint}", o.flag, inp.what)));
             }
+        }
+        for inp in inputs {
+            let ic = canonical(&inp.path);
             if o.is_dir && ic.starts_with(&oc) {
                 return Err(refuse(
                     o,
                     format!("{} is a directory that holds {}", o.flag, inp.what),
                 ));
             }
-            if inp.is_dir && oc.starts_with(&ic) {
-                return Err(refuse(
-                    o,
-                    format!("{} lies inside {}", o.flag, inp.what),
-                ));
+            if inp.is_dir && o.flag == "--out" && oc.starts_with(&ic) {
+                return Err(refuse(o, format!("{} lies inside {}", o.flag, inp.what)));
             }
         }
         for p in &outputs[..i] {
