@@ -11,6 +11,7 @@ use demsketch::features::geojson::{feature_collection, to_lonlat_with_georef, wr
 use demsketch::features::{
     detect_ridges, extract_silhouettes, RidgeNetwork, RidgeParams, SilhouetteParams, Silhouettes,
 };
+use demsketch::raster::path_check::{check_outputs, dem_inputs, Input, Output};
 use demsketch::raster::Dem;
 use demsketch::render::{
     draw_polyline, shade, viewshed, visible_polylines, write_depth_tiff, write_png,
@@ -166,7 +167,11 @@ Examples:
 The view comes from --sketch FILE [--view NAME] (camera flags override its
 values) or from --lon/--lat and the camera flags alone. Errors (viewpoint
 outside the DEM or on nodata, bad camera, unreadable files) are one line on
-stderr with exit code 1; nothing is written then.";
+stderr with exit code 1; nothing is written then. Each output file is
+written to a temporary file beside it, read back and checked, then renamed
+into place: a full disk or a write error leaves the old file as it was.
+An output may not name the DEM, one of its tiles, the sketch, or another
+output.";
 
 /// Arguments of `demsketch view`.
 #[derive(clap::Args, Debug)]
@@ -252,12 +257,43 @@ fn resolve_view(args: &ViewArgs) -> anyhow::Result<ResolvedView> {
     Ok(r)
 }
 
+/// Refuse output paths that name an input (a DEM tile, the sketch) or
+/// each other, before anything is rendered or written.
+fn check_view_outputs(args: &ViewArgs, dem: &Dem) -> anyhow::Result<()> {
+    let mut inputs = dem_inputs(dem);
+    if let Some(s) = &args.sketch {
+        inputs.push(Input {
+            what: format!("the sketch {}", s.display()),
+            path: s.clone(),
+            is_dir: false,
+        });
+    }
+    let outputs: Vec<Output> = [
+        ("--out", Some(&args.out)),
+        ("--depth", args.depth.as_ref()),
+        ("--viewshed", args.viewshed.as_ref()),
+        ("--features", args.features.as_ref()),
+    ]
+    .into_iter()
+    .filter_map(|(flag, p)| {
+        p.map(|p| Output {
+            flag: flag.into(),
+            path: p.clone(),
+            is_dir: false,
+        })
+    })
+    .collect();
+    check_outputs(&inputs, &outputs)?;
+    Ok(())
+}
+
 pub fn run(args: ViewArgs) -> anyhow::Result<()> {
     let view = resolve_view(&args)?;
     if let Some(t) = Some(args.target_height).filter(|t| !t.is_finite()) {
         anyhow::bail!("--target-height {t} must be a finite number of metres");
     }
     let dem = Dem::open(&args.dem)?;
+    check_view_outputs(&args, &dem)?;
     let scene = Scene::open(
         &dem,
         &view.viewpoint,

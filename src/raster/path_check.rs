@@ -64,12 +64,7 @@ pub fn check_outputs(inputs: &[Input], outputs: &[Output]) -> Result<(), RasterE
         let oc = canonical(&o.path);
         for inp in inputs {
             if same(&o.path, &inp.path) {
-                let hint = if o.flag == "--out" && !inp.what.starts_with("the sketch") {
-                    " (--in-place rewrites the input)"
-                } else {
-                    ""
-                };
-                return Err(refuse(o, format!("{} names {}{hint}", o.flag, inp.what)));
+                return Err(refuse(o, format!("{} names {}", o.flag, inp.what)));
             }
         }
         for inp in inputs {

@@ -129,7 +129,23 @@ pub fn write_png(path: &Path, width: usize, height: usize, rgb: &[u8]) -> Result
         wr.write_image_data(rgb).map_err(|e| werr(e.to_string()))?;
         wr.finish().map_err(|e| werr(e.to_string()))?;
         Ok(())
-    })
+    }, |tmp| verify_png(tmp, width, height, rgb))
+}
+
+/// The PNG at `tmp` must decode to `width` x `height` RGB pixels equal to `rgb`.
+fn verify_png(tmp: &Path, width: usize, height: usize, rgb: &[u8]) -> Result<(), String> {
+    let file = std::fs::File::open(tmp).map_err(|e| e.to_string())?;
+    let mut reader = png::Decoder::new(std::io::BufReader::new(file))
+        .read_info()
+        .map_err(|e| e.to_string())?;
+    let mut buf = vec![0; reader.output_buffer_size().unwrap_or(0)];
+    let info = reader.next_frame(&mut buf).map_err(|e| e.to_string())?;
+    if (info.width as usize, info.height as usize) != (width, height)
+        || buf[..info.buffer_size()] != *rgb
+    {
+        return Err("its pixels differ from those written".into());
+    }
+    Ok(())
 }
 
 /// Write the depth buffer as a Float32 TIFF in image space (no
@@ -141,7 +157,7 @@ pub fn write_depth_tiff(depth: &DepthBuffer, path: &Path) -> Result<(), RenderEr
             message: e.to_string().lines().next().unwrap_or("").to_string(),
         };
         let driver = gdal::DriverManager::get_driver_by_name("GTiff").map_err(werr)?;
-        let ds = driver
+        let mut ds = driver
             .create_with_band_type::<f32, _>(tmp, depth.width, depth.height, 1)
             .map_err(werr)?;
         let mut band = ds.rasterband(1).map_err(werr)?;
@@ -149,9 +165,10 @@ pub fn write_depth_tiff(depth: &DepthBuffer, path: &Path) -> Result<(), RenderEr
         band.write((0, 0), (depth.width, depth.height), &mut buf)
             .map_err(werr)?;
         drop(band);
+        ds.flush_cache().map_err(werr)?;
         ds.close().map_err(werr)?;
         Ok(())
-    })
+    }, |tmp| super::atomic::verify_band(tmp, depth.width, depth.height, &depth.depth))
 }
 
 /// Draw a polyline of pixel coordinates (DESIGN.md convention: pixel `(i, j)`

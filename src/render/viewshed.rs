@@ -101,7 +101,8 @@ pub fn write_viewshed_tiff(vs: &Viewshed, path: &Path) -> Result<(), RenderError
         band.write((0, 0), (vs.width, vs.height), &mut buf)
             .map_err(werr)?;
         drop(band);
+        ds.flush_cache().map_err(werr)?;
         ds.close().map_err(werr)?;
         Ok(())
-    })
+    }, |tmp| super::atomic::verify_band(tmp, vs.width, vs.height, &vs.data))
 }
