@@ -117,7 +117,9 @@ fn parse_lock_timeout(s: &str) -> Result<f64, String> {
         .parse()
         .map_err(|_| format!("--lock-timeout '{s}' is not a number of seconds"))?;
     if !(v.is_finite() && (0.0..=1e9).contains(&v)) {
-        return Err(format!("--lock-timeout {v} is not a number of seconds >= 0"));
+        return Err(format!(
+            "--lock-timeout {v} is not a number of seconds >= 0"
+        ));
     }
     Ok(v)
 }

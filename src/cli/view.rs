@@ -11,6 +11,7 @@ use demsketch::features::geojson::{feature_collection, to_lonlat_with_georef, wr
 use demsketch::features::{
     detect_ridges, extract_silhouettes, RidgeNetwork, RidgeParams, SilhouetteParams, Silhouettes,
 };
+use demsketch::raster::atomic_file::StagedOutputs;
 use demsketch::raster::path_check::{check_outputs, dem_inputs, Input, Output};
 use demsketch::raster::Dem;
 use demsketch::render::{
@@ -355,18 +356,34 @@ pub fn run(args: ViewArgs) -> anyhow::Result<()> {
             draw_polyline(&mut rgb, w, h, s, [230, 0, 200], line + 1.0);
         }
     }
-    write_png(&args.out, w, h, &rgb)?;
-    if let Some(p) = &args.depth {
-        write_depth_tiff(&depth, p)?;
+    // Every output is written and checked in a staging directory first,
+    // and all replace their targets together at the end: a failure of one
+    // (a full disk) leaves every file as it was.
+    let mut staged = StagedOutputs::default();
+    let mut write_all = || -> anyhow::Result<()> {
+        let p = staged.stage(&args.out).map_err(anyhow::Error::msg)?;
+        write_png(&p, w, h, &rgb)?;
+        if let Some(p) = &args.depth {
+            let p = staged.stage(p).map_err(anyhow::Error::msg)?;
+            write_depth_tiff(&depth, &p)?;
+        }
+        if let Some(p) = &args.viewshed {
+            let vs = viewshed(&scene.terrain, &scene.window, args.target_height);
+            let p = staged.stage(p).map_err(anyhow::Error::msg)?;
+            write_viewshed_tiff(&vs, &p)?;
+        }
+        if let Some(p) = &args.features {
+            let to_ll = to_lonlat_with_georef(&scene.georef);
+            let fc = feature_collection(silhouettes.as_ref(), ridges.as_ref(), &to_ll)?;
+            let p = staged.stage(p).map_err(anyhow::Error::msg)?;
+            write_geojson(&p, &fc)?;
+        }
+        Ok(())
+    };
+    if let Err(e) = write_all() {
+        let m = staged.hide(&format!("{e:#}"));
+        anyhow::bail!("{m}; nothing written");
     }
-    if let Some(p) = &args.viewshed {
-        let vs = viewshed(&scene.terrain, &scene.window, args.target_height);
-        write_viewshed_tiff(&vs, p)?;
-    }
-    if let Some(p) = &args.features {
-        let to_ll = to_lonlat_with_georef(&scene.georef);
-        let fc = feature_collection(silhouettes.as_ref(), ridges.as_ref(), &to_ll)?;
-        write_geojson(p, &fc)?;
-    }
+    staged.commit().map_err(anyhow::Error::msg)?;
     Ok(())
 }

@@ -332,8 +332,11 @@ impl StagedDir {
         let staging = crate::raster::atomic_file::Staging::new_in(parent)
             .map_err(|e| werr(format!("cannot create a staging directory: {e}")))?;
         for p in pictures {
-            crate::raster::atomic_file::write_bytes_verified(&staging.file(p.name.as_ref()), &p.png)
-                .map_err(|e| werr(format!("{}: {e}", p.name)))?;
+            crate::raster::atomic_file::write_bytes_verified(
+                &staging.file(p.name.as_ref()),
+                &p.png,
+            )
+            .map_err(|e| werr(format!("{}: {e}", p.name)))?;
         }
         Ok(StagedDir {
             target: target.to_path_buf(),

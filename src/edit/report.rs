@@ -183,7 +183,9 @@ impl StagedFile {
         crate::raster::atomic_file::write_bytes_verified(&tmp, bytes)?;
         let _commit = crate::raster::atomic_file::commit_guard();
         std::fs::rename(&tmp, &self.path)?;
-        let _ = crate::raster::atomic_file::sync_dir(crate::raster::atomic_file::parent_dir(&self.path));
+        let _ = crate::raster::atomic_file::sync_dir(crate::raster::atomic_file::parent_dir(
+            &self.path,
+        ));
         Ok(())
     }
 }

@@ -169,11 +169,18 @@ pub fn write_geojson(path: &Path, value: &Value) -> Result<(), FeatureError> {
     })?;
     crate::raster::atomic_file::replace_file(
         path,
-        |tmp| crate::raster::atomic_file::write_bytes_verified(tmp, &text).map_err(|e| e.to_string()),
         |tmp| {
-            let back: Value = serde_json::from_slice(&std::fs::read(tmp).map_err(|e| e.to_string())?)
-                .map_err(|e| e.to_string())?;
-            if &back == value { Ok(()) } else { Err("it differs from what was written".into()) }
+            crate::raster::atomic_file::write_bytes_verified(tmp, &text).map_err(|e| e.to_string())
+        },
+        |tmp| {
+            let back: Value =
+                serde_json::from_slice(&std::fs::read(tmp).map_err(|e| e.to_string())?)
+                    .map_err(|e| e.to_string())?;
+            if &back == value {
+                Ok(())
+            } else {
+                Err("it differs from what was written".into())
+            }
         },
     )
     .map_err(|message| FeatureError::Write {

@@ -120,7 +120,10 @@ pub fn install_signal_cleanup() {
 /// Is process `pid` alive (or not ours to signal, which also counts as
 /// alive)?
 pub fn process_alive(pid: u32) -> bool {
-    let Some(p) = i32::try_from(pid).ok().and_then(rustix::process::Pid::from_raw) else {
+    let Some(p) = i32::try_from(pid)
+        .ok()
+        .and_then(rustix::process::Pid::from_raw)
+    else {
         return false;
     };
     !matches!(
@@ -234,20 +237,27 @@ pub fn replace_file(
     let name = target
         .file_name()
         .ok_or_else(|| "is not a file name".to_string())?;
-    if std::fs::metadata(target).map(|m| m.is_dir()).unwrap_or(false) {
+    if std::fs::metadata(target)
+        .map(|m| m.is_dir())
+        .unwrap_or(false)
+    {
         return Err("is a directory".into());
     }
     let dir = parent_dir(target);
     clean_stale(dir);
-    let staging = Staging::new_in(dir).map_err(|e| format!("cannot create a temporary file: {e}"))?;
+    let staging =
+        Staging::new_in(dir).map_err(|e| format!("cannot create a temporary file: {e}"))?;
     let tmp = staging.file(name);
-    let hide = |m: String| one_line(&m.replace(&tmp.display().to_string(), &target.display().to_string()));
+    let hide =
+        |m: String| one_line(&m.replace(&tmp.display().to_string(), &target.display().to_string()));
     let (written, errors) = super::gdal_errors::capture(|| write(&tmp));
     written.map_err(hide)?;
     if let Some(e) = errors.first() {
         return Err(hide(format!("write failed: {e}")));
     }
-    let size = std::fs::metadata(&tmp).map_err(|e| hide(e.to_string()))?.len();
+    let size = std::fs::metadata(&tmp)
+        .map_err(|e| hide(e.to_string()))?
+        .len();
     if size == 0 {
         return Err("write failed: the written file is empty".into());
     }
@@ -255,7 +265,10 @@ pub fn replace_file(
     std::fs::File::open(&tmp)
         .and_then(|f| f.sync_all())
         .map_err(|e| hide(format!("write failed: {e}")))?;
-    if std::fs::metadata(target).map(|m| m.is_file()).unwrap_or(false) {
+    if std::fs::metadata(target)
+        .map(|m| m.is_file())
+        .unwrap_or(false)
+    {
         let _ = copy_file_attributes(target, &tmp);
     }
     let _commit = commit_guard();
@@ -283,6 +296,133 @@ pub fn write_bytes_verified(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     drop(f);
     if std::fs::read(path)? != bytes {
         return Err(std::io::Error::other("the written file does not read back"));
+    }
+    Ok(())
+}
+
+/// Let GDAL write a file in memory (`/vsimem/`), then write its bytes to
+/// `tmp` ourselves ([`write_bytes_verified`]). GDAL never touches the disk:
+/// a full disk is then a plain write error of ours, where libtiff, on a
+/// disk that fills up while it writes, may return success or even loop
+/// forever rewriting a truncated directory. `f` gets the in-memory path
+/// (with `tmp`'s file name) and must have closed the dataset when it
+/// returns; `initial` are bytes the in-memory file starts with (to update
+/// a copy of an existing file), if any.
+pub fn through_memory<T, E: std::fmt::Display>(
+    tmp: &Path,
+    initial: Option<Vec<u8>>,
+    f: impl FnOnce(&Path) -> Result<T, E>,
+) -> Result<T, String> {
+    use std::sync::atomic::{AtomicU64, Ordering};
+    static N: AtomicU64 = AtomicU64::new(0);
+    let name = tmp.file_name().unwrap_or(OsStr::new("out.tif"));
+    let dir = PathBuf::from(format!(
+        "/vsimem/demsketch-{}-{}",
+        std::process::id(),
+        N.fetch_add(1, Ordering::SeqCst)
+    ));
+    let mem = dir.join(name);
+    let run = || -> Result<T, String> {
+        if let Some(bytes) = initial {
+            vsimem_write(&mem, &bytes)?;
+        }
+        let value = f(&mem).map_err(|e| one_line(&e.to_string()))?;
+        let bytes =
+            gdal::vsi::get_vsi_mem_file_bytes_owned(&mem).map_err(|e| one_line(&e.to_string()))?;
+        write_bytes_verified(tmp, &bytes).map_err(|e| e.to_string())?;
+        Ok(value)
+    };
+    let r = run().map_err(|m| m.replace(&mem.display().to_string(), &tmp.display().to_string()));
+    // Sidecars GDAL may have left (statistics, masks).
+    if let Ok(files) = gdal::vsi::read_dir(&dir, false) {
+        for f in files {
+            let _ = gdal::vsi::unlink_mem_file(dir.join(f));
+        }
+    }
+    let _ = gdal::vsi::unlink_mem_file(&mem);
+    r
+}
+
+/// Several outputs of one command, replaced together: each is first
+/// written (by the usual verified writer) to its path inside a staging
+/// directory beside its target ([`StagedOutputs::stage`]), and only when
+/// all were written are they renamed over their targets
+/// ([`StagedOutputs::commit`]). A failure of any leaves every target as
+/// it was.
+#[derive(Default)]
+pub struct StagedOutputs {
+    items: Vec<(Staging, PathBuf, PathBuf)>,
+}
+
+impl StagedOutputs {
+    /// The path to write `target` to (inside a new staging directory).
+    pub fn stage(&mut self, target: &Path) -> Result<PathBuf, String> {
+        let name = target
+            .file_name()
+            .ok_or_else(|| format!("{}: is not a file name", target.display()))?;
+        if std::fs::metadata(target)
+            .map(|m| m.is_dir())
+            .unwrap_or(false)
+        {
+            return Err(format!("{}: is a directory", target.display()));
+        }
+        let dir = parent_dir(target);
+        clean_stale(dir);
+        let staging = Staging::new_in(dir)
+            .map_err(|e| format!("{}: cannot create a temporary file: {e}", target.display()))?;
+        let tmp = staging.file(name);
+        self.items
+            .push((staging, tmp.clone(), target.to_path_buf()));
+        Ok(tmp)
+    }
+
+    /// `message` with every staged path replaced by its target.
+    pub fn hide(&self, message: &str) -> String {
+        let mut m = message.to_string();
+        for (_, tmp, target) in &self.items {
+            m = m.replace(&tmp.display().to_string(), &target.display().to_string());
+        }
+        one_line(&m)
+    }
+
+    /// Rename every staged file over its target (keeping the mode of the
+    /// file it replaces).
+    pub fn commit(self) -> Result<(), String> {
+        let _commit = commit_guard();
+        for (staging, tmp, target) in &self.items {
+            if std::fs::metadata(target)
+                .map(|m| m.is_file())
+                .unwrap_or(false)
+            {
+                let _ = copy_file_attributes(target, tmp);
+            }
+            std::fs::rename(tmp, target).map_err(|e| format!("{}: {e}", target.display()))?;
+            let _ = sync_dir(parent_dir(target));
+            let _ = staging;
+        }
+        Ok(())
+    }
+}
+
+/// Create the in-memory file `mem` holding `bytes`, in memory GDAL
+/// allocates (the gdal crate's `create_mem_file` hands GDAL a Rust
+/// allocation, which GDAL may later `realloc` with its own allocator).
+fn vsimem_write(mem: &Path, bytes: &[u8]) -> Result<(), String> {
+    use std::os::unix::ffi::OsStrExt;
+    let name = std::ffi::CString::new(mem.as_os_str().as_bytes()).map_err(|e| e.to_string())?;
+    let mode = c"wb";
+    // SAFETY: valid NUL-terminated strings; the handle is checked and
+    // closed; `bytes` outlives the write.
+    unsafe {
+        let f = gdal_sys::VSIFOpenL(name.as_ptr(), mode.as_ptr());
+        if f.is_null() {
+            return Err("cannot create an in-memory file".into());
+        }
+        let n = gdal_sys::VSIFWriteL(bytes.as_ptr().cast(), 1, bytes.len(), f);
+        gdal_sys::VSIFCloseL(f);
+        if n != bytes.len() {
+            return Err("cannot fill an in-memory file".into());
+        }
     }
     Ok(())
 }

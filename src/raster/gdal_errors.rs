@@ -81,8 +81,12 @@ pub fn capture<T>(f: impl FnOnce() -> T) -> (T, Vec<String>) {
 
 /// The first failure, with `temp` (a temporary path GDAL names) replaced by
 /// `target`, for a one-line message about the target.
-pub fn first_failure(errors: &[String], temp: &std::path::Path, target: &std::path::Path) -> Option<String> {
-    errors.first().map(|e| {
-        e.replace(&temp.display().to_string(), &target.display().to_string())
-    })
+pub fn first_failure(
+    errors: &[String],
+    temp: &std::path::Path,
+    target: &std::path::Path,
+) -> Option<String> {
+    errors
+        .first()
+        .map(|e| e.replace(&temp.display().to_string(), &target.display().to_string()))
 }

@@ -73,7 +73,8 @@ pub fn commit(
 ) -> Result<(), RasterError> {
     let mut entries = Vec::new();
     for n in names {
-        let (size, crc32) = digest(&staging.file(n.as_ref())).map_err(|e| io_err(&dir.join(n), e))?;
+        let (size, crc32) =
+            digest(&staging.file(n.as_ref())).map_err(|e| io_err(&dir.join(n), e))?;
         entries.push(Entry {
             name: n.clone(),
             size,
@@ -85,13 +86,18 @@ pub fn commit(
         pid: std::process::id(),
         entries,
     };
-    let text = serde_json::to_vec_pretty(&journal)
-        .map_err(|e| RasterError::Write { path: dem.to_path_buf(), message: e.to_string() })?;
+    let text = serde_json::to_vec_pretty(&journal).map_err(|e| RasterError::Write {
+        path: dem.to_path_buf(),
+        message: e.to_string(),
+    })?;
     let part = staging.path().join("journal.json.part");
     let jpath = staging.path().join(JOURNAL_NAME);
     (|| -> std::io::Result<()> {
         use std::io::Write;
-        let mut f = std::fs::OpenOptions::new().write(true).create_new(true).open(&part)?;
+        let mut f = std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&part)?;
         f.write_all(&text)?;
         f.sync_all()?;
         std::fs::rename(&part, &jpath)?;
@@ -108,7 +114,10 @@ pub fn commit(
     let _commit = commit_guard();
     for (i, n) in names.iter().enumerate() {
         if abort_after == Some(i as u64) {
-            let _ = rustix::process::kill_process(rustix::process::getpid(), rustix::process::Signal::KILL);
+            let _ = rustix::process::kill_process(
+                rustix::process::getpid(),
+                rustix::process::Signal::KILL,
+            );
         }
         let target = dir.join(n);
         std::fs::rename(staging.file(n.as_ref()), &target).map_err(|e| RasterError::Write {
@@ -165,17 +174,27 @@ fn recover_one(dem: &Path, dir: &Path, staging: &Path) -> Result<String, RasterE
     };
     let jpath = staging.join(JOURNAL_NAME);
     let text = std::fs::read(&jpath).map_err(|e| io_err(&jpath, e))?;
-    let journal: Journal = serde_json::from_slice(&text)
-        .map_err(|e| bad(format!("unreadable edit journal {}: {e}; remove it to go on", jpath.display())))?;
+    let journal: Journal = serde_json::from_slice(&text).map_err(|e| {
+        bad(format!(
+            "unreadable edit journal {}: {e}; remove it to go on",
+            jpath.display()
+        ))
+    })?;
     let (mut pending, mut done, mut broken) = (Vec::new(), 0usize, 0usize);
     for e in &journal.entries {
         if !plain_name(&e.name) {
-            return Err(bad(format!("edit journal {} names '{}', not a file of this DEM; remove it to go on", jpath.display(), e.name)));
+            return Err(bad(format!(
+                "edit journal {} names '{}', not a file of this DEM; remove it to go on",
+                jpath.display(),
+                e.name
+            )));
         }
         let staged = staging.join(&e.name);
         let target = dir.join(&e.name);
         let is = |p: &Path| {
-            std::fs::symlink_metadata(p).map(|m| m.is_file()).unwrap_or(false)
+            std::fs::symlink_metadata(p)
+                .map(|m| m.is_file())
+                .unwrap_or(false)
                 && digest(p).map(|d| d == (e.size, e.crc32)).unwrap_or(false)
         };
         if is(&staged) {

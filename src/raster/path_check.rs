@@ -81,7 +81,10 @@ pub fn check_outputs(inputs: &[Input], outputs: &[Output]) -> Result<(), RasterE
         }
         for p in &outputs[..i] {
             if same(&o.path, &p.path) {
-                return Err(refuse(o, format!("given to both {} and {}", p.flag, o.flag)));
+                return Err(refuse(
+                    o,
+                    format!("given to both {} and {}", p.flag, o.flag),
+                ));
             }
             let pc = canonical(&p.path);
             let inside = |dir: &Output, d: &Path, f: &Path| {

@@ -120,11 +120,14 @@ fn write_err(path: &Path, message: impl std::fmt::Display) -> RasterError {
 fn retarget(e: RasterError, tmp: &Path, target: &Path) -> RasterError {
     let t = target.display().to_string();
     let text = e.to_string().replace(&tmp.display().to_string(), &t);
-    let text = text
-        .strip_prefix(&format!("{t}: "))
-        .unwrap_or(&text)
-        .to_string();
-    write_err(target, format!("{}; nothing changed", super::atomic_file::one_line(&text)))
+    let mut text = text;
+    while let Some(rest) = text.strip_prefix(&format!("{t}: ")) {
+        text = rest.to_string();
+    }
+    write_err(
+        target,
+        format!("{}; nothing changed", super::atomic_file::one_line(&text)),
+    )
 }
 
 /// The file name of a path (for staging it under the same name).
@@ -343,8 +346,12 @@ impl Dem {
                 let tmp = staging.file(file_name(target));
                 stage_tile(tile, e, &tmp, target, provenance)?;
                 if keep_attributes {
-                    copy_file_attributes(&tile.path, &tmp)
-                        .map_err(|err| write_err(target, format!("cannot keep its mode and owner: {err}; nothing changed")))?;
+                    copy_file_attributes(&tile.path, &tmp).map_err(|err| {
+                        write_err(
+                            target,
+                            format!("cannot keep its mode and owner: {err}; nothing changed"),
+                        )
+                    })?;
                 }
                 Ok(())
             })
@@ -366,10 +373,20 @@ impl Dem {
         }
         let dir = parent_dir(&targets[0]).to_path_buf();
         if let Some(t) = targets.iter().find(|t| parent_dir(t) != dir.as_path()) {
-            return Err(write_err(t, "tiles of one DEM in different directories cannot be rewritten in place"));
+            return Err(write_err(
+                t,
+                "tiles of one DEM in different directories cannot be rewritten in place",
+            ));
         }
-        let staging = Staging::new_in(&dir)
-            .map_err(|e| write_err(&self.path, format!("cannot create a temporary file in {}: {e}; nothing changed", dir.display())))?;
+        let staging = Staging::new_in(&dir).map_err(|e| {
+            write_err(
+                &self.path,
+                format!(
+                    "cannot create a temporary file in {}: {e}; nothing changed",
+                    dir.display()
+                ),
+            )
+        })?;
         self.stage_edits(edits, &staging, &targets, provenance, true)?;
         let names: Vec<String> = targets
             .iter()
@@ -390,7 +407,12 @@ impl Dem {
     ) -> Result<WriteReport, RasterError> {
         let dir = parent_dir(out);
         super::atomic_file::clean_stale(dir);
-        let staging = Staging::new_in(dir).map_err(|e| write_err(out, format!("cannot create a temporary file: {e}; nothing written")))?;
+        let staging = Staging::new_in(dir).map_err(|e| {
+            write_err(
+                out,
+                format!("cannot create a temporary file: {e}; nothing written"),
+            )
+        })?;
         let tmp = staging.file(file_name(out));
         let targets = vec![out.to_path_buf()];
         let unchanged = edits.is_empty();
@@ -401,7 +423,8 @@ impl Dem {
         }
         {
             let _commit = commit_guard();
-            std::fs::rename(&tmp, out).map_err(|e| write_err(out, format!("{e}; nothing written")))?;
+            std::fs::rename(&tmp, out)
+                .map_err(|e| write_err(out, format!("{e}; nothing written")))?;
             let _ = sync_dir(dir);
         }
         Ok(WriteReport {
@@ -424,7 +447,12 @@ impl Dem {
     ) -> Result<WriteReport, RasterError> {
         let parent = parent_dir(out);
         super::atomic_file::clean_stale(parent);
-        let staging = Staging::new_in(parent).map_err(|e| write_err(out, format!("cannot create a staging directory: {e}; nothing written")))?;
+        let staging = Staging::new_in(parent).map_err(|e| {
+            write_err(
+                out,
+                format!("cannot create a staging directory: {e}; nothing written"),
+            )
+        })?;
         let mut report = WriteReport {
             changed_cells,
             ..Default::default()
@@ -439,9 +467,17 @@ impl Dem {
             .collect();
         unchanged.par_iter().try_for_each(|tile| {
             let name = file_name(&tile.path);
-            copy_verified(&tile.path, &staging.file(name), &out.join(name), options.link_unchanged)
+            copy_verified(
+                &tile.path,
+                &staging.file(name),
+                &out.join(name),
+                options.link_unchanged,
+            )
         })?;
-        report.tiles_unchanged = unchanged.iter().map(|t| out.join(file_name(&t.path))).collect();
+        report.tiles_unchanged = unchanged
+            .iter()
+            .map(|t| out.join(file_name(&t.path)))
+            .collect();
         let targets: Vec<PathBuf> = edits
             .iter()
             .map(|e| out.join(file_name(&self.tiles[e.tile].path)))
@@ -458,7 +494,8 @@ impl Dem {
         }
         let _commit = commit_guard();
         if out.is_dir() {
-            std::fs::remove_dir(out).map_err(|e| write_err(out, format!("{e}; nothing written")))?;
+            std::fs::remove_dir(out)
+                .map_err(|e| write_err(out, format!("{e}; nothing written")))?;
         }
         let kept = staging.keep();
         if let Err(e) = std::fs::rename(&kept, out) {
@@ -543,11 +580,17 @@ fn current_umask() -> u32 {
 /// or with `link` a hard link to that file (a copy where linking fails).
 /// Checked: same size as the source.
 fn copy_verified(src: &Path, dst: &Path, target: &Path, link: bool) -> Result<(), RasterError> {
-    let real = src.canonicalize().map_err(|e| retarget(RasterError::io(src, e), dst, target))?;
+    let real = src
+        .canonicalize()
+        .map_err(|e| retarget(RasterError::io(src, e), dst, target))?;
     let linked = link && std::fs::hard_link(&real, dst).is_ok();
     if !linked {
-        reflink_copy::reflink_or_copy(&real, dst)
-            .map_err(|e| write_err(target, format!("cannot copy {}: {e}; nothing written", src.display())))?;
+        reflink_copy::reflink_or_copy(&real, dst).map_err(|e| {
+            write_err(
+                target,
+                format!("cannot copy {}: {e}; nothing written", src.display()),
+            )
+        })?;
         std::fs::File::open(dst)
             .and_then(|f| f.sync_all())
             .map_err(|e| write_err(target, format!("{e}; nothing written")))?;
@@ -555,7 +598,13 @@ fn copy_verified(src: &Path, dst: &Path, target: &Path, link: bool) -> Result<()
     let (a, b) = (std::fs::metadata(&real), std::fs::metadata(dst));
     match (a, b) {
         (Ok(a), Ok(b)) if a.len() == b.len() => Ok(()),
-        _ => Err(write_err(target, format!("the copy of {} is incomplete; nothing written", src.display()))),
+        _ => Err(write_err(
+            target,
+            format!(
+                "the copy of {} is incomplete; nothing written",
+                src.display()
+            ),
+        )),
     }
 }
 
@@ -599,10 +648,17 @@ fn stage_tile(
     let (written, errors) = gdal_errors::capture(|| encode_tile(tile, edit, tmp, provenance));
     let written = written.map_err(|e| retarget(e, tmp, target))?;
     if let Some(e) = gdal_errors::first_failure(&errors, tmp, target) {
-        return Err(write_err(target, format!("GDAL could not write it: {e}; nothing changed")));
+        return Err(write_err(
+            target,
+            format!("GDAL could not write it: {e}; nothing changed"),
+        ));
     }
-    verify_tile(tile, edit, tmp, &written)
-        .map_err(|m| write_err(target, format!("the written file does not read back: {m}; nothing changed")))?;
+    verify_tile(tile, edit, tmp, &written).map_err(|m| {
+        write_err(
+            target,
+            format!("the written file does not read back: {m}; nothing changed"),
+        )
+    })?;
     std::fs::File::open(tmp)
         .and_then(|f| f.sync_all())
         .map_err(|e| retarget(RasterError::io(tmp, e), tmp, target))
@@ -618,10 +674,18 @@ fn verify_tile(tile: &Tile, edit: &TileEdit, tmp: &Path, written: &[f64]) -> Res
         return Err("it is empty".into());
     }
     let (ds, errors) = gdal_errors::capture(|| gdal::Dataset::open(tmp));
-    let ds = ds.map_err(|e| format!("GDAL cannot open it: {}", super::atomic_file::one_line(&e.to_string())))?;
+    let ds = ds.map_err(|e| {
+        format!(
+            "GDAL cannot open it: {}",
+            super::atomic_file::one_line(&e.to_string())
+        )
+    })?;
     let (w, h) = ds.raster_size();
     if (w, h) != (tile.extent.width, tile.extent.height) {
-        return Err(format!("{w} x {h} pixels instead of {} x {}", tile.extent.width, tile.extent.height));
+        return Err(format!(
+            "{w} x {h} pixels instead of {} x {}",
+            tile.extent.width, tile.extent.height
+        ));
     }
     let win = edit.local;
     let (read, more) = gdal_errors::capture(|| {
@@ -633,14 +697,20 @@ fn verify_tile(tile: &Tile, edit: &TileEdit, tmp: &Path, written: &[f64]) -> Res
             None,
         )
     });
-    let read = read.map_err(|e| format!("GDAL cannot read it: {}", super::atomic_file::one_line(&e.to_string())))?;
+    let read = read.map_err(|e| {
+        format!(
+            "GDAL cannot read it: {}",
+            super::atomic_file::one_line(&e.to_string())
+        )
+    })?;
     if let Some(e) = errors.iter().chain(&more).next() {
         return Err(format!("GDAL: {e}"));
     }
     drop(ds);
     let same = |a: f64, b: f64| a == b || (a.is_nan() && b.is_nan());
     let got = read.data();
-    if let Some(i) = (0..got.len()).find(|&i| !same(got[i], tile.sample_type.quantize(written[i]))) {
+    if let Some(i) = (0..got.len()).find(|&i| !same(got[i], tile.sample_type.quantize(written[i])))
+    {
         return Err(format!(
             "cell (col {}, row {}) reads {} instead of {}",
             win.col + (i % win.width) as i64,
@@ -747,30 +817,48 @@ fn update_tile_copy(
     tmp: &Path,
     provenance: &Provenance,
 ) -> Result<Option<Vec<f64>>, RasterError> {
-    std::fs::copy(&tile.path, tmp).map_err(|e| RasterError::io(tmp, e))?;
-    let werr = |e: gdal::errors::GdalError| write_err(tmp, e);
-    let mut ds = gdal::Dataset::open_ex(
-        tmp,
-        gdal::DatasetOptions {
-            open_flags: GdalOpenFlags::GDAL_OF_UPDATE | GdalOpenFlags::GDAL_OF_RASTER,
-            allowed_drivers: Some(&["GTiff"]),
-            ..Default::default()
-        },
-    )
-    .map_err(werr)?;
-    if ds.metadata_item("LAYOUT", "IMAGE_STRUCTURE").as_deref() == Some("COG") {
-        drop(ds);
-        let _ = std::fs::remove_file(tmp);
+    let is_cog = gdal::Dataset::open(&tile.path)
+        .map(|d| d.metadata_item("LAYOUT", "IMAGE_STRUCTURE").as_deref() == Some("COG"))
+        .map_err(|e| RasterError::gdal(&tile.path, e))?;
+    if is_cog {
         return Ok(None);
     }
-    let written = write_edit(&ds, edit).map_err(werr)?;
-    ds.set_metadata_item(PROVENANCE_KEY, &provenance.item(edit.changed), "")
+    let update = |path: &Path| -> Result<Vec<f64>, RasterError> {
+        let werr = |e: gdal::errors::GdalError| write_err(path, e);
+        let mut ds = gdal::Dataset::open_ex(
+            path,
+            gdal::DatasetOptions {
+                open_flags: GdalOpenFlags::GDAL_OF_UPDATE | GdalOpenFlags::GDAL_OF_RASTER,
+                allowed_drivers: Some(&["GTiff"]),
+                ..Default::default()
+            },
+        )
         .map_err(werr)?;
-    rebuild_overviews(tile, &mut ds, tmp)?;
-    ds.flush_cache().map_err(werr)?;
-    ds.close().map_err(werr)?;
-    Ok(Some(written))
+        let written = write_edit(&ds, edit).map_err(werr)?;
+        ds.set_metadata_item(PROVENANCE_KEY, &provenance.item(edit.changed), "")
+            .map_err(werr)?;
+        rebuild_overviews(tile, &mut ds, path)?;
+        ds.flush_cache().map_err(werr)?;
+        ds.close().map_err(werr)?;
+        Ok(written)
+    };
+    let size = std::fs::metadata(&tile.path)
+        .map_err(|e| RasterError::io(&tile.path, e))?
+        .len();
+    if size <= MEMORY_COPY_LIMIT {
+        let bytes = std::fs::read(&tile.path).map_err(|e| RasterError::io(&tile.path, e))?;
+        super::atomic_file::through_memory(tmp, Some(bytes), update)
+            .map(Some)
+            .map_err(|m| write_err(tmp, m))
+    } else {
+        std::fs::copy(&tile.path, tmp).map_err(|e| RasterError::io(tmp, e))?;
+        update(tmp).map(Some)
+    }
 }
+
+/// Files up to this size are updated or encoded in memory and written out
+/// by demsketch itself (see [`super::atomic_file::through_memory`]).
+const MEMORY_COPY_LIMIT: u64 = 1 << 30;
 
 /// Encode one edited tile into `tmp` through GDAL: the source is copied to
 /// memory with all its metadata, the edit applied, overviews rebuilt, and
@@ -808,14 +896,17 @@ fn encode_tile_copy(
     let driver =
         DriverManager::get_driver_by_name(if cog { "COG" } else { "GTiff" }).map_err(gerr)?;
     let opts = RasterCreationOptions::from_iter(creation_options(tile, cog));
-    let mut ds = mem
-        .create_copy(&driver, tmp, &opts)
-        .map_err(|e| write_err(tmp, format!("GDAL could not write the tile: {e}")))?;
-    // The COG driver builds its own overviews.
-    if !cog {
-        rebuild_overviews(tile, &mut ds, tmp)?;
-    }
-    ds.flush_cache().map_err(|e| write_err(tmp, e))?;
-    ds.close().map_err(|e| write_err(tmp, e))?;
+    super::atomic_file::through_memory(tmp, None, |path| -> Result<(), RasterError> {
+        let mut ds = mem
+            .create_copy(&driver, path, &opts)
+            .map_err(|e| write_err(path, format!("GDAL could not write the tile: {e}")))?;
+        // The COG driver builds its own overviews.
+        if !cog {
+            rebuild_overviews(tile, &mut ds, path)?;
+        }
+        ds.flush_cache().map_err(|e| write_err(path, e))?;
+        ds.close().map_err(|e| write_err(path, e))
+    })
+    .map_err(|m| write_err(tmp, m))?;
     Ok(written)
 }

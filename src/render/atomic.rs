@@ -22,8 +22,11 @@ pub(crate) fn write_atomically(
         path,
         |tmp| {
             write(tmp).map_err(|e| {
-                let m = e.to_string();
-                m.strip_prefix(&prefix).map(str::to_string).unwrap_or(m)
+                let mut m = e.to_string();
+                while let Some(rest) = m.strip_prefix(&prefix) {
+                    m = rest.to_string();
+                }
+                m
             })
         },
         verify,
@@ -47,7 +50,10 @@ where
 {
     let ds = gdal::Dataset::open(tmp).map_err(|e| format!("GDAL cannot open it: {e}"))?;
     if ds.raster_size() != (width, height) {
-        return Err(format!("its size is {:?}, not {width} x {height}", ds.raster_size()));
+        return Err(format!(
+            "its size is {:?}, not {width} x {height}",
+            ds.raster_size()
+        ));
     }
     let band = ds.rasterband(1).map_err(|e| e.to_string())?;
     let got = band
