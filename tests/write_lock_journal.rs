@@ -32,7 +32,11 @@ fn concurrent_in_place_edits_never_lose_one() {
     let want = sequential_reference(tmp.path(), &a, &b);
     // Each sketch changes two tiles, disjoint from the other's.
     let changed: Vec<bool> = before.iter().zip(&want).map(|(x, y)| x.1 != y.1).collect();
-    assert_eq!(changed, vec![true, true, true, true], "both edits change their tiles");
+    assert_eq!(
+        changed,
+        vec![true, true, true, true],
+        "both edits change their tiles"
+    );
     let trials = 50;
     for t in 0..trials {
         let dem = tmp.path().join(format!("t{t}"));
@@ -40,7 +44,10 @@ fn concurrent_in_place_edits_never_lose_one() {
         let mut pa = edit_cmd(&dem, &a, &["--in-place"]).spawn().unwrap();
         let mut pb = edit_cmd(&dem, &b, &["--in-place"]).spawn().unwrap();
         let (ra, rb) = (pa.wait().unwrap(), pb.wait().unwrap());
-        assert!(ra.success() && rb.success(), "trial {t}: exit codes {ra:?} {rb:?}");
+        assert!(
+            ra.success() && rb.success(),
+            "trial {t}: exit codes {ra:?} {rb:?}"
+        );
         assert_eq!(values(&dem), want, "trial {t}: an edit was lost");
         assert!(temporaries(&dem).is_empty(), "trial {t}: temporaries left");
         std::fs::remove_dir_all(&dem).unwrap();
@@ -72,14 +79,25 @@ fn a_kill_between_renames_is_finished_by_the_next_edit() {
             .output()
             .unwrap();
         assert_eq!(killed.status.code(), None, "trial {t}: killed by a signal");
-        assert!(!temporaries(&dem).is_empty(), "trial {t}: the staged tiles are left");
+        assert!(
+            !temporaries(&dem).is_empty(),
+            "trial {t}: the staged tiles are left"
+        );
         let rerun = edit(&dem, &b, &["--in-place"]);
         let err = stderr(&rerun);
         assert!(rerun.status.success(), "trial {t}: rerun failed: {err}");
         let note: Vec<&str> = err.lines().filter(|l| l.contains("half-applied")).collect();
-        assert_eq!(note.len(), 1, "trial {t}: one line says the edit was finished: {err}");
+        assert_eq!(
+            note.len(),
+            1,
+            "trial {t}: one line says the edit was finished: {err}"
+        );
         assert!(note[0].contains(dem.to_str().unwrap()), "{}", note[0]);
-        assert_eq!(values(&dem), want, "trial {t}: not as if A ran once, whole, then B");
+        assert_eq!(
+            values(&dem),
+            want,
+            "trial {t}: not as if A ran once, whole, then B"
+        );
         assert!(temporaries(&dem).is_empty(), "trial {t}: temporaries left");
         std::fs::remove_dir_all(&dem).unwrap();
     }
@@ -107,8 +125,16 @@ fn an_unfinished_edit_whose_staged_files_are_gone_is_rolled_back() {
     let dry = edit(&dem, &b, &["--in-place", "--dry-run"]);
     let err = stderr(&dry);
     assert!(dry.status.success(), "{err}");
-    assert_eq!(err.lines().filter(|l| l.contains("rolled back")).count(), 1, "{err}");
-    assert_eq!(values(&dem), before, "nothing of the unfinished edit applied");
+    assert_eq!(
+        err.lines().filter(|l| l.contains("rolled back")).count(),
+        1,
+        "{err}"
+    );
+    assert_eq!(
+        values(&dem),
+        before,
+        "nothing of the unfinished edit applied"
+    );
     assert!(temporaries(&dem).is_empty());
 }
 
@@ -130,15 +156,25 @@ fn interrupted(signal: rustix::process::Signal, code: i32) {
         .iter()
         .all(|p| !p.join("journal.json").exists())
     {
-        assert!(start.elapsed() < Duration::from_secs(20), "no staged files appeared");
+        assert!(
+            start.elapsed() < Duration::from_secs(20),
+            "no staged files appeared"
+        );
         std::thread::sleep(Duration::from_millis(10));
     }
     let pid = rustix::process::Pid::from_raw(child.id() as i32).unwrap();
     rustix::process::kill_process(pid, signal).unwrap();
     let out = child.wait_with_output().unwrap();
-    assert!(start.elapsed() < Duration::from_secs(15), "the signal ended the edit");
+    assert!(
+        start.elapsed() < Duration::from_secs(15),
+        "the signal ended the edit"
+    );
     assert_eq!(out.status.code(), Some(code), "{}", stderr(&out));
-    assert!(temporaries(tmp.path()).is_empty(), "{:?}", temporaries(tmp.path()));
+    assert!(
+        temporaries(tmp.path()).is_empty(),
+        "{:?}",
+        temporaries(tmp.path())
+    );
     assert_eq!(common::snapshot(tmp.path()), before, "files changed");
 }
 
@@ -168,9 +204,16 @@ fn temporaries_of_dead_processes_are_removed() {
     let o = edit(&dem, &a, &["--in-place"]);
     let err = stderr(&o);
     assert!(o.status.success(), "{err}");
-    assert!(!stale_dir.exists() && !old_style.exists(), "stale temporaries removed");
+    assert!(
+        !stale_dir.exists() && !old_style.exists(),
+        "stale temporaries removed"
+    );
     assert!(live.exists(), "a live process's directory kept");
-    assert_eq!(err.lines().filter(|l| l.contains("did not finish")).count(), 2, "{err}");
+    assert_eq!(
+        err.lines().filter(|l| l.contains("did not finish")).count(),
+        2,
+        "{err}"
+    );
 }
 
 #[test]
@@ -179,14 +222,22 @@ fn a_second_edit_waits_for_the_lock_or_fails_in_one_line() {
     let tmp = tempfile::tempdir().unwrap();
     let (a, _) = sketches(tmp.path());
     let dem = tile_dir(tmp.path(), "dem");
-    let fd = rustix::fs::open(&dem, OFlags::RDONLY | OFlags::DIRECTORY | OFlags::CLOEXEC, Mode::empty()).unwrap();
+    let fd = rustix::fs::open(
+        &dem,
+        OFlags::RDONLY | OFlags::DIRECTORY | OFlags::CLOEXEC,
+        Mode::empty(),
+    )
+    .unwrap();
     flock(&fd, FlockOperation::LockExclusive).unwrap();
     let before = common::snapshot(tmp.path());
     let o = edit(&dem, &a, &["--in-place", "--lock-timeout", "0"]);
     let err = stderr(&o);
     assert_eq!(o.status.code(), Some(1), "{err}");
     assert_eq!(err.trim_end().lines().count(), 1, "{err}");
-    assert!(err.contains(dem.to_str().unwrap()) && err.contains("--lock-timeout"), "{err}");
+    assert!(
+        err.contains(dem.to_str().unwrap()) && err.contains("--lock-timeout"),
+        "{err}"
+    );
     assert_eq!(common::snapshot(tmp.path()), before);
     // Released while the second edit waits: it goes on, saying it waited.
     let child = edit_cmd(&dem, &a, &["--in-place", "--lock-timeout", "30"])
@@ -198,5 +249,8 @@ fn a_second_edit_waits_for_the_lock_or_fails_in_one_line() {
     let out = child.wait_with_output().unwrap();
     let err = stderr(&out);
     assert!(out.status.success(), "{err}");
-    assert!(err.lines().next().unwrap_or("").contains("waiting"), "{err}");
+    assert!(
+        err.lines().next().unwrap_or("").contains("waiting"),
+        "{err}"
+    );
 }

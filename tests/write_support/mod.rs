@@ -32,8 +32,19 @@ pub fn tile_dir(dir: &Path, name: &str) -> PathBuf {
                 &src,
                 &out.join(format!("tile_{ty}_{tx}.tif")),
                 &[
-                    "-srcwin", &x, &y, "48", "48", "-co", "TILED=YES", "-co", "BLOCKXSIZE=16",
-                    "-co", "BLOCKYSIZE=16", "-co", "COMPRESS=DEFLATE",
+                    "-srcwin",
+                    &x,
+                    &y,
+                    "48",
+                    "48",
+                    "-co",
+                    "TILED=YES",
+                    "-co",
+                    "BLOCKXSIZE=16",
+                    "-co",
+                    "BLOCKYSIZE=16",
+                    "-co",
+                    "COMPRESS=DEFLATE",
                 ],
             );
         }
@@ -74,7 +85,9 @@ pub fn edit_cmd(dem: &Path, sketch: &Path, extra: &[&str]) -> Command {
 }
 
 pub fn edit(dem: &Path, sketch: &Path, extra: &[&str]) -> Output {
-    edit_cmd(dem, sketch, extra).output().expect("run demsketch")
+    edit_cmd(dem, sketch, extra)
+        .output()
+        .expect("run demsketch")
 }
 
 /// Band 1 of every tile of a directory (sorted by name), as GDAL reads it.
