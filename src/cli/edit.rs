@@ -15,7 +15,7 @@
 use anyhow::Context;
 use demsketch::edit::{run as run_edit, EditError, EditOptions};
 use demsketch::raster::atomic_file::clean_stale;
-use demsketch::raster::edit_lock::EditLock;
+use demsketch::raster::edit_lock::{lock_dir, EditLock};
 use demsketch::raster::path_check::{check_outputs, dem_inputs, Input, Output};
 use demsketch::raster::{journal, Dem, Destination, LayerKind};
 use std::io::IsTerminal;
@@ -127,16 +127,24 @@ fn parse_lock_timeout(s: &str) -> Result<f64, String> {
 /// Take the DEM's edit lock, finish or undo an edit a killed run left,
 /// remove temporary files of dead runs (each said in one line on stderr),
 /// and check the outputs against the inputs.
-fn prepare(args: &EditArgs) -> anyhow::Result<EditLock> {
-    let lock = EditLock::acquire(&args.dem, Duration::from_secs_f64(args.lock_timeout), |m| {
-        eprintln!("demsketch: {m}")
-    })?;
-    for note in journal::recover(&args.dem, &lock.dir)? {
-        eprintln!("demsketch: {note}");
-    }
-    for note in clean_stale(&lock.dir) {
-        eprintln!("demsketch: {note}");
-    }
+fn prepare(args: &EditArgs) -> anyhow::Result<Option<EditLock>> {
+    // A DEM that is not a file or directory on disk (missing, or a GDAL
+    // virtual path such as /vsizip/) has no directory to lock: its own
+    // error, or no lock (it cannot be rewritten in place).
+    let lock = if lock_dir(&args.dem).is_dir() && args.dem.exists() {
+        let lock = EditLock::acquire(&args.dem, Duration::from_secs_f64(args.lock_timeout), |m| {
+            eprintln!("demsketch: {m}")
+        })?;
+        for note in journal::recover(&args.dem, &lock.dir)? {
+            eprintln!("demsketch: {note}");
+        }
+        for note in clean_stale(&lock.dir) {
+            eprintln!("demsketch: {note}");
+        }
+        Some(lock)
+    } else {
+        None
+    };
     let dem = Dem::open(&args.dem)?;
     let mut inputs = dem_inputs(&dem);
     inputs.push(Input {

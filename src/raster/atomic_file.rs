@@ -426,3 +426,50 @@ fn vsimem_write(mem: &Path, bytes: &[u8]) -> Result<(), String> {
     }
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn temp_owner_reads_the_pid_of_both_naming_schemes() {
+        assert_eq!(temp_owner(".demsketch-1234-AbCdEfGhIj.tmp"), Some(1234));
+        assert_eq!(temp_owner(".tile_0_0.tif.demsketch-99.tmp"), Some(99));
+        assert_eq!(temp_owner("tile_0_0.tif"), None);
+        assert_eq!(temp_owner(".demsketch-x.tmp"), None);
+    }
+
+    #[test]
+    fn staging_directories_are_exclusive_and_removed() {
+        let dir = tempfile::tempdir().unwrap();
+        let s = Staging::new_in(dir.path()).unwrap();
+        let p = s.path().to_path_buf();
+        let name = p.file_name().unwrap().to_string_lossy().into_owned();
+        assert_eq!(temp_owner(&name), Some(std::process::id()));
+        assert!(p.is_dir());
+        drop(s);
+        assert!(!p.exists());
+    }
+
+    #[test]
+    fn replace_file_keeps_the_target_when_verification_fails() {
+        let dir = tempfile::tempdir().unwrap();
+        let target = dir.path().join("out.bin");
+        std::fs::write(&target, b"old").unwrap();
+        let r = replace_file(
+            &target,
+            |tmp| write_bytes_verified(tmp, b"new").map_err(|e| e.to_string()),
+            |_| Err("no".into()),
+        );
+        assert!(r.is_err());
+        assert_eq!(std::fs::read(&target).unwrap(), b"old");
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+        replace_file(
+            &target,
+            |tmp| write_bytes_verified(tmp, b"new").map_err(|e| e.to_string()),
+            |_| Ok(()),
+        )
+        .unwrap();
+        assert_eq!(std::fs::read(&target).unwrap(), b"new");
+    }
+}

@@ -90,3 +90,18 @@ pub fn first_failure(
         .first()
         .map(|e| e.replace(&temp.display().to_string(), &target.display().to_string()))
 }
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn a_failure_inside_a_capture_is_captured() {
+        let (r, errors) = super::capture(|| {
+            gdal::DriverManager::get_driver_by_name("GTiff")
+                .and_then(|d| d.create_with_band_type::<u8, _>("/no/such/dir/x.tif", 4, 4, 1))
+        });
+        assert!(r.is_err());
+        assert!(!errors.is_empty(), "GDAL's failure was captured");
+        let ((), none) = super::capture(|| ());
+        assert!(none.is_empty());
+    }
+}
