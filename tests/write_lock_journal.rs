@@ -146,7 +146,7 @@ fn interrupted(signal: rustix::process::Signal, code: i32) {
     let (a, _) = sketches(tmp.path());
     let dem = tile_dir(tmp.path(), "dem");
     let before = common::snapshot(tmp.path());
-    let mut child = edit_cmd(&dem, &a, &["--in-place"])
+    let child = edit_cmd(&dem, &a, &["--in-place"])
         .env("DEMSKETCH_TEST_SLEEP_BEFORE_COMMIT_MS", "20000")
         .stderr(std::process::Stdio::piped())
         .spawn()

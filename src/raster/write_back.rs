@@ -723,11 +723,11 @@ fn verify_tile(tile: &Tile, edit: &TileEdit, tmp: &Path, written: &[f64]) -> Res
         .and_then(|d| d.read_window::<f64>(win))
         .map_err(|e| format!("demsketch cannot read it back: {e}"))?;
     let nodata = tile.nodata.map(|v| tile.sample_type.quantize(v));
-    for i in 0..got.len() {
+    for (i, &g) in got.iter().enumerate() {
         let ok = if native.valid[i] {
-            same(native.data[i], got[i])
+            same(native.data[i], g)
         } else {
-            got[i].is_nan() || Some(got[i]) == nodata
+            g.is_nan() || Some(g) == nodata
         };
         if !ok {
             return Err(format!(

@@ -173,7 +173,6 @@ pub fn write_depth_tiff(depth: &DepthBuffer, path: &Path) -> Result<(), RenderEr
                     gdal::raster::Buffer::new((depth.width, depth.height), depth.depth.clone());
                 band.write((0, 0), (depth.width, depth.height), &mut buf)
                     .map_err(werr)?;
-                drop(band);
                 ds.flush_cache().map_err(werr)?;
                 ds.close().map_err(werr)?;
                 Ok::<(), RenderError>(())

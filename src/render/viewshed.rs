@@ -103,7 +103,6 @@ pub fn write_viewshed_tiff(vs: &Viewshed, path: &Path) -> Result<(), RenderError
                 let mut buf = gdal::raster::Buffer::new((vs.width, vs.height), vs.data.clone());
                 band.write((0, 0), (vs.width, vs.height), &mut buf)
                     .map_err(werr)?;
-                drop(band);
                 ds.flush_cache().map_err(werr)?;
                 ds.close().map_err(werr)?;
                 Ok::<(), RenderError>(())
