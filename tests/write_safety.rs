@@ -50,6 +50,20 @@ impl FullDisk {
     }
 }
 
+impl FullDisk {
+    /// Fill the tmpfs, then free `kb` KB of it again.
+    fn fill_leaving(&self, kb: u64) {
+        self.fill();
+        let filler = self.path().join("filler");
+        let len = std::fs::metadata(&filler).unwrap().len();
+        let f = std::fs::OpenOptions::new()
+            .write(true)
+            .open(&filler)
+            .unwrap();
+        f.set_len(len.saturating_sub(kb * 1024)).unwrap();
+    }
+}
+
 impl Drop for FullDisk {
     fn drop(&mut self) {
         if self.mounted {
@@ -132,6 +146,20 @@ fn a_full_disk_leaves_every_file_as_it_was() {
                 "--report".into(),
                 s(&report),
             ],
+            // The report's space is claimed first.
+            report.clone(),
+            "edit --in-place --report (tile directory)",
+        ),
+        (
+            vec![
+                "edit".into(),
+                tiles_s.clone(),
+                "--sketch".into(),
+                a_s.clone(),
+                "--min-fit".into(),
+                "0".into(),
+                "--in-place".into(),
+            ],
             // One of the tiles edit A rewrites (tile_1_0 or tile_1_1).
             tiles.join("tile_1_"),
             "edit --in-place (tile directory)",
@@ -197,6 +225,38 @@ fn a_full_disk_leaves_every_file_as_it_was() {
         let out = run_full(&disk, &args);
         expect_unchanged(root, &out, &target, &before, what);
     }
+}
+
+#[test]
+fn room_for_the_tiles_but_not_the_report_changes_nothing() {
+    let disk = FullDisk::new();
+    if !disk.mounted {
+        eprintln!("no tmpfs could be mounted: skipped (needs a disk with a given free space)");
+        return;
+    }
+    let root = disk.path();
+    let (a, _) = sketches(root);
+    let tiles = tile_dir(root, "tiles");
+    // The two new tiles need about 6 KB; the report's space is claimed
+    // (tens of KB) before any tile is replaced.
+    disk.fill_leaving(24);
+    let before = snapshot(root);
+    let report = root.join("report.json");
+    let out = run_full(
+        &disk,
+        &[
+            "edit",
+            tiles.to_str().unwrap(),
+            "--sketch",
+            a.to_str().unwrap(),
+            "--min-fit",
+            "0",
+            "--in-place",
+            "--report",
+            report.to_str().unwrap(),
+        ],
+    );
+    expect_unchanged(root, &out, &report, &before, "report does not fit");
 }
 
 #[test]

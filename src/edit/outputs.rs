@@ -87,10 +87,19 @@ pub(super) fn write_outputs(
         Vec::new()
     };
     let staged_report = match &opts.report {
-        Some(p) => Some(StagedFile::create(p).map_err(|e| EditError::Write {
-            path: p.display().to_string(),
-            message: e.to_string(),
-        })?),
+        Some(p) => {
+            let werr = |e: std::io::Error| EditError::Write {
+                path: p.display().to_string(),
+                message: e.to_string(),
+            };
+            let mut f = StagedFile::create(p).map_err(werr)?;
+            // Its space is claimed before the DEM is written (a generous
+            // bound: the fixed part, each tile's path, each stroke).
+            let strokes: usize = view_reports.iter().map(|v| v.strokes.len()).sum();
+            let estimate = 64 * 1024 + 1024 * src.dem.tiles.len() + 8 * 1024 * strokes;
+            f.reserve(estimate as u64).map_err(werr)?;
+            Some(f)
+        }
         None => None,
     };
     let staged_renders = match &opts.renders {

@@ -154,9 +154,12 @@ pub struct Timings {
 /// unpredictable name, see [`crate::raster::atomic_file`]), and
 /// [`StagedFile::commit`] writes the bytes there, reads them back and
 /// renames the file into place. Dropped uncommitted, nothing is left.
+/// [`StagedFile::reserve`] claims the disk space first, so that a report
+/// written after the DEM does not fail on a disk the DEM just filled.
 pub struct StagedFile {
     pub path: PathBuf,
     staging: crate::raster::atomic_file::Staging,
+    reserved: u64,
 }
 
 impl StagedFile {
@@ -173,14 +176,49 @@ impl StagedFile {
         Ok(StagedFile {
             path: path.to_path_buf(),
             staging,
+            reserved: 0,
         })
+    }
+
+    /// Claim `bytes` of disk space for the file now (written as zeros,
+    /// flushed): the commit then overwrites them in place.
+    pub fn reserve(&mut self, bytes: u64) -> std::io::Result<()> {
+        use std::io::Write;
+        let tmp = self.staging.file(self.path.file_name().unwrap_or_default());
+        let mut f = std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&tmp)?;
+        let block = vec![0u8; 1 << 16];
+        let mut left = bytes;
+        while left > 0 {
+            let n = left.min(block.len() as u64) as usize;
+            f.write_all(&block[..n])?;
+            left -= n as u64;
+        }
+        f.sync_all()?;
+        self.reserved = bytes;
+        Ok(())
     }
 
     /// Write `bytes`, check them, and rename into place.
     pub fn commit(self, bytes: &[u8]) -> std::io::Result<()> {
+        use std::io::{Seek, Write};
         let name = self.path.file_name().unwrap_or_default();
         let tmp = self.staging.file(name);
-        crate::raster::atomic_file::write_bytes_verified(&tmp, bytes)?;
+        if self.reserved > 0 {
+            let mut f = std::fs::OpenOptions::new().write(true).open(&tmp)?;
+            f.seek(std::io::SeekFrom::Start(0))?;
+            f.write_all(bytes)?;
+            f.set_len(bytes.len() as u64)?;
+            f.sync_all()?;
+            drop(f);
+            if std::fs::read(&tmp)? != bytes {
+                return Err(std::io::Error::other("the written file does not read back"));
+            }
+        } else {
+            crate::raster::atomic_file::write_bytes_verified(&tmp, bytes)?;
+        }
         let _commit = crate::raster::atomic_file::commit_guard();
         std::fs::rename(&tmp, &self.path)?;
         let _ = crate::raster::atomic_file::sync_dir(crate::raster::atomic_file::parent_dir(
