@@ -111,7 +111,11 @@ pub fn install_signal_cleanup() {
                         "demsketch: interrupted ({}); temporary files removed, nothing half-written",
                         if sig == SIGINT { "SIGINT" } else { "SIGTERM" }
                     );
-                    std::process::exit(128 + sig);
+                    // Exit at once: running the exit handlers (GDAL's
+                    // among them) while other threads are inside GDAL
+                    // could crash instead of exiting 130/143.
+                    // SAFETY: `_exit` ends the process; nothing runs after.
+                    unsafe { libc::_exit(128 + sig) };
                 }
             });
     });
