@@ -344,6 +344,15 @@ fn outputs_naming_an_input_or_each_other_are_refused() {
     std::os::unix::fs::symlink("crop.tif", &link).unwrap();
     let s = |p: &Path| p.to_str().unwrap().to_string();
     let tile = dem.join("tile_0_0.tif");
+    let vrt = root.join("m.vrt");
+    let mut args = vec!["-q".to_string(), s(&vrt)];
+    for e in std::fs::read_dir(&dem).unwrap().flatten() {
+        args.push(s(&e.path()));
+    }
+    run(
+        "gdalbuildvrt",
+        &args.iter().map(String::as_str).collect::<Vec<_>>(),
+    );
     let cases: Vec<(Vec<String>, String)> = vec![
         (
             vec![s(&dem), "--in-place".into(), "--report".into(), s(&tile)],
@@ -385,6 +394,8 @@ fn outputs_naming_an_input_or_each_other_are_refused() {
             s(&root.join("o.tif")),
         ),
         (vec![s(&dem), "--out".into(), s(&dem)], s(&dem)),
+        // A VRT's source tile.
+        (vec![s(&vrt), "--out".into(), s(&tile)], s(&tile)),
         (
             vec![s(&dem), "--out".into(), s(&dem.join("sub"))],
             s(&dem.join("sub")),

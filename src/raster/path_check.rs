@@ -98,8 +98,35 @@ pub fn check_outputs(inputs: &[Input], outputs: &[Output]) -> Result<(), RasterE
     Ok(())
 }
 
+/// The files GDAL reads for a dataset (a VRT's sources included), as GDAL
+/// lists them.
+fn gdal_files(ds: &gdal::Dataset) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    // SAFETY: the dataset handle is valid while `ds` lives; the list is a
+    // NULL-terminated array of C strings that we free with CSLDestroy.
+    unsafe {
+        let list = gdal_sys::GDALGetFileList(ds.c_dataset());
+        if list.is_null() {
+            return out;
+        }
+        let mut i = 0;
+        loop {
+            let p = *list.add(i);
+            if p.is_null() {
+                break;
+            }
+            let s = std::ffi::CStr::from_ptr(p).to_string_lossy().into_owned();
+            out.push(PathBuf::from(s));
+            i += 1;
+        }
+        gdal_sys::CSLDestroy(list);
+    }
+    out
+}
+
 /// The inputs of a DEM: each of its tile files (by the path it was opened
-/// with), and for a tile directory the directory itself.
+/// with; for a raster GDAL reads, every file GDAL lists, such as a VRT's
+/// sources), and for a tile directory the directory itself.
 pub fn dem_inputs(dem: &super::Dem) -> Vec<Input> {
     let mut v: Vec<Input> = dem
         .tiles
@@ -114,6 +141,21 @@ pub fn dem_inputs(dem: &super::Dem) -> Vec<Input> {
             is_dir: false,
         })
         .collect();
+    for t in &dem.tiles {
+        if let super::TileSource::Gdal(ds) = &t.source {
+            if let Ok(ds) = ds.lock() {
+                for f in gdal_files(&ds) {
+                    if !same(&f, &t.path) {
+                        v.push(Input {
+                            what: format!("{}, a file of the input DEM", f.display()),
+                            path: f,
+                            is_dir: false,
+                        });
+                    }
+                }
+            }
+        }
+    }
     if dem.kind == super::LayerKind::TileDirectory {
         v.push(Input {
             what: format!("the input tile directory {}", dem.path.display()),
