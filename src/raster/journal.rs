@@ -112,6 +112,10 @@ pub fn commit(
     }
     let abort_after = test_env("DEMSKETCH_TEST_ABORT_AFTER_RENAMES");
     let _commit = commit_guard();
+    // From the first rename on, the staging directory (journal and the
+    // files still to be renamed) must outlive a failure: the next run
+    // finishes the edit from it.
+    let staged = staging.keep();
     for (i, n) in names.iter().enumerate() {
         if abort_after == Some(i as u64) {
             let _ = rustix::process::kill_process(
@@ -120,17 +124,26 @@ pub fn commit(
             );
         }
         let target = dir.join(n);
-        std::fs::rename(staging.file(n.as_ref()), &target).map_err(|e| RasterError::Write {
-            path: target.clone(),
-            message: format!(
-                "rename failed after {i} of {} files: {e}; the next edit of this DEM finishes it",
-                names.len()
-            ),
-        })?;
+        if let Err(e) = std::fs::rename(staged.join(n), &target) {
+            if i == 0 {
+                // Nothing replaced yet: nothing to finish.
+                let _ = std::fs::remove_dir_all(&staged);
+            }
+            return Err(RasterError::Write {
+                path: target.clone(),
+                message: if i == 0 {
+                    format!("cannot replace it: {e}; nothing changed")
+                } else {
+                    format!(
+                        "cannot replace it after {i} of {} files: {e}; the next edit of this DEM finishes the edit",
+                        names.len()
+                    )
+                },
+            });
+        }
     }
     let _ = sync_dir(dir);
-    let _ = std::fs::remove_file(&jpath);
-    drop(staging);
+    let _ = std::fs::remove_dir_all(&staged);
     Ok(())
 }
 
