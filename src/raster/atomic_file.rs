@@ -298,10 +298,29 @@ pub fn write_bytes_verified(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     f.write_all(bytes)?;
     f.sync_all()?;
     drop(f);
-    if std::fs::read(path)? != bytes {
+    if !reads_back(path, bytes)? {
         return Err(std::io::Error::other("the written file does not read back"));
     }
     Ok(())
+}
+
+/// Does the file at `path` hold exactly `bytes`? (Read in chunks: no second
+/// copy of a large file in memory.)
+fn reads_back(path: &Path, bytes: &[u8]) -> std::io::Result<bool> {
+    use std::io::Read;
+    let mut f = std::fs::File::open(path)?;
+    let mut buf = vec![0u8; 1 << 20];
+    let mut at = 0usize;
+    loop {
+        let n = f.read(&mut buf)?;
+        if n == 0 {
+            return Ok(at == bytes.len());
+        }
+        if at + n > bytes.len() || buf[..n] != bytes[at..at + n] {
+            return Ok(false);
+        }
+        at += n;
+    }
 }
 
 /// Let GDAL write a file in memory (`/vsimem/`), then write its bytes to

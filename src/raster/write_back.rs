@@ -855,7 +855,7 @@ fn update_tile_copy(
 
 /// Files up to this size are updated or encoded in memory and written out
 /// by demsketch itself (see [`super::atomic_file::through_memory`]).
-const MEMORY_COPY_LIMIT: u64 = 1 << 30;
+const MEMORY_COPY_LIMIT: u64 = 256 << 20;
 
 /// Encode one edited tile into `tmp` through GDAL: the source is copied to
 /// memory with all its metadata, the edit applied, overviews rebuilt, and
