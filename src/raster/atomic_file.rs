@@ -450,6 +450,40 @@ fn vsimem_write(mem: &Path, bytes: &[u8]) -> Result<(), String> {
     Ok(())
 }
 
+/// Band 1 of the raster at `path`, read by GDAL, must be `width` x
+/// `height` and equal `expected` (NaN equal to NaN): the check of a
+/// written raster before it replaces anything.
+pub fn verify_band<T>(
+    path: &Path,
+    width: usize,
+    height: usize,
+    expected: &[T],
+) -> Result<(), String>
+where
+    T: gdal::raster::GdalType + PartialEq + Copy,
+{
+    let ds = gdal::Dataset::open(path)
+        .map_err(|e| format!("GDAL cannot open it: {}", one_line(&e.to_string())))?;
+    if ds.raster_size() != (width, height) {
+        return Err(format!(
+            "its size is {:?}, not {width} x {height}",
+            ds.raster_size()
+        ));
+    }
+    let band = ds.rasterband(1).map_err(|e| e.to_string())?;
+    let got = band
+        .read_as::<T>((0, 0), (width, height), (width, height), None)
+        .map_err(|e| format!("GDAL cannot read it: {}", one_line(&e.to_string())))?;
+    #[allow(clippy::eq_op)]
+    let same = |a: T, b: T| a == b || (a != a && b != b);
+    if got.data().len() != expected.len()
+        || got.data().iter().zip(expected).any(|(&a, &b)| !same(a, b))
+    {
+        return Err("its values differ from those written".into());
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

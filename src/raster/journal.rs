@@ -65,12 +65,14 @@ fn io_err(path: &Path, e: std::io::Error) -> RasterError {
 
 /// Rename the staged files `staging/NAME` over `dir/NAME` for every name in
 /// `names`, journalled: `dem` is the DEM the message names on failure.
+/// Returns the staging directory, kept (the caller moves what else it
+/// staged there, then removes it).
 pub fn commit(
     dem: &Path,
     dir: &Path,
     staging: Staging,
     names: &[String],
-) -> Result<(), RasterError> {
+) -> Result<PathBuf, RasterError> {
     let mut entries = Vec::new();
     for n in names {
         let (size, crc32) =
@@ -143,8 +145,8 @@ pub fn commit(
         }
     }
     let _ = sync_dir(dir);
-    let _ = std::fs::remove_dir_all(&staged);
-    Ok(())
+    let _ = std::fs::remove_file(staged.join(JOURNAL_NAME));
+    Ok(staged)
 }
 
 /// A test hook's value from the environment.

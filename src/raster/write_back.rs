@@ -1,13 +1,16 @@
 //! Write-back of corrected heights: only the tiles an edit changes are
 //! rewritten, each with its own layout (tiled or striped, block size),
 //! compression, predictor, sample type, georeference, CRS, nodata and
-//! metadata, plus a provenance item that `gdalinfo` shows. Overviews in the
-//! input are rebuilt. Unchanged tiles of a tile-directory output are copied
-//! byte for byte (a reflink where the file system has them; hard links
-//! only on request, [`WriteOptions::link_unchanged`]), never re-encoded.
+//! metadata, plus a provenance entry that `gdalinfo` shows
+//! ([`super::provenance`]). Within a GeoTIFF only the changed blocks are
+//! re-encoded ([`super::block_patch`]) and overviews are refreshed over the
+//! change ([`super::overviews`]); sidecars (`.ovr`, `.aux.xml`) follow
+//! ([`super::sidecars`]). Unchanged tiles are hard-linked (or copied) byte
+//! for byte, never re-encoded: copied (a reflink where the file system
+//! has them; hard links only on request, `WriteOptions::link_unchanged`).
 //!
 //! Every write is staged and verified before it replaces anything: each
-//! new tile is encoded into a staging directory beside its target
+//! new tile is written into a staging directory beside its target
 //! ([`super::atomic_file::Staging`]: exclusive, unpredictable name), with
 //! GDAL's failures captured ([`super::gdal_errors`]); then it is re-read
 //! (non-empty, opened by GDAL and by the native reader, the written window
@@ -16,23 +19,24 @@
 //! ([`super::journal`]), so a kill between renames is finished by the next
 //! run; a single-file output by one rename; a tile-directory output as the
 //! whole staged directory. In-place rewrites keep each file's mode, owner
-//! and extended attributes. Any failure (a full disk included) leaves
-//! every input and output as it was, no temporary file behind, and one
-//! error naming the target.
+//! and extended attributes where permitted. Any failure (a full disk
+//! included) leaves every input and output as it was, no temporary file
+//! behind, and one error naming the target.
 
 use std::path::{Path, PathBuf};
 use std::time::{SystemTime, UNIX_EPOCH};
 
-use gdal::raster::{Buffer, RasterCreationOptions};
-use gdal::{DriverManager, GdalOpenFlags, Metadata};
+use gdal::raster::RasterCreationOptions;
+use gdal::DriverManager;
 use rayon::prelude::*;
 
 use super::atomic_file::{commit_guard, copy_file_attributes, parent_dir, sync_dir, Staging};
+use super::block_patch::{self, BlockEdit, PatchSettings};
+use super::output_format::WriteOptions;
+pub use super::provenance::PROVENANCE_KEY;
+use super::sidecars::Sidecars;
 use super::{gdal_errors, journal};
 use super::{Dem, LayerKind, RasterError, SampleType, Tile, TileSource, Window};
-
-/// The metadata item written into every rewritten tile.
-pub const PROVENANCE_KEY: &str = "DEMSKETCH_PROVENANCE";
 
 /// Who changed a tile, and when.
 #[derive(Debug, Clone)]
@@ -42,13 +46,9 @@ pub struct Provenance {
 }
 
 impl Provenance {
-    fn item(&self, changed_cells: usize) -> String {
-        format!(
-            "tool=demsketch {}; edit={}; time={}; changed_cells={changed_cells}",
-            env!("CARGO_PKG_VERSION"),
-            self.edit_id,
-            rfc3339_now()
-        )
+    /// The history entry of this edit ([`super::provenance::entry`]).
+    fn item(&self, changed_cells: usize, opts: &WriteOptions) -> String {
+        super::provenance::entry(&self.edit_id, &rfc3339_now(), changed_cells, &opts.record)
     }
 }
 
@@ -60,16 +60,6 @@ pub enum Destination {
     /// A new GeoTIFF (single-file input) or a new directory receiving the
     /// full tile set (tile-directory input).
     Path(PathBuf),
-}
-
-/// How a write-back writes.
-#[derive(Debug, Clone, Copy, Default)]
-pub struct WriteOptions {
-    /// Hard-link the unchanged tiles of a tile-directory output to the
-    /// input's instead of copying them (`--link`): faster and free of
-    /// space, but a tool that later modifies an output tile in place then
-    /// modifies the input too.
-    pub link_unchanged: bool,
 }
 
 /// What a write-back did.
@@ -115,21 +105,6 @@ fn write_err(path: &Path, message: impl std::fmt::Display) -> RasterError {
     }
 }
 
-/// A failure while writing `tmp`, told as a failure of `target`: the
-/// temporary file is never named to the user.
-fn retarget(e: RasterError, tmp: &Path, target: &Path) -> RasterError {
-    let t = target.display().to_string();
-    let text = e.to_string().replace(&tmp.display().to_string(), &t);
-    let mut text = text;
-    while let Some(rest) = text.strip_prefix(&format!("{t}: ")) {
-        text = rest.to_string();
-    }
-    write_err(
-        target,
-        format!("{}; nothing changed", super::atomic_file::one_line(&text)),
-    )
-}
-
 /// The file name of a path (for staging it under the same name).
 fn file_name(p: &Path) -> &std::ffi::OsStr {
     p.file_name().unwrap_or(std::ffi::OsStr::new("tile.tif"))
@@ -171,6 +146,15 @@ struct TileEdit {
     changed: usize,
 }
 
+impl TileEdit {
+    fn block_edit(&self) -> BlockEdit<'_> {
+        BlockEdit {
+            local: self.local,
+            values: &self.values,
+        }
+    }
+}
+
 impl Dem {
     /// Write new heights for `window` (row-major `values`, NaN = keep) back
     /// to the tiles. Nodata cells of the input stay nodata; values are rounded
@@ -185,19 +169,20 @@ impl Dem {
         self.write_back_with(window, values, dest, provenance, &WriteOptions::default())
     }
 
-    /// [`Dem::write_back`] with [`WriteOptions`].
+    /// [`Dem::write_back`] with output options: format and creation
+    /// options of `--out`, overview resampling, provenance details.
     pub fn write_back_with(
         &self,
         window: Window,
         values: &[f64],
         dest: &Destination,
         provenance: &Provenance,
-        options: &WriteOptions,
+        opts: &WriteOptions,
     ) -> Result<WriteReport, RasterError> {
         self.check_destination(dest)?;
         let edits = self.tile_edits(window, values)?;
         let changed_cells = edits.iter().map(|e| e.changed).sum();
-        self.commit_edits(edits, changed_cells, dest, provenance, options)
+        self.commit_edits(edits, changed_cells, dest, provenance, opts)
     }
 
     /// What [`Dem::write_back`] would change, without writing anything:
@@ -299,7 +284,7 @@ impl Dem {
         changed_cells: usize,
         dest: &Destination,
         provenance: &Provenance,
-        options: &WriteOptions,
+        opts: &WriteOptions,
     ) -> Result<WriteReport, RasterError> {
         match (dest, self.kind) {
             (Destination::InPlace, LayerKind::Gdal) => Err(RasterError::Unsupported {
@@ -308,7 +293,7 @@ impl Dem {
                     .into(),
             }),
             (Destination::InPlace, _) => {
-                let targets = self.write_in_place(&edits, provenance)?;
+                let targets = self.write_in_place(&edits, provenance, opts)?;
                 for e in &edits {
                     self.invalidate_tile(e.tile);
                 }
@@ -319,39 +304,108 @@ impl Dem {
                 })
             }
             (Destination::Path(out), LayerKind::GeoTiff | LayerKind::Gdal) => {
-                self.write_single(out, &edits, provenance, changed_cells)
+                let targets = vec![out.clone()];
+                let same_format = matches!(self.kind, LayerKind::GeoTiff)
+                    && opts.keeps_geotiff(Some(out.as_path()));
+                if edits.is_empty() && !same_format {
+                    // Nothing changed, but another format: converted.
+                    let keep_all = TileEdit {
+                        tile: 0,
+                        local: Window::new(0, 0, 1, 1),
+                        values: vec![f64::NAN],
+                        changed: 0,
+                    };
+                    self.write_single(out, &[keep_all], provenance, opts)?;
+                    return Ok(WriteReport {
+                        tiles_written: targets,
+                        tiles_unchanged: vec![],
+                        changed_cells,
+                    });
+                }
+                if edits.is_empty() {
+                    // Nothing changed: the output is a byte copy of the input
+                    // (its sidecars too).
+                    let dir = parent_dir(out);
+                    let staging = Staging::new_in(dir).map_err(|e| {
+                        write_err(
+                            out,
+                            format!("cannot create a temporary file: {e}; nothing written"),
+                        )
+                    })?;
+                    let tmp = staging.file(file_name(out));
+                    copy_verified(&self.tiles[0].path, &tmp, out, false)?;
+                    {
+                        let _commit = commit_guard();
+                        std::fs::rename(&tmp, out)
+                            .map_err(|e| write_err(out, format!("{e}; nothing written")))?;
+                        let _ = sync_dir(dir);
+                    }
+                    super::sidecars::copy_unchanged(&self.tiles[0].path, out)?;
+                    return Ok(WriteReport {
+                        tiles_written: vec![],
+                        tiles_unchanged: targets,
+                        changed_cells,
+                    });
+                }
+                self.write_single(out, &edits, provenance, opts)?;
+                Ok(WriteReport {
+                    tiles_written: targets,
+                    tiles_unchanged: vec![],
+                    changed_cells,
+                })
             }
             (Destination::Path(out), LayerKind::TileDirectory) => {
-                self.write_directory(out, &edits, provenance, changed_cells, options)
+                self.write_directory(out, &edits, provenance, changed_cells, opts)
             }
         }
     }
 
-    /// Encode every edit into `staging` (under its tile's file name, or
-    /// `name` for a single output), verified, in parallel. `targets` give
-    /// the path each is told as in errors.
+    /// Encode every edit into `staging` under its target's file name,
+    /// verified, in parallel (`targets`: the final paths, which errors
+    /// name). With `keep_attributes`, each staged file gets its tile's
+    /// mode, owner and extended attributes. Returns the sidecars to move
+    /// into place after the files.
     fn stage_edits(
         &self,
         edits: &[TileEdit],
         staging: &Staging,
         targets: &[PathBuf],
         provenance: &Provenance,
+        opts: &WriteOptions,
         keep_attributes: bool,
-    ) -> Result<(), RasterError> {
+    ) -> Result<Vec<Sidecars>, RasterError> {
         edits
             .par_iter()
             .zip(targets.par_iter())
-            .try_for_each(|(e, target)| {
+            .map(|(e, target)| {
                 let tile = &self.tiles[e.tile];
                 let tmp = staging.file(file_name(target));
-                stage_tile(tile, e, &tmp, target, provenance)?;
+                let (written, errors) =
+                    gdal_errors::capture(|| encode_tile(tile, e, &tmp, target, provenance, opts));
+                let sidecars = written?;
+                if let Some(err) = gdal_errors::first_failure(&errors, &tmp, target) {
+                    sidecars.discard();
+                    return Err(write_err(
+                        target,
+                        format!("GDAL could not write it: {err}; nothing changed"),
+                    ));
+                }
+                let exact = opts.creation_options.is_empty();
+                if let Err(m) = verify_tile(tile, e, &tmp, exact) {
+                    sidecars.discard();
+                    return Err(write_err(
+                        target,
+                        format!("the written file does not read back: {m}; nothing changed"),
+                    ));
+                }
                 if keep_attributes {
                     // Where permitted: a file system without modes or
                     // owners does not stop the edit.
                     let _ = copy_file_attributes(&tile.path, &tmp);
                 }
-                Ok(())
+                Ok(sidecars)
             })
+            .collect()
     }
 
     /// Rewrite the edited tiles of the input: staged and verified beside
@@ -360,6 +414,7 @@ impl Dem {
         &self,
         edits: &[TileEdit],
         provenance: &Provenance,
+        opts: &WriteOptions,
     ) -> Result<Vec<PathBuf>, RasterError> {
         let targets: Vec<PathBuf> = edits
             .iter()
@@ -384,24 +439,27 @@ impl Dem {
                 ),
             )
         })?;
-        self.stage_edits(edits, &staging, &targets, provenance, true)?;
+        let sidecars = self.stage_edits(edits, &staging, &targets, provenance, opts, true)?;
         let names: Vec<String> = targets
             .iter()
             .map(|t| file_name(t).to_string_lossy().into_owned())
             .collect();
-        journal::commit(&self.path, &dir, staging, &names)?;
+        let staged = journal::commit(&self.path, &dir, staging, &names)?;
+        let moved = sidecars.iter().try_for_each(Sidecars::commit);
+        let _ = std::fs::remove_dir_all(&staged);
+        moved?;
         Ok(targets)
     }
 
-    /// A single-file output: the edited file (or a byte copy of the input
-    /// when nothing changed), staged, verified and renamed to `out`.
+    /// A single-file output: staged, verified and renamed to `out`, its
+    /// sidecars after it.
     fn write_single(
         &self,
         out: &Path,
         edits: &[TileEdit],
         provenance: &Provenance,
-        changed_cells: usize,
-    ) -> Result<WriteReport, RasterError> {
+        opts: &WriteOptions,
+    ) -> Result<(), RasterError> {
         let dir = parent_dir(out);
         super::atomic_file::clean_stale(dir);
         let staging = Staging::new_in(dir).map_err(|e| {
@@ -412,23 +470,17 @@ impl Dem {
         })?;
         let tmp = staging.file(file_name(out));
         let targets = vec![out.to_path_buf()];
-        let unchanged = edits.is_empty();
-        if unchanged {
-            copy_verified(&self.tiles[0].path, &tmp, out, false)?;
-        } else {
-            self.stage_edits(edits, &staging, &targets, provenance, false)?;
+        let sidecars = self.stage_edits(edits, &staging, &targets, provenance, opts, false)?;
+        let _commit = commit_guard();
+        if let Err(e) = std::fs::rename(&tmp, out) {
+            sidecars.iter().for_each(Sidecars::discard);
+            return Err(write_err(out, format!("{e}; nothing written")));
         }
-        {
-            let _commit = commit_guard();
-            std::fs::rename(&tmp, out)
-                .map_err(|e| write_err(out, format!("{e}; nothing written")))?;
-            let _ = sync_dir(dir);
+        let _ = sync_dir(dir);
+        for s in &sidecars {
+            s.commit()?;
         }
-        Ok(WriteReport {
-            tiles_written: if unchanged { vec![] } else { targets.clone() },
-            tiles_unchanged: if unchanged { targets } else { vec![] },
-            changed_cells,
-        })
+        Ok(())
     }
 
     /// A tile-directory output: the full tile set staged in a directory
@@ -440,7 +492,7 @@ impl Dem {
         edits: &[TileEdit],
         provenance: &Provenance,
         changed_cells: usize,
-        options: &WriteOptions,
+        opts: &WriteOptions,
     ) -> Result<WriteReport, RasterError> {
         let parent = parent_dir(out);
         super::atomic_file::clean_stale(parent);
@@ -464,23 +516,28 @@ impl Dem {
             .collect();
         unchanged.par_iter().try_for_each(|tile| {
             let name = file_name(&tile.path);
-            copy_verified(
-                &tile.path,
-                &staging.file(name),
-                &out.join(name),
-                options.link_unchanged,
-            )
+            let staged = staging.file(name);
+            copy_verified(&tile.path, &staged, &out.join(name), opts.link_unchanged)?;
+            super::sidecars::copy_unchanged(&tile.path, &staged)
         })?;
         report.tiles_unchanged = unchanged
             .iter()
             .map(|t| out.join(file_name(&t.path)))
             .collect();
-        let targets: Vec<PathBuf> = edits
+        // The edited tiles are encoded straight into the staged directory,
+        // their sidecars beside them there; errors name the input tile.
+        let staged: Vec<PathBuf> = edits
+            .iter()
+            .map(|e| staging.file(file_name(&self.tiles[e.tile].path)))
+            .collect();
+        let sidecars = self.stage_edits(edits, &staging, &staged, provenance, opts, false)?;
+        for s in &sidecars {
+            s.commit()?;
+        }
+        report.tiles_written = edits
             .iter()
             .map(|e| out.join(file_name(&self.tiles[e.tile].path)))
             .collect();
-        self.stage_edits(edits, &staging, &targets, provenance, false)?;
-        report.tiles_written = targets;
         // The staging directory is made mode 700; the output gets the mode
         // a new directory gets.
         let mode = 0o777 & !current_umask();
@@ -502,7 +559,6 @@ impl Dem {
         let _ = sync_dir(parent);
         Ok(report)
     }
-
     /// Refuse destinations that would overwrite the input or a non-empty
     /// directory, before anything is written.
     fn check_destination(&self, dest: &Destination) -> Result<(), RasterError> {
@@ -563,6 +619,223 @@ impl Dem {
     }
 }
 
+/// GDAL creation options that reproduce a GeoTIFF's layout and encoding
+/// (BigTIFF kept BigTIFF).
+fn creation_options(tile: &Tile, cog: bool) -> Vec<String> {
+    let mut o = vec!["NUM_THREADS=ALL_CPUS".to_string()];
+    let bigtiff = if super::output_format::is_bigtiff(&tile.path) {
+        "BIGTIFF=YES"
+    } else {
+        "BIGTIFF=IF_SAFER"
+    };
+    if let TileSource::Tiff(t) = &tile.source {
+        o.push(format!("COMPRESS={}", t.encoding.compression));
+        if t.encoding.compression != "NONE" && t.encoding.predictor != 1 {
+            o.push(format!("PREDICTOR={}", t.encoding.predictor));
+        }
+        if cog {
+            o.push(format!("BLOCKSIZE={}", t.layout.block_width));
+        } else {
+            if t.layout.tiled {
+                o.push("TILED=YES".into());
+                o.push(format!("BLOCKXSIZE={}", t.layout.block_width));
+            }
+            o.push(format!("BLOCKYSIZE={}", t.layout.block_height));
+        }
+        o.push(bigtiff.into());
+    } else {
+        o.extend(["TILED=YES", "COMPRESS=DEFLATE", bigtiff].map(String::from));
+    }
+    if tile.sample_type == SampleType::Int8 {
+        o.push("PIXELTYPE=SIGNEDBYTE".into());
+    }
+    o
+}
+
+/// Encode one edited tile into `tmp` (to be renamed to `target`): a
+/// GeoTIFF written as its input was is patched block by block
+/// ([`block_patch`]); anything else (another format, `-co`, a GDAL-read
+/// input) is encoded whole by [`encode_tile_copy`]. Returns the sidecars to
+/// move into place after it. The bytes are made durable before the
+/// caller's rename makes them visible.
+fn encode_tile(
+    tile: &Tile,
+    edit: &TileEdit,
+    tmp: &Path,
+    target: &Path,
+    provenance: &Provenance,
+    opts: &WriteOptions,
+) -> Result<Sidecars, RasterError> {
+    let entry = provenance.item(edit.changed, opts);
+    let native = matches!(&tile.source, TileSource::Tiff(_));
+    let internal_ovr = matches!(&tile.source, TileSource::Tiff(t) if !t.overviews.is_empty());
+    let out_path = (target != tile.path.as_path()).then_some(target);
+    let mut sidecars = Sidecars::stage(&tile.path, tmp, target, internal_ovr)?;
+    let settings = PatchSettings {
+        entry: &entry,
+        overview_resampling: opts.overview_resampling.as_deref(),
+        external_overviews: sidecars.overviews.is_some(),
+        target: error_name(tile, target),
+    };
+    let written = (|| -> Result<(), RasterError> {
+        if native && opts.keeps_geotiff(out_path) {
+            let patched = block_patch::patch_copy(&tile.path, tmp, &edit.block_edit(), &settings)?;
+            if patched.is_none() {
+                let cog_opts = creation_options(tile, true);
+                block_patch::patch_cog(&tile.path, tmp, &edit.block_edit(), &settings, &cog_opts)?;
+            }
+            return Ok(());
+        }
+        let (extra, driver) = encode_tile_copy(tile, edit, tmp, target, &settings, opts)?;
+        sidecars.extra = extra;
+        if driver != "GTiff" {
+            // Another format has its own overviews (or none): the input's
+            // external ones do not describe it.
+            if let Some((staged, _)) = sidecars.overviews.take() {
+                let _ = std::fs::remove_file(staged);
+            }
+        }
+        Ok(())
+    })();
+    if let Err(e) = written {
+        let _ = std::fs::remove_file(tmp);
+        sidecars.discard();
+        return Err(name_the_target(e, tmp, settings.target));
+    }
+    std::fs::File::open(tmp)
+        .and_then(|f| f.sync_all())
+        .map_err(|e| RasterError::io(settings.target, e))?;
+    Ok(sidecars)
+}
+
+/// `e` with every mention of the temporary file `tmp` (GDAL's messages
+/// name the file it writes) replaced by `target`, the file the user named.
+fn name_the_target(e: RasterError, tmp: &Path, target: &Path) -> RasterError {
+    let fix = |m: String| {
+        m.replace(
+            tmp.to_string_lossy().as_ref(),
+            target.to_string_lossy().as_ref(),
+        )
+    };
+    match e {
+        RasterError::Write { message, .. } => RasterError::Write {
+            path: target.to_path_buf(),
+            message: fix(message),
+        },
+        RasterError::Gdal { path, message } => RasterError::Gdal {
+            path,
+            message: fix(message),
+        },
+        other => other,
+    }
+}
+
+/// The name errors give for a tile written to `target`: the tile itself
+/// for a tile directory's staging copy (a name the user knows), else the
+/// target.
+fn error_name<'a>(tile: &'a Tile, target: &'a Path) -> &'a Path {
+    let staged = target
+        .parent()
+        .and_then(|p| p.file_name())
+        .is_some_and(|n| n.to_string_lossy().contains(".demsketch-"));
+    if staged {
+        &tile.path
+    } else {
+        target
+    }
+}
+
+/// Encode one edited tile into `tmp` through GDAL: the source is copied to
+/// memory with all its metadata, the edit applied, and the result written
+/// in the output's format (the source's creation options for a GeoTIFF,
+/// the user's `-co` over them); a GeoTIFF's overviews are rebuilt with the
+/// recorded resampling. Returns the extra files the driver wrote, staged,
+/// and the driver.
+fn encode_tile_copy(
+    tile: &Tile,
+    edit: &TileEdit,
+    tmp: &Path,
+    target: &Path,
+    settings: &PatchSettings,
+    opts: &WriteOptions,
+) -> Result<(super::output_format::StagedFiles, String), RasterError> {
+    let gerr = |e: gdal::errors::GdalError| RasterError::gdal(&tile.path, e);
+    // Decode a compressed source with all cores (GTiff's NUM_THREADS open
+    // option; "@" keeps other drivers from warning about an option they
+    // lack). An uncompressed one has nothing to decode: the worker pool
+    // would cost more than the copy.
+    let uncompressed =
+        matches!(&tile.source, TileSource::Tiff(t) if t.encoding.compression == "NONE");
+    let src = gdal::Dataset::open_ex(
+        &tile.path,
+        gdal::DatasetOptions {
+            open_options: (!uncompressed).then_some(&["@NUM_THREADS=ALL_CPUS"][..]),
+            ..Default::default()
+        },
+    )
+    .map_err(gerr)?;
+    let mem_driver = DriverManager::get_driver_by_name("MEM").map_err(gerr)?;
+    let mut mem = src
+        .create_copy(&mem_driver, "", &RasterCreationOptions::default())
+        .map_err(gerr)?;
+    block_patch::write_edit(&mem, &edit.block_edit()).map_err(gerr)?;
+    block_patch::append_provenance(&mut mem, settings.entry).map_err(gerr)?;
+    super::sidecars::clear_statistics(&mem);
+    let src_cog = block_patch::is_cog(&src);
+    let driver = match &opts.format {
+        Some(_) => super::output_format::output_driver(target, opts.format.as_deref())
+            .map_err(|m| write_err(target, m))?,
+        None if src_cog => "COG".to_string(),
+        None => {
+            super::output_format::output_driver(target, None).map_err(|m| write_err(target, m))?
+        }
+    };
+    let cog = driver == "COG";
+    let base = if cog || driver == "GTiff" {
+        creation_options(tile, cog)
+    } else {
+        Vec::new()
+    };
+    let options = super::output_format::merge_options(base, &opts.creation_options);
+    let extra = super::output_format::write_copy(&mem, &driver, &options, tmp, target)?;
+    // The COG driver builds its own overviews; a GeoTIFF gets the source's.
+    if driver == "GTiff" {
+        let resampling = super::overviews::resampling_for(&src, settings.overview_resampling);
+        let factors: Vec<i32> = match &tile.source {
+            TileSource::Tiff(t) => t
+                .overviews
+                .iter()
+                .map(|(w, _)| ((t.width as f64 / *w as f64).round() as i32).max(2))
+                .collect(),
+            TileSource::Gdal(_) => Vec::new(),
+        };
+        let werr = |e: gdal::errors::GdalError| write_err(settings.target, e);
+        let mut ds = gdal::Dataset::open_ex(
+            tmp,
+            gdal::DatasetOptions {
+                open_flags: gdal::GdalOpenFlags::GDAL_OF_UPDATE
+                    | gdal::GdalOpenFlags::GDAL_OF_RASTER,
+                allowed_drivers: Some(&["GTiff"]),
+                ..Default::default()
+            },
+        )
+        .map_err(werr)?;
+        if !factors.is_empty() {
+            super::overviews::rebuild_all(&mut ds, &factors, resampling, settings.target)?;
+        } else if settings.external_overviews {
+            super::overviews::refresh_overviews(
+                &ds,
+                edit.local,
+                resampling,
+                true,
+                settings.target,
+            )?;
+        }
+        ds.close().map_err(werr)?;
+    }
+    Ok((extra, driver))
+}
+
 /// The process's file mode creation mask (read without changing it for
 /// longer than the call).
 fn current_umask() -> u32 {
@@ -577,9 +850,12 @@ fn current_umask() -> u32 {
 /// or with `link` a hard link to that file (a copy where linking fails).
 /// Checked: same size as the source.
 fn copy_verified(src: &Path, dst: &Path, target: &Path, link: bool) -> Result<(), RasterError> {
-    let real = src
-        .canonicalize()
-        .map_err(|e| retarget(RasterError::io(src, e), dst, target))?;
+    let real = src.canonicalize().map_err(|e| {
+        write_err(
+            target,
+            format!("cannot read {}: {e}; nothing written", src.display()),
+        )
+    })?;
     let linked = link && std::fs::hard_link(&real, dst).is_ok();
     if !linked {
         reflink_copy::reflink_or_copy(&real, dst).map_err(|e| {
@@ -592,8 +868,7 @@ fn copy_verified(src: &Path, dst: &Path, target: &Path, link: bool) -> Result<()
             .and_then(|f| f.sync_all())
             .map_err(|e| write_err(target, format!("{e}; nothing written")))?;
     }
-    let (a, b) = (std::fs::metadata(&real), std::fs::metadata(dst));
-    match (a, b) {
+    match (std::fs::metadata(&real), std::fs::metadata(dst)) {
         (Ok(a), Ok(b)) if a.len() == b.len() => Ok(()),
         _ => Err(write_err(
             target,
@@ -605,78 +880,19 @@ fn copy_verified(src: &Path, dst: &Path, target: &Path, link: bool) -> Result<()
     }
 }
 
-/// GDAL creation options that reproduce a GeoTIFF's layout and encoding.
-fn creation_options(tile: &Tile, cog: bool) -> Vec<String> {
-    let mut o = vec!["NUM_THREADS=ALL_CPUS".to_string()];
-    if let TileSource::Tiff(t) = &tile.source {
-        o.push(format!("COMPRESS={}", t.encoding.compression));
-        if t.encoding.compression != "NONE" && t.encoding.predictor != 1 {
-            o.push(format!("PREDICTOR={}", t.encoding.predictor));
-        }
-        if cog {
-            o.push(format!("BLOCKSIZE={}", t.layout.block_width));
-        } else {
-            if t.layout.tiled {
-                o.push("TILED=YES".into());
-                o.push(format!("BLOCKXSIZE={}", t.layout.block_width));
-            }
-            o.push(format!("BLOCKYSIZE={}", t.layout.block_height));
-            o.push("BIGTIFF=IF_SAFER".into());
-        }
-    } else {
-        o.extend(["TILED=YES", "COMPRESS=DEFLATE", "BIGTIFF=IF_SAFER"].map(String::from));
-    }
-    if tile.sample_type == SampleType::Int8 {
-        o.push("PIXELTYPE=SIGNEDBYTE".into());
-    }
-    o
-}
-
-/// Stage one edited tile: encode it into `tmp` with GDAL's failures
-/// captured, then re-read and check it ([`verify_tile`]). Errors name
-/// `target`.
-fn stage_tile(
-    tile: &Tile,
-    edit: &TileEdit,
-    tmp: &Path,
-    target: &Path,
-    provenance: &Provenance,
-) -> Result<(), RasterError> {
-    let (written, errors) = gdal_errors::capture(|| encode_tile(tile, edit, tmp, provenance));
-    let written = written.map_err(|e| retarget(e, tmp, target))?;
-    if let Some(e) = gdal_errors::first_failure(&errors, tmp, target) {
-        return Err(write_err(
-            target,
-            format!("GDAL could not write it: {e}; nothing changed"),
-        ));
-    }
-    verify_tile(tile, edit, tmp, &written).map_err(|m| {
-        write_err(
-            target,
-            format!("the written file does not read back: {m}; nothing changed"),
-        )
-    })?;
-    std::fs::File::open(tmp)
-        .and_then(|f| f.sync_all())
-        .map_err(|e| retarget(RasterError::io(tmp, e), tmp, target))
-}
-
 /// Check a staged tile before it may replace anything: not empty, opened
-/// by GDAL with the tile's size, its edited window read back by GDAL equal
-/// to `written` (the raw values written, as the sample type stores them),
-/// and the same window decoded by the native reader agreeing with GDAL.
-fn verify_tile(tile: &Tile, edit: &TileEdit, tmp: &Path, written: &[f64]) -> Result<(), String> {
+/// by GDAL with the tile's size, and (with `exact`: the output keeps the
+/// input's encoding, no `-co`) its edited window read back by GDAL equal to
+/// the values meant (the stored values with the edit merged in, as the
+/// sample type stores them), and the same window decoded by the native
+/// reader agreeing with GDAL.
+fn verify_tile(tile: &Tile, edit: &TileEdit, tmp: &Path, exact: bool) -> Result<(), String> {
+    let one = |e: &dyn std::fmt::Display| super::atomic_file::one_line(&e.to_string());
     let size = std::fs::metadata(tmp).map_err(|e| e.to_string())?.len();
     if size == 0 {
         return Err("it is empty".into());
     }
-    let (ds, errors) = gdal_errors::capture(|| gdal::Dataset::open(tmp));
-    let ds = ds.map_err(|e| {
-        format!(
-            "GDAL cannot open it: {}",
-            super::atomic_file::one_line(&e.to_string())
-        )
-    })?;
+    let ds = gdal::Dataset::open(tmp).map_err(|e| format!("GDAL cannot open it: {}", one(&e)))?;
     let (w, h) = ds.raster_size();
     if (w, h) != (tile.extent.width, tile.extent.height) {
         return Err(format!(
@@ -685,36 +901,39 @@ fn verify_tile(tile: &Tile, edit: &TileEdit, tmp: &Path, written: &[f64]) -> Res
         ));
     }
     let win = edit.local;
-    let (read, more) = gdal_errors::capture(|| {
-        let band = ds.rasterband(1)?;
-        band.read_as::<f64>(
-            (win.col as isize, win.row as isize),
-            (win.width, win.height),
-            (win.width, win.height),
-            None,
-        )
-    });
-    let read = read.map_err(|e| {
-        format!(
-            "GDAL cannot read it: {}",
-            super::atomic_file::one_line(&e.to_string())
-        )
-    })?;
-    if let Some(e) = errors.iter().chain(&more).next() {
-        return Err(format!("GDAL: {e}"));
-    }
+    let read = |d: &gdal::Dataset| {
+        d.rasterband(1).and_then(|b| {
+            b.read_as::<f64>(
+                (win.col as isize, win.row as isize),
+                (win.width, win.height),
+                (win.width, win.height),
+                None,
+            )
+        })
+    };
+    let got = read(&ds).map_err(|e| format!("GDAL cannot read it: {}", one(&e)))?;
     drop(ds);
+    if !exact || edit.changed == 0 {
+        return Ok(());
+    }
+    let src = gdal::Dataset::open(&tile.path).map_err(|e| one(&e))?;
+    let stored = read(&src).map_err(|e| one(&e))?;
     let same = |a: f64, b: f64| a == b || (a.is_nan() && b.is_nan());
-    let got = read.data();
-    if let Some(i) = (0..got.len()).find(|&i| !same(got[i], tile.sample_type.quantize(written[i])))
-    {
-        return Err(format!(
-            "cell (col {}, row {}) reads {} instead of {}",
-            win.col + (i % win.width) as i64,
-            win.row + (i / win.width) as i64,
-            got[i],
-            written[i]
-        ));
+    let got = got.data();
+    for (i, (&v, &old)) in edit.values.iter().zip(stored.data()).enumerate() {
+        let want = if v.is_nan() {
+            old
+        } else {
+            tile.sample_type.quantize(v)
+        };
+        if !same(got[i], want) {
+            return Err(format!(
+                "cell (col {}, row {}) reads {} instead of {want}",
+                win.col + (i % win.width) as i64,
+                win.row + (i / win.width) as i64,
+                got[i]
+            ));
+        }
     }
     let native = super::Dem::open(tmp)
         .and_then(|d| d.read_window::<f64>(win))
@@ -735,175 +954,4 @@ fn verify_tile(tile: &Tile, edit: &TileEdit, tmp: &Path, written: &[f64]) -> Res
         }
     }
     Ok(())
-}
-
-/// Encode one edited tile into `tmp`: an uncompressed GeoTIFF (not a COG)
-/// by [`update_tile_copy`], anything else by [`encode_tile_copy`]. Returns
-/// the raw values written over the edit's window.
-fn encode_tile(
-    tile: &Tile,
-    edit: &TileEdit,
-    tmp: &Path,
-    provenance: &Provenance,
-) -> Result<Vec<f64>, RasterError> {
-    let uncompressed =
-        matches!(&tile.source, TileSource::Tiff(t) if t.encoding.compression == "NONE");
-    let done = if uncompressed {
-        update_tile_copy(tile, edit, tmp, provenance)
-    } else {
-        Ok(None)
-    };
-    match done? {
-        Some(written) => Ok(written),
-        None => encode_tile_copy(tile, edit, tmp, provenance),
-    }
-}
-
-/// Write the edit into band 1 of `ds`: over its window, the stored values
-/// with the edit merged in (cells to keep take their stored value back, so
-/// nodata stays the file's own nodata value, bit for bit). Returns the
-/// values written.
-fn write_edit(ds: &gdal::Dataset, edit: &TileEdit) -> gdal::errors::Result<Vec<f64>> {
-    let mut band = ds.rasterband(1)?;
-    let size = (edit.local.width, edit.local.height);
-    let origin = (edit.local.col as isize, edit.local.row as isize);
-    let stored = band.read_as::<f64>(origin, size, size, None)?;
-    let merged: Vec<f64> = edit
-        .values
-        .iter()
-        .zip(stored.data())
-        .map(|(&v, &old)| if v.is_nan() { old } else { v })
-        .collect();
-    band.write(origin, size, &mut Buffer::new(size, merged.clone()))?;
-    Ok(merged)
-}
-
-/// Rebuild the overviews of a written tile where the source had them, as
-/// gdaladdo puts them (after the full-resolution image).
-fn rebuild_overviews(tile: &Tile, ds: &mut gdal::Dataset, tmp: &Path) -> Result<(), RasterError> {
-    if let TileSource::Tiff(t) = &tile.source {
-        if !t.overviews.is_empty() {
-            let factors: Vec<i32> = t
-                .overviews
-                .iter()
-                .map(|(w, _)| ((t.width as f64 / *w as f64).round() as i32).max(2))
-                .collect();
-            let resampling = if tile.sample_type.is_integer() {
-                "NEAREST"
-            } else {
-                "AVERAGE"
-            };
-            ds.build_overviews(resampling, &factors, &[])
-                .map_err(|e| write_err(tmp, format!("GDAL could not rebuild overviews: {e}")))?;
-        }
-    }
-    Ok(())
-}
-
-/// An uncompressed GeoTIFF is edited where it lies in a byte copy of the
-/// source: every tag, the layout and the rest of the image stay exactly as
-/// they were, and GDAL rewrites only the edited window, the provenance item
-/// and the overviews (in place: uncompressed blocks keep their size). Much
-/// cheaper than re-encoding the whole file. Returns the values written, or
-/// `None` (and `tmp` removed) when the copy is a COG, whose layout an
-/// in-place update would break. Write failures GDAL reports only through
-/// its error handler are the caller's to collect.
-fn update_tile_copy(
-    tile: &Tile,
-    edit: &TileEdit,
-    tmp: &Path,
-    provenance: &Provenance,
-) -> Result<Option<Vec<f64>>, RasterError> {
-    let is_cog = gdal::Dataset::open(&tile.path)
-        .map(|d| d.metadata_item("LAYOUT", "IMAGE_STRUCTURE").as_deref() == Some("COG"))
-        .map_err(|e| RasterError::gdal(&tile.path, e))?;
-    if is_cog {
-        return Ok(None);
-    }
-    let update = |path: &Path| -> Result<Vec<f64>, RasterError> {
-        let werr = |e: gdal::errors::GdalError| write_err(path, e);
-        let mut ds = gdal::Dataset::open_ex(
-            path,
-            gdal::DatasetOptions {
-                open_flags: GdalOpenFlags::GDAL_OF_UPDATE | GdalOpenFlags::GDAL_OF_RASTER,
-                allowed_drivers: Some(&["GTiff"]),
-                ..Default::default()
-            },
-        )
-        .map_err(werr)?;
-        let written = write_edit(&ds, edit).map_err(werr)?;
-        ds.set_metadata_item(PROVENANCE_KEY, &provenance.item(edit.changed), "")
-            .map_err(werr)?;
-        rebuild_overviews(tile, &mut ds, path)?;
-        ds.flush_cache().map_err(werr)?;
-        ds.close().map_err(werr)?;
-        Ok(written)
-    };
-    let size = std::fs::metadata(&tile.path)
-        .map_err(|e| RasterError::io(&tile.path, e))?
-        .len();
-    if size <= MEMORY_COPY_LIMIT {
-        let bytes = std::fs::read(&tile.path).map_err(|e| RasterError::io(&tile.path, e))?;
-        super::atomic_file::through_memory(tmp, Some(bytes), update)
-            .map(Some)
-            .map_err(|m| write_err(tmp, m))
-    } else {
-        std::fs::copy(&tile.path, tmp).map_err(|e| RasterError::io(tmp, e))?;
-        update(tmp).map(Some)
-    }
-}
-
-/// Files up to this size are updated or encoded in memory and written out
-/// by demsketch itself (see [`super::atomic_file::through_memory`]).
-const MEMORY_COPY_LIMIT: u64 = 256 << 20;
-
-/// Encode one edited tile into `tmp` through GDAL: the source is copied to
-/// memory with all its metadata, the edit applied, overviews rebuilt, and
-/// the result written with the source's creation options. Returns the
-/// values written over the edit's window.
-fn encode_tile_copy(
-    tile: &Tile,
-    edit: &TileEdit,
-    tmp: &Path,
-    provenance: &Provenance,
-) -> Result<Vec<f64>, RasterError> {
-    let gerr = |e: gdal::errors::GdalError| RasterError::gdal(&tile.path, e);
-    // Decode a compressed source with all cores (GTiff's NUM_THREADS open
-    // option; "@" keeps other drivers from warning about an option they
-    // lack). An uncompressed one has nothing to decode: the worker pool
-    // would cost more than the copy.
-    let uncompressed =
-        matches!(&tile.source, TileSource::Tiff(t) if t.encoding.compression == "NONE");
-    let src = gdal::Dataset::open_ex(
-        &tile.path,
-        gdal::DatasetOptions {
-            open_options: (!uncompressed).then_some(&["@NUM_THREADS=ALL_CPUS"][..]),
-            ..Default::default()
-        },
-    )
-    .map_err(gerr)?;
-    let mem_driver = DriverManager::get_driver_by_name("MEM").map_err(gerr)?;
-    let mut mem = src
-        .create_copy(&mem_driver, "", &RasterCreationOptions::default())
-        .map_err(gerr)?;
-    let written = write_edit(&mem, edit).map_err(gerr)?;
-    mem.set_metadata_item(PROVENANCE_KEY, &provenance.item(edit.changed), "")
-        .map_err(gerr)?;
-    let cog = src.metadata_item("LAYOUT", "IMAGE_STRUCTURE").as_deref() == Some("COG");
-    let driver =
-        DriverManager::get_driver_by_name(if cog { "COG" } else { "GTiff" }).map_err(gerr)?;
-    let opts = RasterCreationOptions::from_iter(creation_options(tile, cog));
-    super::atomic_file::through_memory(tmp, None, |path| -> Result<(), RasterError> {
-        let mut ds = mem
-            .create_copy(&driver, path, &opts)
-            .map_err(|e| write_err(path, format!("GDAL could not write the tile: {e}")))?;
-        // The COG driver builds its own overviews.
-        if !cog {
-            rebuild_overviews(tile, &mut ds, path)?;
-        }
-        ds.flush_cache().map_err(|e| write_err(path, e))?;
-        ds.close().map_err(|e| write_err(path, e))
-    })
-    .map_err(|m| write_err(tmp, m))?;
-    Ok(written)
 }

@@ -38,7 +38,7 @@ pub(crate) fn write_atomically(
 }
 
 /// Band 1 of the raster at `tmp`, read by GDAL, must be `width` x `height`
-/// and equal `expected` (NaN equal to NaN).
+/// and equal `expected` ([`crate::raster::atomic_file::verify_band`]).
 pub(crate) fn verify_band<T>(
     tmp: &Path,
     width: usize,
@@ -48,23 +48,5 @@ pub(crate) fn verify_band<T>(
 where
     T: gdal::raster::GdalType + PartialEq + Copy,
 {
-    let ds = gdal::Dataset::open(tmp).map_err(|e| format!("GDAL cannot open it: {e}"))?;
-    if ds.raster_size() != (width, height) {
-        return Err(format!(
-            "its size is {:?}, not {width} x {height}",
-            ds.raster_size()
-        ));
-    }
-    let band = ds.rasterband(1).map_err(|e| e.to_string())?;
-    let got = band
-        .read_as::<T>((0, 0), (width, height), (width, height), None)
-        .map_err(|e| format!("GDAL cannot read it: {e}"))?;
-    #[allow(clippy::eq_op)]
-    let same = |a: T, b: T| a == b || (a != a && b != b);
-    if got.data().len() != expected.len()
-        || got.data().iter().zip(expected).any(|(&a, &b)| !same(a, b))
-    {
-        return Err("its values differ from those written".into());
-    }
-    Ok(())
+    crate::raster::atomic_file::verify_band(tmp, width, height, expected)
 }

@@ -153,8 +153,26 @@ fn verify_png(tmp: &Path, width: usize, height: usize, rgb: &[u8]) -> Result<(),
     Ok(())
 }
 
+/// Nodata of a written depth buffer: sky (never a bare infinity).
+pub const DEPTH_NODATA: f64 = -9999.0;
+
+/// The depth buffer as written: metres from the eye, sky [`DEPTH_NODATA`].
+pub fn depth_for_file(depth: &DepthBuffer) -> Vec<f32> {
+    depth
+        .depth
+        .iter()
+        .map(|&d| {
+            if d.is_finite() {
+                d
+            } else {
+                DEPTH_NODATA as f32
+            }
+        })
+        .collect()
+}
+
 /// Write the depth buffer as a Float32 TIFF in image space (no
-/// georeference): metres from the eye, `inf` for sky.
+/// georeference): metres from the eye, sky nodata ([`DEPTH_NODATA`]).
 pub fn write_depth_tiff(depth: &DepthBuffer, path: &Path) -> Result<(), RenderError> {
     write_atomically(
         path,
@@ -168,9 +186,10 @@ pub fn write_depth_tiff(depth: &DepthBuffer, path: &Path) -> Result<(), RenderEr
                 let mut ds = driver
                     .create_with_band_type::<f32, _>(tmp, depth.width, depth.height, 1)
                     .map_err(werr)?;
+                let data = depth_for_file(depth);
                 let mut band = ds.rasterband(1).map_err(werr)?;
-                let mut buf =
-                    gdal::raster::Buffer::new((depth.width, depth.height), depth.depth.clone());
+                band.set_no_data_value(Some(DEPTH_NODATA)).map_err(werr)?;
+                let mut buf = gdal::raster::Buffer::new((depth.width, depth.height), data);
                 band.write((0, 0), (depth.width, depth.height), &mut buf)
                     .map_err(werr)?;
                 ds.flush_cache().map_err(werr)?;
@@ -182,7 +201,7 @@ pub fn write_depth_tiff(depth: &DepthBuffer, path: &Path) -> Result<(), RenderEr
                 message,
             })
         },
-        |tmp| super::atomic::verify_band(tmp, depth.width, depth.height, &depth.depth),
+        |tmp| super::atomic::verify_band(tmp, depth.width, depth.height, &depth_for_file(depth)),
     )
 }
 
