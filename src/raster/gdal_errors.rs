@@ -28,11 +28,26 @@ static ORPHANS: Mutex<Vec<String>> = Mutex::new(Vec::new());
 
 static INSTALL: Once = Once::new();
 
+/// What is shown of every GDAL message besides capturing it (the CLI's
+/// `--verbose` printer); nothing when unset.
+type Echo = Box<dyn Fn(CplErrType, i32, &str) + Send + Sync>;
+static ECHO: std::sync::OnceLock<Echo> = std::sync::OnceLock::new();
+
+/// Install the capturing handler with `echo` also called for every GDAL
+/// message (first call wins; the CLI shows messages with `--verbose`).
+pub fn install_with_echo(echo: impl Fn(CplErrType, i32, &str) + Send + Sync + 'static) {
+    let _ = ECHO.set(Box::new(echo));
+    install();
+}
+
 /// Install the capturing error handler (once per process; later calls do
 /// nothing).
 pub fn install() {
     INSTALL.call_once(|| {
-        gdal::config::set_error_handler(|class, _no, msg| {
+        gdal::config::set_error_handler(|class, no, msg| {
+            if let Some(echo) = ECHO.get() {
+                echo(class, no, msg);
+            }
             if !matches!(class, CplErrType::Failure | CplErrType::Fatal) {
                 return;
             }
