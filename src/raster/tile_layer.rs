@@ -93,9 +93,23 @@ impl Dem {
             let mut files: Vec<PathBuf> = std::fs::read_dir(path)
                 .map_err(|e| RasterError::io(path, e))?
                 .filter_map(|e| e.ok().map(|e| e.path()))
-                .filter(|p| p.is_file() && is_tiff_name(p))
+                .filter(|p| is_tiff_name(p) && (p.is_file() || p.is_symlink()))
                 .collect();
             files.sort();
+            // A tile name whose symlink leads nowhere is a missing tile,
+            // not a hole to skip silently.
+            if let Some(broken) = files.iter().find(|p| !p.is_file()) {
+                let to = std::fs::read_link(broken)
+                    .map(|t| t.display().to_string())
+                    .unwrap_or_default();
+                return Err(RasterError::io(
+                    broken.clone(),
+                    std::io::Error::new(
+                        std::io::ErrorKind::NotFound,
+                        format!("broken symbolic link: the tile it points to ({to}) is not a file"),
+                    ),
+                ));
+            }
             if files.is_empty() {
                 return Err(RasterError::EmptyDirectory {
                     path: path.to_path_buf(),

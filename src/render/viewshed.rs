@@ -80,28 +80,38 @@ pub fn viewshed(terrain: &LocalTerrain, dem: &HeightMap, target_height: f64) -> 
 
 /// Write `vs` as a single-band Byte GeoTIFF with the DEM's georeferencing.
 pub fn write_viewshed_tiff(vs: &Viewshed, path: &Path) -> Result<(), RenderError> {
-    write_atomically(path, |tmp| {
-        let werr = |e: gdal::errors::GdalError| RenderError::Write {
-            path: path.display().to_string(),
-            message: e.to_string().lines().next().unwrap_or("").to_string(),
-        };
-        let driver = gdal::DriverManager::get_driver_by_name("GTiff").map_err(werr)?;
-        let mut ds = driver
-            .create_with_band_type::<u8, _>(tmp, vs.width, vs.height, 1)
-            .map_err(werr)?;
-        ds.set_geo_transform(&vs.geotransform.0).map_err(werr)?;
-        let srs = vs.crs.gdal_definition();
-        if !srs.is_empty() {
-            if let Ok(sr) = gdal::spatial_ref::SpatialRef::from_definition(&srs) {
-                ds.set_spatial_ref(&sr).map_err(werr)?;
-            }
-        }
-        let mut band = ds.rasterband(1).map_err(werr)?;
-        let mut buf = gdal::raster::Buffer::new((vs.width, vs.height), vs.data.clone());
-        band.write((0, 0), (vs.width, vs.height), &mut buf)
-            .map_err(werr)?;
-        drop(band);
-        ds.close().map_err(werr)?;
-        Ok(())
-    })
+    write_atomically(
+        path,
+        |tmp| {
+            let werr = |e: gdal::errors::GdalError| RenderError::Write {
+                path: path.display().to_string(),
+                message: e.to_string().lines().next().unwrap_or("").to_string(),
+            };
+            crate::raster::atomic_file::through_memory(tmp, None, |tmp| {
+                let driver = gdal::DriverManager::get_driver_by_name("GTiff").map_err(werr)?;
+                let mut ds = driver
+                    .create_with_band_type::<u8, _>(tmp, vs.width, vs.height, 1)
+                    .map_err(werr)?;
+                ds.set_geo_transform(&vs.geotransform.0).map_err(werr)?;
+                let srs = vs.crs.gdal_definition();
+                if !srs.is_empty() {
+                    if let Ok(sr) = gdal::spatial_ref::SpatialRef::from_definition(&srs) {
+                        ds.set_spatial_ref(&sr).map_err(werr)?;
+                    }
+                }
+                let mut band = ds.rasterband(1).map_err(werr)?;
+                let mut buf = gdal::raster::Buffer::new((vs.width, vs.height), vs.data.clone());
+                band.write((0, 0), (vs.width, vs.height), &mut buf)
+                    .map_err(werr)?;
+                ds.flush_cache().map_err(werr)?;
+                ds.close().map_err(werr)?;
+                Ok::<(), RenderError>(())
+            })
+            .map_err(|message| RenderError::Write {
+                path: path.display().to_string(),
+                message,
+            })
+        },
+        |tmp| super::atomic::verify_band(tmp, vs.width, vs.height, &vs.data),
+    )
 }
