@@ -4,6 +4,15 @@
 //! array with a nodata mask. Reading is lazy (only the blocks a window
 //! touches are decoded), decoded blocks are cached under a memory bound, and
 //! decoding runs in parallel on rayon.
+//!
+//! Heights leave the layer in metres: each tile's band scale, offset and
+//! vertical unit ([`Vertical`]) are applied after the nodata test, so that
+//! everything downstream works in metres ([`Dem::read_window_raw`] gives
+//! the stored values, for write-back).
+//!
+//! The native decoder reads what it reads exactly (and fast); whatever it
+//! does not (GDAL virtual file systems such as `/vsizip/`, LERC or JPEG
+//! compression, CRSs it cannot build from GeoKeys) is read through GDAL.
 
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
@@ -12,7 +21,10 @@ use rayon::prelude::*;
 
 use super::block_cache::BlockCache;
 use super::geotiff::{memory_budget, GeoTiff};
-use super::{Crs, GeoTransform, HeightMap, RasterError, Sample, SampleType, Window, WindowData};
+use super::vertical::vertical_of_srs;
+use super::{
+    Crs, GeoTransform, HeightMap, RasterError, Sample, SampleType, Vertical, Window, WindowData,
+};
 
 /// Where a tile's pixels come from.
 pub enum TileSource {
@@ -31,6 +43,15 @@ pub struct Tile {
     pub sample_type: SampleType,
     pub nodata: Option<f64>,
     pub geotransform: GeoTransform,
+    /// Stored value -> metres (band scale, offset, vertical unit).
+    pub vertical: Vertical,
+}
+
+impl Tile {
+    /// True when the tile is read through GDAL rather than natively.
+    pub fn read_by_gdal(&self) -> bool {
+        matches!(self.source, TileSource::Gdal(_))
+    }
 }
 
 /// What kind of input the layer was opened from.
@@ -59,6 +80,8 @@ pub struct Dem {
     pub crs: Crs,
     pub nodata: Option<f64>,
     pub sample_type: SampleType,
+    /// The first tile's vertical description (unit, datum, scale, offset).
+    pub vertical: Vertical,
     cache: BlockCache,
 }
 
@@ -88,6 +111,10 @@ fn nodata_eq(a: Option<f64>, b: Option<f64>) -> bool {
 impl Dem {
     /// Open a GeoTIFF, a directory of GeoTIFF tiles, or a raster GDAL opens.
     pub fn open(path: &Path) -> Result<Dem, RasterError> {
+        if is_gdal_virtual(path) {
+            let tile = Self::open_gdal(path)?;
+            return Self::mosaic(path, LayerKind::Gdal, vec![tile]);
+        }
         let meta = std::fs::metadata(path).map_err(|e| RasterError::io(path, e))?;
         if meta.is_dir() {
             let mut files: Vec<PathBuf> = std::fs::read_dir(path)
@@ -124,8 +151,17 @@ impl Dem {
             .unwrap_or(false)
     }
 
+    /// Open one GeoTIFF natively, or through GDAL where the native decoder
+    /// does not support it (GDAL's error is kept only if GDAL fails too and
+    /// the native one says less).
     fn open_tile(path: &Path) -> Result<Part, RasterError> {
-        let t = GeoTiff::open(path)?;
+        let t = match GeoTiff::open(path) {
+            Ok(t) => t,
+            Err(native @ (RasterError::NotNative { .. } | RasterError::Crs { .. })) => {
+                return Self::open_gdal(path).map_err(|_| native);
+            }
+            Err(e) => return Err(e),
+        };
         Ok(Part {
             crs: t.crs.clone(),
             tile: Tile {
@@ -134,6 +170,7 @@ impl Dem {
                 sample_type: t.sample_type,
                 nodata: t.nodata,
                 geotransform: t.geotransform,
+                vertical: t.vertical.clone(),
                 source: TileSource::Tiff(t),
             },
         })
@@ -154,18 +191,24 @@ impl Dem {
                 what: format!("band type {:?}", band.band_type()),
             })?;
         let nodata = band.no_data_value();
+        let (scale, offset, unit) = (band.scale(), band.offset(), band.unit());
         drop(band);
         let srs = ds.spatial_ref().ok();
         let crs = Crs {
-            epsg: srs
-                .as_ref()
-                .filter(|s| s.auth_name().as_deref() == Some("EPSG"))
-                .and_then(|s| s.auth_code().ok())
-                .map(|c| c as u32),
+            epsg: srs.as_ref().and_then(horizontal_epsg),
             wkt: ds.projection(),
             proj: srs.as_ref().and_then(|s| s.to_proj4().ok()),
             geographic: srs.as_ref().map(|s| s.is_geographic()).unwrap_or(false),
         };
+        let (datum, crs_unit) = match srs.as_ref().and_then(vertical_of_srs) {
+            Some((name, unit)) => (Some(name), unit),
+            None => (None, None),
+        };
+        let vertical = Vertical::from_parts(scale, offset, &unit, crs_unit, datum)
+            .map_err(|message| RasterError::Crs {
+                path: path.to_path_buf(),
+                message,
+            })?;
         Ok(Part {
             crs,
             tile: Tile {
@@ -174,6 +217,7 @@ impl Dem {
                 sample_type,
                 nodata,
                 geotransform: GeoTransform(gt),
+                vertical,
                 source: TileSource::Gdal(Mutex::new(ds)),
             },
         })
@@ -183,12 +227,13 @@ impl Dem {
     /// type and nodata against the first tile.
     fn mosaic(path: &Path, kind: LayerKind, parts: Vec<Part>) -> Result<Dem, RasterError> {
         let first = &parts[0];
-        let (ref_path, ref_gt, ref_crs, ref_nodata, ref_type) = (
+        let (ref_path, ref_gt, ref_crs, ref_nodata, ref_type, ref_vertical) = (
             first.tile.path.clone(),
             first.tile.geotransform,
             first.crs.clone(),
             first.tile.nodata,
             first.tile.sample_type,
+            first.tile.vertical.clone(),
         );
         let g = ref_gt.0;
         let mismatch = |p: &Path, what: String| RasterError::TileMismatch {
@@ -263,6 +308,7 @@ impl Dem {
             crs: ref_crs,
             nodata: ref_nodata,
             sample_type: ref_type,
+            vertical: ref_vertical,
             tiles,
             width,
             height,
@@ -298,9 +344,48 @@ impl Dem {
         w.intersect(&self.full_window())
     }
 
-    /// Read a window as one seamless array across tiles. Cells outside every
-    /// tile, and nodata cells, are invalid (their value is NaN).
+    /// Read a window of heights in metres as one seamless array across
+    /// tiles. Cells outside every tile, and nodata cells, are invalid (their
+    /// value is NaN).
     pub fn read_window<T: Sample>(&self, win: Window) -> Result<WindowData<T>, RasterError> {
+        let mut w = self.read_window_raw::<T>(win)?;
+        self.to_metres(&mut w);
+        Ok(w)
+    }
+
+    /// Convert the valid cells of a raw window to metres, tile by tile.
+    fn to_metres<T: Sample>(&self, w: &mut WindowData<T>) {
+        let win = w.window;
+        for tile in &self.tiles {
+            if tile.vertical.is_identity() {
+                continue;
+            }
+            let Some(ov) = tile.extent.intersect(&win) else {
+                continue;
+            };
+            let v = &tile.vertical;
+            let c0 = (ov.col - win.col) as usize;
+            let r0 = (ov.row - win.row) as usize;
+            w.data
+                .par_chunks_mut(win.width.max(1))
+                .zip(w.valid.par_chunks(win.width.max(1)))
+                .skip(r0)
+                .take(ov.height)
+                .for_each(|(d, ok)| {
+                    for (x, _) in d[c0..c0 + ov.width]
+                        .iter_mut()
+                        .zip(&ok[c0..c0 + ov.width])
+                        .filter(|(_, ok)| **ok)
+                    {
+                        *x = T::from_f64(v.to_metres(x.to_f64()));
+                    }
+                });
+        }
+    }
+
+    /// Read a window of stored values (before scale, offset and unit), as
+    /// [`Dem::read_window`] otherwise does.
+    pub fn read_window_raw<T: Sample>(&self, win: Window) -> Result<WindowData<T>, RasterError> {
         let n = win.len();
         let bytes = (n as u64).saturating_mul(std::mem::size_of::<T>() as u64 + 1);
         let budget = memory_budget();
@@ -314,7 +399,16 @@ impl Dem {
                 budget,
             });
         }
-        let mut data = vec![T::nan(); n];
+        let mut data = super::alloc::try_filled(n, T::nan()).ok_or_else(|| {
+            RasterError::TooLarge {
+                path: self.path.clone(),
+                width: win.width as u64,
+                height: win.height as u64,
+                sample: std::any::type_name::<T>().into(),
+                bytes,
+                budget,
+            }
+        })?;
         let out = SharedOut {
             ptr: data.as_mut_ptr(),
             len: n,
@@ -428,7 +522,14 @@ impl Dem {
             .collect::<Result<Vec<()>, _>>()?;
         // Nodata is compared in the precision of the sample type, as GDAL
         // does (a Float32 file's nodata of -3.4e38 is the f32 nearest to it).
-        let mut valid = vec![false; n];
+        let mut valid = super::alloc::try_filled(n, false).ok_or_else(|| RasterError::TooLarge {
+            path: self.path.clone(),
+            width: win.width as u64,
+            height: win.height as u64,
+            sample: "mask".into(),
+            bytes,
+            budget,
+        })?;
         let nodata = self.nodata.map(|v| self.sample_type.quantize(v));
         data.par_chunks_mut(win.width.max(1))
             .zip(valid.par_chunks_mut(win.width.max(1)))
@@ -493,6 +594,33 @@ impl Dem {
     pub(crate) fn invalidate_tile(&self, tile: usize) {
         self.cache.invalidate_tile(tile)
     }
+}
+
+/// True for GDAL virtual file system paths (`/vsizip/`, `/vsigzip/`,
+/// `/vsicurl/`, ...), which only GDAL opens.
+fn is_gdal_virtual(path: &Path) -> bool {
+    path.to_str().is_some_and(|s| s.starts_with("/vsi"))
+}
+
+/// The EPSG code of the horizontal part of a CRS: the CRS's own for a
+/// projected or geographic one, the horizontal component's for a compound.
+fn horizontal_epsg(srs: &gdal::spatial_ref::SpatialRef) -> Option<u32> {
+    if srs.is_compound() {
+        for key in ["COMPD_CS|PROJCS|AUTHORITY", "COMPD_CS|GEOGCS|AUTHORITY"] {
+            if srs.get_attr_value(key, 0).ok().flatten().as_deref() == Some("EPSG") {
+                return srs
+                    .get_attr_value(key, 1)
+                    .ok()
+                    .flatten()
+                    .and_then(|c| c.parse().ok());
+            }
+        }
+        return None;
+    }
+    (srs.auth_name().as_deref() == Some("EPSG"))
+        .then(|| srs.auth_code().ok())
+        .flatten()
+        .map(|c| c as u32)
 }
 
 /// Disjoint mutable access to the output of a parallel window read.

@@ -187,7 +187,9 @@ impl Dem {
                     width: self.width,
                     height: self.height,
                 })?;
-        let original = self.read_window::<f64>(window)?;
+        // Stored values: heights in metres are converted to the tile's
+        // scale, offset and unit (`Vertical::to_raw`) before quantizing.
+        let original = self.read_window_raw::<f64>(window)?;
         // Per tile: which cells change once quantized. A new height the
         // tile's type cannot hold, or one that lands on its nodata value, is
         // an error (never clamped: that would write a wrong height, or turn
@@ -207,7 +209,7 @@ impl Dem {
                             + (ov.col - window.col) as usize
                             + c;
                         let old = original.data[wi];
-                        let new = values[wi];
+                        let new = tile.vertical.to_raw(values[wi]);
                         // NaN = keep the stored value (nodata cells keep
                         // their raw nodata value, see `encode_tile`).
                         let v = if !original.valid[wi] || new.is_nan() {
@@ -262,6 +264,17 @@ impl Dem {
                 what: "in-place write to a non-GeoTIFF raster; give an output GeoTIFF with --out"
                     .into(),
             }),
+            (Destination::InPlace, _) if edits.iter().any(|e| self.tiles[e.tile].read_by_gdal()) => {
+                let t = edits
+                    .iter()
+                    .map(|e| &self.tiles[e.tile])
+                    .find(|t| t.read_by_gdal())
+                    .map_or(self.path.clone(), |t| t.path.clone());
+                Err(RasterError::Unsupported {
+                    path: t,
+                    what: "in-place write to a file read through GDAL (its encoding or CRS is not one demsketch writes back exactly); write a new GeoTIFF with --out".into(),
+                })
+            }
             (Destination::InPlace, _) => {
                 let targets: Vec<PathBuf> = edits
                     .iter()

@@ -47,6 +47,10 @@ const PROJ_SCALE_AT_CENTER: u16 = 3093;
 const PROJ_AZIMUTH_ANGLE: u16 = 3094;
 const PROJ_STRAIGHT_VERT_POLE_LONG: u16 = 3095;
 
+const VERTICAL_CS_TYPE: u16 = 4096;
+const VERTICAL_CITATION: u16 = 4097;
+const VERTICAL_UNITS: u16 = 4099;
+
 const USER_DEFINED: u16 = 32767;
 
 /// Raster space convention of the GeoTIFF (`GTRasterTypeGeoKey`).
@@ -114,6 +118,32 @@ impl GeoKeys {
 
     fn double(&self, id: u16) -> Option<f64> {
         self.doubles.get(&id).and_then(|v| v.first().copied())
+    }
+
+    /// The vertical CRS the keys name (`VerticalCSTypeGeoKey`, GeoTIFF 1.1
+    /// and GDAL's compound CRSs): its name and (unit name, metres per unit),
+    /// from the EPSG code or from `VerticalUnitsGeoKey` and the citation.
+    pub fn vertical(&self) -> Option<(String, Option<(String, f64)>)> {
+        let code = self.short(VERTICAL_CS_TYPE).filter(|&c| c != 0);
+        let units = self.short(VERTICAL_UNITS).and_then(|u| match u {
+            9001 => Some(("metre".to_string(), 1.0)),
+            9002 => Some(("foot".to_string(), 0.3048)),
+            9003 => Some(("US survey foot".to_string(), 1200.0 / 3937.0)),
+            _ => None,
+        });
+        let citation = self.ascii.get(&VERTICAL_CITATION).cloned();
+        match code {
+            Some(c) if c != USER_DEFINED => {
+                let (name, unit) = crate::raster::vertical::vertical_of_epsg(u32::from(c))
+                    .unwrap_or_else(|| (format!("EPSG:{c}"), None));
+                Some((name, unit.or(units)))
+            }
+            _ if units.is_some() || citation.is_some() => Some((
+                citation.unwrap_or_else(|| "user-defined vertical CRS".into()),
+                units,
+            )),
+            _ => None,
+        }
     }
 
     /// PixelIsArea unless the keys say PixelIsPoint.
@@ -280,12 +310,12 @@ impl GeoKeys {
             match self.user_defined_proj() {
                 Some(p) => p,
                 None => {
-                    return Err(RasterError::Unsupported {
+                    return Err(RasterError::NotNative {
                         path: path.to_path_buf(),
                         what: format!(
-                            "user-defined projection (ProjCoordTransGeoKey {:?}, ProjectionGeoKey {:?})",
-                            self.short(PROJ_COORD_TRANS),
-                            self.short(PROJECTION)
+                            "user-defined projection (ProjCoordTransGeoKey {}, ProjectionGeoKey {})",
+                            self.short(PROJ_COORD_TRANS).map_or("absent".into(), |c| c.to_string()),
+                            self.short(PROJECTION).map_or("absent".into(), |c| c.to_string())
                         ),
                     })
                 }

@@ -21,7 +21,7 @@ use memmap2::Mmap;
 use tiff::decoder::{ChunkType, Decoder, DecodingResult, Limits};
 use tiff::tags::{CompressionMethod, Predictor, SampleFormat, Tag};
 
-use super::{Crs, GeoTransform, RasterError, SampleType};
+use super::{Crs, GeoTransform, RasterError, SampleType, Vertical};
 
 const TAG_GDAL_METADATA: u16 = 42112;
 const TAG_GDAL_NODATA: u16 = 42113;
@@ -68,6 +68,8 @@ pub struct GeoTiff {
     pub nodata: Option<f64>,
     /// The `GDAL_METADATA` XML, kept for write-back.
     pub gdal_metadata: Option<String>,
+    /// Band scale, offset, vertical unit and datum (stored value -> metres).
+    pub vertical: Vertical,
     /// Sizes of the reduced-resolution images (overviews).
     pub overviews: Vec<(u32, u32)>,
     codec: BlockCodec,
@@ -240,7 +242,10 @@ impl GeoTiff {
                         m => format!("{m:?}"),
                     },
                 };
-                return Err(unsupported(format!("compression {name}")));
+                return Err(RasterError::NotNative {
+                    path: p.to_path_buf(),
+                    what: format!("compression {name}"),
+                });
             }
         };
         let predictor = dec
@@ -423,6 +428,19 @@ impl GeoTiff {
             })?),
         };
         let gdal_metadata = ascii_tag(&mut dec, TAG_GDAL_METADATA);
+        let (scale, offset, unit) = gdal_metadata
+            .as_deref()
+            .map(super::vertical::from_gdal_metadata)
+            .unwrap_or_default();
+        let (datum, crs_unit) = match keys.as_ref().and_then(|k| k.vertical()) {
+            Some((name, unit)) => (Some(name), unit),
+            None => (None, None),
+        };
+        let vertical = Vertical::from_parts(scale, offset, &unit, crs_unit, datum)
+            .map_err(|message| RasterError::Crs {
+                path: p.to_path_buf(),
+                message,
+            })?;
         let codec = BlockCodec {
             compression: dec
                 .find_tag_unsigned::<u16>(Tag::Compression)
@@ -450,6 +468,7 @@ impl GeoTiff {
             crs,
             nodata,
             gdal_metadata,
+            vertical,
             overviews,
             codec,
             offsets: offsets[..expected].to_vec(),
