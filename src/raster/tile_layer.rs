@@ -348,44 +348,20 @@ impl Dem {
     /// tiles. Cells outside every tile, and nodata cells, are invalid (their
     /// value is NaN).
     pub fn read_window<T: Sample>(&self, win: Window) -> Result<WindowData<T>, RasterError> {
-        let mut w = self.read_window_raw::<T>(win)?;
-        self.to_metres(&mut w);
-        Ok(w)
-    }
-
-    /// Convert the valid cells of a raw window to metres, tile by tile.
-    fn to_metres<T: Sample>(&self, w: &mut WindowData<T>) {
-        let win = w.window;
-        for tile in &self.tiles {
-            if tile.vertical.is_identity() {
-                continue;
-            }
-            let Some(ov) = tile.extent.intersect(&win) else {
-                continue;
-            };
-            let v = &tile.vertical;
-            let c0 = (ov.col - win.col) as usize;
-            let r0 = (ov.row - win.row) as usize;
-            w.data
-                .par_chunks_mut(win.width.max(1))
-                .zip(w.valid.par_chunks(win.width.max(1)))
-                .skip(r0)
-                .take(ov.height)
-                .for_each(|(d, ok)| {
-                    for (x, _) in d[c0..c0 + ov.width]
-                        .iter_mut()
-                        .zip(&ok[c0..c0 + ov.width])
-                        .filter(|(_, ok)| **ok)
-                    {
-                        *x = T::from_f64(v.to_metres(x.to_f64()));
-                    }
-                });
-        }
+        self.read(win, true)
     }
 
     /// Read a window of stored values (before scale, offset and unit), as
     /// [`Dem::read_window`] otherwise does.
     pub fn read_window_raw<T: Sample>(&self, win: Window) -> Result<WindowData<T>, RasterError> {
+        self.read(win, false)
+    }
+
+    /// Read a window, in metres when `metres`, else as stored. Nodata is
+    /// tested on the stored value, in the precision of the sample type as
+    /// GDAL does (a Float32 file's nodata of -3.4e38 is the f32 nearest to
+    /// it); the conversion to metres is done in f64, before rounding to `T`.
+    fn read<T: Sample>(&self, win: Window, metres: bool) -> Result<WindowData<T>, RasterError> {
         let n = win.len();
         let bytes = (n as u64).saturating_mul(std::mem::size_of::<T>() as u64 + 1);
         let budget = memory_budget();
@@ -413,6 +389,8 @@ impl Dem {
             ptr: data.as_mut_ptr(),
             len: n,
         };
+        // Nodata is the same for every tile (checked at open).
+        let nodata = self.nodata.map(|v| self.sample_type.quantize(v));
         // Jobs: (tile, block) pairs for native tiles; whole overlaps for GDAL ones.
         let mut jobs: Vec<(usize, Option<u32>)> = Vec::new();
         for (ti, tile) in self.tiles.iter().enumerate() {
@@ -460,6 +438,12 @@ impl Dem {
                             return Ok(());
                         };
                         let row_len = tiff.decoded_row_len(bi);
+                        let conv = (metres && !tile.vertical.is_identity()).then_some(&tile.vertical);
+                        let mut row = if conv.is_some() {
+                            vec![0f64; ov.width]
+                        } else {
+                            Vec::new()
+                        };
                         if super::sample_type::decoded_bytes(&decoded)
                             < row_len * bh as usize * tiff.sample_type.bytes()
                         {
@@ -476,7 +460,16 @@ impl Dem {
                             // SAFETY: blocks are disjoint rectangles of the
                             // window, so no two jobs write the same cells.
                             let out = unsafe { out.slice(dst, ov.width) };
-                            T::copy_from_block(&decoded, src, out);
+                            match &conv {
+                                None => {
+                                    T::copy_from_block(&decoded, src, out);
+                                    mask_nodata(out, nodata);
+                                }
+                                Some(v) => {
+                                    f64::copy_from_block(&decoded, src, &mut row);
+                                    store_metres(&row, out, nodata, v);
+                                }
+                            }
                         }
                         Ok(())
                     }
@@ -509,9 +502,14 @@ impl Dem {
                                 + (ov.col - win.col) as usize;
                             // SAFETY: tiles do not overlap (checked at open).
                             let out = unsafe { out.slice(dst, ov.width) };
-                            for (o, v) in out.iter_mut().zip(&buf[r * ov.width..(r + 1) * ov.width])
-                            {
-                                *o = T::from_f64(*v);
+                            let src = &buf[r * ov.width..(r + 1) * ov.width];
+                            if metres && !tile.vertical.is_identity() {
+                                store_metres(src, out, nodata, &tile.vertical);
+                            } else {
+                                for (o, v) in out.iter_mut().zip(src) {
+                                    *o = T::from_f64(*v);
+                                }
+                                mask_nodata(out, nodata);
                             }
                         }
                         Ok(())
@@ -520,8 +518,8 @@ impl Dem {
                 }
             })
             .collect::<Result<Vec<()>, _>>()?;
-        // Nodata is compared in the precision of the sample type, as GDAL
-        // does (a Float32 file's nodata of -3.4e38 is the f32 nearest to it).
+        // Cells outside every tile, and nodata (set to NaN above), are
+        // invalid.
         let mut valid = super::alloc::try_filled(n, false).ok_or_else(|| RasterError::TooLarge {
             path: self.path.clone(),
             width: win.width as u64,
@@ -530,17 +528,11 @@ impl Dem {
             bytes,
             budget,
         })?;
-        let nodata = self.nodata.map(|v| self.sample_type.quantize(v));
-        data.par_chunks_mut(win.width.max(1))
+        data.par_chunks(win.width.max(1))
             .zip(valid.par_chunks_mut(win.width.max(1)))
             .for_each(|(d, v)| {
-                for (x, ok) in d.iter_mut().zip(v.iter_mut()) {
-                    let f = x.to_f64();
-                    if f.is_nan() || Some(f) == nodata {
-                        *x = T::nan();
-                    } else {
-                        *ok = true;
-                    }
+                for (x, ok) in d.iter().zip(v.iter_mut()) {
+                    *ok = !x.to_f64().is_nan();
                 }
             });
         Ok(WindowData {
@@ -593,6 +585,29 @@ impl Dem {
 
     pub(crate) fn invalidate_tile(&self, tile: usize) {
         self.cache.invalidate_tile(tile)
+    }
+}
+
+/// Set nodata cells (and NaN) of stored values to NaN.
+#[inline]
+fn mask_nodata<T: Sample>(out: &mut [T], nodata: Option<f64>) {
+    for x in out.iter_mut() {
+        let f = x.to_f64();
+        if f.is_nan() || Some(f) == nodata {
+            *x = T::nan();
+        }
+    }
+}
+
+/// Store stored values `raw` as metres into `out` (nodata and NaN as NaN).
+#[inline]
+fn store_metres<T: Sample>(raw: &[f64], out: &mut [T], nodata: Option<f64>, v: &Vertical) {
+    for (o, &r) in out.iter_mut().zip(raw) {
+        *o = if r.is_nan() || Some(r) == nodata {
+            T::nan()
+        } else {
+            T::from_f64(v.to_metres(r))
+        };
     }
 }
 

@@ -182,6 +182,34 @@ pub fn vertical_of_epsg(code: u32) -> Option<(String, Option<(String, f64)>)> {
     vertical_of_srs(&srs)
 }
 
+/// Give band 1 of `dst` the scale, offset and unit of band 1 of `src`
+/// (GDAL's generic copy to a MEM dataset drops the unit), so that a
+/// re-encoded file keeps the meaning of its values.
+pub fn keep_band_vertical(src: &gdal::Dataset, dst: &gdal::Dataset) -> gdal::errors::Result<()> {
+    let s = src.rasterband(1)?;
+    let mut d = dst.rasterband(1)?;
+    if let Some(v) = s.scale() {
+        d.set_scale(v)?;
+    }
+    if let Some(v) = s.offset() {
+        d.set_offset(v)?;
+    }
+    let unit = s.unit();
+    if !unit.is_empty() {
+        let c = std::ffi::CString::new(unit).map_err(gdal::errors::GdalError::FfiNulError)?;
+        // SAFETY: `d` is a live band of `dst`; GDAL copies the string.
+        let rc = unsafe { gdal_sys::GDALSetRasterUnitType(d.c_rasterband(), c.as_ptr()) };
+        if rc != gdal_sys::CPLErr::CE_None {
+            return Err(gdal::errors::GdalError::CplError {
+                class: rc,
+                number: 0,
+                msg: "GDALSetRasterUnitType failed".into(),
+            });
+        }
+    }
+    Ok(())
+}
+
 /// The band scale, offset and unit stored in a `GDAL_METADATA` TIFF tag
 /// (items of band 0 with role `scale`, `offset`, `unittype`).
 pub fn from_gdal_metadata(xml: &str) -> (Option<f64>, Option<f64>, String) {

@@ -619,6 +619,7 @@ fn encode_tile_copy(
     let mut mem = src
         .create_copy(&mem_driver, "", &RasterCreationOptions::default())
         .map_err(gerr)?;
+    super::vertical::keep_band_vertical(&src, &mem).map_err(gerr)?;
     write_edit(&mem, edit).map_err(gerr)?;
     mem.set_metadata_item(PROVENANCE_KEY, &provenance.item(edit.changed), "")
         .map_err(gerr)?;
