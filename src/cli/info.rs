@@ -129,6 +129,9 @@ pub fn run(args: InfoArgs) -> anyhow::Result<()> {
             Some(v) => v.to_string(),
         }
     );
+    if dem.tiles.iter().any(|t| t.read_by_gdal()) {
+        println!("Encoding:     read through GDAL (not written back in place)");
+    }
     if let Some(TileSource::Tiff(g)) = dem.tiles.first().map(|t| &t.source) {
         println!(
             "Encoding:     {} {}x{} blocks, {}, predictor {}{}",

@@ -158,7 +158,9 @@ impl Dem {
         let t = match GeoTiff::open(path) {
             Ok(t) => t,
             Err(native @ (RasterError::NotNative { .. } | RasterError::Crs { .. })) => {
-                return Self::open_gdal(path).map_err(|_| native);
+                // GDAL's own complaints are not shown: if it fails too, the
+                // native error says what is wrong in one line.
+                return quiet_gdal(|| Self::open_gdal(path)).map_err(|_| native);
             }
             Err(e) => return Err(e),
         };
@@ -609,6 +611,17 @@ fn store_metres<T: Sample>(raw: &[f64], out: &mut [T], nodata: Option<f64>, v: &
             T::from_f64(v.to_metres(r))
         };
     }
+}
+
+/// Run `f` with GDAL's error messages on this thread discarded (a GDAL
+/// attempt whose failure is reported otherwise).
+fn quiet_gdal<R>(f: impl FnOnce() -> R) -> R {
+    // SAFETY: pushing and popping a handler on the calling thread's stack;
+    // CPLQuietErrorHandler is GDAL's own no-op handler.
+    unsafe { gdal_sys::CPLPushErrorHandler(Some(gdal_sys::CPLQuietErrorHandler)) };
+    let r = f();
+    unsafe { gdal_sys::CPLPopErrorHandler() };
+    r
 }
 
 /// True for GDAL virtual file system paths (`/vsizip/`, `/vsigzip/`,
