@@ -8,6 +8,9 @@
 
 mod block_decode;
 mod geokeys;
+mod limits;
+
+pub use limits::{decoder_limits, max_decompressed, memory_budget};
 
 use block_decode::BlockCodec;
 
@@ -18,7 +21,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use memmap2::Mmap;
-use tiff::decoder::{ChunkType, Decoder, DecodingResult, Limits};
+use tiff::decoder::{ChunkType, Decoder, DecodingResult};
 use tiff::tags::{CompressionMethod, Predictor, SampleFormat, Tag};
 
 use super::{Crs, GeoTransform, RasterError, SampleType, Vertical};
@@ -37,8 +40,10 @@ pub struct BlockLayout {
 }
 
 impl BlockLayout {
-    pub fn count(&self) -> u32 {
-        self.blocks_across * self.blocks_down
+    /// Number of blocks (as u64: a crafted header may claim more than a
+    /// TIFF can list).
+    pub fn count(&self) -> u64 {
+        u64::from(self.blocks_across) * u64::from(self.blocks_down)
     }
 }
 
@@ -100,17 +105,6 @@ fn tiff_err(path: &Path, e: tiff::TiffError) -> RasterError {
     }
 }
 
-/// The memory budget for one decoded window or block, in bytes
-/// (`DEMSKETCH_MEMORY_BUDGET_MB`, default 8192).
-pub fn memory_budget() -> u64 {
-    std::env::var("DEMSKETCH_MEMORY_BUDGET_MB")
-        .ok()
-        .and_then(|s| s.parse::<u64>().ok())
-        .unwrap_or(8192)
-        * 1024
-        * 1024
-}
-
 impl GeoTiff {
     /// Open and parse a GeoTIFF. Fails with a one-line error for files that
     /// are not TIFF, are truncated, lack a georeference or use an encoding
@@ -133,7 +127,7 @@ impl GeoTiff {
         let bytes = Arc::new(bytes);
         let mut dec = Decoder::new(Cursor::new(&bytes[..]))
             .map_err(|e| tiff_err(path, e))?
-            .with_limits(Limits::unlimited());
+            .with_limits(decoder_limits(bytes.len() as u64));
 
         // Walk the IFD chain: the first full-resolution, non-mask image is
         // the DEM; reduced-resolution images are its overviews.
@@ -308,6 +302,18 @@ impl GeoTiff {
         let counts = dec
             .get_tag_u64_vec(counts_tag)
             .map_err(|e| tiff_err(p, e))?;
+        let listed = offsets.len().min(counts.len());
+        if layout.count() > listed as u64 {
+            return Err(RasterError::Corrupt {
+                path: p.to_path_buf(),
+                detail: format!(
+                    "{} x {} pixels need {} blocks but the file lists {listed}",
+                    width,
+                    height,
+                    layout.count()
+                ),
+            });
+        }
         let expected = layout.count() as usize;
         if offsets.len() < expected || counts.len() < expected {
             return Err(RasterError::Corrupt {
