@@ -10,9 +10,3 @@ pub(crate) fn try_filled<T: Clone>(n: usize, v: T) -> Option<Vec<T>> {
     Some(out)
 }
 
-/// An empty vector with room for `n` elements, or `None`.
-pub(crate) fn try_with_capacity<T>(n: usize) -> Option<Vec<T>> {
-    let mut out = Vec::new();
-    out.try_reserve_exact(n).ok()?;
-    Some(out)
-}

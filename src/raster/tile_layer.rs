@@ -377,20 +377,6 @@ impl Dem {
                 budget,
             });
         }
-        let mut data = super::alloc::try_filled(n, T::nan()).ok_or_else(|| {
-            RasterError::TooLarge {
-                path: self.path.clone(),
-                width: win.width as u64,
-                height: win.height as u64,
-                sample: std::any::type_name::<T>().into(),
-                bytes,
-                budget,
-            }
-        })?;
-        let out = SharedOut {
-            ptr: data.as_mut_ptr(),
-            len: n,
-        };
         // Nodata is the same for every tile (checked at open).
         let nodata = self.nodata.map(|v| self.sample_type.quantize(v));
         // Jobs: (tile, block) pairs for native tiles; whole overlaps for GDAL ones.
@@ -415,6 +401,30 @@ impl Dem {
                 TileSource::Gdal(_) => jobs.push((ti, None)),
             }
         }
+        // Fail fast: decode one block (kept in the cache) before the window
+        // is allocated, so that a broken or crafted file costs little.
+        if let Some(&(ti, Some(bi))) = jobs.first() {
+            if let TileSource::Tiff(tiff) = &self.tiles[ti].source {
+                if self.cache.get((ti, bi)).is_none() {
+                    let b = Arc::new(tiff.decode_block(bi)?);
+                    self.cache.insert((ti, bi), b);
+                }
+            }
+        }
+        let mut data = super::alloc::try_filled(n, T::nan()).ok_or_else(|| {
+            RasterError::TooLarge {
+                path: self.path.clone(),
+                width: win.width as u64,
+                height: win.height as u64,
+                sample: std::any::type_name::<T>().into(),
+                bytes,
+                budget,
+            }
+        })?;
+        let out = SharedOut {
+            ptr: data.as_mut_ptr(),
+            len: n,
+        };
         jobs.par_iter()
             .map(|&(ti, block)| -> Result<(), RasterError> {
                 let tile = &self.tiles[ti];
@@ -556,24 +566,80 @@ impl Dem {
         })
     }
 
-    /// Smallest and largest valid value, streaming over bands of rows so that
-    /// memory stays bounded on large DEMs.
+    /// Smallest and largest valid height in metres. Native tiles are
+    /// scanned block by block (memory: a block per thread, and a broken
+    /// block fails before anything large is allocated); GDAL tiles in bands
+    /// of rows.
     pub fn min_max(&self) -> Result<Option<(f64, f64)>, RasterError> {
-        let rows = ((64 << 20) / self.width.max(1)).clamp(1, self.height.max(1));
-        let mut acc: Option<(f64, f64)> = None;
-        let mut row = 0;
-        while row < self.height {
-            let h = rows.min(self.height - row);
-            let w = self.read_window::<f64>(Window::new(0, row as i64, self.width, h))?;
-            for (v, ok) in w.data.iter().zip(&w.valid) {
-                if *ok {
-                    acc = Some(match acc {
-                        None => (*v, *v),
-                        Some((lo, hi)) => (lo.min(*v), hi.max(*v)),
-                    });
+        let nodata = self.nodata.map(|v| self.sample_type.quantize(v));
+        let merge = |a: Option<(f64, f64)>, b: Option<(f64, f64)>| match (a, b) {
+            (Some(x), Some(y)) => Some((x.0.min(y.0), x.1.max(y.1))),
+            (x, None) => x,
+            (None, y) => y,
+        };
+        let per_tile = self
+            .tiles
+            .iter()
+            .map(|tile| -> Result<Option<(f64, f64)>, RasterError> {
+                match &tile.source {
+                    TileSource::Tiff(tiff) => {
+                        let blocks = u32::try_from(tiff.layout.count()).unwrap_or(u32::MAX);
+                        (0..blocks)
+                            .into_par_iter()
+                            .map(|bi| -> Result<Option<(f64, f64)>, RasterError> {
+                                let b = tiff.decode_block(bi)?;
+                                let (_, _, w, h) = tiff.block_extent(bi);
+                                let n = w as usize * h as usize;
+                                if super::sample_type::decoded_bytes(&b)
+                                    < n * tiff.sample_type.bytes()
+                                {
+                                    return Err(RasterError::Corrupt {
+                                        path: tiff.path.clone(),
+                                        detail: format!("block {bi} decodes to too few samples"),
+                                    });
+                                }
+                                let mut raw = super::alloc::try_filled(n, 0f64).ok_or_else(
+                                    || RasterError::Corrupt {
+                                        path: tiff.path.clone(),
+                                        detail: format!("block {bi}: cannot allocate {n} samples"),
+                                    },
+                                )?;
+                                f64::copy_from_block(&b, 0, &mut raw);
+                                Ok(raw
+                                    .iter()
+                                    .filter(|r| !r.is_nan() && Some(**r) != nodata)
+                                    .map(|r| tile.vertical.to_metres(*r))
+                                    .fold(None, |acc, v| merge(acc, Some((v, v)))))
+                            })
+                            .try_reduce(|| None, |a, b| Ok(merge(a, b)))
+                    }
+                    TileSource::Gdal(_) => {
+                        let e = tile.extent;
+                        let rows = ((16 << 20) / e.width.max(1)).clamp(1, e.height.max(1));
+                        let mut acc = None;
+                        let mut row = 0;
+                        while row < e.height {
+                            let h = rows.min(e.height - row);
+                            let w = self.read_window::<f64>(Window::new(
+                                e.col,
+                                e.row + row as i64,
+                                e.width,
+                                h,
+                            ))?;
+                            for (v, ok) in w.data.iter().zip(&w.valid) {
+                                if *ok {
+                                    acc = merge(acc, Some((*v, *v)));
+                                }
+                            }
+                            row += h;
+                        }
+                        Ok(acc)
+                    }
                 }
-            }
-            row += h;
+            });
+        let mut acc = None;
+        for t in per_tile {
+            acc = merge(acc, t?);
         }
         Ok(acc)
     }

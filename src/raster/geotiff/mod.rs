@@ -94,6 +94,11 @@ fn tiff_err(path: &Path, e: tiff::TiffError) -> RasterError {
             path: path.to_path_buf(),
             what: format!("TIFF feature: {u}"),
         },
+        T::LimitsExceeded => RasterError::Corrupt {
+            path: path.to_path_buf(),
+            detail: "a tag claims more data than the file can hold (decoder limits exceeded)"
+                .into(),
+        },
         T::IoError(io) => RasterError::Corrupt {
             path: path.to_path_buf(),
             detail: io.to_string(),
@@ -180,6 +185,24 @@ impl GeoTiff {
             path: p.to_path_buf(),
             what,
         };
+        // No tag may claim more values than the file has bytes (a crafted
+        // count would otherwise make the decoder reserve gigabytes).
+        let file_len = bytes.len() as u64;
+        if let Some(ptr) = dec.ifd_pointer() {
+            let dir = dec.read_directory(ptr).map_err(|e| tiff_err(p, e))?;
+            let over = dir
+                .iter()
+                .find(|(_, e)| e.count() > file_len)
+                .map(|(tag, e)| (tag.to_u16(), e.count()));
+            if let Some((tag, count)) = over {
+                return Err(RasterError::Corrupt {
+                    path: p.to_path_buf(),
+                    detail: format!(
+                        "tag {tag} claims {count} values, more than the file's {file_len} bytes hold"
+                    ),
+                });
+            }
+        }
         let (width, height) = dec.dimensions().map_err(|e| tiff_err(p, e))?;
         let samples = dec
             .find_tag_unsigned::<u16>(Tag::SamplesPerPixel)
@@ -326,7 +349,6 @@ impl GeoTiff {
                 ),
             });
         }
-        let file_len = bytes.len() as u64;
         for (i, (&o, &c)) in offsets.iter().zip(&counts).enumerate().take(expected) {
             if o.checked_add(c).is_none_or(|end| end > file_len) {
                 return Err(RasterError::Corrupt {
@@ -419,21 +441,35 @@ impl GeoTiff {
                 geographic: false,
             },
         };
-        let ascii_tag = |dec: &mut Decoder<Cursor<&[u8]>>, tag: u16| -> Option<String> {
-            dec.find_tag(Tag::Unknown(tag))
-                .ok()
-                .flatten()
-                .and_then(|v| v.into_string().ok())
-                .map(|s| s.trim_end_matches('\0').to_string())
+        // A GDAL tag that is there but cannot be read is an error: silently
+        // dropping it would lose the nodata value or the heights' scale.
+        let ascii_tag = |dec: &mut Decoder<Cursor<&[u8]>>,
+                         tag: u16,
+                         name: &str|
+         -> Result<Option<String>, RasterError> {
+            let unreadable = |e: String| RasterError::Corrupt {
+                path: p.to_path_buf(),
+                detail: format!("{name} tag cannot be read ({e})"),
+            };
+            match dec
+                .find_tag(Tag::Unknown(tag))
+                .map_err(|e| unreadable(e.to_string()))?
+            {
+                None => Ok(None),
+                Some(v) => v
+                    .into_string()
+                    .map(|s| Some(s.trim_end_matches('\0').to_string()))
+                    .map_err(|e| unreadable(e.to_string())),
+            }
         };
-        let nodata = match ascii_tag(&mut dec, TAG_GDAL_NODATA) {
+        let nodata = match ascii_tag(&mut dec, TAG_GDAL_NODATA, "GDAL_NODATA")? {
             None => None,
             Some(s) => Some(parse_nodata(&s).ok_or_else(|| RasterError::Corrupt {
                 path: p.to_path_buf(),
                 detail: format!("GDAL_NODATA '{s}' is not a number"),
             })?),
         };
-        let gdal_metadata = ascii_tag(&mut dec, TAG_GDAL_METADATA);
+        let gdal_metadata = ascii_tag(&mut dec, TAG_GDAL_METADATA, "GDAL_METADATA")?;
         let (scale, offset, unit) = gdal_metadata
             .as_deref()
             .map(super::vertical::from_gdal_metadata)
