@@ -7,6 +7,7 @@
 //! Reduced-resolution IFDs (overviews) and masks are recognised and skipped.
 
 mod block_decode;
+pub mod fuzz;
 mod geokeys;
 mod limits;
 
@@ -22,7 +23,7 @@ use std::sync::Arc;
 
 use memmap2::Mmap;
 use tiff::decoder::{ChunkType, Decoder, DecodingResult};
-use tiff::tags::{CompressionMethod, Predictor, SampleFormat, Tag};
+use tiff::tags::{CompressionMethod, SampleFormat, Tag};
 
 use super::{Crs, GeoTransform, RasterError, SampleType, Vertical};
 
@@ -58,7 +59,7 @@ pub struct Encoding {
 #[derive(Debug)]
 pub struct GeoTiff {
     pub path: PathBuf,
-    bytes: Arc<Mmap>,
+    bytes: Arc<Bytes>,
     /// Index of the full-resolution IFD.
     pub ifd_index: usize,
     pub width: u32,
@@ -80,6 +81,23 @@ pub struct GeoTiff {
     codec: BlockCodec,
     offsets: Vec<u64>,
     counts: Vec<u64>,
+}
+
+/// The bytes of a GeoTIFF: a read-only map of the file, or a buffer.
+#[derive(Debug)]
+enum Bytes {
+    Map(Mmap),
+    Owned(Vec<u8>),
+}
+
+impl std::ops::Deref for Bytes {
+    type Target = [u8];
+    fn deref(&self) -> &[u8] {
+        match self {
+            Bytes::Map(m) => m,
+            Bytes::Owned(v) => v,
+        }
+    }
 }
 
 fn tiff_err(path: &Path, e: tiff::TiffError) -> RasterError {
@@ -118,7 +136,17 @@ impl GeoTiff {
         let file = std::fs::File::open(path).map_err(|e| RasterError::io(path, e))?;
         // SAFETY: the map is read-only; a file truncated by another process
         // while mapped is outside what any GIS reader can guard against.
-        let bytes = unsafe { Mmap::map(&file) }.map_err(|e| RasterError::io(path, e))?;
+        let map = unsafe { Mmap::map(&file) }.map_err(|e| RasterError::io(path, e))?;
+        Self::parse(path, Arc::new(Bytes::Map(map)))
+    }
+
+    /// Parse a GeoTIFF held in memory (`label` names it in errors): what
+    /// the fuzz harness runs on.
+    pub fn from_bytes(label: &Path, data: Vec<u8>) -> Result<GeoTiff, RasterError> {
+        Self::parse(label, Arc::new(Bytes::Owned(data)))
+    }
+
+    fn parse(path: &Path, bytes: Arc<Bytes>) -> Result<GeoTiff, RasterError> {
         if bytes.len() < 8 || !(bytes.starts_with(b"II") || bytes.starts_with(b"MM")) {
             return Err(RasterError::NotTiff {
                 path: path.to_path_buf(),
@@ -129,7 +157,6 @@ impl GeoTiff {
                 },
             });
         }
-        let bytes = Arc::new(bytes);
         let mut dec = Decoder::new(Cursor::new(&bytes[..]))
             .map_err(|e| tiff_err(path, e))?
             .with_limits(decoder_limits(bytes.len() as u64));
@@ -175,7 +202,7 @@ impl GeoTiff {
 
     fn describe(
         path: &Path,
-        bytes: Arc<Mmap>,
+        bytes: Arc<Bytes>,
         mut dec: Decoder<Cursor<&[u8]>>,
         ifd_index: usize,
         overviews: Vec<(u32, u32)>,
@@ -233,7 +260,16 @@ impl GeoTiff {
             (SampleFormat::Int, 32) => SampleType::Int32,
             (SampleFormat::IEEEFP, 32) => SampleType::Float32,
             (SampleFormat::IEEEFP, 64) => SampleType::Float64,
-            (f, b) => return Err(unsupported(format!("sample type {b}-bit {f:?}"))),
+            (f, b) => {
+                let kind = match f {
+                    SampleFormat::Uint => "unsigned integer".to_string(),
+                    SampleFormat::Int => "signed integer".to_string(),
+                    SampleFormat::IEEEFP => "floating point".to_string(),
+                    SampleFormat::Void => "untyped".to_string(),
+                    _ => format!("SampleFormat {}", f.to_u16()),
+                };
+                return Err(unsupported(format!("sample type {b}-bit {kind}")));
+            }
         };
         let compression = match dec
             .find_tag_unsigned::<u16>(Tag::Compression)
@@ -273,10 +309,14 @@ impl GeoTiff {
             (1, _) | (2, true) | (3, false) => {}
             (2, false) => {} // horizontal differencing of floats is legal, if rare
             (pr, _) => {
+                let name = match pr {
+                    2 => " (horizontal differencing)",
+                    3 => " (floating point)",
+                    _ => "",
+                };
                 return Err(unsupported(format!(
-                    "predictor {pr} ({:?}) for {sample_type}",
-                    Predictor::from_u16(pr)
-                )))
+                    "predictor {pr}{name} for {sample_type}"
+                )));
             }
         }
         let planar = dec
