@@ -1,9 +1,10 @@
 //! What the native GeoTIFF decoder does not read goes through GDAL: GDAL
 //! virtual file systems (`/vsizip/`, `/vsigzip/`), LERC and LERC_DEFLATE,
 //! JPEG compression, and user-defined CRSs it cannot build from GeoKeys
-//! (omerc, ortho). Each reads with exactly GDAL's values. Writing back:
-//! such inputs are never rewritten in place (refused in one line, nothing
-//! touched); `--out` writes a new GeoTIFF through GDAL.
+//! (oblique Mercator, oblique stereographic, orthographic). Each reads with
+//! exactly GDAL's values. Writing back: such inputs are never rewritten in
+//! place (refused in one line, nothing touched); `--out` writes a new
+//! GeoTIFF through GDAL.
 
 mod common;
 
@@ -43,6 +44,10 @@ fn inputs(d: &Path) -> Vec<(&'static str, PathBuf)> {
         (
             "omerc",
             "+proj=omerc +lat_0=37.3 +lonc=-113 +alpha=30 +k=1 +x_0=0 +y_0=0 +datum=WGS84 +units=m",
+        ),
+        (
+            "stere",
+            "+proj=stere +lat_0=37.3 +lon_0=-113 +k=1 +x_0=0 +y_0=0 +datum=WGS84 +units=m",
         ),
         (
             "ortho",
@@ -124,7 +129,7 @@ fn what_the_native_decoder_lacks_reads_through_gdal_with_gdals_values() {
         assert_eq!(bad, 0, "{name}: {bad} values differ from GDAL's");
 
         // The user-defined CRSs are GDAL's, and usable (lon/lat bounds).
-        if name == "omerc" || name == "ortho" {
+        if ["omerc", "stere", "ortho"].contains(&name) {
             let proj = info["proj"].as_str().unwrap_or("");
             assert!(proj.contains(&format!("+proj={name}")), "{name}: CRS {proj}");
             assert!(info["bounds_lonlat"].is_array(), "{name}: lon/lat bounds");
