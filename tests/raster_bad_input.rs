@@ -154,8 +154,11 @@ fn missing_georeference_and_unsupported_encodings_fail_cleanly() {
     // A compression neither the native decoder nor GDAL knows (JPEG, LERC
     // and the like are read through GDAL: tests/raster_gdal_fallback.rs).
     let unknown = d.join("unknown_compression.tif");
-    std::fs::write(&unknown, patch_compression(&std::fs::read(&zion).expect("read"), 0x7777))
-        .expect("write");
+    std::fs::write(
+        &unknown,
+        patch_compression(&std::fs::read(&zion).expect("read"), 0x7777),
+    )
+    .expect("write");
     expect_user_error(
         d,
         &["info", &s(&unknown)],

@@ -24,7 +24,11 @@ fn inputs(d: &Path) -> Vec<(&'static str, PathBuf)> {
     let zion = fixture(ZION);
     let mut v = Vec::new();
     let lerc = d.join("lerc.tif");
-    gdal_translate(&zion, &lerc, &["-co", "COMPRESS=LERC", "-co", "MAX_Z_ERROR=0"]);
+    gdal_translate(
+        &zion,
+        &lerc,
+        &["-co", "COMPRESS=LERC", "-co", "MAX_Z_ERROR=0"],
+    );
     v.push(("LERC", lerc));
     let lerc_deflate = d.join("lerc_deflate.tif");
     gdal_translate(
@@ -37,7 +41,15 @@ fn inputs(d: &Path) -> Vec<(&'static str, PathBuf)> {
     gdal_translate(
         &zion,
         &jpeg,
-        &["-ot", "Byte", "-scale", "-a_nodata", "none", "-co", "COMPRESS=JPEG"],
+        &[
+            "-ot",
+            "Byte",
+            "-scale",
+            "-a_nodata",
+            "none",
+            "-co",
+            "COMPRESS=JPEG",
+        ],
     );
     v.push(("JPEG", jpeg));
     for (name, srs) in [
@@ -76,7 +88,10 @@ fn inputs(d: &Path) -> Vec<(&'static str, PathBuf)> {
     std::fs::remove_file(&inner).expect("remove");
     v.push((
         "vsizip",
-        PathBuf::from(format!("/vsizip/{}/dem/zion.tif", d.join("dem.zip").display())),
+        PathBuf::from(format!(
+            "/vsizip/{}/dem/zion.tif",
+            d.join("dem.zip").display()
+        )),
     ));
     v.push((
         "vsigzip",
@@ -131,7 +146,10 @@ fn what_the_native_decoder_lacks_reads_through_gdal_with_gdals_values() {
         // The user-defined CRSs are GDAL's, and usable (lon/lat bounds).
         if ["omerc", "stere", "ortho"].contains(&name) {
             let proj = info["proj"].as_str().unwrap_or("");
-            assert!(proj.contains(&format!("+proj={name}")), "{name}: CRS {proj}");
+            assert!(
+                proj.contains(&format!("+proj={name}")),
+                "{name}: CRS {proj}"
+            );
             assert!(info["bounds_lonlat"].is_array(), "{name}: lon/lat bounds");
         }
     }
@@ -142,7 +160,11 @@ fn expect_refused(dir: &Path, args: &[&str], needles: &[&str]) {
     let out = demsketch(args);
     let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
     assert_eq!(out.status.code(), Some(1), "{args:?}: exit code; {stderr}");
-    assert_eq!(stderr.trim_end().lines().count(), 1, "{args:?}: one line: {stderr}");
+    assert_eq!(
+        stderr.trim_end().lines().count(),
+        1,
+        "{args:?}: one line: {stderr}"
+    );
     for n in needles {
         assert!(stderr.contains(n), "{args:?}: '{n}' not in {stderr}");
     }

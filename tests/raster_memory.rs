@@ -39,7 +39,11 @@ fn set_count(b: &mut [u8], tag: u16, count: u32) {
 /// Set the value of a SHORT `tag` with one value.
 fn set_short(b: &mut [u8], tag: u16, v: u16) {
     let e = entry(b, tag);
-    assert_eq!(u16::from_le_bytes([b[e + 2], b[e + 3]]), 3, "tag {tag} is SHORT");
+    assert_eq!(
+        u16::from_le_bytes([b[e + 2], b[e + 3]]),
+        3,
+        "tag {tag} is SHORT"
+    );
     b[e + 8..e + 10].copy_from_slice(&v.to_le_bytes());
 }
 
@@ -96,8 +100,17 @@ fn expect_bounded_failure(args: &[&str], name: &str, dir: &Path) {
     }
     let c = measure(args, None, dir);
     assert_eq!(c.code, Some(1), "{args:?}: exit code; {}", c.stderr);
-    assert_eq!(c.stderr.trim_end().lines().count(), 1, "{args:?}: one line: {}", c.stderr);
-    assert!(c.stderr.contains(name), "{args:?}: names {name}: {}", c.stderr);
+    assert_eq!(
+        c.stderr.trim_end().lines().count(),
+        1,
+        "{args:?}: one line: {}",
+        c.stderr
+    );
+    assert!(
+        c.stderr.contains(name),
+        "{args:?}: names {name}: {}",
+        c.stderr
+    );
     assert!(
         c.max_rss_kb < 500 * 1024,
         "{args:?}: peak memory {} MB",

@@ -68,12 +68,18 @@ fn make(dir: &Path, v: &Variant) -> (PathBuf, PathBuf) {
         "decimetre" => gdal_translate(
             &zion,
             &out,
-            &["-ot", "Int32", "-scale", "0", "1", "0", "10", "-a_scale", "0.1"],
+            &[
+                "-ot", "Int32", "-scale", "0", "1", "0", "10", "-a_scale", "0.1",
+            ],
         ),
         // Float64: the stored feet are exact, so the heights in metres are
         // the original's to the last bit of f32.
         "feet" => {
-            gdal_translate(&zion, &out, &["-ot", "Float64", "-scale", "0", "1", "0", &factor]);
+            gdal_translate(
+                &zion,
+                &out,
+                &["-ot", "Float64", "-scale", "0", "1", "0", &factor],
+            );
             run("gdal_edit.py", &["-units", "ft", &s(&out)]);
         }
         // Float32 as real survey-foot DEMs are.
@@ -94,7 +100,11 @@ fn make(dir: &Path, v: &Variant) -> (PathBuf, PathBuf) {
         ),
     }
     let deflate = dir.join(format!("{}_deflate.tif", v.name));
-    gdal_translate(&out, &deflate, &["-co", "COMPRESS=DEFLATE", "-co", "TILED=YES"]);
+    gdal_translate(
+        &out,
+        &deflate,
+        &["-co", "COMPRESS=DEFLATE", "-co", "TILED=YES"],
+    );
     (out, deflate)
 }
 
@@ -183,7 +193,11 @@ fn info_shows_unit_datum_scale_and_offset_and_heights_in_metres() {
         let i = info_json(&path);
         let vert = &i["vertical"];
         assert_eq!(vert["unit"], v.unit, "{}: unit", v.name);
-        assert_eq!(vert["unit_source"], v.unit_source, "{}: unit source", v.name);
+        assert_eq!(
+            vert["unit_source"], v.unit_source,
+            "{}: unit source",
+            v.name
+        );
         assert_eq!(vert["datum"].as_str(), v.datum, "{}: datum", v.name);
         assert_eq!(vert["scale"].as_f64(), Some(v.scale), "{}: scale", v.name);
         assert_eq!(vert["offset"].as_f64(), Some(0.0), "{}: offset", v.name);
@@ -219,12 +233,21 @@ fn scaled_and_feet_dems_give_the_same_view() {
         assert_eq!(depth.len(), reference.len());
         let mut worst = 0f64;
         for (a, b) in depth.iter().zip(&reference) {
-            assert_eq!(a.is_finite(), b.is_finite(), "{}: sky/terrain differs", v.name);
+            assert_eq!(
+                a.is_finite(),
+                b.is_finite(),
+                "{}: sky/terrain differs",
+                v.name
+            );
             if b.is_finite() {
                 worst = worst.max((a - b).abs() / b.abs().max(1e-9));
             }
         }
-        assert!(worst <= 1e-3, "{}: depth differs by {worst} relative", v.name);
+        assert!(
+            worst <= 1e-3,
+            "{}: depth differs by {worst} relative",
+            v.name
+        );
     }
 }
 
@@ -239,7 +262,10 @@ fn scaled_and_feet_dems_get_the_same_edit_in_metres_and_keep_their_units() {
     let orig_dz = orig_rep["max_abs_displacement_m"].as_f64().expect("max dz");
     for v in &VARIANTS {
         let (plain, deflate) = make(d, v);
-        for (input, tag) in [(&plain, v.name.to_string()), (&deflate, format!("{}_deflate", v.name))] {
+        for (input, tag) in [
+            (&plain, v.name.to_string()),
+            (&deflate, format!("{}_deflate", v.name)),
+        ] {
             let (out, rep) = edit(input, d, &tag);
             // The report's heights are metres.
             let dz = rep["max_abs_displacement_m"].as_f64().expect("max dz");

@@ -83,7 +83,11 @@ fn ifd_entries(b: &[u8]) -> Vec<usize> {
 
 fn put(b: &mut [u8], at: usize, v: u32, width: usize, le: bool) {
     let bytes = if le { v.to_le_bytes() } else { v.to_be_bytes() };
-    let src = if le { &bytes[..width] } else { &bytes[4 - width..] };
+    let src = if le {
+        &bytes[..width]
+    } else {
+        &bytes[4 - width..]
+    };
     if at + width <= b.len() {
         b[at..at + width].copy_from_slice(src);
     }

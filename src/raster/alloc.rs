@@ -9,4 +9,3 @@ pub(crate) fn try_filled<T: Clone>(n: usize, v: T) -> Option<Vec<T>> {
     out.resize(n, v);
     Some(out)
 }
-

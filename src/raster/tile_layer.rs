@@ -206,10 +206,12 @@ impl Dem {
             Some((name, unit)) => (Some(name), unit),
             None => (None, None),
         };
-        let vertical = Vertical::from_parts(scale, offset, &unit, crs_unit, datum)
-            .map_err(|message| RasterError::Crs {
-                path: path.to_path_buf(),
-                message,
+        let vertical =
+            Vertical::from_parts(scale, offset, &unit, crs_unit, datum).map_err(|message| {
+                RasterError::Crs {
+                    path: path.to_path_buf(),
+                    message,
+                }
             })?;
         Ok(Part {
             crs,
@@ -411,16 +413,15 @@ impl Dem {
                 }
             }
         }
-        let mut data = super::alloc::try_filled(n, T::nan()).ok_or_else(|| {
-            RasterError::TooLarge {
+        let mut data =
+            super::alloc::try_filled(n, T::nan()).ok_or_else(|| RasterError::TooLarge {
                 path: self.path.clone(),
                 width: win.width as u64,
                 height: win.height as u64,
                 sample: std::any::type_name::<T>().into(),
                 bytes,
                 budget,
-            }
-        })?;
+            })?;
         let out = SharedOut {
             ptr: data.as_mut_ptr(),
             len: n,
@@ -450,7 +451,8 @@ impl Dem {
                             return Ok(());
                         };
                         let row_len = tiff.decoded_row_len(bi);
-                        let conv = (metres && !tile.vertical.is_identity()).then_some(&tile.vertical);
+                        let conv =
+                            (metres && !tile.vertical.is_identity()).then_some(&tile.vertical);
                         let mut row = if conv.is_some() {
                             vec![0f64; ov.width]
                         } else {
@@ -532,14 +534,15 @@ impl Dem {
             .collect::<Result<Vec<()>, _>>()?;
         // Cells outside every tile, and nodata (set to NaN above), are
         // invalid.
-        let mut valid = super::alloc::try_filled(n, false).ok_or_else(|| RasterError::TooLarge {
-            path: self.path.clone(),
-            width: win.width as u64,
-            height: win.height as u64,
-            sample: "mask".into(),
-            bytes,
-            budget,
-        })?;
+        let mut valid =
+            super::alloc::try_filled(n, false).ok_or_else(|| RasterError::TooLarge {
+                path: self.path.clone(),
+                width: win.width as u64,
+                height: win.height as u64,
+                sample: "mask".into(),
+                bytes,
+                budget,
+            })?;
         data.par_chunks(win.width.max(1))
             .zip(valid.par_chunks_mut(win.width.max(1)))
             .for_each(|(d, v)| {
@@ -598,12 +601,15 @@ impl Dem {
                                         detail: format!("block {bi} decodes to too few samples"),
                                     });
                                 }
-                                let mut raw = super::alloc::try_filled(n, 0f64).ok_or_else(
-                                    || RasterError::Corrupt {
-                                        path: tiff.path.clone(),
-                                        detail: format!("block {bi}: cannot allocate {n} samples"),
-                                    },
-                                )?;
+                                let mut raw =
+                                    super::alloc::try_filled(n, 0f64).ok_or_else(|| {
+                                        RasterError::Corrupt {
+                                            path: tiff.path.clone(),
+                                            detail: format!(
+                                                "block {bi}: cannot allocate {n} samples"
+                                            ),
+                                        }
+                                    })?;
                                 f64::copy_from_block(&b, 0, &mut raw);
                                 Ok(raw
                                     .iter()

@@ -105,9 +105,7 @@ impl Vertical {
                 // A band unit GDAL could not parse but the CRS gives the
                 // unit: the CRS is authoritative then.
                 None => match &crs_unit {
-                    Some((n, f)) if *f > 0.0 && f.is_finite() => {
-                        (n.clone(), *f, UnitSource::Crs)
-                    }
+                    Some((n, f)) if *f > 0.0 && f.is_finite() => (n.clone(), *f, UnitSource::Crs),
                     _ => {
                         return Err(format!(
                             "band unit '{band_unit}' is not a length unit demsketch knows \
@@ -156,7 +154,9 @@ pub fn unit_to_metre(name: &str) -> Option<f64> {
 /// The vertical CRS of a spatial reference (a vertical CRS itself or the
 /// vertical part of a compound one): its name and (unit name, metres per
 /// unit). `None` for a purely horizontal CRS.
-pub fn vertical_of_srs(srs: &gdal::spatial_ref::SpatialRef) -> Option<(String, Option<(String, f64)>)> {
+pub fn vertical_of_srs(
+    srs: &gdal::spatial_ref::SpatialRef,
+) -> Option<(String, Option<(String, f64)>)> {
     if !(srs.is_compound() || srs.is_vertical()) {
         return None;
     }

@@ -264,7 +264,9 @@ impl Dem {
                 what: "in-place write to a non-GeoTIFF raster; give an output GeoTIFF with --out"
                     .into(),
             }),
-            (Destination::InPlace, _) if edits.iter().any(|e| self.tiles[e.tile].read_by_gdal()) => {
+            (Destination::InPlace, _)
+                if edits.iter().any(|e| self.tiles[e.tile].read_by_gdal()) =>
+            {
                 let t = edits
                     .iter()
                     .map(|e| &self.tiles[e.tile])

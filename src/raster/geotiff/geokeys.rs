@@ -309,16 +309,16 @@ impl GeoKeys {
         } else {
             match self.user_defined_proj() {
                 Some(p) => p,
-                None => {
-                    return Err(RasterError::NotNative {
-                        path: path.to_path_buf(),
-                        what: format!(
-                            "user-defined projection (ProjCoordTransGeoKey {}, ProjectionGeoKey {})",
-                            self.short(PROJ_COORD_TRANS).map_or("absent".into(), |c| c.to_string()),
-                            self.short(PROJECTION).map_or("absent".into(), |c| c.to_string())
-                        ),
-                    })
-                }
+                None => return Err(RasterError::NotNative {
+                    path: path.to_path_buf(),
+                    what: format!(
+                        "user-defined projection (ProjCoordTransGeoKey {}, ProjectionGeoKey {})",
+                        self.short(PROJ_COORD_TRANS)
+                            .map_or("absent".into(), |c| c.to_string()),
+                        self.short(PROJECTION)
+                            .map_or("absent".into(), |c| c.to_string())
+                    ),
+                }),
             }
         };
         proj::Proj::new(&definition).map_err(|e| {

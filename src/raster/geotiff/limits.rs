@@ -63,7 +63,11 @@ fn address_space_limit() -> Option<u64> {
 fn vm_size() -> Option<u64> {
     let s = std::fs::read_to_string("/proc/self/status").ok()?;
     let line = s.lines().find(|l| l.starts_with("VmSize:"))?;
-    line.split_whitespace().nth(1)?.parse::<u64>().ok().map(|k| k * 1024)
+    line.split_whitespace()
+        .nth(1)?
+        .parse::<u64>()
+        .ok()
+        .map(|k| k * 1024)
 }
 
 /// The `tiff` decoder's limits for a file of `file_len` bytes: no tag value

@@ -518,10 +518,12 @@ impl GeoTiff {
             Some((name, unit)) => (Some(name), unit),
             None => (None, None),
         };
-        let vertical = Vertical::from_parts(scale, offset, &unit, crs_unit, datum)
-            .map_err(|message| RasterError::Crs {
-                path: p.to_path_buf(),
-                message,
+        let vertical =
+            Vertical::from_parts(scale, offset, &unit, crs_unit, datum).map_err(|message| {
+                RasterError::Crs {
+                    path: p.to_path_buf(),
+                    message,
+                }
             })?;
         let codec = BlockCodec {
             compression: dec
