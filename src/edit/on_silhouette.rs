@@ -55,16 +55,17 @@ fn nearest_boundary(view: &RenderedView, pixel: [f64; 2], tol: f64) -> Option<Bo
     let mut best: Option<BoundaryPoint> = None;
     for &(c, s) in &view.by_column[i] {
         let sample = &view.silhouettes.curves[c as usize].samples[s as usize];
-        // The row as drawn, or as the bilinear surface has it.
+        // The row on the bilinear surface (DESIGN.md's), where the drawn
+        // triangles could put it elsewhere; as drawn where they cannot.
         let drawn = (sample.pixel[1] - pixel[1]).abs();
-        let row = if drawn <= tol
-            || drawn > tol + view.interpolation_bound_px(sample.cell, sample.depth)
-        {
+        let bound = view.interpolation_bound_px(sample.cell, sample.depth);
+        if drawn > tol + bound {
+            continue;
+        }
+        let row = if bound < 0.05 {
             sample.pixel[1]
         } else {
-            view.bilinear_row(i, sample)
-                .filter(|b| (b - pixel[1]).abs() < drawn)
-                .unwrap_or(sample.pixel[1])
+            view.bilinear_row(i, sample).unwrap_or(sample.pixel[1])
         };
         let dy = (row - pixel[1]).abs();
         if dy <= tol && best.is_none_or(|b| dy < (b.row - pixel[1]).abs()) {
@@ -95,31 +96,27 @@ fn nearest_boundary(view: &RenderedView, pixel: [f64; 2], tol: f64) -> Option<Bo
 /// stroke.
 pub const MIN_RUN_PX: f64 = 8.0;
 /// Neighbouring anchored points follow one silhouette when their depths
-/// differ by less than this fraction.
+/// differ by less than this fraction (used for the sub-cell stretches
+/// between two anchors).
 pub const RUN_DEPTH_STEP: f64 = 0.05;
 
-/// Removes the anchors of runs (consecutive points on boundaries whose
-/// depths continue each other) that span less than [`MIN_RUN_PX`] of
-/// image x, unless a run is the whole stroke: a stroke crossing a
-/// silhouette is not drawn along it. `xs` are the points' image x.
+/// Removes the anchors of runs (consecutive anchored points) that span less
+/// than [`MIN_RUN_PX`] of image x, unless a run is the whole stroke: a
+/// stroke crossing a silhouette is not drawn along it. A run may pass from
+/// one boundary to another: where cells look large, neighbouring columns'
+/// boundaries are formed by different cells at different depths, within a
+/// pixel of each other in the image. `xs` are the points' image x.
 fn drop_short_runs(hits: &mut [Option<BoundaryPoint>], xs: &[f64]) {
     let n = hits.len();
     let mut a = 0;
     while a < n {
-        let Some(first) = hits[a] else {
+        if hits[a].is_none() {
             a += 1;
             continue;
-        };
+        }
         let mut b = a + 1;
-        let mut last = first;
-        while b < n {
-            match hits[b] {
-                Some(h) if (h.depth - last.depth).abs() <= RUN_DEPTH_STEP * last.depth => {
-                    last = h;
-                    b += 1;
-                }
-                _ => break,
-            }
+        while b < n && hits[b].is_some() {
+            b += 1;
         }
         let whole = a == 0 && b == n;
         if !whole && (xs[b - 1] - xs[a]).abs() < MIN_RUN_PX {

@@ -268,8 +268,9 @@ impl RenderedView {
         }
         let reach = BILINEAR_REACH_CELLS / cells_per_m;
         let (ta, tb) = ((t_p - reach).max(0.5 * t_p), t_p + reach);
-        // Quarter-cell steps over the span.
-        let steps = (4.0 * 2.0 * BILINEAR_REACH_CELLS) as usize;
+        // Sixteenth-cell steps over the span (quarter-cell steps miss crests
+        // between them by up to a pixel where cells look large).
+        let steps = (16.0 * 2.0 * BILINEAR_REACH_CELLS) as usize;
         // Least clearance of the ray through row y above the bilinear
         // surface over the span (negative: it hits the occluder).
         let clearance = |y: f64| -> Option<f64> {

@@ -11,7 +11,9 @@
 //! beside it farthest from the nearest eye is brought to within half a cell
 //! of it instead. Seen from the sketch's views that neighbour lies behind
 //! the apex, under the line of sight that grazes it, so the silhouette the
-//! user drew is unchanged (the pipeline measures the fit afterwards).
+//! user drew is unchanged (the pipeline measures the fit afterwards). Only
+//! where no neighbour behind it may move is a nearer one used, and only
+//! where every neighbour is held does the cell itself give way.
 
 use crate::deform::Deformation;
 
@@ -84,7 +86,7 @@ pub fn flatten_spikes(
     let mut changed = 0;
     // Each pass can only move neighbours towards a spike; a few passes
     // settle what one pass's changes start.
-    for _ in 0..8 {
+    for _ in 0..32 {
         let spikes = find_spikes(d);
         if spikes.is_empty() {
             break;
@@ -116,20 +118,20 @@ pub fn flatten_spikes(
                     }
                     Some((dist(x as f64 + 0.5, y as f64 + 0.5), k))
                 })
-                .filter(|&(dn, _)| dn >= here)
                 .collect();
-            order.sort_by(|a, b| b.0.total_cmp(&a.0));
-            let Some(&(_, k)) = order.first() else {
-                continue;
-            };
+            // Behind the apex first (the farthest from the eyes); one
+            // nearer only when none behind it may move.
+            order.sort_by(|a, b| (b.0 >= here).cmp(&(a.0 >= here)).then(b.0.total_cmp(&a.0)));
             // (Within 0.9 of the limit: the written values are rounded to
             // the DEM's sample type.)
-            let target = if above > limit {
-                m - (0.9 * limit) as f32
-            } else if below > limit {
-                m + (0.9 * limit) as f32
-            } else {
-                continue;
+            let (k, target) = match order.first() {
+                Some(&(_, k)) if above > limit => (k, m - (0.9 * limit) as f32),
+                Some(&(_, k)) if below > limit => (k, m + (0.9 * limit) as f32),
+                // Every neighbour is held: the apex itself comes down (or
+                // the pit up) to within half a cell of them.
+                None if above > limit => (r * w + c, m - (above - 0.9 * limit) as f32),
+                None if below > limit => (r * w + c, m + (below - 0.9 * limit) as f32),
+                _ => continue,
             };
             d.displacement[k] = target;
             changed += 1;
@@ -208,5 +210,26 @@ mod tests {
         flatten_spikes(&mut d, &[(2.5, 0.0)], &|c, r| (c, r) == (2, 2));
         assert_eq!(d.displacement[12], 0.0);
         assert!(find_spikes(&d).is_empty(), "{:?}", d.displacement);
+    }
+
+    #[test]
+    fn an_apex_whose_neighbours_behind_are_held_gets_a_nearer_one() {
+        let mut m = vec![0.0f32; 25];
+        m[12] = 40.0;
+        let mut d = deformation(5, 5, m);
+        // everything right of the apex is held; the eye is at the left
+        flatten_spikes(&mut d, &[(0.0, 2.5)], &|c, _| c >= 3);
+        assert!(find_spikes(&d).is_empty(), "{:?}", d.displacement);
+        assert_eq!(d.displacement[12], 40.0, "the apex itself is kept");
+    }
+
+    #[test]
+    fn an_apex_among_held_cells_comes_down_itself() {
+        let mut m = vec![0.0f32; 25];
+        m[12] = 40.0;
+        let mut d = deformation(5, 5, m);
+        flatten_spikes(&mut d, &[(0.0, 2.5)], &|c, r| (c, r) != (2, 2));
+        assert!(find_spikes(&d).is_empty(), "{:?}", d.displacement);
+        assert!(d.displacement[12] <= 5.0, "{}", d.displacement[12]);
     }
 }

@@ -274,7 +274,26 @@ def render(dem, lon, lat, alt, heading_deg, hfov_deg, width, height, h=None,
     inside = kk + 1 < ns
     after_valid[inside] = valid[cc[inside], kk[inside] + 1]
     is_sky = nxt >= ns
-    b_row = cy - a[cc, kk] * rowscale[cc]
+    # The crest of each visible run lies somewhere between the samples
+    # around its last one: refine it on 1/16-step sub-samples (linear in the
+    # CRS between samples), so that a boundary's row does not depend on where
+    # the quarter-cell samples happen to fall (on coarse DEMs that alone moved
+    # crests by up to a pixel, always downwards).
+    a_crest = a[cc, kk]
+    if len(kk):
+        sub = np.linspace(-1.0, 1.0, 33)
+        kf = np.clip(kk[:, None] + sub[None, :], 0, ns - 1)
+        i0s = np.floor(kf).astype(np.int64)
+        i1s = np.minimum(i0s + 1, ns - 1)
+        ws = kf - i0s
+        rows_ = cc[:, None]
+        pxs = px[rows_, i0s] * (1 - ws) + px[rows_, i1s] * ws
+        pys = py[rows_, i0s] * (1 - ws) + py[rows_, i1s] * ws
+        ss = (kf + 1) * step
+        zz = dem.bilinear_px(pxs, pys, h)
+        aa = np.where(np.isfinite(zz), (zz - (1.0 - k) * ss ** 2 / (2.0 * R) - alt) / ss, -np.inf)
+        a_crest = np.maximum(a_crest, aa.max(axis=1))
+    b_row = cy - a_crest * rowscale[cc]
     b_front = s[kk]
     b_behind = np.where(is_sky, np.inf, s[np.minimum(nxt, ns - 1)])
     b_kind = np.where(is_sky, 1, np.where(after_valid, 0, 2))
