@@ -1,6 +1,6 @@
 //! Rasters: GeoTIFF decoding, georeferencing, the tile layer and write-back.
 
-mod crs;
+pub(crate) mod crs;
 mod error;
 mod geotransform;
 mod height_map;

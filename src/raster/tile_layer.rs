@@ -160,7 +160,14 @@ impl Dem {
             Err(native @ (RasterError::NotNative { .. } | RasterError::Crs { .. })) => {
                 // GDAL's own complaints are not shown: if it fails too, the
                 // native error says what is wrong in one line.
-                return quiet_gdal(|| Self::open_gdal(path)).map_err(|_| native);
+                // A CRS the native reader cannot build must come out of GDAL
+                // as a CRS, or the native error stands.
+                let crs_problem = matches!(&native, RasterError::Crs { .. })
+                    || matches!(&native, RasterError::NotNative { what, .. } if what.contains("projection"));
+                return match quiet_gdal(|| Self::open_gdal(path)) {
+                    Ok(part) if !(crs_problem && part.crs.wkt.is_empty()) => Ok(part),
+                    _ => Err(native),
+                };
             }
             Err(e) => return Err(e),
         };

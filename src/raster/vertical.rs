@@ -178,7 +178,7 @@ pub fn vertical_of_srs(
 /// The vertical CRS named by an EPSG code (GeoTIFF's
 /// `VerticalCSTypeGeoKey`): its name and unit.
 pub fn vertical_of_epsg(code: u32) -> Option<(String, Option<(String, f64)>)> {
-    let srs = gdal::spatial_ref::SpatialRef::from_epsg(code).ok()?;
+    let srs = crate::raster::crs::srs_from_epsg(code).ok()?;
     vertical_of_srs(&srs)
 }
 

@@ -295,7 +295,7 @@ impl GeoKeys {
             message,
         };
         if let Some(code) = self.epsg() {
-            let srs = gdal::spatial_ref::SpatialRef::from_epsg(code)
+            let srs = crate::raster::crs::srs_from_epsg(code)
                 .map_err(|e| crs_err(format!("EPSG:{code} is not a known CRS ({e})")))?;
             return Ok(Crs {
                 epsg: Some(code),
@@ -309,16 +309,18 @@ impl GeoKeys {
         } else {
             match self.user_defined_proj() {
                 Some(p) => p,
-                None => return Err(RasterError::NotNative {
-                    path: path.to_path_buf(),
-                    what: format!(
+                None => {
+                    return Err(RasterError::NotNative {
+                        path: path.to_path_buf(),
+                        what: format!(
                         "user-defined projection (ProjCoordTransGeoKey {}, ProjectionGeoKey {})",
                         self.short(PROJ_COORD_TRANS)
                             .map_or("absent".into(), |c| c.to_string()),
                         self.short(PROJECTION)
                             .map_or("absent".into(), |c| c.to_string())
                     ),
-                }),
+                    })
+                }
             }
         };
         proj::Proj::new(&definition).map_err(|e| {
@@ -326,8 +328,9 @@ impl GeoKeys {
                 "PROJ rejects the CRS built from the GeoKeys '{definition}': {e}"
             ))
         })?;
-        let wkt = gdal::spatial_ref::SpatialRef::from_proj4(&definition)
-            .and_then(|s| s.to_wkt())
+        let wkt = crate::raster::crs::srs_from_proj4(&definition)
+            .ok()
+            .and_then(|s| s.to_wkt().ok())
             .unwrap_or_default();
         Ok(Crs {
             epsg: None,
