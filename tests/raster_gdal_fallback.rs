@@ -223,3 +223,27 @@ fn inputs_read_through_gdal_are_never_rewritten_in_place_and_out_works() {
         );
     }
 }
+
+#[test]
+fn an_unknown_epsg_code_is_not_hidden_by_the_fallback() {
+    // GDAL opens such a file with a local CRS made from the citation; the
+    // native error (one line, exit 1) stands.
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut b = std::fs::read(fixture(ZION)).expect("fixture");
+    let key: Vec<u8> = [3072u16, 0, 1, 32612]
+        .iter()
+        .flat_map(|v| v.to_le_bytes())
+        .collect();
+    let at = b
+        .windows(8)
+        .position(|w| w == key.as_slice())
+        .expect("ProjectedCSTypeGeoKey");
+    b[at + 6..at + 8].copy_from_slice(&1234u16.to_le_bytes());
+    let p = dir.path().join("unknown_epsg.tif");
+    std::fs::write(&p, &b).expect("write");
+    expect_refused(
+        dir.path(),
+        &["info", &s(&p)],
+        &["unknown_epsg.tif", "EPSG:1234"],
+    );
+}

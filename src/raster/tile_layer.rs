@@ -67,6 +67,8 @@ pub enum LayerKind {
 struct Part {
     tile: Tile,
     crs: Crs,
+    /// The CRS is a projected or geographic one (not local or absent).
+    earth_crs: bool,
 }
 
 /// A DEM as one grid over all its tiles.
@@ -165,13 +167,14 @@ impl Dem {
                 let crs_problem = matches!(&native, RasterError::Crs { .. })
                     || matches!(&native, RasterError::NotNative { what, .. } if what.contains("projection"));
                 return match quiet_gdal(|| Self::open_gdal(path)) {
-                    Ok(part) if !(crs_problem && part.crs.wkt.is_empty()) => Ok(part),
+                    Ok(part) if !crs_problem || part.earth_crs => Ok(part),
                     _ => Err(native),
                 };
             }
             Err(e) => return Err(e),
         };
         Ok(Part {
+            earth_crs: true,
             crs: t.crs.clone(),
             tile: Tile {
                 path: path.to_path_buf(),
@@ -221,6 +224,9 @@ impl Dem {
                 }
             })?;
         Ok(Part {
+            earth_crs: srs
+                .as_ref()
+                .is_some_and(|s| s.is_projected() || s.is_geographic()),
             crs,
             tile: Tile {
                 path: path.to_path_buf(),
@@ -254,7 +260,7 @@ impl Dem {
         };
         // Pixel offsets of each tile relative to the first.
         let mut placed = Vec::with_capacity(parts.len());
-        for Part { tile, crs } in &parts {
+        for Part { tile, crs, .. } in &parts {
             let (p, t) = (&tile.path, tile.geotransform.0);
             if !crs.same_as(&ref_crs) {
                 return Err(mismatch(p, "different CRS".into()));

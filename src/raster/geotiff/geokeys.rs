@@ -1,7 +1,7 @@
 //! GeoKeys (GeoTIFF 1.0/1.1 key directory) and their translation to a CRS:
 //! the EPSG code where the keys give one, else a PROJ definition built from
 //! the user-defined keys (projection method, parameters, ellipsoid), checked
-//! by PROJ and turned into WKT.
+//! by PROJ (through GDAL's OSR) and turned into WKT.
 
 use std::collections::HashMap;
 use std::path::Path;
@@ -323,15 +323,15 @@ impl GeoKeys {
                 }
             }
         };
-        proj::Proj::new(&definition).map_err(|e| {
-            crs_err(format!(
-                "PROJ rejects the CRS built from the GeoKeys '{definition}': {e}"
-            ))
-        })?;
+        // PROJ (through GDAL's OSR, which frees what it made on failure,
+        // unlike the proj crate's constructor) checks the definition.
         let wkt = crate::raster::crs::srs_from_proj4(&definition)
-            .ok()
-            .and_then(|s| s.to_wkt().ok())
-            .unwrap_or_default();
+            .and_then(|s| s.to_wkt().map_err(|e| e.to_string()))
+            .map_err(|e| {
+                crs_err(format!(
+                    "PROJ rejects the CRS built from the GeoKeys '{definition}': {e}"
+                ))
+            })?;
         Ok(Crs {
             epsg: None,
             wkt,
