@@ -24,6 +24,11 @@ fn main() {
             .map(|s| s.to_string())
             .or_else(|| info.payload().downcast_ref::<String>().cloned())
             .unwrap_or_else(|| "unknown panic".into());
+        // `println!` to a closed pipe (`demsketch info --json | head`): the
+        // reader has what it wanted; end quietly.
+        if msg.contains("Broken pipe") || msg.contains("os error 32") {
+            std::process::exit(0);
+        }
         let loc = info
             .location()
             .map(|l| format!(" at {}:{}", l.file(), l.line()))
@@ -33,7 +38,8 @@ fn main() {
     }));
     // Bad flags are user errors (exit 1, as DESIGN.md says), not clap's
     // default 2, which demsketch keeps for internal errors.
-    let args = match cli::Cli::try_parse() {
+    cli::install_gdal_error_handler();
+    let args = match cli::Cli::try_parse_from(cli::gdal_style_args(std::env::args_os())) {
         Ok(a) => a,
         Err(e) => {
             let code = if e.use_stderr() { 1 } else { 0 };
@@ -43,6 +49,7 @@ fn main() {
     };
     match cli::run(args) {
         Ok(()) => {}
+        Err(e) if cli::is_broken_pipe(&e) => std::process::exit(0),
         Err(e) => {
             let code = cli::exit_code(&e);
             let mut msg = e.to_string();

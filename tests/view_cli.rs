@@ -102,11 +102,13 @@ fn view_writes_picture_depth_viewshed_and_features() {
     );
     assert_eq!(png_size(&d("v.png")), (400, 225));
 
-    // Depth buffer: image-sized, sky infinite at the top, terrain at the bottom.
-    let (w, h, depth, _) = common::gdal_values(&d("depth.tif"));
+    // Depth buffer: image-sized, sky nodata (-9999) at the top, terrain at
+    // the bottom.
+    let (w, h, depth, nodata) = common::gdal_values(&d("depth.tif"));
     assert_eq!((w, h), (400, 225));
-    assert!(depth[0].is_infinite());
-    assert!(depth[(h - 1) * w + w / 2].is_finite());
+    assert_eq!(nodata, Some(-9999.0));
+    assert_eq!(depth[0], -9999.0);
+    assert!(depth[(h - 1) * w + w / 2] > 0.0);
 
     // Viewshed on the DEM grid, 0/255, the eye's own cell visible.
     let vis = gdal::Dataset::open(d("vis.tif")).unwrap();

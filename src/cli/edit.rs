@@ -81,6 +81,29 @@ pub struct EditArgs {
     /// Print the report on stdout.
     #[arg(long)]
     pub json: bool,
+    /// Format of --out, a GDAL driver name as gdal_translate's -of (written
+    /// -of or --of) [default: from the extension: .tif/.tiff GeoTIFF (a COG
+    /// stays a COG), .asc Arc/Info ASCII grid, ...; no extension: GeoTIFF].
+    #[arg(long = "of", value_name = "FORMAT")]
+    pub format: Option<String>,
+    /// Creation option NAME=VALUE for --out, as gdal_translate's -co
+    /// (repeatable; for a GeoTIFF they override the input's layout and
+    /// encoding, and the whole file is re-encoded).
+    #[arg(long = "co", value_name = "NAME=VALUE")]
+    pub creation_options: Vec<String>,
+    /// Resampling of the overviews refreshed over the change [default: the
+    /// one the file records (RESAMPLING metadata), else average].
+    #[arg(long, value_parser = parse_overview_resampling)]
+    pub overview_resampling: Option<String>,
+    /// Also write the height change (new minus old height, DEM units) as a
+    /// Float32 GeoTIFF on the grid of the changed window, nodata -9999
+    /// outside the DEM's valid cells. Written on dry runs too.
+    #[arg(long, value_name = "DZ.tif")]
+    pub dz: Option<PathBuf>,
+}
+
+fn parse_overview_resampling(s: &str) -> Result<String, String> {
+    demsketch::raster::overviews::parse_resampling(s).map(str::to_string)
 }
 
 fn parse_min_fit(s: &str) -> Result<f64, String> {
@@ -100,14 +123,40 @@ pub fn run(args: EditArgs) -> anyhow::Result<()> {
         (Some(p), false) => Destination::Path(p.clone()),
         (None, false) => anyhow::bail!("give --out OUT or --in-place"),
     };
+    if let Some(out) = &args.out {
+        if !args.dem.is_dir() {
+            demsketch::raster::output_format::output_driver(out, args.format.as_deref())
+                .map_err(|m| anyhow::anyhow!(m))?;
+        } else if args
+            .format
+            .as_deref()
+            .is_some_and(|f| !f.eq_ignore_ascii_case("GTiff"))
+        {
+            anyhow::bail!(
+                "{}: a tile directory is written as GeoTIFF tiles; -of {} is not supported",
+                out.display(),
+                args.format.as_deref().unwrap_or_default()
+            );
+        }
+    }
+    if let Some(dz) = &args.dz {
+        demsketch::raster::output_format::output_driver(dz, None)
+            .map_err(|m| anyhow::anyhow!(m))?;
+    }
+    demsketch::raster::output_format::check_creation_options(&args.creation_options)
+        .map_err(|m| anyhow::anyhow!(m))?;
     let mut opts = EditOptions::new(destination);
+    opts.write.format = args.format.clone();
+    opts.write.creation_options = args.creation_options.clone();
+    opts.write.overview_resampling = args.overview_resampling.clone();
+    opts.dz = args.dz.clone();
     opts.report = args.report.clone();
     opts.renders = args.renders.clone();
     opts.max_distance_m = Some(args.max_distance);
     opts.refraction = args.refraction;
     opts.max_lowering_iterations = args.max_lowering_iterations;
     opts.max_contour_iterations = args.max_contour_iterations;
-    opts.progress = std::io::stderr().is_terminal();
+    opts.progress = std::io::stderr().is_terminal() && !super::quiet();
     opts.min_fit = args.min_fit;
     opts.allow_partial = args.allow_partial;
     opts.dry_run = args.dry_run;
@@ -115,10 +164,8 @@ pub fn run(args: EditArgs) -> anyhow::Result<()> {
         Ok(r) => r,
         Err(e @ EditError::BelowMinFit { .. }) => {
             if let (true, EditError::BelowMinFit { report, .. }) = (args.json, &e) {
-                println!(
-                    "{}",
-                    serde_json::to_string_pretty(report).context("report")?
-                );
+                super::print_stdout(&serde_json::to_string_pretty(report).context("report")?)
+                    .context("stdout")?;
             }
             return Err(BelowMinFit(e.to_string()).into());
         }
@@ -126,12 +173,22 @@ pub fn run(args: EditArgs) -> anyhow::Result<()> {
         Err(EditError::Internal(m)) => return Err(InternalError(m).into()),
         Err(e) => return Err(InternalError(e.to_string()).into()),
     };
+    let t = &report.timings_s;
+    for (stage, secs) in [
+        ("load", t.load),
+        ("features", t.features),
+        ("matching", t.matching),
+        ("deformation", t.deformation),
+        ("lowering", t.lowering),
+        ("write", t.write),
+        ("total", t.total),
+    ] {
+        super::timing(stage, secs);
+    }
     if args.json {
-        println!(
-            "{}",
-            serde_json::to_string_pretty(&report).context("report")?
-        );
-    } else {
+        super::print_stdout(&serde_json::to_string_pretty(&report).context("report")?)
+            .context("stdout")?;
+    } else if !super::quiet() {
         for v in &report.views {
             for s in &v.strokes {
                 eprintln!(
@@ -157,7 +214,8 @@ pub fn run(args: EditArgs) -> anyhow::Result<()> {
         }
         if report.written {
             eprintln!(
-                "{} cells changed (max |dz| {:.1} m) in {} file(s), {:.2} s",
+                "{}: {} cells changed (max |dz| {:.1} m) in {} file(s), {:.2} s",
+                report.output,
                 report.changed_cells,
                 report.max_abs_displacement_m,
                 report.tiles_written.len(),
@@ -165,8 +223,11 @@ pub fn run(args: EditArgs) -> anyhow::Result<()> {
             );
         } else {
             eprintln!(
-                "dry run: nothing written; a real run would change {} cells (max |dz| {:.1} m), {:.2} s",
-                report.changed_cells, report.max_abs_displacement_m, report.timings_s.total
+                "{}: dry run, nothing written; a real run would change {} cells (max |dz| {:.1} m), {:.2} s",
+                report.output,
+                report.changed_cells,
+                report.max_abs_displacement_m,
+                report.timings_s.total
             );
         }
     }

@@ -50,13 +50,13 @@ pub fn run(args: InfoArgs) -> anyhow::Result<()> {
                 ),
                 TileSource::Gdal(_) => (json!(null), json!({"driver": "GDAL"})),
             };
-            json!({"path": t.path, "col": t.extent.col, "row": t.extent.row,
+            json!({"path": t.path.to_string_lossy(), "col": t.extent.col, "row": t.extent.row,
                    "width": t.extent.width, "height": t.extent.height,
                    "layout": layout, "encoding": encoding})
         })
         .collect();
     let out = json!({
-        "path": dem.path,
+        "path": dem.path.to_string_lossy(),
         "kind": dem.kind,
         "width": dem.width,
         "height": dem.height,
@@ -86,7 +86,7 @@ pub fn run(args: InfoArgs) -> anyhow::Result<()> {
         "min_max_unit": "metre",
     });
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&out)?);
+        super::print_stdout(&serde_json::to_string_pretty(&out)?)?;
         return Ok(());
     }
     println!("DEM:          {}", dem.path.display());

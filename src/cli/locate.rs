@@ -38,7 +38,7 @@ pub fn run(args: LocateArgs) -> anyhow::Result<()> {
     )?;
     match locate(&scene.terrain, &view.camera, &scene.georef, x, y)? {
         Some(loc) => {
-            println!("{}", serde_json::to_string(&loc)?);
+            super::print_stdout(&serde_json::to_string(&loc)?)?;
             Ok(())
         }
         None => anyhow::bail!(

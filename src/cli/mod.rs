@@ -5,6 +5,8 @@ pub mod info;
 pub mod locate;
 pub mod view;
 
+use std::sync::atomic::{AtomicBool, Ordering};
+
 use clap::{Parser, Subcommand};
 
 /// Correct real digital elevation models (GeoTIFF, tile directories, VRT) by
@@ -14,6 +16,60 @@ use clap::{Parser, Subcommand};
 pub struct Cli {
     #[command(subcommand)]
     pub command: Command,
+    /// No progress bars and no notes on stderr: only errors (and what
+    /// --json prints on stdout).
+    #[arg(long, short = 'q', global = true, conflicts_with = "verbose")]
+    pub quiet: bool,
+    /// Also print the time of each stage, and GDAL's own warnings, on
+    /// stderr (one line each).
+    #[arg(long, short = 'v', global = true)]
+    pub verbose: bool,
+}
+
+static QUIET: AtomicBool = AtomicBool::new(false);
+static VERBOSE: AtomicBool = AtomicBool::new(false);
+
+/// `--quiet` was given.
+pub fn quiet() -> bool {
+    QUIET.load(Ordering::Relaxed)
+}
+
+/// `--verbose` was given.
+pub fn verbose() -> bool {
+    VERBOSE.load(Ordering::Relaxed)
+}
+
+/// A stage's time on stderr, with `--verbose`.
+pub fn timing(stage: &str, seconds: f64) {
+    if verbose() {
+        eprintln!("demsketch: {stage}: {seconds:.3} s");
+    }
+}
+
+/// GDAL's error handler for the whole process: GDAL's messages never reach
+/// the terminal as `ERROR n:` lines (the error that matters comes back from
+/// the failing call and is reported once, in one line naming the file);
+/// with `--verbose` its warnings and errors are shown, one line each.
+pub fn install_gdal_error_handler() {
+    gdal::config::set_error_handler(|class, number, message| {
+        if verbose() {
+            eprintln!(
+                "demsketch: GDAL {class:?} {number}: {}",
+                message.replace('\n', " ")
+            );
+        }
+    });
+}
+
+/// Rewrite GDAL-style `-of X` and `-co X` into the `--of` and `--co` flags
+/// clap knows (GDAL's utilities spell them with one dash).
+pub fn gdal_style_args(args: impl Iterator<Item = std::ffi::OsString>) -> Vec<std::ffi::OsString> {
+    args.map(|a| match a.to_str() {
+        Some("-of") => "--of".into(),
+        Some("-co") => "--co".into(),
+        _ => a,
+    })
+    .collect()
 }
 
 #[derive(Subcommand, Debug)]
@@ -31,6 +87,8 @@ pub enum Command {
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
+    QUIET.store(cli.quiet, Ordering::Relaxed);
+    VERBOSE.store(cli.verbose, Ordering::Relaxed);
     match cli.command {
         Command::Info(a) => info::run(a),
         Command::View(a) => view::run(a),
@@ -53,6 +111,9 @@ pub struct BelowMinFit(pub String);
 /// 2 for internal errors, 3 for an edit below `--min-fit`, 1 for everything
 /// caused by the input.
 pub fn exit_code(e: &anyhow::Error) -> i32 {
+    if is_broken_pipe(e) {
+        return 0;
+    }
     if e.chain()
         .any(|c| c.downcast_ref::<InternalError>().is_some())
     {
@@ -62,6 +123,25 @@ pub fn exit_code(e: &anyhow::Error) -> i32 {
     } else {
         1
     }
+}
+
+/// True when `e` is a write to a closed pipe (`demsketch ... | head`):
+/// the reader has all it wanted, so the program ends quietly.
+pub fn is_broken_pipe(e: &anyhow::Error) -> bool {
+    e.chain().any(|c| {
+        c.downcast_ref::<std::io::Error>()
+            .is_some_and(|io| io.kind() == std::io::ErrorKind::BrokenPipe)
+    })
+}
+
+/// Print `text` and a newline on stdout, returning the error (a broken
+/// pipe among them) instead of panicking as `println!` does.
+pub fn print_stdout(text: &str) -> std::io::Result<()> {
+    use std::io::Write;
+    let mut out = std::io::stdout().lock();
+    out.write_all(text.as_bytes())?;
+    out.write_all(b"\n")?;
+    out.flush()
 }
 
 /// Parse a pair of numbers written `A<sep>B` (`1600x900`, `412.5,300`) for

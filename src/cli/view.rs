@@ -7,18 +7,22 @@
 //! Also defines the camera flags shared with `locate`.
 
 use anyhow::Context;
-use demsketch::features::geojson::{feature_collection, to_lonlat_with_georef, write_geojson};
+use demsketch::features::geojson::{
+    feature_collection_of_view, to_lonlat_with_georef, write_geojson,
+};
 use demsketch::features::{
     detect_ridges, extract_silhouettes, RidgeNetwork, RidgeParams, SilhouetteParams, Silhouettes,
 };
+use demsketch::raster::output_format::{output_driver, write_raster, RasterSpec};
 use demsketch::raster::Dem;
 use demsketch::render::{
-    draw_polyline, shade, viewshed, visible_polylines, write_depth_tiff, write_png,
-    write_viewshed_tiff, DepthBuffer, Scene, ShadeOptions,
+    depth_for_file, draw_polyline, shade, viewshed, visible_polylines, write_png, DepthBuffer,
+    Scene, ShadeOptions, DEPTH_NODATA,
 };
 use demsketch::view::{Camera, EyeHeight, Viewpoint};
 use serde::Deserialize;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
 
 /// Viewpoint and camera flags (DESIGN.md "Camera flags").
 #[derive(clap::Args, Debug, Clone)]
@@ -113,6 +117,9 @@ pub struct ResolvedView {
     pub viewpoint: Viewpoint,
     pub camera: Camera,
     pub strokes: Vec<Vec<[f64; 2]>>,
+    /// The view's index in the sketch file (0 without one): silhouette
+    /// feature ids carry it, as in an edit's report.
+    pub view_index: usize,
 }
 
 impl CameraFlags {
@@ -138,6 +145,7 @@ impl CameraFlags {
             viewpoint: Viewpoint { lon, lat, height },
             camera,
             strokes: Vec::new(),
+            view_index: 0,
         })
     }
 }
@@ -181,15 +189,16 @@ pub struct ViewArgs {
     pub view: Option<String>,
     #[command(flatten)]
     pub camera: CameraFlags,
-    /// Output PNG (8-bit RGB: lit terrain, distance haze, sky).
+    /// Output picture (8-bit RGB: lit terrain, distance haze, sky): PNG for
+    /// .png, otherwise the GDAL format of the extension (.tif, .jpg, ...).
     #[arg(long)]
     pub out: PathBuf,
     /// What to draw over the picture, comma-separated [default: strokes when
     /// the sketch has any].
     #[arg(long, value_enum, value_delimiter = ',')]
     pub overlay: Vec<Overlay>,
-    /// Also write the depth buffer (Float32 TIFF in image space, metres from
-    /// the eye, inf = sky).
+    /// Also write the depth buffer (Float32, image space, metres from the
+    /// eye; sky is nodata, -9999).
     #[arg(long)]
     pub depth: Option<PathBuf>,
     /// Also write the viewshed (GeoTIFF on the DEM grid, 255 visible / 0 not,
@@ -200,9 +209,67 @@ pub struct ViewArgs {
     #[arg(long, default_value_t = 0.0)]
     pub target_height: f64,
     /// Also write the view's features as GeoJSON: silhouettes (with their
-    /// pixel polylines), T-junctions and the ridge lines, in lon/lat/z.
+    /// pixel polylines), T-junctions and the ridge lines, in lon/lat/z; each
+    /// feature's id is the feature_id an edit's report gives it.
     #[arg(long)]
     pub features: Option<PathBuf>,
+    /// Format of --depth and --viewshed, a GDAL driver name as
+    /// gdal_translate's -of (written -of or --of) [default: from each
+    /// file's extension; GeoTIFF without one].
+    #[arg(long = "of", value_name = "FORMAT")]
+    pub format: Option<String>,
+    /// Creation option NAME=VALUE for --depth and --viewshed, as
+    /// gdal_translate's -co (repeatable).
+    #[arg(long = "co", value_name = "NAME=VALUE")]
+    pub creation_options: Vec<String>,
+}
+
+/// Refuse outputs in formats that cannot be written, before any work.
+fn check_outputs(args: &ViewArgs) -> anyhow::Result<()> {
+    for p in [&args.depth, &args.viewshed].into_iter().flatten() {
+        output_driver(p, args.format.as_deref()).map_err(|m| anyhow::anyhow!(m))?;
+    }
+    demsketch::raster::output_format::check_creation_options(&args.creation_options)
+        .map_err(|m| anyhow::anyhow!(m))?;
+    if !is_png(&args.out) {
+        output_driver(&args.out, None).map_err(|m| anyhow::anyhow!(m))?;
+    }
+    if let Some(f) = &args.features {
+        let ext = f
+            .extension()
+            .map(|e| e.to_string_lossy().to_ascii_lowercase())
+            .unwrap_or_default();
+        if !matches!(ext.as_str(), "geojson" | "json") {
+            anyhow::bail!(
+                "{}: --features writes GeoJSON; give a .geojson name (convert with ogr2ogr)",
+                f.display()
+            );
+        }
+    }
+    Ok(())
+}
+
+fn is_png(p: &Path) -> bool {
+    p.extension().is_some_and(|e| e.eq_ignore_ascii_case("png"))
+}
+
+/// Write the picture: PNG natively, any other format through GDAL
+/// (three Byte bands).
+fn write_picture(path: &Path, w: usize, h: usize, rgb: &[u8]) -> anyhow::Result<()> {
+    if is_png(path) {
+        write_png(path, w, h, rgb)?;
+        return Ok(());
+    }
+    let bands: Vec<Vec<u8>> = (0..3)
+        .map(|b| rgb.iter().skip(b).step_by(3).copied().collect())
+        .collect();
+    let spec = RasterSpec {
+        width: w,
+        height: h,
+        ..Default::default()
+    };
+    write_raster(path, &spec, bands)?;
+    Ok(())
 }
 
 /// The view to render: from the sketch file, with camera flags overriding.
@@ -214,17 +281,16 @@ fn resolve_view(args: &ViewArgs) -> anyhow::Result<ResolvedView> {
         .with_context(|| format!("{}: cannot read sketch file", path.display()))?;
     let file: SketchFile = serde_json::from_str(&text)
         .map_err(|e| anyhow::anyhow!("{}: not a sketch file: {e}", path.display()))?;
-    let v = match &args.view {
+    let view_index = match &args.view {
         Some(name) => file
             .views
             .iter()
-            .find(|v| v.name.as_deref() == Some(name.as_str()))
+            .position(|v| v.name.as_deref() == Some(name.as_str()))
             .ok_or_else(|| anyhow::anyhow!("{}: no view named '{name}'", path.display()))?,
-        None => file
-            .views
-            .first()
-            .ok_or_else(|| anyhow::anyhow!("{}: no views", path.display()))?,
+        None if file.views.is_empty() => anyhow::bail!("{}: no views", path.display()),
+        None => 0,
     };
+    let v = &file.views[view_index];
     let f = &args.camera;
     let mut flags = CameraFlags {
         lon: f.lon.or(Some(v.viewpoint.lon)),
@@ -249,10 +315,13 @@ fn resolve_view(args: &ViewArgs) -> anyhow::Result<ResolvedView> {
     }
     let mut r = flags.resolve()?;
     r.strokes = v.strokes.iter().map(|s| s.points.clone()).collect();
+    r.view_index = view_index;
     Ok(r)
 }
 
 pub fn run(args: ViewArgs) -> anyhow::Result<()> {
+    let t_all = Instant::now();
+    check_outputs(&args)?;
     let view = resolve_view(&args)?;
     if let Some(t) = Some(args.target_height).filter(|t| !t.is_finite()) {
         anyhow::bail!("--target-height {t} must be a finite number of metres");
@@ -264,7 +333,11 @@ pub fn run(args: ViewArgs) -> anyhow::Result<()> {
         args.camera.max_distance,
         args.camera.refraction,
     )?;
+    super::timing("load", t_all.elapsed().as_secs_f64());
+    let t = Instant::now();
     let depth = DepthBuffer::render(&scene.terrain, &view.camera);
+    super::timing("render", t.elapsed().as_secs_f64());
+    let t = Instant::now();
     let overlays: Vec<Overlay> = if args.overlay.is_empty() {
         if view.strokes.is_empty() {
             Vec::new()
@@ -285,6 +358,8 @@ pub fn run(args: ViewArgs) -> anyhow::Result<()> {
         .then(|| detect_ridges(&scene.window, &RidgeParams::default()))
         .transpose()?;
 
+    super::timing("features", t.elapsed().as_secs_f64());
+    let t = Instant::now();
     let (w, h) = (view.camera.width, view.camera.height);
     // Sun behind the viewer's right shoulder, so the slopes facing the
     // viewer are lit.
@@ -319,18 +394,44 @@ pub fn run(args: ViewArgs) -> anyhow::Result<()> {
             draw_polyline(&mut rgb, w, h, s, [230, 0, 200], line + 1.0);
         }
     }
-    write_png(&args.out, w, h, &rgb)?;
+    write_picture(&args.out, w, h, &rgb)?;
     if let Some(p) = &args.depth {
-        write_depth_tiff(&depth, p)?;
+        let data = depth_for_file(&depth);
+        let spec = RasterSpec {
+            width: depth.width,
+            height: depth.height,
+            nodata: Some(DEPTH_NODATA),
+            description: Some("distance from the eye, m (nodata: sky)".into()),
+            format: args.format.clone(),
+            creation_options: args.creation_options.clone(),
+            ..Default::default()
+        };
+        write_raster(p, &spec, vec![data])?;
     }
     if let Some(p) = &args.viewshed {
         let vs = viewshed(&scene.terrain, &scene.window, args.target_height);
-        write_viewshed_tiff(&vs, p)?;
+        let spec = RasterSpec {
+            width: vs.width,
+            height: vs.height,
+            geotransform: Some(vs.geotransform.0),
+            crs: vs.crs.gdal_definition(),
+            format: args.format.clone(),
+            creation_options: args.creation_options.clone(),
+            ..Default::default()
+        };
+        write_raster(p, &spec, vec![vs.data])?;
     }
     if let Some(p) = &args.features {
         let to_ll = to_lonlat_with_georef(&scene.georef);
-        let fc = feature_collection(silhouettes.as_ref(), ridges.as_ref(), &to_ll)?;
+        let fc = feature_collection_of_view(
+            silhouettes.as_ref(),
+            ridges.as_ref(),
+            view.view_index,
+            &to_ll,
+        )?;
         write_geojson(p, &fc)?;
     }
+    super::timing("write", t.elapsed().as_secs_f64());
+    super::timing("total", t_all.elapsed().as_secs_f64());
     Ok(())
 }

@@ -14,7 +14,8 @@ use super::report::{
 };
 use super::EditError;
 use crate::deform::Deformation;
-use crate::raster::{Dem, Destination, Provenance, WriteReport};
+use crate::raster::provenance::sha256_hex;
+use crate::raster::{Dem, Destination, Provenance, ProvenanceRecord, WriteReport};
 use crate::sketch::SketchFile;
 
 /// The inputs of the edit, as loaded.
@@ -112,9 +113,20 @@ pub(super) fn write_outputs(
         .flatten();
     let write = below.is_none() && !opts.dry_run;
     let values = deformation.write_values();
+    let mut write_opts = opts.write.clone();
+    write_opts.record = ProvenanceRecord {
+        input: Some(src.dem_path.display().to_string()),
+        sketch_sha256: std::fs::read(src.sketch_path).ok().map(|b| sha256_hex(&b)),
+        parameters: Some(opts.parameters()),
+    };
     let written = if write {
-        src.dem
-            .write_back(deformation.window, &values, &opts.destination, &provenance)?
+        src.dem.write_back_with(
+            deformation.window,
+            &values,
+            &opts.destination,
+            &provenance,
+            &write_opts,
+        )?
     } else {
         // Not written: what a real run would change (a dry run fails as the
         // real run would on heights the DEM cannot store).
@@ -142,6 +154,9 @@ pub(super) fn write_outputs(
     }
     if let Some(s) = staged_renders {
         s.commit()?;
+    }
+    if let Some(p) = &opts.dz {
+        write_dz(p, src.dem, &deformation).map_err(EditError::from)?;
     }
     timings.write = secs(t);
     timings.total = secs(t_all);
@@ -206,6 +221,47 @@ pub(super) fn write_outputs(
         });
     }
     Ok(report)
+}
+
+/// Nodata of the height-change GeoTIFF (`--dz`).
+pub const DZ_NODATA: f64 = -9999.0;
+
+/// The height change `M` over the deformation's window as a Float32
+/// GeoTIFF on the DEM's grid (nodata where the DEM has none).
+fn write_dz(path: &Path, dem: &Dem, d: &Deformation) -> Result<(), crate::raster::RasterError> {
+    let w = d.window;
+    let g = dem.geotransform.0;
+    let (c, r) = (w.col as f64, w.row as f64);
+    let gt = [
+        g[0] + c * g[1] + r * g[2],
+        g[1],
+        g[2],
+        g[3] + c * g[4] + r * g[5],
+        g[4],
+        g[5],
+    ];
+    let data: Vec<f32> = d
+        .displacement
+        .iter()
+        .zip(&d.base.data)
+        .map(|(&m, &h)| {
+            if m.is_nan() || h.is_nan() {
+                DZ_NODATA as f32
+            } else {
+                m
+            }
+        })
+        .collect();
+    let spec = crate::raster::output_format::RasterSpec {
+        width: w.width,
+        height: w.height,
+        geotransform: Some(gt),
+        crs: dem.crs.gdal_definition(),
+        nodata: Some(DZ_NODATA),
+        description: Some("height change (new - old)".into()),
+        ..Default::default()
+    };
+    crate::raster::output_format::write_raster(path, &spec, vec![data])
 }
 
 /// Honest outcome: the stroke with the lowest fit among those not fitted

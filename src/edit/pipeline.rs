@@ -44,7 +44,7 @@ use crate::deform::{
     deform_with_cells, CellConstraint, CurveConstraint, DeformError, DeformOptions, Deformation,
 };
 use crate::features::{detect_ridges, RidgeNetwork, RidgeParams};
-use crate::raster::{Dem, Destination, HeightMap, Window};
+use crate::raster::{Dem, Destination, HeightMap, Window, WriteOptions};
 use crate::render::Scene;
 use crate::sketch::{
     match_sketch, EyeHeightSpec, PointSource, SceneProjection, SceneView, SketchFile, SketchMatch,
@@ -82,6 +82,11 @@ pub struct EditOptions {
     /// Compute everything and write the report and pictures, but not the
     /// DEM. Fails as a real run would (bad heights, fit below `min_fit`).
     pub dry_run: bool,
+    /// Output format, creation options and overview resampling of the
+    /// write-back (the provenance record is filled in by the edit).
+    pub write: WriteOptions,
+    /// Also write the height change as a GeoTIFF here.
+    pub dz: Option<PathBuf>,
 }
 
 impl EditOptions {
@@ -101,7 +106,40 @@ impl EditOptions {
             min_fit: DEFAULT_MIN_FIT,
             allow_partial: false,
             dry_run: false,
+            write: WriteOptions::default(),
+            dz: None,
         }
+    }
+
+    /// The edit's parameters as flags, for the provenance record.
+    pub fn parameters(&self) -> String {
+        let mut p = vec![
+            format!(
+                "--max-distance {}",
+                self.max_distance_m.unwrap_or(f64::INFINITY)
+            ),
+            format!("--refraction {}", self.refraction),
+            format!("--max-lowering-iterations {}", self.max_lowering_iterations),
+            format!("--max-contour-iterations {}", self.max_contour_iterations),
+            format!("--min-fit {}", self.min_fit),
+        ];
+        if self.allow_partial {
+            p.push("--allow-partial".into());
+        }
+        if let Some(r) = &self.write.overview_resampling {
+            p.push(format!("--overview-resampling {r}"));
+        }
+        if let Some(f) = &self.write.format {
+            p.push(format!("-of {f}"));
+        }
+        for c in &self.write.creation_options {
+            p.push(format!("-co {c}"));
+        }
+        p.push(match &self.destination {
+            Destination::InPlace => "--in-place".into(),
+            Destination::Path(o) => format!("--out {}", o.display()),
+        });
+        p.join(" ")
     }
 }
 
@@ -1121,6 +1159,7 @@ fn check_output_paths(opts: &EditOptions) -> Result<(), EditError> {
     }
     paths.extend(opts.report.as_deref());
     paths.extend(opts.renders.as_deref());
+    paths.extend(opts.dz.as_deref());
     for p in paths {
         let parent = p
             .parent()

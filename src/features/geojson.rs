@@ -3,7 +3,11 @@
 //! `LineString` feature with `[lon, lat, z]` positions (WGS84 degrees, z the
 //! true terrain height in the DEM's vertical datum), and properties `kind`
 //! (`"silhouette"` or `"ridge"`), `id` and `length` (metres along the 3D
-//! curve). Silhouettes also carry their image polyline (`pixels`), whether they
+//! curve). Every feature's `id` (the Feature's RFC 7946 `id` member and the
+//! `id` and `feature_id` properties) is unique in the collection and is the
+//! `feature_id` an edit's report gives the same feature
+//! ([`crate::sketch::FeatureSource`]: ridges by ridge line, silhouettes by
+//! view index and curve); T-junctions get ids above both. Silhouettes also carry their image polyline (`pixels`), whether they
 //! are part of the skyline, and their depth range; T-junctions become `Point`
 //! features of kind `"t_junction"` naming the occluded and occluding
 //! silhouette.
@@ -46,15 +50,42 @@ fn position(to_lonlat: &ToLonLat, p: [f64; 3]) -> Result<Value, FeatureError> {
     Ok(json!([round(lon, 8), round(lat, 8), round(p[2], 3)]))
 }
 
-fn feature(geometry: Value, properties: Map<String, Value>) -> Value {
-    json!({"type": "Feature", "geometry": geometry, "properties": properties})
+/// The id of T-junction `index` of view `view`: above every silhouette id
+/// (and below 2^53, so that JSON readers keep it exact).
+fn junction_id(view: usize, index: usize) -> usize {
+    JUNCTION_ID_BASE + (view << 32) + index
+}
+
+/// T-junction ids start here (silhouettes from
+/// [`crate::sketch::SILHOUETTE_ID_BASE`], ridges below it).
+pub const JUNCTION_ID_BASE: usize = 1 << 52;
+
+/// A Feature whose `id` (RFC 7946's member, which OGR takes as the FID) and
+/// `id` / `feature_id` properties are `id`.
+fn feature(geometry: Value, mut properties: Map<String, Value>, id: usize) -> Value {
+    properties.insert("id".into(), json!(id));
+    properties.insert("feature_id".into(), json!(id));
+    json!({"type": "Feature", "id": id, "geometry": geometry, "properties": properties})
 }
 
 /// GeoJSON features of the silhouettes of one view (`view` names the view in
-/// the properties when given).
+/// the properties when given), ids as an edit's report gives them for view
+/// 0 ([`silhouette_features_of_view`]).
 pub fn silhouette_features(
     sil: &Silhouettes,
     view: Option<&str>,
+    to_lonlat: &ToLonLat,
+) -> Result<Vec<Value>, FeatureError> {
+    silhouette_features_of_view(sil, view, 0, to_lonlat)
+}
+
+/// GeoJSON features of the silhouettes of view `view_index` of a sketch:
+/// each silhouette's id is the report's `feature_id` for it
+/// ([`crate::sketch::FeatureSource`]), junctions get ids of their own.
+pub fn silhouette_features_of_view(
+    sil: &Silhouettes,
+    view: Option<&str>,
+    view_index: usize,
     to_lonlat: &ToLonLat,
 ) -> Result<Vec<Value>, FeatureError> {
     let mut out = Vec::with_capacity(sil.curves.len() + sil.junctions.len());
@@ -74,7 +105,7 @@ pub fn silhouette_features(
         });
         let mut props = Map::new();
         props.insert("kind".into(), json!("silhouette"));
-        props.insert("id".into(), json!(c.id));
+        props.insert("curve".into(), json!(c.id));
         props.insert("length".into(), json!(round(c.local_length_m(), 2)));
         props.insert("length_px".into(), json!(round(c.pixel_length(), 2)));
         props.insert("skyline".into(), json!(c.skyline));
@@ -84,12 +115,18 @@ pub fn silhouette_features(
         if let Some(v) = view {
             props.insert("view".into(), json!(v));
         }
+        let id = crate::sketch::FeatureSource::Silhouette {
+            view: view_index,
+            curve: c.id,
+        }
+        .id();
         out.push(feature(
             json!({"type": "LineString", "coordinates": coords}),
             props,
+            id,
         ));
     }
-    for j in &sil.junctions {
+    for (k, j) in sil.junctions.iter().enumerate() {
         // The junction's terrain point: the occluded silhouette's end sample.
         let Some(c) = sil.curves.get(j.occluded as usize) else {
             continue;
@@ -101,8 +138,17 @@ pub fn silhouette_features(
         let Some(s) = s else { continue };
         let mut props = Map::new();
         props.insert("kind".into(), json!("t_junction"));
-        props.insert("occluded".into(), json!(j.occluded));
-        props.insert("occluder".into(), json!(j.occluder));
+        let sid = |i: u32| {
+            sil.curves.get(i as usize).map(|c| {
+                crate::sketch::FeatureSource::Silhouette {
+                    view: view_index,
+                    curve: c.id,
+                }
+                .id()
+            })
+        };
+        props.insert("occluded".into(), json!(sid(j.occluded)));
+        props.insert("occluder".into(), json!(sid(j.occluder)));
         props.insert(
             "pixel".into(),
             json!([round(j.pixel[0], 3), round(j.pixel[1], 3)]),
@@ -113,6 +159,7 @@ pub fn silhouette_features(
         out.push(feature(
             json!({"type": "Point", "coordinates": position(to_lonlat, s.world)?}),
             props,
+            junction_id(view_index, k),
         ));
     }
     Ok(out)
@@ -133,26 +180,39 @@ pub fn ridge_features(
                 .collect::<Result<Vec<_>, _>>()?;
             let mut props = Map::new();
             props.insert("kind".into(), json!("ridge"));
-            props.insert("id".into(), json!(l.id));
             props.insert("length".into(), json!(round(l.length_m, 2)));
             props.insert("nodes".into(), json!(l.nodes));
+            let id = crate::sketch::FeatureSource::Ridge { line: l.id }.id();
             Ok(feature(
                 json!({"type": "LineString", "coordinates": coords}),
                 props,
+                id,
             ))
         })
         .collect()
 }
 
-/// A `FeatureCollection` of the given silhouettes and ridges.
+/// A `FeatureCollection` of the given silhouettes and ridges (view 0).
 pub fn feature_collection(
     silhouettes: Option<&Silhouettes>,
     ridges: Option<&RidgeNetwork>,
     to_lonlat: &ToLonLat,
 ) -> Result<Value, FeatureError> {
+    feature_collection_of_view(silhouettes, ridges, 0, to_lonlat)
+}
+
+/// A `FeatureCollection` of the silhouettes of view `view_index` of a
+/// sketch and the ridges, every feature with a unique id equal to the edit
+/// report's `feature_id`.
+pub fn feature_collection_of_view(
+    silhouettes: Option<&Silhouettes>,
+    ridges: Option<&RidgeNetwork>,
+    view_index: usize,
+    to_lonlat: &ToLonLat,
+) -> Result<Value, FeatureError> {
     let mut features = Vec::new();
     if let Some(s) = silhouettes {
-        features.extend(silhouette_features(s, None, to_lonlat)?);
+        features.extend(silhouette_features_of_view(s, None, view_index, to_lonlat)?);
     }
     if let Some(r) = ridges {
         features.extend(ridge_features(r, to_lonlat)?);

@@ -1,9 +1,12 @@
 //! Write-back of corrected heights: only the tiles an edit changes are
 //! rewritten, each with its own layout (tiled or striped, block size),
 //! compression, predictor, sample type, georeference, CRS, nodata and
-//! metadata, plus a provenance item that `gdalinfo` shows. Overviews in the
-//! input are rebuilt. Unchanged tiles are hard-linked (or copied) byte for
-//! byte, never re-encoded.
+//! metadata, plus a provenance entry that `gdalinfo` shows
+//! ([`super::provenance`]). Within a GeoTIFF only the changed blocks are
+//! re-encoded ([`super::block_patch`]) and overviews are refreshed over the
+//! change ([`super::overviews`]); sidecars (`.ovr`, `.aux.xml`) follow
+//! ([`super::sidecars`]). Unchanged tiles are hard-linked (or copied) byte
+//! for byte, never re-encoded.
 //!
 //! Every write is atomic: tiles are encoded to temporary files in the target
 //! directory and renamed into place only once all of them are complete; a
@@ -14,14 +17,15 @@
 use std::path::{Path, PathBuf};
 use std::time::{SystemTime, UNIX_EPOCH};
 
-use gdal::raster::{Buffer, RasterCreationOptions};
-use gdal::{DriverManager, GdalOpenFlags, Metadata};
+use gdal::raster::RasterCreationOptions;
+use gdal::DriverManager;
 use rayon::prelude::*;
 
+use super::block_patch::{self, BlockEdit, PatchSettings};
+use super::output_format::WriteOptions;
+pub use super::provenance::PROVENANCE_KEY;
+use super::sidecars::Sidecars;
 use super::{Dem, LayerKind, RasterError, SampleType, Tile, TileSource, Window};
-
-/// The metadata item written into every rewritten tile.
-pub const PROVENANCE_KEY: &str = "DEMSKETCH_PROVENANCE";
 
 /// Who changed a tile, and when.
 #[derive(Debug, Clone)]
@@ -31,13 +35,9 @@ pub struct Provenance {
 }
 
 impl Provenance {
-    fn item(&self, changed_cells: usize) -> String {
-        format!(
-            "tool=demsketch {}; edit={}; time={}; changed_cells={changed_cells}",
-            env!("CARGO_PKG_VERSION"),
-            self.edit_id,
-            rfc3339_now()
-        )
+    /// The history entry of this edit ([`super::provenance::entry`]).
+    fn item(&self, changed_cells: usize, opts: &WriteOptions) -> String {
+        super::provenance::entry(&self.edit_id, &rfc3339_now(), changed_cells, &opts.record)
     }
 }
 
@@ -139,6 +139,15 @@ struct TileEdit {
     changed: usize,
 }
 
+impl TileEdit {
+    fn block_edit(&self) -> BlockEdit<'_> {
+        BlockEdit {
+            local: self.local,
+            values: &self.values,
+        }
+    }
+}
+
 impl Dem {
     /// Write new heights for `window` (row-major `values`, NaN = keep) back
     /// to the tiles. Nodata cells of the input stay nodata; values are rounded
@@ -150,10 +159,23 @@ impl Dem {
         dest: &Destination,
         provenance: &Provenance,
     ) -> Result<WriteReport, RasterError> {
+        self.write_back_with(window, values, dest, provenance, &WriteOptions::default())
+    }
+
+    /// [`Dem::write_back`] with output options: format and creation
+    /// options of `--out`, overview resampling, provenance details.
+    pub fn write_back_with(
+        &self,
+        window: Window,
+        values: &[f64],
+        dest: &Destination,
+        provenance: &Provenance,
+        opts: &WriteOptions,
+    ) -> Result<WriteReport, RasterError> {
         self.check_destination(dest)?;
         let edits = self.tile_edits(window, values)?;
         let changed_cells = edits.iter().map(|e| e.changed).sum();
-        self.commit_edits(edits, changed_cells, dest, provenance)
+        self.commit_edits(edits, changed_cells, dest, provenance, opts)
     }
 
     /// What [`Dem::write_back`] would change, without writing anything:
@@ -257,6 +279,7 @@ impl Dem {
         changed_cells: usize,
         dest: &Destination,
         provenance: &Provenance,
+        opts: &WriteOptions,
     ) -> Result<WriteReport, RasterError> {
         match (dest, self.kind) {
             (Destination::InPlace, LayerKind::Gdal) => Err(RasterError::Unsupported {
@@ -282,7 +305,7 @@ impl Dem {
                     .iter()
                     .map(|e| self.tiles[e.tile].path.clone())
                     .collect();
-                self.encode_and_commit(&edits, &targets, provenance)?;
+                self.encode_and_commit(&edits, &targets, provenance, opts)?;
                 for e in &edits {
                     self.invalidate_tile(e.tile);
                 }
@@ -294,19 +317,38 @@ impl Dem {
             }
             (Destination::Path(out), LayerKind::GeoTiff | LayerKind::Gdal) => {
                 let targets = vec![out.clone()];
+                let same_format = matches!(self.kind, LayerKind::GeoTiff)
+                    && opts.keeps_geotiff(Some(out.as_path()));
+                if edits.is_empty() && !same_format {
+                    // Nothing changed, but another format: converted.
+                    let keep_all = TileEdit {
+                        tile: 0,
+                        local: Window::new(0, 0, 1, 1),
+                        values: vec![f64::NAN],
+                        changed: 0,
+                    };
+                    self.encode_and_commit(&[keep_all], &targets, provenance, opts)?;
+                    return Ok(WriteReport {
+                        tiles_written: targets,
+                        tiles_unchanged: vec![],
+                        changed_cells,
+                    });
+                }
                 if edits.is_empty() {
-                    // Nothing changed: the output is a byte copy of the input.
+                    // Nothing changed: the output is a byte copy of the input
+                    // (its sidecars too).
                     let tmp = temp_beside(out);
                     std::fs::copy(&self.tiles[0].path, &tmp)
                         .map_err(|e| RasterError::io(out, e))?;
                     std::fs::rename(&tmp, out).map_err(|e| RasterError::io(out, e))?;
+                    super::sidecars::copy_unchanged(&self.tiles[0].path, out)?;
                     return Ok(WriteReport {
                         tiles_written: vec![],
                         tiles_unchanged: targets,
                         changed_cells,
                     });
                 }
-                self.encode_and_commit(&edits, &targets, provenance)?;
+                self.encode_and_commit(&edits, &targets, provenance, opts)?;
                 Ok(WriteReport {
                     tiles_written: targets,
                     tiles_unchanged: vec![],
@@ -314,7 +356,7 @@ impl Dem {
                 })
             }
             (Destination::Path(out), LayerKind::TileDirectory) => {
-                self.write_directory(out, &edits, provenance, changed_cells)
+                self.write_directory(out, &edits, provenance, changed_cells, opts)
             }
         }
     }
@@ -385,25 +427,37 @@ impl Dem {
         edits: &[TileEdit],
         targets: &[PathBuf],
         provenance: &Provenance,
+        opts: &WriteOptions,
     ) -> Result<(), RasterError> {
         let temps: Vec<PathBuf> = targets.iter().map(|t| temp_beside(t)).collect();
-        let result = edits
+        let result: Result<Vec<Sidecars>, RasterError> = edits
             .par_iter()
-            .zip(temps.par_iter())
-            .try_for_each(|(e, tmp)| encode_tile(&self.tiles[e.tile], e, tmp, provenance));
-        if let Err(err) = result {
-            for t in &temps {
-                let _ = std::fs::remove_file(t);
+            .zip(temps.par_iter().zip(targets.par_iter()))
+            .map(|(e, (tmp, target))| {
+                encode_tile(&self.tiles[e.tile], e, tmp, target, provenance, opts)
+            })
+            .collect();
+        let sidecars = match result {
+            Ok(s) => s,
+            Err(err) => {
+                for t in &temps {
+                    let _ = std::fs::remove_file(t);
+                    Sidecars::discard_beside(t);
+                }
+                return Err(err);
             }
-            return Err(err);
-        }
+        };
         for (tmp, target) in temps.iter().zip(targets) {
             if let Err(e) = std::fs::rename(tmp, target) {
                 for t in &temps {
                     let _ = std::fs::remove_file(t);
                 }
+                sidecars.iter().for_each(Sidecars::discard);
                 return Err(RasterError::io(target, e));
             }
+        }
+        for s in &sidecars {
+            s.commit()?;
         }
         Ok(())
     }
@@ -414,6 +468,7 @@ impl Dem {
         edits: &[TileEdit],
         provenance: &Provenance,
         changed_cells: usize,
+        opts: &WriteOptions,
     ) -> Result<WriteReport, RasterError> {
         let stage = temp_beside(out);
         if stage.exists() {
@@ -435,13 +490,14 @@ impl Dem {
                 if std::fs::hard_link(&tile.path, &target).is_err() {
                     std::fs::copy(&tile.path, &target).map_err(|e| RasterError::io(&target, e))?;
                 }
+                super::sidecars::copy_unchanged(&tile.path, &target)?;
                 report.tiles_unchanged.push(out.join(name));
             }
             let targets: Vec<PathBuf> = edits
                 .iter()
                 .map(|e| stage.join(self.tiles[e.tile].path.file_name().unwrap_or_default()))
                 .collect();
-            self.encode_and_commit(edits, &targets, provenance)?;
+            self.encode_and_commit(edits, &targets, provenance, opts)?;
             report.tiles_written = edits
                 .iter()
                 .map(|e| out.join(self.tiles[e.tile].path.file_name().unwrap_or_default()))
@@ -460,9 +516,15 @@ impl Dem {
     }
 }
 
-/// GDAL creation options that reproduce a GeoTIFF's layout and encoding.
+/// GDAL creation options that reproduce a GeoTIFF's layout and encoding
+/// (BigTIFF kept BigTIFF).
 fn creation_options(tile: &Tile, cog: bool) -> Vec<String> {
     let mut o = vec!["NUM_THREADS=ALL_CPUS".to_string()];
+    let bigtiff = if super::output_format::is_bigtiff(&tile.path) {
+        "BIGTIFF=YES"
+    } else {
+        "BIGTIFF=IF_SAFER"
+    };
     if let TileSource::Tiff(t) = &tile.source {
         o.push(format!("COMPRESS={}", t.encoding.compression));
         if t.encoding.compression != "NONE" && t.encoding.predictor != 1 {
@@ -476,10 +538,10 @@ fn creation_options(tile: &Tile, cog: bool) -> Vec<String> {
                 o.push(format!("BLOCKXSIZE={}", t.layout.block_width));
             }
             o.push(format!("BLOCKYSIZE={}", t.layout.block_height));
-            o.push("BIGTIFF=IF_SAFER".into());
         }
+        o.push(bigtiff.into());
     } else {
-        o.extend(["TILED=YES", "COMPRESS=DEFLATE", "BIGTIFF=IF_SAFER"].map(String::from));
+        o.extend(["TILED=YES", "COMPRESS=DEFLATE", bigtiff].map(String::from));
     }
     if tile.sample_type == SampleType::Int8 {
         o.push("PIXELTYPE=SIGNEDBYTE".into());
@@ -487,121 +549,113 @@ fn creation_options(tile: &Tile, cog: bool) -> Vec<String> {
     o
 }
 
-/// Encode one edited tile into `tmp`: an uncompressed GeoTIFF (not a COG)
-/// by [`update_tile_copy`], anything else by [`encode_tile_copy`]. The bytes
-/// are made durable before the caller's rename makes them visible.
+/// Encode one edited tile into `tmp` (to be renamed to `target`): a
+/// GeoTIFF written as its input was is patched block by block
+/// ([`block_patch`]); anything else (another format, `-co`, a GDAL-read
+/// input) is encoded whole by [`encode_tile_copy`]. Returns the sidecars to
+/// move into place after it. The bytes are made durable before the
+/// caller's rename makes them visible.
 fn encode_tile(
     tile: &Tile,
     edit: &TileEdit,
     tmp: &Path,
+    target: &Path,
     provenance: &Provenance,
-) -> Result<(), RasterError> {
-    let uncompressed =
-        matches!(&tile.source, TileSource::Tiff(t) if t.encoding.compression == "NONE");
-    let done = if uncompressed {
-        update_tile_copy(tile, edit, tmp, provenance)
-    } else {
-        Ok(false)
+    opts: &WriteOptions,
+) -> Result<Sidecars, RasterError> {
+    let entry = provenance.item(edit.changed, opts);
+    let native = matches!(&tile.source, TileSource::Tiff(_));
+    let internal_ovr = matches!(&tile.source, TileSource::Tiff(t) if !t.overviews.is_empty());
+    let out_path = (target != tile.path.as_path()).then_some(target);
+    let mut sidecars = Sidecars::stage(&tile.path, tmp, target, internal_ovr)?;
+    let settings = PatchSettings {
+        entry: &entry,
+        overview_resampling: opts.overview_resampling.as_deref(),
+        external_overviews: sidecars.overviews.is_some(),
+        target: error_name(tile, target),
     };
-    let written = match done {
-        Ok(true) => Ok(()),
-        Ok(false) => encode_tile_copy(tile, edit, tmp, provenance),
-        Err(e) => Err(e),
-    };
+    let written = (|| -> Result<(), RasterError> {
+        if native && opts.keeps_geotiff(out_path) {
+            let patched = block_patch::patch_copy(&tile.path, tmp, &edit.block_edit(), &settings)?;
+            if patched.is_none() {
+                let cog_opts = creation_options(tile, true);
+                block_patch::patch_cog(&tile.path, tmp, &edit.block_edit(), &settings, &cog_opts)?;
+            }
+            return Ok(());
+        }
+        let (extra, driver) = encode_tile_copy(tile, edit, tmp, target, &settings, opts)?;
+        sidecars.extra = extra;
+        if driver != "GTiff" {
+            // Another format has its own overviews (or none): the input's
+            // external ones do not describe it.
+            if let Some((staged, _)) = sidecars.overviews.take() {
+                let _ = std::fs::remove_file(staged);
+            }
+        }
+        Ok(())
+    })();
     if let Err(e) = written {
         let _ = std::fs::remove_file(tmp);
-        return Err(e);
+        sidecars.discard();
+        return Err(name_the_target(e, tmp, settings.target));
     }
     std::fs::File::open(tmp)
         .and_then(|f| f.sync_all())
-        .map_err(|e| RasterError::io(tmp, e))?;
-    Ok(())
+        .map_err(|e| RasterError::io(settings.target, e))?;
+    Ok(sidecars)
 }
 
-/// Write the edit into band 1 of `ds`: over its window, the stored values
-/// with the edit merged in (cells to keep take their stored value back, so
-/// nodata stays the file's own nodata value, bit for bit).
-fn write_edit(ds: &gdal::Dataset, edit: &TileEdit) -> gdal::errors::Result<()> {
-    let mut band = ds.rasterband(1)?;
-    let size = (edit.local.width, edit.local.height);
-    let origin = (edit.local.col as isize, edit.local.row as isize);
-    let stored = band.read_as::<f64>(origin, size, size, None)?;
-    let merged: Vec<f64> = edit
-        .values
-        .iter()
-        .zip(stored.data())
-        .map(|(&v, &old)| if v.is_nan() { old } else { v })
-        .collect();
-    band.write(origin, size, &mut Buffer::new(size, merged))
-}
-
-/// Rebuild the overviews of a written tile where the source had them, as
-/// gdaladdo puts them (after the full-resolution image).
-fn rebuild_overviews(tile: &Tile, ds: &mut gdal::Dataset, tmp: &Path) -> Result<(), RasterError> {
-    if let TileSource::Tiff(t) = &tile.source {
-        if !t.overviews.is_empty() {
-            let factors: Vec<i32> = t
-                .overviews
-                .iter()
-                .map(|(w, _)| ((t.width as f64 / *w as f64).round() as i32).max(2))
-                .collect();
-            let resampling = if tile.sample_type.is_integer() {
-                "NEAREST"
-            } else {
-                "AVERAGE"
-            };
-            ds.build_overviews(resampling, &factors, &[])
-                .map_err(|e| write_err(tmp, format!("GDAL could not rebuild overviews: {e}")))?;
-        }
-    }
-    Ok(())
-}
-
-/// An uncompressed GeoTIFF is edited where it lies in a byte copy of the
-/// source: every tag, the layout and the rest of the image stay exactly as
-/// they were, and GDAL rewrites only the edited window, the provenance item
-/// and the overviews (in place: uncompressed blocks keep their size). Much
-/// cheaper than re-encoding the whole file. `Ok(false)` (and `tmp` removed)
-/// when the copy is a COG, whose layout an in-place update would break.
-fn update_tile_copy(
-    tile: &Tile,
-    edit: &TileEdit,
-    tmp: &Path,
-    provenance: &Provenance,
-) -> Result<bool, RasterError> {
-    std::fs::copy(&tile.path, tmp).map_err(|e| RasterError::io(tmp, e))?;
-    let werr = |e: gdal::errors::GdalError| write_err(tmp, e);
-    let mut ds = gdal::Dataset::open_ex(
-        tmp,
-        gdal::DatasetOptions {
-            open_flags: GdalOpenFlags::GDAL_OF_UPDATE | GdalOpenFlags::GDAL_OF_RASTER,
-            allowed_drivers: Some(&["GTiff"]),
-            ..Default::default()
+/// `e` with every mention of the temporary file `tmp` (GDAL's messages
+/// name the file it writes) replaced by `target`, the file the user named.
+fn name_the_target(e: RasterError, tmp: &Path, target: &Path) -> RasterError {
+    let fix = |m: String| {
+        m.replace(
+            tmp.to_string_lossy().as_ref(),
+            target.to_string_lossy().as_ref(),
+        )
+    };
+    match e {
+        RasterError::Write { message, .. } => RasterError::Write {
+            path: target.to_path_buf(),
+            message: fix(message),
         },
-    )
-    .map_err(werr)?;
-    if ds.metadata_item("LAYOUT", "IMAGE_STRUCTURE").as_deref() == Some("COG") {
-        drop(ds);
-        let _ = std::fs::remove_file(tmp);
-        return Ok(false);
+        RasterError::Gdal { path, message } => RasterError::Gdal {
+            path,
+            message: fix(message),
+        },
+        other => other,
     }
-    write_edit(&ds, edit).map_err(werr)?;
-    ds.set_metadata_item(PROVENANCE_KEY, &provenance.item(edit.changed), "")
-        .map_err(werr)?;
-    rebuild_overviews(tile, &mut ds, tmp)?;
-    ds.close().map_err(werr)?;
-    Ok(true)
+}
+
+/// The name errors give for a tile written to `target`: the tile itself
+/// for a tile directory's staging copy (a name the user knows), else the
+/// target.
+fn error_name<'a>(tile: &'a Tile, target: &'a Path) -> &'a Path {
+    let staged = target
+        .parent()
+        .and_then(|p| p.file_name())
+        .is_some_and(|n| n.to_string_lossy().contains(".demsketch-"));
+    if staged {
+        &tile.path
+    } else {
+        target
+    }
 }
 
 /// Encode one edited tile into `tmp` through GDAL: the source is copied to
-/// memory with all its metadata, the edit applied, overviews rebuilt, and
-/// the result written with the source's creation options.
+/// memory with all its metadata, the edit applied, and the result written
+/// in the output's format (the source's creation options for a GeoTIFF,
+/// the user's `-co` over them); a GeoTIFF's overviews are rebuilt with the
+/// recorded resampling. Returns the extra files the driver wrote, staged,
+/// and the driver.
 fn encode_tile_copy(
     tile: &Tile,
     edit: &TileEdit,
     tmp: &Path,
-    provenance: &Provenance,
-) -> Result<(), RasterError> {
+    target: &Path,
+    settings: &PatchSettings,
+    opts: &WriteOptions,
+) -> Result<(super::output_format::StagedFiles, String), RasterError> {
     let gerr = |e: gdal::errors::GdalError| RasterError::gdal(&tile.path, e);
     // Decode a compressed source with all cores (GTiff's NUM_THREADS open
     // option; "@" keeps other drivers from warning about an option they
@@ -622,19 +676,60 @@ fn encode_tile_copy(
         .create_copy(&mem_driver, "", &RasterCreationOptions::default())
         .map_err(gerr)?;
     super::vertical::keep_band_vertical(&src, &mem).map_err(gerr)?;
-    write_edit(&mem, edit).map_err(gerr)?;
-    mem.set_metadata_item(PROVENANCE_KEY, &provenance.item(edit.changed), "")
-        .map_err(gerr)?;
-    let cog = src.metadata_item("LAYOUT", "IMAGE_STRUCTURE").as_deref() == Some("COG");
-    let driver =
-        DriverManager::get_driver_by_name(if cog { "COG" } else { "GTiff" }).map_err(gerr)?;
-    let opts = RasterCreationOptions::from_iter(creation_options(tile, cog));
-    let mut ds = mem
-        .create_copy(&driver, tmp, &opts)
-        .map_err(|e| write_err(tmp, format!("GDAL could not write the tile: {e}")))?;
-    // The COG driver builds its own overviews.
-    if !cog {
-        rebuild_overviews(tile, &mut ds, tmp)?;
+    block_patch::write_edit(&mem, &edit.block_edit()).map_err(gerr)?;
+    block_patch::append_provenance(&mut mem, settings.entry).map_err(gerr)?;
+    super::sidecars::clear_statistics(&mem);
+    let src_cog = block_patch::is_cog(&src);
+    let driver = match &opts.format {
+        Some(_) => super::output_format::output_driver(target, opts.format.as_deref())
+            .map_err(|m| write_err(target, m))?,
+        None if src_cog => "COG".to_string(),
+        None => {
+            super::output_format::output_driver(target, None).map_err(|m| write_err(target, m))?
+        }
+    };
+    let cog = driver == "COG";
+    let base = if cog || driver == "GTiff" {
+        creation_options(tile, cog)
+    } else {
+        Vec::new()
+    };
+    let options = super::output_format::merge_options(base, &opts.creation_options);
+    let extra = super::output_format::write_copy(&mem, &driver, &options, tmp, target)?;
+    // The COG driver builds its own overviews; a GeoTIFF gets the source's.
+    if driver == "GTiff" {
+        let resampling = super::overviews::resampling_for(&src, settings.overview_resampling);
+        let factors: Vec<i32> = match &tile.source {
+            TileSource::Tiff(t) => t
+                .overviews
+                .iter()
+                .map(|(w, _)| ((t.width as f64 / *w as f64).round() as i32).max(2))
+                .collect(),
+            TileSource::Gdal(_) => Vec::new(),
+        };
+        let werr = |e: gdal::errors::GdalError| write_err(settings.target, e);
+        let mut ds = gdal::Dataset::open_ex(
+            tmp,
+            gdal::DatasetOptions {
+                open_flags: gdal::GdalOpenFlags::GDAL_OF_UPDATE
+                    | gdal::GdalOpenFlags::GDAL_OF_RASTER,
+                allowed_drivers: Some(&["GTiff"]),
+                ..Default::default()
+            },
+        )
+        .map_err(werr)?;
+        if !factors.is_empty() {
+            super::overviews::rebuild_all(&mut ds, &factors, resampling, settings.target)?;
+        } else if settings.external_overviews {
+            super::overviews::refresh_overviews(
+                &ds,
+                edit.local,
+                resampling,
+                true,
+                settings.target,
+            )?;
+        }
+        ds.close().map_err(werr)?;
     }
-    ds.close().map_err(|e| write_err(tmp, e))
+    Ok((extra, driver))
 }

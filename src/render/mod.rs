@@ -27,7 +27,9 @@ pub use depth_buffer::{pick, DepthBuffer, TerrainHit, SKY};
 pub use locate::{locate, project_point, Located};
 pub use overlay::visible_polylines;
 pub use scene::Scene;
-pub use shaded_image::{draw_polyline, shade, write_depth_tiff, write_png, ShadeOptions};
+pub use shaded_image::{
+    depth_for_file, draw_polyline, shade, write_depth_tiff, write_png, ShadeOptions, DEPTH_NODATA,
+};
 pub use terrain::{LocalTerrain, RayHit};
 pub use viewshed::{viewshed, write_viewshed_tiff, Viewshed};
 

@@ -132,8 +132,26 @@ pub fn write_png(path: &Path, width: usize, height: usize, rgb: &[u8]) -> Result
     })
 }
 
+/// Nodata of a written depth buffer: sky (never a bare infinity).
+pub const DEPTH_NODATA: f64 = -9999.0;
+
+/// The depth buffer as written: metres from the eye, sky [`DEPTH_NODATA`].
+pub fn depth_for_file(depth: &DepthBuffer) -> Vec<f32> {
+    depth
+        .depth
+        .iter()
+        .map(|&d| {
+            if d.is_finite() {
+                d
+            } else {
+                DEPTH_NODATA as f32
+            }
+        })
+        .collect()
+}
+
 /// Write the depth buffer as a Float32 TIFF in image space (no
-/// georeference): metres from the eye, `inf` for sky.
+/// georeference): metres from the eye, sky nodata ([`DEPTH_NODATA`]).
 pub fn write_depth_tiff(depth: &DepthBuffer, path: &Path) -> Result<(), RenderError> {
     write_atomically(path, |tmp| {
         let werr = |e: gdal::errors::GdalError| RenderError::Write {
@@ -145,7 +163,8 @@ pub fn write_depth_tiff(depth: &DepthBuffer, path: &Path) -> Result<(), RenderEr
             .create_with_band_type::<f32, _>(tmp, depth.width, depth.height, 1)
             .map_err(werr)?;
         let mut band = ds.rasterband(1).map_err(werr)?;
-        let mut buf = gdal::raster::Buffer::new((depth.width, depth.height), depth.depth.clone());
+        band.set_no_data_value(Some(DEPTH_NODATA)).map_err(werr)?;
+        let mut buf = gdal::raster::Buffer::new((depth.width, depth.height), depth_for_file(depth));
         band.write((0, 0), (depth.width, depth.height), &mut buf)
             .map_err(werr)?;
         drop(band);

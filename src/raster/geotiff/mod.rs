@@ -502,12 +502,28 @@ impl GeoTiff {
                     .map_err(|e| unreadable(e.to_string())),
             }
         };
-        let nodata = match ascii_tag(&mut dec, TAG_GDAL_NODATA, "GDAL_NODATA")? {
-            None => None,
-            Some(s) => Some(parse_nodata(&s).ok_or_else(|| RasterError::Corrupt {
-                path: p.to_path_buf(),
-                detail: format!("GDAL_NODATA '{s}' is not a number"),
-            })?),
+        // A GDAL_NODATA tag that is there but unreadable (not text, not a
+        // number) is an error, never "no nodata": its cells would be read
+        // as heights.
+        let corrupt = |detail: String| RasterError::Corrupt {
+            path: p.to_path_buf(),
+            detail,
+        };
+        let nodata = match dec.find_tag(Tag::Unknown(TAG_GDAL_NODATA)) {
+            Ok(None) => None,
+            Ok(Some(v)) => {
+                let s = v
+                    .into_string()
+                    .map_err(|_| corrupt("the GDAL_NODATA tag is not text".into()))?;
+                let s = s.trim_end_matches('\0');
+                Some(parse_nodata(s).ok_or_else(|| {
+                    corrupt(format!(
+                        "GDAL_NODATA '{}' is not a number",
+                        s.escape_debug()
+                    ))
+                })?)
+            }
+            Err(e) => return Err(corrupt(format!("the GDAL_NODATA tag is unreadable: {e}"))),
         };
         let gdal_metadata = ascii_tag(&mut dec, TAG_GDAL_METADATA, "GDAL_METADATA")?;
         let (scale, offset, unit) = gdal_metadata
