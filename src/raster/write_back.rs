@@ -216,7 +216,9 @@ impl Dem {
                     width: self.width,
                     height: self.height,
                 })?;
-        let original = self.read_window::<f64>(window)?;
+        // Stored values: heights in metres are converted to the tile's
+        // scale, offset and unit (`Vertical::to_raw`) before quantizing.
+        let original = self.read_window_raw::<f64>(window)?;
         // Per tile: which cells change once quantized. A new height the
         // tile's type cannot hold, or one that lands on its nodata value, is
         // an error (never clamped: that would write a wrong height, or turn
@@ -236,7 +238,7 @@ impl Dem {
                             + (ov.col - window.col) as usize
                             + c;
                         let old = original.data[wi];
-                        let new = values[wi];
+                        let new = tile.vertical.to_raw(values[wi]);
                         // NaN = keep the stored value (nodata cells keep
                         // their raw nodata value, see `encode_tile`).
                         let v = if !original.valid[wi] || new.is_nan() {
@@ -292,6 +294,19 @@ impl Dem {
                 what: "in-place write to a non-GeoTIFF raster; give an output GeoTIFF with --out"
                     .into(),
             }),
+            (Destination::InPlace, _)
+                if edits.iter().any(|e| self.tiles[e.tile].read_by_gdal()) =>
+            {
+                let t = edits
+                    .iter()
+                    .map(|e| &self.tiles[e.tile])
+                    .find(|t| t.read_by_gdal())
+                    .map_or(self.path.clone(), |t| t.path.clone());
+                Err(RasterError::Unsupported {
+                    path: t,
+                    what: "in-place write to a file read through GDAL (its encoding or CRS is not one demsketch writes back exactly); write a new GeoTIFF with --out".into(),
+                })
+            }
             (Destination::InPlace, _) => {
                 let targets = self.write_in_place(&edits, provenance, opts)?;
                 for e in &edits {
@@ -778,6 +793,7 @@ fn encode_tile_copy(
     let mut mem = src
         .create_copy(&mem_driver, "", &RasterCreationOptions::default())
         .map_err(gerr)?;
+    super::vertical::keep_band_vertical(&src, &mem).map_err(gerr)?;
     block_patch::write_edit(&mem, &edit.block_edit()).map_err(gerr)?;
     block_patch::append_provenance(&mut mem, settings.entry).map_err(gerr)?;
     super::sidecars::clear_statistics(&mem);
