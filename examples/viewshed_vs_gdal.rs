@@ -4,17 +4,19 @@
 //! which the two agree and the wall-clock time of each: ours covers reading
 //! the DEM, resolving the viewpoint, building the terrain and computing the
 //! viewshed (best of 3, in-process); GDAL's is the `gdal_viewshed` process
-//! (best of 3).
+//! (best of 3). It also times the exact reference (one cast per cell,
+//! `viewshed_exact`, once; skipped above 20 M cells) and gives the sweep's
+//! agreement with it.
 //!
 //!     cargo run --release --example viewshed_vs_gdal
 //!
 //! The cases are the three fixtures of `tests/view_viewshed.rs` (Zion UTM,
-//! Arenal in EPSG:4326, Vinschgau) and, for a timing on a larger grid, Zion
-//! resampled to 4x its resolution with `gdal_translate -outsize 400% 400%`
-//! (1688 x 2060 cells, 21 m).
+//! Arenal in EPSG:4326, Vinschgau) and, for timings on larger grids, Zion
+//! resampled with `gdal_translate -outsize` to 1688 x 2060 (4x), 4096 x 4096
+//! and 8192 x 8192 cells.
 
 use demsketch::raster::read_height_map;
-use demsketch::render::{viewshed, LocalTerrain};
+use demsketch::render::{viewshed, viewshed_exact, LocalTerrain};
 use demsketch::view::{Georef, Viewpoint};
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -59,6 +61,21 @@ fn run(case: &Case, tmp: &Path) -> anyhow::Result<()> {
         Ok(viewshed(&terrain, &map, 0.0))
     });
     let ours = ours?;
+    let cells = map.width * map.height;
+    let exact = if cells <= 20_000_000 {
+        let (e, s) = best_of(1, || -> anyhow::Result<_> {
+            let frame = georef.local_frame(
+                &Viewpoint::above_surface(lon, lat, case.eye),
+                &map,
+                1.0 / 7.0,
+            )?;
+            let terrain = LocalTerrain::new(&map, &frame, None);
+            Ok(viewshed_exact(&terrain, &map, 0.0))
+        });
+        Some((e?, s))
+    } else {
+        None
+    };
     let out = tmp.join(format!("{}.gdal.tif", case.name));
     let (st, gdal_s) = best_of(3, || {
         Command::new("gdal_viewshed")
@@ -83,8 +100,24 @@ fn run(case: &Case, tmp: &Path) -> anyhow::Result<()> {
         total += 1;
         agree += ((a == 255) == (b == 255)) as usize;
     }
+    let (vs_exact, exact_ms) = match &exact {
+        Some((e, s)) => {
+            let same = ours
+                .data
+                .iter()
+                .zip(&e.data)
+                .zip(&map.data)
+                .filter(|((a, b), h)| !h.is_nan() && a == b)
+                .count();
+            (
+                format!("{:.2} %", 100.0 * same as f64 / total as f64),
+                format!("{:.0} ms", s * 1e3),
+            )
+        }
+        None => ("-".into(), "-".into()),
+    };
     println!(
-        "| {} | {} x {} | cell ({}, {}), {} m | {:.2} % | {:.1} ms | {:.1} ms |",
+        "| {} | {} x {} | cell ({}, {}), {} m | {:.2} % | {} | {:.1} ms | {} | {:.1} ms | {:.2} |",
         case.name,
         map.width,
         map.height,
@@ -92,8 +125,11 @@ fn run(case: &Case, tmp: &Path) -> anyhow::Result<()> {
         case.row,
         case.eye,
         100.0 * agree as f64 / total as f64,
+        vs_exact,
         ours_s * 1e3,
-        gdal_s * 1e3
+        exact_ms,
+        gdal_s * 1e3,
+        ours_s / gdal_s
     );
     Ok(())
 }
@@ -101,13 +137,20 @@ fn run(case: &Case, tmp: &Path) -> anyhow::Result<()> {
 fn main() -> anyhow::Result<()> {
     let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures");
     let tmp = tempfile::tempdir()?;
-    let big = tmp.path().join("zion_x4.tif");
-    let st = Command::new("gdal_translate")
-        .args(["-q", "-outsize", "400%", "400%", "-r", "cubic"])
-        .arg(fixtures.join("zion_srtm_utm12n.tif"))
-        .arg(&big)
-        .status()?;
-    anyhow::ensure!(st.success(), "gdal_translate failed");
+    let resampled = |name: &str, w: &str, h: &str| -> anyhow::Result<PathBuf> {
+        let p = tmp.path().join(name);
+        let st = Command::new("gdal_translate")
+            .args(["-q", "-outsize", w, h, "-r", "cubic"])
+            .args(["-co", "TILED=YES"])
+            .arg(fixtures.join("zion_srtm_utm12n.tif"))
+            .arg(&p)
+            .status()?;
+        anyhow::ensure!(st.success(), "gdal_translate failed");
+        Ok(p)
+    };
+    let big = resampled("zion_x4.tif", "400%", "400%")?;
+    let big4k = resampled("zion_4096.tif", "4096", "4096")?;
+    let big8k = resampled("zion_8192.tif", "8192", "8192")?;
     let case = |name: &str, path: PathBuf, col, row, eye| Case {
         name: name.into(),
         path,
@@ -138,9 +181,13 @@ fn main() -> anyhow::Result<()> {
             25.0,
         ),
         case("zion_x4 (resampled)", big.clone(), 842, 414, 1.7),
+        case("zion 4096^2 (resampled)", big4k, 2048, 820, 1.7),
+        case("zion 8192^2 (resampled)", big8k, 4096, 1640, 1.7),
     ];
-    println!("| DEM | cells | observer | agreement | demsketch | gdal_viewshed |");
-    println!("|---|---|---|---|---|---|");
+    println!(
+        "| DEM | cells | observer | agreement with GDAL | agreement with exact | demsketch (sweep) | exact | gdal_viewshed | sweep / GDAL |"
+    );
+    println!("|---|---|---|---|---|---|---|---|---|");
     for c in &cases {
         run(c, tmp.path())?;
     }

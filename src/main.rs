@@ -36,9 +36,13 @@ fn main() {
         eprintln!("demsketch: internal error: {msg}{loc}");
         std::process::exit(2);
     }));
+    // GDAL's failures are captured (a write that GDAL reports as failed
+    // fails), not printed (shown with --verbose); SIGINT/SIGTERM remove
+    // temporary files.
+    cli::install_gdal_error_handler();
+    demsketch::raster::atomic_file::install_signal_cleanup();
     // Bad flags are user errors (exit 1, as DESIGN.md says), not clap's
     // default 2, which demsketch keeps for internal errors.
-    cli::install_gdal_error_handler();
     let args = match cli::Cli::try_parse_from(cli::gdal_style_args(std::env::args_os())) {
         Ok(a) => a,
         Err(e) => {

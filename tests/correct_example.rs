@@ -1,4 +1,4 @@
-//! The worked example of the user guide (section 7):
+//! The worked example of the user guide (section 9):
 //! `fixtures/corrections/vinschgau_example.geojson` on the Vinschgau DEM.
 //! The output is a GeoTIFF GDAL reads with the input's grid and a
 //! provenance entry; `--dry-run` reports the same and writes no DEM;

@@ -80,6 +80,22 @@ fn huge_header_tiff(path: &Path, w: u32, h: u32) {
     std::fs::write(path, b).expect("write test TIFF");
 }
 
+/// A copy of a little-endian classic TIFF with the Compression tag of its
+/// first IFD set to `code`.
+fn patch_compression(bytes: &[u8], code: u16) -> Vec<u8> {
+    let mut b = bytes.to_vec();
+    let ifd = u32::from_le_bytes(b[4..8].try_into().expect("4 bytes")) as usize;
+    let n = u16::from_le_bytes([b[ifd], b[ifd + 1]]) as usize;
+    for i in 0..n {
+        let e = ifd + 2 + 12 * i;
+        if u16::from_le_bytes([b[e], b[e + 1]]) == 259 {
+            b[e + 8..e + 10].copy_from_slice(&code.to_le_bytes());
+            return b;
+        }
+    }
+    panic!("no Compression tag");
+}
+
 fn s(p: &Path) -> String {
     p.to_string_lossy().into_owned()
 }
@@ -135,16 +151,18 @@ fn missing_georeference_and_unsupported_encodings_fail_cleanly() {
     gdal_translate(&zion, &plain, &["-co", "PROFILE=BASELINE"]);
     expect_user_error(d, &["info", &s(&plain)], &["plain.tif", "no georeference"]);
 
-    let jpeg = d.join("jpeg.tif");
-    gdal_translate(
-        &zion,
-        &jpeg,
-        &["-ot", "Byte", "-scale", "-co", "COMPRESS=JPEG"],
-    );
+    // A compression neither the native decoder nor GDAL knows (JPEG, LERC
+    // and the like are read through GDAL: tests/raster_gdal_fallback.rs).
+    let unknown = d.join("unknown_compression.tif");
+    std::fs::write(
+        &unknown,
+        patch_compression(&std::fs::read(&zion).expect("read"), 0x7777),
+    )
+    .expect("write");
     expect_user_error(
         d,
-        &["info", &s(&jpeg)],
-        &["jpeg.tif", "unsupported", "JPEG"],
+        &["info", &s(&unknown)],
+        &["unknown_compression.tif", "unsupported", "compression"],
     );
 
     let rgb = d.join("rgb.tif");

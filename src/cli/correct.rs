@@ -7,6 +7,10 @@ use anyhow::Context;
 use demsketch::correct::{run as run_correct, CorrectOptions};
 use demsketch::raster::Destination;
 use std::path::PathBuf;
+use std::time::Duration;
+
+use demsketch::raster::edit_lock::{lock_dir, EditLock};
+use demsketch::raster::journal;
 
 use super::InternalError;
 
@@ -67,6 +71,19 @@ pub fn run(args: CorrectArgs) -> anyhow::Result<()> {
                 .map_err(|m| anyhow::anyhow!(m))?;
         }
     }
+    // One edit or correction of a DEM at a time, as for `edit`; an edit a
+    // killed run left half-applied is finished or undone first.
+    let _lock = if lock_dir(&args.dem).is_dir() && args.dem.exists() {
+        let lock = EditLock::acquire(&args.dem, Duration::from_secs(300), |m| {
+            eprintln!("demsketch: {m}")
+        })?;
+        for note in journal::recover(&args.dem, &lock.dir)? {
+            eprintln!("demsketch: {note}");
+        }
+        Some(lock)
+    } else {
+        None
+    };
     let mut opts = CorrectOptions::new(destination);
     opts.report = args.report.clone();
     opts.dry_run = args.dry_run;

@@ -1,15 +1,26 @@
 //! `demsketch edit DEM --sketch FILE --out OUT [--report R] [--renders DIR]
-//! [--in-place] [--min-fit F] [--allow-partial] [--dry-run]`: correct a DEM
-//! so that its silhouettes match the strokes of a sketch file, write the
-//! corrected GeoTIFF (or the full tile set for a tile directory), the report
-//! and the pictures. Nothing is written when anything fails; when a stroke's
-//! fit is below `--min-fit` only the report and pictures are (exit 3).
+//! [--in-place] [--min-fit F] [--allow-partial] [--dry-run] [--link]
+//! [--lock-timeout S]`: correct a DEM so that its silhouettes match the
+//! strokes of a sketch file, write the corrected GeoTIFF (or the full tile
+//! set for a tile directory), the report and the pictures. Nothing is
+//! written when anything fails; when a stroke's fit is below `--min-fit`
+//! only the report and pictures are (exit 3).
+//!
+//! Before anything is read, the edit takes the DEM's edit lock (one edit
+//! at a time, [`demsketch::raster::edit_lock`]), finishes or undoes an
+//! edit a killed run left half-applied ([`demsketch::raster::journal`]),
+//! removes temporary files of dead runs, and refuses outputs that name an
+//! input or each other ([`demsketch::raster::path_check`]).
 
 use anyhow::Context;
 use demsketch::edit::{run as run_edit, EditError, EditOptions};
-use demsketch::raster::Destination;
+use demsketch::raster::atomic_file::clean_stale;
+use demsketch::raster::edit_lock::{lock_dir, EditLock};
+use demsketch::raster::path_check::{check_outputs, dem_inputs, Input, Output};
+use demsketch::raster::{journal, Dem, Destination, LayerKind};
 use std::io::IsTerminal;
 use std::path::PathBuf;
+use std::time::Duration;
 
 use super::{BelowMinFit, InternalError};
 
@@ -26,7 +37,15 @@ Exit codes:
      same: a real run would not write
 
 A dry run computes the whole edit and writes the report and pictures, never
-the DEM: its exit code says what a real run with the same flags would do.";
+the DEM: its exit code says what a real run with the same flags would do.
+
+Safety: every file is written to a temporary file beside its target, read
+back and checked, then renamed into place; a full disk or any write error
+leaves every file as it was (exit 1). One edit of a DEM runs at a time (a
+second waits, at most --lock-timeout seconds); an edit killed half-way is
+finished by the next edit of the DEM, which says so; SIGINT and SIGTERM
+remove temporary files (exit 130 / 143). --out, --report and --renders may
+not name the DEM, one of its tiles, the sketch, or each other.";
 
 #[derive(clap::Args, Debug)]
 pub struct EditArgs {
@@ -100,10 +119,93 @@ pub struct EditArgs {
     /// outside the DEM's valid cells. Written on dry runs too.
     #[arg(long, value_name = "DZ.tif")]
     pub dz: Option<PathBuf>,
+    /// Tile-directory --out: hard-link the unchanged tiles to the input's
+    /// instead of copying them (a tool that later modifies such an output
+    /// tile in place then modifies the input too).
+    #[arg(long)]
+    pub link: bool,
+    /// Seconds to wait for another demsketch edit of the same DEM (or of a
+    /// DEM in the same directory) to finish before giving up (exit 1).
+    #[arg(long, default_value_t = 300.0, value_parser = parse_lock_timeout)]
+    pub lock_timeout: f64,
 }
 
 fn parse_overview_resampling(s: &str) -> Result<String, String> {
     demsketch::raster::overviews::parse_resampling(s).map(str::to_string)
+}
+
+fn parse_lock_timeout(s: &str) -> Result<f64, String> {
+    let v: f64 = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("--lock-timeout '{s}' is not a number of seconds"))?;
+    if !(v.is_finite() && (0.0..=1e9).contains(&v)) {
+        return Err(format!(
+            "--lock-timeout {v} is not a number of seconds >= 0"
+        ));
+    }
+    Ok(v)
+}
+
+/// Take the DEM's edit lock, finish or undo an edit a killed run left,
+/// remove temporary files of dead runs (each said in one line on stderr),
+/// and check the outputs against the inputs.
+fn prepare(args: &EditArgs) -> anyhow::Result<Option<EditLock>> {
+    // A DEM that is not a file or directory on disk (missing, or a GDAL
+    // virtual path such as /vsizip/) has no directory to lock: its own
+    // error, or no lock (it cannot be rewritten in place).
+    let lock = if lock_dir(&args.dem).is_dir() && args.dem.exists() {
+        let lock = EditLock::acquire(&args.dem, Duration::from_secs_f64(args.lock_timeout), |m| {
+            eprintln!("demsketch: {m}")
+        })?;
+        for note in journal::recover(&args.dem, &lock.dir)? {
+            eprintln!("demsketch: {note}");
+        }
+        for note in clean_stale(&lock.dir) {
+            eprintln!("demsketch: {note}");
+        }
+        Some(lock)
+    } else {
+        None
+    };
+    let dem = Dem::open(&args.dem)?;
+    let mut inputs = dem_inputs(&dem);
+    inputs.push(Input {
+        what: format!("the sketch {}", args.sketch.display()),
+        path: args.sketch.clone(),
+        is_dir: false,
+    });
+    let mut outputs = Vec::new();
+    if let (Some(out), false) = (&args.out, args.in_place) {
+        outputs.push(Output {
+            flag: "--out".into(),
+            path: out.clone(),
+            is_dir: dem.kind == LayerKind::TileDirectory,
+        });
+    }
+    if let Some(r) = &args.report {
+        outputs.push(Output {
+            flag: "--report".into(),
+            path: r.clone(),
+            is_dir: false,
+        });
+    }
+    if let Some(r) = &args.renders {
+        outputs.push(Output {
+            flag: "--renders".into(),
+            path: r.clone(),
+            is_dir: true,
+        });
+    }
+    if let Some(p) = &args.dz {
+        outputs.push(Output {
+            flag: "--dz".into(),
+            path: p.clone(),
+            is_dir: false,
+        });
+    }
+    check_outputs(&inputs, &outputs)?;
+    Ok(lock)
 }
 
 fn parse_min_fit(s: &str) -> Result<f64, String> {
@@ -145,7 +247,9 @@ pub fn run(args: EditArgs) -> anyhow::Result<()> {
     }
     demsketch::raster::output_format::check_creation_options(&args.creation_options)
         .map_err(|m| anyhow::anyhow!(m))?;
+    let _lock = prepare(&args)?;
     let mut opts = EditOptions::new(destination);
+    opts.write.link_unchanged = args.link;
     opts.write.format = args.format.clone();
     opts.write.creation_options = args.creation_options.clone();
     opts.write.overview_resampling = args.overview_resampling.clone();

@@ -1,5 +1,7 @@
 //! `demsketch info DEM [--json]`: what a DEM is, as `gdalinfo` would say it,
-//! for single GeoTIFFs, tile directories and GDAL rasters alike.
+//! for single GeoTIFFs, tile directories and GDAL rasters alike. The
+//! vertical description (unit, datum, band scale and offset) is shown as the
+//! file gives it; min/max are heights in metres, as demsketch uses them.
 
 use std::path::PathBuf;
 
@@ -70,8 +72,18 @@ pub fn run(args: InfoArgs) -> anyhow::Result<()> {
         "sample_type": dem.sample_type.gdal_name(),
         "tiles": dem.tiles.len(),
         "tile_list": tiles,
+        "vertical": {
+            "unit": dem.vertical.unit,
+            "unit_to_metre": dem.vertical.unit_to_metre,
+            "unit_source": dem.vertical.unit_source,
+            "datum": dem.vertical.datum,
+            "scale": dem.vertical.scale,
+            "offset": dem.vertical.offset,
+        },
+        "read_by_gdal": dem.tiles.iter().any(|t| t.read_by_gdal()),
         "min": min_max.map(|m| m.0),
         "max": min_max.map(|m| m.1),
+        "min_max_unit": "metre",
     });
     if args.json {
         super::print_stdout(&serde_json::to_string_pretty(&out)?)?;
@@ -117,6 +129,9 @@ pub fn run(args: InfoArgs) -> anyhow::Result<()> {
             Some(v) => v.to_string(),
         }
     );
+    if dem.tiles.iter().any(|t| t.read_by_gdal()) {
+        println!("Encoding:     read through GDAL (not written back in place)");
+    }
     if let Some(TileSource::Tiff(g)) = dem.tiles.first().map(|t| &t.source) {
         println!(
             "Encoding:     {} {}x{} blocks, {}, predictor {}{}",
@@ -132,8 +147,21 @@ pub fn run(args: InfoArgs) -> anyhow::Result<()> {
             }
         );
     }
+    let v = &dem.vertical;
+    println!(
+        "Vertical:     unit {} ({}), datum {}, scale {}, offset {}",
+        v.unit,
+        match v.unit_source {
+            demsketch::raster::vertical::UnitSource::Band => "band unit",
+            demsketch::raster::vertical::UnitSource::Crs => "vertical CRS",
+            demsketch::raster::vertical::UnitSource::Default => "none given, metres assumed",
+        },
+        v.datum.as_deref().unwrap_or("none given"),
+        v.scale,
+        v.offset
+    );
     if let Some((lo, hi)) = min_max {
-        println!("Min/max:      {lo} / {hi}");
+        println!("Min/max:      {lo} / {hi} m");
     }
     Ok(())
 }

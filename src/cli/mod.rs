@@ -50,9 +50,12 @@ pub fn timing(stage: &str, seconds: f64) {
 /// GDAL's error handler for the whole process: GDAL's messages never reach
 /// the terminal as `ERROR n:` lines (the error that matters comes back from
 /// the failing call and is reported once, in one line naming the file);
-/// with `--verbose` its warnings and errors are shown, one line each.
+/// with `--verbose` its warnings and errors are shown, one line each. The
+/// handler is the library's ([`demsketch::raster::gdal_errors`]), which
+/// also captures the failures of every write so that a write GDAL reports
+/// as failed fails.
 pub fn install_gdal_error_handler() {
-    gdal::config::set_error_handler(|class, number, message| {
+    demsketch::raster::gdal_errors::install_with_echo(|class, number, message| {
         if verbose() {
             eprintln!(
                 "demsketch: GDAL {class:?} {number}: {}",

@@ -13,7 +13,9 @@ use demsketch::features::geojson::{
 use demsketch::features::{
     detect_ridges, extract_silhouettes, RidgeNetwork, RidgeParams, SilhouetteParams, Silhouettes,
 };
+use demsketch::raster::atomic_file::{verify_band, StagedOutputs};
 use demsketch::raster::output_format::{output_driver, write_raster, RasterSpec};
+use demsketch::raster::path_check::{self, dem_inputs, Input, Output};
 use demsketch::raster::Dem;
 use demsketch::render::{
     depth_for_file, draw_polyline, shade, viewshed, visible_polylines, write_png, DepthBuffer,
@@ -174,7 +176,11 @@ Examples:
 The view comes from --sketch FILE [--view NAME] (camera flags override its
 values) or from --lon/--lat and the camera flags alone. Errors (viewpoint
 outside the DEM or on nodata, bad camera, unreadable files) are one line on
-stderr with exit code 1; nothing is written then.";
+stderr with exit code 1; nothing is written then. Each output file is
+written to a temporary file beside it, read back and checked, then renamed
+into place: a full disk or a write error leaves the old file as it was.
+An output may not name the DEM, one of its tiles, the sketch, or another
+output.";
 
 /// Arguments of `demsketch view`.
 #[derive(clap::Args, Debug)]
@@ -319,6 +325,36 @@ fn resolve_view(args: &ViewArgs) -> anyhow::Result<ResolvedView> {
     Ok(r)
 }
 
+/// Refuse output paths that name an input (a DEM tile, the sketch) or
+/// each other, before anything is rendered or written.
+fn check_view_outputs(args: &ViewArgs, dem: &Dem) -> anyhow::Result<()> {
+    let mut inputs = dem_inputs(dem);
+    if let Some(s) = &args.sketch {
+        inputs.push(Input {
+            what: format!("the sketch {}", s.display()),
+            path: s.clone(),
+            is_dir: false,
+        });
+    }
+    let outputs: Vec<Output> = [
+        ("--out", Some(&args.out)),
+        ("--depth", args.depth.as_ref()),
+        ("--viewshed", args.viewshed.as_ref()),
+        ("--features", args.features.as_ref()),
+    ]
+    .into_iter()
+    .filter_map(|(flag, p)| {
+        p.map(|p| Output {
+            flag: flag.into(),
+            path: p.clone(),
+            is_dir: false,
+        })
+    })
+    .collect();
+    path_check::check_outputs(&inputs, &outputs)?;
+    Ok(())
+}
+
 pub fn run(args: ViewArgs) -> anyhow::Result<()> {
     let t_all = Instant::now();
     check_outputs(&args)?;
@@ -327,6 +363,7 @@ pub fn run(args: ViewArgs) -> anyhow::Result<()> {
         anyhow::bail!("--target-height {t} must be a finite number of metres");
     }
     let dem = Dem::open(&args.dem)?;
+    check_view_outputs(&args, &dem)?;
     let scene = Scene::open(
         &dem,
         &view.viewpoint,
@@ -394,43 +431,74 @@ pub fn run(args: ViewArgs) -> anyhow::Result<()> {
             draw_polyline(&mut rgb, w, h, s, [230, 0, 200], line + 1.0);
         }
     }
-    write_picture(&args.out, w, h, &rgb)?;
-    if let Some(p) = &args.depth {
-        let data = depth_for_file(&depth);
-        let spec = RasterSpec {
-            width: depth.width,
-            height: depth.height,
-            nodata: Some(DEPTH_NODATA),
-            description: Some("distance from the eye, m (nodata: sky)".into()),
-            format: args.format.clone(),
-            creation_options: args.creation_options.clone(),
-            ..Default::default()
-        };
-        write_raster(p, &spec, vec![data])?;
+    // Every output is written and checked in a staging directory first,
+    // and all replace their targets together at the end: a failure of one
+    // (a full disk) leaves every file as it was.
+    let mut staged = StagedOutputs::default();
+    let lossless = |p: &Path| {
+        args.creation_options.is_empty()
+            && matches!(
+                output_driver(p, args.format.as_deref()).as_deref(),
+                Ok("GTiff") | Ok("COG")
+            )
+    };
+    let mut write_all = || -> anyhow::Result<()> {
+        let p = staged.stage(&args.out).map_err(anyhow::Error::msg)?;
+        write_picture(&p, w, h, &rgb)?;
+        if let Some(target) = &args.depth {
+            let p = staged.stage(target).map_err(anyhow::Error::msg)?;
+            let data = depth_for_file(&depth);
+            let spec = RasterSpec {
+                width: depth.width,
+                height: depth.height,
+                nodata: Some(DEPTH_NODATA),
+                description: Some("distance from the eye, m (nodata: sky)".into()),
+                format: args.format.clone(),
+                creation_options: args.creation_options.clone(),
+                ..Default::default()
+            };
+            write_raster(&p, &spec, vec![data.clone()])?;
+            if lossless(target) {
+                verify_band(&p, depth.width, depth.height, &data)
+                    .map_err(|m| anyhow::anyhow!("{}: {m}", p.display()))?;
+            }
+        }
+        if let Some(target) = &args.viewshed {
+            let vs = viewshed(&scene.terrain, &scene.window, args.target_height);
+            let p = staged.stage(target).map_err(anyhow::Error::msg)?;
+            let spec = RasterSpec {
+                width: vs.width,
+                height: vs.height,
+                geotransform: Some(vs.geotransform.0),
+                crs: vs.crs.gdal_definition(),
+                format: args.format.clone(),
+                creation_options: args.creation_options.clone(),
+                ..Default::default()
+            };
+            write_raster(&p, &spec, vec![vs.data.clone()])?;
+            if lossless(target) {
+                verify_band(&p, vs.width, vs.height, &vs.data)
+                    .map_err(|m| anyhow::anyhow!("{}: {m}", p.display()))?;
+            }
+        }
+        if let Some(target) = &args.features {
+            let to_ll = to_lonlat_with_georef(&scene.georef);
+            let fc = feature_collection_of_view(
+                silhouettes.as_ref(),
+                ridges.as_ref(),
+                view.view_index,
+                &to_ll,
+            )?;
+            let p = staged.stage(target).map_err(anyhow::Error::msg)?;
+            write_geojson(&p, &fc)?;
+        }
+        Ok(())
+    };
+    if let Err(e) = write_all() {
+        let m = staged.hide(&format!("{e:#}"));
+        anyhow::bail!("{m}; nothing written");
     }
-    if let Some(p) = &args.viewshed {
-        let vs = viewshed(&scene.terrain, &scene.window, args.target_height);
-        let spec = RasterSpec {
-            width: vs.width,
-            height: vs.height,
-            geotransform: Some(vs.geotransform.0),
-            crs: vs.crs.gdal_definition(),
-            format: args.format.clone(),
-            creation_options: args.creation_options.clone(),
-            ..Default::default()
-        };
-        write_raster(p, &spec, vec![vs.data])?;
-    }
-    if let Some(p) = &args.features {
-        let to_ll = to_lonlat_with_georef(&scene.georef);
-        let fc = feature_collection_of_view(
-            silhouettes.as_ref(),
-            ridges.as_ref(),
-            view.view_index,
-            &to_ll,
-        )?;
-        write_geojson(p, &fc)?;
-    }
+    staged.commit().map_err(anyhow::Error::msg)?;
     super::timing("write", t.elapsed().as_secs_f64());
     super::timing("total", t_all.elapsed().as_secs_f64());
     Ok(())

@@ -88,10 +88,19 @@ pub(super) fn write_outputs(
         Vec::new()
     };
     let staged_report = match &opts.report {
-        Some(p) => Some(StagedFile::create(p).map_err(|e| EditError::Write {
-            path: p.display().to_string(),
-            message: e.to_string(),
-        })?),
+        Some(p) => {
+            let werr = |e: std::io::Error| EditError::Write {
+                path: p.display().to_string(),
+                message: e.to_string(),
+            };
+            let mut f = StagedFile::create(p).map_err(werr)?;
+            // Its space is claimed before the DEM is written (a generous
+            // bound: the fixed part, each tile's path, each stroke).
+            let strokes: usize = view_reports.iter().map(|v| v.strokes.len()).sum();
+            let estimate = 64 * 1024 + 1024 * src.dem.tiles.len() + 8 * 1024 * strokes;
+            f.reserve(estimate as u64).map_err(werr)?;
+            Some(f)
+        }
         None => None,
     };
     let staged_renders = match &opts.renders {
@@ -356,45 +365,42 @@ fn content_hash(sketch: &SketchFile) -> String {
     format!("{h:016x}")
 }
 
-/// Pictures written into a staging directory beside the target, moved into
-/// the target directory on commit; removed if dropped uncommitted.
+/// Pictures written into a staging directory beside the target (exclusive,
+/// unpredictable name), each read back, then moved into the target
+/// directory on commit; removed if dropped uncommitted.
 struct StagedDir {
     target: PathBuf,
-    stage: PathBuf,
+    staging: Option<crate::raster::atomic_file::Staging>,
     names: Vec<String>,
-    done: bool,
 }
 
 impl StagedDir {
     fn create(target: &Path, pictures: &[Picture]) -> Result<StagedDir, EditError> {
-        let werr = |p: &Path, e: std::io::Error| EditError::Write {
-            path: p.display().to_string(),
-            message: e.to_string(),
+        let werr = |m: String| EditError::Write {
+            path: target.display().to_string(),
+            message: m,
         };
         if target.exists() && !target.is_dir() {
-            return Err(EditError::Write {
-                path: target.display().to_string(),
-                message: "exists and is not a directory".into(),
-            });
+            return Err(werr("exists and is not a directory".into()));
         }
-        let name = target
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_else(|| "renders".into());
-        let stage = target.with_file_name(format!(".{name}.demsketch-{}.tmp", std::process::id()));
-        std::fs::create_dir_all(&stage).map_err(|e| werr(&stage, e))?;
-        let mut staged = StagedDir {
-            target: target.to_path_buf(),
-            stage,
-            names: Vec::new(),
-            done: false,
-        };
+        let parent = crate::raster::atomic_file::parent_dir(target);
+        if !parent.is_dir() {
+            return Err(werr("its parent directory does not exist".into()));
+        }
+        let staging = crate::raster::atomic_file::Staging::new_in(parent)
+            .map_err(|e| werr(format!("cannot create a staging directory: {e}")))?;
         for p in pictures {
-            let path = staged.stage.join(&p.name);
-            std::fs::write(&path, &p.png).map_err(|e| werr(&path, e))?;
-            staged.names.push(p.name.clone());
+            crate::raster::atomic_file::write_bytes_verified(
+                &staging.file(p.name.as_ref()),
+                &p.png,
+            )
+            .map_err(|e| werr(format!("{}: {e}", p.name)))?;
         }
-        Ok(staged)
+        Ok(StagedDir {
+            target: target.to_path_buf(),
+            staging: Some(staging),
+            names: pictures.iter().map(|p| p.name.clone()).collect(),
+        })
     }
 
     fn commit(mut self) -> Result<(), EditError> {
@@ -402,24 +408,27 @@ impl StagedDir {
             path: p.display().to_string(),
             message: e.to_string(),
         };
+        let Some(staging) = self.staging.take() else {
+            return Ok(());
+        };
+        let _commit = crate::raster::atomic_file::commit_guard();
         if !self.target.exists() {
-            std::fs::rename(&self.stage, &self.target).map_err(|e| werr(&self.target, e))?;
+            use std::os::unix::fs::PermissionsExt;
+            // The staging directory is mode 700; the renders directory
+            // gets an ordinary directory's mode.
+            std::fs::set_permissions(staging.path(), std::fs::Permissions::from_mode(0o755))
+                .map_err(|e| werr(&self.target, e))?;
+            let kept = staging.keep();
+            if let Err(e) = std::fs::rename(&kept, &self.target) {
+                let _ = std::fs::remove_dir_all(&kept);
+                return Err(werr(&self.target, e));
+            }
         } else {
             for n in &self.names {
                 let to = self.target.join(n);
-                std::fs::rename(self.stage.join(n), &to).map_err(|e| werr(&to, e))?;
+                std::fs::rename(staging.file(n.as_ref()), &to).map_err(|e| werr(&to, e))?;
             }
-            let _ = std::fs::remove_dir(&self.stage);
         }
-        self.done = true;
         Ok(())
-    }
-}
-
-impl Drop for StagedDir {
-    fn drop(&mut self) {
-        if !self.done {
-            let _ = std::fs::remove_dir_all(&self.stage);
-        }
     }
 }

@@ -4,7 +4,6 @@
 //! per stage) plus a few details, serialised as JSON and written atomically.
 
 use serde::Serialize;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use super::fit::StrokeFit;
@@ -150,51 +149,81 @@ pub struct Timings {
     pub total: f64,
 }
 
-/// A file written atomically: created as a temporary file beside `path` up
-/// front (which proves the directory is writable), filled and renamed into
-/// place by [`StagedFile::commit`], removed if dropped uncommitted.
+/// A file written atomically: a staging directory is created beside `path`
+/// up front (which proves the directory is writable; exclusive, with an
+/// unpredictable name, see [`crate::raster::atomic_file`]), and
+/// [`StagedFile::commit`] writes the bytes there, reads them back and
+/// renames the file into place. Dropped uncommitted, nothing is left.
+/// [`StagedFile::reserve`] claims the disk space first, so that a report
+/// written after the DEM does not fail on a disk the DEM just filled.
 pub struct StagedFile {
     pub path: PathBuf,
-    temp: PathBuf,
-    file: Option<std::fs::File>,
+    staging: crate::raster::atomic_file::Staging,
+    reserved: u64,
 }
 
 impl StagedFile {
-    /// Create the temporary file beside `path`.
+    /// Create the staging directory beside `path`.
     pub fn create(path: &Path) -> std::io::Result<StagedFile> {
-        let name = path
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_else(|| "report.json".into());
-        let temp = path.with_file_name(format!(".{name}.demsketch-{}.tmp", std::process::id()));
-        let file = std::fs::File::create(&temp)?;
+        if path.file_name().is_none() {
+            return Err(std::io::Error::other("is not a file name"));
+        }
+        if path.is_dir() {
+            return Err(std::io::Error::other("is a directory"));
+        }
+        let dir = crate::raster::atomic_file::parent_dir(path);
+        let staging = crate::raster::atomic_file::Staging::new_in(dir)?;
         Ok(StagedFile {
             path: path.to_path_buf(),
-            temp,
-            file: Some(file),
+            staging,
+            reserved: 0,
         })
     }
 
-    /// Write `bytes` and rename into place.
-    pub fn commit(mut self, bytes: &[u8]) -> std::io::Result<()> {
-        let mut f = self
-            .file
-            .take()
-            .ok_or_else(|| std::io::Error::other("committed twice"))?;
-        f.write_all(bytes)?;
+    /// Claim `bytes` of disk space for the file now (written as zeros,
+    /// flushed): the commit then overwrites them in place.
+    pub fn reserve(&mut self, bytes: u64) -> std::io::Result<()> {
+        use std::io::Write;
+        let tmp = self.staging.file(self.path.file_name().unwrap_or_default());
+        let mut f = std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&tmp)?;
+        let block = vec![0u8; 1 << 16];
+        let mut left = bytes;
+        while left > 0 {
+            let n = left.min(block.len() as u64) as usize;
+            f.write_all(&block[..n])?;
+            left -= n as u64;
+        }
         f.sync_all()?;
-        drop(f);
-        std::fs::rename(&self.temp, &self.path)?;
-        self.temp = PathBuf::new();
+        self.reserved = bytes;
         Ok(())
     }
-}
 
-impl Drop for StagedFile {
-    fn drop(&mut self) {
-        if !self.temp.as_os_str().is_empty() {
-            self.file.take();
-            let _ = std::fs::remove_file(&self.temp);
+    /// Write `bytes`, check them, and rename into place.
+    pub fn commit(self, bytes: &[u8]) -> std::io::Result<()> {
+        use std::io::{Seek, Write};
+        let name = self.path.file_name().unwrap_or_default();
+        let tmp = self.staging.file(name);
+        if self.reserved > 0 {
+            let mut f = std::fs::OpenOptions::new().write(true).open(&tmp)?;
+            f.seek(std::io::SeekFrom::Start(0))?;
+            f.write_all(bytes)?;
+            f.set_len(bytes.len() as u64)?;
+            f.sync_all()?;
+            drop(f);
+            if std::fs::read(&tmp)? != bytes {
+                return Err(std::io::Error::other("the written file does not read back"));
+            }
+        } else {
+            crate::raster::atomic_file::write_bytes_verified(&tmp, bytes)?;
         }
+        let _commit = crate::raster::atomic_file::commit_guard();
+        std::fs::rename(&tmp, &self.path)?;
+        let _ = crate::raster::atomic_file::sync_dir(crate::raster::atomic_file::parent_dir(
+            &self.path,
+        ));
+        Ok(())
     }
 }

@@ -16,7 +16,6 @@
 //! use the view module's PROJ transformation ([`crate::view::Georef`]) or any
 //! other; [`to_lonlat_with_georef`] wraps the former.
 
-use std::io::Write;
 use std::path::Path;
 
 use serde_json::{json, Map, Value};
@@ -220,42 +219,32 @@ pub fn feature_collection_of_view(
     Ok(json!({"type": "FeatureCollection", "features": features}))
 }
 
-/// Write `value` to `path` atomically (a temporary file beside it, renamed).
+/// Write `value` to `path` atomically and verified
+/// ([`crate::raster::atomic_file::replace_file`]: a staging directory
+/// beside it, the file read back and parsed equal to `value`, then renamed).
 pub fn write_geojson(path: &Path, value: &Value) -> Result<(), FeatureError> {
-    let err = |e: &dyn std::fmt::Display| FeatureError::Write {
+    let text = serde_json::to_vec(value).map_err(|e| FeatureError::Write {
         path: path.to_path_buf(),
-        message: e.to_string().lines().next().unwrap_or("").to_string(),
-    };
-    let dir = path
-        .parent()
-        .filter(|d| !d.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    let mut tmp = tempfile_in(dir).map_err(|e| err(&e))?;
-    serde_json::to_writer(&mut tmp.1, value).map_err(|e| err(&e))?;
-    tmp.1.flush().map_err(|e| err(&e))?;
-    drop(tmp.1);
-    std::fs::rename(&tmp.0, path).map_err(|e| {
-        let _ = std::fs::remove_file(&tmp.0);
-        err(&e)
+        message: e.to_string(),
+    })?;
+    crate::raster::atomic_file::replace_file(
+        path,
+        |tmp| {
+            crate::raster::atomic_file::write_bytes_verified(tmp, &text).map_err(|e| e.to_string())
+        },
+        |tmp| {
+            let back: Value =
+                serde_json::from_slice(&std::fs::read(tmp).map_err(|e| e.to_string())?)
+                    .map_err(|e| e.to_string())?;
+            if &back == value {
+                Ok(())
+            } else {
+                Err("it differs from what was written".into())
+            }
+        },
+    )
+    .map_err(|message| FeatureError::Write {
+        path: path.to_path_buf(),
+        message,
     })
-}
-
-/// A new uniquely named file in `dir`.
-fn tempfile_in(
-    dir: &Path,
-) -> std::io::Result<(std::path::PathBuf, std::io::BufWriter<std::fs::File>)> {
-    let pid = std::process::id();
-    for n in 0..1000u32 {
-        let p = dir.join(format!(".features-{pid}-{n}.geojson.tmp"));
-        match std::fs::OpenOptions::new()
-            .write(true)
-            .create_new(true)
-            .open(&p)
-        {
-            Ok(f) => return Ok((p, std::io::BufWriter::new(f))),
-            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
-            Err(e) => return Err(e),
-        }
-    }
-    Err(std::io::Error::other("no free temporary file name"))
 }

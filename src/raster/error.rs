@@ -18,6 +18,11 @@ pub enum RasterError {
     Corrupt { path: PathBuf, detail: String },
     #[error("{path}: unsupported {what}")]
     Unsupported { path: PathBuf, what: String },
+    /// Something the native GeoTIFF decoder does not do but GDAL may
+    /// (a compression, a CRS it cannot build from GeoKeys): the tile layer
+    /// reads such files through GDAL instead.
+    #[error("{path}: unsupported {what}")]
+    NotNative { path: PathBuf, what: String },
     #[error(
         "{path}: no georeference (no ModelTiepoint/ModelPixelScale or ModelTransformation tag)"
     )]

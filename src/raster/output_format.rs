@@ -33,6 +33,11 @@ pub struct WriteOptions {
     pub creation_options: Vec<String>,
     /// What the provenance entry records besides the edit id.
     pub record: ProvenanceRecord,
+    /// Hard-link the unchanged tiles of a tile-directory output to the
+    /// input's instead of copying them (`--link`): faster and free of
+    /// space, but a tool that later modifies an output tile in place then
+    /// modifies the input too.
+    pub link_unchanged: bool,
 }
 
 impl WriteOptions {
@@ -167,10 +172,18 @@ pub fn write_copy(
     let d = DriverManager::get_driver_by_name(driver).map_err(|e| werr(e.to_string()))?;
     let opts = RasterCreationOptions::from_iter(options.iter().cloned());
     if driver == "GTiff" || driver == "COG" {
-        let ds = src
-            .create_copy(&d, tmp, &opts)
-            .map_err(|e| werr(format!("GDAL could not write the file: {e}")))?;
-        ds.close().map_err(|e| werr(e.to_string()))?;
+        // Written in memory, then to disk by demsketch: a full disk is a
+        // plain write error (libtiff may hang on one).
+        super::atomic_file::through_memory(tmp, None, |m| {
+            let ds = src
+                .create_copy(&d, m, &opts)
+                .map_err(|e| werr(format!("GDAL could not write the file: {e}")))?;
+            ds.close().map_err(|e| werr(e.to_string()))
+        })
+        .map_err(|m| {
+            let t = format!("{}: ", target.display());
+            werr(m.strip_prefix(&t).unwrap_or(&m).to_string())
+        })?;
         return Ok(Vec::new());
     }
     let parent = target

@@ -4,6 +4,15 @@
 //! array with a nodata mask. Reading is lazy (only the blocks a window
 //! touches are decoded), decoded blocks are cached under a memory bound, and
 //! decoding runs in parallel on rayon.
+//!
+//! Heights leave the layer in metres: each tile's band scale, offset and
+//! vertical unit ([`Vertical`]) are applied after the nodata test, so that
+//! everything downstream works in metres ([`Dem::read_window_raw`] gives
+//! the stored values, for write-back).
+//!
+//! The native decoder reads what it reads exactly (and fast); whatever it
+//! does not (GDAL virtual file systems such as `/vsizip/`, LERC or JPEG
+//! compression, CRSs it cannot build from GeoKeys) is read through GDAL.
 
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
@@ -12,7 +21,10 @@ use rayon::prelude::*;
 
 use super::block_cache::BlockCache;
 use super::geotiff::{memory_budget, GeoTiff};
-use super::{Crs, GeoTransform, HeightMap, RasterError, Sample, SampleType, Window, WindowData};
+use super::vertical::vertical_of_srs;
+use super::{
+    Crs, GeoTransform, HeightMap, RasterError, Sample, SampleType, Vertical, Window, WindowData,
+};
 
 /// Where a tile's pixels come from.
 pub enum TileSource {
@@ -31,6 +43,15 @@ pub struct Tile {
     pub sample_type: SampleType,
     pub nodata: Option<f64>,
     pub geotransform: GeoTransform,
+    /// Stored value -> metres (band scale, offset, vertical unit).
+    pub vertical: Vertical,
+}
+
+impl Tile {
+    /// True when the tile is read through GDAL rather than natively.
+    pub fn read_by_gdal(&self) -> bool {
+        matches!(self.source, TileSource::Gdal(_))
+    }
 }
 
 /// What kind of input the layer was opened from.
@@ -46,6 +67,8 @@ pub enum LayerKind {
 struct Part {
     tile: Tile,
     crs: Crs,
+    /// The CRS is a projected or geographic one (not local or absent).
+    earth_crs: bool,
 }
 
 /// A DEM as one grid over all its tiles.
@@ -59,6 +82,8 @@ pub struct Dem {
     pub crs: Crs,
     pub nodata: Option<f64>,
     pub sample_type: SampleType,
+    /// The first tile's vertical description (unit, datum, scale, offset).
+    pub vertical: Vertical,
     cache: BlockCache,
 }
 
@@ -88,14 +113,32 @@ fn nodata_eq(a: Option<f64>, b: Option<f64>) -> bool {
 impl Dem {
     /// Open a GeoTIFF, a directory of GeoTIFF tiles, or a raster GDAL opens.
     pub fn open(path: &Path) -> Result<Dem, RasterError> {
+        if is_gdal_virtual(path) {
+            let tile = Self::open_gdal(path)?;
+            return Self::mosaic(path, LayerKind::Gdal, vec![tile]);
+        }
         let meta = std::fs::metadata(path).map_err(|e| RasterError::io(path, e))?;
         if meta.is_dir() {
             let mut files: Vec<PathBuf> = std::fs::read_dir(path)
                 .map_err(|e| RasterError::io(path, e))?
                 .filter_map(|e| e.ok().map(|e| e.path()))
-                .filter(|p| p.is_file() && is_tiff_name(p))
+                .filter(|p| is_tiff_name(p) && (p.is_file() || p.is_symlink()))
                 .collect();
             files.sort();
+            // A tile name whose symlink leads nowhere is a missing tile,
+            // not a hole to skip silently.
+            if let Some(broken) = files.iter().find(|p| !p.is_file()) {
+                let to = std::fs::read_link(broken)
+                    .map(|t| t.display().to_string())
+                    .unwrap_or_default();
+                return Err(RasterError::io(
+                    broken.clone(),
+                    std::io::Error::new(
+                        std::io::ErrorKind::NotFound,
+                        format!("broken symbolic link: the tile it points to ({to}) is not a file"),
+                    ),
+                ));
+            }
             if files.is_empty() {
                 return Err(RasterError::EmptyDirectory {
                     path: path.to_path_buf(),
@@ -124,9 +167,28 @@ impl Dem {
             .unwrap_or(false)
     }
 
+    /// Open one GeoTIFF natively, or through GDAL where the native decoder
+    /// does not support it (GDAL's error is kept only if GDAL fails too and
+    /// the native one says less).
     fn open_tile(path: &Path) -> Result<Part, RasterError> {
-        let t = GeoTiff::open(path)?;
+        let t = match GeoTiff::open(path) {
+            Ok(t) => t,
+            Err(native @ (RasterError::NotNative { .. } | RasterError::Crs { .. })) => {
+                // GDAL's own complaints are not shown: if it fails too, the
+                // native error says what is wrong in one line.
+                // A CRS the native reader cannot build must come out of GDAL
+                // as a CRS, or the native error stands.
+                let crs_problem = matches!(&native, RasterError::Crs { .. })
+                    || matches!(&native, RasterError::NotNative { what, .. } if what.contains("projection"));
+                return match quiet_gdal(|| Self::open_gdal(path)) {
+                    Ok(part) if !crs_problem || part.earth_crs => Ok(part),
+                    _ => Err(native),
+                };
+            }
+            Err(e) => return Err(e),
+        };
         Ok(Part {
+            earth_crs: true,
             crs: t.crs.clone(),
             tile: Tile {
                 path: path.to_path_buf(),
@@ -134,6 +196,7 @@ impl Dem {
                 sample_type: t.sample_type,
                 nodata: t.nodata,
                 geotransform: t.geotransform,
+                vertical: t.vertical.clone(),
                 source: TileSource::Tiff(t),
             },
         })
@@ -154,19 +217,30 @@ impl Dem {
                 what: format!("band type {:?}", band.band_type()),
             })?;
         let nodata = band.no_data_value();
+        let (scale, offset, unit) = (band.scale(), band.offset(), band.unit());
         drop(band);
         let srs = ds.spatial_ref().ok();
         let crs = Crs {
-            epsg: srs
-                .as_ref()
-                .filter(|s| s.auth_name().as_deref() == Some("EPSG"))
-                .and_then(|s| s.auth_code().ok())
-                .map(|c| c as u32),
+            epsg: srs.as_ref().and_then(horizontal_epsg),
             wkt: ds.projection(),
             proj: srs.as_ref().and_then(|s| s.to_proj4().ok()),
             geographic: srs.as_ref().map(|s| s.is_geographic()).unwrap_or(false),
         };
+        let (datum, crs_unit) = match srs.as_ref().and_then(vertical_of_srs) {
+            Some((name, unit)) => (Some(name), unit),
+            None => (None, None),
+        };
+        let vertical =
+            Vertical::from_parts(scale, offset, &unit, crs_unit, datum).map_err(|message| {
+                RasterError::Crs {
+                    path: path.to_path_buf(),
+                    message,
+                }
+            })?;
         Ok(Part {
+            earth_crs: srs
+                .as_ref()
+                .is_some_and(|s| s.is_projected() || s.is_geographic()),
             crs,
             tile: Tile {
                 path: path.to_path_buf(),
@@ -174,6 +248,7 @@ impl Dem {
                 sample_type,
                 nodata,
                 geotransform: GeoTransform(gt),
+                vertical,
                 source: TileSource::Gdal(Mutex::new(ds)),
             },
         })
@@ -183,12 +258,13 @@ impl Dem {
     /// type and nodata against the first tile.
     fn mosaic(path: &Path, kind: LayerKind, parts: Vec<Part>) -> Result<Dem, RasterError> {
         let first = &parts[0];
-        let (ref_path, ref_gt, ref_crs, ref_nodata, ref_type) = (
+        let (ref_path, ref_gt, ref_crs, ref_nodata, ref_type, ref_vertical) = (
             first.tile.path.clone(),
             first.tile.geotransform,
             first.crs.clone(),
             first.tile.nodata,
             first.tile.sample_type,
+            first.tile.vertical.clone(),
         );
         let g = ref_gt.0;
         let mismatch = |p: &Path, what: String| RasterError::TileMismatch {
@@ -198,7 +274,7 @@ impl Dem {
         };
         // Pixel offsets of each tile relative to the first.
         let mut placed = Vec::with_capacity(parts.len());
-        for Part { tile, crs } in &parts {
+        for Part { tile, crs, .. } in &parts {
             let (p, t) = (&tile.path, tile.geotransform.0);
             if !crs.same_as(&ref_crs) {
                 return Err(mismatch(p, "different CRS".into()));
@@ -263,6 +339,7 @@ impl Dem {
             crs: ref_crs,
             nodata: ref_nodata,
             sample_type: ref_type,
+            vertical: ref_vertical,
             tiles,
             width,
             height,
@@ -298,9 +375,24 @@ impl Dem {
         w.intersect(&self.full_window())
     }
 
-    /// Read a window as one seamless array across tiles. Cells outside every
-    /// tile, and nodata cells, are invalid (their value is NaN).
+    /// Read a window of heights in metres as one seamless array across
+    /// tiles. Cells outside every tile, and nodata cells, are invalid (their
+    /// value is NaN).
     pub fn read_window<T: Sample>(&self, win: Window) -> Result<WindowData<T>, RasterError> {
+        self.read(win, true)
+    }
+
+    /// Read a window of stored values (before scale, offset and unit), as
+    /// [`Dem::read_window`] otherwise does.
+    pub fn read_window_raw<T: Sample>(&self, win: Window) -> Result<WindowData<T>, RasterError> {
+        self.read(win, false)
+    }
+
+    /// Read a window, in metres when `metres`, else as stored. Nodata is
+    /// tested on the stored value, in the precision of the sample type as
+    /// GDAL does (a Float32 file's nodata of -3.4e38 is the f32 nearest to
+    /// it); the conversion to metres is done in f64, before rounding to `T`.
+    fn read<T: Sample>(&self, win: Window, metres: bool) -> Result<WindowData<T>, RasterError> {
         let n = win.len();
         let bytes = (n as u64).saturating_mul(std::mem::size_of::<T>() as u64 + 1);
         let budget = memory_budget();
@@ -314,11 +406,8 @@ impl Dem {
                 budget,
             });
         }
-        let mut data = vec![T::nan(); n];
-        let out = SharedOut {
-            ptr: data.as_mut_ptr(),
-            len: n,
-        };
+        // Nodata is the same for every tile (checked at open).
+        let nodata = self.nodata.map(|v| self.sample_type.quantize(v));
         // Jobs: (tile, block) pairs for native tiles; whole overlaps for GDAL ones.
         let mut jobs: Vec<(usize, Option<u32>)> = Vec::new();
         for (ti, tile) in self.tiles.iter().enumerate() {
@@ -341,6 +430,29 @@ impl Dem {
                 TileSource::Gdal(_) => jobs.push((ti, None)),
             }
         }
+        // Fail fast: decode one block (kept in the cache) before the window
+        // is allocated, so that a broken or crafted file costs little.
+        if let Some(&(ti, Some(bi))) = jobs.first() {
+            if let TileSource::Tiff(tiff) = &self.tiles[ti].source {
+                if self.cache.get((ti, bi)).is_none() {
+                    let b = Arc::new(tiff.decode_block(bi)?);
+                    self.cache.insert((ti, bi), b);
+                }
+            }
+        }
+        let mut data =
+            super::alloc::try_filled(n, T::nan()).ok_or_else(|| RasterError::TooLarge {
+                path: self.path.clone(),
+                width: win.width as u64,
+                height: win.height as u64,
+                sample: std::any::type_name::<T>().into(),
+                bytes,
+                budget,
+            })?;
+        let out = SharedOut {
+            ptr: data.as_mut_ptr(),
+            len: n,
+        };
         jobs.par_iter()
             .map(|&(ti, block)| -> Result<(), RasterError> {
                 let tile = &self.tiles[ti];
@@ -366,6 +478,13 @@ impl Dem {
                             return Ok(());
                         };
                         let row_len = tiff.decoded_row_len(bi);
+                        let conv =
+                            (metres && !tile.vertical.is_identity()).then_some(&tile.vertical);
+                        let mut row = if conv.is_some() {
+                            vec![0f64; ov.width]
+                        } else {
+                            Vec::new()
+                        };
                         if super::sample_type::decoded_bytes(&decoded)
                             < row_len * bh as usize * tiff.sample_type.bytes()
                         {
@@ -382,7 +501,16 @@ impl Dem {
                             // SAFETY: blocks are disjoint rectangles of the
                             // window, so no two jobs write the same cells.
                             let out = unsafe { out.slice(dst, ov.width) };
-                            T::copy_from_block(&decoded, src, out);
+                            match &conv {
+                                None => {
+                                    T::copy_from_block(&decoded, src, out);
+                                    mask_nodata(out, nodata);
+                                }
+                                Some(v) => {
+                                    f64::copy_from_block(&decoded, src, &mut row);
+                                    store_metres(&row, out, nodata, v);
+                                }
+                            }
                         }
                         Ok(())
                     }
@@ -415,9 +543,14 @@ impl Dem {
                                 + (ov.col - win.col) as usize;
                             // SAFETY: tiles do not overlap (checked at open).
                             let out = unsafe { out.slice(dst, ov.width) };
-                            for (o, v) in out.iter_mut().zip(&buf[r * ov.width..(r + 1) * ov.width])
-                            {
-                                *o = T::from_f64(*v);
+                            let src = &buf[r * ov.width..(r + 1) * ov.width];
+                            if metres && !tile.vertical.is_identity() {
+                                store_metres(src, out, nodata, &tile.vertical);
+                            } else {
+                                for (o, v) in out.iter_mut().zip(src) {
+                                    *o = T::from_f64(*v);
+                                }
+                                mask_nodata(out, nodata);
                             }
                         }
                         Ok(())
@@ -426,20 +559,22 @@ impl Dem {
                 }
             })
             .collect::<Result<Vec<()>, _>>()?;
-        // Nodata is compared in the precision of the sample type, as GDAL
-        // does (a Float32 file's nodata of -3.4e38 is the f32 nearest to it).
-        let mut valid = vec![false; n];
-        let nodata = self.nodata.map(|v| self.sample_type.quantize(v));
-        data.par_chunks_mut(win.width.max(1))
+        // Cells outside every tile, and nodata (set to NaN above), are
+        // invalid.
+        let mut valid =
+            super::alloc::try_filled(n, false).ok_or_else(|| RasterError::TooLarge {
+                path: self.path.clone(),
+                width: win.width as u64,
+                height: win.height as u64,
+                sample: "mask".into(),
+                bytes,
+                budget,
+            })?;
+        data.par_chunks(win.width.max(1))
             .zip(valid.par_chunks_mut(win.width.max(1)))
             .for_each(|(d, v)| {
-                for (x, ok) in d.iter_mut().zip(v.iter_mut()) {
-                    let f = x.to_f64();
-                    if f.is_nan() || Some(f) == nodata {
-                        *x = T::nan();
-                    } else {
-                        *ok = true;
-                    }
+                for (x, ok) in d.iter().zip(v.iter_mut()) {
+                    *ok = !x.to_f64().is_nan();
                 }
             });
         Ok(WindowData {
@@ -461,24 +596,83 @@ impl Dem {
         })
     }
 
-    /// Smallest and largest valid value, streaming over bands of rows so that
-    /// memory stays bounded on large DEMs.
+    /// Smallest and largest valid height in metres. Native tiles are
+    /// scanned block by block (memory: a block per thread, and a broken
+    /// block fails before anything large is allocated); GDAL tiles in bands
+    /// of rows.
     pub fn min_max(&self) -> Result<Option<(f64, f64)>, RasterError> {
-        let rows = ((64 << 20) / self.width.max(1)).clamp(1, self.height.max(1));
-        let mut acc: Option<(f64, f64)> = None;
-        let mut row = 0;
-        while row < self.height {
-            let h = rows.min(self.height - row);
-            let w = self.read_window::<f64>(Window::new(0, row as i64, self.width, h))?;
-            for (v, ok) in w.data.iter().zip(&w.valid) {
-                if *ok {
-                    acc = Some(match acc {
-                        None => (*v, *v),
-                        Some((lo, hi)) => (lo.min(*v), hi.max(*v)),
-                    });
+        let nodata = self.nodata.map(|v| self.sample_type.quantize(v));
+        let merge = |a: Option<(f64, f64)>, b: Option<(f64, f64)>| match (a, b) {
+            (Some(x), Some(y)) => Some((x.0.min(y.0), x.1.max(y.1))),
+            (x, None) => x,
+            (None, y) => y,
+        };
+        let per_tile = self
+            .tiles
+            .iter()
+            .map(|tile| -> Result<Option<(f64, f64)>, RasterError> {
+                match &tile.source {
+                    TileSource::Tiff(tiff) => {
+                        let blocks = u32::try_from(tiff.layout.count()).unwrap_or(u32::MAX);
+                        (0..blocks)
+                            .into_par_iter()
+                            .map(|bi| -> Result<Option<(f64, f64)>, RasterError> {
+                                let b = tiff.decode_block(bi)?;
+                                let (_, _, w, h) = tiff.block_extent(bi);
+                                let n = w as usize * h as usize;
+                                if super::sample_type::decoded_bytes(&b)
+                                    < n * tiff.sample_type.bytes()
+                                {
+                                    return Err(RasterError::Corrupt {
+                                        path: tiff.path.clone(),
+                                        detail: format!("block {bi} decodes to too few samples"),
+                                    });
+                                }
+                                let mut raw =
+                                    super::alloc::try_filled(n, 0f64).ok_or_else(|| {
+                                        RasterError::Corrupt {
+                                            path: tiff.path.clone(),
+                                            detail: format!(
+                                                "block {bi}: cannot allocate {n} samples"
+                                            ),
+                                        }
+                                    })?;
+                                f64::copy_from_block(&b, 0, &mut raw);
+                                Ok(raw
+                                    .iter()
+                                    .filter(|r| !r.is_nan() && Some(**r) != nodata)
+                                    .map(|r| tile.vertical.to_metres(*r))
+                                    .fold(None, |acc, v| merge(acc, Some((v, v)))))
+                            })
+                            .try_reduce(|| None, |a, b| Ok(merge(a, b)))
+                    }
+                    TileSource::Gdal(_) => {
+                        let e = tile.extent;
+                        let rows = ((16 << 20) / e.width.max(1)).clamp(1, e.height.max(1));
+                        let mut acc = None;
+                        let mut row = 0;
+                        while row < e.height {
+                            let h = rows.min(e.height - row);
+                            let w = self.read_window::<f64>(Window::new(
+                                e.col,
+                                e.row + row as i64,
+                                e.width,
+                                h,
+                            ))?;
+                            for (v, ok) in w.data.iter().zip(&w.valid) {
+                                if *ok {
+                                    acc = merge(acc, Some((*v, *v)));
+                                }
+                            }
+                            row += h;
+                        }
+                        Ok(acc)
+                    }
                 }
-            }
-            row += h;
+            });
+        let mut acc = None;
+        for t in per_tile {
+            acc = merge(acc, t?);
         }
         Ok(acc)
     }
@@ -493,6 +687,67 @@ impl Dem {
     pub(crate) fn invalidate_tile(&self, tile: usize) {
         self.cache.invalidate_tile(tile)
     }
+}
+
+/// Set nodata cells (and NaN) of stored values to NaN.
+#[inline]
+fn mask_nodata<T: Sample>(out: &mut [T], nodata: Option<f64>) {
+    for x in out.iter_mut() {
+        let f = x.to_f64();
+        if f.is_nan() || Some(f) == nodata {
+            *x = T::nan();
+        }
+    }
+}
+
+/// Store stored values `raw` as metres into `out` (nodata and NaN as NaN).
+#[inline]
+fn store_metres<T: Sample>(raw: &[f64], out: &mut [T], nodata: Option<f64>, v: &Vertical) {
+    for (o, &r) in out.iter_mut().zip(raw) {
+        *o = if r.is_nan() || Some(r) == nodata {
+            T::nan()
+        } else {
+            T::from_f64(v.to_metres(r))
+        };
+    }
+}
+
+/// Run `f` with GDAL's error messages on this thread discarded (a GDAL
+/// attempt whose failure is reported otherwise).
+fn quiet_gdal<R>(f: impl FnOnce() -> R) -> R {
+    // SAFETY: pushing and popping a handler on the calling thread's stack;
+    // CPLQuietErrorHandler is GDAL's own no-op handler.
+    unsafe { gdal_sys::CPLPushErrorHandler(Some(gdal_sys::CPLQuietErrorHandler)) };
+    let r = f();
+    unsafe { gdal_sys::CPLPopErrorHandler() };
+    r
+}
+
+/// True for GDAL virtual file system paths (`/vsizip/`, `/vsigzip/`,
+/// `/vsicurl/`, ...), which only GDAL opens.
+fn is_gdal_virtual(path: &Path) -> bool {
+    path.to_str().is_some_and(|s| s.starts_with("/vsi"))
+}
+
+/// The EPSG code of the horizontal part of a CRS: the CRS's own for a
+/// projected or geographic one, the horizontal component's for a compound.
+fn horizontal_epsg(srs: &gdal::spatial_ref::SpatialRef) -> Option<u32> {
+    if srs.is_compound() {
+        for key in ["COMPD_CS|PROJCS|AUTHORITY", "COMPD_CS|GEOGCS|AUTHORITY"] {
+            if srs.get_attr_value(key, 0).ok().flatten().as_deref() == Some("EPSG") {
+                return srs
+                    .get_attr_value(key, 1)
+                    .ok()
+                    .flatten()
+                    .and_then(|c| c.parse().ok());
+            }
+        }
+        return None;
+    }
+    (srs.auth_name().as_deref() == Some("EPSG"))
+        .then(|| srs.auth_code().ok())
+        .flatten()
+        .map(|c| c as u32)
 }
 
 /// Disjoint mutable access to the output of a parallel window read.

@@ -6,13 +6,22 @@
 //! re-encoded ([`super::block_patch`]) and overviews are refreshed over the
 //! change ([`super::overviews`]); sidecars (`.ovr`, `.aux.xml`) follow
 //! ([`super::sidecars`]). Unchanged tiles are hard-linked (or copied) byte
-//! for byte, never re-encoded.
+//! for byte, never re-encoded: copied (a reflink where the file system
+//! has them; hard links only on request, `WriteOptions::link_unchanged`).
 //!
-//! Every write is atomic: tiles are encoded to temporary files in the target
-//! directory and renamed into place only once all of them are complete; a
-//! tile directory output is staged beside `OUT` and renamed to `OUT` at the
-//! end. An interruption leaves each file either old or new, and a failure
-//! leaves nothing behind.
+//! Every write is staged and verified before it replaces anything: each
+//! new tile is written into a staging directory beside its target
+//! ([`super::atomic_file::Staging`]: exclusive, unpredictable name), with
+//! GDAL's failures captured ([`super::gdal_errors`]); then it is re-read
+//! (non-empty, opened by GDAL and by the native reader, the written window
+//! equal to the values meant) and flushed to disk. Only when every tile
+//! passed are they renamed into place: in place through the edit journal
+//! ([`super::journal`]), so a kill between renames is finished by the next
+//! run; a single-file output by one rename; a tile-directory output as the
+//! whole staged directory. In-place rewrites keep each file's mode, owner
+//! and extended attributes where permitted. Any failure (a full disk
+//! included) leaves every input and output as it was, no temporary file
+//! behind, and one error naming the target.
 
 use std::path::{Path, PathBuf};
 use std::time::{SystemTime, UNIX_EPOCH};
@@ -21,10 +30,12 @@ use gdal::raster::RasterCreationOptions;
 use gdal::DriverManager;
 use rayon::prelude::*;
 
+use super::atomic_file::{commit_guard, copy_file_attributes, parent_dir, sync_dir, Staging};
 use super::block_patch::{self, BlockEdit, PatchSettings};
 use super::output_format::WriteOptions;
 pub use super::provenance::PROVENANCE_KEY;
 use super::sidecars::Sidecars;
+use super::{gdal_errors, journal};
 use super::{Dem, LayerKind, RasterError, SampleType, Tile, TileSource, Window};
 
 /// Who changed a tile, and when.
@@ -94,13 +105,9 @@ fn write_err(path: &Path, message: impl std::fmt::Display) -> RasterError {
     }
 }
 
-/// A temporary path beside `target`, unique to this process.
-fn temp_beside(target: &Path) -> PathBuf {
-    let name = target
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "tile".into());
-    target.with_file_name(format!(".{name}.demsketch-{}.tmp", std::process::id()))
+/// The file name of a path (for staging it under the same name).
+fn file_name(p: &Path) -> &std::ffi::OsStr {
+    p.file_name().unwrap_or(std::ffi::OsStr::new("tile.tif"))
 }
 
 /// Can `v` be stored in `t` as itself? Not when it is outside the type's
@@ -209,7 +216,9 @@ impl Dem {
                     width: self.width,
                     height: self.height,
                 })?;
-        let original = self.read_window::<f64>(window)?;
+        // Stored values: heights in metres are converted to the tile's
+        // scale, offset and unit (`Vertical::to_raw`) before quantizing.
+        let original = self.read_window_raw::<f64>(window)?;
         // Per tile: which cells change once quantized. A new height the
         // tile's type cannot hold, or one that lands on its nodata value, is
         // an error (never clamped: that would write a wrong height, or turn
@@ -229,7 +238,7 @@ impl Dem {
                             + (ov.col - window.col) as usize
                             + c;
                         let old = original.data[wi];
-                        let new = values[wi];
+                        let new = tile.vertical.to_raw(values[wi]);
                         // NaN = keep the stored value (nodata cells keep
                         // their raw nodata value, see `encode_tile`).
                         let v = if !original.valid[wi] || new.is_nan() {
@@ -285,12 +294,21 @@ impl Dem {
                 what: "in-place write to a non-GeoTIFF raster; give an output GeoTIFF with --out"
                     .into(),
             }),
-            (Destination::InPlace, _) => {
-                let targets: Vec<PathBuf> = edits
+            (Destination::InPlace, _)
+                if edits.iter().any(|e| self.tiles[e.tile].read_by_gdal()) =>
+            {
+                let t = edits
                     .iter()
-                    .map(|e| self.tiles[e.tile].path.clone())
-                    .collect();
-                self.encode_and_commit(&edits, &targets, provenance, opts)?;
+                    .map(|e| &self.tiles[e.tile])
+                    .find(|t| t.read_by_gdal())
+                    .map_or(self.path.clone(), |t| t.path.clone());
+                Err(RasterError::Unsupported {
+                    path: t,
+                    what: "in-place write to a file read through GDAL (its encoding or CRS is not one demsketch writes back exactly); write a new GeoTIFF with --out".into(),
+                })
+            }
+            (Destination::InPlace, _) => {
+                let targets = self.write_in_place(&edits, provenance, opts)?;
                 for e in &edits {
                     self.invalidate_tile(e.tile);
                 }
@@ -312,7 +330,7 @@ impl Dem {
                         values: vec![f64::NAN],
                         changed: 0,
                     };
-                    self.encode_and_commit(&[keep_all], &targets, provenance, opts)?;
+                    self.write_single(out, &[keep_all], provenance, opts)?;
                     return Ok(WriteReport {
                         tiles_written: targets,
                         tiles_unchanged: vec![],
@@ -322,10 +340,21 @@ impl Dem {
                 if edits.is_empty() {
                     // Nothing changed: the output is a byte copy of the input
                     // (its sidecars too).
-                    let tmp = temp_beside(out);
-                    std::fs::copy(&self.tiles[0].path, &tmp)
-                        .map_err(|e| RasterError::io(out, e))?;
-                    std::fs::rename(&tmp, out).map_err(|e| RasterError::io(out, e))?;
+                    let dir = parent_dir(out);
+                    let staging = Staging::new_in(dir).map_err(|e| {
+                        write_err(
+                            out,
+                            format!("cannot create a temporary file: {e}; nothing written"),
+                        )
+                    })?;
+                    let tmp = staging.file(file_name(out));
+                    copy_verified(&self.tiles[0].path, &tmp, out, false)?;
+                    {
+                        let _commit = commit_guard();
+                        std::fs::rename(&tmp, out)
+                            .map_err(|e| write_err(out, format!("{e}; nothing written")))?;
+                        let _ = sync_dir(dir);
+                    }
                     super::sidecars::copy_unchanged(&self.tiles[0].path, out)?;
                     return Ok(WriteReport {
                         tiles_written: vec![],
@@ -333,7 +362,7 @@ impl Dem {
                         changed_cells,
                     });
                 }
-                self.encode_and_commit(&edits, &targets, provenance, opts)?;
+                self.write_single(out, &edits, provenance, opts)?;
                 Ok(WriteReport {
                     tiles_written: targets,
                     tiles_unchanged: vec![],
@@ -346,6 +375,205 @@ impl Dem {
         }
     }
 
+    /// Encode every edit into `staging` under its target's file name,
+    /// verified, in parallel (`targets`: the final paths, which errors
+    /// name). With `keep_attributes`, each staged file gets its tile's
+    /// mode, owner and extended attributes. Returns the sidecars to move
+    /// into place after the files.
+    fn stage_edits(
+        &self,
+        edits: &[TileEdit],
+        staging: &Staging,
+        targets: &[PathBuf],
+        provenance: &Provenance,
+        opts: &WriteOptions,
+        keep_attributes: bool,
+    ) -> Result<Vec<Sidecars>, RasterError> {
+        edits
+            .par_iter()
+            .zip(targets.par_iter())
+            .map(|(e, target)| {
+                let tile = &self.tiles[e.tile];
+                let tmp = staging.file(file_name(target));
+                let (written, errors) =
+                    gdal_errors::capture(|| encode_tile(tile, e, &tmp, target, provenance, opts));
+                let sidecars = written?;
+                if let Some(err) = gdal_errors::first_failure(&errors, &tmp, target) {
+                    sidecars.discard();
+                    return Err(write_err(
+                        target,
+                        format!("GDAL could not write it: {err}; nothing changed"),
+                    ));
+                }
+                let exact = opts.creation_options.is_empty();
+                if let Err(m) = verify_tile(tile, e, &tmp, exact) {
+                    sidecars.discard();
+                    return Err(write_err(
+                        target,
+                        format!("the written file does not read back: {m}; nothing changed"),
+                    ));
+                }
+                if keep_attributes {
+                    // Where permitted: a file system without modes or
+                    // owners does not stop the edit.
+                    let _ = copy_file_attributes(&tile.path, &tmp);
+                }
+                Ok(sidecars)
+            })
+            .collect()
+    }
+
+    /// Rewrite the edited tiles of the input: staged and verified beside
+    /// them, then renamed through the journal. Returns the tiles written.
+    fn write_in_place(
+        &self,
+        edits: &[TileEdit],
+        provenance: &Provenance,
+        opts: &WriteOptions,
+    ) -> Result<Vec<PathBuf>, RasterError> {
+        let targets: Vec<PathBuf> = edits
+            .iter()
+            .map(|e| self.tiles[e.tile].path.clone())
+            .collect();
+        if targets.is_empty() {
+            return Ok(targets);
+        }
+        let dir = parent_dir(&targets[0]).to_path_buf();
+        if let Some(t) = targets.iter().find(|t| parent_dir(t) != dir.as_path()) {
+            return Err(write_err(
+                t,
+                "tiles of one DEM in different directories cannot be rewritten in place",
+            ));
+        }
+        let staging = Staging::new_in(&dir).map_err(|e| {
+            write_err(
+                &self.path,
+                format!(
+                    "cannot create a temporary file in {}: {e}; nothing changed",
+                    dir.display()
+                ),
+            )
+        })?;
+        let sidecars = self.stage_edits(edits, &staging, &targets, provenance, opts, true)?;
+        let names: Vec<String> = targets
+            .iter()
+            .map(|t| file_name(t).to_string_lossy().into_owned())
+            .collect();
+        let staged = journal::commit(&self.path, &dir, staging, &names)?;
+        let moved = sidecars.iter().try_for_each(Sidecars::commit);
+        let _ = std::fs::remove_dir_all(&staged);
+        moved?;
+        Ok(targets)
+    }
+
+    /// A single-file output: staged, verified and renamed to `out`, its
+    /// sidecars after it.
+    fn write_single(
+        &self,
+        out: &Path,
+        edits: &[TileEdit],
+        provenance: &Provenance,
+        opts: &WriteOptions,
+    ) -> Result<(), RasterError> {
+        let dir = parent_dir(out);
+        super::atomic_file::clean_stale(dir);
+        let staging = Staging::new_in(dir).map_err(|e| {
+            write_err(
+                out,
+                format!("cannot create a temporary file: {e}; nothing written"),
+            )
+        })?;
+        let tmp = staging.file(file_name(out));
+        let targets = vec![out.to_path_buf()];
+        let sidecars = self.stage_edits(edits, &staging, &targets, provenance, opts, false)?;
+        let _commit = commit_guard();
+        if let Err(e) = std::fs::rename(&tmp, out) {
+            sidecars.iter().for_each(Sidecars::discard);
+            return Err(write_err(out, format!("{e}; nothing written")));
+        }
+        let _ = sync_dir(dir);
+        for s in &sidecars {
+            s.commit()?;
+        }
+        Ok(())
+    }
+
+    /// A tile-directory output: the full tile set staged in a directory
+    /// beside `out` (unchanged tiles copied, edited ones encoded and
+    /// verified), which then becomes `out` by one rename.
+    fn write_directory(
+        &self,
+        out: &Path,
+        edits: &[TileEdit],
+        provenance: &Provenance,
+        changed_cells: usize,
+        opts: &WriteOptions,
+    ) -> Result<WriteReport, RasterError> {
+        let parent = parent_dir(out);
+        super::atomic_file::clean_stale(parent);
+        let staging = Staging::new_in(parent).map_err(|e| {
+            write_err(
+                out,
+                format!("cannot create a staging directory: {e}; nothing written"),
+            )
+        })?;
+        let mut report = WriteReport {
+            changed_cells,
+            ..Default::default()
+        };
+        let edited: std::collections::HashSet<usize> = edits.iter().map(|e| e.tile).collect();
+        let unchanged: Vec<&Tile> = self
+            .tiles
+            .iter()
+            .enumerate()
+            .filter(|(ti, _)| !edited.contains(ti))
+            .map(|(_, t)| t)
+            .collect();
+        unchanged.par_iter().try_for_each(|tile| {
+            let name = file_name(&tile.path);
+            let staged = staging.file(name);
+            copy_verified(&tile.path, &staged, &out.join(name), opts.link_unchanged)?;
+            super::sidecars::copy_unchanged(&tile.path, &staged)
+        })?;
+        report.tiles_unchanged = unchanged
+            .iter()
+            .map(|t| out.join(file_name(&t.path)))
+            .collect();
+        // The edited tiles are encoded straight into the staged directory,
+        // their sidecars beside them there; errors name the input tile.
+        let staged: Vec<PathBuf> = edits
+            .iter()
+            .map(|e| staging.file(file_name(&self.tiles[e.tile].path)))
+            .collect();
+        let sidecars = self.stage_edits(edits, &staging, &staged, provenance, opts, false)?;
+        for s in &sidecars {
+            s.commit()?;
+        }
+        report.tiles_written = edits
+            .iter()
+            .map(|e| out.join(file_name(&self.tiles[e.tile].path)))
+            .collect();
+        // The staging directory is made mode 700; the output gets the mode
+        // a new directory gets.
+        let mode = 0o777 & !current_umask();
+        {
+            use std::os::unix::fs::PermissionsExt;
+            std::fs::set_permissions(staging.path(), std::fs::Permissions::from_mode(mode))
+                .map_err(|e| write_err(out, format!("{e}; nothing written")))?;
+        }
+        let _commit = commit_guard();
+        if out.is_dir() {
+            std::fs::remove_dir(out)
+                .map_err(|e| write_err(out, format!("{e}; nothing written")))?;
+        }
+        let kept = staging.keep();
+        if let Err(e) = std::fs::rename(&kept, out) {
+            let _ = std::fs::remove_dir_all(&kept);
+            return Err(write_err(out, format!("{e}; nothing written")));
+        }
+        let _ = sync_dir(parent);
+        Ok(report)
+    }
     /// Refuse destinations that would overwrite the input or a non-empty
     /// directory, before anything is written.
     fn check_destination(&self, dest: &Destination) -> Result<(), RasterError> {
@@ -403,101 +631,6 @@ impl Dem {
             }
         }
         Ok(())
-    }
-
-    /// Encode every edited tile to a temporary file beside its target, then,
-    /// once all succeeded, rename them into place.
-    fn encode_and_commit(
-        &self,
-        edits: &[TileEdit],
-        targets: &[PathBuf],
-        provenance: &Provenance,
-        opts: &WriteOptions,
-    ) -> Result<(), RasterError> {
-        let temps: Vec<PathBuf> = targets.iter().map(|t| temp_beside(t)).collect();
-        let result: Result<Vec<Sidecars>, RasterError> = edits
-            .par_iter()
-            .zip(temps.par_iter().zip(targets.par_iter()))
-            .map(|(e, (tmp, target))| {
-                encode_tile(&self.tiles[e.tile], e, tmp, target, provenance, opts)
-            })
-            .collect();
-        let sidecars = match result {
-            Ok(s) => s,
-            Err(err) => {
-                for t in &temps {
-                    let _ = std::fs::remove_file(t);
-                    Sidecars::discard_beside(t);
-                }
-                return Err(err);
-            }
-        };
-        for (tmp, target) in temps.iter().zip(targets) {
-            if let Err(e) = std::fs::rename(tmp, target) {
-                for t in &temps {
-                    let _ = std::fs::remove_file(t);
-                }
-                sidecars.iter().for_each(Sidecars::discard);
-                return Err(RasterError::io(target, e));
-            }
-        }
-        for s in &sidecars {
-            s.commit()?;
-        }
-        Ok(())
-    }
-
-    fn write_directory(
-        &self,
-        out: &Path,
-        edits: &[TileEdit],
-        provenance: &Provenance,
-        changed_cells: usize,
-        opts: &WriteOptions,
-    ) -> Result<WriteReport, RasterError> {
-        let stage = temp_beside(out);
-        if stage.exists() {
-            let _ = std::fs::remove_dir_all(&stage);
-        }
-        std::fs::create_dir(&stage).map_err(|e| RasterError::io(&stage, e))?;
-        let run = || -> Result<WriteReport, RasterError> {
-            let mut report = WriteReport {
-                changed_cells,
-                ..Default::default()
-            };
-            let edited: std::collections::HashSet<usize> = edits.iter().map(|e| e.tile).collect();
-            for (ti, tile) in self.tiles.iter().enumerate() {
-                if edited.contains(&ti) {
-                    continue;
-                }
-                let name = tile.path.file_name().unwrap_or_default();
-                let target = stage.join(name);
-                if std::fs::hard_link(&tile.path, &target).is_err() {
-                    std::fs::copy(&tile.path, &target).map_err(|e| RasterError::io(&target, e))?;
-                }
-                super::sidecars::copy_unchanged(&tile.path, &target)?;
-                report.tiles_unchanged.push(out.join(name));
-            }
-            let targets: Vec<PathBuf> = edits
-                .iter()
-                .map(|e| stage.join(self.tiles[e.tile].path.file_name().unwrap_or_default()))
-                .collect();
-            self.encode_and_commit(edits, &targets, provenance, opts)?;
-            report.tiles_written = edits
-                .iter()
-                .map(|e| out.join(self.tiles[e.tile].path.file_name().unwrap_or_default()))
-                .collect();
-            if out.is_dir() {
-                std::fs::remove_dir(out).map_err(|e| RasterError::io(out, e))?;
-            }
-            std::fs::rename(&stage, out).map_err(|e| RasterError::io(out, e))?;
-            Ok(report)
-        };
-        let r = run();
-        if r.is_err() {
-            let _ = std::fs::remove_dir_all(&stage);
-        }
-        r
     }
 }
 
@@ -660,6 +793,7 @@ fn encode_tile_copy(
     let mut mem = src
         .create_copy(&mem_driver, "", &RasterCreationOptions::default())
         .map_err(gerr)?;
+    super::vertical::keep_band_vertical(&src, &mem).map_err(gerr)?;
     block_patch::write_edit(&mem, &edit.block_edit()).map_err(gerr)?;
     block_patch::append_provenance(&mut mem, settings.entry).map_err(gerr)?;
     super::sidecars::clear_statistics(&mem);
@@ -716,4 +850,124 @@ fn encode_tile_copy(
         ds.close().map_err(werr)?;
     }
     Ok((extra, driver))
+}
+
+/// The process's file mode creation mask (read without changing it for
+/// longer than the call).
+fn current_umask() -> u32 {
+    use rustix::fs::Mode;
+    let old = rustix::process::umask(Mode::from_raw_mode(0o022));
+    rustix::process::umask(old);
+    old.as_raw_mode() as u32
+}
+
+/// Copy an unchanged file `src` to `dst` (a staging path; `target` is what
+/// errors name): a reflink or a byte copy of the file a symlink points to,
+/// or with `link` a hard link to that file (a copy where linking fails).
+/// Checked: same size as the source.
+fn copy_verified(src: &Path, dst: &Path, target: &Path, link: bool) -> Result<(), RasterError> {
+    let real = src.canonicalize().map_err(|e| {
+        write_err(
+            target,
+            format!("cannot read {}: {e}; nothing written", src.display()),
+        )
+    })?;
+    let linked = link && std::fs::hard_link(&real, dst).is_ok();
+    if !linked {
+        reflink_copy::reflink_or_copy(&real, dst).map_err(|e| {
+            write_err(
+                target,
+                format!("cannot copy {}: {e}; nothing written", src.display()),
+            )
+        })?;
+        std::fs::File::open(dst)
+            .and_then(|f| f.sync_all())
+            .map_err(|e| write_err(target, format!("{e}; nothing written")))?;
+    }
+    match (std::fs::metadata(&real), std::fs::metadata(dst)) {
+        (Ok(a), Ok(b)) if a.len() == b.len() => Ok(()),
+        _ => Err(write_err(
+            target,
+            format!(
+                "the copy of {} is incomplete; nothing written",
+                src.display()
+            ),
+        )),
+    }
+}
+
+/// Check a staged tile before it may replace anything: not empty, opened
+/// by GDAL with the tile's size, and (with `exact`: the output keeps the
+/// input's encoding, no `-co`) its edited window read back by GDAL equal to
+/// the values meant (the stored values with the edit merged in, as the
+/// sample type stores them), and the same window decoded by the native
+/// reader agreeing with GDAL.
+fn verify_tile(tile: &Tile, edit: &TileEdit, tmp: &Path, exact: bool) -> Result<(), String> {
+    let one = |e: &dyn std::fmt::Display| super::atomic_file::one_line(&e.to_string());
+    let size = std::fs::metadata(tmp).map_err(|e| e.to_string())?.len();
+    if size == 0 {
+        return Err("it is empty".into());
+    }
+    let ds = gdal::Dataset::open(tmp).map_err(|e| format!("GDAL cannot open it: {}", one(&e)))?;
+    let (w, h) = ds.raster_size();
+    if (w, h) != (tile.extent.width, tile.extent.height) {
+        return Err(format!(
+            "{w} x {h} pixels instead of {} x {}",
+            tile.extent.width, tile.extent.height
+        ));
+    }
+    let win = edit.local;
+    let read = |d: &gdal::Dataset| {
+        d.rasterband(1).and_then(|b| {
+            b.read_as::<f64>(
+                (win.col as isize, win.row as isize),
+                (win.width, win.height),
+                (win.width, win.height),
+                None,
+            )
+        })
+    };
+    let got = read(&ds).map_err(|e| format!("GDAL cannot read it: {}", one(&e)))?;
+    drop(ds);
+    if !exact || edit.changed == 0 {
+        return Ok(());
+    }
+    let src = gdal::Dataset::open(&tile.path).map_err(|e| one(&e))?;
+    let stored = read(&src).map_err(|e| one(&e))?;
+    let same = |a: f64, b: f64| a == b || (a.is_nan() && b.is_nan());
+    let got = got.data();
+    for (i, (&v, &old)) in edit.values.iter().zip(stored.data()).enumerate() {
+        let want = if v.is_nan() {
+            old
+        } else {
+            tile.sample_type.quantize(v)
+        };
+        if !same(got[i], want) {
+            return Err(format!(
+                "cell (col {}, row {}) reads {} instead of {want}",
+                win.col + (i % win.width) as i64,
+                win.row + (i / win.width) as i64,
+                got[i]
+            ));
+        }
+    }
+    let native = super::Dem::open(tmp)
+        .and_then(|d| d.read_window::<f64>(win))
+        .map_err(|e| format!("demsketch cannot read it back: {e}"))?;
+    let nodata = tile.nodata.map(|v| tile.sample_type.quantize(v));
+    for (i, &g) in got.iter().enumerate() {
+        let ok = if native.valid[i] {
+            same(native.data[i], g)
+        } else {
+            g.is_nan() || Some(g) == nodata
+        };
+        if !ok {
+            return Err(format!(
+                "cell (col {}, row {}): the native reader and GDAL disagree",
+                win.col + (i % win.width) as i64,
+                win.row + (i / win.width) as i64
+            ));
+        }
+    }
+    Ok(())
 }

@@ -1,38 +1,52 @@
-//! Atomic output for the renderer's files (PNG, depth TIFF, viewshed TIFF):
-//! each is written to a temporary file in the destination's directory and
-//! renamed over the destination only once complete, so an interrupted or
-//! failed write never leaves a half-written file behind.
+//! Atomic, verified output for the renderer's files (PNG, depth TIFF,
+//! viewshed TIFF): each is written into a staging directory beside the
+//! destination ([`crate::raster::atomic_file::replace_file`]: exclusive,
+//! unpredictable name, GDAL failures captured), read back and compared with
+//! what was meant, and renamed over the destination only then, so a full
+//! disk or a failed write never leaves a half-written or wrong file, and
+//! the destination keeps its old bytes.
 
 use super::RenderError;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
-/// Run `write` on a fresh temporary path beside `path`, then rename it to
-/// `path`. On any error the temporary file is removed.
+/// Run `write` on a fresh temporary path beside `path`, check the result
+/// with `verify`, then rename it to `path`. On any error `path` is left as
+/// it was and the temporary file is removed; the error names `path`.
 pub(crate) fn write_atomically(
     path: &Path,
     write: impl FnOnce(&Path) -> Result<(), RenderError>,
+    verify: impl FnOnce(&Path) -> Result<(), String>,
 ) -> Result<(), RenderError> {
-    let tmp = temp_path(path);
-    let res = write(&tmp).and_then(|()| {
-        std::fs::rename(&tmp, path).map_err(|e| RenderError::Write {
-            path: path.display().to_string(),
-            message: e.to_string(),
-        })
-    });
-    if res.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    res
+    let prefix = format!("{}: cannot write: ", path.display());
+    crate::raster::atomic_file::replace_file(
+        path,
+        |tmp| {
+            write(tmp).map_err(|e| {
+                let mut m = e.to_string();
+                while let Some(rest) = m.strip_prefix(&prefix) {
+                    m = rest.to_string();
+                }
+                m
+            })
+        },
+        verify,
+    )
+    .map_err(|message| RenderError::Write {
+        path: path.display().to_string(),
+        message,
+    })
 }
 
-fn temp_path(path: &Path) -> PathBuf {
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "out".into());
-    let nanos = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.subsec_nanos())
-        .unwrap_or(0);
-    path.with_file_name(format!(".{name}.{}-{nanos}.tmp", std::process::id()))
+/// Band 1 of the raster at `tmp`, read by GDAL, must be `width` x `height`
+/// and equal `expected` ([`crate::raster::atomic_file::verify_band`]).
+pub(crate) fn verify_band<T>(
+    tmp: &Path,
+    width: usize,
+    height: usize,
+    expected: &[T],
+) -> Result<(), String>
+where
+    T: gdal::raster::GdalType + PartialEq + Copy,
+{
+    crate::raster::atomic_file::verify_band(tmp, width, height, expected)
 }

@@ -116,20 +116,41 @@ pub fn shade(depth: &DepthBuffer, terrain: &LocalTerrain, opts: &ShadeOptions) -
 
 /// Write RGB bytes as an 8-bit PNG (atomically: temporary file, then rename).
 pub fn write_png(path: &Path, width: usize, height: usize, rgb: &[u8]) -> Result<(), RenderError> {
-    write_atomically(path, |tmp| {
-        let werr = |m: String| RenderError::Write {
-            path: path.display().to_string(),
-            message: m,
-        };
-        let file = std::fs::File::create(tmp).map_err(|e| werr(e.to_string()))?;
-        let mut enc = png::Encoder::new(std::io::BufWriter::new(file), width as u32, height as u32);
-        enc.set_color(png::ColorType::Rgb);
-        enc.set_depth(png::BitDepth::Eight);
-        let mut wr = enc.write_header().map_err(|e| werr(e.to_string()))?;
-        wr.write_image_data(rgb).map_err(|e| werr(e.to_string()))?;
-        wr.finish().map_err(|e| werr(e.to_string()))?;
-        Ok(())
-    })
+    write_atomically(
+        path,
+        |tmp| {
+            let werr = |m: String| RenderError::Write {
+                path: path.display().to_string(),
+                message: m,
+            };
+            let file = std::fs::File::create(tmp).map_err(|e| werr(e.to_string()))?;
+            let mut enc =
+                png::Encoder::new(std::io::BufWriter::new(file), width as u32, height as u32);
+            enc.set_color(png::ColorType::Rgb);
+            enc.set_depth(png::BitDepth::Eight);
+            let mut wr = enc.write_header().map_err(|e| werr(e.to_string()))?;
+            wr.write_image_data(rgb).map_err(|e| werr(e.to_string()))?;
+            wr.finish().map_err(|e| werr(e.to_string()))?;
+            Ok(())
+        },
+        |tmp| verify_png(tmp, width, height, rgb),
+    )
+}
+
+/// The PNG at `tmp` must decode to `width` x `height` RGB pixels equal to `rgb`.
+fn verify_png(tmp: &Path, width: usize, height: usize, rgb: &[u8]) -> Result<(), String> {
+    let file = std::fs::File::open(tmp).map_err(|e| e.to_string())?;
+    let mut reader = png::Decoder::new(std::io::BufReader::new(file))
+        .read_info()
+        .map_err(|e| e.to_string())?;
+    let mut buf = vec![0; reader.output_buffer_size().unwrap_or(0)];
+    let info = reader.next_frame(&mut buf).map_err(|e| e.to_string())?;
+    if (info.width as usize, info.height as usize) != (width, height)
+        || buf[..info.buffer_size()] != *rgb
+    {
+        return Err("its pixels differ from those written".into());
+    }
+    Ok(())
 }
 
 /// Nodata of a written depth buffer: sky (never a bare infinity).
@@ -153,24 +174,35 @@ pub fn depth_for_file(depth: &DepthBuffer) -> Vec<f32> {
 /// Write the depth buffer as a Float32 TIFF in image space (no
 /// georeference): metres from the eye, sky nodata ([`DEPTH_NODATA`]).
 pub fn write_depth_tiff(depth: &DepthBuffer, path: &Path) -> Result<(), RenderError> {
-    write_atomically(path, |tmp| {
-        let werr = |e: gdal::errors::GdalError| RenderError::Write {
-            path: path.display().to_string(),
-            message: e.to_string().lines().next().unwrap_or("").to_string(),
-        };
-        let driver = gdal::DriverManager::get_driver_by_name("GTiff").map_err(werr)?;
-        let ds = driver
-            .create_with_band_type::<f32, _>(tmp, depth.width, depth.height, 1)
-            .map_err(werr)?;
-        let mut band = ds.rasterband(1).map_err(werr)?;
-        band.set_no_data_value(Some(DEPTH_NODATA)).map_err(werr)?;
-        let mut buf = gdal::raster::Buffer::new((depth.width, depth.height), depth_for_file(depth));
-        band.write((0, 0), (depth.width, depth.height), &mut buf)
-            .map_err(werr)?;
-        drop(band);
-        ds.close().map_err(werr)?;
-        Ok(())
-    })
+    write_atomically(
+        path,
+        |tmp| {
+            let werr = |e: gdal::errors::GdalError| RenderError::Write {
+                path: path.display().to_string(),
+                message: e.to_string().lines().next().unwrap_or("").to_string(),
+            };
+            crate::raster::atomic_file::through_memory(tmp, None, |tmp| {
+                let driver = gdal::DriverManager::get_driver_by_name("GTiff").map_err(werr)?;
+                let mut ds = driver
+                    .create_with_band_type::<f32, _>(tmp, depth.width, depth.height, 1)
+                    .map_err(werr)?;
+                let data = depth_for_file(depth);
+                let mut band = ds.rasterband(1).map_err(werr)?;
+                band.set_no_data_value(Some(DEPTH_NODATA)).map_err(werr)?;
+                let mut buf = gdal::raster::Buffer::new((depth.width, depth.height), data);
+                band.write((0, 0), (depth.width, depth.height), &mut buf)
+                    .map_err(werr)?;
+                ds.flush_cache().map_err(werr)?;
+                ds.close().map_err(werr)?;
+                Ok::<(), RenderError>(())
+            })
+            .map_err(|message| RenderError::Write {
+                path: path.display().to_string(),
+                message,
+            })
+        },
+        |tmp| super::atomic::verify_band(tmp, depth.width, depth.height, &depth_for_file(depth)),
+    )
 }
 
 /// Draw a polyline of pixel coordinates (DESIGN.md convention: pixel `(i, j)`

@@ -43,6 +43,10 @@ pub struct Camera {
     pub up: [f64; 3],
 }
 
+/// Working memory of rendering and silhouette extraction per image pixel
+/// (an upper estimate).
+const BYTES_PER_PIXEL: u64 = 64;
+
 impl Camera {
     /// A camera; errors on an empty image or a field of view outside (0, 180).
     pub fn new(
@@ -56,6 +60,18 @@ impl Camera {
         if width == 0 || height == 0 || width > 65_535 || height > 65_535 {
             return Err(ViewError::BadCamera(format!(
                 "image size {width}x{height} must be between 1x1 and 65535x65535"
+            )));
+        }
+        // Rendering keeps a few buffers per pixel (depth, ids, colour,
+        // silhouette maps): refuse an image they cannot fit in memory
+        // rather than abort on allocation.
+        let need = (width as u64) * (height as u64) * BYTES_PER_PIXEL;
+        let budget = crate::raster::geotiff::memory_budget();
+        if need > budget {
+            return Err(ViewError::BadCamera(format!(
+                "image size {width}x{height} needs about {} MB, more than the memory budget of {} MB (DEMSKETCH_MEMORY_BUDGET_MB)",
+                need >> 20,
+                budget >> 20
             )));
         }
         if !(hfov_deg > 0.0 && hfov_deg < 180.0) {

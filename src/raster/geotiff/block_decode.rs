@@ -38,33 +38,83 @@ pub struct BlockCodec {
     pub little_endian: bool,
 }
 
+/// Room for `n` more bytes in `v`, or an error (never an abort).
+fn reserve(v: &mut Vec<u8>, n: usize) -> Result<(), BlockError> {
+    v.try_reserve(n)
+        .map_err(|_| BlockError::Decompress(format!("cannot allocate {n} bytes")))
+}
+
 /// Decompress `src` into exactly `expected` bytes (longer output is cut,
-/// shorter output is an error).
+/// shorter output is an error). Output buffers grow with the data that
+/// actually arrives (starting from a small multiple of the input), so a
+/// block that claims a huge size but holds little costs little memory.
 fn decompress(compression: u16, src: &[u8], expected: usize) -> Result<Vec<u8>, BlockError> {
-    let mut out = Vec::with_capacity(expected);
+    let initial = expected.min(src.len().saturating_mul(8).saturating_add(4096));
+    let mut out = Vec::new();
+    reserve(&mut out, initial)?;
     match compression {
         1 => out.extend_from_slice(&src[..src.len().min(expected)]),
         5 => {
             let mut dec = weezl::decode::Decoder::with_tiff_size_switch(weezl::BitOrder::Msb, 8);
-            let r = dec.into_vec(&mut out).decode(src);
+            let mut buf = [0u8; 1 << 14];
+            let mut input = src;
             // Truncated LZW streams without an end code are common and GDAL
             // accepts them when the data is complete.
-            if let Err(e) = r.status {
-                if out.len() < expected {
-                    return Err(BlockError::Decompress(format!("LZW: {e}")));
+            while out.len() < expected {
+                let r = dec.decode_bytes(input, &mut buf);
+                input = &input[r.consumed_in..];
+                let n = r.consumed_out.min(expected - out.len());
+                reserve(&mut out, n)?;
+                out.extend_from_slice(&buf[..n]);
+                match r.status {
+                    Ok(weezl::LzwStatus::Ok) if r.consumed_in > 0 || r.consumed_out > 0 => {}
+                    Ok(_) => break,
+                    Err(e) => {
+                        if out.len() < expected {
+                            return Err(BlockError::Decompress(format!("LZW: {e}")));
+                        }
+                        break;
+                    }
                 }
             }
         }
         8 | 32946 => {
-            out.resize(expected, 0);
             let mut d = flate2::Decompress::new(true);
-            d.decompress(src, &mut out, flate2::FlushDecompress::Finish)
-                .map_err(|e| BlockError::Decompress(format!("Deflate: {e}")))?;
-            out.truncate(d.total_out() as usize);
+            loop {
+                if out.len() == out.capacity() {
+                    let more = out.capacity().max(4096).min(expected - out.len());
+                    reserve(&mut out, more)?;
+                }
+                let before = (d.total_in(), d.total_out());
+                let status = d
+                    .decompress_vec(
+                        &src[d.total_in() as usize..],
+                        &mut out,
+                        flate2::FlushDecompress::Finish,
+                    )
+                    .map_err(|e| BlockError::Decompress(format!("Deflate: {e}")))?;
+                let progressed = (d.total_in(), d.total_out()) != before;
+                if status == flate2::Status::StreamEnd || out.len() >= expected || !progressed {
+                    break;
+                }
+            }
         }
         50000 => {
-            out = zstd::bulk::decompress(src, expected)
+            use std::io::Read;
+            let dec = zstd::stream::read::Decoder::with_buffer(src)
                 .map_err(|e| BlockError::Decompress(format!("ZSTD: {e}")))?;
+            let mut chunk = [0u8; 1 << 16];
+            let mut dec = dec.take(expected as u64);
+            loop {
+                let n = dec
+                    .read(&mut chunk)
+                    .map_err(|e| BlockError::Decompress(format!("ZSTD: {e}")))?;
+                if n == 0 {
+                    break;
+                }
+                reserve(&mut out, n)?;
+                out.extend_from_slice(&chunk[..n]);
+            }
         }
         32773 => {
             let mut i = 0;
@@ -74,11 +124,13 @@ fn decompress(compression: u16, src: &[u8], expected: usize) -> Result<Vec<u8>, 
                 if n >= 0 {
                     let len = n as usize + 1;
                     let end = (i + len).min(src.len());
+                    reserve(&mut out, end - i)?;
                     out.extend_from_slice(&src[i..end]);
                     i = end;
                 } else if n != -128 {
                     let len = (-(n as isize)) as usize + 1;
                     if let Some(&b) = src.get(i) {
+                        reserve(&mut out, len)?;
                         out.extend(std::iter::repeat_n(b, len));
                     }
                     i += 1;
@@ -132,7 +184,9 @@ fn undo_float_predictor_row(row: &mut [u8], size: usize, out: &mut [u8]) {
 macro_rules! typed {
     ($bytes:expr, $t:ty, $le:expr, $pred2:expr, $stored_w:expr, $w:expr, $h:expr) => {{
         const S: usize = std::mem::size_of::<$t>();
-        let mut v: Vec<$t> = Vec::with_capacity($w * $h);
+        let mut v: Vec<$t> = Vec::new();
+        v.try_reserve_exact($w * $h)
+            .map_err(|_| BlockError::Decompress(format!("cannot allocate {} samples", $w * $h)))?;
         for r in 0..$h {
             let row = &$bytes[r * $stored_w * S..(r + 1) * $stored_w * S];
             let start = v.len();
@@ -200,12 +254,25 @@ pub fn decode_block(
     h: usize,
 ) -> Result<DecodingResult, BlockError> {
     let size = codec.sample_type.bytes();
-    let expected = stored_w * stored_h * size;
+    let expected = stored_w
+        .checked_mul(stored_h)
+        .and_then(|n| n.checked_mul(size))
+        .ok_or_else(|| BlockError::Decompress("block size overflows".into()))?;
+    if let Some(max) = super::max_decompressed(codec.compression, src.len() as u64) {
+        if expected as u64 > max {
+            return Err(BlockError::Decompress(format!(
+                "{} compressed bytes cannot hold the {expected} bytes of a {stored_w} x {stored_h} block",
+                src.len()
+            )));
+        }
+    }
     let mut bytes = decompress(codec.compression, src, expected)?;
     let pred2 = codec.predictor == 2;
     if codec.predictor == 3 {
         // After the float predictor the samples are in native order.
-        let mut out = vec![0u8; expected];
+        let mut out = Vec::new();
+        reserve(&mut out, expected)?;
+        out.resize(expected, 0);
         let row_bytes = stored_w * size;
         for (row, o) in bytes
             .chunks_exact_mut(row_bytes)

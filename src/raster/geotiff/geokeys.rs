@@ -1,7 +1,7 @@
 //! GeoKeys (GeoTIFF 1.0/1.1 key directory) and their translation to a CRS:
 //! the EPSG code where the keys give one, else a PROJ definition built from
 //! the user-defined keys (projection method, parameters, ellipsoid), checked
-//! by PROJ and turned into WKT.
+//! by PROJ (through GDAL's OSR) and turned into WKT.
 
 use std::collections::HashMap;
 use std::path::Path;
@@ -46,6 +46,10 @@ const PROJ_SCALE_AT_NAT_ORIGIN: u16 = 3092;
 const PROJ_SCALE_AT_CENTER: u16 = 3093;
 const PROJ_AZIMUTH_ANGLE: u16 = 3094;
 const PROJ_STRAIGHT_VERT_POLE_LONG: u16 = 3095;
+
+const VERTICAL_CS_TYPE: u16 = 4096;
+const VERTICAL_CITATION: u16 = 4097;
+const VERTICAL_UNITS: u16 = 4099;
 
 const USER_DEFINED: u16 = 32767;
 
@@ -114,6 +118,32 @@ impl GeoKeys {
 
     fn double(&self, id: u16) -> Option<f64> {
         self.doubles.get(&id).and_then(|v| v.first().copied())
+    }
+
+    /// The vertical CRS the keys name (`VerticalCSTypeGeoKey`, GeoTIFF 1.1
+    /// and GDAL's compound CRSs): its name and (unit name, metres per unit),
+    /// from the EPSG code or from `VerticalUnitsGeoKey` and the citation.
+    pub fn vertical(&self) -> Option<(String, Option<(String, f64)>)> {
+        let code = self.short(VERTICAL_CS_TYPE).filter(|&c| c != 0);
+        let units = self.short(VERTICAL_UNITS).and_then(|u| match u {
+            9001 => Some(("metre".to_string(), 1.0)),
+            9002 => Some(("foot".to_string(), 0.3048)),
+            9003 => Some(("US survey foot".to_string(), 1200.0 / 3937.0)),
+            _ => None,
+        });
+        let citation = self.ascii.get(&VERTICAL_CITATION).cloned();
+        match code {
+            Some(c) if c != USER_DEFINED => {
+                let (name, unit) = crate::raster::vertical::vertical_of_epsg(u32::from(c))
+                    .unwrap_or_else(|| (format!("EPSG:{c}"), None));
+                Some((name, unit.or(units)))
+            }
+            _ if units.is_some() || citation.is_some() => Some((
+                citation.unwrap_or_else(|| "user-defined vertical CRS".into()),
+                units,
+            )),
+            _ => None,
+        }
     }
 
     /// PixelIsArea unless the keys say PixelIsPoint.
@@ -265,7 +295,7 @@ impl GeoKeys {
             message,
         };
         if let Some(code) = self.epsg() {
-            let srs = gdal::spatial_ref::SpatialRef::from_epsg(code)
+            let srs = crate::raster::crs::srs_from_epsg(code)
                 .map_err(|e| crs_err(format!("EPSG:{code} is not a known CRS ({e})")))?;
             return Ok(Crs {
                 epsg: Some(code),
@@ -280,25 +310,28 @@ impl GeoKeys {
             match self.user_defined_proj() {
                 Some(p) => p,
                 None => {
-                    return Err(RasterError::Unsupported {
+                    return Err(RasterError::NotNative {
                         path: path.to_path_buf(),
                         what: format!(
-                            "user-defined projection (ProjCoordTransGeoKey {:?}, ProjectionGeoKey {:?})",
-                            self.short(PROJ_COORD_TRANS),
-                            self.short(PROJECTION)
-                        ),
+                        "user-defined projection (ProjCoordTransGeoKey {}, ProjectionGeoKey {})",
+                        self.short(PROJ_COORD_TRANS)
+                            .map_or("absent".into(), |c| c.to_string()),
+                        self.short(PROJECTION)
+                            .map_or("absent".into(), |c| c.to_string())
+                    ),
                     })
                 }
             }
         };
-        proj::Proj::new(&definition).map_err(|e| {
-            crs_err(format!(
-                "PROJ rejects the CRS built from the GeoKeys '{definition}': {e}"
-            ))
-        })?;
-        let wkt = gdal::spatial_ref::SpatialRef::from_proj4(&definition)
-            .and_then(|s| s.to_wkt())
-            .unwrap_or_default();
+        // PROJ (through GDAL's OSR, which frees what it made on failure,
+        // unlike the proj crate's constructor) checks the definition.
+        let wkt = crate::raster::crs::srs_from_proj4(&definition)
+            .and_then(|s| s.to_wkt().map_err(|e| e.to_string()))
+            .map_err(|e| {
+                crs_err(format!(
+                    "PROJ rejects the CRS built from the GeoKeys '{definition}': {e}"
+                ))
+            })?;
         Ok(Crs {
             epsg: None,
             wkt,

@@ -7,7 +7,11 @@
 //! Reduced-resolution IFDs (overviews) and masks are recognised and skipped.
 
 mod block_decode;
+pub mod fuzz;
 mod geokeys;
+mod limits;
+
+pub use limits::{decoder_limits, max_decompressed, memory_budget};
 
 use block_decode::BlockCodec;
 
@@ -18,10 +22,10 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use memmap2::Mmap;
-use tiff::decoder::{ChunkType, Decoder, DecodingResult, Limits};
-use tiff::tags::{CompressionMethod, Predictor, SampleFormat, Tag};
+use tiff::decoder::{ChunkType, Decoder, DecodingResult};
+use tiff::tags::{CompressionMethod, SampleFormat, Tag};
 
-use super::{Crs, GeoTransform, RasterError, SampleType};
+use super::{Crs, GeoTransform, RasterError, SampleType, Vertical};
 
 const TAG_GDAL_METADATA: u16 = 42112;
 const TAG_GDAL_NODATA: u16 = 42113;
@@ -37,8 +41,10 @@ pub struct BlockLayout {
 }
 
 impl BlockLayout {
-    pub fn count(&self) -> u32 {
-        self.blocks_across * self.blocks_down
+    /// Number of blocks (as u64: a crafted header may claim more than a
+    /// TIFF can list).
+    pub fn count(&self) -> u64 {
+        u64::from(self.blocks_across) * u64::from(self.blocks_down)
     }
 }
 
@@ -53,7 +59,7 @@ pub struct Encoding {
 #[derive(Debug)]
 pub struct GeoTiff {
     pub path: PathBuf,
-    bytes: Arc<Mmap>,
+    bytes: Arc<Bytes>,
     /// Index of the full-resolution IFD.
     pub ifd_index: usize,
     pub width: u32,
@@ -68,11 +74,30 @@ pub struct GeoTiff {
     pub nodata: Option<f64>,
     /// The `GDAL_METADATA` XML, kept for write-back.
     pub gdal_metadata: Option<String>,
+    /// Band scale, offset, vertical unit and datum (stored value -> metres).
+    pub vertical: Vertical,
     /// Sizes of the reduced-resolution images (overviews).
     pub overviews: Vec<(u32, u32)>,
     codec: BlockCodec,
     offsets: Vec<u64>,
     counts: Vec<u64>,
+}
+
+/// The bytes of a GeoTIFF: a read-only map of the file, or a buffer.
+#[derive(Debug)]
+enum Bytes {
+    Map(Mmap),
+    Owned(Vec<u8>),
+}
+
+impl std::ops::Deref for Bytes {
+    type Target = [u8];
+    fn deref(&self) -> &[u8] {
+        match self {
+            Bytes::Map(m) => m,
+            Bytes::Owned(v) => v,
+        }
+    }
 }
 
 fn tiff_err(path: &Path, e: tiff::TiffError) -> RasterError {
@@ -87,6 +112,11 @@ fn tiff_err(path: &Path, e: tiff::TiffError) -> RasterError {
             path: path.to_path_buf(),
             what: format!("TIFF feature: {u}"),
         },
+        T::LimitsExceeded => RasterError::Corrupt {
+            path: path.to_path_buf(),
+            detail: "a tag claims more data than the file can hold (decoder limits exceeded)"
+                .into(),
+        },
         T::IoError(io) => RasterError::Corrupt {
             path: path.to_path_buf(),
             detail: io.to_string(),
@@ -98,17 +128,6 @@ fn tiff_err(path: &Path, e: tiff::TiffError) -> RasterError {
     }
 }
 
-/// The memory budget for one decoded window or block, in bytes
-/// (`DEMSKETCH_MEMORY_BUDGET_MB`, default 8192).
-pub fn memory_budget() -> u64 {
-    std::env::var("DEMSKETCH_MEMORY_BUDGET_MB")
-        .ok()
-        .and_then(|s| s.parse::<u64>().ok())
-        .unwrap_or(8192)
-        * 1024
-        * 1024
-}
-
 impl GeoTiff {
     /// Open and parse a GeoTIFF. Fails with a one-line error for files that
     /// are not TIFF, are truncated, lack a georeference or use an encoding
@@ -117,7 +136,17 @@ impl GeoTiff {
         let file = std::fs::File::open(path).map_err(|e| RasterError::io(path, e))?;
         // SAFETY: the map is read-only; a file truncated by another process
         // while mapped is outside what any GIS reader can guard against.
-        let bytes = unsafe { Mmap::map(&file) }.map_err(|e| RasterError::io(path, e))?;
+        let map = unsafe { Mmap::map(&file) }.map_err(|e| RasterError::io(path, e))?;
+        Self::parse(path, Arc::new(Bytes::Map(map)))
+    }
+
+    /// Parse a GeoTIFF held in memory (`label` names it in errors): what
+    /// the fuzz harness runs on.
+    pub fn from_bytes(label: &Path, data: Vec<u8>) -> Result<GeoTiff, RasterError> {
+        Self::parse(label, Arc::new(Bytes::Owned(data)))
+    }
+
+    fn parse(path: &Path, bytes: Arc<Bytes>) -> Result<GeoTiff, RasterError> {
         if bytes.len() < 8 || !(bytes.starts_with(b"II") || bytes.starts_with(b"MM")) {
             return Err(RasterError::NotTiff {
                 path: path.to_path_buf(),
@@ -128,10 +157,9 @@ impl GeoTiff {
                 },
             });
         }
-        let bytes = Arc::new(bytes);
         let mut dec = Decoder::new(Cursor::new(&bytes[..]))
             .map_err(|e| tiff_err(path, e))?
-            .with_limits(Limits::unlimited());
+            .with_limits(decoder_limits(bytes.len() as u64));
 
         // Walk the IFD chain: the first full-resolution, non-mask image is
         // the DEM; reduced-resolution images are its overviews.
@@ -174,7 +202,7 @@ impl GeoTiff {
 
     fn describe(
         path: &Path,
-        bytes: Arc<Mmap>,
+        bytes: Arc<Bytes>,
         mut dec: Decoder<Cursor<&[u8]>>,
         ifd_index: usize,
         overviews: Vec<(u32, u32)>,
@@ -184,6 +212,24 @@ impl GeoTiff {
             path: p.to_path_buf(),
             what,
         };
+        // No tag may claim more values than the file has bytes (a crafted
+        // count would otherwise make the decoder reserve gigabytes).
+        let file_len = bytes.len() as u64;
+        if let Some(ptr) = dec.ifd_pointer() {
+            let dir = dec.read_directory(ptr).map_err(|e| tiff_err(p, e))?;
+            let over = dir
+                .iter()
+                .find(|(_, e)| e.count() > file_len)
+                .map(|(tag, e)| (tag.to_u16(), e.count()));
+            if let Some((tag, count)) = over {
+                return Err(RasterError::Corrupt {
+                    path: p.to_path_buf(),
+                    detail: format!(
+                        "tag {tag} claims {count} values, more than the file's {file_len} bytes hold"
+                    ),
+                });
+            }
+        }
         let (width, height) = dec.dimensions().map_err(|e| tiff_err(p, e))?;
         let samples = dec
             .find_tag_unsigned::<u16>(Tag::SamplesPerPixel)
@@ -214,7 +260,16 @@ impl GeoTiff {
             (SampleFormat::Int, 32) => SampleType::Int32,
             (SampleFormat::IEEEFP, 32) => SampleType::Float32,
             (SampleFormat::IEEEFP, 64) => SampleType::Float64,
-            (f, b) => return Err(unsupported(format!("sample type {b}-bit {f:?}"))),
+            (f, b) => {
+                let kind = match f {
+                    SampleFormat::Uint => "unsigned integer".to_string(),
+                    SampleFormat::Int => "signed integer".to_string(),
+                    SampleFormat::IEEEFP => "floating point".to_string(),
+                    SampleFormat::Void => "untyped".to_string(),
+                    _ => format!("SampleFormat {}", f.to_u16()),
+                };
+                return Err(unsupported(format!("sample type {b}-bit {kind}")));
+            }
         };
         let compression = match dec
             .find_tag_unsigned::<u16>(Tag::Compression)
@@ -240,7 +295,10 @@ impl GeoTiff {
                         m => format!("{m:?}"),
                     },
                 };
-                return Err(unsupported(format!("compression {name}")));
+                return Err(RasterError::NotNative {
+                    path: p.to_path_buf(),
+                    what: format!("compression {name}"),
+                });
             }
         };
         let predictor = dec
@@ -251,10 +309,14 @@ impl GeoTiff {
             (1, _) | (2, true) | (3, false) => {}
             (2, false) => {} // horizontal differencing of floats is legal, if rare
             (pr, _) => {
+                let name = match pr {
+                    2 => " (horizontal differencing)",
+                    3 => " (floating point)",
+                    _ => "",
+                };
                 return Err(unsupported(format!(
-                    "predictor {pr} ({:?}) for {sample_type}",
-                    Predictor::from_u16(pr)
-                )))
+                    "predictor {pr}{name} for {sample_type}"
+                )));
             }
         }
         let planar = dec
@@ -303,6 +365,18 @@ impl GeoTiff {
         let counts = dec
             .get_tag_u64_vec(counts_tag)
             .map_err(|e| tiff_err(p, e))?;
+        let listed = offsets.len().min(counts.len());
+        if layout.count() > listed as u64 {
+            return Err(RasterError::Corrupt {
+                path: p.to_path_buf(),
+                detail: format!(
+                    "{} x {} pixels need {} blocks but the file lists {listed}",
+                    width,
+                    height,
+                    layout.count()
+                ),
+            });
+        }
         let expected = layout.count() as usize;
         if offsets.len() < expected || counts.len() < expected {
             return Err(RasterError::Corrupt {
@@ -315,7 +389,6 @@ impl GeoTiff {
                 ),
             });
         }
-        let file_len = bytes.len() as u64;
         for (i, (&o, &c)) in offsets.iter().zip(&counts).enumerate().take(expected) {
             if o.checked_add(c).is_none_or(|end| end > file_len) {
                 return Err(RasterError::Corrupt {
@@ -408,12 +481,26 @@ impl GeoTiff {
                 geographic: false,
             },
         };
-        let ascii_tag = |dec: &mut Decoder<Cursor<&[u8]>>, tag: u16| -> Option<String> {
-            dec.find_tag(Tag::Unknown(tag))
-                .ok()
-                .flatten()
-                .and_then(|v| v.into_string().ok())
-                .map(|s| s.trim_end_matches('\0').to_string())
+        // A GDAL tag that is there but cannot be read is an error: silently
+        // dropping it would lose the nodata value or the heights' scale.
+        let ascii_tag = |dec: &mut Decoder<Cursor<&[u8]>>,
+                         tag: u16,
+                         name: &str|
+         -> Result<Option<String>, RasterError> {
+            let unreadable = |e: String| RasterError::Corrupt {
+                path: p.to_path_buf(),
+                detail: format!("{name} tag cannot be read ({e})"),
+            };
+            match dec
+                .find_tag(Tag::Unknown(tag))
+                .map_err(|e| unreadable(e.to_string()))?
+            {
+                None => Ok(None),
+                Some(v) => v
+                    .into_string()
+                    .map(|s| Some(s.trim_end_matches('\0').to_string()))
+                    .map_err(|e| unreadable(e.to_string())),
+            }
         };
         // A GDAL_NODATA tag that is there but unreadable (not text, not a
         // number) is an error, never "no nodata": its cells would be read
@@ -438,7 +525,22 @@ impl GeoTiff {
             }
             Err(e) => return Err(corrupt(format!("the GDAL_NODATA tag is unreadable: {e}"))),
         };
-        let gdal_metadata = ascii_tag(&mut dec, TAG_GDAL_METADATA);
+        let gdal_metadata = ascii_tag(&mut dec, TAG_GDAL_METADATA, "GDAL_METADATA")?;
+        let (scale, offset, unit) = gdal_metadata
+            .as_deref()
+            .map(super::vertical::from_gdal_metadata)
+            .unwrap_or_default();
+        let (datum, crs_unit) = match keys.as_ref().and_then(|k| k.vertical()) {
+            Some((name, unit)) => (Some(name), unit),
+            None => (None, None),
+        };
+        let vertical =
+            Vertical::from_parts(scale, offset, &unit, crs_unit, datum).map_err(|message| {
+                RasterError::Crs {
+                    path: p.to_path_buf(),
+                    message,
+                }
+            })?;
         let codec = BlockCodec {
             compression: dec
                 .find_tag_unsigned::<u16>(Tag::Compression)
@@ -466,6 +568,7 @@ impl GeoTiff {
             crs,
             nodata,
             gdal_metadata,
+            vertical,
             overviews,
             codec,
             offsets: offsets[..expected].to_vec(),
