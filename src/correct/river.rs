@@ -222,11 +222,27 @@ pub fn apply(
     let r1 = (ys.fold(f64::NEG_INFINITY, f64::max) + gy)
         .ceil()
         .clamp(0.0, h) as usize;
+    // Candidates: the cells near some segment (its bounding box grown by
+    // half the width), so long winding rivers do not test their whole box.
+    let bw = c1.saturating_sub(c0);
+    let mut candidate = vec![false; bw * r1.saturating_sub(r0)];
+    for seg in pts.windows(2) {
+        let (a, b) = (seg[0], seg[1]);
+        let sc0 = ((a[0].min(b[0]) - gx).floor().max(c0 as f64) as usize).min(c1);
+        let sc1 = ((a[0].max(b[0]) + gx).ceil().max(0.0) as usize).min(c1);
+        let sr0 = ((a[1].min(b[1]) - gy).floor().max(r0 as f64) as usize).min(r1);
+        let sr1 = ((a[1].max(b[1]) + gy).ceil().max(0.0) as usize).min(r1);
+        for r in sr0..sr1 {
+            for c in sc0..sc1 {
+                candidate[(r - r0) * bw + (c - c0)] = true;
+            }
+        }
+    }
     let mut water = Vec::new();
     for r in r0..r1 {
         for c in c0..c1 {
             let i = r * grid.width() + c;
-            if grid.values[i].is_nan() {
+            if !candidate[(r - r0) * bw + (c - c0)] || grid.values[i].is_nan() {
                 continue;
             }
             let (d, s) = nearest(grid, &pts, [c as f64 + 0.5, r as f64 + 0.5]);
