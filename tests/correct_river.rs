@@ -164,3 +164,70 @@ fn flow_auto_finds_the_outlet_of_a_reversed_line() {
         "{differ} cells differ between line order and flow auto"
     );
 }
+
+#[test]
+fn river_polygon_reach_is_flat_across_its_axis_and_monotonic() {
+    // A straight east-west reach of the valley floor as a rectangle (its
+    // principal axis is the row direction), lon/lat as QGIS writes it.
+    let tmp = tempfile::tempdir().unwrap();
+    let input = Raster::read(&fixture(DEM));
+    let px = [
+        [102.0, 110.5],
+        [126.0, 110.5],
+        [126.0, 115.5],
+        [102.0, 115.5],
+        [102.0, 110.5],
+    ];
+    let utm: Vec<[f64; 2]> = px.iter().map(|&p| input.crs(p)).collect();
+    let ll = correct_support::to_lonlat(32632, &utm);
+    let fc = collection(
+        vec![
+            json!({"type": "Feature", "properties": {"kind": "river", "name": "reach"},
+            "geometry": {"type": "Polygon", "coordinates": [ll]}}),
+        ],
+        None,
+    );
+    let features = tmp.path().join("reach.geojson");
+    std::fs::write(&features, fc).unwrap();
+    let (out, rep) = (tmp.path().join("reach.tif"), tmp.path().join("reach.json"));
+    let o = demsketch(&[
+        "correct",
+        &fixture(DEM).to_string_lossy(),
+        "--features",
+        &features.to_string_lossy(),
+        "--out",
+        &out.to_string_lossy(),
+        "--report",
+        &rep.to_string_lossy(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let r = report(&rep);
+    let f = &r["corrections"][0];
+    assert_eq!(f["kind"], "river");
+    let reversed = f["reversed"].as_bool().unwrap();
+    let output = Raster::read(&out);
+    // Cells inside: columns 102..126, rows 111..115 (centres inside).
+    let mut columns = Vec::new();
+    let mut worst_across = 0f64;
+    for c in 102..126 {
+        let v: Vec<f64> = (111..115).map(|r| output.at(c, r)).collect();
+        let (lo, hi) = v
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
+                (a.min(x), b.max(x))
+            });
+        worst_across = worst_across.max(hi - lo);
+        columns.push(v[0]);
+    }
+    if reversed {
+        columns.reverse();
+    }
+    let rise = columns
+        .windows(2)
+        .map(|w| w[1] - w[0])
+        .fold(f64::NEG_INFINITY, f64::max);
+    println!("polygon reach: spread across {worst_across} m, largest rise downstream {rise} m, reversed {reversed}");
+    assert!(worst_across <= 0.01, "not flat across: {worst_across} m");
+    assert!(rise <= 0.0, "rises downstream by {rise} m");
+    assert!(f["surface_start_m"].as_f64() >= f["surface_end_m"].as_f64());
+}

@@ -21,7 +21,8 @@ by their \"kind\" property:
   lake           Polygon/MultiPolygon (holes = islands); level_m (default: the
                  lowest shoreline height), blend_m (default: 2 cells)
   river          LineString centreline, width_m; blend_m; flow \"line\" (the
-                 line runs downstream, default) or \"auto\" (lower end = outlet)
+                 line runs downstream, default) or \"auto\" (lower end = outlet);
+                 or a Polygon reach (flow along its axis, from the higher end)
   control_curve  LineString with Z heights or heights_m; influence_m
 
 Exit codes:

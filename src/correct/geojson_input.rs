@@ -12,7 +12,8 @@
 //!   `level_m` (else the lowest shoreline height) and `blend_m`.
 //! - `river`: LineString centreline with `width_m`; optional `blend_m` and
 //!   `flow` (`"line"`, the default: the line runs downstream; `"auto"`: the
-//!   lower end is the outlet).
+//!   lower end is the outlet); or a Polygon reach (flow along its
+//!   principal axis, from the higher end).
 //! - `control_curve`: LineString with heights as Z coordinates or a
 //!   `heights_m` array (one per vertex); optional `influence_m`.
 
@@ -70,6 +71,13 @@ pub enum CorrectionKind {
         /// `flow: "auto"`: the lower end is the outlet.
         flow_auto: bool,
     },
+    /// A river reach given as a polygon: flow along its principal axis
+    /// (see [`super::river::apply_polygon`]).
+    RiverArea {
+        /// The water area, pixel space.
+        area: MultiPolygon<f64>,
+        blend_m: Option<f64>,
+    },
     /// A curve the DEM must pass through.
     ControlCurve {
         /// `[x, y, z]` in the DEM's CRS and metres.
@@ -83,7 +91,7 @@ impl CorrectionKind {
     pub fn name(&self) -> &'static str {
         match self {
             CorrectionKind::Lake { .. } => "lake",
-            CorrectionKind::River { .. } => "river",
+            CorrectionKind::River { .. } | CorrectionKind::RiverArea { .. } => "river",
             CorrectionKind::ControlCurve { .. } => "control_curve",
         }
     }
@@ -327,9 +335,18 @@ fn parse_river(
 ) -> Result<CorrectionKind, String> {
     let line = match geom {
         GeometryValue::LineString { coordinates } => coordinates,
+        GeometryValue::Polygon { .. } | GeometryValue::MultiPolygon { .. } => {
+            let CorrectionKind::Lake { area, .. } = parse_lake(geom, props, t, dem)? else {
+                unreachable!("parse_lake gives a lake")
+            };
+            return Ok(CorrectionKind::RiverArea {
+                area,
+                blend_m: positive(props, "blend_m")?,
+            });
+        }
         other => {
             return Err(format!(
-                "a river must be a LineString centreline with width_m, not a {} (river polygons are not supported yet)",
+                "a river must be a LineString centreline with width_m or a Polygon, not a {}",
                 other.type_name()
             ))
         }

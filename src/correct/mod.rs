@@ -89,7 +89,9 @@ impl CorrectError {
 /// Margin in DEM pixels around a correction's geometry that it may change.
 fn margin_px(c: &Correction, cell: crate::deform::CellSize, default_blend: f64) -> [f64; 2] {
     let m = match &c.kind {
-        CorrectionKind::Lake { blend_m, .. } => blend_m.unwrap_or(default_blend),
+        CorrectionKind::Lake { blend_m, .. } | CorrectionKind::RiverArea { blend_m, .. } => {
+            blend_m.unwrap_or(default_blend)
+        }
         CorrectionKind::River {
             width_m, blend_m, ..
         } => 0.5 * width_m + blend_m.unwrap_or(default_blend) + cell.hx.max(cell.hy),
@@ -107,7 +109,7 @@ fn feature_window(
     influence: Option<f64>,
 ) -> Option<Window> {
     let b = match &c.kind {
-        CorrectionKind::Lake { area, .. } => {
+        CorrectionKind::Lake { area, .. } | CorrectionKind::RiverArea { area, .. } => {
             let r = area.bounding_rect()?;
             [r.min().x, r.min().y, r.max().x, r.max().y]
         }
@@ -332,6 +334,21 @@ fn apply_one(
                         e => ApplyError::User(e.to_string()),
                     },
                 )?;
+            r.blend_m = Some(blend);
+            r.surface_start_m = Some(res.surface_start_m);
+            r.surface_end_m = Some(res.surface_end_m);
+            r.reversed = Some(res.reversed);
+            r.surface_knots_m = Some(res.knots.clone());
+            r.water_cells = Some(res.change.water_cells);
+            r.cells_changed = res.change.cells_changed;
+            r.max_abs_dz_m = res.change.max_abs_dz_m;
+        }
+        CorrectionKind::RiverArea { area, blend_m } => {
+            let blend = blend_m.unwrap_or(default_blend);
+            let res = river::apply_polygon(grid, area, blend).map_err(|e| match e {
+                river::RiverError::Solver(s) => solver_error(s),
+                e => ApplyError::User(e.to_string()),
+            })?;
             r.blend_m = Some(blend);
             r.surface_start_m = Some(res.surface_start_m);
             r.surface_end_m = Some(res.surface_end_m);

@@ -263,3 +263,128 @@ pub fn apply(
         change,
     })
 }
+
+/// The axis of a river polygon: its principal direction in metres (unit,
+/// pixel-space components scaled by the cell size) and its centroid.
+fn principal_axis(grid: &Grid, ring: &[[f64; 2]]) -> ([f64; 2], [f64; 2]) {
+    let (hx, hy) = (grid.cell.hx, grid.cell.hy);
+    let n = ring.len() as f64;
+    let (mx, my) = (
+        ring.iter().map(|p| p[0]).sum::<f64>() / n,
+        ring.iter().map(|p| p[1]).sum::<f64>() / n,
+    );
+    let (mut sxx, mut sxy, mut syy) = (0.0, 0.0, 0.0);
+    for p in ring {
+        let (dx, dy) = ((p[0] - mx) * hx, (p[1] - my) * hy);
+        sxx += dx * dx;
+        sxy += dx * dy;
+        syy += dy * dy;
+    }
+    let angle = 0.5 * (2.0 * sxy).atan2(sxx - syy);
+    ([angle.cos(), angle.sin()], [mx, my])
+}
+
+/// Flattens a river given as a polygon (a straight-ish reach): the flow
+/// runs along the polygon's principal axis from its higher end to its
+/// lower; stations every half cell along the axis take the lowest
+/// shoreline height among the outline points that project within half a
+/// cell of them; the surface is the lower hull of their running minimum,
+/// and every cell whose centre is inside the polygon gets the surface at
+/// its projection on the axis (so the water is flat along the axis's
+/// normals). Winding rivers are better given as a centreline.
+pub fn apply_polygon(
+    grid: &mut Grid,
+    area: &geo::MultiPolygon<f64>,
+    blend_m: f64,
+) -> Result<RiverResult, RiverError> {
+    let (hx, hy) = (grid.cell.hx, grid.cell.hy);
+    let mut outline: Vec<[f64; 2]> = Vec::new();
+    for poly in &area.0 {
+        let ring: Vec<[f64; 2]> = poly
+            .exterior()
+            .coords()
+            .map(|c| grid.local([c.x, c.y]))
+            .collect();
+        for seg in ring.windows(2) {
+            let (a, b) = (seg[0], seg[1]);
+            let n = ((b[0] - a[0]).hypot(b[1] - a[1]) / 0.5).ceil().max(1.0) as usize;
+            for k in 0..n {
+                let t = k as f64 / n as f64;
+                outline.push([a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])]);
+            }
+        }
+    }
+    if outline.len() < 3 {
+        return Err(RiverError::NoCells);
+    }
+    let (u, m) = principal_axis(grid, &outline);
+    let along = |p: [f64; 2]| (p[0] - m[0]) * hx * u[0] + (p[1] - m[1]) * hy * u[1];
+    let samples: Vec<(f64, f64)> = outline
+        .iter()
+        .filter_map(|&p| grid.bilinear(p).map(|h| (along(p), h)))
+        .collect();
+    if samples.is_empty() {
+        return Err(RiverError::NoHeights);
+    }
+    let t0 = samples.iter().map(|s| s.0).fold(f64::INFINITY, f64::min);
+    let t1 = samples
+        .iter()
+        .map(|s| s.0)
+        .fold(f64::NEG_INFINITY, f64::max);
+    let step = 0.5 * hx.min(hy);
+    let n = ((t1 - t0) / step).ceil().max(1.0) as usize + 1;
+    let mut bank = vec![f64::NAN; n];
+    for &(t, h) in &samples {
+        let k = (((t - t0) / step).round() as usize).min(n - 1);
+        bank[k] = if bank[k].is_nan() { h } else { bank[k].min(h) };
+    }
+    // Upstream is the end whose first tenth of the banks is higher.
+    let tenth = (n / 10).max(1);
+    let mean = |v: &[f64]| {
+        let ok: Vec<f64> = v.iter().copied().filter(|x| !x.is_nan()).collect();
+        ok.iter().sum::<f64>() / ok.len().max(1) as f64
+    };
+    let reversed = mean(&bank[..tenth]) < mean(&bank[n - tenth..]);
+    if reversed {
+        bank.reverse();
+    }
+    let first = bank
+        .iter()
+        .copied()
+        .find(|v| !v.is_nan())
+        .ok_or(RiverError::NoHeights)?;
+    let mut run = first;
+    for v in bank.iter_mut() {
+        if !v.is_nan() {
+            run = run.min(*v);
+        }
+        *v = run;
+    }
+    let prof = lower_hull(Profile {
+        s: (0..n).map(|k| k as f64 * step).collect(),
+        z: bank,
+        knots: Vec::new(),
+    });
+    let span = (n - 1) as f64 * step;
+    let cells = super::lake::cells_inside(grid, area);
+    if cells.is_empty() {
+        return Err(RiverError::NoCells);
+    }
+    let w = grid.width();
+    let water: Vec<(usize, f64)> = cells
+        .into_iter()
+        .map(|i| {
+            let t = along([(i % w) as f64 + 0.5, (i / w) as f64 + 0.5]) - t0;
+            let s = if reversed { span - t } else { t };
+            (i, prof.at(s))
+        })
+        .collect();
+    let change = water::flatten_and_blend(grid, &water, blend_m)?;
+    Ok(RiverResult {
+        surface_start_m: prof.z[0],
+        surface_end_m: prof.z[prof.z.len() - 1],
+        reversed,
+        knots: prof.knots,
+        change,
+    })
+}
