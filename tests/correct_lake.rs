@@ -199,3 +199,75 @@ fn lake_with_an_island_at_a_given_level_in_the_dem_crs() {
     assert_eq!(output.at(74, 36).to_bits(), input.at(74, 36).to_bits());
     assert!(f["water_cells"].as_u64().unwrap() == f["cells_changed"].as_u64().unwrap());
 }
+
+#[test]
+fn coastal_lake_keeps_nodata_sea_on_a_dem_without_epsg_code() {
+    // New Zealand 1 km DEM (NZTM as WKT, NaN sea): a square lake drawn in
+    // lon/lat across the coast at level 5 m. Sea cells stay nodata; the
+    // valid cells inside are at the level.
+    use gdal::spatial_ref::{AxisMappingStrategy, CoordTransform, SpatialRef};
+    let tmp = tempfile::tempdir().unwrap();
+    let dem = fixture("nz_1km_nan_nodata.tif");
+    let input = Raster::read(&dem);
+    let ds = gdal::Dataset::open(&dem).unwrap();
+    let mut src = SpatialRef::from_wkt(&ds.projection()).unwrap();
+    src.set_axis_mapping_strategy(AxisMappingStrategy::TraditionalGisOrder);
+    let mut dst = SpatialRef::from_epsg(4326).unwrap();
+    dst.set_axis_mapping_strategy(AxisMappingStrategy::TraditionalGisOrder);
+    let t = CoordTransform::new(&src, &dst).unwrap();
+    let px = [
+        [540.0, 698.0],
+        [552.0, 698.0],
+        [552.0, 710.0],
+        [540.0, 710.0],
+        [540.0, 698.0],
+    ];
+    let ring: Vec<[f64; 2]> = px
+        .iter()
+        .map(|&p| {
+            let c = input.crs(p);
+            let (mut x, mut y, mut z) = ([c[0]], [c[1]], [0.0]);
+            t.transform_coords(&mut x, &mut y, &mut z).unwrap();
+            [x[0], y[0]]
+        })
+        .collect();
+    let fc = collection(
+        vec![
+            json!({"type": "Feature", "properties": {"kind": "lake", "name": "coast", "level_m": 5.0},
+            "geometry": {"type": "Polygon", "coordinates": [ring]}}),
+        ],
+        None,
+    );
+    let features = tmp.path().join("coast.geojson");
+    std::fs::write(&features, fc).unwrap();
+    let (out, rep) = (tmp.path().join("out.tif"), tmp.path().join("r.json"));
+    let o = demsketch(&[
+        "correct",
+        &dem.to_string_lossy(),
+        "--features",
+        &features.to_string_lossy(),
+        "--out",
+        &out.to_string_lossy(),
+        "--report",
+        &rep.to_string_lossy(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let output = Raster::read(&out);
+    let (mut sea, mut land) = (0, 0);
+    for r in 698..710 {
+        for c in 540..552 {
+            let (a, b) = (input.at(c, r), output.at(c, r));
+            if a.is_nan() {
+                assert!(b.is_nan(), "sea cell ({c}, {r}) became {b}");
+                sea += 1;
+            } else {
+                assert!((b - 5.0).abs() <= 0.01, "cell ({c}, {r}) at {b}");
+                land += 1;
+            }
+        }
+    }
+    assert!(sea > 5 && land > 5, "{sea} sea, {land} land cells");
+    let nan_in = input.v.iter().filter(|v| v.is_nan()).count();
+    let nan_out = output.v.iter().filter(|v| v.is_nan()).count();
+    assert_eq!(nan_in, nan_out);
+}
