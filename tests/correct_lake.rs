@@ -54,8 +54,9 @@ fn check_lake(
     hole: Option<&[[f64; 2]]>,
     level: f64,
     blend_m: f64,
+    check_step: bool,
+    cell: f64,
 ) {
-    let cell = input.gt[1];
     let is_lake = |c: usize, r: usize| {
         let p = [c as f64 + 0.5, r as f64 + 0.5];
         inside(ring, p) && !hole.is_some_and(|h| inside(h, p))
@@ -89,7 +90,10 @@ fn check_lake(
         }
     }
     println!("shore step max {worst_step:.2} m, DEM neighbour p99 {p99:.2} m");
-    assert!(worst_step <= p99, "shore step {worst_step} m > p99 {p99} m");
+    assert!(
+        !check_step || worst_step <= p99,
+        "shore step {worst_step} m > p99 {p99} m"
+    );
 
     let mut outside = 0;
     for r in 0..input.h {
@@ -108,7 +112,7 @@ fn check_lake(
             }
         }
     }
-    assert!(outside > 40_000);
+    assert!(outside > input.w * input.h / 2);
 }
 
 #[test]
@@ -150,7 +154,7 @@ fn reschensee_flattened_to_the_lowest_shoreline_height() {
         (level - lowest).abs() < 0.5,
         "level {level}, lowest shore {lowest}"
     );
-    check_lake(&input, &output, &ring, None, level, 500.0);
+    check_lake(&input, &output, &ring, None, level, 500.0, true, 250.0);
     assert_eq!(r["changed_cells"], f["cells_changed"]);
     assert!(f["cells_changed"].as_u64().unwrap() > f["water_cells"].as_u64().unwrap());
 }
@@ -194,7 +198,16 @@ fn lake_with_an_island_at_a_given_level_in_the_dem_crs() {
     let px =
         |v: &[[f64; 2]]| -> Vec<[f64; 2]> { v.iter().map(|p| input.pixel(p[0], p[1])).collect() };
     let (ring, hole) = (px(&utm), px(&hole_utm));
-    check_lake(&input, &output, &ring, Some(&hole), 1498.0, 100.0);
+    check_lake(
+        &input,
+        &output,
+        &ring,
+        Some(&hole),
+        1498.0,
+        100.0,
+        true,
+        250.0,
+    );
     // The island is not water: it keeps its height.
     assert_eq!(output.at(74, 36).to_bits(), input.at(74, 36).to_bits());
     assert!(f["water_cells"].as_u64().unwrap() == f["cells_changed"].as_u64().unwrap());
@@ -270,4 +283,62 @@ fn coastal_lake_keeps_nodata_sea_on_a_dem_without_epsg_code() {
     let nan_in = input.v.iter().filter(|v| v.is_nan()).count();
     let nan_out = output.v.iter().filter(|v| v.is_nan()).count();
     assert_eq!(nan_in, nan_out);
+}
+
+#[test]
+fn lake_on_a_geographic_int16_dem() {
+    // Arenal (ASTER, EPSG:4326, Int16): lon/lat needs no transform, cell
+    // sizes in metres come from the latitude; an integer level is stored
+    // exactly in Int16. The square lies on the volcano's flank, not in a
+    // basin, so a flat lake there must have a step at its uphill shore:
+    // only the level and the untouched cells beyond the blend are checked.
+    let tmp = tempfile::tempdir().unwrap();
+    let dem = fixture("arenal_aster30m_epsg4326.tif");
+    let input = Raster::read(&dem);
+    let px = [
+        [20.0, 100.0],
+        [40.0, 100.0],
+        [40.0, 120.0],
+        [20.0, 120.0],
+        [20.0, 100.0],
+    ];
+    let ring: Vec<[f64; 2]> = px.iter().map(|&p| input.crs(p)).collect();
+    let fc = collection(
+        vec![
+            json!({"type": "Feature", "properties": {"kind": "lake", "name": "arenal", "level_m": 600.0, "blend_m": 90.0},
+            "geometry": {"type": "Polygon", "coordinates": [ring]}}),
+        ],
+        None,
+    );
+    let features = tmp.path().join("arenal.geojson");
+    std::fs::write(&features, fc).unwrap();
+    let (out, rep) = (tmp.path().join("out.tif"), tmp.path().join("r.json"));
+    let o = demsketch(&[
+        "correct",
+        &dem.to_string_lossy(),
+        "--features",
+        &features.to_string_lossy(),
+        "--out",
+        &out.to_string_lossy(),
+        "--report",
+        &rep.to_string_lossy(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let r = report(&rep);
+    let cell = r["cell_size_m"][0].as_f64().unwrap();
+    assert!((cell - 30.4).abs() < 0.5, "cell {cell} m");
+    let output = Raster::read(&out);
+    let ring_px: Vec<[f64; 2]> = px.to_vec();
+    check_lake(
+        &input,
+        &output,
+        &ring_px,
+        None,
+        600.0,
+        90.0,
+        false,
+        // The smaller cell side: distances are underestimated, so only
+        // cells surely beyond the blend width are checked.
+        cell.min(r["cell_size_m"][1].as_f64().unwrap()),
+    );
 }
