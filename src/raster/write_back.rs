@@ -951,8 +951,9 @@ fn verify_tile(tile: &Tile, edit: &TileEdit, tmp: &Path, exact: bool) -> Result<
             ));
         }
     }
+    // (as stored, as GDAL reads it: no scale, offset or unit applied)
     let native = super::Dem::open(tmp)
-        .and_then(|d| d.read_window::<f64>(win))
+        .and_then(|d| d.read_window_raw::<f64>(win))
         .map_err(|e| format!("demsketch cannot read it back: {e}"))?;
     let nodata = tile.nodata.map(|v| tile.sample_type.quantize(v));
     for (i, &g) in got.iter().enumerate() {

@@ -69,67 +69,41 @@ pub const EXACT_NEAR_CELLS: f64 = 3.0;
 /// # }
 /// ```
 pub fn viewshed(terrain: &LocalTerrain, dem: &HeightMap, target_height: f64) -> Viewshed {
-    let (width, height) = (dem.width, dem.height);
-    let mut data = vec![0u8; width * height];
     let (nx, ny) = (terrain.nx, terrain.ny);
-    if nx >= 2 && ny >= 2 {
-        let sweep = Sweep::new(terrain, target_height);
-        // Per vertex, the nearest ray's answer: (offset << 1) | visible,
-        // row-major for rays along columns, column-major for the others.
-        let keys: Vec<AtomicU32> = (0..nx * ny).map(|_| AtomicU32::new(u32::MAX)).collect();
-        let keys_t: Vec<AtomicU32> = (0..nx * ny).map(|_| AtomicU32::new(u32::MAX)).collect();
-        let border = border_vertices(nx, ny);
-        let (eu, ev) = sweep.eye;
-        let (umaj, vmaj): (Vec<_>, Vec<_>) = border
-            .iter()
-            .partition(|&&(c, r)| (c as f64 - eu).abs() >= (r as f64 - ev).abs());
-        umaj.par_iter()
-            .for_each(|&(c, r)| sweep.ray(c as f64, r as f64, &terrain.z, &keys));
-        // Rays that advance along rows read the heights column by column:
-        // from a transposed copy, so that each step reads nearby memory.
-        let zt = transpose(&terrain.z, nx, ny);
-        vmaj.par_iter()
-            .for_each(|&(c, r)| sweep.ray(c as f64, r as f64, &zt, &keys_t));
-        data.par_chunks_mut(width.max(1))
-            .enumerate()
-            .for_each(|(row, out)| {
-                if row < terrain.row0 || row >= terrain.row0 + ny {
-                    return;
-                }
-                let r = row - terrain.row0;
-                for c in 0..nx {
-                    let col = terrain.col0 + c;
-                    if col >= width {
-                        break;
-                    }
-                    let visible = match sweep.near_or_invalid(c, r) {
-                        Some(v) => v,
-                        None => {
-                            let k = keys[r * nx + c]
-                                .load(Ordering::Relaxed)
-                                .min(keys_t[c * ny + r].load(Ordering::Relaxed));
-                            // a cell no ray passed (it cannot happen beyond
-                            // the near disc; cast it to be sure)
-                            if k == u32::MAX {
-                                sweep.exact(c, r)
-                            } else {
-                                k & 1 == 1
-                            }
-                        }
-                    };
-                    if visible {
-                        out[col] = 255;
-                    }
-                }
-            });
+    let sweep = Sweep::new(terrain, target_height);
+    if nx < 2 || ny < 2 {
+        return on_grid(terrain, dem, |c, r| sweep.exact(c, r));
     }
-    Viewshed {
-        width,
-        height,
-        data,
-        geotransform: dem.geotransform,
-        crs: dem.crs.clone(),
-    }
+    // Per vertex, the nearest ray's answer: (offset << 1) | visible,
+    // row-major for rays along columns, column-major for the others.
+    let keys: Vec<AtomicU32> = (0..nx * ny).map(|_| AtomicU32::new(u32::MAX)).collect();
+    let keys_t: Vec<AtomicU32> = (0..nx * ny).map(|_| AtomicU32::new(u32::MAX)).collect();
+    let (eu, ev) = sweep.eye;
+    let (umaj, vmaj): (Vec<_>, Vec<_>) = border_vertices(nx, ny)
+        .into_iter()
+        .partition(|&(c, r)| (c as f64 - eu).abs() >= (r as f64 - ev).abs());
+    umaj.par_iter()
+        .for_each(|&(c, r)| sweep.ray(c as f64, r as f64, &terrain.z, &keys));
+    // Rays that advance along rows read the heights column by column:
+    // from a transposed copy, so that each step reads nearby memory.
+    let zt = transpose(&terrain.z, nx, ny);
+    vmaj.par_iter()
+        .for_each(|&(c, r)| sweep.ray(c as f64, r as f64, &zt, &keys_t));
+    drop(zt);
+    on_grid(terrain, dem, |c, r| {
+        sweep.near_or_invalid(c, r).unwrap_or_else(|| {
+            let k = keys[r * nx + c]
+                .load(Ordering::Relaxed)
+                .min(keys_t[c * ny + r].load(Ordering::Relaxed));
+            // a vertex no ray passed (none should, beyond the near
+            // square): cast it
+            if k == u32::MAX {
+                sweep.exact(c, r)
+            } else {
+                k & 1 == 1
+            }
+        })
+    })
 }
 
 /// Column-major copy of a row-major `nx` x `ny` grid, in cache-sized
@@ -363,6 +337,17 @@ fn floor(x: f64) -> f64 {
 /// distance, like gdal_viewshed's `-md` output extent) for a target
 /// `target_height` metres above the surface.
 pub fn viewshed_exact(terrain: &LocalTerrain, dem: &HeightMap, target_height: f64) -> Viewshed {
+    let sweep = Sweep::new(terrain, target_height);
+    on_grid(terrain, dem, |c, r| sweep.exact(c, r))
+}
+
+/// The viewshed on `dem`'s grid from the answer `visible(c, r)` for each
+/// terrain vertex (rows in parallel; cells outside the terrain are 0).
+fn on_grid(
+    terrain: &LocalTerrain,
+    dem: &HeightMap,
+    visible: impl Fn(usize, usize) -> bool + Sync,
+) -> Viewshed {
     let (width, height) = (dem.width, dem.height);
     let mut data = vec![0u8; width * height];
     data.par_chunks_mut(width.max(1))
@@ -377,19 +362,7 @@ pub fn viewshed_exact(terrain: &LocalTerrain, dem: &HeightMap, target_height: f6
                 if col >= width {
                     break;
                 }
-                let Some(p) = terrain.vertex_local(c, r) else {
-                    continue;
-                };
-                let target = [p[0], p[1], p[2] + target_height];
-                let dist =
-                    (target[0] * target[0] + target[1] * target[1] + target[2] * target[2]).sqrt();
-                if dist.hypot(0.0) < 1e-9 {
-                    out[col] = 255;
-                    continue;
-                }
-                let d = [target[0] / dist, target[1] / dist, target[2] / dist];
-                let limit = dist - (1e-6 * dist + 1e-3);
-                if limit <= 0.0 || terrain.cast(d, limit).is_none() {
+                if visible(c, r) {
                     out[col] = 255;
                 }
             }
