@@ -93,3 +93,59 @@ fn worked_example_writes_report_and_dem() {
         .zip(&b.v)
         .all(|(x, y)| x.to_bits() == y.to_bits()));
 }
+
+#[test]
+fn water_mask_marks_the_water_cells() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dem = fixture("vinschgau_250m_utm32n.tif")
+        .to_string_lossy()
+        .into_owned();
+    let features = fixture("corrections/vinschgau_example.geojson")
+        .to_string_lossy()
+        .into_owned();
+    let mask = tmp.path().join("water.tif");
+    let rep = tmp.path().join("r.json");
+    let out = tmp.path().join("out.tif");
+    let (m_s, r_s, o_s) = (
+        mask.to_string_lossy().into_owned(),
+        rep.to_string_lossy().into_owned(),
+        out.to_string_lossy().into_owned(),
+    );
+    let o = demsketch(&args(
+        &dem,
+        &features,
+        &["--out", &o_s, "--report", &r_s, "--water-mask", &m_s],
+    ));
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let r = report(&rep);
+    let water: u64 = r["corrections"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|f| f["water_cells"].as_u64())
+        .sum();
+    let info = gdalinfo(&mask);
+    assert_eq!(info["bands"][0]["type"], "Byte");
+    let m = Raster::read(&mask);
+    let ones = m.v.iter().filter(|&&v| v == 1.0).count() as u64;
+    assert_eq!(ones, water);
+    // On the DEM's grid: the mask's origin is a DEM cell corner.
+    let d = Raster::read(&fixture("vinschgau_250m_utm32n.tif"));
+    let w = r["window"].as_array().unwrap();
+    let (c0, r0) = (w[0].as_f64().unwrap(), w[1].as_f64().unwrap());
+    assert_eq!(m.gt[0], d.gt[0] + c0 * d.gt[1]);
+    assert_eq!(m.gt[3], d.gt[3] + r0 * d.gt[5]);
+    // Every water cell of the mask holds the corrected DEM's water surface
+    // (lake cells at the lake's level).
+    let level = r["corrections"][0]["level_m"].as_f64().unwrap();
+    let o = Raster::read(&out);
+    let at_level = (0..m.h)
+        .flat_map(|rr| (0..m.w).map(move |cc| (cc, rr)))
+        .filter(|&(cc, rr)| m.at(cc, rr) == 1.0)
+        .filter(|&(cc, rr)| (o.at(cc + c0 as usize, rr + r0 as usize) - level).abs() < 0.01)
+        .count() as u64;
+    assert_eq!(
+        at_level,
+        r["corrections"][0]["water_cells"].as_u64().unwrap()
+    );
+}

@@ -58,6 +58,10 @@ pub struct CorrectArgs {
     /// Print the report on stdout.
     #[arg(long)]
     pub json: bool,
+    /// Also write the water cells of lakes and rivers (1, else 0) as a Byte
+    /// GeoTIFF on the grid of the corrected window (written on dry runs too).
+    #[arg(long, value_name = "MASK.tif")]
+    pub water_mask: Option<PathBuf>,
 }
 
 pub fn run(args: CorrectArgs) -> anyhow::Result<()> {
@@ -88,6 +92,10 @@ pub fn run(args: CorrectArgs) -> anyhow::Result<()> {
     let mut opts = CorrectOptions::new(destination);
     opts.report = args.report.clone();
     opts.dry_run = args.dry_run;
+    if let Some(m) = &args.water_mask {
+        demsketch::raster::output_format::output_driver(m, None).map_err(|e| anyhow::anyhow!(e))?;
+    }
+    opts.water_mask = args.water_mask.clone();
     let report = match run_correct(&args.dem, &args.features, &opts) {
         Ok(r) => r,
         Err(e) if e.is_user_error() => return Err(e.into()),

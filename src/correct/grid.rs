@@ -19,6 +19,8 @@ pub struct Grid {
     pub base: HeightMap,
     /// Current heights, row-major (NaN = nodata).
     pub values: Vec<f64>,
+    /// Cells set to a water surface by a lake or river.
+    pub water: Vec<bool>,
 }
 
 impl Grid {
@@ -26,6 +28,7 @@ impl Grid {
     pub fn new(window: Window, cell: CellSize, base: HeightMap) -> Grid {
         let values = base.data.iter().map(|&h| h as f64).collect();
         Grid {
+            water: vec![false; window.len()],
             window,
             cell,
             base,

@@ -43,8 +43,11 @@ pub struct CorrectOptions {
     pub destination: Destination,
     /// Write the report (JSON) here.
     pub report: Option<PathBuf>,
-    /// Compute everything, write only the report.
+    /// Compute everything, write only the report (and the water mask).
     pub dry_run: bool,
+    /// Also write the water cells (1) of lakes and rivers, 0 elsewhere, as
+    /// a Byte raster on the grid of the corrected window.
+    pub water_mask: Option<PathBuf>,
     pub write: WriteOptions,
     /// Largest window, in cells.
     pub max_window_cells: usize,
@@ -56,6 +59,7 @@ impl CorrectOptions {
             destination,
             report: None,
             dry_run: false,
+            water_mask: None,
             write: WriteOptions::default(),
             max_window_cells: 1 << 26,
         }
@@ -245,6 +249,9 @@ pub fn run(
         let w = dem.write_back_with(window, &values, &opts.destination, &provenance, &wopts)?;
         (w.changed_cells, w.tiles_written)
     };
+    if let Some(path) = &opts.water_mask {
+        write_water_mask(path, &dem, &grid)?;
+    }
     let output = match &opts.destination {
         Destination::InPlace => dem_path.display().to_string(),
         Destination::Path(p) => p.display().to_string(),
@@ -283,6 +290,24 @@ pub fn run(
         })?;
     }
     Ok(report)
+}
+
+/// The water mask (`--water-mask`): Byte, 1 on water cells, 0 elsewhere,
+/// on the window's grid with the DEM's CRS.
+fn write_water_mask(path: &Path, dem: &Dem, grid: &grid::Grid) -> Result<(), CorrectError> {
+    let spec = crate::raster::output_format::RasterSpec {
+        width: grid.width(),
+        height: grid.height(),
+        geotransform: Some(grid.geotransform().0),
+        crs: dem.crs.gdal_definition(),
+        nodata: None,
+        description: Some("water cells of demsketch correct (1 = water)".into()),
+        format: None,
+        creation_options: Vec::new(),
+    };
+    let band: Vec<u8> = grid.water.iter().map(|&w| u8::from(w)).collect();
+    crate::raster::output_format::write_raster(path, &spec, vec![band])?;
+    Ok(())
 }
 
 enum ApplyError {

@@ -105,6 +105,7 @@ pub fn flatten_and_blend(
             continue;
         }
         let new = if is_water[k] {
+            grid.water[i] = true;
             target[k]
         } else if !fixed[k] && values[k] != 0.0 {
             old + values[k] as f64
