@@ -1,5 +1,5 @@
 //! `demsketch correct DEM --features F.geojson --out OUT [--in-place]
-//! [--report R] [--dry-run] [--json]`: apply corrections drawn in map view
+//! [--report R] [--water-mask M] [--dry-run] [--json]`: apply corrections drawn in map view
 //! (lakes, rivers, control curves; see `demsketch::correct`) and write the
 //! corrected DEM through the same atomic write-back as `edit`.
 
