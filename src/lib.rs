@@ -20,6 +20,7 @@
 //! between views and solves.
 
 pub mod buffer_pool;
+pub mod correct;
 pub mod deform;
 pub mod edit;
 pub mod features;

@@ -1,5 +1,6 @@
 //! Subcommands of the `demsketch` binary and the mapping of errors to exit codes.
 
+pub mod correct;
 pub mod edit;
 pub mod info;
 pub mod locate;
@@ -87,6 +88,9 @@ pub enum Command {
     /// Correct a DEM so that its silhouettes match a sketch: corrected GeoTIFF/tiles, report, pictures.
     #[command(after_help = edit::EDIT_AFTER_HELP)]
     Edit(edit::EditArgs),
+    /// Apply corrections drawn in map view (GeoJSON lakes, rivers, control curves) to a DEM.
+    #[command(after_help = correct::CORRECT_AFTER_HELP)]
+    Correct(correct::CorrectArgs),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
@@ -97,6 +101,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::View(a) => view::run(a),
         Command::Locate(a) => locate::run(a),
         Command::Edit(a) => edit::run(a),
+        Command::Correct(a) => correct::run(a),
     }
 }
 

@@ -1,0 +1,181 @@
+//! Control curves (Maquettier section III, positional constraints): a 3D
+//! polyline the corrected DEM must pass through. The curve is rasterised
+//! into displacement constraints by the deformation's own rule
+//! ([`crate::deform::constraints::rasterise`]: every cell in the bilinear
+//! stencil of a curve point), the displacement is diffused by the multigrid
+//! over the cells within the influence distance
+//! ([`crate::deform::locality::influence_mask`]) and is exactly 0 beyond
+//! it, so those cells stay bit-identical. This is the edit pipeline's solve
+//! applied to the current heights of the correction run, so it composes
+//! with the lakes and rivers before it.
+
+use crate::deform::locality::{affected_window, default_influence_m, influence_mask};
+use crate::deform::multigrid::{self, MultigridError, MultigridOptions};
+use crate::deform::{constraints, CurveConstraint};
+use crate::raster::Dem;
+
+use super::grid::Grid;
+
+/// What a control curve did.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CurveResult {
+    /// The influence distance used, metres.
+    pub influence_m: f64,
+    /// Cells whose height changed.
+    pub cells_changed: usize,
+    /// Largest `|new - old|`, metres.
+    pub max_abs_dz_m: f64,
+    /// Largest `|DEM - z|` along the curve afterwards (bilinear, every
+    /// half cell), metres.
+    pub max_curve_error_m: f64,
+}
+
+/// Why a control curve could not be applied (a user error).
+#[derive(Debug, thiserror::Error)]
+pub enum CurveError {
+    #[error("the curve passes over no valid DEM cell")]
+    NothingConstrained,
+    #[error("solver: {0}")]
+    Solver(#[from] MultigridError),
+}
+
+/// The influence distance of a curve: the given one, else the edit's default.
+pub fn influence_for(dem: &Dem, grid: &Grid, points: &[[f64; 3]], given: Option<f64>) -> f64 {
+    given.unwrap_or_else(|| {
+        let curve = CurveConstraint {
+            points: points.to_vec(),
+        };
+        default_influence_m(dem, &[curve], grid.cell)
+    })
+}
+
+/// Deforms the current heights so that they pass through the curve.
+pub fn apply(
+    dem: &Dem,
+    grid: &mut Grid,
+    points: &[[f64; 3]],
+    influence_m: f64,
+) -> Result<CurveResult, CurveError> {
+    let curve = CurveConstraint {
+        points: points.to_vec(),
+    };
+    let cell = grid.cell;
+    let win = affected_window(dem, std::slice::from_ref(&curve), cell, influence_m)
+        .and_then(|w| w.intersect(&grid.window))
+        .ok_or(CurveError::NothingConstrained)?;
+    let (lc, lr) = (
+        (win.col - grid.window.col) as usize,
+        (win.row - grid.window.row) as usize,
+    );
+    let hm = grid.current().crop(lc, lr, win.width, win.height);
+    let curves = std::slice::from_ref(&curve);
+    let cons = constraints::rasterise(&hm, curves, cell);
+    if cons.count == 0 {
+        return Err(CurveError::NothingConstrained);
+    }
+    let inside = influence_mask(&cons, cell, influence_m);
+    let n = win.len();
+    let mut fixed = vec![true; n];
+    for i in 0..n {
+        if !cons.constrained[i] && inside[i] && !hm.data[i].is_nan() {
+            fixed[i] = false;
+        }
+    }
+    let opts = MultigridOptions {
+        tolerance: 1e-6,
+        max_cycles: 300,
+        ..MultigridOptions::default()
+    };
+    // Positional constraints as the paper's least-squares fit asks: the
+    // heights of the constrained cells that make the bilinear surface pass
+    // through the curve ([`super::curve_fit`]), starting from the curve's
+    // height at each cell's closest curve point (the rasteriser run on a
+    // zero surface gives exactly `z(q*)`); the displacement they ask for is
+    // then diffused over the free cells.
+    let mut zero = hm.clone();
+    for h in zero.data.iter_mut().filter(|h| !h.is_nan()) {
+        *h = 0.0;
+    }
+    let at_curve = constraints::rasterise(&zero, curves, cell);
+    let keep: Vec<bool> = (0..n)
+        .map(|i| cons.constrained[i] && at_curve.constrained[i])
+        .collect();
+    let h0: Vec<f64> = (0..n).map(|i| at_curve.delta[i] as f64).collect();
+    let gt = hm.geotransform;
+    let local: Vec<[f64; 3]> = points
+        .iter()
+        .filter_map(|p| gt.crs_to_pixel(p[0], p[1]).map(|(x, y)| [x, y, p[2]]))
+        .collect();
+    let (fitted, _) = super::curve_fit::fit(win.width, win.height, &keep, &h0, &local);
+    let mut values: Vec<f32> = (0..n)
+        .map(|i| {
+            if keep[i] {
+                (fitted[i] - hm.data[i] as f64) as f32
+            } else if cons.constrained[i] {
+                cons.delta[i]
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    multigrid::solve(
+        win.width,
+        win.height,
+        cell.hx,
+        cell.hy,
+        &fixed,
+        &mut values,
+        &opts,
+    )?;
+    let (mut cells_changed, mut max_abs) = (0, 0f64);
+    for r in 0..win.height {
+        for c in 0..win.width {
+            let m = values[r * win.width + c];
+            let i = (r + lr) * grid.width() + c + lc;
+            if m == 0.0 || m.is_nan() || grid.values[i].is_nan() {
+                continue;
+            }
+            grid.values[i] += m as f64;
+            cells_changed += 1;
+            max_abs = max_abs.max(m.abs() as f64);
+        }
+    }
+    Ok(CurveResult {
+        influence_m,
+        cells_changed,
+        max_abs_dz_m: max_abs,
+        max_curve_error_m: curve_error(grid, points),
+    })
+}
+
+/// Largest `|DEM - z|` along the curve (bilinear on the current heights,
+/// every half cell; points over nodata are skipped).
+pub fn curve_error(grid: &Grid, points: &[[f64; 3]]) -> f64 {
+    let gt = grid.geotransform();
+    let px: Vec<[f64; 3]> = points
+        .iter()
+        .filter_map(|p| gt.crs_to_pixel(p[0], p[1]).map(|(x, y)| [x, y, p[2]]))
+        .collect();
+    let mut worst = 0f64;
+    let mut check = |x: f64, y: f64, z: f64| {
+        if let Some(h) = grid.bilinear([x, y]) {
+            worst = worst.max((h - z).abs());
+        }
+    };
+    if px.len() == 1 {
+        check(px[0][0], px[0][1], px[0][2]);
+    }
+    for seg in px.windows(2) {
+        let (a, b) = (seg[0], seg[1]);
+        let n = ((b[0] - a[0]).hypot(b[1] - a[1]) / 0.5).ceil().max(1.0) as usize;
+        for k in 0..=n {
+            let t = k as f64 / n as f64;
+            check(
+                a[0] + t * (b[0] - a[0]),
+                a[1] + t * (b[1] - a[1]),
+                a[2] + t * (b[2] - a[2]),
+            );
+        }
+    }
+    worst
+}

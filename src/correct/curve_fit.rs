@@ -1,0 +1,172 @@
+//! The positional constraints of a control curve as a least-squares fit
+//! (Maquettier section III-B, equations 3 and 4): the heights of the
+//! constrained cells are chosen so that the bilinear surface between cell
+//! centres passes through the curve at sample points every tenth of a cell,
+//!
+//! `min sum_q (sum_c w_c(q) h_c - z(q))^2 + lambda sum_c (h_c - h0_c)^2`,
+//!
+//! where `w_c(q)` are the bilinear weights of the four cells around `q`
+//! (all of them constrained by the rasteriser's rule), `h0` the start
+//! (the curve's height at each cell's closest curve point) and the small
+//! damping `lambda` keeps the system well posed where the samples do not
+//! determine a cell. Solved by CGLS (conjugate gradients on the normal
+//! equations), which needs only products with the sparse sampling matrix.
+
+/// One sample: the window indices and weights of its bilinear stencil and
+/// the height it asks for.
+struct Sample {
+    cells: [usize; 4],
+    weights: [f64; 4],
+    z: f64,
+}
+
+/// Damping `lambda` of the fit.
+const DAMPING: f64 = 1e-8;
+
+/// Fits the heights of the constrained cells (`h0[i]` for `constrained[i]`,
+/// window of width `w`) to the curve `px` (window pixel space, `[x, y, z]`).
+/// Returns the fitted heights (same indexing as `h0`; unconstrained cells
+/// unchanged) and the largest remaining `|bilinear - z|` at the samples.
+pub fn fit(
+    w: usize,
+    h: usize,
+    constrained: &[bool],
+    h0: &[f64],
+    px: &[[f64; 3]],
+) -> (Vec<f64>, f64) {
+    let mut unknown = vec![usize::MAX; constrained.len()];
+    let mut cells = Vec::new();
+    for (i, &k) in constrained.iter().enumerate() {
+        if k {
+            unknown[i] = cells.len();
+            cells.push(i);
+        }
+    }
+    let samples = samples(w, h, &unknown, px);
+    let mut x: Vec<f64> = cells.iter().map(|&i| h0[i]).collect();
+    if samples.is_empty() {
+        return (h0.to_vec(), 0.0);
+    }
+    let apply = |x: &[f64]| -> Vec<f64> {
+        samples
+            .iter()
+            .map(|s| (0..4).map(|k| s.weights[k] * x[unknown[s.cells[k]]]).sum())
+            .collect()
+    };
+    let apply_t = |r: &[f64]| -> Vec<f64> {
+        let mut out = vec![0.0; cells.len()];
+        for (s, &rv) in samples.iter().zip(r) {
+            for k in 0..4 {
+                out[unknown[s.cells[k]]] += s.weights[k] * rv;
+            }
+        }
+        out
+    };
+    // CGLS for the correction d = x - h0 of the damped problem.
+    let ax = apply(&x);
+    let mut r: Vec<f64> = samples.iter().zip(&ax).map(|(s, a)| s.z - a).collect();
+    let mut d = vec![0.0; cells.len()];
+    let mut s_vec = apply_t(&r);
+    let mut p = s_vec.clone();
+    let mut gamma: f64 = s_vec.iter().map(|v| v * v).sum();
+    for _ in 0..5000 {
+        if gamma < 1e-18 {
+            break;
+        }
+        let q = apply(&p);
+        let denom: f64 =
+            q.iter().map(|v| v * v).sum::<f64>() + DAMPING * p.iter().map(|v| v * v).sum::<f64>();
+        if denom <= 0.0 {
+            break;
+        }
+        let alpha = gamma / denom;
+        for (di, pi) in d.iter_mut().zip(&p) {
+            *di += alpha * pi;
+        }
+        for (ri, qi) in r.iter_mut().zip(&q) {
+            *ri -= alpha * qi;
+        }
+        s_vec = apply_t(&r);
+        for (si, di) in s_vec.iter_mut().zip(&d) {
+            *si -= DAMPING * di;
+        }
+        let g: f64 = s_vec.iter().map(|v| v * v).sum();
+        let beta = g / gamma;
+        gamma = g;
+        for (pi, si) in p.iter_mut().zip(&s_vec) {
+            *pi = si + beta * *pi;
+        }
+    }
+    for (xi, di) in x.iter_mut().zip(&d) {
+        *xi += di;
+    }
+    let fitted = apply(&x);
+    let worst = samples
+        .iter()
+        .zip(&fitted)
+        .map(|(s, f)| (f - s.z).abs())
+        .fold(0.0, f64::max);
+    let mut out = h0.to_vec();
+    for (k, &i) in cells.iter().enumerate() {
+        out[i] = x[k];
+    }
+    (out, worst)
+}
+
+/// Samples every tenth of a cell along the curve whose four stencil cells
+/// are all unknowns.
+fn samples(w: usize, h: usize, unknown: &[usize], px: &[[f64; 3]]) -> Vec<Sample> {
+    let mut out = Vec::new();
+    let mut add = |x: f64, y: f64, z: f64| {
+        let (fx0, fy0) = (x - 0.5, y - 0.5);
+        if fx0 < 0.0 || fy0 < 0.0 {
+            return;
+        }
+        let (c0, r0) = (fx0.floor() as usize, fy0.floor() as usize);
+        let (fx, fy) = (fx0 - c0 as f64, fy0 - r0 as f64);
+        let (c1, r1) = (c0 + 1, r0 + 1);
+        if c1 >= w || r1 >= h {
+            return;
+        }
+        let cells = [r0 * w + c0, r0 * w + c1, r1 * w + c0, r1 * w + c1];
+        let weights = [
+            (1.0 - fx) * (1.0 - fy),
+            fx * (1.0 - fy),
+            (1.0 - fx) * fy,
+            fx * fy,
+        ];
+        // A corner with zero weight need not be an unknown.
+        if (0..4).any(|k| weights[k] > 0.0 && unknown[cells[k]] == usize::MAX) {
+            return;
+        }
+        let mut weights = weights;
+        let mut cells = cells;
+        for k in 0..4 {
+            if unknown[cells[k]] == usize::MAX {
+                weights[k] = 0.0;
+                cells[k] = cells
+                    .iter()
+                    .copied()
+                    .find(|&c| unknown[c] != usize::MAX)
+                    .unwrap_or(cells[k]);
+            }
+        }
+        out.push(Sample { cells, weights, z });
+    };
+    if px.len() == 1 {
+        add(px[0][0], px[0][1], px[0][2]);
+    }
+    for seg in px.windows(2) {
+        let (a, b) = (seg[0], seg[1]);
+        let n = ((b[0] - a[0]).hypot(b[1] - a[1]) / 0.1).ceil().max(1.0) as usize;
+        for k in 0..=n {
+            let t = k as f64 / n as f64;
+            add(
+                a[0] + t * (b[0] - a[0]),
+                a[1] + t * (b[1] - a[1]),
+                a[2] + t * (b[2] - a[2]),
+            );
+        }
+    }
+    out
+}

@@ -1,0 +1,434 @@
+//! Reading corrections from GeoJSON as QGIS writes it: a `FeatureCollection`
+//! whose coordinates are WGS84 lon/lat (the RFC 7946 default) or, when the
+//! file carries the legacy `crs` member (`{"type": "name", "properties":
+//! {"name": "urn:ogc:def:crs:EPSG::32632"}}`), that CRS. Every feature is
+//! turned into a [`Correction`] in the DEM's pixel space (and, for control
+//! curves, its CRS), and validated: a one-line error names the feature by
+//! its index and its `id` or `name`, and nothing is corrected when any
+//! feature is bad.
+//!
+//! The feature's `kind` property says what it is:
+//! - `lake`: Polygon or MultiPolygon (holes are islands); optional
+//!   `level_m` (else the lowest shoreline height) and `blend_m`.
+//! - `river`: LineString centreline with `width_m`; optional `blend_m` and
+//!   `flow` (`"line"`, the default: the line runs downstream; `"auto"`: the
+//!   lower end is the outlet); or a Polygon reach (flow along its
+//!   principal axis, from the higher end).
+//! - `control_curve`: LineString with heights as Z coordinates or a
+//!   `heights_m` array (one per vertex); optional `influence_m`.
+
+use std::path::Path;
+use std::str::FromStr;
+
+use geo::{Coord, LineString, MultiPolygon, Polygon, Validation};
+use geojson::{GeoJson, GeometryValue, JsonObject, Position};
+
+use crate::raster::Dem;
+use crate::view::Georef;
+
+/// One validated correction, in the DEM's pixel space (`(px, py)`, cell
+/// centres at `+0.5`).
+#[derive(Debug, Clone)]
+pub struct Correction {
+    /// Index of the feature in the collection.
+    pub index: usize,
+    /// The feature's `id` (or `name` property), if any.
+    pub id: Option<String>,
+    pub kind: CorrectionKind,
+}
+
+impl Correction {
+    /// `feature 3 ("north_lake")`, for messages.
+    pub fn label(&self) -> String {
+        label(self.index, self.id.as_deref())
+    }
+}
+
+fn label(index: usize, id: Option<&str>) -> String {
+    match id {
+        Some(id) => format!("feature {index} (\"{id}\")"),
+        None => format!("feature {index}"),
+    }
+}
+
+/// What a correction does.
+#[derive(Debug, Clone)]
+pub enum CorrectionKind {
+    /// A lake flattened to one level, islands as holes.
+    Lake {
+        /// The water area, pixel space.
+        area: MultiPolygon<f64>,
+        level_m: Option<f64>,
+        blend_m: Option<f64>,
+    },
+    /// A river, flat across and non-increasing downstream.
+    River {
+        /// Centreline, pixel space, upstream first (already reversed for
+        /// `flow: "auto"` when needed, see [`super::river`]).
+        centreline: Vec<[f64; 2]>,
+        width_m: f64,
+        blend_m: Option<f64>,
+        /// `flow: "auto"`: the lower end is the outlet.
+        flow_auto: bool,
+    },
+    /// A river reach given as a polygon: flow along its principal axis
+    /// (see [`super::river::apply_polygon`]).
+    RiverArea {
+        /// The water area, pixel space.
+        area: MultiPolygon<f64>,
+        blend_m: Option<f64>,
+    },
+    /// A curve the DEM must pass through.
+    ControlCurve {
+        /// `[x, y, z]` in the DEM's CRS and metres.
+        points: Vec<[f64; 3]>,
+        influence_m: Option<f64>,
+    },
+}
+
+impl CorrectionKind {
+    /// The `kind` property's value.
+    pub fn name(&self) -> &'static str {
+        match self {
+            CorrectionKind::Lake { .. } => "lake",
+            CorrectionKind::River { .. } | CorrectionKind::RiverArea { .. } => "river",
+            CorrectionKind::ControlCurve { .. } => "control_curve",
+        }
+    }
+}
+
+/// How the file's coordinates map to the DEM's CRS.
+enum Transform {
+    Identity,
+    Proj(proj::Proj),
+    LonLat(Georef),
+}
+
+impl Transform {
+    fn apply(&self, x: f64, y: f64) -> Result<(f64, f64), String> {
+        match self {
+            Transform::Identity => Ok((x, y)),
+            Transform::LonLat(g) => g.lonlat_to_crs(x, y).map_err(|e| e.to_string()),
+            Transform::Proj(p) => {
+                let r = p.convert((x, y)).map_err(|e| e.to_string())?;
+                if r.0.is_finite() && r.1.is_finite() {
+                    Ok(r)
+                } else {
+                    Err(format!("no position in the DEM's CRS for ({x}, {y})"))
+                }
+            }
+        }
+    }
+}
+
+/// Reads and validates every feature of `path` against `dem`. The error is
+/// one line naming the file and, where it is about one feature, the feature.
+pub fn read(path: &Path, dem: &Dem) -> Result<Vec<Correction>, String> {
+    let p = path.display();
+    let text = std::fs::read_to_string(path).map_err(|e| format!("{p}: cannot read: {e}"))?;
+    let gj = GeoJson::from_str(&text).map_err(|e| {
+        format!(
+            "{p}: not GeoJSON: {}",
+            e.to_string().lines().next().unwrap_or("")
+        )
+    })?;
+    let fc = match gj {
+        GeoJson::FeatureCollection(fc) => fc,
+        _ => return Err(format!("{p}: expected a GeoJSON FeatureCollection")),
+    };
+    let transform =
+        transform_for(fc.foreign_members.as_ref(), dem).map_err(|m| format!("{p}: {m}"))?;
+    if fc.features.is_empty() {
+        return Err(format!("{p}: the FeatureCollection has no features"));
+    }
+    fc.features
+        .iter()
+        .enumerate()
+        .map(|(i, f)| {
+            let props = f.properties.clone().unwrap_or_default();
+            let id = feature_id(f, &props);
+            parse_feature(i, id.clone(), f.geometry.as_ref(), &props, &transform, dem)
+                .map_err(|m| format!("{p}: {}: {m}", label(i, id.as_deref())))
+        })
+        .collect()
+}
+
+/// The feature's `id` member, else its `id` or `name` property.
+fn feature_id(f: &geojson::Feature, props: &JsonObject) -> Option<String> {
+    if let Some(id) = &f.id {
+        return Some(match id {
+            geojson::feature::Id::String(s) => s.clone(),
+            geojson::feature::Id::Number(n) => n.to_string(),
+        });
+    }
+    ["id", "name"].iter().find_map(|k| match props.get(*k) {
+        Some(serde_json::Value::String(s)) => Some(s.clone()),
+        Some(serde_json::Value::Number(n)) => Some(n.to_string()),
+        _ => None,
+    })
+}
+
+/// The EPSG code named by a legacy `crs` member, `None` for lon/lat.
+fn legacy_epsg(members: Option<&JsonObject>) -> Result<Option<u32>, String> {
+    let Some(crs) = members.and_then(|m| m.get("crs")) else {
+        return Ok(None);
+    };
+    let name = crs
+        .get("properties")
+        .and_then(|p| p.get("name"))
+        .and_then(|n| n.as_str())
+        .ok_or("the \"crs\" member has no properties.name")?;
+    if name.contains("CRS84") {
+        return Ok(None);
+    }
+    let up = name.to_ascii_uppercase();
+    let digits: String = up
+        .rsplit(|c: char| !c.is_ascii_digit())
+        .next()
+        .unwrap_or("")
+        .to_string();
+    match (up.contains("EPSG"), digits.parse::<u32>()) {
+        (true, Ok(4326)) => Ok(None),
+        (true, Ok(code)) => Ok(Some(code)),
+        _ => Err(format!(
+            "the \"crs\" member names \"{name}\"; only EPSG codes and CRS84 are understood"
+        )),
+    }
+}
+
+fn transform_for(members: Option<&JsonObject>, dem: &Dem) -> Result<Transform, String> {
+    let name = dem.path.display().to_string();
+    match legacy_epsg(members)? {
+        Some(code) if dem.crs.epsg == Some(code) => Ok(Transform::Identity),
+        Some(code) => {
+            let def = dem.crs.proj_definition();
+            proj::Proj::new_known_crs(&format!("EPSG:{code}"), &def, None)
+                .map(Transform::Proj)
+                .map_err(|e| format!("no transformation from EPSG:{code} to the DEM's CRS: {e}"))
+        }
+        None if dem.crs.epsg == Some(4326) => Ok(Transform::Identity),
+        None => Georef::for_crs(&dem.crs, &name)
+            .map(Transform::LonLat)
+            .map_err(|e| e.to_string()),
+    }
+}
+
+fn number(props: &JsonObject, key: &str) -> Result<Option<f64>, String> {
+    match props.get(key) {
+        None | Some(serde_json::Value::Null) => Ok(None),
+        Some(v) => match v.as_f64() {
+            Some(x) if x.is_finite() => Ok(Some(x)),
+            _ => Err(format!("property {key} must be a number, not {v}")),
+        },
+    }
+}
+
+fn positive(props: &JsonObject, key: &str) -> Result<Option<f64>, String> {
+    match number(props, key)? {
+        Some(x) if x <= 0.0 => Err(format!("property {key} must be positive, not {x}")),
+        v => Ok(v),
+    }
+}
+
+fn parse_feature(
+    index: usize,
+    id: Option<String>,
+    geometry: Option<&geojson::Geometry>,
+    props: &JsonObject,
+    t: &Transform,
+    dem: &Dem,
+) -> Result<Correction, String> {
+    let kind = match props.get("kind") {
+        Some(serde_json::Value::String(s)) => s.as_str(),
+        Some(v) => return Err(format!("property kind must be a string, not {v}")),
+        None => return Err("no \"kind\" property (lake, river or control_curve)".into()),
+    };
+    let geom = &geometry.ok_or("has no geometry")?.value;
+    let kind = match kind {
+        "lake" => parse_lake(geom, props, t, dem)?,
+        "river" => parse_river(geom, props, t, dem)?,
+        "control_curve" => parse_curve(geom, props, t, dem)?,
+        other => {
+            return Err(format!(
+                "unknown kind \"{other}\" (expected lake, river or control_curve)"
+            ))
+        }
+    };
+    Ok(Correction { index, id, kind })
+}
+
+/// A position in the DEM's CRS and pixel space, checked to lie on the DEM.
+fn place(pos: &Position, t: &Transform, dem: &Dem) -> Result<([f64; 2], [f64; 2]), String> {
+    let c = pos.as_slice();
+    if c.len() < 2 || !c.iter().all(|v| v.is_finite()) {
+        return Err(format!("position {c:?} is not a finite [x, y]"));
+    }
+    let (x, y) = t.apply(c[0], c[1])?;
+    let (px, py) = dem
+        .geotransform
+        .crs_to_pixel(x, y)
+        .ok_or("the DEM's geotransform is singular")?;
+    if !(px >= 0.0 && py >= 0.0 && px <= dem.width as f64 && py <= dem.height as f64) {
+        return Err(format!(
+            "position ({}, {}) lies outside the DEM",
+            c[0], c[1]
+        ));
+    }
+    Ok(([x, y], [px, py]))
+}
+
+fn ring(r: &[Position], t: &Transform, dem: &Dem) -> Result<LineString<f64>, String> {
+    let pts = r
+        .iter()
+        .map(|p| place(p, t, dem).map(|(_, px)| Coord { x: px[0], y: px[1] }))
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(LineString::new(pts))
+}
+
+fn polygon(rings: &[Vec<Position>], t: &Transform, dem: &Dem) -> Result<Polygon<f64>, String> {
+    let (outer, holes) = rings.split_first().ok_or("a polygon without rings")?;
+    if outer.len() < 4 {
+        return Err("a polygon ring needs at least 4 positions".into());
+    }
+    let outer = ring(outer, t, dem)?;
+    let holes = holes
+        .iter()
+        .map(|h| ring(h, t, dem))
+        .collect::<Result<Vec<_>, _>>()?;
+    let poly = Polygon::new(outer, holes);
+    poly.check_validation()
+        .map_err(|e| format!("invalid polygon: {e}"))?;
+    Ok(poly)
+}
+
+fn parse_lake(
+    geom: &GeometryValue,
+    props: &JsonObject,
+    t: &Transform,
+    dem: &Dem,
+) -> Result<CorrectionKind, String> {
+    let polys = match geom {
+        GeometryValue::Polygon { coordinates } => vec![polygon(coordinates, t, dem)?],
+        GeometryValue::MultiPolygon { coordinates } => coordinates
+            .iter()
+            .map(|p| polygon(p, t, dem))
+            .collect::<Result<_, _>>()?,
+        other => {
+            return Err(format!(
+                "a lake must be a Polygon or MultiPolygon, not a {}",
+                other.type_name()
+            ))
+        }
+    };
+    Ok(CorrectionKind::Lake {
+        area: MultiPolygon::new(polys),
+        level_m: number(props, "level_m")?,
+        blend_m: positive(props, "blend_m")?,
+    })
+}
+
+fn parse_river(
+    geom: &GeometryValue,
+    props: &JsonObject,
+    t: &Transform,
+    dem: &Dem,
+) -> Result<CorrectionKind, String> {
+    let line = match geom {
+        GeometryValue::LineString { coordinates } => coordinates,
+        GeometryValue::Polygon { .. } | GeometryValue::MultiPolygon { .. } => {
+            let CorrectionKind::Lake { area, .. } = parse_lake(geom, props, t, dem)? else {
+                unreachable!("parse_lake gives a lake")
+            };
+            return Ok(CorrectionKind::RiverArea {
+                area,
+                blend_m: positive(props, "blend_m")?,
+            });
+        }
+        other => {
+            return Err(format!(
+                "a river must be a LineString centreline with width_m or a Polygon, not a {}",
+                other.type_name()
+            ))
+        }
+    };
+    let centreline = line
+        .iter()
+        .map(|p| place(p, t, dem).map(|(_, px)| px))
+        .collect::<Result<Vec<_>, _>>()?;
+    if centreline.len() < 2 || centreline.windows(2).all(|w| w[0] == w[1]) {
+        return Err("a river centreline needs two distinct positions".into());
+    }
+    let width_m = positive(props, "width_m")?.ok_or("a river centreline needs width_m")?;
+    let flow_auto = match props.get("flow").and_then(|v| v.as_str()) {
+        None | Some("line") => false,
+        Some("auto") => true,
+        Some(other) => return Err(format!("flow \"{other}\" must be \"line\" or \"auto\"")),
+    };
+    Ok(CorrectionKind::River {
+        centreline,
+        width_m,
+        blend_m: positive(props, "blend_m")?,
+        flow_auto,
+    })
+}
+
+fn parse_curve(
+    geom: &GeometryValue,
+    props: &JsonObject,
+    t: &Transform,
+    dem: &Dem,
+) -> Result<CorrectionKind, String> {
+    let line = match geom {
+        GeometryValue::LineString { coordinates } => coordinates,
+        other => {
+            return Err(format!(
+                "a control curve must be a LineString, not a {}",
+                other.type_name()
+            ))
+        }
+    };
+    if line.is_empty() {
+        return Err("a control curve needs at least one position".into());
+    }
+    let heights: Option<Vec<f64>> = match props.get("heights_m") {
+        None | Some(serde_json::Value::Null) => None,
+        Some(serde_json::Value::Array(a)) => Some(
+            a.iter()
+                .map(|v| v.as_f64().filter(|x| x.is_finite()))
+                .collect::<Option<Vec<_>>>()
+                .ok_or("heights_m must be an array of numbers")?,
+        ),
+        Some(_) => return Err("heights_m must be an array of numbers".into()),
+    };
+    if let Some(h) = &heights {
+        if h.len() != line.len() {
+            return Err(format!(
+                "heights_m has {} values for {} positions",
+                h.len(),
+                line.len()
+            ));
+        }
+    }
+    let points = line
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            let z = match &heights {
+                Some(h) => h[i],
+                None => match p.as_slice().get(2) {
+                    Some(z) if z.is_finite() => *z,
+                    _ => {
+                        return Err(format!(
+                            "position {i} has no height (give Z coordinates or heights_m)"
+                        ))
+                    }
+                },
+            };
+            place(p, t, dem).map(|(xy, _)| [xy[0], xy[1], z])
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(CorrectionKind::ControlCurve {
+        points,
+        influence_m: positive(props, "influence_m")?,
+    })
+}

@@ -1,0 +1,400 @@
+//! Corrections in map view (`demsketch correct`): the corrections GIS
+//! analysts make from an orthophoto or a map rather than from a viewpoint —
+//! lakes flattened to one level, rivers flat across and never rising
+//! downstream (hydro-flattening, Maquettier section IV), and control curves
+//! with heights the terrain must follow (Maquettier section III). They come
+//! as GeoJSON features drawn in a GIS ([`geojson_input`]), are applied one
+//! after the other, in file order, to one seamless window of the DEM
+//! ([`grid`]) with the project's multigrid solver ([`water`] blends the
+//! shores of [`lake`]s and [`river`]s; [`control_curve`] uses the edit's
+//! constraint rasteriser), and go back through the same atomic write-back
+//! as an edit (only changed tiles rewritten, cells no correction reached
+//! bit-identical). [`report`] says what each feature did. Nothing is written
+//! when any feature is invalid or fails.
+
+pub mod control_curve;
+pub mod curve_fit;
+pub mod geojson_input;
+pub mod grid;
+pub mod lake;
+pub mod report;
+pub mod river;
+pub mod water;
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use geo::BoundingRect;
+
+use crate::deform::locality::{affected_window, cell_size_m};
+use crate::deform::CurveConstraint;
+use crate::edit::report::StagedFile;
+use crate::raster::provenance::sha256_hex;
+use crate::raster::{
+    Dem, Destination, Provenance, ProvenanceRecord, RasterError, Window, WriteOptions,
+};
+
+pub use geojson_input::{Correction, CorrectionKind};
+pub use report::{CorrectReport, FeatureReport};
+
+/// Options of [`run`].
+#[derive(Debug, Clone)]
+pub struct CorrectOptions {
+    pub destination: Destination,
+    /// Write the report (JSON) here.
+    pub report: Option<PathBuf>,
+    /// Compute everything, write only the report (and the water mask).
+    pub dry_run: bool,
+    /// Also write the water cells (1) of lakes and rivers, 0 elsewhere, as
+    /// a Byte raster on the grid of the corrected window.
+    pub water_mask: Option<PathBuf>,
+    pub write: WriteOptions,
+    /// Largest window, in cells.
+    pub max_window_cells: usize,
+}
+
+impl CorrectOptions {
+    pub fn new(destination: Destination) -> Self {
+        CorrectOptions {
+            destination,
+            report: None,
+            dry_run: false,
+            water_mask: None,
+            write: WriteOptions::default(),
+            max_window_cells: 1 << 26,
+        }
+    }
+}
+
+/// Why a correction run failed. Nothing was written.
+#[derive(Debug, thiserror::Error)]
+pub enum CorrectError {
+    /// Bad input (the message is one line naming the file).
+    #[error("{0}")]
+    Input(String),
+    #[error("{0}")]
+    Raster(#[from] RasterError),
+    /// The program's fault.
+    #[error("{0}")]
+    Internal(String),
+}
+
+impl CorrectError {
+    /// True when the input is at fault (exit code 1).
+    pub fn is_user_error(&self) -> bool {
+        match self {
+            CorrectError::Input(_) => true,
+            CorrectError::Raster(e) => e.is_user_error(),
+            CorrectError::Internal(_) => false,
+        }
+    }
+}
+
+/// Margin in DEM pixels around a correction's geometry that it may change.
+fn margin_px(c: &Correction, cell: crate::deform::CellSize, default_blend: f64) -> [f64; 2] {
+    let m = match &c.kind {
+        CorrectionKind::Lake { blend_m, .. } | CorrectionKind::RiverArea { blend_m, .. } => {
+            blend_m.unwrap_or(default_blend)
+        }
+        CorrectionKind::River {
+            width_m, blend_m, ..
+        } => 0.5 * width_m + blend_m.unwrap_or(default_blend) + cell.hx.max(cell.hy),
+        CorrectionKind::ControlCurve { .. } => 0.0,
+    };
+    [m / cell.hx + 3.0, m / cell.hy + 3.0]
+}
+
+/// The window of `dem` a correction may change.
+fn feature_window(
+    dem: &Dem,
+    c: &Correction,
+    cell: crate::deform::CellSize,
+    default_blend: f64,
+    influence: Option<f64>,
+) -> Option<Window> {
+    let b = match &c.kind {
+        CorrectionKind::Lake { area, .. } | CorrectionKind::RiverArea { area, .. } => {
+            let r = area.bounding_rect()?;
+            [r.min().x, r.min().y, r.max().x, r.max().y]
+        }
+        CorrectionKind::River { centreline, .. } => {
+            let xs = centreline.iter().map(|p| p[0]);
+            let ys = centreline.iter().map(|p| p[1]);
+            [
+                xs.clone().fold(f64::INFINITY, f64::min),
+                ys.clone().fold(f64::INFINITY, f64::min),
+                xs.fold(f64::NEG_INFINITY, f64::max),
+                ys.fold(f64::NEG_INFINITY, f64::max),
+            ]
+        }
+        CorrectionKind::ControlCurve { points, .. } => {
+            let curve = CurveConstraint {
+                points: points.clone(),
+            };
+            return affected_window(dem, &[curve], cell, influence.unwrap_or(0.0));
+        }
+    };
+    let g = margin_px(c, cell, default_blend);
+    let (w, h) = (dem.width as f64, dem.height as f64);
+    let c0 = (b[0] - g[0]).floor().clamp(0.0, w);
+    let r0 = (b[1] - g[1]).floor().clamp(0.0, h);
+    let c1 = (b[2] + g[0]).ceil().clamp(0.0, w);
+    let r1 = (b[3] + g[1]).ceil().clamp(0.0, h);
+    let win = Window::new(c0 as i64, r0 as i64, (c1 - c0) as usize, (r1 - r0) as usize);
+    (!win.is_empty()).then_some(win)
+}
+
+fn union(a: Window, b: Window) -> Window {
+    let (c0, r0) = (a.col.min(b.col), a.row.min(b.row));
+    let (c1, r1) = (a.col_end().max(b.col_end()), a.row_end().max(b.row_end()));
+    Window::new(c0, r0, (c1 - c0) as usize, (r1 - r0) as usize)
+}
+
+/// Applies the corrections of `features` (GeoJSON) to `dem_path` and writes
+/// the result (see the module documentation).
+pub fn run(
+    dem_path: &Path,
+    features: &Path,
+    opts: &CorrectOptions,
+) -> Result<CorrectReport, CorrectError> {
+    let t0 = Instant::now();
+    let dem = Dem::open(dem_path)?;
+    let corrections = geojson_input::read(features, &dem).map_err(CorrectError::Input)?;
+    let centre = dem
+        .geotransform
+        .pixel_to_crs(dem.width as f64 / 2.0, dem.height as f64 / 2.0);
+    let lat = if dem.crs.geographic { centre.1 } else { 0.0 };
+    let cell = cell_size_m(
+        &dem.geotransform,
+        dem.crs.geographic,
+        lat.clamp(-89.9, 89.9),
+    );
+    let default_blend = 2.0 * cell.hx.max(cell.hy);
+    let fname = features.display();
+
+    // Plan: influence distances and the window, before reading pixels.
+    let mut influences = Vec::new();
+    let mut window: Option<Window> = None;
+    for c in &corrections {
+        let infl = match &c.kind {
+            CorrectionKind::ControlCurve {
+                points,
+                influence_m,
+            } => Some(influence_m.unwrap_or_else(|| {
+                let curve = CurveConstraint {
+                    points: points.clone(),
+                };
+                crate::deform::locality::default_influence_m(&dem, &[curve], cell)
+            })),
+            _ => None,
+        };
+        influences.push(infl);
+        let w = feature_window(&dem, c, cell, default_blend, infl).ok_or_else(|| {
+            CorrectError::Input(format!("{fname}: {}: lies outside the DEM", c.label()))
+        })?;
+        window = Some(window.map_or(w, |u| union(u, w)));
+    }
+    let window = window.ok_or_else(|| CorrectError::Input(format!("{fname}: no features")))?;
+    if window.len() > opts.max_window_cells {
+        return Err(CorrectError::Input(format!(
+            "{fname}: the corrections span {} x {} cells, more than the limit of {} cells",
+            window.width, window.height, opts.max_window_cells
+        )));
+    }
+    let staged_report = match &opts.report {
+        Some(p) => Some(StagedFile::create(p).map_err(|e| {
+            CorrectError::Input(format!("{}: cannot write the report: {e}", p.display()))
+        })?),
+        None => None,
+    };
+    let t_plan = t0.elapsed().as_secs_f64();
+    let mut grid = grid::Grid::new(window, cell, dem.read_height_map(window)?);
+
+    let t1 = Instant::now();
+    let mut reports = Vec::new();
+    for (c, infl) in corrections.iter().zip(&influences) {
+        let r = apply_one(&dem, &mut grid, c, default_blend, *infl).map_err(|e| match e {
+            ApplyError::User(m) => CorrectError::Input(format!("{fname}: {}: {m}", c.label())),
+            ApplyError::Internal(m) => {
+                CorrectError::Internal(format!("{fname}: {}: {m}", c.label()))
+            }
+        })?;
+        reports.push(r);
+    }
+    let t_solve = t1.elapsed().as_secs_f64();
+
+    let t2 = Instant::now();
+    let values = grid.write_values();
+    let bytes = std::fs::read(features).unwrap_or_default();
+    let hash = sha256_hex(&bytes);
+    let provenance = Provenance {
+        edit_id: format!(
+            "correct {}:{}",
+            features
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default(),
+            &hash[..16]
+        ),
+    };
+    let mut wopts = opts.write.clone();
+    wopts.record = ProvenanceRecord {
+        input: Some(dem_path.display().to_string()),
+        sketch_sha256: Some(hash),
+        parameters: Some(format!("--features {}", features.display())),
+    };
+    let (changed_cells, tiles_written) = if opts.dry_run {
+        (dem.check_write_back(window, &values)?, Vec::new())
+    } else {
+        let w = dem.write_back_with(window, &values, &opts.destination, &provenance, &wopts)?;
+        (w.changed_cells, w.tiles_written)
+    };
+    if let Some(path) = &opts.water_mask {
+        write_water_mask(path, &dem, &grid)?;
+    }
+    let output = match &opts.destination {
+        Destination::InPlace => dem_path.display().to_string(),
+        Destination::Path(p) => p.display().to_string(),
+    };
+    let report = CorrectReport {
+        dem: dem_path.display().to_string(),
+        features: features.display().to_string(),
+        output,
+        written: !opts.dry_run,
+        window: [
+            window.col,
+            window.row,
+            window.width as i64,
+            window.height as i64,
+        ],
+        cell_size_m: [cell.hx, cell.hy],
+        changed_cells,
+        tiles_written: tiles_written
+            .iter()
+            .map(|p| p.display().to_string())
+            .collect(),
+        corrections: reports,
+        timings_s: report::Timings {
+            plan: t_plan,
+            solve: t_solve,
+            write: t2.elapsed().as_secs_f64(),
+            total: t0.elapsed().as_secs_f64(),
+        },
+    };
+    if let (Some(staged), Some(path)) = (staged_report, &opts.report) {
+        let mut text = serde_json::to_string_pretty(&report)
+            .map_err(|e| CorrectError::Internal(format!("report: {e}")))?;
+        text.push('\n');
+        staged.commit(text.as_bytes()).map_err(|e| {
+            CorrectError::Input(format!("{}: cannot write the report: {e}", path.display()))
+        })?;
+    }
+    Ok(report)
+}
+
+/// The water mask (`--water-mask`): Byte, 1 on water cells, 0 elsewhere,
+/// on the window's grid with the DEM's CRS.
+fn write_water_mask(path: &Path, dem: &Dem, grid: &grid::Grid) -> Result<(), CorrectError> {
+    let spec = crate::raster::output_format::RasterSpec {
+        width: grid.width(),
+        height: grid.height(),
+        geotransform: Some(grid.geotransform().0),
+        crs: dem.crs.gdal_definition(),
+        nodata: None,
+        description: Some("water cells of demsketch correct (1 = water)".into()),
+        format: None,
+        creation_options: Vec::new(),
+    };
+    let band: Vec<u8> = grid.water.iter().map(|&w| u8::from(w)).collect();
+    crate::raster::output_format::write_raster(path, &spec, vec![band])?;
+    Ok(())
+}
+
+enum ApplyError {
+    User(String),
+    Internal(String),
+}
+
+fn solver_error(e: crate::deform::multigrid::MultigridError) -> ApplyError {
+    ApplyError::Internal(format!("solver: {e}"))
+}
+
+fn apply_one(
+    dem: &Dem,
+    grid: &mut grid::Grid,
+    c: &Correction,
+    default_blend: f64,
+    influence: Option<f64>,
+) -> Result<FeatureReport, ApplyError> {
+    let mut r = FeatureReport::new(c);
+    match &c.kind {
+        CorrectionKind::Lake {
+            area,
+            level_m,
+            blend_m,
+        } => {
+            let blend = blend_m.unwrap_or(default_blend);
+            let res = lake::apply(grid, area, *level_m, blend).map_err(|e| match e {
+                lake::LakeError::Solver(s) => solver_error(s),
+                e => ApplyError::User(e.to_string()),
+            })?;
+            r.blend_m = Some(blend);
+            r.level_m = Some(res.level_m);
+            r.level_from_shoreline = Some(res.level_from_shore);
+            r.water_cells = Some(res.change.water_cells);
+            r.cells_changed = res.change.cells_changed;
+            r.max_abs_dz_m = res.change.max_abs_dz_m;
+        }
+        CorrectionKind::River {
+            centreline,
+            width_m,
+            blend_m,
+            flow_auto,
+        } => {
+            let blend = blend_m.unwrap_or(default_blend);
+            let res =
+                river::apply(grid, centreline, *width_m, *flow_auto, blend).map_err(
+                    |e| match e {
+                        river::RiverError::Solver(s) => solver_error(s),
+                        e => ApplyError::User(e.to_string()),
+                    },
+                )?;
+            r.blend_m = Some(blend);
+            r.surface_start_m = Some(res.surface_start_m);
+            r.surface_end_m = Some(res.surface_end_m);
+            r.reversed = Some(res.reversed);
+            r.surface_knots_m = Some(res.knots.clone());
+            r.water_cells = Some(res.change.water_cells);
+            r.cells_changed = res.change.cells_changed;
+            r.max_abs_dz_m = res.change.max_abs_dz_m;
+        }
+        CorrectionKind::RiverArea { area, blend_m } => {
+            let blend = blend_m.unwrap_or(default_blend);
+            let res = river::apply_polygon(grid, area, blend).map_err(|e| match e {
+                river::RiverError::Solver(s) => solver_error(s),
+                e => ApplyError::User(e.to_string()),
+            })?;
+            r.blend_m = Some(blend);
+            r.surface_start_m = Some(res.surface_start_m);
+            r.surface_end_m = Some(res.surface_end_m);
+            r.reversed = Some(res.reversed);
+            r.surface_knots_m = Some(res.knots.clone());
+            r.water_cells = Some(res.change.water_cells);
+            r.cells_changed = res.change.cells_changed;
+            r.max_abs_dz_m = res.change.max_abs_dz_m;
+        }
+        CorrectionKind::ControlCurve { points, .. } => {
+            let infl =
+                influence.unwrap_or_else(|| control_curve::influence_for(dem, grid, points, None));
+            let res = control_curve::apply(dem, grid, points, infl).map_err(|e| match e {
+                control_curve::CurveError::Solver(s) => solver_error(s),
+                e => ApplyError::User(e.to_string()),
+            })?;
+            r.influence_m = Some(res.influence_m);
+            r.max_curve_error_m = Some(res.max_curve_error_m);
+            r.cells_changed = res.cells_changed;
+            r.max_abs_dz_m = res.max_abs_dz_m;
+        }
+    }
+    Ok(r)
+}

@@ -1,0 +1,103 @@
+//! The report of `demsketch correct` (JSON): the run's window, what was
+//! written, and per feature its kind, the cells it changed, the largest
+//! height change and what it used (lake level, river surface, influence
+//! distance) or reached (control-curve error).
+
+use serde::Serialize;
+
+use super::Correction;
+
+/// What one feature did.
+#[derive(Debug, Clone, Serialize)]
+pub struct FeatureReport {
+    /// Index in the FeatureCollection.
+    pub index: usize,
+    /// The feature's id or name.
+    pub id: Option<String>,
+    /// `lake`, `river` or `control_curve`.
+    pub kind: &'static str,
+    /// Cells whose height this feature changed.
+    pub cells_changed: usize,
+    /// Largest `|new - old|`, metres.
+    pub max_abs_dz_m: f64,
+    /// Water cells set to the surface (lakes, rivers).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub water_cells: Option<usize>,
+    /// The blend width used (lakes, rivers), metres.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub blend_m: Option<f64>,
+    /// The level used (lakes), metres.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub level_m: Option<f64>,
+    /// True when the level is the lowest shoreline height.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub level_from_shoreline: Option<bool>,
+    /// Water surface at the source and the outlet (rivers), metres.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub surface_start_m: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub surface_end_m: Option<f64>,
+    /// Rivers: `[arc length from the source, surface]` in metres where the
+    /// surface profile bends; linear (so flat across) in between.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub surface_knots_m: Option<Vec<[f64; 2]>>,
+    /// True when `flow: "auto"` reversed the centreline.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub reversed: Option<bool>,
+    /// Influence distance (control curves), metres.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub influence_m: Option<f64>,
+    /// Largest `|DEM - z|` along the curve afterwards (control curves).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_curve_error_m: Option<f64>,
+}
+
+impl FeatureReport {
+    /// An empty report for `c`.
+    pub fn new(c: &Correction) -> Self {
+        FeatureReport {
+            index: c.index,
+            id: c.id.clone(),
+            kind: c.kind.name(),
+            cells_changed: 0,
+            max_abs_dz_m: 0.0,
+            water_cells: None,
+            blend_m: None,
+            level_m: None,
+            level_from_shoreline: None,
+            surface_start_m: None,
+            surface_end_m: None,
+            surface_knots_m: None,
+            reversed: None,
+            influence_m: None,
+            max_curve_error_m: None,
+        }
+    }
+}
+
+/// Seconds per stage.
+#[derive(Debug, Clone, Serialize)]
+pub struct Timings {
+    pub plan: f64,
+    pub solve: f64,
+    pub write: f64,
+    pub total: f64,
+}
+
+/// The report of one run.
+#[derive(Debug, Clone, Serialize)]
+pub struct CorrectReport {
+    pub dem: String,
+    pub features: String,
+    pub output: String,
+    /// False on a dry run.
+    pub written: bool,
+    /// `[col, row, width, height]` of the window read and solved.
+    pub window: [i64; 4],
+    pub cell_size_m: [f64; 2],
+    /// Cells whose stored value changed (would change, on a dry run).
+    pub changed_cells: usize,
+    pub tiles_written: Vec<String>,
+    pub corrections: Vec<FeatureReport>,
+    pub timings_s: Timings,
+}

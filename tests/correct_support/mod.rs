@@ -1,0 +1,159 @@
+//! Helpers of the `correct_*` tests: rasters read by GDAL, bilinear
+//! sampling, point in polygon and coordinate transforms done independently
+//! of the library.
+#![allow(dead_code)]
+
+use std::path::Path;
+
+use gdal::spatial_ref::{AxisMappingStrategy, CoordTransform, SpatialRef};
+
+/// A raster read by GDAL: size, geotransform, band 1 as f64 (NaN = nodata).
+pub struct Raster {
+    pub w: usize,
+    pub h: usize,
+    pub gt: [f64; 6],
+    pub v: Vec<f64>,
+}
+
+impl Raster {
+    pub fn read(path: &Path) -> Raster {
+        let ds = gdal::Dataset::open(path).expect("GDAL opens the file");
+        let gt = ds.geo_transform().expect("geotransform");
+        let band = ds.rasterband(1).expect("band 1");
+        let (w, h) = band.size();
+        let nd = band.no_data_value();
+        let buf = band
+            .read_as::<f64>((0, 0), (w, h), (w, h), None)
+            .expect("GDAL reads the band");
+        let v = buf
+            .data()
+            .iter()
+            .map(|&x| {
+                if Some(x) == nd || x < -1e30 {
+                    f64::NAN
+                } else {
+                    x
+                }
+            })
+            .collect();
+        Raster { w, h, gt, v }
+    }
+
+    pub fn at(&self, c: usize, r: usize) -> f64 {
+        self.v[r * self.w + c]
+    }
+
+    /// CRS to pixel space (north-up).
+    pub fn pixel(&self, x: f64, y: f64) -> [f64; 2] {
+        [(x - self.gt[0]) / self.gt[1], (y - self.gt[3]) / self.gt[5]]
+    }
+
+    /// Pixel space to CRS.
+    pub fn crs(&self, p: [f64; 2]) -> [f64; 2] {
+        [
+            self.gt[0] + p[0] * self.gt[1],
+            self.gt[3] + p[1] * self.gt[5],
+        ]
+    }
+
+    /// Bilinear between cell centres at pixel-space `p`.
+    pub fn bilinear(&self, p: [f64; 2]) -> Option<f64> {
+        let (x, y) = (p[0] - 0.5, p[1] - 0.5);
+        if x < 0.0 || y < 0.0 {
+            return None;
+        }
+        let (c0, r0) = (x.floor() as usize, y.floor() as usize);
+        let (fx, fy) = (x - c0 as f64, y - r0 as f64);
+        let (c1, r1) = ((c0 + 1).min(self.w - 1), (r0 + 1).min(self.h - 1));
+        if c0 >= self.w || r0 >= self.h {
+            return None;
+        }
+        let v = self.at(c0, r0) * (1.0 - fx) * (1.0 - fy)
+            + self.at(c1, r0) * fx * (1.0 - fy)
+            + self.at(c0, r1) * (1.0 - fx) * fy
+            + self.at(c1, r1) * fx * fy;
+        (!v.is_nan()).then_some(v)
+    }
+
+    /// The 99th percentile of `|h(c) - h(n)|` over 4-neighbour pairs of
+    /// valid cells: the DEM's own typical neighbour difference.
+    pub fn neighbour_diff_p99(&self) -> f64 {
+        let mut d = Vec::new();
+        for r in 0..self.h {
+            for c in 0..self.w {
+                let a = self.at(c, r);
+                for (cc, rr) in [(c + 1, r), (c, r + 1)] {
+                    if cc < self.w && rr < self.h {
+                        let b = self.at(cc, rr);
+                        if !a.is_nan() && !b.is_nan() {
+                            d.push((a - b).abs());
+                        }
+                    }
+                }
+            }
+        }
+        d.sort_by(|a, b| a.partial_cmp(b).unwrap());
+        d[(d.len() as f64 * 0.99) as usize]
+    }
+}
+
+/// WGS84 lon/lat to `epsg`, by GDAL/OSR.
+pub fn lonlat_to(epsg: u32, lonlat: &[[f64; 2]]) -> Vec<[f64; 2]> {
+    let mut src = SpatialRef::from_epsg(4326).unwrap();
+    src.set_axis_mapping_strategy(AxisMappingStrategy::TraditionalGisOrder);
+    let mut dst = SpatialRef::from_epsg(epsg).unwrap();
+    dst.set_axis_mapping_strategy(AxisMappingStrategy::TraditionalGisOrder);
+    let t = CoordTransform::new(&src, &dst).unwrap();
+    let mut xs: Vec<f64> = lonlat.iter().map(|p| p[0]).collect();
+    let mut ys: Vec<f64> = lonlat.iter().map(|p| p[1]).collect();
+    let mut zs = vec![0.0; xs.len()];
+    t.transform_coords(&mut xs, &mut ys, &mut zs).unwrap();
+    xs.into_iter().zip(ys).map(|(x, y)| [x, y]).collect()
+}
+
+/// `epsg` to WGS84 lon/lat, by GDAL/OSR.
+pub fn to_lonlat(epsg: u32, xy: &[[f64; 2]]) -> Vec<[f64; 2]> {
+    let mut src = SpatialRef::from_epsg(epsg).unwrap();
+    src.set_axis_mapping_strategy(AxisMappingStrategy::TraditionalGisOrder);
+    let mut dst = SpatialRef::from_epsg(4326).unwrap();
+    dst.set_axis_mapping_strategy(AxisMappingStrategy::TraditionalGisOrder);
+    let t = CoordTransform::new(&src, &dst).unwrap();
+    let mut xs: Vec<f64> = xy.iter().map(|p| p[0]).collect();
+    let mut ys: Vec<f64> = xy.iter().map(|p| p[1]).collect();
+    let mut zs = vec![0.0; xs.len()];
+    t.transform_coords(&mut xs, &mut ys, &mut zs).unwrap();
+    xs.into_iter().zip(ys).map(|(x, y)| [x, y]).collect()
+}
+
+/// Even-odd point in polygon.
+pub fn inside(ring: &[[f64; 2]], p: [f64; 2]) -> bool {
+    let mut inside = false;
+    let n = ring.len();
+    let mut j = n - 1;
+    for i in 0..n {
+        let (a, b) = (ring[i], ring[j]);
+        if (a[1] > p[1]) != (b[1] > p[1])
+            && p[0] < (b[0] - a[0]) * (p[1] - a[1]) / (b[1] - a[1]) + a[0]
+        {
+            inside = !inside;
+        }
+        j = i;
+    }
+    inside
+}
+
+/// The report written by `--report`, parsed.
+pub fn report(path: &Path) -> serde_json::Value {
+    serde_json::from_slice(&std::fs::read(path).expect("report written")).expect("report is JSON")
+}
+
+/// A GeoJSON FeatureCollection of `features`, with a legacy `crs` member
+/// naming `epsg` when given.
+pub fn collection(features: Vec<serde_json::Value>, epsg: Option<u32>) -> String {
+    let mut fc = serde_json::json!({"type": "FeatureCollection", "features": features});
+    if let Some(code) = epsg {
+        fc["crs"] = serde_json::json!({"type": "name",
+            "properties": {"name": format!("urn:ogc:def:crs:EPSG::{code}")}});
+    }
+    serde_json::to_string_pretty(&fc).unwrap()
+}
