@@ -268,20 +268,35 @@ impl RenderedView {
         }
         let reach = BILINEAR_REACH_CELLS / cells_per_m;
         let (ta, tb) = ((t_p - reach).max(0.5 * t_p), t_p + reach);
-        // Sixteenth-cell steps over the span (quarter-cell steps miss crests
-        // between them by up to a pixel where cells look large).
-        let steps = (16.0 * 2.0 * BILINEAR_REACH_CELLS) as usize;
+        // Quarter-cell steps over the span, then sixteenth-cell steps around
+        // the least of them (quarter-cell steps alone miss a crest between
+        // them by up to a pixel where cells look large).
+        let steps = (4.0 * 2.0 * BILINEAR_REACH_CELLS) as usize;
+        let dt = (tb - ta) / steps as f64;
         // Least clearance of the ray through row y above the bilinear
         // surface over the span (negative: it hits the occluder).
         let clearance = |y: f64| -> Option<f64> {
             let d = self.camera.unproject([x, y]);
-            let mut least = f64::INFINITY;
-            for k in 0..=steps {
-                let tt = ta + (tb - ta) * k as f64 / steps as f64;
+            let at = |tt: f64| {
                 let p = [d[0] * tt, d[1] * tt, d[2] * tt];
                 let (vx, vy) = t.en_to_v(p[0], p[1]);
-                if let Some(h) = bilinear_vertex_z(t, vx, vy) {
-                    least = least.min(p[2] - h);
+                bilinear_vertex_z(t, vx, vy).map(|h| p[2] - h)
+            };
+            let (mut least, mut k_least) = (f64::INFINITY, 0);
+            for k in 0..=steps {
+                if let Some(c) = at(ta + dt * k as f64) {
+                    if c < least {
+                        (least, k_least) = (c, k);
+                    }
+                }
+            }
+            let t0 = ta + dt * k_least as f64;
+            for j in (-3..=3).filter(|&j| j != 0) {
+                let tt = t0 + dt * j as f64 / 4.0;
+                if (ta..=tb).contains(&tt) {
+                    if let Some(c) = at(tt) {
+                        least = least.min(c);
+                    }
                 }
             }
             least.is_finite().then_some(least)
