@@ -15,6 +15,7 @@
 //!   lowering of protruding silhouettes.
 //! - [`edit`]: one edit end to end: load, features, matching, deformation,
 //!   lowering, write-back, report and pictures.
+//! - [`export`]: the DEM to web-map tiles, COG, GeoJSON, STAC and glTF.
 //!
 //! [`buffer_pool`] keeps the large per-view and per-solve buffers warm
 //! between views and solves.
@@ -23,6 +24,7 @@ pub mod buffer_pool;
 pub mod correct;
 pub mod deform;
 pub mod edit;
+pub mod export;
 pub mod features;
 pub mod raster;
 pub mod render;

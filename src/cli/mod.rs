@@ -2,6 +2,7 @@
 
 pub mod correct;
 pub mod edit;
+pub mod export;
 pub mod info;
 pub mod locate;
 pub mod view;
@@ -91,6 +92,9 @@ pub enum Command {
     /// Apply corrections drawn in map view (GeoJSON lakes, rivers, control curves) to a DEM.
     #[command(after_help = correct::CORRECT_AFTER_HELP)]
     Correct(correct::CorrectArgs),
+    /// Export a DEM: web-map tiles (Terrain-RGB, Terrarium), COG, GeoJSON of an edit, STAC item, glTF mesh.
+    #[command(after_help = export::EXPORT_AFTER_HELP)]
+    Export(export::ExportArgs),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
@@ -102,6 +106,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Locate(a) => locate::run(a),
         Command::Edit(a) => edit::run(a),
         Command::Correct(a) => correct::run(a),
+        Command::Export(a) => export::run(a),
     }
 }
 
