@@ -66,11 +66,12 @@ pub fn footprint_lonlat(mask: &ChangeMask) -> Result<Option<Value>, ExportError>
     }
     let mut wgs84 = gdal::spatial_ref::SpatialRef::from_epsg(4326).map_err(gerr)?;
     wgs84.set_axis_mapping_strategy(gdal::spatial_ref::AxisMappingStrategy::TraditionalGisOrder);
+    let to_ll = gdal::spatial_ref::CoordTransform::new(&srs, &wgs84).map_err(gerr)?;
     let mut polygons = Vec::new();
     let mut layer = layer;
     for f in layer.features() {
         let Some(g) = f.geometry() else { continue };
-        let ll = g.transform_to(&wgs84).map_err(gerr)?;
+        let ll = g.transform(&to_ll).map_err(gerr)?;
         let json: Value = serde_json::from_str(&ll.json().map_err(gerr)?)
             .map_err(|e| ExportError::Internal(format!("footprint: {e}")))?;
         match json["type"].as_str() {

@@ -78,6 +78,7 @@ pub fn export_tiles(dem_path: &Path, out: &Path, opts: &TileOptions) -> Result<T
     }
     let target = TileTarget::prepare(out)?;
     let src = GdalSource::new(&dem)?;
+    drop(src.open()?);
     let pb = progress_bar(opts.progress, tiles.len() as u64);
     let vertical = dem.vertical.clone();
     let root = target.staging.path().to_path_buf();
@@ -88,10 +89,7 @@ pub fn export_tiles(dem_path: &Path, out: &Path, opts: &TileOptions) -> Result<T
             |ds, &tile| {
                 let r = match ds {
                     Ok(ds) => write_tile(ds, tile, &vertical, opts.encoding, &root),
-                    Err(e) => Err(ExportError::Input {
-                        path: dem_path.display().to_string(),
-                        message: e.to_string(),
-                    }),
+                    Err(e) => Err(ExportError::Internal(e.to_string())),
                 };
                 pb.inc(1);
                 r
