@@ -48,7 +48,10 @@ fn tiles_in(root: &Path) -> Vec<(u8, u32, u32)> {
     let mut v = Vec::new();
     for (p, _) in snapshot(root) {
         let rel = p.strip_prefix(root).expect("under root");
-        let parts: Vec<String> = rel.iter().map(|c| c.to_string_lossy().into_owned()).collect();
+        let parts: Vec<String> = rel
+            .iter()
+            .map(|c| c.to_string_lossy().into_owned())
+            .collect();
         if parts.len() == 3 && parts[2].ends_with(".png") {
             v.push((
                 parts[0].parse().expect("z"),
@@ -95,7 +98,12 @@ fn decode(encoding: &str, p: &[u8]) -> f64 {
 
 /// Compare every tile of `tree` with `gdalwarp` of `dem` into that tile:
 /// the largest height difference, and the pixels whose validity differs.
-fn compare_with_gdalwarp(dem: &Path, tree: &Path, encoding: &str, work: &Path) -> (f64, usize, usize) {
+fn compare_with_gdalwarp(
+    dem: &Path,
+    tree: &Path,
+    encoding: &str,
+    work: &Path,
+) -> (f64, usize, usize) {
     let mut worst: f64 = 0.0;
     let (mut compared, mut mismatched) = (0usize, 0usize);
     for (z, x, y) in tiles_in(tree) {
@@ -105,8 +113,24 @@ fn compare_with_gdalwarp(dem: &Path, tree: &Path, encoding: &str, work: &Path) -
         run(
             "gdalwarp",
             &[
-                "-q", "-overwrite", "-t_srs", "EPSG:3857", "-te", &bs[0], &bs[1], &bs[2], &bs[3],
-                "-ts", "256", "256", "-r", "bilinear", "-ot", "Float32", &s(dem), &s(&reference),
+                "-q",
+                "-overwrite",
+                "-t_srs",
+                "EPSG:3857",
+                "-te",
+                &bs[0],
+                &bs[1],
+                &bs[2],
+                &bs[3],
+                "-ts",
+                "256",
+                "256",
+                "-r",
+                "bilinear",
+                "-ot",
+                "Float32",
+                &s(dem),
+                &s(&reference),
             ],
         );
         let (w, h, vals, nodata) = gdal_values(&reference);
@@ -138,21 +162,41 @@ fn tiles_decode_to_gdalwarp_heights_within_a_decimetre() {
     for encoding in ["terrain-rgb", "terrarium"] {
         let tree = dir.path().join(encoding);
         ok(&demsketch(&[
-            "export", "tiles", &s(&dem), "--encoding", encoding, "--zoom", "9-12", "--out", &s(&tree),
+            "export",
+            "tiles",
+            &s(&dem),
+            "--encoding",
+            encoding,
+            "--zoom",
+            "9-12",
+            "--out",
+            &s(&tree),
         ]));
         let tiles = tiles_in(&tree);
         assert!(tiles.len() >= 20, "{} tiles", tiles.len());
         assert!(tiles.iter().any(|t| t.0 == 9) && tiles.iter().any(|t| t.0 == 12));
-        let (worst, compared, mismatched) = compare_with_gdalwarp(&dem, &tree, encoding, dir.path());
+        let (worst, compared, mismatched) =
+            compare_with_gdalwarp(&dem, &tree, encoding, dir.path());
         eprintln!("{encoding}: {} tiles, {compared} pixels, worst {worst:.4} m, {mismatched} validity mismatches", tiles.len());
         assert!(compared > 100_000, "{compared} pixels compared");
         assert!(worst <= 0.1, "{encoding}: worst difference {worst} m");
-        assert_eq!(mismatched, 0, "{encoding}: nodata where gdalwarp has heights or the reverse");
-        let tj: Value = serde_json::from_slice(&std::fs::read(tree.join("tiles.json")).expect("tiles.json"))
-            .expect("TileJSON");
+        assert_eq!(
+            mismatched, 0,
+            "{encoding}: nodata where gdalwarp has heights or the reverse"
+        );
+        let tj: Value =
+            serde_json::from_slice(&std::fs::read(tree.join("tiles.json")).expect("tiles.json"))
+                .expect("TileJSON");
         assert_eq!(tj["minzoom"], 9);
         assert_eq!(tj["maxzoom"], 12);
-        assert_eq!(tj["encoding"], if encoding == "terrarium" { "terrarium" } else { "mapbox" });
+        assert_eq!(
+            tj["encoding"],
+            if encoding == "terrarium" {
+                "terrarium"
+            } else {
+                "mapbox"
+            }
+        );
     }
     // Nothing left behind beside the trees.
     let names: Vec<String> = std::fs::read_dir(dir.path())
@@ -160,7 +204,10 @@ fn tiles_decode_to_gdalwarp_heights_within_a_decimetre() {
         .flatten()
         .map(|e| e.file_name().to_string_lossy().into_owned())
         .collect();
-    assert!(!names.iter().any(|n| n.contains(".demsketch-")), "{names:?}");
+    assert!(
+        !names.iter().any(|n| n.contains(".demsketch-")),
+        "{names:?}"
+    );
 }
 
 /// One edit of the Zion fixture (the sketch of tests/cli_outputs.rs), with
@@ -181,10 +228,26 @@ fn edit_zion() -> Edited {
     let dz = dir.path().join("dz.tif");
     let sketch = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/sketches/zion_dome.json");
     ok(&demsketch(&[
-        "edit", &s(&dem), "--sketch", &s(&sketch), "--out", &s(&fixed), "--report", &s(&report),
-        "--dz", &s(&dz), "--allow-partial", "-q",
+        "edit",
+        &s(&dem),
+        "--sketch",
+        &s(&sketch),
+        "--out",
+        &s(&fixed),
+        "--report",
+        &s(&report),
+        "--dz",
+        &s(&dz),
+        "--allow-partial",
+        "-q",
     ]));
-    Edited { dir, dem, fixed, report, dz }
+    Edited {
+        dir,
+        dem,
+        fixed,
+        report,
+        dz,
+    }
 }
 
 #[test]
@@ -197,8 +260,15 @@ fn after_an_edit_changed_tiles_geojson_and_stac() {
     let after = d.join("after");
     let args = |dem: &Path, out: &Path| {
         vec![
-            "export".to_string(), "tiles".into(), s(dem), "--encoding".into(), "terrarium".into(),
-            "--zoom".into(), "8-12".into(), "--out".into(), s(out),
+            "export".to_string(),
+            "tiles".into(),
+            s(dem),
+            "--encoding".into(),
+            "terrarium".into(),
+            "--zoom".into(),
+            "8-12".into(),
+            "--out".into(),
+            s(out),
         ]
     };
     let run_args = |v: Vec<String>| {
@@ -214,7 +284,10 @@ fn after_an_edit_changed_tiles_geojson_and_stac() {
     let r: Value = serde_json::from_slice(&out.stdout).expect("--json");
     let rewritten = r["tiles_written"].as_u64().expect("tiles_written");
     let all = tiles_in(&after).len() as u64;
-    assert!(rewritten > 0 && rewritten < all, "{rewritten} of {all} tiles rewritten");
+    assert!(
+        rewritten > 0 && rewritten < all,
+        "{rewritten} of {all} tiles rewritten"
+    );
     // The tiles (tiles.json names the DEM it was made from).
     let png = |v: Vec<(PathBuf, Vec<u8>)>| -> Vec<(PathBuf, Vec<u8>)> {
         v.into_iter()
@@ -230,7 +303,10 @@ fn after_an_edit_changed_tiles_geojson_and_stac() {
         .map(|(x, _)| x.0.clone())
         .collect();
     assert_eq!(a.len(), b.len());
-    assert!(differing.is_empty(), "tiles not updated by --changed: {differing:?}");
+    assert!(
+        differing.is_empty(),
+        "tiles not updated by --changed: {differing:?}"
+    );
     // The report's window also works (a superset of the dz cells).
     let via_report = d.join("via_report");
     let mut v = args(&e.fixed, &via_report);
@@ -243,13 +319,29 @@ fn after_an_edit_changed_tiles_geojson_and_stac() {
     // GeoJSON: a LineString Z per placed stroke, and the footprint.
     let gj = d.join("edit.geojson");
     ok(&demsketch(&[
-        "export", "geojson", &s(&e.fixed), "--report", &s(&e.report), "--dz", &s(&e.dz), "--out", &s(&gj), "-q",
+        "export",
+        "geojson",
+        &s(&e.fixed),
+        "--report",
+        &s(&e.report),
+        "--dz",
+        &s(&e.dz),
+        "--out",
+        &s(&gj),
+        "-q",
     ]));
     let fc: Value = serde_json::from_slice(&std::fs::read(&gj).expect("geojson")).expect("JSON");
     let feats = fc["features"].as_array().expect("features");
-    let curves: Vec<&Value> = feats.iter().filter(|f| f["properties"]["kind"] == "placed_curve").collect();
-    let report: Value = serde_json::from_slice(&std::fs::read(&e.report).expect("report")).expect("JSON");
-    let strokes = report["views"][0]["strokes"].as_array().expect("strokes").len();
+    let curves: Vec<&Value> = feats
+        .iter()
+        .filter(|f| f["properties"]["kind"] == "placed_curve")
+        .collect();
+    let report: Value =
+        serde_json::from_slice(&std::fs::read(&e.report).expect("report")).expect("JSON");
+    let strokes = report["views"][0]["strokes"]
+        .as_array()
+        .expect("strokes")
+        .len();
     assert_eq!(curves.len(), strokes, "one curve per stroke");
     let bounds = &gdalinfo(&e.dem)["wgs84Extent"]["coordinates"][0];
     let (mut w, mut so, mut ea, mut n) = (180.0f64, 90.0f64, -180.0f64, -90.0f64);
@@ -261,40 +353,77 @@ fn after_an_edit_changed_tiles_geojson_and_stac() {
         let coords = c["geometry"]["coordinates"].as_array().expect("coords");
         assert!(coords.len() >= 2);
         for p in coords {
-            let (x, y, z) = (p[0].as_f64().unwrap(), p[1].as_f64().unwrap(), p[2].as_f64().unwrap());
-            assert!(x > w - 0.01 && x < ea + 0.01 && y > so - 0.01 && y < n + 0.01, "{p} on the DEM");
+            let (x, y, z) = (
+                p[0].as_f64().unwrap(),
+                p[1].as_f64().unwrap(),
+                p[2].as_f64().unwrap(),
+            );
+            assert!(
+                x > w - 0.01 && x < ea + 0.01 && y > so - 0.01 && y < n + 0.01,
+                "{p} on the DEM"
+            );
             assert!((1000.0..3500.0).contains(&z), "height {z} of Zion");
         }
     }
-    let fp: Vec<&Value> = feats.iter().filter(|f| f["properties"]["kind"] == "change_footprint").collect();
+    let fp: Vec<&Value> = feats
+        .iter()
+        .filter(|f| f["properties"]["kind"] == "change_footprint")
+        .collect();
     assert_eq!(fp.len(), 1);
     assert_eq!(fp[0]["geometry"]["type"], "MultiPolygon");
     // The footprint's cells are the dz cells that changed.
     let (_, _, vz, nd) = gdal_values(&e.dz);
     let changed = vz.iter().filter(|&&v| Some(v) != nd && v != 0.0).count();
-    assert_eq!(fp[0]["properties"]["changed_cells"].as_u64(), Some(changed as u64));
+    assert_eq!(
+        fp[0]["properties"]["changed_cells"].as_u64(),
+        Some(changed as u64)
+    );
     // GDAL reads the file as a vector layer with the features.
     let info = run("ogrinfo", &["-ro", "-al", "-so", &s(&gj)]);
     let text = String::from_utf8_lossy(&info.stdout);
-    assert!(text.contains(&format!("Feature Count: {}", strokes + 1)), "{text}");
+    assert!(
+        text.contains(&format!("Feature Count: {}", strokes + 1)),
+        "{text}"
+    );
 
     // STAC: of a COG of the edited DEM, with the report.
     let cog = d.join("fixed_cog.tif");
-    ok(&demsketch(&["export", "cog", &s(&e.fixed), "--out", &s(&cog), "-q"]));
+    ok(&demsketch(&[
+        "export",
+        "cog",
+        &s(&e.fixed),
+        "--out",
+        &s(&cog),
+        "-q",
+    ]));
     let item = d.join("item.json");
     ok(&demsketch(&[
-        "export", "stac", &s(&cog), "--report", &s(&e.report), "--out", &s(&item), "-q",
+        "export",
+        "stac",
+        &s(&cog),
+        "--report",
+        &s(&e.report),
+        "--out",
+        &s(&item),
+        "-q",
     ]));
     let v: Value = serde_json::from_slice(&std::fs::read(&item).expect("item")).expect("JSON");
     assert_eq!(v["properties"]["proj:epsg"], 32612);
     assert_eq!(v["properties"]["proj:shape"], serde_json::json!([515, 422]));
     assert_eq!(v["assets"]["dem"]["href"], "./fixed_cog.tif");
-    assert_eq!(v["assets"]["dem"]["type"], "image/tiff; application=geotiff; profile=cloud-optimized");
+    assert_eq!(
+        v["assets"]["dem"]["type"],
+        "image/tiff; application=geotiff; profile=cloud-optimized"
+    );
     assert_eq!(v["assets"]["dem"]["raster:bands"][0]["data_type"], "uint16");
     assert_eq!(v["assets"]["dem"]["raster:bands"][0]["nodata"], 65535.0);
-    let prov = v["properties"]["demsketch:provenance"].as_array().expect("provenance");
+    let prov = v["properties"]["demsketch:provenance"]
+        .as_array()
+        .expect("provenance");
     assert!(!prov.is_empty(), "the edit's provenance entry: {v}");
-    assert!(prov[0]["sketch_sha256"].as_str().is_some_and(|h| h.len() == 64));
+    assert!(prov[0]["sketch_sha256"]
+        .as_str()
+        .is_some_and(|h| h.len() == 64));
     assert_eq!(
         v["properties"]["demsketch:edit"]["changed_cells"],
         report["changed_cells"]
@@ -342,7 +471,10 @@ fn cog_passes_gdal_validation() {
     let dir = tempfile::tempdir().expect("tempdir");
     for (name, extra) in [
         ("nz_1km_nan_nodata.tif", vec![]),
-        ("zion_srtm_utm12n.tif", vec!["-co", "COMPRESS=ZSTD", "-co", "BLOCKSIZE=256"]),
+        (
+            "zion_srtm_utm12n.tif",
+            vec!["-co", "COMPRESS=ZSTD", "-co", "BLOCKSIZE=256"],
+        ),
     ] {
         let src = fixture(name);
         let out = dir.path().join(format!("{name}.cog.tif"));
@@ -351,10 +483,19 @@ fn cog_passes_gdal_validation() {
         args.extend(extra.iter().copied());
         ok(&demsketch(&args));
         let info = gdalinfo(&out);
-        assert_eq!(info["metadata"]["IMAGE_STRUCTURE"]["LAYOUT"], "COG", "{name}");
+        assert_eq!(
+            info["metadata"]["IMAGE_STRUCTURE"]["LAYOUT"], "COG",
+            "{name}"
+        );
         let band = &info["bands"][0];
-        assert!(band["overviews"].as_array().is_some_and(|o| !o.is_empty()), "{name}: overviews");
-        assert!(band["block"][0].as_u64() < info["size"][0].as_u64(), "{name}: tiled");
+        assert!(
+            band["overviews"].as_array().is_some_and(|o| !o.is_empty()),
+            "{name}: overviews"
+        );
+        assert!(
+            band["block"][0].as_u64() < info["size"][0].as_u64(),
+            "{name}: tiled"
+        );
         // Same heights as the source (GDAL's checksums).
         let sum = |p: &Path| {
             let o = run("gdalinfo", &["-checksum", "-json", &s(p)]);
@@ -383,11 +524,25 @@ fn gltf_loads_with_the_right_vertices_and_bounds() {
     let dem = fixture("vinschgau_250m_utm32n.tif");
     let out = dir.path().join("vinschgau.glb");
     let o = demsketch(&[
-        "export", "gltf", &s(&dem), "--bounds", "10.5,46.55,10.8,46.75", "--step", "2", "--out", &s(&out), "--json",
+        "export",
+        "gltf",
+        &s(&dem),
+        "--bounds",
+        "10.5,46.55,10.8,46.75",
+        "--step",
+        "2",
+        "--out",
+        &s(&out),
+        "--json",
     ]);
     ok(&o);
     let r: Value = serde_json::from_slice(&o.stdout).expect("--json");
-    let win: Vec<usize> = r["window"].as_array().unwrap().iter().map(|v| v.as_u64().unwrap() as usize).collect();
+    let win: Vec<usize> = r["window"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_u64().unwrap() as usize)
+        .collect();
     // The expected vertices: valid cells of the window, every second one.
     let (w, _, vals, nodata) = gdal_values(&dem);
     let mut expected = 0usize;
@@ -411,7 +566,11 @@ fn gltf_loads_with_the_right_vertices_and_bounds() {
     let positions: Vec<[f32; 3]> = reader.read_positions().expect("POSITION").collect();
     let normals: Vec<[f32; 3]> = reader.read_normals().expect("NORMAL").collect();
     let indices: Vec<u32> = reader.read_indices().expect("indices").into_u32().collect();
-    assert_eq!(positions.len(), expected, "one vertex per valid sampled cell");
+    assert_eq!(
+        positions.len(),
+        expected,
+        "one vertex per valid sampled cell"
+    );
     assert_eq!(normals.len(), expected);
     assert!(indices.len() % 3 == 0 && !indices.is_empty());
     assert!(indices.iter().all(|&i| (i as usize) < expected));
@@ -420,7 +579,10 @@ fn gltf_loads_with_the_right_vertices_and_bounds() {
     let (min, max) = (acc.min().expect("min"), acc.max().expect("max"));
     for d in 0..3 {
         let lo = positions.iter().map(|p| p[d]).fold(f32::INFINITY, f32::min);
-        let hi = positions.iter().map(|p| p[d]).fold(f32::NEG_INFINITY, f32::max);
+        let hi = positions
+            .iter()
+            .map(|p| p[d])
+            .fold(f32::NEG_INFINITY, f32::max);
         assert_eq!(min[d].as_f64().unwrap() as f32, lo);
         assert_eq!(max[d].as_f64().unwrap() as f32, hi);
     }
@@ -429,13 +591,25 @@ fn gltf_loads_with_the_right_vertices_and_bounds() {
     let ex = (max[0].as_f64().unwrap() - min[0].as_f64().unwrap()) as f64;
     let ez = (max[2].as_f64().unwrap() - min[2].as_f64().unwrap()) as f64;
     let (wx, wz) = (250.0 * (win[2] - 1) as f64, 250.0 * (win[3] - 1) as f64);
-    assert!((ex - wx).abs() < 0.01 * wx + 500.0, "east extent {ex} for {wx}");
-    assert!((ez - wz).abs() < 0.01 * wz + 500.0, "north extent {ez} for {wz}");
+    assert!(
+        (ex - wx).abs() < 0.01 * wx + 500.0,
+        "east extent {ex} for {wx}"
+    );
+    assert!(
+        (ez - wz).abs() < 0.01 * wz + 500.0,
+        "north extent {ez} for {wz}"
+    );
     // Up: the heights less the earth's curvature away from the origin
     // (under 15 km: under 20 m).
     let (ymin, ymax) = (min[1].as_f64().unwrap(), max[1].as_f64().unwrap());
-    assert!(ymax <= hmax + 0.5 && ymax > hmax - 30.0, "top {ymax} for {hmax}");
-    assert!(ymin <= hmin + 0.5 && ymin > hmin - 30.0, "bottom {ymin} for {hmin}");
+    assert!(
+        ymax <= hmax + 0.5 && ymax > hmax - 30.0,
+        "top {ymax} for {hmax}"
+    );
+    assert!(
+        ymin <= hmin + 0.5 && ymin > hmin - 30.0,
+        "bottom {ymin} for {hmin}"
+    );
     assert!(normals.iter().all(|n| n[1] > 0.0), "normals point up");
 }
 
@@ -459,16 +633,100 @@ fn bad_input_exits_1_in_one_line_and_writes_nothing() {
         s(&d.join("m.glb")),
     );
     let cases: Vec<(Vec<&str>, &str)> = vec![
-        (vec!["export", "tiles", &missing, "--encoding", "terrarium", "--zoom", "8", "--out", &tiles], "missing.tif"),
-        (vec!["export", "tiles", &dem, "--encoding", "terrarium", "--zoom", "8", "--out", &tiles, "--changed", &nr], "not_report.json"),
-        (vec!["export", "tiles", &dem, "--encoding", "terrarium", "--zoom", "8-20", "--out", &tiles, "--max-tiles", "1000"], "--max-tiles"),
-        (vec!["export", "tiles", &dem, "--encoding", "terrarium", "--zoom", "8", "--out", a_file.to_str().unwrap()], "a_file"),
-        (vec!["export", "cog", &dem, "--out", "/nonexistent-dir/x.tif"], "x.tif"),
-        (vec!["export", "cog", &dem, "--out", &c_tif, "-co", "NOT_AN_OPTION"], "NOT_AN_OPTION"),
-        (vec!["export", "stac", &dem, "--report", &nr, "--out", &i_json], "not_report.json"),
-        (vec!["export", "geojson", &dem, "--report", &nr, "--out", &g_json], "not_report.json"),
-        (vec!["export", "gltf", &dem, "--bounds", "0,0,1,1", "--out", &m_glb], "does not overlap"),
-        (vec!["export", "gltf", &missing, "--out", &m_glb], "missing.tif"),
+        (
+            vec![
+                "export",
+                "tiles",
+                &missing,
+                "--encoding",
+                "terrarium",
+                "--zoom",
+                "8",
+                "--out",
+                &tiles,
+            ],
+            "missing.tif",
+        ),
+        (
+            vec![
+                "export",
+                "tiles",
+                &dem,
+                "--encoding",
+                "terrarium",
+                "--zoom",
+                "8",
+                "--out",
+                &tiles,
+                "--changed",
+                &nr,
+            ],
+            "not_report.json",
+        ),
+        (
+            vec![
+                "export",
+                "tiles",
+                &dem,
+                "--encoding",
+                "terrarium",
+                "--zoom",
+                "8-20",
+                "--out",
+                &tiles,
+                "--max-tiles",
+                "1000",
+            ],
+            "--max-tiles",
+        ),
+        (
+            vec![
+                "export",
+                "tiles",
+                &dem,
+                "--encoding",
+                "terrarium",
+                "--zoom",
+                "8",
+                "--out",
+                a_file.to_str().unwrap(),
+            ],
+            "a_file",
+        ),
+        (
+            vec!["export", "cog", &dem, "--out", "/nonexistent-dir/x.tif"],
+            "x.tif",
+        ),
+        (
+            vec![
+                "export",
+                "cog",
+                &dem,
+                "--out",
+                &c_tif,
+                "-co",
+                "NOT_AN_OPTION",
+            ],
+            "NOT_AN_OPTION",
+        ),
+        (
+            vec!["export", "stac", &dem, "--report", &nr, "--out", &i_json],
+            "not_report.json",
+        ),
+        (
+            vec!["export", "geojson", &dem, "--report", &nr, "--out", &g_json],
+            "not_report.json",
+        ),
+        (
+            vec![
+                "export", "gltf", &dem, "--bounds", "0,0,1,1", "--out", &m_glb,
+            ],
+            "does not overlap",
+        ),
+        (
+            vec!["export", "gltf", &missing, "--out", &m_glb],
+            "missing.tif",
+        ),
     ];
     for (args, names) in cases {
         let out = demsketch(&args);
@@ -477,8 +735,28 @@ fn bad_input_exits_1_in_one_line_and_writes_nothing() {
     }
     // Flags clap refuses are user errors too (exit 1).
     for args in [
-        vec!["export", "tiles", &dem, "--encoding", "jpeg", "--zoom", "8", "--out", &tiles],
-        vec!["export", "tiles", &dem, "--encoding", "terrarium", "--zoom", "12-8", "--out", &tiles],
+        vec![
+            "export",
+            "tiles",
+            &dem,
+            "--encoding",
+            "jpeg",
+            "--zoom",
+            "8",
+            "--out",
+            &tiles,
+        ],
+        vec![
+            "export",
+            "tiles",
+            &dem,
+            "--encoding",
+            "terrarium",
+            "--zoom",
+            "12-8",
+            "--out",
+            &tiles,
+        ],
         vec!["export", "gltf", &dem, "--bounds", "1,2,3", "--out", &tiles],
     ] {
         assert_eq!(demsketch(&args).status.code(), Some(1), "{args:?}");

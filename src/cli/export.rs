@@ -193,10 +193,14 @@ fn parse_bounds(s: &str) -> Result<[f64; 4], String> {
         .collect::<Result<_, _>>()
         .map_err(|_| format!("--bounds '{s}' must be four numbers WEST,SOUTH,EAST,NORTH"))?;
     if v.len() != 4 || v.iter().any(|x| !x.is_finite()) {
-        return Err(format!("--bounds '{s}' must be four numbers WEST,SOUTH,EAST,NORTH"));
+        return Err(format!(
+            "--bounds '{s}' must be four numbers WEST,SOUTH,EAST,NORTH"
+        ));
     }
     if !(v[0] < v[2] && v[1] < v[3]) || v[1] < -90.0 || v[3] > 90.0 {
-        return Err(format!("--bounds '{s}': need west < east, south < north, latitudes within +-90"));
+        return Err(format!(
+            "--bounds '{s}': need west < east, south < north, latitudes within +-90"
+        ));
     }
     Ok([v[0], v[1], v[2], v[3]])
 }
@@ -209,7 +213,9 @@ fn parse_datetime(s: &str) -> Result<String, String> {
     if ok {
         Ok(s.to_string())
     } else {
-        Err(format!("--datetime '{s}' must be RFC 3339 UTC, like 2024-05-01T12:00:00Z"))
+        Err(format!(
+            "--datetime '{s}' must be RFC 3339 UTC, like 2024-05-01T12:00:00Z"
+        ))
     }
 }
 
@@ -258,7 +264,8 @@ fn tiles(a: TilesArgs) -> anyhow::Result<()> {
     let r = xyz_tiles::export_tiles(&a.dem, &a.out, &opts).map_err(lift)?;
     super::timing("tiles", r.seconds);
     if a.json {
-        super::print_stdout(&serde_json::to_string_pretty(&r).context("report")?).context("stdout")?;
+        super::print_stdout(&serde_json::to_string_pretty(&r).context("report")?)
+            .context("stdout")?;
     } else if !super::quiet() {
         eprintln!(
             "{}: {} tiles written ({} without data skipped), zooms {}-{}, {:.2} s ({:.0} tiles/s)",
@@ -278,7 +285,8 @@ fn cog_cmd(a: CogArgs) -> anyhow::Result<()> {
     let r = cog::export_cog(&a.dem, &a.out, &a.creation_options).map_err(lift)?;
     super::timing("cog", r.seconds);
     if a.json {
-        super::print_stdout(&serde_json::to_string_pretty(&r).context("report")?).context("stdout")?;
+        super::print_stdout(&serde_json::to_string_pretty(&r).context("report")?)
+            .context("stdout")?;
     } else if !super::quiet() {
         eprintln!(
             "{}: COG {} x {}, {} overview(s), {} bytes, {:.2} s",
@@ -299,8 +307,13 @@ fn geojson(a: GeojsonArgs) -> anyhow::Result<()> {
         None => change_mask::from_report(&a.report, &dem),
     }
     .map_err(lift)?;
-    let fc = curves_geojson::edit_features(&report, &a.report, &dem.crs, Some(&mask)).map_err(lift)?;
-    if !fc["properties"]["placed_curves_in_report"].as_bool().unwrap_or(false) && !super::quiet() {
+    let fc =
+        curves_geojson::edit_features(&report, &a.report, &dem.crs, Some(&mask)).map_err(lift)?;
+    if !fc["properties"]["placed_curves_in_report"]
+        .as_bool()
+        .unwrap_or(false)
+        && !super::quiet()
+    {
         eprintln!(
             "demsketch: {}: no placed_curve in the report (an older demsketch?): only the footprint is written",
             a.report.display()
@@ -333,7 +346,11 @@ fn stac(a: StacArgs) -> anyhow::Result<()> {
     text.push('\n');
     write_file(&a.out, text.as_bytes())?;
     if !super::quiet() {
-        eprintln!("{}: STAC item \"{}\"", a.out.display(), item["id"].as_str().unwrap_or(""));
+        eprintln!(
+            "{}: STAC item \"{}\"",
+            a.out.display(),
+            item["id"].as_str().unwrap_or("")
+        );
     }
     Ok(())
 }
@@ -346,7 +363,8 @@ fn gltf(a: GltfArgs) -> anyhow::Result<()> {
     };
     let r = gltf_mesh::export_gltf(&a.dem, &a.out, &opts).map_err(lift)?;
     if a.json {
-        super::print_stdout(&serde_json::to_string_pretty(&r).context("report")?).context("stdout")?;
+        super::print_stdout(&serde_json::to_string_pretty(&r).context("report")?)
+            .context("stdout")?;
     } else if !super::quiet() {
         eprintln!(
             "{}: {} vertices, {} triangles, origin {:.6}, {:.6} (ENU; glTF x east, y up, z south)",
@@ -359,9 +377,7 @@ fn gltf(a: GltfArgs) -> anyhow::Result<()> {
 /// Write one small file atomically (staged beside it, verified, renamed).
 fn write_file(out: &std::path::Path, bytes: &[u8]) -> anyhow::Result<()> {
     let mut staged = StagedOutputs::default();
-    let tmp = staged
-        .stage(out)
-        .map_err(|m| anyhow::anyhow!("{m}"))?;
+    let tmp = staged.stage(out).map_err(|m| anyhow::anyhow!("{m}"))?;
     write_bytes_verified(&tmp, bytes)
         .map_err(|e| anyhow::anyhow!("{}: cannot write: {e}", out.display()))?;
     staged.commit().map_err(|m| anyhow::anyhow!("{m}"))

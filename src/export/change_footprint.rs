@@ -19,11 +19,12 @@ pub fn footprint_lonlat(mask: &ChangeMask) -> Result<Option<Value>, ExportError>
         return Ok(None);
     }
     let gerr = |e: gdal::errors::GdalError| ExportError::Internal(format!("footprint: {e}"));
-    let srs = gdal::spatial_ref::SpatialRef::from_definition(&mask.crs.gdal_definition())
-        .map_err(|e| ExportError::Input {
+    let srs = gdal::spatial_ref::SpatialRef::from_definition(&mask.crs.gdal_definition()).map_err(
+        |e| ExportError::Input {
             path: mask.source.clone(),
             message: format!("its CRS is unknown to GDAL: {e}"),
-        })?;
+        },
+    )?;
     // The mask as a Byte raster in memory (1 changed; 0, skipped, else).
     let mem = gdal::DriverManager::get_driver_by_name("MEM").map_err(gerr)?;
     let mut ds = mem
@@ -34,7 +35,8 @@ pub fn footprint_lonlat(mask: &ChangeMask) -> Result<Option<Value>, ExportError>
     let mut band = ds.rasterband(1).map_err(gerr)?;
     let bytes: Vec<u8> = mask.changed.iter().map(|&c| c as u8).collect();
     let mut buf = gdal::raster::Buffer::new((mask.width, mask.height), bytes);
-    band.write((0, 0), (mask.width, mask.height), &mut buf).map_err(gerr)?;
+    band.write((0, 0), (mask.width, mask.height), &mut buf)
+        .map_err(gerr)?;
     let vdrv = gdal::DriverManager::get_driver_by_name("Memory").map_err(gerr)?;
     let mut vds = vdrv.create_vector_only("").map_err(gerr)?;
     let layer = vds
@@ -62,7 +64,9 @@ pub fn footprint_lonlat(mask: &ChangeMask) -> Result<Option<Value>, ExportError>
         )
     };
     if rc != gdal_sys::CPLErr::CE_None {
-        return Err(ExportError::Internal("footprint: GDALPolygonize failed".into()));
+        return Err(ExportError::Internal(
+            "footprint: GDALPolygonize failed".into(),
+        ));
     }
     let mut wgs84 = gdal::spatial_ref::SpatialRef::from_epsg(4326).map_err(gerr)?;
     wgs84.set_axis_mapping_strategy(gdal::spatial_ref::AxisMappingStrategy::TraditionalGisOrder);

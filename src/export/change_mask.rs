@@ -107,7 +107,9 @@ pub fn from_report(path: &Path, dem: &Dem) -> Result<ChangeMask, ExportError> {
         path: path.display().to_string(),
         message: m.to_string(),
     };
-    let w = report.window.ok_or_else(|| bad("no deformation.window: not an edit report"))?;
+    let w = report
+        .window
+        .ok_or_else(|| bad("no deformation.window: not an edit report"))?;
     let (col, row, width, height) = (w[0], w[1], w[2], w[3]);
     if width <= 0 || height <= 0 || col < 0 || row < 0 {
         return Err(bad("deformation.window is empty or negative"));

@@ -92,7 +92,10 @@ fn check_copy(src: &gdal::Dataset, written: &Path) -> Result<usize, String> {
     use gdal::Metadata;
     let ds = gdal::Dataset::open(written).map_err(|e| format!("{written:?} does not open: {e}"))?;
     if ds.metadata_item("LAYOUT", "IMAGE_STRUCTURE").as_deref() != Some("COG") {
-        return Err(format!("{}: GDAL does not see a COG layout", written.display()));
+        return Err(format!(
+            "{}: GDAL does not see a COG layout",
+            written.display()
+        ));
     }
     if ds.raster_size() != src.raster_size() {
         return Err(format!("{}: written with another size", written.display()));

@@ -29,10 +29,12 @@ pub fn edit_features(
     let mut features = Vec::new();
     let has_curves = report.strokes.iter().any(|s| s.placed_curve.len() >= 2);
     if has_curves {
-        let to_ll = proj::Proj::new_known_crs(&crs.proj_definition(), "EPSG:4326", None)
-            .map_err(|e| ExportError::Input {
-                path: report_path.display().to_string(),
-                message: format!("the DEM's CRS is unknown to PROJ: {e}"),
+        let to_ll =
+            proj::Proj::new_known_crs(&crs.proj_definition(), "EPSG:4326", None).map_err(|e| {
+                ExportError::Input {
+                    path: report_path.display().to_string(),
+                    message: format!("the DEM's CRS is unknown to PROJ: {e}"),
+                }
             })?;
         for s in &report.strokes {
             let coords: Vec<Value> = s

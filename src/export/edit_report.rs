@@ -50,8 +50,7 @@ pub fn read(path: &Path) -> Result<EditReportSummary, ExportError> {
         message: m,
     };
     let text = std::fs::read_to_string(path).map_err(|e| bad(e.to_string()))?;
-    let raw: Value =
-        serde_json::from_str(&text).map_err(|e| bad(format!("not JSON: {e}")))?;
+    let raw: Value = serde_json::from_str(&text).map_err(|e| bad(format!("not JSON: {e}")))?;
     if !raw.is_object() || raw.get("views").is_none() || raw.get("deformation").is_none() {
         return Err(bad(
             "not an edit report (no \"views\" and \"deformation\"; write one with demsketch edit --report)".into(),

@@ -40,7 +40,10 @@ impl GdalSource {
         ));
         let gerr = |e: gdal::errors::GdalError| ExportError::Input {
             path: dem.path.display().to_string(),
-            message: format!("GDAL: {}", crate::raster::atomic_file::one_line(&e.to_string())),
+            message: format!(
+                "GDAL: {}",
+                crate::raster::atomic_file::one_line(&e.to_string())
+            ),
         };
         let tiles = dem
             .tiles
@@ -61,7 +64,10 @@ impl GdalSource {
     pub fn open(&self) -> Result<gdal::Dataset, ExportError> {
         gdal::Dataset::open(&self.path).map_err(|e| ExportError::Input {
             path: self.dem_path.display().to_string(),
-            message: format!("GDAL cannot open it: {}", crate::raster::atomic_file::one_line(&e.to_string())),
+            message: format!(
+                "GDAL cannot open it: {}",
+                crate::raster::atomic_file::one_line(&e.to_string())
+            ),
         })
     }
 

@@ -59,7 +59,11 @@ pub struct Mesh {
 }
 
 /// Mesh the area of `dem_path` and write it as `.glb` at `out`.
-pub fn export_gltf(dem_path: &Path, out: &Path, opts: &MeshOptions) -> Result<MeshReport, ExportError> {
+pub fn export_gltf(
+    dem_path: &Path,
+    out: &Path,
+    opts: &MeshOptions,
+) -> Result<MeshReport, ExportError> {
     let dem = Dem::open(dem_path)?;
     let win = area_window(&dem, opts.bounds_lonlat)?;
     let step = opts.step.max(1);
@@ -76,17 +80,22 @@ pub fn export_gltf(dem_path: &Path, out: &Path, opts: &MeshOptions) -> Result<Me
     if nc < 2 || nr < 2 {
         return Err(ExportError::Input {
             path: dem_path.display().to_string(),
-            message: format!("the area is {} x {} cells at --step {step}: too small for a mesh", nc, nr),
+            message: format!(
+                "the area is {} x {} cells at --step {step}: too small for a mesh",
+                nc, nr
+            ),
         });
     }
     let map = dem.read_height_map(win)?;
     let (c0x, c0y) = map
         .geotransform
         .pixel_to_crs(win.width as f64 / 2.0, win.height as f64 / 2.0);
-    let to_ll = proj::Proj::new_known_crs(&dem.crs.proj_definition(), "EPSG:4326", None)
-        .map_err(|e| ExportError::Input {
-            path: dem_path.display().to_string(),
-            message: format!("its CRS is unknown to PROJ: {e}"),
+    let to_ll =
+        proj::Proj::new_known_crs(&dem.crs.proj_definition(), "EPSG:4326", None).map_err(|e| {
+            ExportError::Input {
+                path: dem_path.display().to_string(),
+                message: format!("its CRS is unknown to PROJ: {e}"),
+            }
         })?;
     let (lon0, lat0) = to_ll.convert((c0x, c0y)).map_err(|e| ExportError::Input {
         path: dem_path.display().to_string(),
@@ -103,8 +112,12 @@ pub fn export_gltf(dem_path: &Path, out: &Path, opts: &MeshOptions) -> Result<Me
             if !h.is_finite() {
                 continue;
             }
-            let (x, y) = map.geotransform.pixel_to_crs(c as f64 + 0.5, r as f64 + 0.5);
-            let Ok((lon, lat)) = to_ll.convert((x, y)) else { continue };
+            let (x, y) = map
+                .geotransform
+                .pixel_to_crs(c as f64 + 0.5, r as f64 + 0.5);
+            let Ok((lon, lat)) = to_ll.convert((x, y)) else {
+                continue;
+            };
             let [e, n, u] = enu.from_geodetic(lon, lat, h as f64);
             index[j * nc + i] = positions.len() as u32;
             positions.push([e as f32, u as f32, -n as f32]);
@@ -112,7 +125,11 @@ pub fn export_gltf(dem_path: &Path, out: &Path, opts: &MeshOptions) -> Result<Me
     }
     let indices = triangles(&index, nc, nr);
     let normals = vertex_normals(&positions, &indices);
-    let mesh = Mesh { positions, normals, indices };
+    let mesh = Mesh {
+        positions,
+        normals,
+        indices,
+    };
     let (min, max) = bounds(&mesh.positions);
     let extras = json!({"demsketch": {
         "dem": dem_path.display().to_string(),
@@ -157,11 +174,18 @@ fn area_window(dem: &Dem, b: Option<[f64; 4]>) -> Result<Window, ExportError> {
         message: m,
     };
     if !(b[0] < b[2] && b[1] < b[3]) {
-        return Err(bad(format!("--bounds {b:?}: west < east and south < north are needed")));
+        return Err(bad(format!(
+            "--bounds {b:?}: west < east and south < north are needed"
+        )));
     }
     let from_ll = proj::Proj::new_known_crs("EPSG:4326", &dem.crs.proj_definition(), None)
         .map_err(|e| bad(format!("its CRS is unknown to PROJ: {e}")))?;
-    let mut c = [f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY];
+    let mut c = [
+        f64::INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::NEG_INFINITY,
+    ];
     let n = 16;
     for k in 0..=n {
         let t = k as f64 / n as f64;
@@ -209,7 +233,11 @@ fn vertex_normals(p: &[[f32; 3]], idx: &[u32]) -> Vec<[f32; 3]> {
         let (pa, pb, pc) = (v(a), v(b), v(c));
         let u = [pb[0] - pa[0], pb[1] - pa[1], pb[2] - pa[2]];
         let w = [pc[0] - pa[0], pc[1] - pa[1], pc[2] - pa[2]];
-        let n = [u[1] * w[2] - u[2] * w[1], u[2] * w[0] - u[0] * w[2], u[0] * w[1] - u[1] * w[0]];
+        let n = [
+            u[1] * w[2] - u[2] * w[1],
+            u[2] * w[0] - u[0] * w[2],
+            u[0] * w[1] - u[1] * w[0],
+        ];
         for k in [a, b, c] {
             for d in 0..3 {
                 acc[k][d] += n[d];
@@ -337,7 +365,11 @@ impl Enu {
     /// `[east, north, up]` metres of a point (degrees, metres).
     pub fn from_geodetic(&self, lon_deg: f64, lat_deg: f64, h: f64) -> [f64; 3] {
         let p = ecef(lon_deg, lat_deg, h);
-        let d = [p[0] - self.origin[0], p[1] - self.origin[1], p[2] - self.origin[2]];
+        let d = [
+            p[0] - self.origin[0],
+            p[1] - self.origin[1],
+            p[2] - self.origin[2],
+        ];
         let (sl, cl) = self.lon0.sin_cos();
         let (sp, cp) = self.lat0.sin_cos();
         [
@@ -378,7 +410,12 @@ mod tests {
     #[test]
     fn quads_are_counter_clockwise_from_above() {
         // A flat 2 x 2 grid: the normals point up (+y).
-        let p = vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 1.0]];
+        let p = vec![
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [0.0, 0.0, 1.0],
+            [1.0, 0.0, 1.0],
+        ];
         let idx = triangles(&[0, 1, 2, 3], 2, 2);
         assert_eq!(idx.len(), 6);
         for n in vertex_normals(&p, &idx) {

@@ -44,16 +44,20 @@ pub struct StacOptions {
 pub fn stac_item(dem: &Dem, item_path: &Path, opts: &StacOptions) -> Result<Value, ExportError> {
     let bounds = crate::raster::lonlat_bounds(&dem.crs, &dem.geotransform, dem.width, dem.height)
         .ok_or_else(|| ExportError::Input {
-            path: dem.path.display().to_string(),
-            message: "no CRS PROJ knows: a STAC item needs lon/lat bounds".into(),
-        })?;
+        path: dem.path.display().to_string(),
+        message: "no CRS PROJ knows: a STAC item needs lon/lat bounds".into(),
+    })?;
     let outline = outline_lonlat(dem)?;
     let history = provenance_history(dem);
     let now = crate::raster::rfc3339_now();
     let datetime = opts
         .datetime
         .clone()
-        .or_else(|| history.last().and_then(|h| h["time"].as_str().map(String::from)))
+        .or_else(|| {
+            history
+                .last()
+                .and_then(|h| h["time"].as_str().map(String::from))
+        })
         .unwrap_or_else(|| now.clone());
     let id = opts.id.clone().unwrap_or_else(|| {
         dem.path
@@ -68,7 +72,10 @@ pub fn stac_item(dem: &Dem, item_path: &Path, opts: &StacOptions) -> Result<Valu
     props.insert(
         "description".into(),
         json!(match &opts.report {
-            Some((_, r)) => format!("{} corrected by demsketch edit with the sketch {}", r.dem, r.sketch),
+            Some((_, r)) => format!(
+                "{} corrected by demsketch edit with the sketch {}",
+                r.dem, r.sketch
+            ),
             None => format!("digital elevation model {}", dem.path.display()),
         }),
     );
@@ -106,19 +113,28 @@ pub fn stac_item(dem: &Dem, item_path: &Path, opts: &StacOptions) -> Result<Valu
 
 /// The DEM's outline as a lon/lat Polygon (edges densified, 20 points a side).
 fn outline_lonlat(dem: &Dem) -> Result<Value, ExportError> {
-    let to_ll = proj::Proj::new_known_crs(&dem.crs.proj_definition(), "EPSG:4326", None)
-        .map_err(|e| ExportError::Input {
-            path: dem.path.display().to_string(),
-            message: format!("its CRS is unknown to PROJ: {e}"),
+    let to_ll =
+        proj::Proj::new_known_crs(&dem.crs.proj_definition(), "EPSG:4326", None).map_err(|e| {
+            ExportError::Input {
+                path: dem.path.display().to_string(),
+                message: format!("its CRS is unknown to PROJ: {e}"),
+            }
         })?;
     let (w, h) = (dem.width as f64, dem.height as f64);
     let n = 20;
     let mut ring = Vec::new();
-    let sides: [(f64, f64, f64, f64); 4] = [(0.0, 0.0, 0.0, h), (0.0, h, w, h), (w, h, w, 0.0), (w, 0.0, 0.0, 0.0)];
+    let sides: [(f64, f64, f64, f64); 4] = [
+        (0.0, 0.0, 0.0, h),
+        (0.0, h, w, h),
+        (w, h, w, 0.0),
+        (w, 0.0, 0.0, 0.0),
+    ];
     for (ax, ay, bx, by) in sides {
         for i in 0..n {
             let t = i as f64 / n as f64;
-            let (x, y) = dem.geotransform.pixel_to_crs(ax + (bx - ax) * t, ay + (by - ay) * t);
+            let (x, y) = dem
+                .geotransform
+                .pixel_to_crs(ax + (bx - ax) * t, ay + (by - ay) * t);
             if let Ok((lon, lat)) = to_ll.convert((x, y)) {
                 ring.push(json!([lon, lat]));
             }
@@ -143,7 +159,10 @@ fn projection_fields(dem: &Dem, props: &mut Map<String, Value>) {
     }
     props.insert("proj:shape".into(), json!([dem.height, dem.width]));
     // STAC's order is the affine's rows: [a, b, c, d, e, f].
-    props.insert("proj:transform".into(), json!([g[1], g[2], g[0], g[4], g[5], g[3]]));
+    props.insert(
+        "proj:transform".into(),
+        json!([g[1], g[2], g[0], g[4], g[5], g[3]]),
+    );
     let b = dem.geotransform.bounds(dem.width, dem.height);
     props.insert("proj:bbox".into(), json!(b));
 }
@@ -295,10 +314,17 @@ pub fn provenance_history(dem: &Dem) -> Vec<Value> {
     let prefix = format!("{}_", crate::raster::PROVENANCE_KEY);
     let mut entries: Vec<(usize, String)> = Vec::new();
     for t in &dem.tiles {
-        let Ok(ds) = gdal::Dataset::open(&t.path) else { continue };
+        let Ok(ds) = gdal::Dataset::open(&t.path) else {
+            continue;
+        };
         for item in ds.metadata_domain("").unwrap_or_default() {
-            let Some((k, v)) = item.split_once('=') else { continue };
-            if let Some(n) = k.strip_prefix(&prefix).and_then(|n| n.parse::<usize>().ok()) {
+            let Some((k, v)) = item.split_once('=') else {
+                continue;
+            };
+            if let Some(n) = k
+                .strip_prefix(&prefix)
+                .and_then(|n| n.parse::<usize>().ok())
+            {
                 if !entries.iter().any(|(_, e)| e == v) {
                     entries.push((n, v.to_string()));
                 }
@@ -314,7 +340,9 @@ pub fn provenance_history(dem: &Dem) -> Vec<Value> {
                 if let Some((k, v)) = part.split_once('=') {
                     let v = v.trim();
                     let val = if k == "changed_cells" {
-                        v.parse::<u64>().map(Value::from).unwrap_or_else(|_| json!(v))
+                        v.parse::<u64>()
+                            .map(Value::from)
+                            .unwrap_or_else(|_| json!(v))
                     } else {
                         json!(v)
                     };

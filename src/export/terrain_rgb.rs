@@ -11,7 +11,9 @@ pub const STEP: f64 = 0.1;
 /// The RGB bytes of `height` (metres), rounded to the nearest 0.1 m and
 /// clamped to what the encoding holds.
 pub fn encode(height: f64) -> [u8; 3] {
-    let v = ((height - MIN_HEIGHT) / STEP).round().clamp(0.0, 16_777_215.0) as u32;
+    let v = ((height - MIN_HEIGHT) / STEP)
+        .round()
+        .clamp(0.0, 16_777_215.0) as u32;
     [(v >> 16) as u8, (v >> 8) as u8, v as u8]
 }
 

@@ -24,9 +24,19 @@ pub fn warp_args(tile: TileId) -> Vec<String> {
         .collect();
     v.extend(b.iter().map(|x| format!("{x:.10}")));
     v.extend(
-        ["-ts", &n, &n, "-r", "bilinear", "-ot", "Float32", "-dstnodata", "nan"]
-            .iter()
-            .map(|s| s.to_string()),
+        [
+            "-ts",
+            &n,
+            &n,
+            "-r",
+            "bilinear",
+            "-ot",
+            "Float32",
+            "-dstnodata",
+            "nan",
+        ]
+        .iter()
+        .map(|s| s.to_string()),
     );
     v
 }
@@ -58,13 +68,23 @@ pub fn warp_tile(
         }
         let mut srcs = [src.c_dataset()];
         let mut usage: c_int = 0;
-        let h = gdal_sys::GDALWarp(c"".as_ptr(), null_mut(), 1, srcs.as_mut_ptr(), opts, &mut usage);
+        let h = gdal_sys::GDALWarp(
+            c"".as_ptr(),
+            null_mut(),
+            1,
+            srcs.as_mut_ptr(),
+            opts,
+            &mut usage,
+        );
         gdal_sys::GDALWarpAppOptionsFree(opts);
         if h.is_null() {
             let msg = std::ffi::CStr::from_ptr(gdal_sys::CPLGetLastErrorMsg())
                 .to_string_lossy()
                 .into_owned();
-            return Err(format!("GDAL warp of tile {}/{}/{}: {msg}", tile.z, tile.x, tile.y));
+            return Err(format!(
+                "GDAL warp of tile {}/{}/{}: {msg}",
+                tile.z, tile.x, tile.y
+            ));
         }
         gdal::Dataset::from_c_dataset(h)
     };

@@ -80,8 +80,14 @@ pub fn tile_range(z: u8, b: [f64; 4]) -> Option<(u32, u32, u32, u32)> {
     let row = |y: f64| ((HALF_WORLD_M - y) / span).floor();
     let last = (n - 1) as f64;
     // A box ending exactly on a tile edge does not reach into the next.
-    let (x0, x1) = (col(b[0]), (col(b[2]) - if is_edge(b[2], span) { 1.0 } else { 0.0 }));
-    let (y0, y1) = (row(b[3]), (row(b[1]) - if is_edge(b[1], span) { 1.0 } else { 0.0 }));
+    let (x0, x1) = (
+        col(b[0]),
+        (col(b[2]) - if is_edge(b[2], span) { 1.0 } else { 0.0 }),
+    );
+    let (y0, y1) = (
+        row(b[3]),
+        (row(b[1]) - if is_edge(b[1], span) { 1.0 } else { 0.0 }),
+    );
     if x1 < 0.0 || y1 < 0.0 || x0 > last || y0 > last {
         return None;
     }
@@ -97,7 +103,8 @@ fn is_edge(v: f64, span: f64) -> bool {
 
 /// Parse a zoom range written `Z` or `Z0-Z1` (`8-12`), `Z0 <= Z1 <= 24`.
 pub fn parse_zoom_range(s: &str) -> Result<(u8, u8), String> {
-    let bad = || format!("--zoom '{s}' must be a zoom level or a range like 8-12 (0 to {MAX_ZOOM})");
+    let bad =
+        || format!("--zoom '{s}' must be a zoom level or a range like 8-12 (0 to {MAX_ZOOM})");
     let (a, b) = match s.split_once('-') {
         Some((a, b)) => (a.trim(), b.trim()),
         None => (s.trim(), s.trim()),

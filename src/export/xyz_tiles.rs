@@ -25,7 +25,9 @@ use super::tile_encoding::{encode_png, Encoding};
 use super::tile_warp::warp_tile;
 use super::web_mercator::{lonlat_to_3857, pixel_span_m, tile_range, TileId, TILE_SIZE};
 use super::ExportError;
-use crate::raster::atomic_file::{commit_guard, parent_dir, sync_dir, write_bytes_verified, Staging};
+use crate::raster::atomic_file::{
+    commit_guard, parent_dir, sync_dir, write_bytes_verified, Staging,
+};
 use crate::raster::{lonlat_bounds, Dem};
 
 /// What to export.
@@ -60,7 +62,11 @@ pub struct TilesReport {
 }
 
 /// Export the tiles of `dem_path` into `out`; see the module documentation.
-pub fn export_tiles(dem_path: &Path, out: &Path, opts: &TileOptions) -> Result<TilesReport, ExportError> {
+pub fn export_tiles(
+    dem_path: &Path,
+    out: &Path,
+    opts: &TileOptions,
+) -> Result<TilesReport, ExportError> {
     let t0 = Instant::now();
     let dem = Dem::open(dem_path)?;
     let tiles = match &opts.changed {
@@ -194,10 +200,12 @@ pub fn tiles_over_mask(mask: &ChangeMask, (z0, z1): (u8, u8)) -> Result<Vec<Tile
 
 /// EPSG:3857 boxes of the mask's runs, each grown by one cell.
 fn run_boxes_3857(mask: &ChangeMask) -> Result<Vec<[f64; 4]>, ExportError> {
-    let to_ll = proj::Proj::new_known_crs(&mask.crs.proj_definition(), "EPSG:4326", None)
-        .map_err(|e| ExportError::Input {
-            path: mask.source.clone(),
-            message: format!("its CRS is unknown to PROJ: {e}"),
+    let to_ll =
+        proj::Proj::new_known_crs(&mask.crs.proj_definition(), "EPSG:4326", None).map_err(|e| {
+            ExportError::Input {
+                path: mask.source.clone(),
+                message: format!("its CRS is unknown to PROJ: {e}"),
+            }
         })?;
     let gt = &mask.geotransform;
     let mut boxes = Vec::new();
@@ -205,7 +213,12 @@ fn run_boxes_3857(mask: &ChangeMask) -> Result<Vec<[f64; 4]>, ExportError> {
         let (px0, px1) = (c0 as f64 - 1.0, c1 as f64 + 1.0);
         let (py0, py1) = (row as f64 - 1.0, row as f64 + 2.0);
         let steps = ((px1 - px0) / 16.0).ceil().max(1.0) as usize;
-        let mut b = [f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY];
+        let mut b = [
+            f64::INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NEG_INFINITY,
+        ];
         for i in 0..=steps {
             let px = px0 + (px1 - px0) * i as f64 / steps as f64;
             for py in [py0, py1] {
@@ -322,9 +335,9 @@ fn progress_bar(on: bool, len: u64) -> indicatif::ProgressBar {
         ProgressDrawTarget::hidden()
     };
     let pb = ProgressBar::with_draw_target(Some(len), target);
-    if let Ok(style) = ProgressStyle::with_template(
-        "{bar:30} {pos}/{len} tiles [{elapsed}, {per_sec}, eta {eta}]",
-    ) {
+    if let Ok(style) =
+        ProgressStyle::with_template("{bar:30} {pos}/{len} tiles [{elapsed}, {per_sec}, eta {eta}]")
+    {
         pb.set_style(style);
     }
     pb
