@@ -733,6 +733,65 @@ fn bad_input_exits_1_in_one_line_and_writes_nothing() {
         one_line_error(&out, names);
         assert_eq!(snapshot(d), before, "{args:?} wrote something");
     }
+    // A whole tree never goes into an existing directory, and --changed
+    // never mixes encodings.
+    let tree = d.join("tree");
+    ok(&demsketch(&[
+        "export",
+        "tiles",
+        &dem,
+        "--encoding",
+        "terrarium",
+        "--zoom",
+        "8",
+        "--out",
+        &s(&tree),
+        "-q",
+    ]));
+    let t = s(&tree);
+    let dz = d.join("dz.tif");
+    common::gdal_translate(
+        &fixture("zion_srtm_utm12n.tif"),
+        &dz,
+        &["-ot", "Float32", "-scale", "0", "65535", "1", "1"],
+    );
+    let before = snapshot(d);
+    let dzs = s(&dz);
+    for (args, names) in [
+        (
+            vec![
+                "export",
+                "tiles",
+                &dem,
+                "--encoding",
+                "terrarium",
+                "--zoom",
+                "8",
+                "--out",
+                &t,
+            ],
+            "exists",
+        ),
+        (
+            vec![
+                "export",
+                "tiles",
+                &dem,
+                "--encoding",
+                "terrain-rgb",
+                "--zoom",
+                "8",
+                "--out",
+                &t,
+                "--changed",
+                &dzs,
+            ],
+            "tiles.json",
+        ),
+    ] {
+        one_line_error(&demsketch(&args), names);
+        assert_eq!(snapshot(d), before, "{args:?} wrote something");
+    }
     // Flags clap refuses are user errors too (exit 1).
     for args in [
         vec![

@@ -76,29 +76,19 @@ pub fn tile_range(z: u8, b: [f64; 4]) -> Option<(u32, u32, u32, u32)> {
     }
     let n = 1u64 << z;
     let span = tile_span_m(z);
-    let col = |x: f64| ((x + HALF_WORLD_M) / span).floor();
-    let row = |y: f64| ((HALF_WORLD_M - y) / span).floor();
+    // In tile units; a box edge on a tile edge (to 1e-9 of a tile) does
+    // not reach into the next tile.
+    const EPS: f64 = 1e-9;
+    let tx = |x: f64| (x + HALF_WORLD_M) / span;
+    let ty = |y: f64| (HALF_WORLD_M - y) / span;
+    let (x0, x1) = ((tx(b[0]) + EPS).floor(), (tx(b[2]) - EPS).ceil() - 1.0);
+    let (y0, y1) = ((ty(b[3]) + EPS).floor(), (ty(b[1]) - EPS).ceil() - 1.0);
     let last = (n - 1) as f64;
-    // A box ending exactly on a tile edge does not reach into the next.
-    let (x0, x1) = (
-        col(b[0]),
-        (col(b[2]) - if is_edge(b[2], span) { 1.0 } else { 0.0 }),
-    );
-    let (y0, y1) = (
-        row(b[3]),
-        (row(b[1]) - if is_edge(b[1], span) { 1.0 } else { 0.0 }),
-    );
     if x1 < 0.0 || y1 < 0.0 || x0 > last || y0 > last {
         return None;
     }
     let c = |v: f64| v.clamp(0.0, last) as u32;
     (x0 <= x1 && y0 <= y1).then(|| (c(x0), c(x1), c(y0), c(y1)))
-}
-
-/// `v` lies on a tile edge (to a micrometre).
-fn is_edge(v: f64, span: f64) -> bool {
-    let t = (v + HALF_WORLD_M) / span;
-    (t - t.round()).abs() * span < 1e-6
 }
 
 /// Parse a zoom range written `Z` or `Z0-Z1` (`8-12`), `Z0 <= Z1 <= 24`.

@@ -82,7 +82,7 @@ pub fn export_tiles(
             ),
         });
     }
-    let target = TileTarget::prepare(out)?;
+    let target = TileTarget::prepare(out, opts)?;
     let src = GdalSource::new(&dem)?;
     drop(src.open()?);
     let pb = progress_bar(opts.progress, tiles.len() as u64);
@@ -245,7 +245,9 @@ struct TileTarget {
 }
 
 impl TileTarget {
-    fn prepare(out: &Path) -> Result<TileTarget, ExportError> {
+    /// A new tree needs a new `OUT`; `--changed` may update an existing
+    /// one, of the same encoding (its `tiles.json` says which).
+    fn prepare(out: &Path, opts: &TileOptions) -> Result<TileTarget, ExportError> {
         let werr = |m: String| ExportError::Write {
             path: out.display().to_string(),
             message: m,
@@ -255,6 +257,15 @@ impl TileTarget {
             Ok(_) => return Err(werr("exists and is not a directory".into())),
             Err(_) => false,
         };
+        if update && opts.changed.is_none() {
+            return Err(werr(
+                "exists: a whole tree goes to a new directory (--changed updates an existing tree)"
+                    .into(),
+            ));
+        }
+        if update {
+            check_tree_encoding(out, opts.encoding)?;
+        }
         let parent = if update { out } else { parent_dir(out) };
         if !parent.is_dir() {
             return Err(werr("its parent directory does not exist".into()));
@@ -300,6 +311,25 @@ impl TileTarget {
         }
         let _ = sync_dir(parent_dir(&self.out));
         Ok(())
+    }
+}
+
+/// An existing tree's `tiles.json`, if any, must name `encoding`.
+fn check_tree_encoding(out: &Path, encoding: Encoding) -> Result<(), ExportError> {
+    let tj = out.join("tiles.json");
+    let Ok(text) = std::fs::read_to_string(&tj) else {
+        return Ok(());
+    };
+    let v: serde_json::Value = serde_json::from_str(&text).unwrap_or_default();
+    match v["encoding"].as_str() {
+        Some(e) if e != encoding.maplibre_name() => Err(ExportError::Input {
+            path: tj.display().to_string(),
+            message: format!(
+                "the tree is encoded \"{e}\", not \"{}\" (--encoding)",
+                encoding.maplibre_name()
+            ),
+        }),
+        _ => Ok(()),
     }
 }
 
