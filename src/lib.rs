@@ -26,5 +26,6 @@ pub mod edit;
 pub mod features;
 pub mod raster;
 pub mod render;
+pub mod serve;
 pub mod sketch;
 pub mod view;

@@ -4,6 +4,7 @@ pub mod correct;
 pub mod edit;
 pub mod info;
 pub mod locate;
+pub mod serve;
 pub mod view;
 
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -91,6 +92,9 @@ pub enum Command {
     /// Apply corrections drawn in map view (GeoJSON lakes, rivers, control curves) to a DEM.
     #[command(after_help = correct::CORRECT_AFTER_HELP)]
     Correct(correct::CorrectArgs),
+    /// The browser app: map, first-person view, drawing, photo tracing, edit and compare.
+    #[command(after_help = serve::SERVE_AFTER_HELP)]
+    Serve(serve::ServeArgs),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
@@ -102,6 +106,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Locate(a) => locate::run(a),
         Command::Edit(a) => edit::run(a),
         Command::Correct(a) => correct::run(a),
+        Command::Serve(a) => serve::run(a),
     }
 }
 
