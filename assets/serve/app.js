@@ -275,7 +275,7 @@ function viewPixel(e) {
 function drawStrokes() {
   const cv = $("strokes"), g = cv.getContext("2d");
   g.clearRect(0, 0, cv.width, cv.height);
-  const lw = Math.max(2, cv.width / 400);
+  const lw = Math.max(2.5, cv.width / 320);
   const line = (pts, color, w) => {
     if (pts.length < 1) return;
     g.beginPath(); g.moveTo(pts[0][0], pts[0][1]);
@@ -314,7 +314,7 @@ function addStroke(pts) {
   snapshot();
   if (!best) {
     v.strokes.push({ id: nextStrokeId(v), points: pts });
-    app.selected = v.strokes.length - 1;
+    app.selected = null;
   } else {
     const s = v.strokes[best.k], P = s.points;
     let np;
@@ -331,7 +331,7 @@ function addStroke(pts) {
       np = dirEnd ? P.slice(0, best.ie).concat(pts.slice().reverse()) : pts.concat(P.slice(best.ie + 1));
     }
     s.points = np;
-    app.selected = best.k;
+    app.selected = null;
   }
   syncFields(); drawStrokes();
 }
@@ -472,7 +472,7 @@ function showJob(j) {
   const order = (n) => (n.endsWith("_before.png") ? 0 : n.endsWith("_after.png") ? 1 : 2) + n;
   for (const n of j.images.slice().sort((a, b) => order(a).localeCompare(order(b)))) {
     const label = n === "height_change.png" ? "height change (new - old)" : n.replace(/_before\.png$/, ": before").replace(/_after\.png$/, ": after");
-    box.insertAdjacentHTML("beforeend", `<figure><img src="/api/jobs/${j.id}/image/${encodeURIComponent(n)}" alt="${esc(n)}"><figcaption>${esc(label)}</figcaption></figure>`);
+    box.insertAdjacentHTML("beforeend", `<figure class="${n === "height_change.png" ? "dz" : ""}"><img src="/api/jobs/${j.id}/image/${encodeURIComponent(n)}" alt="${esc(n)}"><figcaption>${esc(label)}</figcaption></figure>`);
   }
   const rows = [];
   for (const v of r.views) for (const s of v.strokes) {

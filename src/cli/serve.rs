@@ -38,16 +38,19 @@ pub struct ServeArgs {
     #[arg(long)]
     pub open: bool,
     /// Only the DEM within this distance of a viewpoint is read, metres.
-    #[arg(long, default_value_t = 50_000.0)]
+    #[arg(long, default_value_t = 50_000.0, allow_hyphen_values = true)]
     pub max_distance: f64,
     /// Least fitted share of each stroke for an edit to be written (as `edit --min-fit`).
-    #[arg(long, default_value_t = demsketch::edit::DEFAULT_MIN_FIT)]
+    #[arg(long, default_value_t = demsketch::edit::DEFAULT_MIN_FIT, allow_hyphen_values = true)]
     pub min_fit: f64,
 }
 
 pub fn run(args: ServeArgs) -> anyhow::Result<()> {
     if !(args.max_distance.is_finite() && args.max_distance > 0.0) {
-        anyhow::bail!("--max-distance {} must be a positive number of metres", args.max_distance);
+        anyhow::bail!(
+            "--max-distance {} must be a positive number of metres",
+            args.max_distance
+        );
     }
     if !(args.min_fit.is_finite() && args.min_fit >= 0.0) {
         anyhow::bail!("--min-fit {} is not a non-negative number", args.min_fit);
@@ -71,6 +74,7 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
     match result {
         Ok(()) => Ok(()),
         Err(ServeError::Internal(m)) => Err(InternalError(m).into()),
-        Err(e) => Err(anyhow::anyhow!("{}: {e}", args.dem.display())),
+        // The library's messages name the file (DEM or --out) already.
+        Err(e) => Err(anyhow::anyhow!("{e}")),
     }
 }

@@ -10,10 +10,9 @@ use std::sync::Arc;
 
 use serde::{Deserialize, Serialize};
 
-use super::overview::encode_rgba;
+use super::overview::{encode_rgb, encode_rgba};
 use super::state::{AppState, CachedScene, SceneKey};
 use super::ServeError;
-use crate::edit::renders::encode_png;
 use crate::features::{
     detect_ridges, extract_silhouettes, RidgeNetwork, RidgeParams, SilhouetteParams,
 };
@@ -61,7 +60,9 @@ pub fn camera_of(spec: &CameraSpec) -> Result<Camera, ServeError> {
         ("hfov_deg", spec.hfov_deg),
     ] {
         if !v.is_finite() {
-            return Err(ServeError::BadRequest(format!("camera: {name} is not a number")));
+            return Err(ServeError::BadRequest(format!(
+                "camera: {name} is not a number"
+            )));
         }
     }
     Camera::new(
@@ -95,7 +96,9 @@ impl AppState {
             }
         }
         if !(vp.lon.is_finite() && vp.lat.is_finite()) {
-            return Err(ServeError::BadRequest("viewpoint: lon/lat must be numbers".into()));
+            return Err(ServeError::BadRequest(
+                "viewpoint: lon/lat must be numbers".into(),
+            ));
         }
         let height = match vp.height() {
             crate::sketch::EyeHeightSpec::AboveSurface(h) => EyeHeight::AboveSurface(h),
@@ -165,8 +168,18 @@ impl CachedScene {
     }
 }
 
-/// The shaded view of `req` as PNG, with the overlays asked for.
-pub fn render_png(state: &AppState, req: &ViewRequest) -> Result<Vec<u8>, ServeError> {
+/// Seconds each step of a request took, for the `Server-Timing` header.
+pub type StepTimes = Vec<(&'static str, f64)>;
+
+/// The shaded view of `req` as PNG, with the overlays asked for, and the
+/// time of each step.
+pub fn render_png(state: &AppState, req: &ViewRequest) -> Result<(Vec<u8>, StepTimes), ServeError> {
+    let mut times = StepTimes::new();
+    let mut t = std::time::Instant::now();
+    let mut lap = |name: &'static str, times: &mut StepTimes| {
+        times.push((name, t.elapsed().as_secs_f64()));
+        t = std::time::Instant::now();
+    };
     for o in &req.overlays {
         if !matches!(o.as_str(), "silhouettes" | "ridges") {
             return Err(ServeError::BadRequest(format!(
@@ -176,13 +189,16 @@ pub fn render_png(state: &AppState, req: &ViewRequest) -> Result<Vec<u8>, ServeE
     }
     let camera = camera_of(&req.camera)?;
     let scene = state.scene_for(&req.viewpoint)?;
+    lap("scene", &mut times);
     let depth = DepthBuffer::render(&scene.terrain, &camera);
+    lap("render", &mut times);
     // Sun behind the viewer's right shoulder, as `demsketch view`.
     let opts = ShadeOptions {
         sun_azimuth_deg: camera.heading_deg + 135.0,
         ..ShadeOptions::default()
     };
     let mut rgb = shade(&depth, &scene.terrain, &opts);
+    lap("shade", &mut times);
     let (w, h) = (camera.width, camera.height);
     let line = (w.max(h) as f64 / 800.0).clamp(1.0, 4.0);
     let want = |o: &str| req.overlays.iter().any(|x| x == o);
@@ -196,7 +212,10 @@ pub fn render_png(state: &AppState, req: &ViewRequest) -> Result<Vec<u8>, ServeE
             draw_polyline(&mut rgb, w, h, &c, [225, 30, 30], line);
         }
     }
-    encode_png(w, h, &rgb).map_err(ServeError::Internal)
+    lap("overlays", &mut times);
+    let png = encode_rgb(w, h, &rgb)?;
+    lap("png", &mut times);
+    Ok((png, times))
 }
 
 /// A silhouette of a view for the page.
@@ -249,15 +268,20 @@ pub fn features(state: &AppState, req: &ViewRequest) -> Result<FeaturesOut, Serv
 /// The terrain point under `req.pixel` (JSON of [`crate::render::Located`], or null for sky).
 pub fn locate_pixel(state: &AppState, req: &ViewRequest) -> Result<serde_json::Value, ServeError> {
     let Some([x, y]) = req.pixel else {
-        return Err(ServeError::BadRequest("locate: give \"pixel\": [x, y]".into()));
+        return Err(ServeError::BadRequest(
+            "locate: give \"pixel\": [x, y]".into(),
+        ));
     };
     if !(x.is_finite() && y.is_finite()) {
-        return Err(ServeError::BadRequest("locate: pixel is not a number".into()));
+        return Err(ServeError::BadRequest(
+            "locate: pixel is not a number".into(),
+        ));
     }
     let camera = camera_of(&req.camera)?;
     let scene = state.scene_for(&req.viewpoint)?;
     let hit = state.with_georef(|g| {
-        locate(&scene.terrain, &camera, g, x, y).map_err(|e| ServeError::Unprocessable(e.to_string()))
+        locate(&scene.terrain, &camera, g, x, y)
+            .map_err(|e| ServeError::Unprocessable(e.to_string()))
     })?;
     serde_json::to_value(hit).map_err(|e| ServeError::Internal(e.to_string()))
 }

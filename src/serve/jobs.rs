@@ -109,7 +109,9 @@ impl Jobs {
         let mut v = job.view.clone();
         v.queued_ahead = jobs
             .values()
-            .filter(|j| j.view.id < id && matches!(j.view.state, JobState::Queued | JobState::Running))
+            .filter(|j| {
+                j.view.id < id && matches!(j.view.state, JobState::Queued | JobState::Running)
+            })
             .count();
         v.elapsed_s = match (job.started, job.finished) {
             (Some(s), Some(f)) => (f - s).as_secs_f64(),
@@ -126,7 +128,9 @@ impl Jobs {
             .get(&id)
             .ok_or_else(|| ServeError::NotFound(format!("no job {id}")))?;
         if !job.view.images.iter().any(|n| n == name) {
-            return Err(ServeError::NotFound(format!("job {id} has no picture '{name}'")));
+            return Err(ServeError::NotFound(format!(
+                "job {id} has no picture '{name}'"
+            )));
         }
         Ok(job.dir.join("renders").join(name))
     }
@@ -157,7 +161,9 @@ impl Jobs {
             return Err(ServeError::Conflict(format!("job {id} is not a dry run")));
         }
         if job.view.state != JobState::Done {
-            return Err(ServeError::Conflict(format!("dry run {id} has not finished")));
+            return Err(ServeError::Conflict(format!(
+                "dry run {id} has not finished"
+            )));
         }
         if !job.view.writable {
             return Err(ServeError::Conflict(format!(
@@ -175,7 +181,10 @@ impl Jobs {
             .filter(|j| matches!(j.view.state, JobState::Done | JobState::Failed))
             .map(|j| j.view.id)
             .collect();
-        for id in finished.iter().take(finished.len().saturating_sub(KEEP_FINISHED)) {
+        for id in finished
+            .iter()
+            .take(finished.len().saturating_sub(KEEP_FINISHED))
+        {
             if let Some(j) = jobs.remove(id) {
                 let _ = std::fs::remove_dir_all(&j.dir);
             }
@@ -189,7 +198,13 @@ pub fn submit_dry_run(
     sketch: String,
     allow_partial: bool,
 ) -> Result<u64, ServeError> {
-    submit(state, JobKind::DryRun, Arc::new(sketch), allow_partial, None)
+    submit(
+        state,
+        JobKind::DryRun,
+        Arc::new(sketch),
+        allow_partial,
+        None,
+    )
 }
 
 /// Queue the real edit of dry run `id`'s sketch, written to OUT.
@@ -275,11 +290,12 @@ fn submit(
             return;
         };
         let st2 = st.clone();
-        let outcome = tokio::task::spawn_blocking(move || {
-            run_job(&st2, kind, &sketch, allow_partial, &dir)
-        })
-        .await
-        .unwrap_or_else(|e| Outcome::failed(format!("internal error: the edit stopped: {e}")));
+        let outcome =
+            tokio::task::spawn_blocking(move || run_job(&st2, kind, &sketch, allow_partial, &dir))
+                .await
+                .unwrap_or_else(|e| {
+                    Outcome::failed(format!("internal error: the edit stopped: {e}"))
+                });
         if let Ok(mut jobs) = st.jobs.lock() {
             if let Some(j) = jobs.get_mut(&id) {
                 j.finished = Some(Instant::now());
@@ -324,7 +340,11 @@ impl Outcome {
 
 /// The edit's options: those of `demsketch edit` with the server's
 /// `--max-distance`, `--refraction` and `--min-fit`.
-pub fn edit_options(state: &AppState, destination: Destination, allow_partial: bool) -> EditOptions {
+pub fn edit_options(
+    state: &AppState,
+    destination: Destination,
+    allow_partial: bool,
+) -> EditOptions {
     let mut opts = EditOptions::new(destination);
     opts.max_distance_m = Some(state.config.max_distance_m);
     opts.refraction = state.config.refraction;
@@ -334,7 +354,13 @@ pub fn edit_options(state: &AppState, destination: Destination, allow_partial: b
 }
 
 /// Run one job on this (blocking) thread.
-fn run_job(state: &AppState, kind: JobKind, sketch: &str, allow_partial: bool, dir: &Path) -> Outcome {
+fn run_job(
+    state: &AppState,
+    kind: JobKind,
+    sketch: &str,
+    allow_partial: bool,
+    dir: &Path,
+) -> Outcome {
     match run_job_inner(state, kind, sketch, allow_partial, dir) {
         Ok(o) => o,
         Err(m) => Outcome::failed(m),
@@ -422,7 +448,8 @@ fn take_edit_lock(state: &AppState, dem: &Path) -> Result<Option<EditLock>, Stri
     if !(lock_dir(dem).is_dir() && dem.exists()) {
         return Ok(None);
     }
-    let lock = EditLock::acquire(dem, Duration::from_secs(300), |_| {}).map_err(|e| e.to_string())?;
+    let lock =
+        EditLock::acquire(dem, Duration::from_secs(300), |_| {}).map_err(|e| e.to_string())?;
     for note in journal::recover(dem, &lock.dir).map_err(|e| e.to_string())? {
         eprintln!("demsketch serve: {note}");
     }

@@ -41,15 +41,21 @@ impl Overview {
         for tile in &dem.tiles {
             read_tile(tile, sx, sy, width, height, &mut heights)?;
         }
-        let min_max = heights
-            .iter()
-            .filter(|v| v.is_finite())
-            .fold(None, |a: Option<(f32, f32)>, &v| match a {
+        let min_max = heights.iter().filter(|v| v.is_finite()).fold(
+            None,
+            |a: Option<(f32, f32)>, &v| match a {
                 None => Some((v, v)),
                 Some((lo, hi)) => Some((lo.min(v), hi.max(v))),
-            });
+            },
+        );
         let cell_m = cell_metres(dem).map(|(x, y)| (x * sx, y * sy));
-        let rgba = shade_map(width, height, &heights, min_max, cell_m.unwrap_or((1.0, 1.0)));
+        let rgba = shade_map(
+            width,
+            height,
+            &heights,
+            min_max,
+            cell_m.unwrap_or((1.0, 1.0)),
+        );
         let png = encode_rgba(width, height, &rgba)?;
         Ok(Overview {
             width,
@@ -93,9 +99,13 @@ fn read_tile(
     // The tile's pixels under those overview pixels.
     let clamp = |v: f64, n: usize| (v.round().max(0.0) as usize).min(n);
     let x0 = clamp(i0 as f64 * sx - e.col as f64, e.width);
-    let x1 = clamp(i1 as f64 * sx - e.col as f64, e.width).max(x0 + 1).min(e.width);
+    let x1 = clamp(i1 as f64 * sx - e.col as f64, e.width)
+        .max(x0 + 1)
+        .min(e.width);
     let y0 = clamp(j0 as f64 * sy - e.row as f64, e.height);
-    let y1 = clamp(j1 as f64 * sy - e.row as f64, e.height).max(y0 + 1).min(e.height);
+    let y1 = clamp(j1 as f64 * sy - e.row as f64, e.height)
+        .max(y0 + 1)
+        .min(e.height);
     let (ow, oh) = (i1 - i0, j1 - j0);
     let name = tile.path.display().to_string();
     let err = |m: String| ServeError::Internal(format!("{name}: overview: {m}"));
@@ -132,7 +142,8 @@ fn read_tile(
     for j in 0..oh {
         for i in 0..ow {
             let v = raw[j * ow + i];
-            let is_nodata = v.is_nan() || nodata.is_some_and(|n| v == n || (n.is_nan() && v.is_nan()));
+            let is_nodata =
+                v.is_nan() || nodata.is_some_and(|n| v == n || (n.is_nan() && v.is_nan()));
             if !is_nodata {
                 out[(j0 + j) * width + i0 + i] = tile.vertical.to_metres(v) as f32;
             }
@@ -194,7 +205,9 @@ fn shade_map(
     min_max: Option<(f32, f32)>,
     cell_m: (f64, f64),
 ) -> Vec<u8> {
-    let (lo, hi) = min_max.map(|(a, b)| (a as f64, b as f64)).unwrap_or((0.0, 1.0));
+    let (lo, hi) = min_max
+        .map(|(a, b)| (a as f64, b as f64))
+        .unwrap_or((0.0, 1.0));
     let range = (hi - lo).max(1e-6);
     let at = |i: usize, j: usize| z[j * w + i] as f64;
     // Light from azimuth 315 (north-west), 45 degrees up.
@@ -210,11 +223,11 @@ fn shade_map(
             let (i0, i1) = (i.saturating_sub(1), (i + 1).min(w - 1));
             let (j0, j1) = (j.saturating_sub(1), (j + 1).min(h - 1));
             let pick = |a: f64, b: f64| if b.is_finite() { b } else { a };
-            let dzdx = (pick(v, at(i1, j)) - pick(v, at(i0, j)))
-                / (cell_m.0 * (i1 - i0).max(1) as f64);
+            let dzdx =
+                (pick(v, at(i1, j)) - pick(v, at(i0, j))) / (cell_m.0 * (i1 - i0).max(1) as f64);
             // Rows go south: north is -y.
-            let dzdy = (pick(v, at(i, j0)) - pick(v, at(i, j1)))
-                / (cell_m.1 * (j1 - j0).max(1) as f64);
+            let dzdy =
+                (pick(v, at(i, j0)) - pick(v, at(i, j1))) / (cell_m.1 * (j1 - j0).max(1) as f64);
             let n = [-dzdx, -dzdy, 1.0];
             let len = (n[0] * n[0] + n[1] * n[1] + 1.0).sqrt();
             let lambert = ((n[0] * light[0] + n[1] * light[1] + n[2] * light[2]) / len).max(0.0);
@@ -230,17 +243,31 @@ fn shade_map(
     rgba
 }
 
-/// Encode RGBA bytes as PNG.
+/// Encode RGBA bytes as PNG (fast compression: pictures for the page).
 pub fn encode_rgba(width: usize, height: usize, rgba: &[u8]) -> Result<Vec<u8>, ServeError> {
+    encode(width, height, rgba, png::ColorType::Rgba)
+}
+
+/// Encode RGB bytes as PNG (fast compression).
+pub fn encode_rgb(width: usize, height: usize, rgb: &[u8]) -> Result<Vec<u8>, ServeError> {
+    encode(width, height, rgb, png::ColorType::Rgb)
+}
+
+fn encode(
+    width: usize,
+    height: usize,
+    bytes: &[u8],
+    color: png::ColorType,
+) -> Result<Vec<u8>, ServeError> {
     let mut out = Vec::new();
     let err = |e: png::EncodingError| ServeError::Internal(format!("PNG: {e}"));
     {
         let mut enc = png::Encoder::new(&mut out, width as u32, height as u32);
-        enc.set_color(png::ColorType::Rgba);
+        enc.set_color(color);
         enc.set_depth(png::BitDepth::Eight);
         enc.set_compression(png::Compression::Fast);
         let mut wr = enc.write_header().map_err(err)?;
-        wr.write_image_data(rgba).map_err(err)?;
+        wr.write_image_data(bytes).map_err(err)?;
         wr.finish().map_err(err)?;
     }
     Ok(out)

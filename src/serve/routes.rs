@@ -171,11 +171,18 @@ struct LookupQuery {
     y: f64,
 }
 
-async fn lookup(State(st): State<AppState>, q: Result<Query<LookupQuery>, QueryRejection>) -> Answer {
+async fn lookup(
+    State(st): State<AppState>,
+    q: Result<Query<LookupQuery>, QueryRejection>,
+) -> Answer {
     let Query(q) = q.map_err(|e| ServeError::BadRequest(format!("query: {}", e.body_text())))?;
     let ov_w = st.overview.width as f64;
     let ov_h = st.overview.height as f64;
-    if !(q.x.is_finite() && q.y.is_finite() && (0.0..ov_w).contains(&q.x) && (0.0..ov_h).contains(&q.y)) {
+    if !(q.x.is_finite()
+        && q.y.is_finite()
+        && (0.0..ov_w).contains(&q.x)
+        && (0.0..ov_h).contains(&q.y))
+    {
         return Err(ServeError::BadRequest(format!(
             "lookup: ({}, {}) lies outside the map (0..{ov_w} x 0..{ov_h})",
             q.x, q.y
@@ -210,7 +217,9 @@ struct ProjectRequest {
 async fn project(State(st): State<AppState>, body: Bytes) -> Answer {
     let req: ProjectRequest = parse(&body)?;
     if req.points.len() > 10_000 {
-        return Err(ServeError::BadRequest("project: at most 10000 points".into()));
+        return Err(ServeError::BadRequest(
+            "project: at most 10000 points".into(),
+        ));
     }
     let v = blocking(&st, move |st| {
         st.with_georef(|g| {
@@ -239,7 +248,16 @@ fn view_request(body: &[u8]) -> Result<ViewRequest, ServeError> {
 
 async fn render(State(st): State<AppState>, body: Bytes) -> Answer {
     let req = view_request(&body)?;
-    png_answer(blocking(&st, move |st| first_person::render_png(st, &req)).await?)
+    let (png, times) = blocking(&st, move |st| first_person::render_png(st, &req)).await?;
+    let timing: Vec<String> = times
+        .iter()
+        .map(|(name, s)| format!("{name};dur={:.1}", s * 1000.0))
+        .collect();
+    let mut r = png_answer(png)?;
+    if let Ok(v) = axum::http::HeaderValue::from_str(&timing.join(", ")) {
+        r.headers_mut().insert("server-timing", v);
+    }
+    Ok(r)
 }
 
 async fn features(State(st): State<AppState>, body: Bytes) -> Answer {

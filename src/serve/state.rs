@@ -80,8 +80,10 @@ pub struct Inner {
     pub jobs: Jobs,
     /// Lets at most [`super::routes::MAX_RENDERS`] renders run at once.
     pub render_gate: tokio::sync::Semaphore,
-    /// Private working directory (mode 700, removed at exit).
-    pub workdir: tempfile::TempDir,
+    /// Private working directory (an exclusive temporary directory, mode
+    /// 700, removed at exit and on SIGINT/SIGTERM with the edit's own
+    /// staging directories).
+    pub workdir: crate::raster::atomic_file::Staging,
 }
 
 /// The server's state, cheap to clone into handlers.
@@ -119,9 +121,7 @@ impl AppState {
             }
         }
         let overview = Overview::build(&dem, config.overview_px)?;
-        let workdir = tempfile::Builder::new()
-            .prefix("demsketch-serve-")
-            .tempdir()
+        let workdir = crate::raster::atomic_file::Staging::new_in(&std::env::temp_dir())
             .map_err(|e| ServeError::Internal(format!("cannot create a working directory: {e}")))?;
         let jobs = Jobs::new(config.max_queued_edits);
         Ok(AppState(Arc::new(Inner {

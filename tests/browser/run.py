@@ -226,9 +226,7 @@ def test_edit_flow(binary, shots, tmp):
                          ("f-hfov", v0["camera"]["hfov_deg"]), ("f-width", v0["camera"]["width"]),
                          ("f-height", v0["camera"]["height"])]:
             set_field(d, fid, val)
-        d.find_element(By.ID, "view-name").clear()
-        d.find_element(By.ID, "view-name").send_keys(v0["name"] + "\n")
-        d.execute_script("document.getElementById('view-name').dispatchEvent(new Event('change'))")
+        set_field(d, "view-name", v0["name"])
         wait_for(lambda: rendered_for_camera(d), 30, "the render of the camera")
         # The silhouettes of this view, as the page overlays them.
         s, feats = post_json(srv, "/api/features", {"viewpoint": v0["viewpoint"], "camera": v0["camera"]})
@@ -249,9 +247,12 @@ def test_edit_flow(binary, shots, tmp):
         assert mid and all(abs(p[1] - min(q[1] for q in dome if abs(q[0] - p[0]) < 45)) < 12 for p in mid), \
             f"the over-sketched part was not replaced: {mid}"
         print(f"  two strokes drawn, one over-sketched: {[len(s['points']) for s in strokes]} points")
+        d.find_element(By.ID, "viewshed-btn").click()
+        wait_for(lambda: d.execute_script("return app.viewshed !== null"), 30, "the viewshed")
         if shots:
             shot(d.find_element(By.ID, "map-pane"), os.path.join(shots, "map_view.png"))
             shot(d.find_element(By.ID, "view-wrap"), os.path.join(shots, "first_person_strokes.png"))
+            d.save_screenshot(os.path.join(shots, "app.png"))
         # Dry run, compare, download, accept.
         d.find_element(By.ID, "dry-run").click()
         state = wait_for(lambda: d.execute_script("return document.getElementById('edit-status').dataset.state"), 90, "the dry run")
@@ -265,8 +266,7 @@ def test_edit_flow(binary, shots, tmp):
         if shots:
             d.execute_script("document.getElementById('compare').scrollIntoView()")
             shot(d.find_element(By.ID, "compare"), os.path.join(shots, "compare.png"))
-            d.execute_script("window.scrollTo(0, 0)")
-            d.save_screenshot(os.path.join(shots, "app.png"))
+            d.execute_script("document.querySelector('main').scrollTop = 0")
         d.find_element(By.ID, "download").click()
         dl_file = os.path.join(dl, "sketch.json")
         wait_for(lambda: os.path.exists(dl_file) and os.path.getsize(dl_file) > 0, 20, "the download")
@@ -377,7 +377,137 @@ def test_hostile(binary, shots, tmp):
     print("  no file outside OUT touched")
 
 
-TESTS = {"edit_flow": test_edit_flow, "hostile": test_hostile}
+PHOTO_SKYLINE_JS = """
+const img = arguments[0], x0 = arguments[1], x1 = arguments[2], step = arguments[3];
+const c = document.createElement('canvas');
+c.width = img.naturalWidth; c.height = img.naturalHeight;
+const g = c.getContext('2d'); g.drawImage(img, 0, 0);
+const d = g.getImageData(0, 0, c.width, c.height).data;
+const out = [];
+for (let x = x0; x <= x1; x += step) {
+  // The sky's colour changes slowly down a column; the skyline is the
+  // first row that differs from the row two above by a clear step.
+  for (let y = 2; y < c.height; y++) {
+    const k = (y * c.width + x) * 4, u = ((y - 2) * c.width + x) * 4;
+    const diff = Math.abs(d[k] - d[u]) + Math.abs(d[k + 1] - d[u + 1]) + Math.abs(d[k + 2] - d[u + 2]);
+    if (diff > 24) { out.push([x, y - 0.5]); break; }
+  }
+}
+return out;
+"""
+
+
+def skyline_error(binary, tmp, dems, vp, cols):
+    """Mean |skyline row of each DEM - skyline row of the last| over image
+    columns `cols`, in the photo's camera (depth buffers read by the system
+    Python's GDAL and numpy)."""
+    depths = []
+    for k, dem in enumerate(dems):
+        dp = os.path.join(tmp, f"depth{k}.tif")
+        subprocess.run([binary, "view", dem, "--lon", str(vp["lon"]), "--lat", str(vp["lat"]),
+                        "--heading", "203", "--pitch", "0", "--hfov", "35", "--size", "1200x600",
+                        "--out", os.path.join(tmp, f"v{k}.png"), "--depth", dp, "-q"], check=True)
+        depths.append(dp)
+    code = ("import sys, json, numpy as np\nfrom osgeo import gdal\n"
+            "cols = json.loads(sys.argv[1])\n"
+            "def sky(p):\n"
+            "    d = gdal.Open(p).ReadAsArray()\n"
+            "    return np.array([np.argmax(d[:, c] != -9999) for c in cols], float)\n"
+            "s = [sky(p) for p in sys.argv[2:]]\n"
+            "print(json.dumps([float(np.abs(x - s[-1]).mean()) for x in s[:-1]]))\n")
+    out = subprocess.run(["/usr/bin/python3", "-c", code, json.dumps(cols), *depths],
+                         capture_output=True, text=True, check=True).stdout
+    return json.loads(out)
+
+
+def test_photo_trace(binary, shots, tmp):
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.common.action_chains import ActionChains
+    sketch = json.load(open(SKETCH))
+    v0 = sketch["views"][0]
+    # The "photo": a render of a changed DEM (the bundled sketch applied),
+    # from a camera 3 degrees to the right and 1 degree higher than the
+    # app's starting camera, saved as JPEG.
+    target = os.path.join(tmp, "target.tif")
+    subprocess.run([binary, "edit", DEM, "--sketch", SKETCH, "--out", target, "-q"], check=True)
+    png = os.path.join(tmp, "photo.png")
+    photo = os.path.join(tmp, "photo.jpg")
+    vp = v0["viewpoint"]
+    subprocess.run([binary, "view", target, "--lon", str(vp["lon"]), "--lat", str(vp["lat"]),
+                    "--heading", "203", "--pitch", "0", "--hfov", "35", "--size", "1200x600",
+                    "--out", png, "-q"], check=True)
+    subprocess.run(["gdal_translate", "-q", "-of", "JPEG", "-co", "QUALITY=90", png, photo], check=True)
+    out = os.path.join(tmp, "traced.tif")
+    srv = Server(binary, DEM, out)
+    d = browser(tmp)
+    try:
+        d.get(srv.url)
+        wait_for(lambda: d.execute_script("return document.body.dataset.ready"), 30, "the page")
+        for fid, val in [("f-lon", vp["lon"]), ("f-lat", vp["lat"]), ("f-heading", 200), ("f-pitch", -1),
+                         ("f-hfov", 35)]:
+            set_field(d, fid, val)
+        set_field(d, "view-name", "photo")
+        d.find_element(By.ID, "photo-file").send_keys(photo)
+        wait_for(lambda: d.execute_script("return app.photo && app.sketch.views[0].camera.width === 1200"
+                                          " && app.sketch.views[0].camera.height === 600"), 20, "the photo")
+        set_field(d, "photo-opacity", 0.5)
+        d.execute_script("document.getElementById('photo-opacity').dispatchEvent(new Event('input'))")
+        # Align: drag the render under the photo (3 degrees right, 1 up).
+        d.find_element(By.CSS_SELECTOR, "input[name=tool][value=align]").click()
+        canvas = d.find_element(By.ID, "strokes")
+        rw = d.execute_script("return arguments[0].getBoundingClientRect().width", canvas)
+        px_per_deg = rw / 35.0
+        dx, dy = round(-3 * px_per_deg), round(1 * px_per_deg)
+        a = ActionChains(d, duration=20)
+        a.move_to_element(canvas).click_and_hold()
+        for k in range(1, 11):
+            a.move_to_element_with_offset(canvas, round(dx * k / 10), round(dy * k / 10))
+        a.release().perform()
+        cam = d.execute_script("return app.sketch.views[0].camera")
+        assert abs(cam["heading_deg"] - 203) < 0.6 and abs(cam["pitch_deg"] - 0) < 0.6, cam
+        print(f"  aligned by dragging: heading {cam['heading_deg']:.2f}, pitch {cam['pitch_deg']:.2f}")
+        # fine-tuned in the fields, as a user does once close
+        set_field(d, "f-heading", 203)
+        set_field(d, "f-pitch", 0)
+        wait_for(lambda: rendered_for_camera(d), 30, "the aligned render")
+        if shots:
+            shot(d.find_element(By.ID, "view-wrap"), os.path.join(shots, "photo_aligned.png"))
+        # Trace the photo's skyline where the photo shows the changed hills.
+        img = d.find_element(By.ID, "photo-under")
+        d.find_element(By.CSS_SELECTOR, "input[name=tool][value=draw]").click()
+        traced = []
+        for x0, x1 in [(820, 1036), (220, 286)]:
+            pts = d.execute_script(PHOTO_SKYLINE_JS, img, x0, x1, 8)
+            assert len(pts) > 5, pts
+            draw(d, canvas, pts, (1200, 600))
+            traced.append(pts)
+        strokes = d.execute_script("return app.sketchJSON().views[0].strokes")
+        assert len(strokes) == 2, len(strokes)
+        print(f"  traced the photo's skyline: {[len(s['points']) for s in strokes]} points")
+        if shots:
+            shot(d.find_element(By.ID, "view-wrap"), os.path.join(shots, "photo_traced.png"))
+        d.find_element(By.ID, "allow-partial").click()
+        d.find_element(By.ID, "dry-run").click()
+        state = wait_for(lambda: d.execute_script("return document.getElementById('edit-status').dataset.state"), 90, "the dry run")
+        assert state == "writable", d.find_element(By.ID, "edit-status").text
+        print("  dry run: " + d.find_element(By.ID, "edit-status").text)
+        for row in d.find_elements(By.CSS_SELECTOR, "#stroke-table tbody tr"):
+            print("    " + row.text.replace("\n", " "))
+        d.find_element(By.ID, "accept").click()
+        state = wait_for(lambda: (lambda s: s if s in ("written", "failed") else None)(
+            d.execute_script("return document.getElementById('edit-status').dataset.state")), 90, "the write")
+        assert state == "written", d.find_element(By.ID, "edit-status").text
+    finally:
+        d.quit()
+        srv.stop()
+    cols = [int(x) for pts in traced for x, _ in pts]
+    before, after = skyline_error(binary, tmp, [DEM, out, target], vp, cols)
+    print(f"  skyline in the photo's camera, mean distance to the photo's over the traced columns: "
+          f"{before:.1f} px before, {after:.1f} px after the edit")
+    assert after < before, (before, after)
+
+
+TESTS = {"edit_flow": test_edit_flow, "hostile": test_hostile, "photo_trace": test_photo_trace}
 
 
 def main():
