@@ -247,6 +247,18 @@ def test_edit_flow(binary, shots, tmp):
         assert mid and all(abs(p[1] - min(q[1] for q in dome if abs(q[0] - p[0]) < 45)) < 12 for p in mid), \
             f"the over-sketched part was not replaced: {mid}"
         print(f"  two strokes drawn, one over-sketched: {[len(s['points']) for s in strokes]} points")
+        # undo takes the over-sketch back, redo makes it again; delete and undo
+        js_strokes = "return app.sketchJSON().views[0].strokes"
+        d.find_element(By.ID, "undo").click()
+        assert d.execute_script(js_strokes)[0]["points"] != strokes[0]["points"], "undo did nothing"
+        d.find_element(By.ID, "redo").click()
+        assert d.execute_script(js_strokes) == strokes, "redo did not restore the over-sketch"
+        d.find_element(By.CSS_SELECTOR, "#stroke-list li[data-i='1']").click()
+        d.find_element(By.ID, "del-stroke").click()
+        assert len(d.execute_script(js_strokes)) == 1, "delete"
+        d.find_element(By.ID, "undo").click()
+        assert d.execute_script(js_strokes) == strokes, "undo of delete"
+        d.execute_script("app.selected = null; drawStrokes(); listStrokes();")
         d.find_element(By.ID, "viewshed-btn").click()
         wait_for(lambda: d.execute_script("return app.viewshed !== null"), 30, "the viewshed")
         if shots:
@@ -275,6 +287,9 @@ def test_edit_flow(binary, shots, tmp):
             d.execute_script("return document.getElementById('edit-status').dataset.state")), 90, "the write")
         assert state == "written", d.find_element(By.ID, "edit-status").text
         print("  accepted: " + d.find_element(By.ID, "edit-status").text)
+        # the downloaded file loads back as the same sketch
+        d.find_element(By.ID, "load-file").send_keys(dl_file)
+        wait_for(lambda: d.execute_script("return app.sketchJSON()") == json.load(open(dl_file)), 10, "the loaded sketch")
     finally:
         d.quit()
         srv.stop()
