@@ -142,7 +142,9 @@ async function lookup(x, y) { return api(`/api/lookup?x=${x}&y=${y}`); }
 // Local linear map of overview pixels to lon/lat at the viewpoint.
 async function updateJacobian() {
   const v = view();
-  const p = await api("/api/project", { points: [[v.viewpoint.lon, v.viewpoint.lat]] });
+  const others = app.sketch.views.map((w) => [w.viewpoint.lon, w.viewpoint.lat]);
+  const p = await api("/api/project", { points: [[v.viewpoint.lon, v.viewpoint.lat], ...others] });
+  app.viewPixels = p.pixels.slice(1);
   if (!p.pixels[0]) { app.vpPixel = null; drawMap(); return; }
   const [x, y] = p.pixels[0];
   app.vpPixel = [x, y];
@@ -185,8 +187,12 @@ function drawMap() {
   g.closePath();
   g.fillStyle = "rgba(255,255,255,0.28)"; g.fill();
   g.lineWidth = 1.5 * s; g.strokeStyle = "#c0158f"; g.stroke();
-  // other views
-  g.fillStyle = "#333";
+  // the other views of the sketch
+  (app.viewPixels || []).forEach((q, i) => {
+    if (!q || i === app.cur) return;
+    g.beginPath(); g.arc(q[0], q[1], 3.5 * s, 0, 2 * Math.PI);
+    g.fillStyle = "#444"; g.fill(); g.lineWidth = 1.5 * s; g.strokeStyle = "#fff"; g.stroke();
+  });
   g.beginPath(); g.arc(x, y, 5 * s, 0, 2 * Math.PI); g.fillStyle = "#c0158f"; g.fill();
   g.lineWidth = 2 * s; g.strokeStyle = "#fff"; g.stroke();
 }
@@ -378,6 +384,7 @@ function setupViewEvents() {
     const k = { ArrowLeft: { heading_deg: c.heading_deg - step }, ArrowRight: { heading_deg: c.heading_deg + step },
       ArrowUp: { pitch_deg: c.pitch_deg + step / 2 }, ArrowDown: { pitch_deg: c.pitch_deg - step / 2 } }[e.key];
     if (k) { e.preventDefault(); setCamera(k); }
+    if (e.key === "Escape" && app.drawing) { app.drawing = null; drawStrokes(); }
     if ((e.ctrlKey || e.metaKey) && e.key === "z") { e.preventDefault(); e.shiftKey ? redo() : undo(); }
     if (e.key === "Delete" || e.key === "Backspace") { e.preventDefault(); deleteStroke(); }
   });
@@ -529,7 +536,7 @@ async function main() {
     let n = app.sketch.views.length + 1;
     while (app.sketch.views.some((v) => v.name === `view-${n}`)) n++;
     app.sketch.views.push(newView(`view-${n}`, view()));
-    app.cur = app.sketch.views.length - 1; syncFields(); scheduleRender();
+    app.cur = app.sketch.views.length - 1; syncFields(); updateJacobian(); scheduleRender();
   });
   $("view-del").addEventListener("click", () => {
     if (app.sketch.views.length < 2) return;

@@ -393,7 +393,7 @@ fn run_job_inner(
             let Some(out) = state.config.out.clone() else {
                 return Err("the server was started without --out".into());
             };
-            let lock = take_edit_lock(state, dem)?;
+            let lock = take_edit_lock(dem)?;
             let outputs = [Output {
                 flag: "--out".into(),
                 path: out.clone(),
@@ -444,7 +444,7 @@ fn run_job_inner(
 
 /// Take the DEM's edit lock, finish or undo an edit a killed run left, and
 /// remove temporary files of dead runs, as `demsketch edit` does.
-fn take_edit_lock(state: &AppState, dem: &Path) -> Result<Option<EditLock>, String> {
+fn take_edit_lock(dem: &Path) -> Result<Option<EditLock>, String> {
     if !(lock_dir(dem).is_dir() && dem.exists()) {
         return Ok(None);
     }
@@ -456,7 +456,6 @@ fn take_edit_lock(state: &AppState, dem: &Path) -> Result<Option<EditLock>, Stri
     for note in clean_stale(&lock.dir) {
         eprintln!("demsketch serve: {note}");
     }
-    let _ = state;
     Ok(Some(lock))
 }
 
