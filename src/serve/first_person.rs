@@ -26,6 +26,9 @@ use crate::view::{Camera, EyeHeight, Viewpoint};
 pub const MAX_SIDE_PX: u32 = 4096;
 pub const MAX_PIXELS: u64 = 4096 * 2304;
 
+/// A pixel polyline of a view and whether it is part of the skyline.
+type PixelCurve = (Vec<[f64; 2]>, bool);
+
 /// A view as the page asks for it: the sketch file's viewpoint and camera.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -161,7 +164,7 @@ impl CachedScene {
     }
 
     /// The view's silhouettes as pixel polylines (and whether each is skyline).
-    fn silhouettes(&self, depth: &DepthBuffer) -> Result<Vec<(Vec<[f64; 2]>, bool)>, ServeError> {
+    fn silhouettes(&self, depth: &DepthBuffer) -> Result<Vec<PixelCurve>, ServeError> {
         let sil = extract_silhouettes(&self.terrain, depth, &SilhouetteParams::default())
             .map_err(|e| ServeError::Internal(format!("silhouettes: {e}")))?;
         Ok(sil.curves.iter().map(|c| (c.pixels(), c.skyline)).collect())
