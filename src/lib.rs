@@ -28,5 +28,6 @@ pub mod export;
 pub mod features;
 pub mod raster;
 pub mod render;
+pub mod serve;
 pub mod sketch;
 pub mod view;

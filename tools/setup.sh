@@ -3,7 +3,8 @@
 # for the bindings, pkg-config, the GDAL command-line tools the tests compare
 # against, and numpy + GDAL's Python bindings for tools/fidelity), only where it is missing. Needs root for apt-get.
 set -euo pipefail
-pkgs=(libgdal-dev libproj-dev libclang-dev pkg-config gdal-bin proj-bin python3-numpy python3-gdal)
+pkgs=(libgdal-dev libproj-dev libclang-dev pkg-config gdal-bin proj-bin python3-numpy python3-gdal
+      python3-venv chromium chromium-driver)
 missing=()
 for p in "${pkgs[@]}"; do
   dpkg -s "$p" >/dev/null 2>&1 || missing+=("$p")
@@ -29,4 +30,11 @@ if ! "$ROOT/.venv/bin/python" -c "import jsonschema, referencing" >/dev/null 2>&
   echo "setup: creating .venv with jsonschema" >&2
   /usr/bin/python3 -m venv "$ROOT/.venv"
   "$ROOT/.venv/bin/python" -m pip install -q --disable-pip-version-check "jsonschema>=4.18"
+fi
+# The browser tests' Python environment (tests/browser/run.py).
+cd "$(dirname "$0")/.."
+if [ ! -x .venv-browser/bin/python ] || ! .venv-browser/bin/python -c "import selenium" 2>/dev/null; then
+  echo "setup: creating .venv-browser (selenium)" >&2
+  /usr/bin/python3 -m venv .venv-browser
+  .venv-browser/bin/pip install -q "selenium>=4.20,<5"
 fi

@@ -10,3 +10,6 @@ cargo test --locked --no-fail-fast 2>&1
 # are reported (--report-only) until the edit meets them too.
 cargo build --release --locked 2>&1 && DEMSKETCH="${DEMSKETCH:-target/release/demsketch}" /usr/bin/python3 tools/fidelity/run.py --subset ci --report-only \
     --require "identity: max,identity: every stroke,ground within 100 m,no change beyond,no spike,idempotence,edit exits 0,bundled demo"
+# The browser app (demsketch serve) driven through Chromium: edit flow and
+# hostile requests (tests/browser/run.py).
+.venv-browser/bin/python tests/browser/run.py --bin target/release/demsketch

@@ -5,6 +5,7 @@ pub mod edit;
 pub mod export;
 pub mod info;
 pub mod locate;
+pub mod serve;
 pub mod view;
 
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -95,6 +96,9 @@ pub enum Command {
     /// Export a DEM: web-map tiles (Terrain-RGB, Terrarium), COG, GeoJSON of an edit, STAC item, glTF mesh.
     #[command(after_help = export::EXPORT_AFTER_HELP)]
     Export(export::ExportArgs),
+    /// The browser app: map, first-person view, drawing, photo tracing, edit and compare.
+    #[command(after_help = serve::SERVE_AFTER_HELP)]
+    Serve(serve::ServeArgs),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
@@ -107,6 +111,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Edit(a) => edit::run(a),
         Command::Correct(a) => correct::run(a),
         Command::Export(a) => export::run(a),
+        Command::Serve(a) => serve::run(a),
     }
 }
 
