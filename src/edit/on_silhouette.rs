@@ -23,7 +23,6 @@
 //! Feature completion at an anchored end is dropped: that end already sits
 //! on the terrain.
 
-use super::fit::FIT_TOLERANCE_PX;
 use super::rendered_view::RenderedView;
 use crate::sketch::{PlacedPoint, PointSource, SceneProjection, StrokeMatch};
 
@@ -42,13 +41,6 @@ struct BoundaryPoint {
     /// Local frame of the view (eye at the origin), metres.
     local: [f64; 3],
     depth: f64,
-    /// The row is a sub-pixel boundary (a silhouette sample), not the
-    /// first terrain pixel row of the skyline.
-    precise: bool,
-    /// How far (pixels) the drawn triangles may put this boundary from the
-    /// bilinear surface's ([`RenderedView::interpolation_bound_px`]): the
-    /// row is searched on that surface, but only to within about this.
-    slack: f64,
 }
 
 /// The boundary of `view`'s column under `pixel` nearest to it, if within
@@ -81,8 +73,6 @@ fn nearest_boundary(view: &RenderedView, pixel: [f64; 2], tol: f64) -> Option<Bo
                 row,
                 local: sample.local,
                 depth: sample.depth,
-                precise: true,
-                slack: bound,
             });
         }
     }
@@ -98,8 +88,6 @@ fn nearest_boundary(view: &RenderedView, pixel: [f64; 2], tol: f64) -> Option<Bo
         row: j as f64,
         local: hit.local,
         depth: hit.distance,
-        precise: false,
-        slack: 0.0,
     })
 }
 
@@ -111,54 +99,6 @@ pub const MIN_RUN_PX: f64 = 8.0;
 /// differ by less than this fraction (used for the sub-cell stretches
 /// between two anchors).
 pub const RUN_DEPTH_STEP: f64 = 0.05;
-
-/// Half-width (pixels of x) of the neighbourhood over which a stroke's
-/// offset from the boundary it is anchored on is averaged.
-pub const OFFSET_WINDOW_PX: f64 = 6.0;
-/// Boundaries whose [`BoundaryPoint::slack`] is below this are drawn where
-/// the bilinear surface has them.
-const EXACT_SLACK_PX: f64 = 0.05;
-
-/// Removes the anchors of points around which the stroke runs off its
-/// boundary systematically: where the mean signed offset (stroke row minus
-/// boundary row) of the anchored points within [`OFFSET_WINDOW_PX`] of x
-/// exceeds the fit tolerance ([`FIT_TOLERANCE_PX`]); only sub-pixel
-/// boundaries (silhouette samples) count, the skyline's first terrain row
-/// is a pixel coarse, and neither do boundaries that the drawn triangles
-/// may put elsewhere than the bilinear surface does (near the eye, on
-/// coarse DEMs: there the renderer's row is only known to about that
-/// much, see [`BoundaryPoint::slack`]). A person tracing a
-/// silhouette that is right wanders to both sides of it, and that averages
-/// out over a few pixels; a stretch drawn consistently a pixel or two above
-/// or below it asks for a change, which the fit would otherwise report as
-/// missing while anchoring held the terrain. Returns which points were
-/// refused, so that the looser gap tolerance does not anchor them again.
-fn drop_offset_stretches(hits: &mut [Option<BoundaryPoint>], pixels: &[[f64; 2]]) -> Vec<bool> {
-    let exact = |h: &BoundaryPoint| h.precise && h.slack < EXACT_SLACK_PX;
-    let n = hits.len();
-    let mut refused = vec![false; n];
-    for k in 0..n {
-        if !hits[k].is_some_and(|h| exact(&h)) {
-            continue;
-        }
-        let (mut sum, mut count) = (0.0, 0usize);
-        for m in 0..n {
-            if let Some(h) = hits[m].filter(|h| exact(h)) {
-                if (pixels[m][0] - pixels[k][0]).abs() <= OFFSET_WINDOW_PX {
-                    sum += pixels[m][1] - h.row;
-                    count += 1;
-                }
-            }
-        }
-        refused[k] = (sum / count.max(1) as f64).abs() > FIT_TOLERANCE_PX;
-    }
-    for (h, &r) in hits.iter_mut().zip(&refused) {
-        if r {
-            *h = None;
-        }
-    }
-    refused
-}
 
 /// Removes the anchors of runs (consecutive anchored points) that span less
 /// than [`MIN_RUN_PX`] of image x, unless a run is the whole stroke: a
@@ -209,10 +149,10 @@ pub fn anchor_on_silhouettes(
         .map(|&k| nearest_boundary(before, px(k), ON_SILHOUETTE_PX))
         .collect();
     let n = on_stroke.len();
-    let pixels: Vec<[f64; 2]> = on_stroke.iter().map(|&k| px(k)).collect();
-    let xs: Vec<f64> = pixels.iter().map(|p| p[0]).collect();
-    let refused = drop_offset_stretches(&mut hits, &pixels);
-    drop_short_runs(&mut hits, &xs);
+    drop_short_runs(
+        &mut hits,
+        &on_stroke.iter().map(|&k| px(k)[0]).collect::<Vec<_>>(),
+    );
     // Short stretches beside anchored points, within the looser tolerance.
     let mut a = 0;
     while a < n {
@@ -229,8 +169,7 @@ pub fn anchor_on_silhouettes(
         let right = (b < n).then_some(b);
         let x0 = px(on_stroke[left.unwrap_or(a)])[0];
         let x1 = px(on_stroke[right.unwrap_or(b - 1)])[0];
-        let refused_here = refused[a..b].iter().any(|&r| r);
-        if !refused_here && (left.is_some() || right.is_some()) && (x1 - x0).abs() <= MAX_GAP_PX {
+        if (left.is_some() || right.is_some()) && (x1 - x0).abs() <= MAX_GAP_PX {
             let loose: Vec<Option<BoundaryPoint>> = (a..b)
                 .map(|m| nearest_boundary(before, px(on_stroke[m]), GAP_TOLERANCE_PX))
                 .collect();
@@ -259,8 +198,6 @@ pub fn anchor_on_silhouettes(
                             lerp(l.local[2], r.local[2]),
                         ],
                         depth: lerp(l.depth, r.depth),
-                        precise: false,
-                        slack: 0.0,
                     });
                 }
             }
@@ -292,55 +229,4 @@ pub fn anchor_on_silhouettes(
         keep
     });
     anchored as f64 / n as f64
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn boundary(row: f64) -> Option<BoundaryPoint> {
-        Some(BoundaryPoint {
-            row,
-            local: [0.0, 1000.0, 0.0],
-            depth: 1000.0,
-            precise: true,
-            slack: 0.0,
-        })
-    }
-
-    /// A stroke traced along a boundary at row 100 with the given offsets,
-    /// one point every 2 px.
-    fn traced(offsets: &[f64]) -> (Vec<Option<BoundaryPoint>>, Vec<[f64; 2]>) {
-        let hits = offsets.iter().map(|_| boundary(100.0)).collect();
-        let pixels = offsets
-            .iter()
-            .enumerate()
-            .map(|(k, o)| [10.0 + 2.0 * k as f64, 100.0 + o])
-            .collect();
-        (hits, pixels)
-    }
-
-    #[test]
-    fn jitter_to_both_sides_stays_anchored() {
-        let offsets: Vec<f64> = (0..40)
-            .map(|k| if k % 2 == 0 { 0.7 } else { -0.6 })
-            .collect();
-        let (mut hits, pixels) = traced(&offsets);
-        let refused = drop_offset_stretches(&mut hits, &pixels);
-        assert!(refused.iter().all(|r| !r));
-        assert!(hits.iter().all(|h| h.is_some()));
-    }
-
-    #[test]
-    fn a_stretch_drawn_consistently_below_is_refused() {
-        // On the boundary, then 1.3 px below it over 30 px, then on it again.
-        let offsets: Vec<f64> = (0..60)
-            .map(|k| if (20..35).contains(&k) { 1.3 } else { 0.1 })
-            .collect();
-        let (mut hits, pixels) = traced(&offsets);
-        let refused = drop_offset_stretches(&mut hits, &pixels);
-        assert!(refused[24..31].iter().all(|&r| r));
-        assert!(refused[..15].iter().all(|&r| !r) && refused[42..].iter().all(|&r| !r));
-        assert!(hits[27].is_none() && hits[5].is_some());
-    }
 }
