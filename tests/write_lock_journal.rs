@@ -240,15 +240,21 @@ fn a_second_edit_waits_for_the_lock_or_fails_in_one_line() {
     );
     assert_eq!(common::snapshot(tmp.path()), before);
     // Released while the second edit waits: it goes on, saying it waited.
-    let child = edit_cmd(&dem, &a, &["--in-place", "--lock-timeout", "30"])
+    // The lock is released only once the edit says it waits (a loaded
+    // machine may take seconds to get there).
+    let mut child = edit_cmd(&dem, &a, &["--in-place", "--lock-timeout", "120"])
         .stderr(std::process::Stdio::piped())
         .spawn()
         .unwrap();
-    std::thread::sleep(Duration::from_millis(500));
+    let mut pipe = std::io::BufReader::new(child.stderr.take().unwrap());
+    let mut first = String::new();
+    std::io::BufRead::read_line(&mut pipe, &mut first).unwrap();
     drop(fd);
-    let out = child.wait_with_output().unwrap();
-    let err = stderr(&out);
-    assert!(out.status.success(), "{err}");
+    let mut rest = String::new();
+    std::io::Read::read_to_string(&mut pipe, &mut rest).unwrap();
+    let status = child.wait().unwrap();
+    let err = format!("{first}{rest}");
+    assert!(status.success(), "{err}");
     assert!(
         err.lines().next().unwrap_or("").contains("waiting"),
         "{err}"
