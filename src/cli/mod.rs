@@ -1,5 +1,6 @@
 //! Subcommands of the `demsketch` binary and the mapping of errors to exit codes.
 
+pub mod batch;
 pub mod correct;
 pub mod edit;
 pub mod info;
@@ -91,6 +92,9 @@ pub enum Command {
     /// Apply corrections drawn in map view (GeoJSON lakes, rivers, control curves) to a DEM.
     #[command(after_help = correct::CORRECT_AFTER_HELP)]
     Correct(correct::CorrectArgs),
+    /// Apply many sketches to one DEM (groups of overlapping edits in order, the others in parallel), or run one group of a plan.
+    #[command(after_help = batch::BATCH_AFTER_HELP)]
+    Batch(batch::BatchArgs),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
@@ -102,6 +106,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Locate(a) => locate::run(a),
         Command::Edit(a) => edit::run(a),
         Command::Correct(a) => correct::run(a),
+        Command::Batch(a) => batch::run(a),
     }
 }
 
