@@ -52,10 +52,11 @@ pub fn lonlat(col: f64, row: f64) -> (f64, f64) {
 }
 
 /// A sketch raising a ridge in front of the viewpoint at cell (col, row),
-/// looking `heading` degrees; `lift` px raises the stroke.
-pub fn sketch(col: f64, row: f64, heading: f64, lift: f64) -> String {
+/// looking `heading` degrees; `drop` px lowers the stroke (towards the
+/// horizon, row 50).
+pub fn sketch(col: f64, row: f64, heading: f64, drop: f64) -> String {
     let (lon, lat) = lonlat(col, row);
-    let y = |v: f64| v - lift;
+    let y = |v: f64| v + drop;
     format!(
         r#"{{"views":[{{"name":"v","viewpoint":{{"lon":{lon},"lat":{lat},"eye_height_m":1.7}},
  "camera":{{"heading_deg":{heading},"pitch_deg":0.0,"roll_deg":0.0,"hfov_deg":60.0,"width":200,"height":100}},
@@ -68,16 +69,16 @@ pub fn sketch(col: f64, row: f64, heading: f64, lift: f64) -> String {
     )
 }
 
-/// Where the edits stand (cell of the tile set, heading, lift): two at the
+/// Where the edits stand (cell of the tile set, heading, drop): two at the
 /// top-left corner and two at the bottom-left one (each pair one group),
 /// one at each other corner.
 pub fn placements(n: usize) -> Vec<(f64, f64, f64, f64)> {
     let base = [
-        (20.0, 20.0, 0.0, 0.0),
-        (172.0, 20.0, 180.0, 0.0),
+        (20.0, 20.0, 0.0, 1.5),
+        (172.0, 20.0, 180.0, 1.5),
         (20.0, 172.0, 90.0, 0.0),
-        (24.0, 18.0, 90.0, 1.0),
-        (172.0, 172.0, 270.0, 0.0),
+        (24.0, 18.0, 90.0, 1.5),
+        (172.0, 172.0, 270.0, 1.5),
         (18.0, 168.0, 0.0, 1.5),
     ];
     base.iter().copied().cycle().take(n).collect()
