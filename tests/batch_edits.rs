@@ -96,7 +96,9 @@ fn batch_equals_edits_one_by_one() {
     assert_eq!(sizes, vec![2, 1, 2, 1]);
 
     // One report per edit, and the summary.
-    let reports = std::fs::read_dir(state(&out).join("reports")).unwrap().count();
+    let reports = std::fs::read_dir(state(&out).join("reports"))
+        .unwrap()
+        .count();
     assert_eq!(reports, 6);
     let s = json(&state(&out).join("summary.json"));
     assert_eq!(s["written"], 6, "{s}");
@@ -125,7 +127,7 @@ fn killed_batches_resume_to_the_same_bytes() {
     let mut seed = 15u64;
     let mut kills = 0;
     for _ in 0..5 {
-        let delay = 0.05 + 0.9 * lcg(&mut seed);
+        let delay = 0.05 + 0.35 * lcg(&mut seed);
         let mut child = cmd()
             .arg("batch")
             .arg(&dem)
@@ -138,7 +140,7 @@ fn killed_batches_resume_to_the_same_bytes() {
             .arg("--quiet")
             // A pause between an edit's journal and its renames, so that
             // kills land there too.
-            .env("DEMSKETCH_TEST_SLEEP_BEFORE_COMMIT_MS", "120")
+            .env("DEMSKETCH_TEST_SLEEP_BEFORE_COMMIT_MS", "300")
             .stderr(std::process::Stdio::null())
             .spawn()
             .unwrap();
@@ -209,7 +211,11 @@ fn array_job_indices_in_any_order_give_the_same_bytes() {
     let done = tiles(&out);
     assert_eq!(differing(&done, &want), Vec::<String>::new());
     // An index run again (a retried task) applies nothing twice.
-    let again = out_of(cmd().args(["batch", "run", "--index", "2", "--plan"]).arg(&plan));
+    let again = out_of(
+        cmd()
+            .args(["batch", "run", "--index", "2", "--plan"])
+            .arg(&plan),
+    );
     assert!(again.status.success(), "{}", stderr(&again));
     assert_eq!(tiles(&out), done);
     let f = out_of(cmd().args(["batch", "finish", "--plan"]).arg(&plan));
@@ -237,7 +243,11 @@ fn finish_before_every_group_ran_says_which() {
             .args(FLAGS),
     );
     assert!(r.status.success(), "{}", stderr(&r));
-    let one = out_of(cmd().args(["batch", "run", "--index", "1", "--plan"]).arg(&plan));
+    let one = out_of(
+        cmd()
+            .args(["batch", "run", "--index", "1", "--plan"])
+            .arg(&plan),
+    );
     assert!(one.status.success(), "{}", stderr(&one));
     let f = out_of(cmd().args(["batch", "finish", "--plan"]).arg(&plan));
     assert_eq!(f.status.code(), Some(1), "{}", stderr(&f));
@@ -299,19 +309,31 @@ fn bad_input_exits_1_with_one_line_and_writes_nothing() {
     assert!(!out.exists());
     std::fs::remove_file(&off).unwrap();
     std::fs::remove_file(&offm).unwrap();
-    assert_eq!(common::snapshot(tmp.path()), before, "something was written");
+    assert_eq!(
+        common::snapshot(tmp.path()),
+        before,
+        "something was written"
+    );
 
     // A bad plan file.
     let garbage = tmp.path().join("garbage.json");
     std::fs::write(&garbage, "{\"format\": 3}").unwrap();
     let before = common::snapshot(tmp.path());
-    let r = out_of(cmd().args(["batch", "run", "--index", "0", "--plan"]).arg(&garbage));
+    let r = out_of(
+        cmd()
+            .args(["batch", "run", "--index", "0", "--plan"])
+            .arg(&garbage),
+    );
     assert_eq!(r.status.code(), Some(1), "{}", stderr(&r));
     one_line_naming(&r, "garbage.json");
     let r = out_of(cmd().args(["batch", "finish", "--plan"]).arg(&garbage));
     assert_eq!(r.status.code(), Some(1));
     one_line_naming(&r, "garbage.json");
-    assert_eq!(common::snapshot(tmp.path()), before, "something was written");
+    assert_eq!(
+        common::snapshot(tmp.path()),
+        before,
+        "something was written"
+    );
     std::fs::remove_file(&garbage).unwrap();
 
     // A good plan, then an index out of range (flag and environment), a
@@ -330,7 +352,11 @@ fn bad_input_exits_1_with_one_line_and_writes_nothing() {
     );
     assert!(r.status.success(), "{}", stderr(&r));
     let before = common::snapshot(tmp.path());
-    let r = out_of(cmd().args(["batch", "run", "--index", "9", "--plan"]).arg(&plan));
+    let r = out_of(
+        cmd()
+            .args(["batch", "run", "--index", "9", "--plan"])
+            .arg(&plan),
+    );
     assert_eq!(r.status.code(), Some(1), "{}", stderr(&r));
     one_line_naming(&r, "out of range");
     let r = out_of(
@@ -341,22 +367,38 @@ fn bad_input_exits_1_with_one_line_and_writes_nothing() {
     );
     assert_eq!(r.status.code(), Some(1), "{}", stderr(&r));
     one_line_naming(&r, "out of range");
-    let r = out_of(cmd().args(["batch", "run", "--index", "x", "--plan"]).arg(&plan));
+    let r = out_of(
+        cmd()
+            .args(["batch", "run", "--index", "x", "--plan"])
+            .arg(&plan),
+    );
     assert_eq!(r.status.code(), Some(1), "{}", stderr(&r));
     one_line_naming(&r, "--index");
     let r = out_of(cmd().args(["batch", "run", "--plan"]).arg(&plan));
     assert_eq!(r.status.code(), Some(1), "{}", stderr(&r));
     one_line_naming(&r, "SLURM_ARRAY_TASK_ID");
-    assert_eq!(common::snapshot(tmp.path()), before, "something was written");
+    assert_eq!(
+        common::snapshot(tmp.path()),
+        before,
+        "something was written"
+    );
     let mut p = json(&plan);
     p["settings"]["min_fit"] = Value::from(0.5);
     let edited = tmp.path().join("edited.json");
     std::fs::write(&edited, p.to_string()).unwrap();
     let before = common::snapshot(tmp.path());
-    let r = out_of(cmd().args(["batch", "run", "--index", "0", "--plan"]).arg(&edited));
+    let r = out_of(
+        cmd()
+            .args(["batch", "run", "--index", "0", "--plan"])
+            .arg(&edited),
+    );
     assert_eq!(r.status.code(), Some(1), "{}", stderr(&r));
     one_line_naming(&r, "edited.json");
-    assert_eq!(common::snapshot(tmp.path()), before, "something was written");
+    assert_eq!(
+        common::snapshot(tmp.path()),
+        before,
+        "something was written"
+    );
 }
 
 #[test]
@@ -387,5 +429,8 @@ fn text_lists_and_directories_are_manifests_too() {
     let groups = |p: &Value| p["groups"].clone();
     let a = plan_of(&m, "a");
     assert_eq!(groups(&plan_of(&list, "b")), groups(&a));
-    assert_eq!(groups(&plan_of(&tmp.path().join("sketches"), "c")), groups(&a));
+    assert_eq!(
+        groups(&plan_of(&tmp.path().join("sketches"), "c")),
+        groups(&a)
+    );
 }

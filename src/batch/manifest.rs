@@ -192,6 +192,9 @@ mod tests {
     fn text_lists_skip_comments_and_blank_lines() {
         let e = text_entries("# header\n\na.json\n  b.json  \n", Path::new("/m"));
         let paths: Vec<PathBuf> = e.into_iter().map(|(_, p)| p).collect();
-        assert_eq!(paths, vec![PathBuf::from("/m/a.json"), PathBuf::from("/m/b.json")]);
+        assert_eq!(
+            paths,
+            vec![PathBuf::from("/m/a.json"), PathBuf::from("/m/b.json")]
+        );
     }
 }

@@ -187,12 +187,11 @@ impl Plan {
         let mut windows = Vec::new();
         let mut tile_sets = Vec::new();
         for e in &manifest.edits {
-            let w = footprint(dem, &e.parsed, settings.max_d()).map_err(|m| {
-                BatchError::Manifest {
+            let w =
+                footprint(dem, &e.parsed, settings.max_d()).map_err(|m| BatchError::Manifest {
                     path: manifest.path.display().to_string(),
                     message: format!("edit \"{}\" ({}): {m}", e.id, e.sketch.display()),
-                }
-            })?;
+                })?;
             tile_sets.push(dem.tiles_touching(&w));
             windows.push(w);
         }
@@ -287,7 +286,11 @@ impl Plan {
             for &e in &grp.edits {
                 match (self.edits.get(e), seen.get(e)) {
                     (Some(pe), Some(false)) if pe.group == g => seen[e] = true,
-                    _ => return Err(format!("group {g}: edit {e} is unknown, repeated or in another group")),
+                    _ => {
+                        return Err(format!(
+                            "group {g}: edit {e} is unknown, repeated or in another group"
+                        ))
+                    }
                 }
             }
             for t in &grp.tiles {
@@ -317,10 +320,7 @@ mod tests {
     fn edits_sharing_a_tile_are_one_group_transitively() {
         // 0 and 2 share tile 5, 2 and 3 share tile 9; 1 and 4 alone.
         let tiles = vec![vec![1, 5], vec![2], vec![5, 9], vec![9, 10], vec![3]];
-        assert_eq!(
-            group_edits(&tiles),
-            vec![vec![0, 2, 3], vec![1], vec![4]]
-        );
+        assert_eq!(group_edits(&tiles), vec![vec![0, 2, 3], vec![1], vec![4]]);
     }
 
     #[test]

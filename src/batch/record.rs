@@ -27,11 +27,14 @@ use super::{io_err, BatchError};
 use crate::raster::atomic_file::replace_file;
 use crate::raster::journal::digest;
 
+/// The state directory's name inside a tile-directory output.
+pub const STATE_NAME: &str = ".demsketch_batch";
+
 /// The batch's state directory of output `out`: `OUT/.demsketch_batch`
 /// for a tile directory, `.NAME.demsketch_batch` beside a single file.
 pub fn state_dir(out: &Path) -> PathBuf {
     if out.is_dir() {
-        out.join(".demsketch_batch")
+        out.join(STATE_NAME)
     } else {
         let name = out
             .file_name()
@@ -147,12 +150,17 @@ fn read_json<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<Option<T>, Bat
 }
 
 /// Digests of the named tiles in `dir` (a missing tile is an error).
-pub fn tile_digests(dir: &Path, tiles: &[String]) -> Result<BTreeMap<String, (u64, u32)>, BatchError> {
+pub fn tile_digests(
+    dir: &Path,
+    tiles: &[String],
+) -> Result<BTreeMap<String, (u64, u32)>, BatchError> {
     tiles
         .iter()
         .map(|t| {
             let p = dir.join(t);
-            digest(&p).map(|d| (t.clone(), d)).map_err(|e| io_err(&p, e))
+            digest(&p)
+                .map(|d| (t.clone(), d))
+                .map_err(|e| io_err(&p, e))
         })
         .collect()
 }

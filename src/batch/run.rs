@@ -20,7 +20,7 @@ use super::footprint::contains;
 use super::plan::{tile_name, Plan, PlannedEdit};
 use super::record::{
     reports_dir, state_dir, tile_digests, tiles_dir, was_applied, Done, GroupRecords, Pending,
-    Status,
+    Status, STATE_NAME,
 };
 use super::{io_err, BatchError};
 use crate::edit::{EditError, EditReport};
@@ -29,15 +29,16 @@ use crate::raster::edit_lock::EditLock;
 use crate::raster::provenance::sha256_hex;
 use crate::raster::{journal, Dem, LayerKind};
 
-/// Called once per edit finished (or skipped as done before), with its
-/// record; must be callable from several threads.
+/// Called once per edit finished, with its record (`before`: recorded
+/// done by an earlier run and skipped); must be callable from several
+/// threads.
 pub trait BatchProgress: Sync {
-    fn edit_done(&self, done: &Done);
+    fn edit_done(&self, done: &Done, before: bool);
 }
 
-impl<F: Fn(&Done) + Sync> BatchProgress for F {
-    fn edit_done(&self, done: &Done) {
-        self(done)
+impl<F: Fn(&Done, bool) + Sync> BatchProgress for F {
+    fn edit_done(&self, done: &Done, before: bool) {
+        self(done, before)
     }
 }
 
@@ -55,7 +56,8 @@ pub struct GroupOutcome {
 /// a tile directory (and its sidecars) into a new directory, or a single
 /// GeoTIFF (and its sidecars), staged beside `out` and renamed into place
 /// last, so that `out` exists only complete. `out` must not exist.
-pub fn prepare_output(dem_path: &Path, dem: &Dem, out: &Path) -> Result<(), BatchError> {
+pub fn prepare_output(plan: &Plan, dem: &Dem) -> Result<(), BatchError> {
+    let (dem_path, out) = (plan.dem.as_path(), plan.out.as_path());
     if out.exists() {
         return Err(io_err(out, "already exists"));
     }
@@ -63,6 +65,8 @@ pub fn prepare_output(dem_path: &Path, dem: &Dem, out: &Path) -> Result<(), Batc
     if !parent.is_dir() {
         return Err(io_err(out, "its parent directory does not exist"));
     }
+    // Staging left by a prepare that was killed.
+    let _ = crate::raster::atomic_file::clean_stale(parent);
     let staging = Staging::new_in(parent)
         .map_err(|e| io_err(out, format!("cannot create a staging directory: {e}")))?;
     let copy = |from: &Path, to: &Path| -> Result<(), BatchError> {
@@ -76,9 +80,15 @@ pub fn prepare_output(dem_path: &Path, dem: &Dem, out: &Path) -> Result<(), Batc
     };
     match dem.kind {
         LayerKind::TileDirectory => {
-            dem.tiles
-                .par_iter()
-                .try_for_each(|t| copy(&t.path, &staging.file(t.path.file_name().unwrap_or_default())))?;
+            dem.tiles.par_iter().try_for_each(|t| {
+                copy(
+                    &t.path,
+                    &staging.file(t.path.file_name().unwrap_or_default()),
+                )
+            })?;
+            // The plan goes in with the tiles: an OUT that exists is always
+            // one with its plan.
+            write_plan_file(&staging.path().join(STATE_NAME), plan)?;
             let _commit = commit_guard();
             let kept = staging.keep();
             use std::os::unix::fs::PermissionsExt;
@@ -92,6 +102,7 @@ pub fn prepare_output(dem_path: &Path, dem: &Dem, out: &Path) -> Result<(), Batc
             let name = out.file_name().unwrap_or_default();
             let tmp = staging.file(name);
             copy(dem_path, &tmp)?;
+            write_plan_file(&state_dir(out), plan)?;
             let _commit = commit_guard();
             for s in [".ovr", ".aux.xml"] {
                 let staged = crate::raster::sidecars::with_suffix(&tmp, s);
@@ -163,7 +174,12 @@ fn check_footprint(e: &PlannedEdit, r: &EditReport) -> Result<(), BatchError> {
 }
 
 /// Run one edit of the plan; its record.
-fn run_edit(plan: &Plan, plan_path: &Path, state: &Path, e: &PlannedEdit) -> Result<Done, BatchError> {
+fn run_edit(
+    plan: &Plan,
+    plan_path: &Path,
+    state: &Path,
+    e: &PlannedEdit,
+) -> Result<Done, BatchError> {
     check_sketch(plan_path, e)?;
     let report = report_path(state, e);
     let opts = plan.settings.edit_options(Some(report.clone()));
@@ -184,7 +200,11 @@ fn run_edit(plan: &Plan, plan_path: &Path, state: &Path, e: &PlannedEdit) -> Res
     match result {
         Ok(r) => {
             check_footprint(e, &r)?;
-            done.tiles_written = r.tiles_written.iter().map(|t| tile_name(Path::new(t))).collect();
+            done.tiles_written = r
+                .tiles_written
+                .iter()
+                .map(|t| tile_name(Path::new(t)))
+                .collect();
             done.changed_cells = r.changed_cells;
             done.report = Some(report);
         }
@@ -238,7 +258,7 @@ pub fn run_group(
         let e = &plan.edits[k];
         if let Some(d) = records.done(k)? {
             outcome.skipped += 1;
-            progress.edit_done(&d);
+            progress.edit_done(&d, true);
             outcome.done.push(d);
             continue;
         }
@@ -259,7 +279,7 @@ pub fn run_group(
                     seconds: 0.0,
                 };
                 records.write_done(&d)?;
-                progress.edit_done(&d);
+                progress.edit_done(&d, false);
                 outcome.done.push(d);
                 continue;
             }
@@ -271,7 +291,7 @@ pub fn run_group(
         records.write_pending(k, &pending)?;
         let d = run_edit(plan, plan_path, &state, e)?;
         records.write_done(&d)?;
-        progress.edit_done(&d);
+        progress.edit_done(&d, false);
         outcome.done.push(d);
     }
     Ok(outcome)
@@ -283,12 +303,39 @@ pub fn recover_group(plan: &Plan, g: usize) -> Result<Vec<String>, BatchError> {
     let Some(group) = plan.groups.get(g) else {
         return Ok(Vec::new());
     };
-    let mine = |names: &[String]| !names.is_empty() && names.iter().all(|n| group.tiles.contains(n));
-    Ok(journal::recover_where(&plan.out, &tiles_dir(&plan.out), mine)?)
+    let mine =
+        |names: &[String]| !names.is_empty() && names.iter().all(|n| group.tiles.contains(n));
+    Ok(journal::recover_where(
+        &plan.out,
+        &tiles_dir(&plan.out),
+        mine,
+    )?)
+}
+
+/// How many edits of `plan` (of group `g` only, when given) are recorded
+/// done.
+pub fn count_done(plan: &Plan, g: Option<usize>) -> usize {
+    let state = state_dir(&plan.out);
+    plan.edits
+        .iter()
+        .filter(|e| g.is_none_or(|g| e.group == g))
+        .filter(|e| {
+            GroupRecords::new(&state, e.group)
+                .done(e.index)
+                .ok()
+                .flatten()
+                .is_some()
+        })
+        .count()
 }
 
 /// Take the output's edit lock: `shared` for an array-job worker.
-pub fn lock_output(plan: &Plan, shared: bool, timeout: Duration, waiting: impl FnMut(&str)) -> Result<EditLock, BatchError> {
+pub fn lock_output(
+    plan: &Plan,
+    shared: bool,
+    timeout: Duration,
+    waiting: impl FnMut(&str),
+) -> Result<EditLock, BatchError> {
     let lock = if shared {
         EditLock::acquire_shared(&plan.out, timeout, waiting)?
     } else {
@@ -406,11 +453,10 @@ pub fn finish(plan: &Plan, plan_path: &Path, wall: Option<f64>) -> Result<Summar
     Ok(s)
 }
 
-/// Write the plan into the output's state directory (`STATE/plan.json`),
-/// where workers and resumed runs compare theirs with it.
-pub fn store_plan(plan: &Plan) -> Result<PathBuf, BatchError> {
-    let state = state_dir(&plan.out);
-    std::fs::create_dir_all(&state).map_err(|e| io_err(&state, e))?;
+/// Write the plan into state directory `state` (`STATE/plan.json`), where
+/// workers and resumed runs compare theirs with it.
+fn write_plan_file(state: &Path, plan: &Plan) -> Result<PathBuf, BatchError> {
+    std::fs::create_dir_all(state).map_err(|e| io_err(state, e))?;
     let path = state.join("plan.json");
     let text = plan.to_json();
     crate::raster::atomic_file::replace_file(
@@ -446,7 +492,8 @@ pub fn check_stored_plan(plan: &Plan, plan_path: &Path) -> Result<(), BatchError
             stored.display()
         ))
     })?;
-    let theirs: Plan = serde_json::from_str(&text).map_err(|e| bad(format!("{}: {e}", stored.display())))?;
+    let theirs: Plan =
+        serde_json::from_str(&text).map_err(|e| bad(format!("{}: {e}", stored.display())))?;
     if &theirs != plan {
         return Err(bad(format!(
             "is not the plan {} was prepared with ({}); plan again into a new output",

@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 
 use demsketch::batch::record::Status;
 use demsketch::batch::run::{
-    check_stored_plan, clean_output, lock_output, recover_group, store_plan,
+    check_stored_plan, clean_output, count_done, lock_output, recover_group,
 };
 use demsketch::batch::{
     finish, prepare_output, run_all, run_group, BatchError, BatchSettings, Manifest, Plan, Summary,
@@ -179,11 +179,10 @@ fn make_plan(dem: &Path, jobs: &Path, out: &Path, flags: &EditFlags) -> anyhow::
     Plan::build(dem, &layer, &manifest, out, flags.settings()).map_err(cli_err)
 }
 
-/// Copy the DEM to OUT and store the plan there.
-fn prepare(plan: &Plan) -> anyhow::Result<PathBuf> {
+/// Copy the DEM to OUT, the plan with it.
+fn prepare(plan: &Plan) -> anyhow::Result<()> {
     let layer = Dem::open(&plan.dem)?;
-    prepare_output(&plan.dem, &layer, &plan.out).map_err(cli_err)?;
-    store_plan(plan).map_err(cli_err)
+    prepare_output(plan, &layer).map_err(cli_err)
 }
 
 fn waiting(m: &str) {
@@ -191,7 +190,11 @@ fn waiting(m: &str) {
 }
 
 fn timeout(s: f64) -> Duration {
-    Duration::from_secs_f64(if s.is_finite() && s >= 0.0 { s.min(1e9) } else { 300.0 })
+    Duration::from_secs_f64(if s.is_finite() && s >= 0.0 {
+        s.min(1e9)
+    } else {
+        300.0
+    })
 }
 
 /// Progress of the edits: a bar with the ETA on a terminal; with
@@ -212,13 +215,13 @@ fn progress_bar(total: usize) -> ProgressBar {
     pb
 }
 
-fn report_progress(pb: &ProgressBar, d: &demsketch::batch::record::Done, skipped: bool) {
-    if skipped {
-        pb.inc(1);
-        pb.reset_eta();
-    } else {
-        pb.inc(1);
+/// One edit done: the bar moves (edits done by an earlier run were
+/// counted before it started).
+fn report_progress(pb: &ProgressBar, d: &demsketch::batch::record::Done, before: bool) {
+    if before {
+        return;
     }
+    pb.inc(1);
     pb.set_message(format!("{}: {:?}", d.id, d.status));
     if super::verbose() && pb.is_hidden() {
         eprintln!(
@@ -273,7 +276,9 @@ fn conclude(s: &Summary) -> anyhow::Result<()> {
             s.out.display(),
             s.failed,
             ids.join(", "),
-            demsketch::batch::record::state_dir(&s.out).join("summary.json").display()
+            demsketch::batch::record::state_dir(&s.out)
+                .join("summary.json")
+                .display()
         );
     }
     if s.below_min_fit > 0 {
@@ -314,7 +319,10 @@ fn whole(args: BatchArgs) -> anyhow::Result<()> {
         }
     }
     let pb = progress_bar(plan.edits.len());
-    let progress = |d: &demsketch::batch::record::Done| report_progress(&pb, d, false);
+    pb.set_position(count_done(&plan, None) as u64);
+    pb.reset_eta();
+    let progress =
+        |d: &demsketch::batch::record::Done, before: bool| report_progress(&pb, d, before);
     let ran = run_all(&plan, &stored, &progress);
     pb.finish_and_clear();
     ran.map_err(cli_err)?;
@@ -397,7 +405,10 @@ fn run_index(a: RunArgs) -> anyhow::Result<()> {
         }
     }
     let pb = progress_bar(plan.groups[g].edits.len());
-    let progress = |d: &demsketch::batch::record::Done| report_progress(&pb, d, false);
+    pb.set_position(count_done(&plan, Some(g)) as u64);
+    pb.reset_eta();
+    let progress =
+        |d: &demsketch::batch::record::Done, before: bool| report_progress(&pb, d, before);
     let outcome = run_group(&plan, &a.plan, g, &progress);
     pb.finish_and_clear();
     let outcome = outcome.map_err(cli_err)?;

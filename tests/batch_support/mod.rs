@@ -36,8 +36,19 @@ pub fn tile_set(dir: &Path, name: &str) -> PathBuf {
                 &fixture("texas_srtm90m_tiled_int16.tif"),
                 &out.join(format!("tile_{ty}_{tx}.tif")),
                 &[
-                    "-srcwin", &x, &y, &t, &t, "-co", "TILED=YES", "-co", "BLOCKXSIZE=16", "-co",
-                    "BLOCKYSIZE=16", "-co", "COMPRESS=DEFLATE",
+                    "-srcwin",
+                    &x,
+                    &y,
+                    &t,
+                    &t,
+                    "-co",
+                    "TILED=YES",
+                    "-co",
+                    "BLOCKXSIZE=16",
+                    "-co",
+                    "BLOCKYSIZE=16",
+                    "-co",
+                    "COMPRESS=DEFLATE",
                 ],
             );
         }
@@ -94,7 +105,9 @@ pub fn manifest(dir: &Path, n: usize) -> (PathBuf, Vec<PathBuf>) {
     for (k, (c, r, h, l)) in placements(n).into_iter().enumerate() {
         let p = sk.join(format!("e{k:02}.json"));
         std::fs::write(&p, sketch(c, r, h, l)).unwrap();
-        entries.push(format!(r#"{{"id":"e{k:02}","sketch":"sketches/e{k:02}.json"}}"#));
+        entries.push(format!(
+            r#"{{"id":"e{k:02}","sketch":"sketches/e{k:02}.json"}}"#
+        ));
         paths.push(p);
     }
     let m = dir.join("manifest.json");
@@ -139,7 +152,11 @@ pub fn tiles(dir: &Path) -> Vec<(String, Vec<u8>)> {
 /// the tiles' bytes and the changed cells of each edit; `out` is removed
 /// afterwards so that the batch under test can be written at the same path
 /// (the provenance records the path).
-pub fn reference(dem: &Path, sketches: &[PathBuf], out: &Path) -> (Vec<(String, Vec<u8>)>, Vec<u64>) {
+pub fn reference(
+    dem: &Path,
+    sketches: &[PathBuf],
+    out: &Path,
+) -> (Vec<(String, Vec<u8>)>, Vec<u64>) {
     std::fs::create_dir(out).unwrap();
     for (name, bytes) in tiles(dem) {
         std::fs::write(out.join(name), bytes).unwrap();
