@@ -434,3 +434,48 @@ fn text_lists_and_directories_are_manifests_too() {
         groups(&a)
     );
 }
+
+#[test]
+fn a_single_geotiff_is_one_group_and_equals_edits_one_by_one() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dem = tmp.path().join("dem.tif");
+    common::gdal_translate(
+        &common::fixture("texas_srtm90m_tiled_int16.tif"),
+        &dem,
+        &["-srcwin", "64", "64", "192", "192", "-co", "COMPRESS=LZW"],
+    );
+    let (m, sketches) = manifest(tmp.path(), 3);
+    let out = tmp.path().join("out.tif");
+    std::fs::copy(&dem, &out).unwrap();
+    for s in &sketches {
+        let r = out_of(
+            cmd()
+                .arg("edit")
+                .arg(&out)
+                .arg("--sketch")
+                .arg(s)
+                .arg("--in-place")
+                .args(FLAGS)
+                .arg("--quiet"),
+        );
+        assert!(r.status.success(), "{}", stderr(&r));
+    }
+    let want = std::fs::read(&out).unwrap();
+    assert_ne!(
+        want,
+        std::fs::read(&dem).unwrap(),
+        "the edits changed nothing"
+    );
+    std::fs::remove_file(&out).unwrap();
+    let r = batch(&dem, &m, &out, &[]);
+    assert!(r.status.success(), "batch failed: {}", stderr(&r));
+    assert!(
+        std::fs::read(&out).unwrap() == want,
+        "the batch's file differs"
+    );
+    let st = tmp.path().join(".out.tif.demsketch_batch");
+    let plan = json(&st.join("plan.json"));
+    assert_eq!(plan["groups"].as_array().unwrap().len(), 1);
+    assert_eq!(json(&st.join("summary.json"))["written"], 3);
+    common::gdalinfo(&out);
+}

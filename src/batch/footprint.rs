@@ -68,6 +68,12 @@ pub fn view_window(
     Ok(grow(win, SLACK_CELLS, SLACK_CELLS))
 }
 
+/// The conversions between lon/lat and the DEM's CRS (one per batch: PROJ
+/// is set up once).
+pub fn dem_georef(dem: &Dem) -> Result<Georef, String> {
+    Georef::for_crs(&dem.crs, &dem.path.display().to_string()).map_err(|e| e.to_string())
+}
+
 /// `w` grown by `gc` columns and `gr` rows on every side.
 fn grow(w: Window, gc: i64, gr: i64) -> Window {
     Window::new(
@@ -119,13 +125,17 @@ fn cell_sizes(dem: &Dem, w: &Window) -> (CellSize, CellSize) {
 
 /// The footprint of the edit of `sketch` on `dem` with view distance
 /// `max_d` (see the module documentation), clipped to the DEM. `Err` (one
-/// line naming the view) when a viewpoint is unusable.
-pub fn footprint(dem: &Dem, sketch: &SketchFile, max_d: Option<f64>) -> Result<Window, String> {
-    let georef =
-        Georef::for_crs(&dem.crs, &dem.path.display().to_string()).map_err(|e| e.to_string())?;
+/// line naming the view) when a viewpoint is unusable. `georef`: the
+/// DEM's ([`dem_georef`]).
+pub fn footprint(
+    dem: &Dem,
+    georef: &Georef,
+    sketch: &SketchFile,
+    max_d: Option<f64>,
+) -> Result<Window, String> {
     let mut u: Option<Window> = None;
     for v in &sketch.views {
-        let w = view_window(dem, &georef, v.viewpoint.lon, v.viewpoint.lat, max_d)
+        let w = view_window(dem, georef, v.viewpoint.lon, v.viewpoint.lat, max_d)
             .map_err(|m| format!("view \"{}\": {m}", v.name))?;
         u = Some(u.map_or(w, |a| union(a, w)));
     }

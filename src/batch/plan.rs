@@ -15,7 +15,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use super::footprint::footprint;
+use super::footprint::{dem_georef, footprint};
 use super::manifest::Manifest;
 use super::BatchError;
 use crate::edit::{EditOptions, DEFAULT_MIN_FIT};
@@ -184,14 +184,19 @@ impl Plan {
         out: &Path,
         settings: BatchSettings,
     ) -> Result<Plan, BatchError> {
+        let georef = dem_georef(dem).map_err(|m| BatchError::Plan {
+            path: dem_path.display().to_string(),
+            message: m,
+        })?;
         let mut windows = Vec::new();
         let mut tile_sets = Vec::new();
         for e in &manifest.edits {
-            let w =
-                footprint(dem, &e.parsed, settings.max_d()).map_err(|m| BatchError::Manifest {
+            let w = footprint(dem, &georef, &e.parsed, settings.max_d()).map_err(|m| {
+                BatchError::Manifest {
                     path: manifest.path.display().to_string(),
                     message: format!("edit \"{}\" ({}): {m}", e.id, e.sketch.display()),
-                })?;
+                }
+            })?;
             tile_sets.push(dem.tiles_touching(&w));
             windows.push(w);
         }

@@ -173,6 +173,18 @@ fn check_footprint(e: &PlannedEdit, r: &EditReport) -> Result<(), BatchError> {
     Ok(())
 }
 
+/// Errors of the surroundings rather than of the sketch (reading or
+/// writing files: a full disk, permissions): they stop the group without
+/// recording the edit, so that a resumed run tries it again.
+fn environment(e: &EditError) -> bool {
+    use crate::raster::RasterError;
+    matches!(
+        e,
+        EditError::Write { .. }
+            | EditError::Raster(RasterError::Io { .. } | RasterError::Write { .. })
+    )
+}
+
 /// Run one edit of the plan; its record.
 fn run_edit(
     plan: &Plan,
@@ -212,7 +224,7 @@ fn run_edit(
             done.status = Status::BelowMinFit;
             done.message = Some(err.to_string());
         }
-        Err(err) if err.is_user_error() => {
+        Err(err) if err.is_user_error() && !environment(&err) => {
             done.status = Status::Failed;
             done.message = Some(err.to_string().replace('\n', " "));
         }
