@@ -200,6 +200,12 @@ impl Plan {
             tile_sets.push(dem.tiles_touching(&w));
             windows.push(w);
         }
+        // The names of the output's files: the tiles' own, or for a single
+        // GeoTIFF the output's.
+        let name_of = |t: usize| match dem.kind {
+            crate::raster::LayerKind::TileDirectory => tile_name(&dem.tiles[t].path),
+            _ => tile_name(out),
+        };
         let grouped = group_edits(&tile_sets);
         let mut group_of = vec![0; manifest.edits.len()];
         let groups: Vec<Group> = grouped
@@ -215,7 +221,7 @@ impl Plan {
                 Group {
                     index: g,
                     edits: es.clone(),
-                    tiles: ts.iter().map(|&t| tile_name(&dem.tiles[t].path)).collect(),
+                    tiles: ts.iter().map(|&t| name_of(t)).collect(),
                 }
             })
             .collect();
@@ -231,10 +237,7 @@ impl Plan {
                     sketch: e.sketch.clone(),
                     sketch_sha256: e.sketch_sha256.clone(),
                     footprint: [w.col, w.row, w.width as i64, w.height as i64],
-                    tiles: tile_sets[k]
-                        .iter()
-                        .map(|&t| tile_name(&dem.tiles[t].path))
-                        .collect(),
+                    tiles: tile_sets[k].iter().map(|&t| name_of(t)).collect(),
                     group: group_of[k],
                 }
             })
