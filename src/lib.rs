@@ -17,6 +17,7 @@
 //!   lowering, write-back, report and pictures.
 //! - [`batch`]: many edits on one DEM, planned into independent groups of
 //!   tiles, run in parallel or as an array job, with a journal to resume.
+//! - [`export`]: the DEM to web-map tiles, COG, GeoJSON, STAC and glTF.
 //!
 //! [`buffer_pool`] keeps the large per-view and per-solve buffers warm
 //! between views and solves.
@@ -26,6 +27,7 @@ pub mod buffer_pool;
 pub mod correct;
 pub mod deform;
 pub mod edit;
+pub mod export;
 pub mod features;
 pub mod raster;
 pub mod render;

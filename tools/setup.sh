@@ -16,3 +16,17 @@ if [ ${#missing[@]} -gt 0 ]; then
   DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq "${missing[@]}" >/dev/null
 fi
 command -v cargo >/dev/null || { echo "setup: cargo (Rust) is required: https://rustup.rs" >&2; exit 1; }
+# Python packages the tests use (jsonschema, for the STAC item of `export
+# stac`), in a virtual environment of the project's own (.venv, git-ignored),
+# never in the system Python.
+ROOT="$(cd "$(dirname "$0")/.." && pwd)"
+if ! "$ROOT/.venv/bin/python" -c "import jsonschema, referencing" >/dev/null 2>&1; then
+  dpkg -s python3-venv >/dev/null 2>&1 || {
+    SUDO=""; [ "$(id -u)" -eq 0 ] || SUDO="sudo"
+    $SUDO apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq python3-venv >/dev/null
+  }
+  echo "setup: creating .venv with jsonschema" >&2
+  /usr/bin/python3 -m venv "$ROOT/.venv"
+  "$ROOT/.venv/bin/python" -m pip install -q --disable-pip-version-check "jsonschema>=4.18"
+fi

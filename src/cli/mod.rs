@@ -3,6 +3,7 @@
 pub mod batch;
 pub mod correct;
 pub mod edit;
+pub mod export;
 pub mod info;
 pub mod locate;
 pub mod view;
@@ -95,6 +96,9 @@ pub enum Command {
     /// Apply many sketches to one DEM (groups of overlapping edits in order, the others in parallel), or run one group of a plan.
     #[command(after_help = batch::BATCH_AFTER_HELP)]
     Batch(batch::BatchArgs),
+    /// Export a DEM: web-map tiles (Terrain-RGB, Terrarium), COG, GeoJSON of an edit, STAC item, glTF mesh.
+    #[command(after_help = export::EXPORT_AFTER_HELP)]
+    Export(export::ExportArgs),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
@@ -107,6 +111,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Edit(a) => edit::run(a),
         Command::Correct(a) => correct::run(a),
         Command::Batch(a) => batch::run(a),
+        Command::Export(a) => export::run(a),
     }
 }
 

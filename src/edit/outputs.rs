@@ -97,7 +97,13 @@ pub(super) fn write_outputs(
             // Its space is claimed before the DEM is written (a generous
             // bound: the fixed part, each tile's path, each stroke).
             let strokes: usize = view_reports.iter().map(|v| v.strokes.len()).sum();
-            let estimate = 64 * 1024 + 1024 * src.dem.tiles.len() + 8 * 1024 * strokes;
+            let curve_points: usize = view_reports
+                .iter()
+                .flat_map(|v| &v.strokes)
+                .map(|s| s.placed_curve.len())
+                .sum();
+            let estimate =
+                64 * 1024 + 1024 * src.dem.tiles.len() + 8 * 1024 * strokes + 96 * curve_points;
             f.reserve(estimate as u64).map_err(werr)?;
             Some(f)
         }

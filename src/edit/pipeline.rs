@@ -678,6 +678,7 @@ fn measure_strokes(
                     reason,
                     on_silhouette: demands.on_silhouette[k][j],
                     placement: demands.placement[k][j],
+                    placed_curve: placed_curve(&features.scene_views[k], sm),
                 }
             })
             .collect();
@@ -693,6 +694,17 @@ fn measure_strokes(
         });
     }
     view_reports
+}
+
+/// A placed stroke's points in the DEM's CRS (absolute heights), for the
+/// report: the finite ones, rounded to the millimetre.
+fn placed_curve(sv: &SceneView, sm: &crate::sketch::StrokeMatch) -> Vec<[f64; 3]> {
+    sv.projection
+        .placed_to_dem(&sm.points)
+        .into_iter()
+        .filter(|p| p.iter().all(|v| v.is_finite()))
+        .map(|p| p.map(|v| (v * 1000.0).round() / 1000.0))
+        .collect()
 }
 
 /// Why a placed stroke cannot be fitted whatever the deformation does, if

@@ -112,6 +112,10 @@ pub struct StrokeReport {
     /// How the points not on a silhouette were placed (counts of stroke
     /// points; see `edit::stretch_placement`).
     pub placement: super::stretch_placement::StretchPlacement,
+    /// The 3D curve the stroke was placed at: `[x, y, z]` in the DEM's CRS,
+    /// z the absolute height in metres (what `demsketch export geojson`
+    /// draws), in stroke order; points that could not be placed are left out.
+    pub placed_curve: Vec<[f64; 3]>,
 }
 
 /// What a stroke was matched to.
