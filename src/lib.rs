@@ -15,11 +15,14 @@
 //!   lowering of protruding silhouettes.
 //! - [`edit`]: one edit end to end: load, features, matching, deformation,
 //!   lowering, write-back, report and pictures.
+//! - [`batch`]: many edits on one DEM, planned into independent groups of
+//!   tiles, run in parallel or as an array job, with a journal to resume.
 //! - [`export`]: the DEM to web-map tiles, COG, GeoJSON, STAC and glTF.
 //!
 //! [`buffer_pool`] keeps the large per-view and per-solve buffers warm
 //! between views and solves.
 
+pub mod batch;
 pub mod buffer_pool;
 pub mod correct;
 pub mod deform;

@@ -208,7 +208,7 @@ fn prepare(args: &EditArgs) -> anyhow::Result<Option<EditLock>> {
     Ok(lock)
 }
 
-fn parse_min_fit(s: &str) -> Result<f64, String> {
+pub(super) fn parse_min_fit(s: &str) -> Result<f64, String> {
     let v: f64 = s
         .trim()
         .parse()

@@ -1,5 +1,6 @@
 //! Subcommands of the `demsketch` binary and the mapping of errors to exit codes.
 
+pub mod batch;
 pub mod correct;
 pub mod edit;
 pub mod export;
@@ -93,6 +94,9 @@ pub enum Command {
     /// Apply corrections drawn in map view (GeoJSON lakes, rivers, control curves) to a DEM.
     #[command(after_help = correct::CORRECT_AFTER_HELP)]
     Correct(correct::CorrectArgs),
+    /// Apply many sketches to one DEM (groups of overlapping edits in order, the others in parallel), or run one group of a plan.
+    #[command(after_help = batch::BATCH_AFTER_HELP)]
+    Batch(batch::BatchArgs),
     /// Export a DEM: web-map tiles (Terrain-RGB, Terrarium), COG, GeoJSON of an edit, STAC item, glTF mesh.
     #[command(after_help = export::EXPORT_AFTER_HELP)]
     Export(export::ExportArgs),
@@ -110,6 +114,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Locate(a) => locate::run(a),
         Command::Edit(a) => edit::run(a),
         Command::Correct(a) => correct::run(a),
+        Command::Batch(a) => batch::run(a),
         Command::Export(a) => export::run(a),
         Command::Serve(a) => serve::run(a),
     }

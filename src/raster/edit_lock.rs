@@ -37,8 +37,34 @@ impl EditLock {
     pub fn acquire(
         dem: &Path,
         timeout: Duration,
-        mut waiting: impl FnMut(&str),
+        waiting: impl FnMut(&str),
     ) -> Result<EditLock, RasterError> {
+        Self::acquire_as(dem, timeout, waiting, false)
+    }
+
+    /// [`EditLock::acquire`] as a shared lock: held by any number of
+    /// processes at once (the workers of `demsketch batch run`, each
+    /// writing its own tiles), never together with an exclusive one (an
+    /// edit, a whole batch, `batch finish`).
+    pub fn acquire_shared(
+        dem: &Path,
+        timeout: Duration,
+        waiting: impl FnMut(&str),
+    ) -> Result<EditLock, RasterError> {
+        Self::acquire_as(dem, timeout, waiting, true)
+    }
+
+    fn acquire_as(
+        dem: &Path,
+        timeout: Duration,
+        mut waiting: impl FnMut(&str),
+        shared: bool,
+    ) -> Result<EditLock, RasterError> {
+        let op = if shared {
+            FlockOperation::NonBlockingLockShared
+        } else {
+            FlockOperation::NonBlockingLockExclusive
+        };
         let dir = lock_dir(dem);
         let fd = rustix::fs::open(
             &dir,
@@ -49,7 +75,7 @@ impl EditLock {
         let start = Instant::now();
         let mut told = false;
         loop {
-            match flock(&fd, FlockOperation::NonBlockingLockExclusive) {
+            match flock(&fd, op) {
                 Ok(()) => return Ok(EditLock { _fd: fd, dir }),
                 Err(rustix::io::Errno::WOULDBLOCK) | Err(rustix::io::Errno::INTR) => {}
                 Err(e) => {

@@ -43,7 +43,7 @@ struct Journal {
 }
 
 /// Size and CRC-32 of a file.
-fn digest(path: &Path) -> std::io::Result<(u64, u32)> {
+pub fn digest(path: &Path) -> std::io::Result<(u64, u32)> {
     let mut f = std::fs::File::open(path)?;
     let mut h = crc32fast::Hasher::new();
     let mut buf = vec![0u8; 1 << 16];
@@ -164,6 +164,28 @@ fn plain_name(n: &str) -> bool {
 /// one line per journal handled; an error (naming `dem`) when a journal
 /// cannot be applied either way (it is then kept).
 pub fn recover(dem: &Path, dir: &Path) -> Result<Vec<String>, RasterError> {
+    recover_where(dem, dir, |_| true)
+}
+
+/// The file names a journal in staging directory `staging` lists (`None`
+/// when it has none or it cannot be read).
+fn journal_names(staging: &Path) -> Option<Vec<String>> {
+    let text = std::fs::read(staging.join(JOURNAL_NAME)).ok()?;
+    let journal: Journal = serde_json::from_slice(&text).ok()?;
+    Some(journal.entries.into_iter().map(|e| e.name).collect())
+}
+
+/// [`recover`] limited to the journals whose file names `mine` accepts
+/// (an unreadable journal is handled, as by [`recover`], only when `mine`
+/// accepts an empty list). For processes that share a directory and each
+/// own a disjoint set of its files (the groups of `demsketch batch run`):
+/// each recovers only the edits of its own files, never one another live
+/// process is applying. Call with the lock of those files held.
+pub fn recover_where(
+    dem: &Path,
+    dir: &Path,
+    mine: impl Fn(&[String]) -> bool,
+) -> Result<Vec<String>, RasterError> {
     let mut notes = Vec::new();
     let Ok(rd) = std::fs::read_dir(dir) else {
         return Ok(notes);
@@ -174,6 +196,7 @@ pub fn recover(dem: &Path, dir: &Path) -> Result<Vec<String>, RasterError> {
         .filter(|e| e.file_type().map(|t| t.is_dir()).unwrap_or(false))
         .map(|e| e.path())
         .filter(|p| p.join(JOURNAL_NAME).is_file())
+        .filter(|p| mine(&journal_names(p).unwrap_or_default()))
         .collect();
     stagings.sort();
     for s in stagings {

@@ -73,12 +73,20 @@ pub struct WriteReport {
     pub changed_cells: usize,
 }
 
-/// Civil UTC time in RFC 3339, from the system clock.
+/// Civil UTC time in RFC 3339, from the system clock; or, when the
+/// environment sets `SOURCE_DATE_EPOCH` (seconds since 1970, the
+/// reproducible-builds convention), that time: two runs of the same edits
+/// then write byte-identical tiles (the provenance entry records the time).
 pub fn rfc3339_now() -> String {
-    let secs = SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .map(|d| d.as_secs() as i64)
-        .unwrap_or(0);
+    let fixed = std::env::var("SOURCE_DATE_EPOCH")
+        .ok()
+        .and_then(|v| v.trim().parse::<i64>().ok());
+    let secs = fixed.unwrap_or_else(|| {
+        SystemTime::now()
+            .duration_since(UNIX_EPOCH)
+            .map(|d| d.as_secs() as i64)
+            .unwrap_or(0)
+    });
     let (days, rem) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
     // Days since 1970-01-01 to a civil date (H. Hinnant's algorithm).
     let z = days + 719_468;
