@@ -23,6 +23,7 @@
 use crate::deform::locality::{cell_size_m, DEFAULT_INFLUENCE_FRACTION, MIN_INFLUENCE_CELLS};
 use crate::deform::CellSize;
 use crate::raster::{Dem, Window};
+use crate::render::Scene;
 use crate::sketch::SketchFile;
 use crate::view::Georef;
 
@@ -31,8 +32,8 @@ use crate::view::Georef;
 pub const SLACK_CELLS: i64 = 3;
 
 /// The window around the viewpoint `(lon, lat)` that an edit reads within
-/// `max_d` metres (the whole DEM without a limit), as [`crate::render::Scene`]
-/// computes it, grown by [`SLACK_CELLS`]. `Err` (one line) when the
+/// `max_d` metres (the whole DEM without a limit), [`Scene::window_of`],
+/// grown by [`SLACK_CELLS`]. `Err` (one line) when the
 /// viewpoint is off the DEM or cannot be converted to its CRS.
 pub fn view_window(
     dem: &Dem,
@@ -41,30 +42,7 @@ pub fn view_window(
     lat: f64,
     max_d: Option<f64>,
 ) -> Result<Window, String> {
-    let (x, y) = georef.lonlat_to_crs(lon, lat).map_err(|e| e.to_string())?;
-    let (px, py) = dem
-        .geotransform
-        .crs_to_pixel(x, y)
-        .ok_or("the DEM's geotransform cannot be inverted")?;
-    if !(px >= 0.0 && py >= 0.0 && px < dem.width as f64 && py < dem.height as f64) {
-        return Err(format!("viewpoint lon {lon}, lat {lat} is outside the DEM"));
-    }
-    let win = match max_d.filter(|d| d.is_finite() && *d > 0.0) {
-        None => dem.full_window(),
-        Some(r) => {
-            let m = georef.metric_matrix(lon, lat).map_err(|e| e.to_string())?;
-            let det = m[0][0] * m[1][1] - m[0][1] * m[1][0];
-            let mi = [
-                [m[1][1] / det, -m[0][1] / det],
-                [-m[1][0] / det, m[0][0] / det],
-            ];
-            let (gx, gy) = dem.geotransform.pixel_size();
-            let dx = r * mi[0][0].hypot(mi[0][1]) + 2.0 * gx;
-            let dy = r * mi[1][0].hypot(mi[1][1]) + 2.0 * gy;
-            dem.window_for_bounds([x - dx, y - dy, x + dx, y + dy])
-                .unwrap_or_else(|| Window::new(px as i64, py as i64, 1, 1))
-        }
-    };
+    let win = Scene::window_of(dem, georef, lon, lat, max_d).map_err(|e| e.to_string())?;
     Ok(grow(win, SLACK_CELLS, SLACK_CELLS))
 }
 

@@ -44,30 +44,32 @@ impl Scene {
         Self::open_for(dem, vp, max_distance, k, Some(camera))
     }
 
-    fn open_for(
+    /// The window of `dem` a view from `(lon, lat)` reads: the cells
+    /// within `max_distance` metres of it (a square in metres on the
+    /// ground, grown by two cells; the whole DEM without a limit). Fails
+    /// when the viewpoint is off the DEM or cannot be converted to its
+    /// CRS. The batch planner ([`crate::batch`]) uses the same window.
+    pub fn window_of(
         dem: &Dem,
-        vp: &Viewpoint,
+        georef: &Georef,
+        lon: f64,
+        lat: f64,
         max_distance: Option<f64>,
-        k: f64,
-        camera: Option<&crate::view::Camera>,
-    ) -> Result<Scene, RenderError> {
-        let name = dem.path.display().to_string();
-        let georef = Georef::for_crs(&dem.crs, &name)?;
-        let (x, y) = georef.lonlat_to_crs(vp.lon, vp.lat)?;
+    ) -> Result<Window, RenderError> {
+        let (x, y) = georef.lonlat_to_crs(lon, lat)?;
         let outside = || ViewError::OutsideDem {
-            dem: name.clone(),
-            lon: vp.lon,
-            lat: vp.lat,
+            dem: dem.path.display().to_string(),
+            lon,
+            lat,
         };
         let (px, py) = dem.geotransform.crs_to_pixel(x, y).ok_or_else(outside)?;
         if !(px >= 0.0 && py >= 0.0 && px < dem.width as f64 && py < dem.height as f64) {
             return Err(outside().into());
         }
-        let max_d = max_distance.filter(|d| d.is_finite() && *d > 0.0);
-        let win = match max_d {
+        Ok(match max_distance.filter(|d| d.is_finite() && *d > 0.0) {
             None => dem.full_window(),
             Some(r) => {
-                let m = georef.metric_matrix(vp.lon, vp.lat)?;
+                let m = georef.metric_matrix(lon, lat)?;
                 let det = m[0][0] * m[1][1] - m[0][1] * m[1][0];
                 let mi = [
                     [m[1][1] / det, -m[0][1] / det],
@@ -79,7 +81,20 @@ impl Scene {
                 dem.window_for_bounds([x - dx, y - dy, x + dx, y + dy])
                     .unwrap_or_else(|| Window::new(px as i64, py as i64, 1, 1))
             }
-        };
+        })
+    }
+
+    fn open_for(
+        dem: &Dem,
+        vp: &Viewpoint,
+        max_distance: Option<f64>,
+        k: f64,
+        camera: Option<&crate::view::Camera>,
+    ) -> Result<Scene, RenderError> {
+        let name = dem.path.display().to_string();
+        let georef = Georef::for_crs(&dem.crs, &name)?;
+        let max_d = max_distance.filter(|d| d.is_finite() && *d > 0.0);
+        let win = Self::window_of(dem, &georef, vp.lon, vp.lat, max_d)?;
         let window = dem.read_height_map(win)?;
         let frame = georef.local_frame(vp, &window, k)?;
         let terrain = match camera {
