@@ -516,16 +516,24 @@ pub fn check_stored_plan(plan: &Plan, plan_path: &Path) -> Result<(), BatchError
     Ok(())
 }
 
-/// Remove temporary files of dead runs in the output's directories (only
-/// where no worker can be live: under the exclusive lock).
+/// Remove temporary files of dead runs in the output's directories: the
+/// tiles' directory and every directory of the batch's state (group
+/// records, reports, summary), only where no worker can be live: under the
+/// exclusive lock.
 pub fn clean_output(plan: &Plan) -> Vec<String> {
     let mut notes = crate::raster::atomic_file::clean_stale(&tiles_dir(&plan.out));
-    let state = state_dir(&plan.out);
-    notes.extend(crate::raster::atomic_file::clean_stale(&state));
-    for g in 0..plan.groups.len() {
-        let d = super::record::group_dir(&state, g);
-        if d.is_dir() {
-            notes.extend(crate::raster::atomic_file::clean_stale(&d));
+    let mut dirs = vec![state_dir(&plan.out)];
+    while let Some(d) = dirs.pop() {
+        notes.extend(crate::raster::atomic_file::clean_stale(&d));
+        let Ok(entries) = std::fs::read_dir(&d) else {
+            continue;
+        };
+        for e in entries.flatten() {
+            let plain_dir = e.file_type().map(|t| t.is_dir()).unwrap_or(false);
+            let temporary = e.file_name().to_string_lossy().starts_with(".demsketch-");
+            if plain_dir && !temporary {
+                dirs.push(e.path());
+            }
         }
     }
     notes
