@@ -36,17 +36,3 @@ pub(crate) fn write_atomically(
         message,
     })
 }
-
-/// Band 1 of the raster at `tmp`, read by GDAL, must be `width` x `height`
-/// and equal `expected` ([`crate::raster::atomic_file::verify_band`]).
-pub(crate) fn verify_band<T>(
-    tmp: &Path,
-    width: usize,
-    height: usize,
-    expected: &[T],
-) -> Result<(), String>
-where
-    T: gdal::raster::GdalType + PartialEq + Copy,
-{
-    crate::raster::atomic_file::verify_band(tmp, width, height, expected)
-}

@@ -201,7 +201,14 @@ pub fn write_depth_tiff(depth: &DepthBuffer, path: &Path) -> Result<(), RenderEr
                 message,
             })
         },
-        |tmp| super::atomic::verify_band(tmp, depth.width, depth.height, &depth_for_file(depth)),
+        |tmp| {
+            crate::raster::atomic_file::verify_band(
+                tmp,
+                depth.width,
+                depth.height,
+                &depth_for_file(depth),
+            )
+        },
     )
 }
 

@@ -410,6 +410,6 @@ pub fn write_viewshed_tiff(vs: &Viewshed, path: &Path) -> Result<(), RenderError
                 message,
             })
         },
-        |tmp| super::atomic::verify_band(tmp, vs.width, vs.height, &vs.data),
+        |tmp| crate::raster::atomic_file::verify_band(tmp, vs.width, vs.height, &vs.data),
     )
 }
