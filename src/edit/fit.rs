@@ -3,10 +3,8 @@
 //!
 //! - `fitted_fraction`: share of the stroke's pixel columns where the edited
 //!   terrain has an occlusion boundary (a silhouette sample) or the skyline
-//!   within [`FIT_TOLERANCE_PX`] of the stroke, as the renderer draws it or
-//!   as the bilinear surface of DESIGN.md has it
-//!   ([`RenderedView::bilinear_row`]; the two differ by a few pixels where
-//!   cells look large);
+//!   within [`FIT_TOLERANCE_PX`] of the stroke, as the renderer draws the
+//!   bilinear surface of DESIGN.md;
 //! - `mean_px`, `max_px`: distance from the stroke to the nearest boundary
 //!   of each column that has one;
 //! - `visible_fraction`: share of the stroke's columns where the ray through

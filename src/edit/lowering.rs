@@ -138,15 +138,7 @@ fn stroke_hits(view: &RenderedView, g: &StrokeCurve) -> StrokeHits {
             }
             let h = above_ray(sample.local);
             if h.is_finite() && h > 0.0 {
-                // On the bilinear surface it does not rise above the
-                // stroke: not a protrusion to lower.
-                let open = view.interpolation_bound_px(sample.cell, sample.depth);
-                let bilinear = if sample.pixel[1] < y - BELOW_STROKE_PX - open {
-                    sample.pixel[1]
-                } else {
-                    view.bilinear_row(i, sample).unwrap_or(sample.pixel[1])
-                };
-                if bilinear < y - BELOW_STROKE_PX {
+                if sample.pixel[1] < y - BELOW_STROKE_PX {
                     samples.push((c as usize, h, x));
                 }
                 found = true;

@@ -55,18 +55,7 @@ fn nearest_boundary(view: &RenderedView, pixel: [f64; 2], tol: f64) -> Option<Bo
     let mut best: Option<BoundaryPoint> = None;
     for &(c, s) in &view.by_column[i] {
         let sample = &view.silhouettes.curves[c as usize].samples[s as usize];
-        // The row on the bilinear surface (DESIGN.md's), where the drawn
-        // triangles could put it elsewhere; as drawn where they cannot.
-        let drawn = (sample.pixel[1] - pixel[1]).abs();
-        let bound = view.interpolation_bound_px(sample.cell, sample.depth);
-        if drawn > tol + bound {
-            continue;
-        }
-        let row = if bound < 0.05 {
-            sample.pixel[1]
-        } else {
-            view.bilinear_row(i, sample).unwrap_or(sample.pixel[1])
-        };
+        let row = sample.pixel[1];
         let dy = (row - pixel[1]).abs();
         if dy <= tol && best.is_none_or(|b| dy < (b.row - pixel[1]).abs()) {
             best = Some(BoundaryPoint {

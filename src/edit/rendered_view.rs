@@ -5,13 +5,12 @@
 //! fit measures and the lowering loop compare against.
 
 use crate::features::{
-    extract_silhouettes, extract_silhouettes_where, FeatureError, SilhouetteParams,
-    SilhouetteSample, Silhouettes,
+    extract_silhouettes, extract_silhouettes_where, FeatureError, SilhouetteParams, Silhouettes,
 };
 use crate::raster::HeightMap;
 use crate::render::{DepthBuffer, LocalTerrain, SKY};
 use crate::sketch::{PointSource, Stroke, StrokeMatch};
-use crate::view::{Camera, CameraModel, LocalFrame};
+use crate::view::{Camera, LocalFrame};
 
 /// The part of a view that the edit's re-renders compute: the strokes'
 /// columns widened by this many pixels on each side ...
@@ -237,122 +236,6 @@ impl RenderedView {
         })
     }
 
-    /// The image row, in column `i`, of the silhouette of `sample` on
-    /// DESIGN.md's surface: the bilinear height field of the DEM's cells,
-    /// which the renderer's two triangles per cell approximate (they differ
-    /// by up to a quarter of a cell's twist, a few pixels where cells look
-    /// large). Rays of the column near the sample's row are tested against
-    /// the bilinear surface within [`BILINEAR_REACH_CELLS`] cells of the
-    /// sample's terrain point, and the row where they stop clearing it is
-    /// found by bisection. `None` when the rows around the sample do not
-    /// bracket such a change (the triangle row stands).
-    pub fn bilinear_row(&self, i: usize, sample: &SilhouetteSample) -> Option<f64> {
-        let x = i as f64 + 0.5;
-        let y0 = sample.pixel[1];
-        let t_p = sample.depth;
-        let t = &self.terrain;
-        // The two surfaces cannot put this boundary farther apart than
-        // this: nothing to refine where it is a fraction of a pixel.
-        let open = self.interpolation_bound_px(sample.cell, sample.depth);
-        if open < 0.05 {
-            return Some(y0);
-        }
-        // The ray span around the sample's point: a few cells either way.
-        let (e, n) = (sample.local[0], sample.local[1]);
-        let (ve, vn) = t.en_to_v(e, n);
-        let (ve1, vn1) = t.en_to_v(e + 1.0, n);
-        let (ve2, vn2) = t.en_to_v(e, n + 1.0);
-        let cells_per_m = (ve1 - ve).hypot(vn1 - vn).max((ve2 - ve).hypot(vn2 - vn));
-        if !(cells_per_m > 0.0 && ve.is_finite() && vn.is_finite()) {
-            return None;
-        }
-        let reach = BILINEAR_REACH_CELLS / cells_per_m;
-        let (ta, tb) = ((t_p - reach).max(0.5 * t_p), t_p + reach);
-        // Quarter-cell steps over the span, then sixteenth-cell steps around
-        // the least of them (quarter-cell steps alone miss a crest between
-        // them by up to a pixel where cells look large).
-        let steps = (4.0 * 2.0 * BILINEAR_REACH_CELLS) as usize;
-        let dt = (tb - ta) / steps as f64;
-        // Least clearance of the ray through row y above the bilinear
-        // surface over the span (negative: it hits the occluder).
-        let clearance = |y: f64| -> Option<f64> {
-            let d = self.camera.unproject([x, y]);
-            let at = |tt: f64| {
-                let p = [d[0] * tt, d[1] * tt, d[2] * tt];
-                let (vx, vy) = t.en_to_v(p[0], p[1]);
-                bilinear_vertex_z(t, vx, vy).map(|h| p[2] - h)
-            };
-            let (mut least, mut k_least) = (f64::INFINITY, 0);
-            for k in 0..=steps {
-                if let Some(c) = at(ta + dt * k as f64) {
-                    if c < least {
-                        (least, k_least) = (c, k);
-                    }
-                }
-            }
-            let t0 = ta + dt * k_least as f64;
-            for j in (-3..=3).filter(|&j| j != 0) {
-                let tt = t0 + dt * j as f64 / 4.0;
-                if (ta..=tb).contains(&tt) {
-                    if let Some(c) = at(tt) {
-                        least = least.min(c);
-                    }
-                }
-            }
-            least.is_finite().then_some(least)
-        };
-        let reach_px = open + 1.0;
-        let (mut above, mut below) = (y0 - reach_px, y0 + reach_px);
-        if !(clearance(above)? > 0.0 && clearance(below)? <= 0.0) {
-            return None;
-        }
-        for _ in 0..10 {
-            let mid = 0.5 * (above + below);
-            if clearance(mid)? > 0.0 {
-                above = mid;
-            } else {
-                below = mid;
-            }
-        }
-        Some(0.5 * (above + below))
-    }
-
-    /// How far apart, in pixels, the renderer's two triangles per cell and
-    /// the bilinear surface can put a boundary formed in `cell` (window
-    /// coordinates) seen from `depth`: a quarter of the largest twist
-    /// `|h00 + h11 - h10 - h01|` of the 3 x 3 cells around it, projected,
-    /// at most [`BILINEAR_SEARCH_PX`]. Cheap: it gates
-    /// [`RenderedView::bilinear_row`].
-    pub fn interpolation_bound_px(&self, cell: [u32; 2], depth: f64) -> f64 {
-        let t = &self.terrain;
-        let (c, r) = (
-            cell[0] as i64 - t.col0 as i64,
-            cell[1] as i64 - t.row0 as i64,
-        );
-        let z = |c: i64, r: i64| {
-            if c < 0 || r < 0 {
-                None
-            } else {
-                t.vertex_z(c as usize, r as usize)
-            }
-        };
-        let mut twist = 0.0f64;
-        for dr in -1..=1 {
-            for dc in -1..=1 {
-                let (c, r) = (c + dc, r + dr);
-                if let (Some(a), Some(b), Some(cc), Some(d)) =
-                    (z(c, r), z(c + 1, r), z(c, r + 1), z(c + 1, r + 1))
-                {
-                    twist = twist.max((a + d - b - cc).abs());
-                }
-            }
-        }
-        if !(depth > 0.0) {
-            return 0.0;
-        }
-        (0.25 * twist * self.camera.focal_px / depth).min(BILINEAR_SEARCH_PX)
-    }
-
     /// Width in pixels of one DEM cell seen from `depth` metres (the larger
     /// of its two sides).
     pub fn cell_px(&self, depth: f64) -> f64 {
@@ -365,26 +248,14 @@ impl RenderedView {
     }
 
     /// Distance from row `y` of column `i` to its nearest occlusion
-    /// boundary as the renderer draws it, and whether a boundary lies
-    /// within `tol` pixels of `y` as drawn or as the bilinear surface has
-    /// it ([`RenderedView::bilinear_row`], computed only where it could
-    /// make the difference).
+    /// boundary, and whether one lies within `tol` pixels of `y`.
     pub fn boundary_near(&self, i: usize, y: f64, tol: f64) -> (f64, bool) {
         let mut nearest = f64::INFINITY;
-        let mut within = false;
         for &(c, s) in &self.by_column[i] {
             let s = &self.silhouettes.curves[c as usize].samples[s as usize];
-            let d = (s.pixel[1] - y).abs();
-            nearest = nearest.min(d);
-            if within {
-                continue;
-            }
-            within = d <= tol
-                || (d <= tol + self.interpolation_bound_px(s.cell, s.depth)
-                    && self
-                        .bilinear_row(i, s)
-                        .is_some_and(|b| (b - y).abs() <= tol));
+            nearest = nearest.min((s.pixel[1] - y).abs());
         }
+        let mut within = nearest <= tol;
         if let Some(j) = self.skyline_row[i].filter(|&j| j > 0) {
             let d = (j as f64 - y).abs();
             nearest = nearest.min(d);
@@ -402,32 +273,6 @@ impl RenderedView {
         let sky = self.skyline_row[i].filter(|&j| j > 0).map(|j| j as f64);
         sil.chain(sky)
     }
-}
-
-/// [`RenderedView::bilinear_row`] looks this many cells either way of a
-/// silhouette's terrain point ...
-pub const BILINEAR_REACH_CELLS: f64 = 2.0;
-/// ... and this many pixels either way of its row.
-pub const BILINEAR_SEARCH_PX: f64 = 8.0;
-
-/// Bilinear interpolation of the vertex heights of `t` at vertex
-/// coordinates `(vx, vy)`; `None` outside or next to a hole.
-fn bilinear_vertex_z(t: &LocalTerrain, vx: f64, vy: f64) -> Option<f64> {
-    if !(vx >= 0.0 && vy >= 0.0) {
-        return None;
-    }
-    let (c, r) = (vx.floor() as usize, vy.floor() as usize);
-    let (fx, fy) = (vx - c as f64, vy - r as f64);
-    let z00 = t.vertex_z(c, r)?;
-    let z10 = t.vertex_z(c + 1, r)?;
-    let z01 = t.vertex_z(c, r + 1)?;
-    let z11 = t.vertex_z(c + 1, r + 1)?;
-    Some(
-        z00 * (1.0 - fx) * (1.0 - fy)
-            + z10 * fx * (1.0 - fy)
-            + z01 * (1.0 - fx) * fy
-            + z11 * fx * fy,
-    )
 }
 
 /// A stroke as drawn (x-monotone, prepared) with the depth of its placed

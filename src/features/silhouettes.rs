@@ -32,7 +32,7 @@
 use rayon::prelude::*;
 
 use super::FeatureError;
-use crate::render::{DepthBuffer, LocalTerrain};
+use crate::render::{DepthBuffer, LocalTerrain, PATCH_TOLERANCE_PX};
 use crate::view::{cross, dot, CameraModel};
 
 /// Parameters of silhouette extraction.
@@ -508,7 +508,18 @@ fn refine(
     out: &mut Vec<SilhouetteSample>,
 ) {
     let w = db.width;
-    match walk_to_contour(terrain, db, x, y, p.min_jump) {
+    // The walk follows the cells' two triangles; where they depart from
+    // the bilinear patches the view shows by more than the rasteriser's
+    // tolerance, the bisection by exact casts (on the patches) decides.
+    let k = y * w + x;
+    let planar = 0.25 * terrain.twist_around(db.triangle[k]) * db.camera.focal_px
+        <= PATCH_TOLERANCE_PX * db.depth[k] as f64;
+    let walk = if planar {
+        walk_to_contour(terrain, db, x, y, p.min_jump)
+    } else {
+        Walk::Inconclusive
+    };
+    match walk {
         Walk::Crease => return,
         Walk::Contours(found) => {
             for (k, &(yc, local, tri)) in found.iter().enumerate() {

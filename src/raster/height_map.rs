@@ -84,21 +84,6 @@ impl HeightMap {
         Some(([h(c0, r0)?, h(c1, r0)?, h(c0, r1)?, h(c1, r1)?], fx, fy))
     }
 
-    /// Height at pixel-space `(px, py)` of the surface the renderer draws:
-    /// two triangles per cell between the cell centres, split along the
-    /// diagonal from `(c, r)` to `(c + 1, r + 1)` (see
-    /// `render::terrain`). Differs from [`HeightMap::bilinear`] inside a
-    /// cell by up to a quarter of the cell's twist; `None` where
-    /// `bilinear` is `None`.
-    pub fn triangle_surface(&self, px: f64, py: f64) -> Option<f64> {
-        let ([h00, h10, h01, h11], fx, fy) = self.stencil(px, py)?;
-        Some(if fx >= fy {
-            h00 + (h10 - h00) * fx + (h11 - h10) * fy
-        } else {
-            h00 + (h01 - h00) * fy + (h11 - h01) * fx
-        })
-    }
-
     /// Smallest and largest valid height, `None` when everything is nodata.
     pub fn min_max(&self) -> Option<(f32, f32)> {
         let mut it = self.data.iter().copied().filter(|v| !v.is_nan());

@@ -1,8 +1,9 @@
 //! The depth buffer of a first-person view: for every pixel, the distance
 //! from the eye to the first terrain hit along the ray through the pixel
-//! centre (`f32::INFINITY` for sky) and the id of the triangle hit, computed
-//! exactly on the triangulated height field by z-buffer rasterisation of its
-//! triangles ([`super::triangle_raster`]); [`DepthBuffer::render_by_ray_casting`]
+//! centre (`f32::INFINITY` for sky) and the id of the cell half hit, on the
+//! bilinear height field, by z-buffer rasterisation of triangles that follow
+//! each cell's patch to [`super::triangle_raster::PATCH_TOLERANCE_PX`]
+//! ([`super::triangle_raster`]); [`DepthBuffer::render_by_ray_casting`]
 //! gives the same by one exact [`LocalTerrain::cast`] per pixel.
 //!
 //! This is what the silhouette extractor and the sketch matcher consume:
@@ -129,7 +130,10 @@ impl DepthBuffer {
             return None;
         }
         let d = self.camera.unproject([i as f64 + 0.5, j as f64 + 0.5]);
-        let t = ray_plane_distance(terrain, d, self.triangle[k]).unwrap_or(self.depth[k] as f64);
+        let drawn = self.depth[k] as f64;
+        let t = terrain
+            .patch_distance(d, self.triangle[k], drawn)
+            .unwrap_or(drawn);
         Some(make_hit(terrain, d, t, self.triangle[k]))
     }
 
@@ -138,22 +142,6 @@ impl DepthBuffer {
         self.triangle.iter().filter(|&&t| t != SKY).count() as f64
             / self.triangle.len().max(1) as f64
     }
-}
-
-/// Distance along unit ray `d` to the plane of triangle `id` (in f64, exact
-/// up to rounding), `None` for a hole or a ray parallel to it.
-pub(crate) fn ray_plane_distance(terrain: &LocalTerrain, d: [f64; 3], id: u32) -> Option<f64> {
-    let [a, b, c] = terrain.triangle_vertices(id)?;
-    let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
-    let v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
-    let n = [
-        u[1] * v[2] - u[2] * v[1],
-        u[2] * v[0] - u[0] * v[2],
-        u[0] * v[1] - u[1] * v[0],
-    ];
-    let nd = n[0] * d[0] + n[1] * d[1] + n[2] * d[2];
-    let t = (n[0] * a[0] + n[1] * a[1] + n[2] * a[2]) / nd;
-    (t.is_finite() && t > 0.0).then_some(t)
 }
 
 /// Build a [`TerrainHit`] from a unit ray, its hit distance and triangle.

@@ -31,6 +31,7 @@ pub use shaded_image::{
     depth_for_file, draw_polyline, shade, write_depth_tiff, write_png, ShadeOptions, DEPTH_NODATA,
 };
 pub use terrain::{LocalTerrain, RayHit};
+pub use triangle_raster::PATCH_TOLERANCE_PX;
 pub use viewshed::{viewshed, viewshed_exact, write_viewshed_tiff, Viewshed};
 
 /// Errors of rendering and writing views. One line naming the file and the problem.

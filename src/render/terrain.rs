@@ -10,8 +10,11 @@
 //! `(c, r)` to `(c + 1, r + 1)`: triangle 0 is `(c,r) (c+1,r) (c+1,r+1)`
 //! (the part where `fx >= fy`), triangle 1 is `(c,r) (c,r+1) (c+1,r+1)`.
 //! Triangle ids are `2 * (r * cells_x + c) + t`. Triangles touching a nodata
-//! vertex are holes. Between vertices the surface is exactly these planar
-//! triangles, and [`LocalTerrain::cast`] intersects rays with them exactly.
+//! vertex are holes. Between vertices the surface is the bilinear patch of
+//! each cell (DESIGN.md's surface); the ids only name the half of the cell a
+//! point lies in. [`LocalTerrain::cast`] intersects rays with the patches
+//! exactly; the rasteriser draws each patch as triangles, finer where the
+//! patch looks large (see `triangle_raster`).
 
 use super::horizon::{Block, HorizonIndex};
 use crate::buffer_pool;
@@ -418,6 +421,35 @@ impl LocalTerrain {
         (!v.is_nan()).then_some(v as f64)
     }
 
+    /// The largest twist `|z00 + z11 - z10 - z01|` (metres) of the cell of
+    /// triangle `id` and its eight neighbours (nodata cells skipped): two
+    /// planar triangles depart from a cell's bilinear patch by up to a
+    /// quarter of its twist.
+    pub fn twist_around(&self, id: u32) -> f64 {
+        let cx = self.cells_x().max(1);
+        let cell = (id / 2) as usize;
+        let (c, r) = ((cell % cx) as i64, (cell / cx) as i64);
+        let z = |c: i64, r: i64| {
+            if c < 0 || r < 0 {
+                None
+            } else {
+                self.vertex_z(c as usize, r as usize)
+            }
+        };
+        let mut twist = 0.0f64;
+        for dr in -1..=1 {
+            for dc in -1..=1 {
+                let (c, r) = (c + dc, r + dr);
+                if let (Some(a), Some(b), Some(cc), Some(d)) =
+                    (z(c, r), z(c + 1, r), z(c, r + 1), z(c + 1, r + 1))
+                {
+                    twist = twist.max((a + d - b - cc).abs());
+                }
+            }
+        }
+        twist
+    }
+
     /// Local point (ENU metres, apparent z) of vertex `(c, r)`, `None` for nodata.
     #[inline]
     pub fn vertex_local(&self, c: usize, r: usize) -> Option<[f64; 3]> {
@@ -710,8 +742,9 @@ impl LocalTerrain {
         None
     }
 
-    /// Exact intersection of the ray segment `[ta, tb]` with the two
-    /// triangles of cell `(c, r)`.
+    /// Exact first intersection of the ray segment `[ta, tb]` with the
+    /// bilinear patch of cell `(c, r)`; the triangle id says which side of
+    /// the cell's diagonal the hit lies on.
     #[inline]
     fn cell_hit(
         &self,
@@ -724,52 +757,154 @@ impl LocalTerrain {
         let (ox, oy, gx, gy, dz) = ray;
         let nx = self.nx;
         let i = r * nx + c;
-        let h00 = self.z[i] as f64;
-        let h10 = self.z[i + 1] as f64;
-        let h01 = self.z[i + nx] as f64;
-        let h11 = self.z[i + nx + 1] as f64;
+        let patch = BilinearPatch::new([
+            self.z[i] as f64,
+            self.z[i + 1] as f64,
+            self.z[i + nx] as f64,
+            self.z[i + nx + 1] as f64,
+        ])?;
         let (bx, by) = (ox - c as f64, oy - r as f64);
-        let u = |t: f64| (bx + gx * t) - (by + gy * t);
-        let (ua, ub) = (u(ta), u(tb));
-        let mut pieces = [(ta, tb, 0u8); 2];
-        let n = if (ua >= 0.0) == (ub >= 0.0) || ua == ub {
-            pieces[0].2 = if ua + ub >= 0.0 { 0 } else { 1 };
-            1
-        } else {
-            let td = ta + (tb - ta) * ua / (ua - ub);
-            pieces[0] = (ta, td, if ua >= 0.0 { 0 } else { 1 });
-            pieces[1] = (td, tb, if ub >= 0.0 { 0 } else { 1 });
-            2
-        };
-        let cell_id = (r * (nx - 1) + c) as u32 * 2;
-        for &(t1, t2, tri) in &pieces[..n] {
-            let (a, b) = if tri == 0 {
-                (h10 - h00, h11 - h10)
+        let t = patch.first_crossing((bx, by, gx, gy, dz), ta, tb)?;
+        let half = u32::from((bx + gx * t) - (by + gy * t) < 0.0);
+        Some(RayHit {
+            t,
+            triangle: (r * (nx - 1) + c) as u32 * 2 + half,
+        })
+    }
+
+    /// Distance along unit ray `d` from the eye to the bilinear patch of the
+    /// cell of triangle `id`, where the ray crosses that cell: the crossing
+    /// nearest `t_near` (the rasteriser's depth, which follows the patch to
+    /// a fraction of a pixel). `None` when the ray misses the patch.
+    pub fn patch_distance(&self, d: [f64; 3], id: u32, t_near: f64) -> Option<f64> {
+        let cx = self.cells_x().max(1);
+        let cell = (id / 2) as usize;
+        let (c, r) = (cell % cx, cell / cx);
+        if c + 1 >= self.nx || r + 1 >= self.ny {
+            return None;
+        }
+        let i = r * self.nx + c;
+        let nx = self.nx;
+        let patch = BilinearPatch::new([
+            self.z[i] as f64,
+            self.z[i + 1] as f64,
+            self.z[i + nx] as f64,
+            self.z[i + nx + 1] as f64,
+        ])?;
+        let m = self.en_to_v;
+        let gx = m[0][0] * d[0] + m[0][1] * d[1];
+        let gy = m[1][0] * d[0] + m[1][1] * d[1];
+        let (bx, by) = (self.eye_v.0 - c as f64, self.eye_v.1 - r as f64);
+        // The ray's stretch over the cell.
+        let (mut ta, mut tb) = (0.0f64, f64::INFINITY);
+        for (o, g) in [(bx, gx), (by, gy)] {
+            if g == 0.0 {
+                if !(0.0..=1.0).contains(&o) {
+                    return None;
+                }
             } else {
-                (h11 - h01, h01 - h00)
-            };
-            let other = if tri == 0 { h10 } else { h01 };
-            if h00.is_nan() || h11.is_nan() || other.is_nan() {
-                continue;
-            }
-            let f = |t: f64| dz * t - (h00 + a * (bx + gx * t) + b * (by + gy * t));
-            let f1 = f(t1);
-            if f1 <= 0.0 {
-                return Some(RayHit {
-                    t: t1,
-                    triangle: cell_id + tri as u32,
-                });
-            }
-            let f2 = f(t2);
-            if f2 <= 0.0 {
-                return Some(RayHit {
-                    t: t1 + (t2 - t1) * f1 / (f1 - f2),
-                    triangle: cell_id + tri as u32,
-                });
+                let (a, b) = (-o / g, (1.0 - o) / g);
+                ta = ta.max(a.min(b));
+                tb = tb.min(a.max(b));
             }
         }
-        None
+        if !(tb >= ta) {
+            return None;
+        }
+        patch
+            .crossings((bx, by, gx, gy, d[2]), ta, tb)
+            .into_iter()
+            .flatten()
+            .min_by(|a, b| (a - t_near).abs().total_cmp(&(b - t_near).abs()))
     }
+}
+
+/// The bilinear height field of one cell, `h(x, y) = h00 + a x + b y + q x
+/// y` over `0 <= x, y <= 1` (cell coordinates), and where rays cross it.
+#[derive(Debug, Clone, Copy)]
+struct BilinearPatch {
+    h00: f64,
+    a: f64,
+    b: f64,
+    q: f64,
+}
+
+impl BilinearPatch {
+    /// The patch through corner heights `[h00, h10, h01, h11]` (`hXY`),
+    /// `None` when one is nodata.
+    #[inline]
+    fn new([h00, h10, h01, h11]: [f64; 4]) -> Option<Self> {
+        if h00.is_nan() || h10.is_nan() || h01.is_nan() || h11.is_nan() {
+            return None;
+        }
+        Some(BilinearPatch {
+            h00,
+            a: h10 - h00,
+            b: h01 - h00,
+            q: h00 - h10 - h01 + h11,
+        })
+    }
+
+    /// How far the ray `(bx + gx t, by + gy t, dz t)` is above the patch
+    /// at `t`, as `A s^2 + B s + C` in `s = t - t0`.
+    #[inline]
+    fn clearance(&self, (bx, by, gx, gy, dz): (f64, f64, f64, f64, f64), t0: f64) -> [f64; 3] {
+        let (x, y) = (bx + gx * t0, by + gy * t0);
+        let c = dz * t0 - (self.h00 + self.a * x + self.b * y + self.q * x * y);
+        let b = dz - self.a * gx - self.b * gy - self.q * (x * gy + y * gx);
+        [-self.q * gx * gy, b, c]
+    }
+
+    /// The first `t` in `[ta, tb]` where the ray is not above the patch.
+    #[inline]
+    fn first_crossing(&self, ray: (f64, f64, f64, f64, f64), ta: f64, tb: f64) -> Option<f64> {
+        let [qa, qb, qc] = self.clearance(ray, ta);
+        if qc <= 0.0 {
+            return Some(ta);
+        }
+        let span = tb - ta;
+        let roots = quadratic_roots(qa, qb, qc);
+        let first = roots
+            .into_iter()
+            .flatten()
+            .filter(|&s| s > 0.0 && s <= span)
+            .fold(f64::INFINITY, f64::min);
+        if first.is_finite() {
+            return Some(ta + first);
+        }
+        // Rounding can lose a root at the segment's end.
+        let end = (qa * span + qb) * span + qc;
+        (end <= 0.0).then(|| ta + span * qc / (qc - end))
+    }
+
+    /// Every `t` in `[ta, tb]` where the ray meets the patch.
+    fn crossings(&self, ray: (f64, f64, f64, f64, f64), ta: f64, tb: f64) -> [Option<f64>; 2] {
+        let [qa, qb, qc] = self.clearance(ray, ta);
+        let span = tb - ta;
+        let slack = 1e-9 * (1.0 + span);
+        quadratic_roots(qa, qb, qc).map(|s| {
+            s.filter(|&s| s >= -slack && s <= span + slack)
+                .map(|s| ta + s.clamp(0.0, span))
+        })
+    }
+}
+
+/// The real roots of `a s^2 + b s + c`, by the cancellation-free formula
+/// (a linear equation where `a` is negligible).
+#[inline]
+fn quadratic_roots(a: f64, b: f64, c: f64) -> [Option<f64>; 2] {
+    if a == 0.0 || a.abs() * 1e12 < b.abs() {
+        return [(b != 0.0).then(|| -c / b), None];
+    }
+    let disc = b * b - 4.0 * a * c;
+    if disc < 0.0 {
+        return [None, None];
+    }
+    let q = -0.5 * (b + b.signum() * disc.sqrt());
+    if q == 0.0 {
+        return [Some(0.0), None];
+    }
+    [Some(q / a), Some(c / q)]
 }
 
 impl Drop for LocalTerrain {

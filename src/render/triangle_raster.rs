@@ -420,6 +420,62 @@ fn pixel_bounds(s: f64) -> [i32; 2] {
     [ceil_i32(s - 0.5 - 1e-7), floor_i32(s - 0.5 + 1e-7)]
 }
 
+/// Project camera-space point `p` for an image `w` x `h` with focal length
+/// `f` (pixels).
+#[inline]
+fn project(p: [f64; 3], w: f64, h: f64, f: f64) -> PVertex {
+    if p[2] > 0.0 {
+        let q = f / p[2];
+        PVertex {
+            p,
+            ix: pixel_bounds(w / 2.0 + p[0] * q),
+            iy: pixel_bounds(h / 2.0 - p[1] * q),
+            state: 0,
+        }
+    } else {
+        PVertex {
+            p,
+            state: 2,
+            ..PVertex::default()
+        }
+    }
+}
+
+/// Two triangles stand in for a cell's bilinear patch where they cannot put
+/// a boundary farther than this from the patch's, in pixels.
+pub const PATCH_TOLERANCE_PX: f64 = 0.05;
+
+/// The most sub-cells along a cell's side.
+const MAX_SUBDIVISIONS: usize = 16;
+
+/// Sub-cells along each side with which the bilinear patch of a cell
+/// (projected corners `v`, apparent heights `z` in the order `00, 10, 01,
+/// 11`) is drawn within [`PATCH_TOLERANCE_PX`]: two triangles depart from
+/// the patch by at most a quarter of its twist `|z00 + z11 - z10 - z01|`,
+/// `n x n` sub-cells by `1 / n^2` of that, seen at the depth of the nearest
+/// corner. 1 (two triangles) for far cells and holes; at most
+/// [`MAX_SUBDIVISIONS`], for cells at the eye.
+#[inline]
+fn subdivisions(v: [&PVertex; 4], z: [f32; 4], f: f64) -> usize {
+    let twist = (z[0] as f64 + z[3] as f64 - z[1] as f64 - z[2] as f64).abs();
+    if !(twist > 0.0) {
+        return 1;
+    }
+    if v.iter().any(|v| v.state != 0) {
+        return if v.iter().any(|v| v.state == 1) {
+            1
+        } else {
+            MAX_SUBDIVISIONS
+        };
+    }
+    let near = v.iter().map(|v| v.p[2]).fold(f64::INFINITY, fmin);
+    let px = 0.25 * twist * f / near;
+    if !(px > PATCH_TOLERANCE_PX) {
+        return 1;
+    }
+    ((px / PATCH_TOLERANCE_PX).sqrt().ceil() as usize).min(MAX_SUBDIVISIONS)
+}
+
 /// Render the ray parameters (distance / |d|, with the unnormalised ray
 /// `d`) and triangle ids of the strip's columns; with `last_row`, only those
 /// rows (see [`rasterise`]).
@@ -450,6 +506,7 @@ fn render_strip(
         return;
     }
     let mut verts = vec![PVertex::default(); (BLOCK + 1) * (BLOCK + 1)];
+    let mut sub = Vec::with_capacity((MAX_SUBDIVISIONS + 1) * (MAX_SUBDIVISIONS + 1));
     let ctx = Raster {
         terrain,
         camera,
@@ -471,7 +528,7 @@ fn render_strip(
             if (bx0..=bx1).all(|x| ytop[(x - ctx.x0) as usize] <= b.y0) {
                 continue;
             }
-            ctx.draw_block(m, b, &mut verts, &ytop, cols);
+            ctx.draw_block(m, b, &mut verts, &mut sub, &ytop, cols);
             drawn0 = drawn0.min((bx0 - ctx.x0) as usize);
             drawn1 = drawn1.max((bx1 - ctx.x0) as usize + 1);
         }
@@ -512,6 +569,7 @@ impl Raster<'_> {
         m: &VertexToCamera,
         b: &BlockBox,
         verts: &mut [PVertex],
+        sub: &mut Vec<PVertex>,
         ytop: &[i32],
         cols: &mut StripColumns,
     ) {
@@ -532,16 +590,7 @@ impl Raster<'_> {
                     v.state = 1;
                     continue;
                 }
-                let p = m.apply(c as f64, r as f64, z as f64);
-                v.p = p;
-                if p[2] > 0.0 {
-                    v.state = 0;
-                    let q = f / p[2];
-                    v.ix = pixel_bounds(w / 2.0 + p[0] * q);
-                    v.iy = pixel_bounds(h / 2.0 - p[1] * q);
-                } else {
-                    v.state = 2;
-                }
+                *v = project(m.apply(c as f64, r as f64, z as f64), w, h, f);
             }
         }
         let cells_x = cx as u32;
@@ -558,9 +607,68 @@ impl Raster<'_> {
                     continue;
                 }
                 let id = 2 * (r as u32 * cells_x + c as u32);
+                let k0 = r * t.nx + c;
+                let z = [t.z[k0], t.z[k0 + 1], t.z[k0 + t.nx], t.z[k0 + t.nx + 1]];
+                let n = subdivisions([a, bq, cq, d], z, f);
+                if n > 1 {
+                    self.draw_patch(m, (c, r), n, id, ytop, cols, sub);
+                    continue;
+                }
                 // triangle 0: (c,r) (c+1,r) (c+1,r+1); 1: (c,r) (c,r+1) (c+1,r+1)
                 self.draw_triangle(a, bq, d, id, ytop, cols);
                 self.draw_triangle(a, cq, d, id + 1, ytop, cols);
+            }
+        }
+    }
+
+    /// Draw the bilinear patch of cell `(c, r)` as `n` x `n` sub-cells of
+    /// two triangles each, their vertices on the patch; every triangle
+    /// keeps the id of the half of the cell it lies in (`id`: half 0).
+    #[allow(clippy::too_many_arguments)]
+    fn draw_patch(
+        &self,
+        m: &VertexToCamera,
+        (c, r): (usize, usize),
+        n: usize,
+        id: u32,
+        ytop: &[i32],
+        cols: &mut StripColumns,
+        sub: &mut Vec<PVertex>,
+    ) {
+        let t = self.terrain;
+        let k = r * t.nx + c;
+        let [h00, h10, h01, h11] =
+            [t.z[k], t.z[k + 1], t.z[k + t.nx], t.z[k + t.nx + 1]].map(f64::from);
+        let (w, h) = (self.camera.width as f64, self.camera.height as f64);
+        let f = self.camera.focal_px;
+        let vn = n + 1;
+        sub.clear();
+        for j in 0..=n {
+            let fy = j as f64 / n as f64;
+            let (left, right) = (h00 + (h01 - h00) * fy, h10 + (h11 - h10) * fy);
+            for i in 0..=n {
+                let fx = i as f64 / n as f64;
+                let z = left + (right - left) * fx;
+                sub.push(project(m.apply(c as f64 + fx, r as f64 + fy, z), w, h, f));
+            }
+        }
+        for j in 0..n {
+            for i in 0..n {
+                let q = j * vn + i;
+                let (a, b, cc, d) = (&sub[q], &sub[q + 1], &sub[q + vn], &sub[q + vn + 1]);
+                if a.state | b.state | cc.state | d.state == 0
+                    && self.box_hidden_or_empty([a, b, cc, d], ytop)
+                {
+                    continue;
+                }
+                // The cell's diagonal runs through the sub-cells i == j.
+                let (h0, h1) = match i.cmp(&j) {
+                    std::cmp::Ordering::Greater => (0, 0),
+                    std::cmp::Ordering::Less => (1, 1),
+                    std::cmp::Ordering::Equal => (0, 1),
+                };
+                self.draw_triangle(a, b, d, id + h0, ytop, cols);
+                self.draw_triangle(a, cc, d, id + h1, ytop, cols);
             }
         }
     }

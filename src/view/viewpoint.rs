@@ -236,18 +236,14 @@ impl Georef {
             lon: vp.lon,
             lat: vp.lat,
         })?;
-        // The eye stands above the surface the renderer draws (two
-        // triangles per cell), not only above the bilinear one: where the
-        // triangles are higher, an eye over the bilinear ground would look
-        // out from under the rendered terrain. It is resolved here, once,
-        // and every render of an edit uses it (the report gives it as
-        // `eye_alt_m`).
-        let drawn = dem.triangle_surface(cx, cy).unwrap_or(ground);
+        // The renderer draws the bilinear surface (to a fraction of a
+        // pixel), so the eye stands above `ground`. It is resolved here,
+        // once, and every render of an edit uses it (the report gives it as
+        // `eye_alt_m`). An absolute eye just over the ground is lifted to
+        // stand clear of it.
         let eye_alt = match vp.height {
-            EyeHeight::AboveSurface(h) => ground.max(drawn) + h,
-            // An absolute eye above the bilinear ground but under (or just
-            // over) the drawn surface is lifted to stand on it.
-            EyeHeight::Absolute(a) if a >= ground => a.max(drawn + MIN_EYE_CLEARANCE_M),
+            EyeHeight::AboveSurface(h) => ground + h,
+            EyeHeight::Absolute(a) if a >= ground => a.max(ground + MIN_EYE_CLEARANCE_M),
             EyeHeight::Absolute(a) => a,
         };
         if !eye_alt.is_finite() {
