@@ -41,6 +41,9 @@ struct BoundaryPoint {
     /// Local frame of the view (eye at the origin), metres.
     local: [f64; 3],
     depth: f64,
+    /// The row is a sub-pixel boundary (a silhouette sample), not the
+    /// first terrain pixel row of the skyline.
+    precise: bool,
 }
 
 /// The boundary of `view`'s column under `pixel` nearest to it, if within
@@ -62,6 +65,7 @@ fn nearest_boundary(view: &RenderedView, pixel: [f64; 2], tol: f64) -> Option<Bo
                 row,
                 local: sample.local,
                 depth: sample.depth,
+                precise: true,
             });
         }
     }
@@ -77,6 +81,7 @@ fn nearest_boundary(view: &RenderedView, pixel: [f64; 2], tol: f64) -> Option<Bo
         row: j as f64,
         local: hit.local,
         depth: hit.distance,
+        precise: false,
     })
 }
 
@@ -88,6 +93,72 @@ pub const MIN_RUN_PX: f64 = 8.0;
 /// differ by less than this fraction (used for the sub-cell stretches
 /// between two anchors).
 pub const RUN_DEPTH_STEP: f64 = 0.05;
+
+/// Half-width (pixels of x) of the neighbourhood over which a stroke's
+/// offset from the boundary it is anchored on is averaged.
+pub const OFFSET_WINDOW_PX: f64 = 6.0;
+/// A stroke runs off its boundary when its mean offset there exceeds this
+/// (pixels): the fit tolerance of 1 px plus what tracing adds (a careful
+/// hand wanders by up to 0.7 px, two renderers of one surface differ by a
+/// few tenths).
+pub const OFFSET_TOLERANCE_PX: f64 = 1.0;
+/// ... over at least this much of image x.
+pub const MIN_OFFSET_RUN_PX: f64 = 6.0;
+
+/// Removes the anchors of points around which the stroke runs off its
+/// boundary systematically: where the mean signed offset (stroke row minus
+/// boundary row) of the anchored points within [`OFFSET_WINDOW_PX`] of x
+/// exceeds [`OFFSET_TOLERANCE_PX`] over at least [`MIN_OFFSET_RUN_PX`] of
+/// x. Only sub-pixel
+/// boundaries (silhouette samples) count; the skyline's first terrain row
+/// is a pixel coarse. A person tracing a silhouette that is right wanders
+/// to both sides of it, and that averages out over a few pixels; a stretch
+/// drawn consistently a pixel or two above or below it asks for a change,
+/// which the fit would otherwise report as missing while anchoring held
+/// the terrain. Returns which points were refused, so that the looser gap
+/// tolerance does not anchor them again.
+fn drop_offset_stretches(hits: &mut [Option<BoundaryPoint>], pixels: &[[f64; 2]]) -> Vec<bool> {
+    let n = hits.len();
+    let mut refused = vec![false; n];
+    for k in 0..n {
+        if !hits[k].is_some_and(|h| h.precise) {
+            continue;
+        }
+        let (mut sum, mut count) = (0.0, 0usize);
+        for m in 0..n {
+            if let Some(h) = hits[m].filter(|h| h.precise) {
+                if (pixels[m][0] - pixels[k][0]).abs() <= OFFSET_WINDOW_PX {
+                    sum += pixels[m][1] - h.row;
+                    count += 1;
+                }
+            }
+        }
+        refused[k] = (sum / count.max(1) as f64).abs() > OFFSET_TOLERANCE_PX;
+    }
+    // A stretch narrower than a few pixels is a wobble of the hand or a
+    // step between two boundaries, not a change asked for.
+    let mut a = 0;
+    while a < n {
+        if !refused[a] {
+            a += 1;
+            continue;
+        }
+        let mut b = a + 1;
+        while b < n && refused[b] {
+            b += 1;
+        }
+        if (pixels[b - 1][0] - pixels[a][0]).abs() < MIN_OFFSET_RUN_PX {
+            refused[a..b].fill(false);
+        }
+        a = b;
+    }
+    for (h, &r) in hits.iter_mut().zip(&refused) {
+        if r {
+            *h = None;
+        }
+    }
+    refused
+}
 
 /// Removes the anchors of runs (consecutive anchored points) that span less
 /// than [`MIN_RUN_PX`] of image x, unless a run is the whole stroke: a
@@ -138,10 +209,9 @@ pub fn anchor_on_silhouettes(
         .map(|&k| nearest_boundary(before, px(k), ON_SILHOUETTE_PX))
         .collect();
     let n = on_stroke.len();
-    drop_short_runs(
-        &mut hits,
-        &on_stroke.iter().map(|&k| px(k)[0]).collect::<Vec<_>>(),
-    );
+    let pixels: Vec<[f64; 2]> = on_stroke.iter().map(|&k| px(k)).collect();
+    let refused = drop_offset_stretches(&mut hits, &pixels);
+    drop_short_runs(&mut hits, &pixels.iter().map(|p| p[0]).collect::<Vec<_>>());
     // Short stretches beside anchored points, within the looser tolerance.
     let mut a = 0;
     while a < n {
@@ -158,7 +228,8 @@ pub fn anchor_on_silhouettes(
         let right = (b < n).then_some(b);
         let x0 = px(on_stroke[left.unwrap_or(a)])[0];
         let x1 = px(on_stroke[right.unwrap_or(b - 1)])[0];
-        if (left.is_some() || right.is_some()) && (x1 - x0).abs() <= MAX_GAP_PX {
+        let refused_here = refused[a..b].iter().any(|&r| r);
+        if !refused_here && (left.is_some() || right.is_some()) && (x1 - x0).abs() <= MAX_GAP_PX {
             let loose: Vec<Option<BoundaryPoint>> = (a..b)
                 .map(|m| nearest_boundary(before, px(on_stroke[m]), GAP_TOLERANCE_PX))
                 .collect();
@@ -175,7 +246,8 @@ pub fn anchor_on_silhouettes(
         // the stretch stays as the silhouette beside it has it.
         if let (Some(l), Some(r)) = (left.and_then(|l| hits[l]), right.and_then(|r| hits[r])) {
             let same = (l.depth - r.depth).abs() <= RUN_DEPTH_STEP * l.depth.min(r.depth);
-            if same && (x1 - x0).abs() < before.cell_px(0.5 * (l.depth + r.depth)) {
+            if same && !refused_here && (x1 - x0).abs() < before.cell_px(0.5 * (l.depth + r.depth))
+            {
                 for m in a..b {
                     let t = (px(on_stroke[m])[0] - x0) / (x1 - x0).max(1e-9);
                     let lerp = |u: f64, v: f64| u + t.clamp(0.0, 1.0) * (v - u);
@@ -187,6 +259,7 @@ pub fn anchor_on_silhouettes(
                             lerp(l.local[2], r.local[2]),
                         ],
                         depth: lerp(l.depth, r.depth),
+                        precise: false,
                     });
                 }
             }
@@ -218,4 +291,66 @@ pub fn anchor_on_silhouettes(
         keep
     });
     anchored as f64 / n as f64
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn boundary(row: f64) -> Option<BoundaryPoint> {
+        Some(BoundaryPoint {
+            row,
+            local: [0.0, 1000.0, 0.0],
+            depth: 1000.0,
+            precise: true,
+        })
+    }
+
+    /// A stroke traced along a boundary at row 100 with the given offsets,
+    /// one point every 2 px.
+    fn traced(offsets: &[f64]) -> (Vec<Option<BoundaryPoint>>, Vec<[f64; 2]>) {
+        let hits = offsets.iter().map(|_| boundary(100.0)).collect();
+        let pixels = offsets
+            .iter()
+            .enumerate()
+            .map(|(k, o)| [10.0 + 2.0 * k as f64, 100.0 + o])
+            .collect();
+        (hits, pixels)
+    }
+
+    #[test]
+    fn jitter_to_both_sides_stays_anchored() {
+        let offsets: Vec<f64> = (0..40)
+            .map(|k| if k % 2 == 0 { 0.7 } else { -0.6 })
+            .collect();
+        let (mut hits, pixels) = traced(&offsets);
+        let refused = drop_offset_stretches(&mut hits, &pixels);
+        assert!(refused.iter().all(|r| !r));
+        assert!(hits.iter().all(|h| h.is_some()));
+    }
+
+    #[test]
+    fn a_stretch_drawn_consistently_below_is_refused() {
+        // On the boundary, then 1.3 px below it over 30 px, then on it again.
+        let offsets: Vec<f64> = (0..60)
+            .map(|k| if (20..35).contains(&k) { 1.3 } else { 0.1 })
+            .collect();
+        let (mut hits, pixels) = traced(&offsets);
+        let refused = drop_offset_stretches(&mut hits, &pixels);
+        assert!(refused[24..31].iter().all(|&r| r));
+        assert!(refused[..15].iter().all(|&r| !r) && refused[42..].iter().all(|&r| !r));
+        assert!(hits[27].is_none() && hits[5].is_some());
+    }
+
+    #[test]
+    fn a_short_step_off_the_boundary_stays_anchored() {
+        // 1.5 px off over 4 px of x (three points): a wobble, not a change.
+        let offsets: Vec<f64> = (0..40)
+            .map(|k| if (18..21).contains(&k) { 1.5 } else { 0.0 })
+            .collect();
+        let (mut hits, pixels) = traced(&offsets);
+        let refused = drop_offset_stretches(&mut hits, &pixels);
+        assert!(refused.iter().all(|r| !r), "{refused:?}");
+        assert!(hits.iter().all(|h| h.is_some()));
+    }
 }
