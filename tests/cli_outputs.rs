@@ -186,7 +186,14 @@ fn unwritable_formats_are_refused_before_any_work() {
     ]);
     one_line_error(&r, "f.shp");
     // A creation option GDAL rejects: GDAL's own error, in our one line,
-    // naming the output (not a temporary file), nothing left behind.
+    // naming the output (not a temporary file), nothing left behind. This
+    // edit runs up to the write, so it edits a private copy of the DEM (the
+    // fixtures' directory lock is shared with the other tests running now,
+    // and waiting for it would say so on stderr).
+    let own = tempfile::tempdir().expect("tempdir");
+    let own_dem = own.path().join("zion.tif");
+    std::fs::copy(dem(), &own_dem).expect("copy the DEM");
+    let d = s(&own_dem);
     let out = dir.path().join("bad_co.tif");
     let before = snapshot(dir.path());
     let r = demsketch(&[
