@@ -84,6 +84,8 @@ pub struct Inner {
     /// 700, removed at exit and on SIGINT/SIGTERM with the edit's own
     /// staging directories).
     pub workdir: crate::raster::atomic_file::Staging,
+    /// Picture buffers of finished renders, reused by the next ones.
+    pub pictures: Mutex<Vec<Vec<u8>>>,
 }
 
 /// The server's state, cheap to clone into handlers.
@@ -132,12 +134,32 @@ impl AppState {
             jobs,
             render_gate: tokio::sync::Semaphore::new(super::routes::MAX_RENDERS),
             workdir,
+            pictures: Mutex::new(Vec::new()),
         })))
     }
 
     /// The DEM's name in messages.
     pub fn dem_name(&self) -> String {
         self.config.dem.display().to_string()
+    }
+
+    /// A picture buffer of an earlier render (or a new one).
+    pub fn take_picture(&self) -> Vec<u8> {
+        self.pictures
+            .lock()
+            .ok()
+            .and_then(|mut p| p.pop())
+            .unwrap_or_default()
+    }
+
+    /// Give a picture buffer back for the next render (at most
+    /// [`super::routes::MAX_RENDERS`] are kept).
+    pub fn give_picture(&self, buf: Vec<u8>) {
+        if let Ok(mut p) = self.pictures.lock() {
+            if p.len() < super::routes::MAX_RENDERS {
+                p.push(buf);
+            }
+        }
     }
 
     /// Run `f` with this thread's [`Georef`] of the DEM.
