@@ -8,7 +8,8 @@
 //! [`crate::edit::run`], the code path of `demsketch edit`, as dry runs
 //! first, and an accepted edit is written to the `--out` of the command
 //! line by the same call with the same sketch, through the edit's atomic
-//! write-back ([`jobs`]). No path ever comes from the browser: the server
+//! write-back ([`jobs`]); a dry run's pictures are drawn from its height
+//! change when the page fetches them ([`pictures`]). No path ever comes from the browser: the server
 //! only reads the DEM and writes OUT (and its own private working
 //! directory). Requests are bounded (body size, image size, queue length);
 //! heavy work runs on blocking threads, one edit at a time
@@ -19,6 +20,7 @@ pub mod assets;
 pub mod first_person;
 pub mod jobs;
 pub mod overview;
+pub mod pictures;
 pub mod routes;
 pub mod state;
 

@@ -33,6 +33,7 @@ use serde_json::json;
 use super::assets;
 use super::first_person::{self, ViewRequest};
 use super::jobs;
+use super::pictures;
 use super::state::AppState;
 use super::ServeError;
 use crate::sketch::SketchFile;
@@ -312,12 +313,22 @@ async fn job_image(
     State(st): State<AppState>,
     UrlPath((id, name)): UrlPath<(String, String)>,
 ) -> Answer {
-    let path = st.jobs.image_path(job_id(&id)?, &name)?;
-    let bytes = tokio::task::spawn_blocking(move || std::fs::read(path))
-        .await
-        .map_err(|e| ServeError::Internal(e.to_string()))?
-        .map_err(|e| ServeError::NotFound(format!("picture '{name}': {e}")))?;
-    png_answer(bytes)
+    let id = job_id(&id)?;
+    let (sketch, dz, window) = match st.jobs.picture_source(id, &name)? {
+        jobs::PictureSource::Drawn(png) => return png_answer(png.to_vec()),
+        jobs::PictureSource::ToDraw { sketch, dz, window } => (sketch, dz, window),
+    };
+    let n = name.clone();
+    let png = blocking(&st, move |st| {
+        let sketch = SketchFile::from_json_str(&sketch, "sketch")
+            .map_err(|e| ServeError::Internal(e.to_string()))?;
+        let change = pictures::HeightChange::read(&dz, window)?;
+        pictures::draw(st, &sketch, &change, &n)
+    })
+    .await?;
+    let png = std::sync::Arc::new(png);
+    st.jobs.keep_picture(id, &name, png.clone());
+    png_answer(png.to_vec())
 }
 
 async fn accept(State(st): State<AppState>, UrlPath(id): UrlPath<String>) -> Answer {
