@@ -8,6 +8,7 @@ const $ = (id) => document.getElementById(id);
 const app = {
   info: null,
   overview: null,          // Image of the hillshade
+  underlay: null,          // Image of the --underlay on the map's grid (or null)
   viewshed: null,          // Image of the viewshed (or null)
   sketch: { views: [], options: { influence_m: 1500.0 } },
   cur: 0,                  // index of the current view
@@ -127,6 +128,11 @@ async function setupMap() {
   $("dem-name").textContent = `${app.info.name} (${app.info.width} x ${app.info.height})` + (app.info.out ? ` -> ${app.info.out}` : " (dry runs only: no --out)");
   const blob = await api("/api/overview.png");
   app.overview = await loadImage(URL.createObjectURL(blob));
+  if (app.info.underlay) {
+    app.underlay = await loadImage(URL.createObjectURL(await api("/api/underlay.png")));
+    $("underlay-name").textContent = app.info.underlay.name;
+    $("underlay-ctl").hidden = false;
+  }
   const c = $("map");
   c.width = app.info.overview.width; c.height = app.info.overview.height;
   drawMap();
@@ -169,6 +175,11 @@ function drawMap() {
   if (!app.overview) return;
   g.clearRect(0, 0, c.width, c.height);
   g.drawImage(app.overview, 0, 0, c.width, c.height);
+  if (app.underlay) {
+    g.globalAlpha = +$("underlay-opacity").value;
+    g.drawImage(app.underlay, 0, 0, c.width, c.height);
+    g.globalAlpha = 1;
+  }
   if (app.viewshed) g.drawImage(app.viewshed, 0, 0, c.width, c.height);
   if (!app.vpPixel || !app.jac) return;
   const [x, y] = app.vpPixel, cam = view().camera;
@@ -457,12 +468,11 @@ async function dryRun() {
 }
 async function poll(id) {
   for (;;) {
-    const j = await api(`/api/jobs/${id}`);
+    const j = await api(`/api/jobs/${id}?wait_ms=1000`);
     const what = j.kind === "write" ? "writing" : "dry run";
     if (j.state === "queued") $("edit-status").textContent = `${what} ${id}: queued (${j.queued_ahead} ahead)`;
     else if (j.state === "running") $("edit-status").textContent = `${what} ${id}: running ${j.elapsed_s.toFixed(1)} s`;
     else return j;
-    await new Promise((ok) => setTimeout(ok, 250));
   }
 }
 function showJob(j) {
@@ -542,6 +552,7 @@ async function main() {
     if (app.sketch.views.length < 2) return;
     snapshot(); app.sketch.views.splice(app.cur, 1); app.cur = 0; syncFields(); updateJacobian(); scheduleRender();
   });
+  $("underlay-opacity").addEventListener("input", drawMap);
   $("ov-sil").addEventListener("change", scheduleRender);
   $("ov-ridges").addEventListener("change", scheduleRender);
   $("viewshed-btn").addEventListener("click", async () => {

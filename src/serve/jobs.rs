@@ -102,6 +102,8 @@ pub struct Jobs {
     next: Mutex<u64>,
     gate: tokio::sync::Semaphore,
     max_queued: usize,
+    /// Woken whenever a job finishes (long-polling requests wait on it).
+    pub finished: tokio::sync::Notify,
 }
 
 /// Finished jobs kept (their pictures and reports); older ones are removed.
@@ -114,6 +116,7 @@ impl Jobs {
             next: Mutex::new(1),
             gate: tokio::sync::Semaphore::new(1),
             max_queued: max_queued.max(1),
+            finished: tokio::sync::Notify::new(),
         }
     }
 
@@ -359,6 +362,7 @@ fn submit(
                 j.view.images = outcome.images;
             }
         }
+        st.jobs.finished.notify_waiters();
     });
     Ok(id)
 }

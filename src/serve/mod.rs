@@ -2,7 +2,8 @@
 //! library, with its page, script and styles built into the binary.
 //!
 //! It is a thin layer: the map view is a hillshade of decimated reads of
-//! the DEM's files ([`overview`]); first-person views, their silhouettes
+//! the DEM's files ([`overview`]), optionally with any raster warped onto
+//! its grid by GDAL ([`underlay`]); first-person views, their silhouettes
 //! and ridges and the viewshed come from [`crate::render`] and
 //! [`crate::features`] ([`first_person`]); edits run through
 //! [`crate::edit::run`], the code path of `demsketch edit`, as dry runs
@@ -23,6 +24,7 @@ pub mod overview;
 pub mod pictures;
 pub mod routes;
 pub mod state;
+pub mod underlay;
 
 pub use routes::router;
 pub use state::{AppState, ServeConfig};
