@@ -14,6 +14,10 @@ virtual environment tools/setup.sh makes):
   no file outside OUT touched.
 - photo_trace: a render of a changed DEM saved as JPEG is loaded under the
   view, the camera aligned to it by dragging, its skyline traced, edited.
+- underlay: `--underlay` with bad files (missing, not a raster, no
+  georeference: exit 1, one line naming the file); with the fixture RGB
+  GeoTIFF in EPSG:4326: the underlay served at the map's size, its colours
+  those of the file at given lon/lat, drawn with its opacity control.
 
 Usage: run.py --bin target/release/demsketch [--screenshots docs/serve] [TEST...]
 Prints "browser: N passed, M failed" last; exit code 1 when any failed.
@@ -93,10 +97,9 @@ def post_json(srv, path, obj):
 def wait_job(srv, job, timeout=120):
     t0 = time.time()
     while time.time() - t0 < timeout:
-        j = get_json(srv, f"/api/jobs/{job}")
+        j = get_json(srv, f"/api/jobs/{job}?wait_ms=2000")
         if j["state"] in ("done", "failed"):
             return j
-        time.sleep(0.2)
     raise AssertionError(f"job {job} did not finish in {timeout} s")
 
 
@@ -522,7 +525,83 @@ def test_photo_trace(binary, shots, tmp):
     assert after < before, (before, after)
 
 
-TESTS = {"edit_flow": test_edit_flow, "hostile": test_hostile, "photo_trace": test_photo_trace}
+def png_size(data):
+    """(width, height) from a PNG's IHDR."""
+    assert data[:8] == b"\x89PNG\r\n\x1a\n", data[:16]
+    return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
+
+
+def test_underlay(binary, shots, tmp):
+    from selenium.webdriver.common.by import By
+    underlay = os.path.join(ROOT, "fixtures", "underlay", "zion_rgb_epsg4326.tif")
+    out = os.path.join(tmp, "o.tif")
+    # Bad files: one line naming the file, exit code 1, nothing written, no URL.
+    text = os.path.join(tmp, "notes.txt")
+    open(text, "w").write("not a raster\n")
+    nogeo = os.path.join(tmp, "nogeo.png")
+    subprocess.run(["gdal_translate", "-q", "-of", "PNG", underlay, nogeo], check=True)
+    for f in [p for p in os.listdir(tmp) if p.endswith(".aux.xml")]:
+        os.remove(os.path.join(tmp, f))
+    for bad, why in [(os.path.join(tmp, "missing.tif"), "no such file"), (text, "not a raster"),
+                     (nogeo, "no georeference")]:
+        r = subprocess.run([binary, "serve", DEM, "--out", out, "--port", "0", "--underlay", bad],
+                           capture_output=True, text=True, timeout=60)
+        lines = [l for l in r.stderr.splitlines() if l.strip()]
+        assert r.returncode == 1, (bad, r.returncode, r.stderr)
+        assert len(lines) == 1 and bad in lines[0] and why in lines[0], (bad, r.stderr)
+        assert "http://" not in r.stdout and not os.path.exists(out), (bad, r.stdout)
+        print(f"  --underlay {os.path.basename(bad)}: exit 1, {lines[0]}")
+    srv = Server(binary, DEM, out, ["--underlay", underlay])
+    try:
+        info = get_json(srv, "/api/info")
+        ow, oh = info["overview"]["width"], info["overview"]["height"]
+        assert info["underlay"] == {"name": "zion_rgb_epsg4326.tif", "width": ow, "height": oh}, info["underlay"]
+        s, png = request(srv, "GET", "/api/underlay.png")
+        assert s == 200 and png_size(png) == (ow, oh), (s, png[:40])
+        path = os.path.join(tmp, "underlay.png")
+        open(path, "wb").write(png)
+        # Mostly opaque (the file covers the DEM), transparent where it does not.
+        stats = subprocess.run(["gdalinfo", "-stats", path], capture_output=True, text=True, check=True).stdout
+        means = [float(m) for m in re.findall(r"STATISTICS_MEAN=([-\d.e+]+)", stats)]
+        assert len(means) == 4 and means[3] > 200, stats
+        # Reprojected to the map's grid: the colour at a lon/lat is the file's there.
+        for lon, lat in [(-112.95, 37.25), (-113.05, 37.40), (-112.90, 37.45)]:
+            px = post_json(srv, "/api/project", {"points": [[lon, lat]]})[1]["pixels"][0]
+            got = subprocess.run(["gdallocationinfo", "-valonly", path, str(int(px[0])), str(int(px[1]))],
+                                 capture_output=True, text=True, check=True).stdout.split()
+            want = subprocess.run(["gdallocationinfo", "-valonly", "-wgs84", underlay, str(lon), str(lat)],
+                                  capture_output=True, text=True, check=True).stdout.split()
+            assert int(got[3]) == 255, got
+            assert all(abs(int(g) - int(w)) <= 24 for g, w in zip(got[:3], want)), (lon, lat, got, want)
+        print(f"  underlay {ow} x {oh} RGBA, alpha mean {means[3]:.0f}; colours match the file at 3 points")
+        d = browser(tmp)
+        try:
+            d.get(srv.url)
+            wait_for(lambda: d.execute_script("return document.body.dataset.ready"), 30, "the page")
+            assert d.execute_script("return app.underlay && app.underlay.naturalWidth") == ow
+            assert d.find_element(By.ID, "underlay-ctl").is_displayed()
+            pixel = "const g = document.getElementById('map').getContext('2d'); return [...g.getImageData(arguments[0], arguments[1], 1, 1).data];"
+            x, y = ow // 4, 2 * oh // 3  # away from the viewpoint and its wedge
+            set_field(d, "underlay-opacity", 0)
+            d.execute_script("document.getElementById('underlay-opacity').dispatchEvent(new Event('input'))")
+            bare = d.execute_script(pixel, x, y)
+            set_field(d, "underlay-opacity", 1)
+            d.execute_script("document.getElementById('underlay-opacity').dispatchEvent(new Event('input'))")
+            full = d.execute_script(pixel, x, y)
+            assert bare != full, (bare, full)
+            if shots:
+                set_field(d, "underlay-opacity", 0.6)
+                d.execute_script("document.getElementById('underlay-opacity').dispatchEvent(new Event('input'))")
+                shot(d.find_element(By.ID, "map-pane"), os.path.join(shots, "map_underlay.png"))
+            print(f"  map pixel at opacity 0: {bare[:3]}, at 1: {full[:3]}")
+        finally:
+            d.quit()
+    finally:
+        srv.stop()
+
+
+TESTS = {"edit_flow": test_edit_flow, "hostile": test_hostile, "photo_trace": test_photo_trace,
+         "underlay": test_underlay}
 
 
 def main():
