@@ -417,14 +417,47 @@ function setupPhoto() {
     showPhoto();
     // the view takes the photo's shape (same width)
     const v = view();
+    let used = "";
     if (!v.strokes.length) {
       const w = Math.min(4096, img.naturalWidth), h = Math.round(w * img.naturalHeight / img.naturalWidth);
       setCamera({ width: w, height: Math.min(4096, h) });
+      used = await useExif(f, img);
     }
-    status(`photo ${f.name}: ${img.naturalWidth} x ${img.naturalHeight}`);
+    $("photo-info").textContent = `${f.name}: ${img.naturalWidth} x ${img.naturalHeight}` + used;
+    status(`photo ${f.name}: ${img.naturalWidth} x ${img.naturalHeight}` + used);
   });
   $("photo-opacity").addEventListener("input", showPhoto);
   $("photo-over").addEventListener("change", showPhoto);
+}
+// The photo's EXIF (read by the server from its first MiB): the GPS
+// position places the viewpoint, the focal length sets the field of view,
+// a true GPS bearing the heading. Returns what was used, for the status.
+async function useExif(file, img) {
+  let ex;
+  try {
+    const r = await fetch(`/api/photo-exif?width=${img.naturalWidth}&height=${img.naturalHeight}`, {
+      method: "POST", headers: { "Content-Type": "application/octet-stream" }, body: file.slice(0, 1024 * 1024),
+    });
+    if (!r.ok) return "";
+    ex = await r.json();
+  } catch (err) { return ""; }
+  app.photoExif = ex;
+  const used = [], cam = {};
+  const v = view();
+  if (ex.lon !== null && ex.lat !== null) {
+    v.viewpoint.lon = Math.round(ex.lon * 1e6) / 1e6; v.viewpoint.lat = Math.round(ex.lat * 1e6) / 1e6;
+    app.viewshed = null;
+    used.push(`GPS ${v.viewpoint.lon.toFixed(5)}, ${v.viewpoint.lat.toFixed(5)}`);
+  }
+  if (ex.hfov_deg !== null) {
+    cam.hfov_deg = ex.hfov_deg;
+    used.push(`hfov ${ex.hfov_deg.toFixed(1)} deg from the ${ex.hfov_from === "35mm" ? "35 mm equivalent" : "sensor width"} of ${(ex.focal_35mm ?? ex.focal_mm).toFixed(1)} mm`);
+  }
+  if (ex.heading_deg !== null) { cam.heading_deg = ex.heading_deg; used.push(`heading ${ex.heading_deg.toFixed(0)} deg`); }
+  if (!used.length) return ": no EXIF position or focal length";
+  setCamera(cam);
+  if (ex.lon !== null) await updateJacobian();
+  return ": EXIF " + used.join(", ");
 }
 function showPhoto() {
   const over = $("photo-over").checked, op = $("photo-opacity").value;

@@ -5,7 +5,8 @@
 //! the DEM's files ([`overview`]), optionally with any raster warped onto
 //! its grid by GDAL ([`underlay`]); first-person views, their silhouettes
 //! and ridges and the viewshed come from [`crate::render`] and
-//! [`crate::features`] ([`first_person`]); edits run through
+//! [`crate::features`] ([`first_person`]); a photo's EXIF gives its
+//! viewpoint and field of view ([`photo_exif`]); edits run through
 //! [`crate::edit::run`], the code path of `demsketch edit`, as dry runs
 //! first, and an accepted edit is written to the `--out` of the command
 //! line by the same call with the same sketch, through the edit's atomic
@@ -21,6 +22,7 @@ pub mod assets;
 pub mod first_person;
 pub mod jobs;
 pub mod overview;
+pub mod photo_exif;
 pub mod pictures;
 pub mod routes;
 pub mod state;

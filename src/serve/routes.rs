@@ -15,6 +15,7 @@
 //! | POST `/api/features` | view | silhouettes (and ridges) as pixel polylines |
 //! | POST `/api/locate` | view with `pixel` | the terrain point, or null |
 //! | POST `/api/viewshed` | view | PNG on the overview grid |
+//! | POST `/api/photo-exif?width=W&height=H` | the photo's first bytes (at most 1 MiB) | its EXIF GPS position, heading, focal length, hfov |
 //! | POST `/api/edit` | `{"sketch": {...}, "allow_partial": false}` | `{"job": id}`, a dry run |
 //! | GET `/api/jobs/{id}[?wait_ms=T]` | | state, report, pictures (with `wait_ms`: once finished, or after T ms) |
 //! | GET `/api/jobs/{id}/image/{name}` | | a picture of the dry run |
@@ -113,6 +114,7 @@ pub fn router(state: AppState) -> Router {
         .route("/api/features", post(features))
         .route("/api/locate", post(locate))
         .route("/api/viewshed", post(viewshed))
+        .route("/api/photo-exif", post(photo_exif))
         .route("/api/edit", post(edit))
         .route("/api/jobs/{id}", get(job))
         .route("/api/jobs/{id}/image/{name}", get(job_image))
@@ -292,6 +294,18 @@ async fn viewshed(State(st): State<AppState>, body: Bytes) -> Answer {
 
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
+struct PhotoSize {
+    width: u32,
+    height: u32,
+}
+
+async fn photo_exif(q: Result<Query<PhotoSize>, QueryRejection>, body: Bytes) -> Answer {
+    let Query(q) = q.map_err(|e| ServeError::BadRequest(format!("query: {}", e.body_text())))?;
+    json_answer(&super::photo_exif::read(&body, q.width, q.height)?)
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
 struct EditRequest {
     sketch: serde_json::Value,
     #[serde(default)]
@@ -336,8 +350,8 @@ async fn job(
 ) -> Answer {
     let Query(q) = q.map_err(|e| ServeError::BadRequest(format!("query: {}", e.body_text())))?;
     let id = job_id(&id)?;
-    let deadline = tokio::time::Instant::now()
-        + std::time::Duration::from_millis(q.wait_ms.min(MAX_WAIT_MS));
+    let deadline =
+        tokio::time::Instant::now() + std::time::Duration::from_millis(q.wait_ms.min(MAX_WAIT_MS));
     loop {
         // Registered before the look, so that a job finishing in between wakes it.
         let woken = st.jobs.finished.notified();

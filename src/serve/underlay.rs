@@ -144,11 +144,7 @@ fn is_byte(src: &Dataset, b: usize) -> bool {
 
 /// Every band of `src` on the overview's grid (f32, NaN where nothing
 /// was warped or the source is nodata).
-fn warp_to_grid(
-    src: &Dataset,
-    dem: &Dem,
-    ov: &Overview,
-) -> gdal::errors::Result<Vec<Vec<f32>>> {
+fn warp_to_grid(src: &Dataset, dem: &Dem, ov: &Overview) -> gdal::errors::Result<Vec<Vec<f32>>> {
     let n = src.raster_count();
     let (w, h) = (ov.width, ov.height);
     let mem = DriverManager::get_driver_by_name("MEM")?;
@@ -175,7 +171,9 @@ fn warp_to_grid(
     let mut out = Vec::with_capacity(n);
     for b in 0..n {
         let nodata = src.rasterband(b + 1)?.no_data_value();
-        let buf = dst.rasterband(b + 1)?.read_as::<f32>((0, 0), (w, h), (w, h), None)?;
+        let buf = dst
+            .rasterband(b + 1)?
+            .read_as::<f32>((0, 0), (w, h), (w, h), None)?;
         let mut v = buf.into_shape_and_vec().1;
         if let Some(nd) = nodata.filter(|nd| !nd.is_nan()) {
             for x in v.iter_mut().filter(|x| (**x as f64 - nd).abs() < 1e-6) {
@@ -191,7 +189,10 @@ fn warp_to_grid(
 /// their 2nd to their 98th percentile (of the valid values).
 fn to_bytes(v: &[f32], byte: bool) -> Vec<u8> {
     if byte {
-        return v.iter().map(|x| x.round().clamp(0.0, 255.0) as u8).collect();
+        return v
+            .iter()
+            .map(|x| x.round().clamp(0.0, 255.0) as u8)
+            .collect();
     }
     let mut valid: Vec<f32> = v.iter().copied().filter(|x| x.is_finite()).collect();
     if valid.is_empty() {

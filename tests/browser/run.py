@@ -12,8 +12,10 @@ virtual environment tools/setup.sh makes):
 - hostile: bad JSON, a 100 MB body, paths in parameters, 10 concurrent
   edits: 4xx answers (or queued and completed), the server keeps serving,
   no file outside OUT touched.
-- photo_trace: a render of a changed DEM saved as JPEG is loaded under the
-  view, the camera aligned to it by dragging, its skyline traced, edited.
+- photo_trace: a render of a changed DEM saved as JPEG with EXIF (GPS
+  position, bearing, focal length and sensor width, written by exiftool) is
+  loaded under the view: the viewpoint, heading and field of view come from
+  the EXIF; the camera aligned to it by dragging, its skyline traced, edited.
 - underlay: `--underlay` with bad files (missing, not a raster, no
   georeference: exit 1, one line naming the file); with the fixture RGB
   GeoTIFF in EPSG:4326: the underlay served at the map's size, its colours
@@ -455,19 +457,36 @@ def test_photo_trace(binary, shots, tmp):
                     "--heading", "203", "--pitch", "0", "--hfov", "35", "--size", "1200x600",
                     "--out", png, "-q"], check=True)
     subprocess.run(["gdal_translate", "-q", "-of", "JPEG", "-co", "QUALITY=90", png, photo], check=True)
+    # EXIF as a camera writes it: the GPS position of the viewpoint, a true
+    # bearing 3 degrees off, and a 57.088 mm lens on a 36 mm wide sensor
+    # (1200 px at 33.3333 px/mm): 35 degrees across.
+    lon, lat = vp["lon"], vp["lat"]
+    subprocess.run(["exiftool", "-q", "-overwrite_original",
+                    f"-GPSLatitude={abs(lat)}", f"-GPSLatitudeRef={'N' if lat >= 0 else 'S'}",
+                    f"-GPSLongitude={abs(lon)}", f"-GPSLongitudeRef={'E' if lon >= 0 else 'W'}",
+                    "-GPSImgDirection=200", "-GPSImgDirectionRef=T", "-FocalLength=57.088",
+                    "-FocalPlaneXResolution=33.3333", "-FocalPlaneResolutionUnit=mm",
+                    "-ExifImageWidth=1200", "-ExifImageHeight=600", photo], check=True)
     out = os.path.join(tmp, "traced.tif")
     srv = Server(binary, DEM, out)
     d = browser(tmp)
     try:
         d.get(srv.url)
         wait_for(lambda: d.execute_script("return document.body.dataset.ready"), 30, "the page")
-        for fid, val in [("f-lon", vp["lon"]), ("f-lat", vp["lat"]), ("f-heading", 200), ("f-pitch", -1),
-                         ("f-hfov", 35)]:
-            set_field(d, fid, val)
+        # Only the pitch is typed: the viewpoint, heading and field of view
+        # come from the photo's EXIF.
+        set_field(d, "f-pitch", -1)
         set_field(d, "view-name", "photo")
         d.find_element(By.ID, "photo-file").send_keys(photo)
         wait_for(lambda: d.execute_script("return app.photo && app.sketch.views[0].camera.width === 1200"
-                                          " && app.sketch.views[0].camera.height === 600"), 20, "the photo")
+                                          " && app.sketch.views[0].camera.height === 600"
+                                          " && app.photoExif !== undefined"), 20, "the photo")
+        got = d.execute_script("return app.sketch.views[0]")
+        assert abs(got["viewpoint"]["lon"] - vp["lon"]) < 2e-6 and abs(got["viewpoint"]["lat"] - vp["lat"]) < 2e-6, got
+        assert abs(got["camera"]["hfov_deg"] - 35) < 0.02 and got["camera"]["heading_deg"] == 200, got["camera"]
+        note = d.find_element(By.ID, "photo-info").text
+        assert "EXIF GPS" in note and "hfov 35.0" in note and "heading 200" in note, note
+        print("  " + note)
         set_field(d, "photo-opacity", 0.5)
         d.execute_script("document.getElementById('photo-opacity').dispatchEvent(new Event('input'))")
         # Align: drag the render under the photo (3 degrees right, 1 up).
