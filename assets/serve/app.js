@@ -15,6 +15,7 @@ const app = {
   selected: null,          // index of the selected stroke
   undo: [], redo: [],
   drawing: null,           // points of the stroke being drawn
+  moving: null,            // the stroke being moved: { k, from, points, moved }
   jac: null,               // lon/lat per overview pixel at the viewpoint
   vpPixel: null,           // viewpoint on the overview
   job: null, writeJob: null,
@@ -361,12 +362,19 @@ function setupViewEvents() {
     $("view-wrap").focus();
     const t = tool();
     if (t === "draw" && e.button === 0) { app.drawing = [viewPixel(e)]; drawStrokes(); }
+    else if (t === "move") startMove(viewPixel(e));
     else look = { x: e.clientX, y: e.clientY, cam: { ...view().camera }, shift: e.shiftKey, align: t === "align" };
   });
   cv.addEventListener("pointermove", (e) => {
     if (app.drawing) {
       const p = viewPixel(e), q = app.drawing[app.drawing.length - 1];
       if (Math.hypot(p[0] - q[0], p[1] - q[1]) >= 2) { app.drawing.push(p); drawStrokes(); }
+    } else if (app.moving) {
+      const p = viewPixel(e), m = app.moving;
+      const [dx, dy] = [p[0] - m.from[0], p[1] - m.from[1]];
+      view().strokes[m.k].points = m.points.map(([x, y]) => [x + dx, y + dy]);
+      m.moved = true;
+      drawStrokes();
     } else if (look) {
       const r = cv.getBoundingClientRect();
       const degPerPx = look.cam.hfov_deg / r.width;
@@ -381,12 +389,17 @@ function setupViewEvents() {
       const pts = app.drawing; app.drawing = null;
       if (pts.length >= 2) addStroke(pts); else drawStrokes();
     }
+    if (app.moving) {
+      // Nothing moved: the snapshot taken for it is dropped.
+      if (!app.moving.moved) app.undo.pop();
+      app.moving = null; listStrokes();
+    }
     look = null;
   };
   cv.addEventListener("pointerup", end);
   cv.addEventListener("pointercancel", end);
   cv.addEventListener("wheel", (e) => {
-    if (tool() === "draw") return;
+    if (tool() === "draw" || tool() === "move") return;
     e.preventDefault();
     setCamera({ hfov_deg: view().camera.hfov_deg * (e.deltaY > 0 ? 1.03 : 1 / 1.03) });
   }, { passive: false });
@@ -399,6 +412,22 @@ function setupViewEvents() {
     if ((e.ctrlKey || e.metaKey) && e.key === "z") { e.preventDefault(); e.shiftKey ? redo() : undo(); }
     if (e.key === "Delete" || e.key === "Backspace") { e.preventDefault(); deleteStroke(); }
   });
+}
+// Move: the stroke nearest the pointer (within a few pixels of the
+// screen) is selected and follows it; one undo step.
+function startMove(p) {
+  const v = view(), cv = $("strokes");
+  const R = Math.max(8, 16 * cv.width / cv.getBoundingClientRect().width);
+  let best = null;
+  v.strokes.forEach((s, k) => {
+    const [, d] = nearest(s.points, p);
+    if (d < R && (!best || d < best.d)) best = { k, d };
+  });
+  if (!best) { app.selected = null; listStrokes(); drawStrokes(); return; }
+  snapshot();
+  app.selected = best.k;
+  app.moving = { k: best.k, from: p, points: v.strokes[best.k].points.map((q) => q.slice()), moved: false };
+  listStrokes(); drawStrokes();
 }
 function deleteStroke() {
   const v = view();

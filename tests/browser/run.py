@@ -6,7 +6,7 @@ virtual environment tools/setup.sh makes):
 
 - edit_flow: open the page, place the viewpoint on the map (click, drag for
   the heading), set the camera, draw two strokes over silhouettes with pointer
-  actions, over-sketch one, run the dry run, download the sketch, accept;
+  actions, over-sketch one, undo/redo, delete, move one (and undo), run the dry run, download the sketch, accept;
   then `demsketch edit` on the downloaded sketch must give a GeoTIFF with
   the same `gdalinfo -checksum` as the one the app wrote.
 - hostile: bad JSON, a 100 MB body, paths in parameters, 10 concurrent
@@ -263,6 +263,24 @@ def test_edit_flow(binary, shots, tmp):
         assert len(d.execute_script(js_strokes)) == 1, "delete"
         d.find_element(By.ID, "undo").click()
         assert d.execute_script(js_strokes) == strokes, "undo of delete"
+        # Move: drag the second stroke by (40, 25) image pixels; undo, redo, undo.
+        d.find_element(By.CSS_SELECTOR, "input[name=tool][value=move]").click()
+        grab = strokes[1]["points"][len(strokes[1]["points"]) // 2]
+        draw(d, canvas, [grab, [grab[0] + 40, grab[1] + 25]], size)
+        moved = d.execute_script(js_strokes)
+        assert moved[0] == strokes[0], "moving one stroke changed the other"
+        shifts = {(round(b[0] - a[0]), round(b[1] - a[1])) for a, b in zip(strokes[1]["points"], moved[1]["points"])}
+        assert len(moved[1]["points"]) == len(strokes[1]["points"]) and \
+            all(abs(sx - 40) <= 3 and abs(sy - 25) <= 3 for sx, sy in shifts) and \
+            max(s[0] for s in shifts) - min(s[0] for s in shifts) <= 1, f"move: shifts {shifts}"
+        assert d.execute_script("return app.selected") == 1, "the moved stroke is selected"
+        d.find_element(By.ID, "undo").click()
+        assert d.execute_script(js_strokes) == strokes, "undo of move"
+        d.find_element(By.ID, "redo").click()
+        assert d.execute_script(js_strokes) == moved, "redo of move"
+        d.find_element(By.ID, "undo").click()
+        d.find_element(By.CSS_SELECTOR, "input[name=tool][value=draw]").click()
+        print(f"  stroke moved by {sorted(shifts)[0]} px, undone, redone, undone")
         d.execute_script("app.selected = null; drawStrokes(); listStrokes();")
         d.find_element(By.ID, "viewshed-btn").click()
         wait_for(lambda: d.execute_script("return app.viewshed !== null"), 30, "the viewshed")
