@@ -448,8 +448,10 @@ function setupPhoto() {
     const v = view();
     let used = "";
     if (!v.strokes.length) {
-      const w = Math.min(4096, img.naturalWidth), h = Math.round(w * img.naturalHeight / img.naturalWidth);
-      setCamera({ width: w, height: Math.min(4096, h) });
+      // The photo's size, scaled down to the server's limits if need be.
+      const lim = app.info.limits, nw = img.naturalWidth, nh = img.naturalHeight;
+      const k = Math.min(1, lim.max_side_px / nw, lim.max_side_px / nh, Math.sqrt(lim.max_pixels / (nw * nh)));
+      setCamera({ width: Math.max(16, Math.floor(nw * k)), height: Math.max(16, Math.floor(nh * k)) });
       used = await useExif(f, img);
     }
     $("photo-info").textContent = `${f.name}: ${img.naturalWidth} x ${img.naturalHeight}` + used;
