@@ -9,7 +9,8 @@ virtual environment tools/setup.sh makes):
   actions, over-sketch one, undo/redo, delete, move one (and undo), run the dry run, download the sketch, accept;
   then `demsketch edit` on the downloaded sketch must give a GeoTIFF with
   the same `gdalinfo -checksum` as the one the app wrote.
-- hostile: bad JSON, a 100 MB body, paths in parameters, 10 concurrent
+- hostile: bad JSON, a 100 MB body, paths in parameters, oversized or
+  malformed photo-EXIF and job-wait requests, 10 concurrent
   edits: 4xx answers (or queued and completed), the server keeps serving,
   no file outside OUT touched.
 - photo_trace: a render of a changed DEM saved as JPEG with EXIF (GPS
@@ -352,6 +353,11 @@ def test_hostile(binary, shots, tmp):
             ("lookup outside", "GET", "/api/lookup?x=-5&y=1e9", None, (400,)),
             ("accept without a dry run", "POST", "/api/jobs/999/accept", b"{}", (404,)),
             ("unknown overlay", "POST", "/api/render", json.dumps(dict(view, overlays=["/etc/passwd"])).encode(), (400,)),
+            ("photo EXIF of 2 MB", "POST", "/api/photo-exif?width=10&height=10", b"\xff" * (2 * 1024 * 1024), (400,)),
+            ("photo EXIF, a path for a size", "POST", "/api/photo-exif?width=/etc/passwd&height=1", b"x", (400,)),
+            ("photo EXIF of no size", "POST", "/api/photo-exif?width=0&height=0", b"x", (400,)),
+            ("job wait, not a number", "GET", "/api/jobs/1?wait_ms=forever", None, (400,)),
+            ("no underlay", "GET", "/api/underlay.png", None, (404,)),
         ]
         for name, method, path, body, want in cases:
             s, data = request(srv, method, path, body)
