@@ -1,6 +1,7 @@
 //! `demsketch serve` from the command line: the help names the options,
 //! and bad input (a missing DEM, an --out naming the DEM, a bad --out
-//! format, a bad --max-distance) is one line naming the file and the
+//! format, a bad --max-distance, an --underlay that is missing, not a
+//! raster or without a georeference) is one line naming the file and the
 //! problem, exit code 1, before anything listens or is written. The app
 //! itself is tested through Chromium by `tests/browser/run.py` (run by
 //! `tools/test.sh`).
@@ -27,6 +28,7 @@ fn help_lists_the_options() {
         "--open",
         "--max-distance",
         "--min-fit",
+        "--underlay",
     ] {
         assert!(help.contains(opt), "{opt} missing from: {help}");
     }
@@ -87,4 +89,34 @@ fn bad_out_format_and_distance_are_refused() {
     ]);
     assert_eq!(out.status.code(), Some(1));
     stderr_line(&out);
+}
+
+#[test]
+fn bad_underlay_is_one_line_naming_it_exit_1() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let dem = fixture("zion_srtm_utm12n.tif");
+    let out_path = dir.path().join("out.tif");
+    let text = dir.path().join("notes.txt");
+    std::fs::write(&text, "not a raster\n").expect("write");
+    let missing = dir.path().join("missing.tif");
+    for (bad, why) in [(&missing, "no such file"), (&text, "not a raster")] {
+        let out = demsketch(&[
+            "serve",
+            dem.to_str().expect("utf-8"),
+            "--out",
+            out_path.to_str().expect("utf-8"),
+            "--port",
+            "0",
+            "--underlay",
+            bad.to_str().expect("utf-8"),
+        ]);
+        assert_eq!(out.status.code(), Some(1));
+        let line = stderr_line(&out);
+        assert!(
+            line.contains(bad.to_str().expect("utf-8")) && line.contains(why),
+            "{line}"
+        );
+        assert!(!String::from_utf8_lossy(&out.stdout).contains("http://"));
+        assert!(!out_path.exists());
+    }
 }

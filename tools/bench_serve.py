@@ -10,7 +10,8 @@
    already read (the first request, which reads it, is reported apart).
 3. stroke to dry-run result, 512 x 512 DEM (the Zion fixture resampled),
    10 strokes (the view's 10 longest silhouettes, each raised by a bump):
-   from POST /api/edit to the finished job's report (polled every 10 ms).
+   from POST /api/edit to the finished job's report (long-polled, as the
+   page does), and to its three pictures fetched (drawn when fetched).
 
 Usage: tools/bench_serve.py [--bin target/release/demsketch] [--runs N]
 Needs the browser environment of tools/setup.sh (.venv-browser) for 1.
@@ -107,22 +108,28 @@ def bench_dry_run(binary, tmp, runs):
         sketch = {"views": [{"name": "bench", "viewpoint": VP, "camera": cam, "strokes": strokes}],
                   "options": {"influence_m": 1500.0}}
         times = []
+        with_pictures = []
         fitted = None
         for _ in range(runs + 1):
             t0 = time.perf_counter()
             s, r = bt.post_json(srv, "/api/edit", {"sketch": sketch, "allow_partial": True})
             assert s == 202, r
             while True:
-                j = bt.get_json(srv, f"/api/jobs/{r['job']}")
+                # long-polling, as the page does
+                j = bt.get_json(srv, f"/api/jobs/{r['job']}?wait_ms=10000")
                 if j["state"] in ("done", "failed"):
                     break
-                time.sleep(0.01)
             times.append(time.perf_counter() - t0)
             assert j["state"] == "done", j
+            # the pictures the page then shows (drawn when fetched)
+            for name in j["images"]:
+                s, png = bt.request(srv, "GET", f"/api/jobs/{r['job']}/image/{name}")
+                assert s == 200, (name, s)
+            with_pictures.append(time.perf_counter() - t0)
             fitted = sum(st["status"] == "fitted" for v in j["report"]["views"] for st in v["strokes"])
     finally:
         srv.stop()
-    return times[1:], len(strokes), fitted, j["report"]["timings_s"]["total"]
+    return times[1:], with_pictures[1:], len(strokes), fitted, j["report"]["timings_s"]
 
 
 def main():
@@ -136,7 +143,7 @@ def main():
     load = os.getloadavg()
     pl = bench_page_load(binary, tmp, max(3, args.runs // 2))
     first, rr, rs = bench_render(binary, tmp, args.runs)
-    dr, n, fitted, edit_total = bench_dry_run(binary, tmp, max(3, args.runs // 2))
+    dr, drp, n, fitted, stages = bench_dry_run(binary, tmp, max(3, args.runs // 2))
     med = statistics.median
     print(json.dumps({
         "loadavg_before": load,
@@ -144,7 +151,9 @@ def main():
         "render_4096_1600x900_s": {"first_reads_dem": first, "median": med(rr), "min": min(rr), "max": max(rr), "runs": len(rr),
                                    "with_silhouettes_median": med(rs)},
         "stroke_to_dry_run_512_s": {"median": med(dr), "min": min(dr), "runs": len(dr), "strokes": n,
-                                    "fitted": fitted, "edit_total_s_last": edit_total},
+                                    "fitted": fitted, "edit_stages_s_last": stages,
+                                    "with_pictures_median": med(drp), "with_pictures_min": min(drp)},
+        "loadavg_after": os.getloadavg(),
     }, indent=2))
 
 

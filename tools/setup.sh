@@ -4,7 +4,7 @@
 # against, and numpy + GDAL's Python bindings for tools/fidelity), only where it is missing. Needs root for apt-get.
 set -euo pipefail
 pkgs=(libgdal-dev libproj-dev libclang-dev pkg-config gdal-bin proj-bin python3-numpy python3-gdal
-      python3-venv chromium chromium-driver)
+      python3-venv chromium chromium-driver libimage-exiftool-perl)
 missing=()
 for p in "${pkgs[@]}"; do
   dpkg -s "$p" >/dev/null 2>&1 || missing+=("$p")

@@ -8,12 +8,14 @@ const $ = (id) => document.getElementById(id);
 const app = {
   info: null,
   overview: null,          // Image of the hillshade
+  underlay: null,          // Image of the --underlay on the map's grid (or null)
   viewshed: null,          // Image of the viewshed (or null)
   sketch: { views: [], options: { influence_m: 1500.0 } },
   cur: 0,                  // index of the current view
   selected: null,          // index of the selected stroke
   undo: [], redo: [],
   drawing: null,           // points of the stroke being drawn
+  moving: null,            // the stroke being moved: { k, from, points, moved }
   jac: null,               // lon/lat per overview pixel at the viewpoint
   vpPixel: null,           // viewpoint on the overview
   job: null, writeJob: null,
@@ -127,6 +129,11 @@ async function setupMap() {
   $("dem-name").textContent = `${app.info.name} (${app.info.width} x ${app.info.height})` + (app.info.out ? ` -> ${app.info.out}` : " (dry runs only: no --out)");
   const blob = await api("/api/overview.png");
   app.overview = await loadImage(URL.createObjectURL(blob));
+  if (app.info.underlay) {
+    app.underlay = await loadImage(URL.createObjectURL(await api("/api/underlay.png")));
+    $("underlay-name").textContent = app.info.underlay.name;
+    $("underlay-ctl").hidden = false;
+  }
   const c = $("map");
   c.width = app.info.overview.width; c.height = app.info.overview.height;
   drawMap();
@@ -169,6 +176,11 @@ function drawMap() {
   if (!app.overview) return;
   g.clearRect(0, 0, c.width, c.height);
   g.drawImage(app.overview, 0, 0, c.width, c.height);
+  if (app.underlay) {
+    g.globalAlpha = +$("underlay-opacity").value;
+    g.drawImage(app.underlay, 0, 0, c.width, c.height);
+    g.globalAlpha = 1;
+  }
   if (app.viewshed) g.drawImage(app.viewshed, 0, 0, c.width, c.height);
   if (!app.vpPixel || !app.jac) return;
   const [x, y] = app.vpPixel, cam = view().camera;
@@ -350,12 +362,19 @@ function setupViewEvents() {
     $("view-wrap").focus();
     const t = tool();
     if (t === "draw" && e.button === 0) { app.drawing = [viewPixel(e)]; drawStrokes(); }
+    else if (t === "move") startMove(viewPixel(e));
     else look = { x: e.clientX, y: e.clientY, cam: { ...view().camera }, shift: e.shiftKey, align: t === "align" };
   });
   cv.addEventListener("pointermove", (e) => {
     if (app.drawing) {
       const p = viewPixel(e), q = app.drawing[app.drawing.length - 1];
       if (Math.hypot(p[0] - q[0], p[1] - q[1]) >= 2) { app.drawing.push(p); drawStrokes(); }
+    } else if (app.moving) {
+      const p = viewPixel(e), m = app.moving;
+      const [dx, dy] = [p[0] - m.from[0], p[1] - m.from[1]];
+      view().strokes[m.k].points = m.points.map(([x, y]) => [x + dx, y + dy]);
+      m.moved = true;
+      drawStrokes();
     } else if (look) {
       const r = cv.getBoundingClientRect();
       const degPerPx = look.cam.hfov_deg / r.width;
@@ -370,12 +389,17 @@ function setupViewEvents() {
       const pts = app.drawing; app.drawing = null;
       if (pts.length >= 2) addStroke(pts); else drawStrokes();
     }
+    if (app.moving) {
+      // Nothing moved: the snapshot taken for it is dropped.
+      if (!app.moving.moved) app.undo.pop();
+      app.moving = null; listStrokes();
+    }
     look = null;
   };
   cv.addEventListener("pointerup", end);
   cv.addEventListener("pointercancel", end);
   cv.addEventListener("wheel", (e) => {
-    if (tool() === "draw") return;
+    if (tool() === "draw" || tool() === "move") return;
     e.preventDefault();
     setCamera({ hfov_deg: view().camera.hfov_deg * (e.deltaY > 0 ? 1.03 : 1 / 1.03) });
   }, { passive: false });
@@ -388,6 +412,22 @@ function setupViewEvents() {
     if ((e.ctrlKey || e.metaKey) && e.key === "z") { e.preventDefault(); e.shiftKey ? redo() : undo(); }
     if (e.key === "Delete" || e.key === "Backspace") { e.preventDefault(); deleteStroke(); }
   });
+}
+// Move: the stroke nearest the pointer (within a few pixels of the
+// screen) is selected and follows it; one undo step.
+function startMove(p) {
+  const v = view(), cv = $("strokes");
+  const R = Math.max(8, 16 * cv.width / cv.getBoundingClientRect().width);
+  let best = null;
+  v.strokes.forEach((s, k) => {
+    const [, d] = nearest(s.points, p);
+    if (d < R && (!best || d < best.d)) best = { k, d };
+  });
+  if (!best) { app.selected = null; listStrokes(); drawStrokes(); return; }
+  snapshot();
+  app.selected = best.k;
+  app.moving = { k: best.k, from: p, points: v.strokes[best.k].points.map((q) => q.slice()), moved: false };
+  listStrokes(); drawStrokes();
 }
 function deleteStroke() {
   const v = view();
@@ -406,14 +446,49 @@ function setupPhoto() {
     showPhoto();
     // the view takes the photo's shape (same width)
     const v = view();
+    let used = "";
     if (!v.strokes.length) {
-      const w = Math.min(4096, img.naturalWidth), h = Math.round(w * img.naturalHeight / img.naturalWidth);
-      setCamera({ width: w, height: Math.min(4096, h) });
+      // The photo's size, scaled down to the server's limits if need be.
+      const lim = app.info.limits, nw = img.naturalWidth, nh = img.naturalHeight;
+      const k = Math.min(1, lim.max_side_px / nw, lim.max_side_px / nh, Math.sqrt(lim.max_pixels / (nw * nh)));
+      setCamera({ width: Math.max(16, Math.floor(nw * k)), height: Math.max(16, Math.floor(nh * k)) });
+      used = await useExif(f, img);
     }
-    status(`photo ${f.name}: ${img.naturalWidth} x ${img.naturalHeight}`);
+    $("photo-info").textContent = `${f.name}: ${img.naturalWidth} x ${img.naturalHeight}` + used;
+    status(`photo ${f.name}: ${img.naturalWidth} x ${img.naturalHeight}` + used);
   });
   $("photo-opacity").addEventListener("input", showPhoto);
   $("photo-over").addEventListener("change", showPhoto);
+}
+// The photo's EXIF (read by the server from its first MiB): the GPS
+// position places the viewpoint, the focal length sets the field of view,
+// a true GPS bearing the heading. Returns what was used, for the status.
+async function useExif(file, img) {
+  let ex;
+  try {
+    const r = await fetch(`/api/photo-exif?width=${img.naturalWidth}&height=${img.naturalHeight}`, {
+      method: "POST", headers: { "Content-Type": "application/octet-stream" }, body: file.slice(0, 1024 * 1024),
+    });
+    if (!r.ok) return "";
+    ex = await r.json();
+  } catch (err) { return ""; }
+  app.photoExif = ex;
+  const used = [], cam = {};
+  const v = view();
+  if (ex.lon !== null && ex.lat !== null) {
+    v.viewpoint.lon = Math.round(ex.lon * 1e6) / 1e6; v.viewpoint.lat = Math.round(ex.lat * 1e6) / 1e6;
+    app.viewshed = null;
+    used.push(`GPS ${v.viewpoint.lon.toFixed(5)}, ${v.viewpoint.lat.toFixed(5)}`);
+  }
+  if (ex.hfov_deg !== null) {
+    cam.hfov_deg = ex.hfov_deg;
+    used.push(`hfov ${ex.hfov_deg.toFixed(1)} deg from the ${ex.hfov_from === "35mm" ? "35 mm equivalent" : "sensor width"} of ${(ex.focal_35mm ?? ex.focal_mm).toFixed(1)} mm`);
+  }
+  if (ex.heading_deg !== null) { cam.heading_deg = ex.heading_deg; used.push(`heading ${ex.heading_deg.toFixed(0)} deg`); }
+  if (!used.length) return ": no EXIF position or focal length";
+  setCamera(cam);
+  if (ex.lon !== null) await updateJacobian();
+  return ": EXIF " + used.join(", ");
 }
 function showPhoto() {
   const over = $("photo-over").checked, op = $("photo-opacity").value;
@@ -457,12 +532,11 @@ async function dryRun() {
 }
 async function poll(id) {
   for (;;) {
-    const j = await api(`/api/jobs/${id}`);
+    const j = await api(`/api/jobs/${id}?wait_ms=1000`);
     const what = j.kind === "write" ? "writing" : "dry run";
     if (j.state === "queued") $("edit-status").textContent = `${what} ${id}: queued (${j.queued_ahead} ahead)`;
     else if (j.state === "running") $("edit-status").textContent = `${what} ${id}: running ${j.elapsed_s.toFixed(1)} s`;
     else return j;
-    await new Promise((ok) => setTimeout(ok, 250));
   }
 }
 function showJob(j) {
@@ -542,6 +616,7 @@ async function main() {
     if (app.sketch.views.length < 2) return;
     snapshot(); app.sketch.views.splice(app.cur, 1); app.cur = 0; syncFields(); updateJacobian(); scheduleRender();
   });
+  $("underlay-opacity").addEventListener("input", drawMap);
   $("ov-sil").addEventListener("change", scheduleRender);
   $("ov-ridges").addEventListener("change", scheduleRender);
   $("viewshed-btn").addEventListener("click", async () => {

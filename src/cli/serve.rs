@@ -1,4 +1,4 @@
-//! `demsketch serve DEM [--out OUT] [--port P] [--bind ADDR] [--open]`: the
+//! `demsketch serve DEM [--out OUT] [--underlay FILE] [--port P] [--bind ADDR] [--open]`: the
 //! browser app on 127.0.0.1 ([`demsketch::serve`]). Prints the URL on
 //! stdout; `--open` asks the desktop (xdg-open) to open it.
 
@@ -40,6 +40,10 @@ pub struct ServeArgs {
     /// Only the DEM within this distance of a viewpoint is read, metres.
     #[arg(long, default_value_t = 50_000.0, allow_hyphen_values = true)]
     pub max_distance: f64,
+    /// A raster (an orthophoto or any GeoTIFF: RGB or one band) drawn with
+    /// the map's hillshade, reprojected onto the map by GDAL.
+    #[arg(long, value_name = "FILE")]
+    pub underlay: Option<PathBuf>,
     /// Least fitted share of each stroke for an edit to be written (as `edit --min-fit`).
     #[arg(long, default_value_t = demsketch::edit::DEFAULT_MIN_FIT, allow_hyphen_values = true)]
     pub min_fit: f64,
@@ -58,6 +62,7 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
     let mut config = ServeConfig::new(args.dem.clone(), args.out.clone());
     config.max_distance_m = args.max_distance;
     config.min_fit = args.min_fit;
+    config.underlay = args.underlay.clone();
     let open = args.open;
     let result = serve_blocking(config, SocketAddr::new(args.bind, args.port), |addr| {
         let url = format!("http://{addr}/");

@@ -28,7 +28,8 @@ pub use locate::{locate, project_point, Located};
 pub use overlay::visible_polylines;
 pub use scene::Scene;
 pub use shaded_image::{
-    depth_for_file, draw_polyline, shade, write_depth_tiff, write_png, ShadeOptions, DEPTH_NODATA,
+    depth_for_file, draw_polyline, shade, shade_into, write_depth_tiff, write_png, ShadeOptions,
+    DEPTH_NODATA,
 };
 pub use terrain::{LocalTerrain, RayHit};
 pub use triangle_raster::PATCH_TOLERANCE_PX;

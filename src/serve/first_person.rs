@@ -17,7 +17,8 @@ use crate::features::{
     detect_ridges, extract_silhouettes, RidgeNetwork, RidgeParams, SilhouetteParams,
 };
 use crate::render::{
-    draw_polyline, locate, shade, viewshed, visible_polylines, DepthBuffer, Scene, ShadeOptions,
+    draw_polyline, locate, shade_into, viewshed, visible_polylines, DepthBuffer, Scene,
+    ShadeOptions,
 };
 use crate::sketch::{CameraSpec, ViewpointSpec};
 use crate::view::{Camera, EyeHeight, Viewpoint};
@@ -200,7 +201,8 @@ pub fn render_png(state: &AppState, req: &ViewRequest) -> Result<(Vec<u8>, StepT
         sun_azimuth_deg: camera.heading_deg + 135.0,
         ..ShadeOptions::default()
     };
-    let mut rgb = shade(&depth, &scene.terrain, &opts);
+    let mut rgb = state.take_picture();
+    shade_into(&depth, &scene.terrain, &opts, &mut rgb);
     lap("shade", &mut times);
     let (w, h) = (camera.width, camera.height);
     let line = (w.max(h) as f64 / 800.0).clamp(1.0, 4.0);
@@ -216,7 +218,9 @@ pub fn render_png(state: &AppState, req: &ViewRequest) -> Result<(Vec<u8>, StepT
         }
     }
     lap("overlays", &mut times);
-    let png = encode_rgb(w, h, &rgb)?;
+    let png = encode_rgb(w, h, &rgb);
+    state.give_picture(rgb);
+    let png = png?;
     lap("png", &mut times);
     Ok((png, times))
 }

@@ -1,5 +1,7 @@
 //! Edits for the browser, one at a time, the others queued. A job is a
-//! dry run (the report and the pictures of `edit --dry-run --renders`) or,
+//! dry run (the report of `edit --dry-run` and its height change, from
+//! which the pictures of `--renders` are drawn when the page fetches
+//! them, see [`super::pictures`]) or,
 //! once the user accepts a dry run, the real edit of the same sketch
 //! written to the command line's `--out`. Both are one call of
 //! [`crate::edit::run`] with the options of `demsketch edit` (the edit's
@@ -14,6 +16,7 @@ use std::time::{Duration, Instant};
 
 use serde::Serialize;
 
+use super::pictures::picture_names;
 use super::state::AppState;
 use super::ServeError;
 use crate::edit::{run as run_edit, EditError, EditOptions};
@@ -21,6 +24,10 @@ use crate::raster::atomic_file::clean_stale;
 use crate::raster::edit_lock::{lock_dir, EditLock};
 use crate::raster::path_check::{check_outputs, dem_inputs, Output};
 use crate::raster::{journal, Destination, LayerKind};
+use crate::sketch::SketchFile;
+
+/// A dry run's height change (the edit's `--dz`), in the job's directory.
+const DZ_FILE: &str = "dz.tif";
 
 /// What a job does.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -58,7 +65,8 @@ pub struct JobView {
     pub writable: bool,
     /// The DEM was written to OUT (write jobs).
     pub written: bool,
-    /// Pictures of a dry run: `/api/jobs/{id}/image/{name}`.
+    /// Pictures of a dry run: `/api/jobs/{id}/image/{name}` (drawn when
+    /// first fetched).
     pub images: Vec<String>,
     /// For a write job: the dry run it accepts.
     pub accepts: Option<u64>,
@@ -71,6 +79,21 @@ struct Job {
     dir: PathBuf,
     started: Option<Instant>,
     finished: Option<Instant>,
+    /// A dry run's pictures drawn so far, by name.
+    pictures: BTreeMap<String, Arc<Vec<u8>>>,
+}
+
+/// What a dry run's pictures are drawn from ([`Jobs::picture_source`]).
+pub enum PictureSource {
+    /// Drawn before: the PNG.
+    Drawn(Arc<Vec<u8>>),
+    /// To draw: the sketch, the edit's height-change file and the
+    /// deformation's window (`[col, row, width, height]`).
+    ToDraw {
+        sketch: Arc<String>,
+        dz: PathBuf,
+        window: [i64; 4],
+    },
 }
 
 /// The jobs and the gate that lets one edit run at a time.
@@ -79,6 +102,8 @@ pub struct Jobs {
     next: Mutex<u64>,
     gate: tokio::sync::Semaphore,
     max_queued: usize,
+    /// Woken whenever a job finishes (long-polling requests wait on it).
+    pub finished: tokio::sync::Notify,
 }
 
 /// Finished jobs kept (their pictures and reports); older ones are removed.
@@ -91,6 +116,7 @@ impl Jobs {
             next: Mutex::new(1),
             gate: tokio::sync::Semaphore::new(1),
             max_queued: max_queued.max(1),
+            finished: tokio::sync::Notify::new(),
         }
     }
 
@@ -121,8 +147,9 @@ impl Jobs {
         Ok(v)
     }
 
-    /// The file of picture `name` of job `id` (only names the job lists).
-    pub fn image_path(&self, id: u64, name: &str) -> Result<PathBuf, ServeError> {
+    /// Picture `name` of job `id` (only names the job lists): drawn
+    /// already, or what to draw it from.
+    pub fn picture_source(&self, id: u64, name: &str) -> Result<PictureSource, ServeError> {
         let jobs = self.lock()?;
         let job = jobs
             .get(&id)
@@ -132,7 +159,30 @@ impl Jobs {
                 "job {id} has no picture '{name}'"
             )));
         }
-        Ok(job.dir.join("renders").join(name))
+        if let Some(png) = job.pictures.get(name) {
+            return Ok(PictureSource::Drawn(png.clone()));
+        }
+        let window = job
+            .view
+            .report
+            .as_ref()
+            .and_then(|r| r.pointer("/deformation/window"))
+            .and_then(|w| serde_json::from_value::<[i64; 4]>(w.clone()).ok())
+            .ok_or_else(|| ServeError::Internal(format!("job {id}: no deformation window")))?;
+        Ok(PictureSource::ToDraw {
+            sketch: job.sketch.clone(),
+            dz: job.dir.join(DZ_FILE),
+            window,
+        })
+    }
+
+    /// Keep picture `name` of job `id`, drawn, for the next requests.
+    pub fn keep_picture(&self, id: u64, name: &str, png: Arc<Vec<u8>>) {
+        if let Ok(mut jobs) = self.lock() {
+            if let Some(job) = jobs.get_mut(&id) {
+                job.pictures.insert(name.to_string(), png);
+            }
+        }
     }
 
     /// Discard a finished dry run: its pictures and report are removed.
@@ -268,6 +318,7 @@ fn submit(
                 dir,
                 started: None,
                 finished: None,
+                pictures: BTreeMap::new(),
             },
         );
         Jobs::prune(&mut jobs);
@@ -311,6 +362,7 @@ fn submit(
                 j.view.images = outcome.images;
             }
         }
+        st.jobs.finished.notify_waiters();
     });
     Ok(id)
 }
@@ -407,10 +459,14 @@ fn run_job_inner(
     opts.dry_run = kind == JobKind::DryRun;
     opts.report = Some(dir.join("report.json"));
     if kind == JobKind::DryRun {
-        opts.renders = Some(dir.join("renders"));
+        // The pictures are drawn from the height change when fetched.
+        opts.dz = Some(dir.join(DZ_FILE));
     }
     let result = run_edit(dem, &sketch_path, &opts);
-    let images = list_pictures(&dir.join("renders"));
+    let images = match SketchFile::from_json_str(sketch, "sketch") {
+        Ok(s) if dir.join(DZ_FILE).is_file() => picture_names(&s),
+        _ => Vec::new(),
+    };
     let to_value = |r: &crate::edit::EditReport| serde_json::to_value(r).ok();
     Ok(match result {
         Ok(report) => Outcome {
@@ -457,18 +513,4 @@ fn take_edit_lock(dem: &Path) -> Result<Option<EditLock>, String> {
         eprintln!("demsketch serve: {note}");
     }
     Ok(Some(lock))
-}
-
-/// The PNG pictures in `dir`, by name.
-fn list_pictures(dir: &Path) -> Vec<String> {
-    let mut names: Vec<String> = std::fs::read_dir(dir)
-        .map(|rd| {
-            rd.filter_map(|e| e.ok())
-                .filter_map(|e| e.file_name().into_string().ok())
-                .filter(|n| n.ends_with(".png"))
-                .collect()
-        })
-        .unwrap_or_default();
-    names.sort();
-    names
 }

@@ -2,13 +2,16 @@
 //! library, with its page, script and styles built into the binary.
 //!
 //! It is a thin layer: the map view is a hillshade of decimated reads of
-//! the DEM's files ([`overview`]); first-person views, their silhouettes
+//! the DEM's files ([`overview`]), optionally with any raster warped onto
+//! its grid by GDAL ([`underlay`]); first-person views, their silhouettes
 //! and ridges and the viewshed come from [`crate::render`] and
-//! [`crate::features`] ([`first_person`]); edits run through
+//! [`crate::features`] ([`first_person`]); a photo's EXIF gives its
+//! viewpoint and field of view ([`photo_exif`]); edits run through
 //! [`crate::edit::run`], the code path of `demsketch edit`, as dry runs
 //! first, and an accepted edit is written to the `--out` of the command
 //! line by the same call with the same sketch, through the edit's atomic
-//! write-back ([`jobs`]). No path ever comes from the browser: the server
+//! write-back ([`jobs`]); a dry run's pictures are drawn from its height
+//! change when the page fetches them ([`pictures`]). No path ever comes from the browser: the server
 //! only reads the DEM and writes OUT (and its own private working
 //! directory). Requests are bounded (body size, image size, queue length);
 //! heavy work runs on blocking threads, one edit at a time
@@ -19,8 +22,11 @@ pub mod assets;
 pub mod first_person;
 pub mod jobs;
 pub mod overview;
+pub mod photo_exif;
+pub mod pictures;
 pub mod routes;
 pub mod state;
+pub mod underlay;
 
 pub use routes::router;
 pub use state::{AppState, ServeConfig};

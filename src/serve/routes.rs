@@ -8,14 +8,16 @@
 //! | --- | --- | --- |
 //! | GET `/api/info` | | the DEM: size, CRS, bounds, overview size, OUT |
 //! | GET `/api/overview.png` | | the map's hillshade |
+//! | GET `/api/underlay.png` | | the `--underlay` on the map's grid (404 without one) |
 //! | GET `/api/lookup?x=X&y=Y` | | lon, lat, height at overview pixel (X, Y) |
 //! | POST `/api/project` | `{"points": [[lon, lat], ...]}` | overview pixels |
 //! | POST `/api/render` | view (`viewpoint`, `camera`, `overlays`) | PNG |
 //! | POST `/api/features` | view | silhouettes (and ridges) as pixel polylines |
 //! | POST `/api/locate` | view with `pixel` | the terrain point, or null |
 //! | POST `/api/viewshed` | view | PNG on the overview grid |
+//! | POST `/api/photo-exif?width=W&height=H` | the photo's first bytes (at most 1 MiB) | its EXIF GPS position, heading, focal length, hfov |
 //! | POST `/api/edit` | `{"sketch": {...}, "allow_partial": false}` | `{"job": id}`, a dry run |
-//! | GET `/api/jobs/{id}` | | state, report, pictures |
+//! | GET `/api/jobs/{id}[?wait_ms=T]` | | state, report, pictures (with `wait_ms`: once finished, or after T ms) |
 //! | GET `/api/jobs/{id}/image/{name}` | | a picture of the dry run |
 //! | POST `/api/jobs/{id}/accept` | | `{"job": id}`, the real edit to OUT |
 //! | POST `/api/jobs/{id}/reject` | | the dry run discarded |
@@ -33,6 +35,7 @@ use serde_json::json;
 use super::assets;
 use super::first_person::{self, ViewRequest};
 use super::jobs;
+use super::pictures;
 use super::state::AppState;
 use super::ServeError;
 use crate::sketch::SketchFile;
@@ -104,12 +107,14 @@ pub fn router(state: AppState) -> Router {
         .route("/style.css", get(|| async { asset("style.css") }))
         .route("/api/info", get(info))
         .route("/api/overview.png", get(overview_png))
+        .route("/api/underlay.png", get(underlay_png))
         .route("/api/lookup", get(lookup))
         .route("/api/project", post(project))
         .route("/api/render", post(render))
         .route("/api/features", post(features))
         .route("/api/locate", post(locate))
         .route("/api/viewshed", post(viewshed))
+        .route("/api/photo-exif", post(photo_exif))
         .route("/api/edit", post(edit))
         .route("/api/jobs/{id}", get(job))
         .route("/api/jobs/{id}/image/{name}", get(job_image))
@@ -153,6 +158,7 @@ async fn info(State(st): State<AppState>) -> Answer {
         "overview": {"width": st.overview.width, "height": st.overview.height,
                      "sx": st.overview.sx, "sy": st.overview.sy},
         "out": st.config.out.as_ref().map(|p| p.display().to_string()),
+        "underlay": st.underlay.as_ref().map(|u| json!({"name": u.name, "width": u.width, "height": u.height})),
         "max_distance_m": st.config.max_distance_m,
         "min_fit": st.config.min_fit,
         "limits": {"max_body_bytes": MAX_BODY_BYTES, "max_side_px": first_person::MAX_SIDE_PX,
@@ -162,6 +168,15 @@ async fn info(State(st): State<AppState>) -> Answer {
 
 async fn overview_png(State(st): State<AppState>) -> Answer {
     png_answer(st.overview.png.clone())
+}
+
+async fn underlay_png(State(st): State<AppState>) -> Answer {
+    match &st.underlay {
+        Some(u) => png_answer(u.png.clone()),
+        None => Err(ServeError::NotFound(
+            "no underlay (start the server with --underlay FILE)".into(),
+        )),
+    }
 }
 
 #[derive(Deserialize)]
@@ -279,6 +294,18 @@ async fn viewshed(State(st): State<AppState>, body: Bytes) -> Answer {
 
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
+struct PhotoSize {
+    width: u32,
+    height: u32,
+}
+
+async fn photo_exif(q: Result<Query<PhotoSize>, QueryRejection>, body: Bytes) -> Answer {
+    let Query(q) = q.map_err(|e| ServeError::BadRequest(format!("query: {}", e.body_text())))?;
+    json_answer(&super::photo_exif::read(&body, q.width, q.height)?)
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
 struct EditRequest {
     sketch: serde_json::Value,
     #[serde(default)]
@@ -304,20 +331,62 @@ fn job_id(s: &str) -> Result<u64, ServeError> {
         .map_err(|_| ServeError::BadRequest(format!("'{s}' is not a job number")))
 }
 
-async fn job(State(st): State<AppState>, UrlPath(id): UrlPath<String>) -> Answer {
-    json_answer(&st.jobs.view(job_id(&id)?)?)
+/// Longest wait of a long-polling job request, milliseconds.
+pub const MAX_WAIT_MS: u64 = 10_000;
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct JobQuery {
+    /// Answer once the job has finished or after this many milliseconds
+    /// (at most [`MAX_WAIT_MS`]), whichever comes first.
+    #[serde(default)]
+    wait_ms: u64,
+}
+
+async fn job(
+    State(st): State<AppState>,
+    UrlPath(id): UrlPath<String>,
+    q: Result<Query<JobQuery>, QueryRejection>,
+) -> Answer {
+    let Query(q) = q.map_err(|e| ServeError::BadRequest(format!("query: {}", e.body_text())))?;
+    let id = job_id(&id)?;
+    let deadline =
+        tokio::time::Instant::now() + std::time::Duration::from_millis(q.wait_ms.min(MAX_WAIT_MS));
+    loop {
+        // Registered before the look, so that a job finishing in between wakes it.
+        let woken = st.jobs.finished.notified();
+        let v = st.jobs.view(id)?;
+        let open = matches!(v.state, jobs::JobState::Queued | jobs::JobState::Running);
+        if !open || tokio::time::Instant::now() >= deadline {
+            return json_answer(&v);
+        }
+        tokio::select! {
+            _ = woken => {}
+            _ = tokio::time::sleep_until(deadline) => {}
+        }
+    }
 }
 
 async fn job_image(
     State(st): State<AppState>,
     UrlPath((id, name)): UrlPath<(String, String)>,
 ) -> Answer {
-    let path = st.jobs.image_path(job_id(&id)?, &name)?;
-    let bytes = tokio::task::spawn_blocking(move || std::fs::read(path))
-        .await
-        .map_err(|e| ServeError::Internal(e.to_string()))?
-        .map_err(|e| ServeError::NotFound(format!("picture '{name}': {e}")))?;
-    png_answer(bytes)
+    let id = job_id(&id)?;
+    let (sketch, dz, window) = match st.jobs.picture_source(id, &name)? {
+        jobs::PictureSource::Drawn(png) => return png_answer(png.to_vec()),
+        jobs::PictureSource::ToDraw { sketch, dz, window } => (sketch, dz, window),
+    };
+    let n = name.clone();
+    let png = blocking(&st, move |st| {
+        let sketch = SketchFile::from_json_str(&sketch, "sketch")
+            .map_err(|e| ServeError::Internal(e.to_string()))?;
+        let change = pictures::HeightChange::read(&dz, window)?;
+        pictures::draw(st, &sketch, &change, &n)
+    })
+    .await?;
+    let png = std::sync::Arc::new(png);
+    st.jobs.keep_picture(id, &name, png.clone());
+    png_answer(png.to_vec())
 }
 
 async fn accept(State(st): State<AppState>, UrlPath(id): UrlPath<String>) -> Answer {

@@ -1,5 +1,6 @@
 //! What the server holds between requests: the command line's choices
-//! (the DEM, OUT, the edit's options), the opened DEM, the map overview,
+//! (the DEM, OUT, the edit's options), the opened DEM, the map overview
+//! and its underlay,
 //! the terrain of the last viewpoint (so that turning the camera does not
 //! read the DEM again), the edit jobs and the private working directory
 //! where sketches, reports and pictures of dry runs are kept.
@@ -10,6 +11,7 @@ use std::sync::{Arc, Mutex};
 
 use super::jobs::Jobs;
 use super::overview::Overview;
+use super::underlay::Underlay;
 use super::ServeError;
 use crate::features::RidgeNetwork;
 use crate::raster::path_check::{check_outputs, dem_inputs, Output};
@@ -34,6 +36,8 @@ pub struct ServeConfig {
     pub overview_px: usize,
     /// Most edits queued or running at once; more are refused (429).
     pub max_queued_edits: usize,
+    /// A raster drawn with the map's hillshade (`--underlay`).
+    pub underlay: Option<PathBuf>,
 }
 
 impl ServeConfig {
@@ -47,6 +51,7 @@ impl ServeConfig {
             min_fit: crate::edit::DEFAULT_MIN_FIT,
             overview_px: 1024,
             max_queued_edits: 16,
+            underlay: None,
         }
     }
 }
@@ -76,6 +81,8 @@ pub struct Inner {
     pub config: ServeConfig,
     pub dem: Dem,
     pub overview: Overview,
+    /// The `--underlay` on the overview's grid.
+    pub underlay: Option<Underlay>,
     pub scene: Mutex<Option<Arc<CachedScene>>>,
     pub jobs: Jobs,
     /// Lets at most [`super::routes::MAX_RENDERS`] renders run at once.
@@ -84,6 +91,8 @@ pub struct Inner {
     /// 700, removed at exit and on SIGINT/SIGTERM with the edit's own
     /// staging directories).
     pub workdir: crate::raster::atomic_file::Staging,
+    /// Picture buffers of finished renders, reused by the next ones.
+    pub pictures: Mutex<Vec<Vec<u8>>>,
 }
 
 /// The server's state, cheap to clone into handlers.
@@ -121,6 +130,10 @@ impl AppState {
             }
         }
         let overview = Overview::build(&dem, config.overview_px)?;
+        let underlay = match &config.underlay {
+            Some(p) => Some(Underlay::build(p, &dem, &overview)?),
+            None => None,
+        };
         let workdir = crate::raster::atomic_file::Staging::new_in(&std::env::temp_dir())
             .map_err(|e| ServeError::Internal(format!("cannot create a working directory: {e}")))?;
         let jobs = Jobs::new(config.max_queued_edits);
@@ -128,16 +141,37 @@ impl AppState {
             config,
             dem,
             overview,
+            underlay,
             scene: Mutex::new(None),
             jobs,
             render_gate: tokio::sync::Semaphore::new(super::routes::MAX_RENDERS),
             workdir,
+            pictures: Mutex::new(Vec::new()),
         })))
     }
 
     /// The DEM's name in messages.
     pub fn dem_name(&self) -> String {
         self.config.dem.display().to_string()
+    }
+
+    /// A picture buffer of an earlier render (or a new one).
+    pub fn take_picture(&self) -> Vec<u8> {
+        self.pictures
+            .lock()
+            .ok()
+            .and_then(|mut p| p.pop())
+            .unwrap_or_default()
+    }
+
+    /// Give a picture buffer back for the next render (at most
+    /// [`super::routes::MAX_RENDERS`] are kept).
+    pub fn give_picture(&self, buf: Vec<u8>) {
+        if let Ok(mut p) = self.pictures.lock() {
+            if p.len() < super::routes::MAX_RENDERS {
+                p.push(buf);
+            }
+        }
     }
 
     /// Run `f` with this thread's [`Georef`] of the DEM.

@@ -6,14 +6,21 @@ virtual environment tools/setup.sh makes):
 
 - edit_flow: open the page, place the viewpoint on the map (click, drag for
   the heading), set the camera, draw two strokes over silhouettes with pointer
-  actions, over-sketch one, run the dry run, download the sketch, accept;
+  actions, over-sketch one, undo/redo, delete, move one (and undo), run the dry run, download the sketch, accept;
   then `demsketch edit` on the downloaded sketch must give a GeoTIFF with
   the same `gdalinfo -checksum` as the one the app wrote.
-- hostile: bad JSON, a 100 MB body, paths in parameters, 10 concurrent
+- hostile: bad JSON, a 100 MB body, paths in parameters, oversized or
+  malformed photo-EXIF and job-wait requests, 10 concurrent
   edits: 4xx answers (or queued and completed), the server keeps serving,
   no file outside OUT touched.
-- photo_trace: a render of a changed DEM saved as JPEG is loaded under the
-  view, the camera aligned to it by dragging, its skyline traced, edited.
+- photo_trace: a render of a changed DEM saved as JPEG with EXIF (GPS
+  position, bearing, focal length and sensor width, written by exiftool) is
+  loaded under the view: the viewpoint, heading and field of view come from
+  the EXIF; the camera aligned to it by dragging, its skyline traced, edited.
+- underlay: `--underlay` with bad files (missing, not a raster, no
+  georeference: exit 1, one line naming the file); with the fixture RGB
+  GeoTIFF in EPSG:4326: the underlay served at the map's size, its colours
+  those of the file at given lon/lat, drawn with its opacity control.
 
 Usage: run.py --bin target/release/demsketch [--screenshots docs/serve] [TEST...]
 Prints "browser: N passed, M failed" last; exit code 1 when any failed.
@@ -93,10 +100,9 @@ def post_json(srv, path, obj):
 def wait_job(srv, job, timeout=120):
     t0 = time.time()
     while time.time() - t0 < timeout:
-        j = get_json(srv, f"/api/jobs/{job}")
+        j = get_json(srv, f"/api/jobs/{job}?wait_ms=2000")
         if j["state"] in ("done", "failed"):
             return j
-        time.sleep(0.2)
     raise AssertionError(f"job {job} did not finish in {timeout} s")
 
 
@@ -258,6 +264,24 @@ def test_edit_flow(binary, shots, tmp):
         assert len(d.execute_script(js_strokes)) == 1, "delete"
         d.find_element(By.ID, "undo").click()
         assert d.execute_script(js_strokes) == strokes, "undo of delete"
+        # Move: drag the second stroke by (40, 25) image pixels; undo, redo, undo.
+        d.find_element(By.CSS_SELECTOR, "input[name=tool][value=move]").click()
+        grab = strokes[1]["points"][len(strokes[1]["points"]) // 2]
+        draw(d, canvas, [grab, [grab[0] + 40, grab[1] + 25]], size)
+        moved = d.execute_script(js_strokes)
+        assert moved[0] == strokes[0], "moving one stroke changed the other"
+        shifts = {(round(b[0] - a[0]), round(b[1] - a[1])) for a, b in zip(strokes[1]["points"], moved[1]["points"])}
+        assert len(moved[1]["points"]) == len(strokes[1]["points"]) and \
+            all(abs(sx - 40) <= 3 and abs(sy - 25) <= 3 for sx, sy in shifts) and \
+            max(s[0] for s in shifts) - min(s[0] for s in shifts) <= 1, f"move: shifts {shifts}"
+        assert d.execute_script("return app.selected") == 1, "the moved stroke is selected"
+        d.find_element(By.ID, "undo").click()
+        assert d.execute_script(js_strokes) == strokes, "undo of move"
+        d.find_element(By.ID, "redo").click()
+        assert d.execute_script(js_strokes) == moved, "redo of move"
+        d.find_element(By.ID, "undo").click()
+        d.find_element(By.CSS_SELECTOR, "input[name=tool][value=draw]").click()
+        print(f"  stroke moved by {sorted(shifts)[0]} px, undone, redone, undone")
         d.execute_script("app.selected = null; drawStrokes(); listStrokes();")
         d.find_element(By.ID, "viewshed-btn").click()
         wait_for(lambda: d.execute_script("return app.viewshed !== null"), 30, "the viewshed")
@@ -329,6 +353,11 @@ def test_hostile(binary, shots, tmp):
             ("lookup outside", "GET", "/api/lookup?x=-5&y=1e9", None, (400,)),
             ("accept without a dry run", "POST", "/api/jobs/999/accept", b"{}", (404,)),
             ("unknown overlay", "POST", "/api/render", json.dumps(dict(view, overlays=["/etc/passwd"])).encode(), (400,)),
+            ("photo EXIF of 2 MB", "POST", "/api/photo-exif?width=10&height=10", b"\xff" * (2 * 1024 * 1024), (400,)),
+            ("photo EXIF, a path for a size", "POST", "/api/photo-exif?width=/etc/passwd&height=1", b"x", (400,)),
+            ("photo EXIF of no size", "POST", "/api/photo-exif?width=0&height=0", b"x", (400,)),
+            ("job wait, not a number", "GET", "/api/jobs/1?wait_ms=forever", None, (400,)),
+            ("no underlay", "GET", "/api/underlay.png", None, (404,)),
         ]
         for name, method, path, body, want in cases:
             s, data = request(srv, method, path, body)
@@ -452,19 +481,36 @@ def test_photo_trace(binary, shots, tmp):
                     "--heading", "203", "--pitch", "0", "--hfov", "35", "--size", "1200x600",
                     "--out", png, "-q"], check=True)
     subprocess.run(["gdal_translate", "-q", "-of", "JPEG", "-co", "QUALITY=90", png, photo], check=True)
+    # EXIF as a camera writes it: the GPS position of the viewpoint, a true
+    # bearing 3 degrees off, and a 57.088 mm lens on a 36 mm wide sensor
+    # (1200 px at 33.3333 px/mm): 35 degrees across.
+    lon, lat = vp["lon"], vp["lat"]
+    subprocess.run(["exiftool", "-q", "-overwrite_original",
+                    f"-GPSLatitude={abs(lat)}", f"-GPSLatitudeRef={'N' if lat >= 0 else 'S'}",
+                    f"-GPSLongitude={abs(lon)}", f"-GPSLongitudeRef={'E' if lon >= 0 else 'W'}",
+                    "-GPSImgDirection=200", "-GPSImgDirectionRef=T", "-FocalLength=57.088",
+                    "-FocalPlaneXResolution=33.3333", "-FocalPlaneResolutionUnit=mm",
+                    "-ExifImageWidth=1200", "-ExifImageHeight=600", photo], check=True)
     out = os.path.join(tmp, "traced.tif")
     srv = Server(binary, DEM, out)
     d = browser(tmp)
     try:
         d.get(srv.url)
         wait_for(lambda: d.execute_script("return document.body.dataset.ready"), 30, "the page")
-        for fid, val in [("f-lon", vp["lon"]), ("f-lat", vp["lat"]), ("f-heading", 200), ("f-pitch", -1),
-                         ("f-hfov", 35)]:
-            set_field(d, fid, val)
+        # Only the pitch is typed: the viewpoint, heading and field of view
+        # come from the photo's EXIF.
+        set_field(d, "f-pitch", -1)
         set_field(d, "view-name", "photo")
         d.find_element(By.ID, "photo-file").send_keys(photo)
         wait_for(lambda: d.execute_script("return app.photo && app.sketch.views[0].camera.width === 1200"
-                                          " && app.sketch.views[0].camera.height === 600"), 20, "the photo")
+                                          " && app.sketch.views[0].camera.height === 600"
+                                          " && app.photoExif !== undefined"), 20, "the photo")
+        got = d.execute_script("return app.sketch.views[0]")
+        assert abs(got["viewpoint"]["lon"] - vp["lon"]) < 2e-6 and abs(got["viewpoint"]["lat"] - vp["lat"]) < 2e-6, got
+        assert abs(got["camera"]["hfov_deg"] - 35) < 0.02 and got["camera"]["heading_deg"] == 200, got["camera"]
+        note = d.find_element(By.ID, "photo-info").text
+        assert "EXIF GPS" in note and "hfov 35.0" in note and "heading 200" in note, note
+        print("  " + note)
         set_field(d, "photo-opacity", 0.5)
         d.execute_script("document.getElementById('photo-opacity').dispatchEvent(new Event('input'))")
         # Align: drag the render under the photo (3 degrees right, 1 up).
@@ -522,7 +568,83 @@ def test_photo_trace(binary, shots, tmp):
     assert after < before, (before, after)
 
 
-TESTS = {"edit_flow": test_edit_flow, "hostile": test_hostile, "photo_trace": test_photo_trace}
+def png_size(data):
+    """(width, height) from a PNG's IHDR."""
+    assert data[:8] == b"\x89PNG\r\n\x1a\n", data[:16]
+    return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
+
+
+def test_underlay(binary, shots, tmp):
+    from selenium.webdriver.common.by import By
+    underlay = os.path.join(ROOT, "fixtures", "underlay", "zion_rgb_epsg4326.tif")
+    out = os.path.join(tmp, "o.tif")
+    # Bad files: one line naming the file, exit code 1, nothing written, no URL.
+    text = os.path.join(tmp, "notes.txt")
+    open(text, "w").write("not a raster\n")
+    nogeo = os.path.join(tmp, "nogeo.png")
+    subprocess.run(["gdal_translate", "-q", "-of", "PNG", underlay, nogeo], check=True)
+    for f in [p for p in os.listdir(tmp) if p.endswith(".aux.xml")]:
+        os.remove(os.path.join(tmp, f))
+    for bad, why in [(os.path.join(tmp, "missing.tif"), "no such file"), (text, "not a raster"),
+                     (nogeo, "no georeference")]:
+        r = subprocess.run([binary, "serve", DEM, "--out", out, "--port", "0", "--underlay", bad],
+                           capture_output=True, text=True, timeout=60)
+        lines = [l for l in r.stderr.splitlines() if l.strip()]
+        assert r.returncode == 1, (bad, r.returncode, r.stderr)
+        assert len(lines) == 1 and bad in lines[0] and why in lines[0], (bad, r.stderr)
+        assert "http://" not in r.stdout and not os.path.exists(out), (bad, r.stdout)
+        print(f"  --underlay {os.path.basename(bad)}: exit 1, {lines[0]}")
+    srv = Server(binary, DEM, out, ["--underlay", underlay])
+    try:
+        info = get_json(srv, "/api/info")
+        ow, oh = info["overview"]["width"], info["overview"]["height"]
+        assert info["underlay"] == {"name": "zion_rgb_epsg4326.tif", "width": ow, "height": oh}, info["underlay"]
+        s, png = request(srv, "GET", "/api/underlay.png")
+        assert s == 200 and png_size(png) == (ow, oh), (s, png[:40])
+        path = os.path.join(tmp, "underlay.png")
+        open(path, "wb").write(png)
+        # Mostly opaque (the file covers the DEM), transparent where it does not.
+        stats = subprocess.run(["gdalinfo", "-stats", path], capture_output=True, text=True, check=True).stdout
+        means = [float(m) for m in re.findall(r"STATISTICS_MEAN=([-\d.e+]+)", stats)]
+        assert len(means) == 4 and means[3] > 200, stats
+        # Reprojected to the map's grid: the colour at a lon/lat is the file's there.
+        for lon, lat in [(-112.95, 37.25), (-113.05, 37.40), (-112.90, 37.45)]:
+            px = post_json(srv, "/api/project", {"points": [[lon, lat]]})[1]["pixels"][0]
+            got = subprocess.run(["gdallocationinfo", "-valonly", path, str(int(px[0])), str(int(px[1]))],
+                                 capture_output=True, text=True, check=True).stdout.split()
+            want = subprocess.run(["gdallocationinfo", "-valonly", "-wgs84", underlay, str(lon), str(lat)],
+                                  capture_output=True, text=True, check=True).stdout.split()
+            assert int(got[3]) == 255, got
+            assert all(abs(int(g) - int(w)) <= 24 for g, w in zip(got[:3], want)), (lon, lat, got, want)
+        print(f"  underlay {ow} x {oh} RGBA, alpha mean {means[3]:.0f}; colours match the file at 3 points")
+        d = browser(tmp)
+        try:
+            d.get(srv.url)
+            wait_for(lambda: d.execute_script("return document.body.dataset.ready"), 30, "the page")
+            assert d.execute_script("return app.underlay && app.underlay.naturalWidth") == ow
+            assert d.find_element(By.ID, "underlay-ctl").is_displayed()
+            pixel = "const g = document.getElementById('map').getContext('2d'); return [...g.getImageData(arguments[0], arguments[1], 1, 1).data];"
+            x, y = ow // 4, 2 * oh // 3  # away from the viewpoint and its wedge
+            set_field(d, "underlay-opacity", 0)
+            d.execute_script("document.getElementById('underlay-opacity').dispatchEvent(new Event('input'))")
+            bare = d.execute_script(pixel, x, y)
+            set_field(d, "underlay-opacity", 1)
+            d.execute_script("document.getElementById('underlay-opacity').dispatchEvent(new Event('input'))")
+            full = d.execute_script(pixel, x, y)
+            assert bare != full, (bare, full)
+            if shots:
+                set_field(d, "underlay-opacity", 0.6)
+                d.execute_script("document.getElementById('underlay-opacity').dispatchEvent(new Event('input'))")
+                shot(d.find_element(By.ID, "map-pane"), os.path.join(shots, "map_underlay.png"))
+            print(f"  map pixel at opacity 0: {bare[:3]}, at 1: {full[:3]}")
+        finally:
+            d.quit()
+    finally:
+        srv.stop()
+
+
+TESTS = {"edit_flow": test_edit_flow, "hostile": test_hostile, "photo_trace": test_photo_trace,
+         "underlay": test_underlay}
 
 
 def main():
