@@ -32,8 +32,15 @@
 use rayon::prelude::*;
 
 use super::FeatureError;
-use crate::render::{DepthBuffer, LocalTerrain, PATCH_TOLERANCE_PX};
+use crate::render::{DepthBuffer, LocalTerrain};
 use crate::view::{cross, dot, CameraModel};
+
+/// The triangle walk of [`walk_to_contour`] stands in for the bilinear
+/// surface where the two can put a boundary at most this far apart
+/// (pixels); elsewhere boundaries are bisected with exact casts. (On the
+/// fidelity suite 0.05 px fitted 38 of 72 known changes against 35 at
+/// 0.25 px, identity alike, at five times the extraction's time.)
+pub const WALK_TOLERANCE_PX: f64 = 0.25;
 
 /// Parameters of silhouette extraction.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -508,12 +515,13 @@ fn refine(
     out: &mut Vec<SilhouetteSample>,
 ) {
     let w = db.width;
-    // The walk follows the cells' two triangles; where they depart from
-    // the bilinear patches the view shows by more than the rasteriser's
-    // tolerance, the bisection by exact casts (on the patches) decides.
+    // The walk follows the cells' two triangles; where they can put the
+    // boundary farther than [`WALK_TOLERANCE_PX`] from the bilinear
+    // patches' the view shows, the bisection by exact casts (on the
+    // patches) decides.
     let k = y * w + x;
     let planar = 0.25 * terrain.twist_around(db.triangle[k]) * db.camera.focal_px
-        <= PATCH_TOLERANCE_PX * db.depth[k] as f64;
+        <= WALK_TOLERANCE_PX * db.depth[k] as f64;
     let walk = if planar {
         walk_to_contour(terrain, db, x, y, p.min_jump)
     } else {
@@ -584,7 +592,10 @@ fn refine_bracket(
     for _ in 0..p.refine_iterations {
         let ym = 0.5 * (a.y + b.y);
         let d = cam.unproject([px, ym]);
-        match terrain.cast(d, f64::INFINITY) {
+        // The ray passes above the near side's ray, which met no terrain
+        // before `a.t`: the cast starts well short of it (by the cheap
+        // block index, without building the per-view horizon index).
+        match terrain.cast_segment(d, 0.9 * a.t, f64::INFINITY) {
             Some(hit) if (hit.t / a.t).ln() < (b.t / hit.t).ln() => {
                 a = Side {
                     y: ym,
