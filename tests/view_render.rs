@@ -21,33 +21,8 @@ impl Lcg {
     }
 }
 
-/// Möller-Trumbore ray-triangle distance.
-fn tri_hit(d: [f64; 3], t: [[f64; 3]; 3]) -> Option<f64> {
-    let sub = |a: [f64; 3], b: [f64; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
-    let cross = |a: [f64; 3], b: [f64; 3]| {
-        [
-            a[1] * b[2] - a[2] * b[1],
-            a[2] * b[0] - a[0] * b[2],
-            a[0] * b[1] - a[1] * b[0],
-        ]
-    };
-    let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-    let (e1, e2) = (sub(t[1], t[0]), sub(t[2], t[0]));
-    let p = cross(d, e2);
-    let det = dot(e1, p);
-    if det.abs() < 1e-14 {
-        return None;
-    }
-    let s = [-t[0][0], -t[0][1], -t[0][2]];
-    let u = dot(s, p) / det;
-    let q = cross(s, e1);
-    let v = dot(d, q) / det;
-    let tt = dot(e2, q) / det;
-    (u >= -1e-9 && v >= -1e-9 && u + v <= 1.0 + 1e-9 && tt > 0.0).then_some(tt)
-}
-
 #[test]
-fn ray_casting_is_exact_on_the_triangulated_height_field() {
+fn ray_casting_is_exact_on_the_bilinear_height_field() {
     let mut rng = Lcg(7);
     let noise: Vec<f64> = (0..48 * 48).map(|_| rng.next() * 40.0).collect();
     let mut dem = synthetic(48, 48, 25.0, |x, y| {
@@ -63,7 +38,6 @@ fn ray_casting_is_exact_on_the_triangulated_height_field() {
     let terrain = LocalTerrain::new(&dem, &frame, None);
     // A second copy only ever cast with `cast_within` (no horizon index).
     let bounded = LocalTerrain::new(&dem, &frame, None);
-    let ntri = 2 * 47 * 47;
     let mut checked = 0;
     let mut worst: f64 = 0.0;
     for _ in 0..400 {
@@ -76,22 +50,55 @@ fn ray_casting_is_exact_on_the_triangulated_height_field() {
         if let (Some(b), Some(f)) = (b, fast) {
             assert!((b.t - f.t).abs() < 1e-9 * f.t.max(1.0));
         }
-        let mut best: Option<(f64, u32)> = None;
-        for id in 0..ntri as u32 {
-            if let Some(t) = terrain.triangle_vertices(id).and_then(|tv| tri_hit(d, tv)) {
-                if best.is_none_or(|b| t < b.0) {
-                    best = Some((t, id));
-                }
+        // Brute force on the bilinear patches: march the ray in 5 cm steps,
+        // then bisect the first step that ends under the surface.
+        let above = |t: f64| -> Option<bool> {
+            let (vx, vy) = terrain.en_to_v(d[0] * t, d[1] * t);
+            if !(vx >= 0.0 && vy >= 0.0) {
+                return None;
             }
+            let (c, r) = (vx.floor() as usize, vy.floor() as usize);
+            if c + 1 >= terrain.nx || r + 1 >= terrain.ny {
+                return None;
+            }
+            let (fx, fy) = (vx - c as f64, vy - r as f64);
+            let z = |c, r| terrain.vertex_z(c, r);
+            let h = (z(c, r)? * (1.0 - fx) + z(c + 1, r)? * fx) * (1.0 - fy)
+                + (z(c, r + 1)? * (1.0 - fx) + z(c + 1, r + 1)? * fx) * fy;
+            Some(d[2] * t > h)
+        };
+        let step = 0.05;
+        let mut best: Option<f64> = None;
+        let mut t = step;
+        while t < 2500.0 {
+            if above(t) == Some(false) && above(t - step) != Some(false) {
+                let (mut lo, mut hi) = (t - step, t);
+                for _ in 0..40 {
+                    let mid = 0.5 * (lo + hi);
+                    if above(mid) == Some(false) {
+                        hi = mid;
+                    } else {
+                        lo = mid;
+                    }
+                }
+                best = Some(hi);
+                break;
+            }
+            t += step;
         }
         match (fast, best) {
             (None, None) => {}
             (Some(f), Some(b)) => {
-                let err = (f.t - b.0).abs();
+                let err = (f.t - b).abs();
                 worst = worst.max(err);
-                assert!(err < 1e-6 * b.0.max(1.0), "t {} vs brute {}", f.t, b.0);
+                assert!(err < 1e-6 * b.max(1.0) + 1e-9, "t {} vs brute {}", f.t, b);
                 checked += 1;
             }
+            // a dip under the surface shorter than the march's step
+            (Some(f), None) => assert!(
+                above(f.t - 1e-6) == Some(true),
+                "cast {f:?} where the march found nothing for {d:?}"
+            ),
             (f, b) => panic!("fast {f:?} vs brute {b:?} for {d:?}"),
         }
     }
@@ -105,30 +112,37 @@ fn ray_casting_is_exact_on_the_triangulated_height_field() {
 fn assert_raster_equals_casting(terrain: &LocalTerrain, cam: &Camera, what: &str) {
     let fast = DepthBuffer::render(terrain, cam);
     let slow = DepthBuffer::render_by_ray_casting(terrain, cam);
-    let (mut terrain_px, mut other_tri, mut worst) = (0usize, 0usize, 0f64);
+    // The rasteriser draws each bilinear patch as triangles within 0.05 px
+    // of it, the casts meet the patch exactly: the depths agree to a
+    // percent except on pixels at grazing boundaries (under 1 %).
+    let (mut terrain_px, mut other_tri, mut differ, mut worst) = (0usize, 0usize, 0usize, 0f64);
     for k in 0..fast.depth.len() {
         let (a, b) = (fast.depth[k] as f64, slow.depth[k] as f64);
-        assert_eq!(
-            a.is_finite(),
-            b.is_finite(),
-            "{what}: pixel {} {}: raster {a} vs cast {b}",
-            k % cam.width,
-            k / cam.width
-        );
+        if a.is_finite() != b.is_finite() {
+            differ += 1;
+            continue;
+        }
         if a.is_finite() {
             terrain_px += 1;
             let rel = (a - b).abs() / b;
-            worst = worst.max(rel);
-            assert!(rel < 1e-4, "{what}: pixel {k}: raster {a} vs cast {b}");
+            if rel < 1e-2 {
+                worst = worst.max(rel);
+            } else {
+                differ += 1;
+            }
             other_tri += usize::from(fast.triangle[k] != slow.triangle[k]);
         }
     }
     eprintln!(
-        "{what}: {terrain_px} terrain pixels equal to ray casting (worst relative depth {worst:.1e}), {other_tri} on shared edges"
+        "{what}: {terrain_px} terrain pixels, {differ} differ from ray casting (elsewhere worst relative depth {worst:.1e}), {other_tri} other cell halves"
     );
     assert!(terrain_px > 0);
     assert!(
-        other_tri * 1000 <= terrain_px,
+        differ * 500 <= fast.depth.len(),
+        "{what}: {differ} pixels differ"
+    );
+    assert!(
+        other_tri * 100 <= terrain_px,
         "{what}: {other_tri} triangle ids differ"
     );
     // Rendering part of the view gives the very same pixels there: a wavy
