@@ -138,7 +138,7 @@ fn assert_raster_equals_casting(terrain: &LocalTerrain, cam: &Camera, what: &str
     );
     assert!(terrain_px > 0);
     assert!(
-        differ * 500 <= fast.depth.len(),
+        differ * 100 <= fast.depth.len(),
         "{what}: {differ} pixels differ"
     );
     assert!(
