@@ -756,13 +756,7 @@ impl LocalTerrain {
     ) -> Option<RayHit> {
         let (ox, oy, gx, gy, dz) = ray;
         let nx = self.nx;
-        let i = r * nx + c;
-        let patch = BilinearPatch::new([
-            self.z[i] as f64,
-            self.z[i + 1] as f64,
-            self.z[i + nx] as f64,
-            self.z[i + nx + 1] as f64,
-        ])?;
+        let patch = self.patch(c, r)?;
         let (bx, by) = (ox - c as f64, oy - r as f64);
         let t = patch.first_crossing((bx, by, gx, gy, dz), ta, tb)?;
         let half = u32::from((bx + gx * t) - (by + gy * t) < 0.0);
@@ -770,6 +764,14 @@ impl LocalTerrain {
             t,
             triangle: (r * (nx - 1) + c) as u32 * 2 + half,
         })
+    }
+
+    /// The bilinear patch of cell `(c, r)` (`c + 1 < nx`, `r + 1 < ny`),
+    /// `None` next to nodata.
+    #[inline]
+    fn patch(&self, c: usize, r: usize) -> Option<BilinearPatch> {
+        let (i, nx) = (r * self.nx + c, self.nx);
+        BilinearPatch::new([i, i + 1, i + nx, i + nx + 1].map(|k| self.z[k] as f64))
     }
 
     /// Distance along unit ray `d` from the eye to the bilinear patch of the
@@ -783,14 +785,7 @@ impl LocalTerrain {
         if c + 1 >= self.nx || r + 1 >= self.ny {
             return None;
         }
-        let i = r * self.nx + c;
-        let nx = self.nx;
-        let patch = BilinearPatch::new([
-            self.z[i] as f64,
-            self.z[i + 1] as f64,
-            self.z[i + nx] as f64,
-            self.z[i + nx + 1] as f64,
-        ])?;
+        let patch = self.patch(c, r)?;
         let m = self.en_to_v;
         let gx = m[0][0] * d[0] + m[0][1] * d[1];
         let gy = m[1][0] * d[0] + m[1][1] * d[1];
