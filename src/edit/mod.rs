@@ -30,6 +30,7 @@ mod rounds;
 pub mod spikes;
 pub mod stretch_placement;
 
+pub use outputs::picture_stem;
 pub use pipeline::{run, EditOptions, DEFAULT_MIN_FIT};
 pub use report::{EditReport, MatchingReport, StrokeStatus};
 

@@ -307,7 +307,7 @@ fn pictures(
     for (v, a) in views.iter().zip(after) {
         let strokes: Vec<Vec<[f64; 2]>> = v.spec.strokes.iter().map(|s| s.points.clone()).collect();
         let (w, h) = (v.camera.width, v.camera.height);
-        let name = sanitize(&v.spec.name);
+        let name = picture_stem(&v.spec.name);
         out.push(Picture {
             name: format!("{name}_before.png"),
             png: enc(w, h, &view_picture(&v.before, &strokes))?,
@@ -341,8 +341,8 @@ fn pictures(
     Ok(out)
 }
 
-/// A file-name-safe version of a view name.
-fn sanitize(name: &str) -> String {
+/// A file-name-safe version of a view name: the stem of its pictures.
+pub fn picture_stem(name: &str) -> String {
     let s: String = name
         .chars()
         .map(|c| {

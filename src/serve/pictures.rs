@@ -14,6 +14,7 @@ use std::path::Path;
 use super::overview::encode_rgb;
 use super::state::AppState;
 use super::ServeError;
+use crate::edit::picture_stem;
 use crate::edit::renders::height_change_map;
 use crate::raster::{Dem, HeightMap, Window};
 use crate::render::{draw_polyline, shade, DepthBuffer, LocalTerrain, ShadeOptions};
@@ -72,25 +73,6 @@ impl HeightChange {
             }
         }
         out
-    }
-}
-
-/// A file-name-safe version of a view name (as the edit names its pictures).
-pub fn picture_stem(name: &str) -> String {
-    let s: String = name
-        .chars()
-        .map(|c| {
-            if c.is_ascii_alphanumeric() || c == '-' || c == '_' {
-                c
-            } else {
-                '_'
-            }
-        })
-        .collect();
-    if s.is_empty() {
-        "view".into()
-    } else {
-        s
     }
 }
 
