@@ -26,8 +26,10 @@
 use super::rendered_view::RenderedView;
 use crate::sketch::{PlacedPoint, PointSource, SceneProjection, StrokeMatch};
 
-/// A stroke point lies on a silhouette when one is this close in its column.
-pub const ON_SILHOUETTE_PX: f64 = 1.5;
+/// A stroke point lies on a silhouette when one is this close in its column:
+/// the fit's own tolerance ([`super::fit::FIT_TOLERANCE_PX`]), so that no point is held where
+/// the fit would count it unfitted.
+pub const ON_SILHOUETTE_PX: f64 = super::fit::FIT_TOLERANCE_PX;
 /// ... or this close, inside a short stretch next to anchored points.
 pub const GAP_TOLERANCE_PX: f64 = 3.0;
 /// The widest such stretch, pixels.
@@ -69,14 +71,19 @@ fn nearest_boundary(view: &RenderedView, pixel: [f64; 2], tol: f64) -> Option<Bo
             });
         }
     }
-    if best.is_some() {
+    // The skyline's first terrain row, where it is nearer than every
+    // sample (or where the column has none: the walk can lose a stretch
+    // of the skyline where it passes behind a nearer crest).
+    let Some(j) = view.skyline_row[i].filter(|&j| j > 0) else {
+        return best;
+    };
+    let dy = (j as f64 - pixel[1]).abs();
+    if dy > tol || best.is_some_and(|b| (b.row - pixel[1]).abs() <= dy) {
         return best;
     }
-    let j = view.skyline_row[i].filter(|&j| j > 0)?;
-    if (j as f64 - pixel[1]).abs() > tol {
-        return None;
-    }
-    let hit = view.depth.hit(&view.terrain, i, j)?;
+    let Some(hit) = view.depth.hit(&view.terrain, i, j) else {
+        return best;
+    };
     Some(BoundaryPoint {
         row: j as f64,
         local: hit.local,
@@ -160,6 +167,31 @@ fn drop_offset_stretches(hits: &mut [Option<BoundaryPoint>], pixels: &[[f64; 2]]
     refused
 }
 
+/// True when the stroke points `pixels` run off the boundary rows `rows`
+/// beside them (one row per point): a mean distance over
+/// [`OFFSET_TOLERANCE_PX`] on a stretch at least [`MIN_OFFSET_RUN_PX`]
+/// wide. The looser anchoring of gaps between anchors uses it: a stretch
+/// 2 px under the skyline between two points on it is a cut asked for,
+/// not a wandering hand, and so is a stretch that crosses from under one
+/// boundary to over the next (a ridge cut through between them). Most of
+/// such a stretch would be more than the fit's pixel off the boundary, so
+/// anchoring it could only leave the stroke unfitted.
+fn runs_off(pixels: &[[f64; 2]], rows: &[f64]) -> bool {
+    let (Some(first), Some(last)) = (pixels.first(), pixels.last()) else {
+        return false;
+    };
+    if (last[0] - first[0]).abs() < MIN_OFFSET_RUN_PX || rows.len() != pixels.len() {
+        return false;
+    }
+    let mean = pixels
+        .iter()
+        .zip(rows)
+        .map(|(p, r)| (p[1] - r).abs())
+        .sum::<f64>()
+        / rows.len() as f64;
+    mean > OFFSET_TOLERANCE_PX
+}
+
 /// Removes the anchors of runs (consecutive anchored points) that span less
 /// than [`MIN_RUN_PX`] of image x, unless a run is the whole stroke: a
 /// stroke crossing a silhouette is not drawn along it. A run may pass from
@@ -233,7 +265,8 @@ pub fn anchor_on_silhouettes(
             let loose: Vec<Option<BoundaryPoint>> = (a..b)
                 .map(|m| nearest_boundary(before, px(on_stroke[m]), GAP_TOLERANCE_PX))
                 .collect();
-            if loose.iter().all(|h| h.is_some()) {
+            let rows: Vec<f64> = loose.iter().flatten().map(|h| h.row).collect();
+            if loose.iter().all(|h| h.is_some()) && !runs_off(&pixels[a..b], &rows) {
                 for (m, h) in (a..b).zip(loose) {
                     hits[m] = h;
                 }
@@ -246,6 +279,9 @@ pub fn anchor_on_silhouettes(
         // the stretch stays as the silhouette beside it has it.
         if let (Some(l), Some(r)) = (left.and_then(|l| hits[l]), right.and_then(|r| hits[r])) {
             let same = (l.depth - r.depth).abs() <= RUN_DEPTH_STEP * l.depth.min(r.depth);
+            // (The straight line between the anchors' rows is not the
+            // silhouette inside a cell, which the bilinear patch curves: a
+            // stroke traced on it may stand off that line by pixels.)
             if same && !refused_here && (x1 - x0).abs() < before.cell_px(0.5 * (l.depth + r.depth))
             {
                 for m in a..b {
@@ -340,6 +376,23 @@ mod tests {
         assert!(refused[24..31].iter().all(|&r| r));
         assert!(refused[..15].iter().all(|&r| !r) && refused[42..].iter().all(|&r| !r));
         assert!(hits[27].is_none() && hits[5].is_some());
+    }
+
+    #[test]
+    fn a_gap_drawn_under_the_boundary_runs_off() {
+        // 2 px under the boundary over 20 px: a cut asked for.
+        let pixels: Vec<[f64; 2]> = (0..10).map(|k| [10.0 + 2.0 * k as f64, 102.0]).collect();
+        assert!(runs_off(&pixels, &[100.0; 10]));
+        // Under one boundary, then over the next: off too.
+        let across: Vec<f64> = (0..10).map(|k| if k < 6 { 100.0 } else { 104.0 }).collect();
+        assert!(runs_off(&pixels, &across));
+        // Wandering half a pixel to both sides is a hand's.
+        let wander: Vec<[f64; 2]> = (0..10)
+            .map(|k| [10.0 + 2.0 * k as f64, if k % 2 == 0 { 100.5 } else { 99.4 }])
+            .collect();
+        assert!(!runs_off(&wander, &[100.0; 10]));
+        // Narrower than MIN_OFFSET_RUN_PX: a wobble.
+        assert!(!runs_off(&pixels[..2], &[100.0; 2]));
     }
 
     #[test]

@@ -293,7 +293,13 @@ fn column_samples(
             continue;
         }
         if far.is_finite() {
-            let pred = if y + 1 < h && col[y + 1].0.is_finite() {
+            // Extrapolate from the pixel below only when it shows the same
+            // surface: a one-pixel sliver of a range between a nearer
+            // ridge and farther terrain has no such neighbour.
+            let same_below = y + 1 < h
+                && col[y + 1].0.is_finite()
+                && near as f64 <= col[y + 1].0 as f64 * (1.0 + p.min_jump);
+            let pred = if same_below {
                 (2.0 * wp - col[y + 1].1 as f64).min(wp)
             } else {
                 wp
