@@ -30,13 +30,20 @@ fn lake_square(c: [f64; 2]) -> Vec<[f64; 2]> {
 
 /// A good lake first, then `bad` as feature 1.
 fn expect_failure(bad: Value, needle: &str) {
+    expect_failure_with(bad, Vec::new(), needle)
+}
+
+/// A good lake first, then `bad` as feature 1, then `extra`.
+fn expect_failure_with(bad: Value, extra: Vec<Value>, needle: &str) {
     let tmp = tempfile::tempdir().unwrap();
     let dem = tmp.path().join("dem.tif");
     std::fs::copy(fixture(DEM), &dem).unwrap();
     let good = json!({"type": "Feature", "properties": {"kind": "lake", "name": "ok"},
         "geometry": {"type": "Polygon", "coordinates": [lake_square([73.0, 33.0])]}});
     let features = tmp.path().join("bad.geojson");
-    std::fs::write(&features, collection(vec![good, bad], Some(32632))).unwrap();
+    let mut all = vec![good, bad];
+    all.extend(extra);
+    std::fs::write(&features, collection(all, Some(32632))).unwrap();
     let before = snapshot(tmp.path());
     let (out, rep) = (tmp.path().join("out.tif"), tmp.path().join("r.json"));
     let o = demsketch(&[
@@ -152,4 +159,54 @@ fn not_geojson() {
         "{err}"
     );
     assert!(!out.exists());
+}
+
+fn section(a: [f64; 2], b: [f64; 2], curve: &str) -> Value {
+    let (a, b) = (utm(a), utm(b));
+    json!({"type": "Feature", "properties": {"kind": "cross_section", "name": "bad", "control_curve": curve},
+        "geometry": {"type": "LineString", "coordinates": [[a[0], a[1], 1000.0], [b[0], b[1], 990.0]]}})
+}
+
+fn curve(name: &str) -> Value {
+    let (a, b) = (utm([100.0, 100.0]), utm([110.0, 100.0]));
+    json!({"type": "Feature", "properties": {"kind": "control_curve", "name": name},
+        "geometry": {"type": "LineString", "coordinates": [[a[0], a[1], 1000.0], [b[0], b[1], 1000.0]]}})
+}
+
+#[test]
+fn cross_section_that_does_not_cross_its_curve() {
+    expect_failure_with(
+        section([104.0, 102.0], [104.0, 106.0], "dike"),
+        vec![curve("dike")],
+        "the cross-section does not cross its control curve \"dike\"",
+    );
+}
+
+#[test]
+fn cross_section_of_a_missing_or_wrong_feature() {
+    expect_failure_with(
+        section([104.0, 98.0], [104.0, 102.0], "road"),
+        vec![curve("dike")],
+        "no feature \"road\" to attach the cross-section to",
+    );
+    expect_failure(
+        section([104.0, 98.0], [104.0, 102.0], "ok"),
+        "feature \"ok\" is a lake, not a control curve",
+    );
+}
+
+#[test]
+fn cross_section_without_heights_or_curve() {
+    let (a, b) = (utm([104.0, 98.0]), utm([104.0, 102.0]));
+    expect_failure_with(
+        json!({"type": "Feature", "properties": {"kind": "cross_section", "name": "bad", "control_curve": "dike"},
+            "geometry": {"type": "LineString", "coordinates": [a, b]}}),
+        vec![curve("dike")],
+        "position 0 has no height",
+    );
+    expect_failure(
+        json!({"type": "Feature", "properties": {"kind": "cross_section", "name": "bad"},
+            "geometry": {"type": "LineString", "coordinates": [[a[0], a[1], 1.0], [b[0], b[1], 1.0]]}}),
+        "needs a control_curve property",
+    );
 }

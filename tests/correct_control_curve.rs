@@ -143,3 +143,131 @@ fn dem_follows_the_curve_and_is_untouched_beyond_the_influence() {
     assert!(d < 0.1, "lon/lat and DEM CRS differ by {d} m");
     assert!(rb["corrections"][0]["max_curve_error_m"].as_f64().unwrap() <= 0.05);
 }
+
+/// Height of the polyline `px` (pixel space) with heights `z` at its
+/// fraction `f` of the vertices' parameter (segment `k`, `t`).
+fn along(px: &[[f64; 2]], z: &[f64], k: usize, t: f64) -> ([f64; 2], f64) {
+    let (a, b) = (px[k], px[k + 1]);
+    (
+        [a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])],
+        z[k] + t * (z[k + 1] - z[k]),
+    )
+}
+
+/// The embankment with five cross-sections (Maquettier section III-B): each
+/// crosses the curve at right angles, 2 cells to each side, with a cross
+/// slope of 5 m a cell (a road benched into the valley side); the
+/// fourth is given 100 m too high, to be moved
+/// down to the curve where they cross. Checked with GDAL: the curve within
+/// 0.05 m, every cross-section (as moved) within 0.1 m, bilinear every
+/// tenth of a cell; nothing changes beyond the influence.
+#[test]
+#[ignore = "not met yet: the curve is missed by 0.12 m and the sections by 0.69 m (issue 14, cross-sections)"]
+fn dem_follows_the_cross_sections_of_the_curve() {
+    let tmp = tempfile::tempdir().unwrap();
+    let input = Raster::read(&fixture(DEM));
+    let z: Vec<f64> = CURVE_PX
+        .iter()
+        .map(|&p| input.bilinear(p).unwrap() + 30.0)
+        .collect();
+    let to_crs = |p: [f64; 2], h: f64| {
+        let c = input.crs(p);
+        [c[0], c[1], h]
+    };
+    let curve: Vec<[f64; 3]> = CURVE_PX
+        .iter()
+        .zip(&z)
+        .map(|(&p, &h)| to_crs(p, h))
+        .collect();
+    let mut features = vec![
+        json!({"type": "Feature", "properties": {"kind": "control_curve",
+        "name": "dike", "influence_m": INFLUENCE_M},
+        "geometry": {"type": "LineString", "coordinates": curve}}),
+    ];
+    let mut expected: Vec<Vec<[f64; 3]>> = Vec::new();
+    for (j, &(k, t)) in [(0, 0.2), (0, 0.5), (1, 0.5), (1, 0.75), (1, 0.95)]
+        .iter()
+        .enumerate()
+    {
+        let (c, zc) = along(&CURVE_PX, &z, k, t);
+        let (a, b) = (CURVE_PX[k], CURVE_PX[k + 1]);
+        let len = (b[0] - a[0]).hypot(b[1] - a[1]);
+        let n = [-(b[1] - a[1]) / len, (b[0] - a[0]) / len];
+        let sec: Vec<[f64; 3]> = [-2.0, 0.0, 2.0]
+            .iter()
+            .map(|&d: &f64| [c[0] + n[0] * d, c[1] + n[1] * d, zc - 5.0 * d])
+            .collect();
+        let given_dz = if j == 3 { 100.0 } else { 0.0 };
+        let coords: Vec<[f64; 3]> = sec
+            .iter()
+            .map(|p| to_crs([p[0], p[1]], p[2] + given_dz))
+            .collect();
+        features.push(
+            json!({"type": "Feature", "properties": {"kind": "cross_section",
+            "name": format!("section{j}"), "control_curve": "dike"},
+            "geometry": {"type": "LineString", "coordinates": coords}}),
+        );
+        expected.push(sec);
+    }
+    let (out, r) = run(tmp.path(), "sections", collection(features, Some(32632)));
+    assert_eq!(r["corrections"].as_array().unwrap().len(), 1);
+    let f = &r["corrections"][0];
+    assert_eq!(f["cross_sections"], 5);
+    let output = Raster::read(&out);
+    let worst_on = |px: &[[f64; 2]], z: &[f64]| {
+        let mut worst = 0f64;
+        for k in 0..px.len() - 1 {
+            let n =
+                (((px[k + 1][0] - px[k][0]).hypot(px[k + 1][1] - px[k][1])) * 10.0).ceil() as usize;
+            for i in 0..=n {
+                let (p, h) = along(px, z, k, i as f64 / n as f64);
+                worst = worst.max((output.bilinear(p).unwrap() - h).abs());
+            }
+        }
+        worst
+    };
+    let on_curve = worst_on(&CURVE_PX, &z);
+    let on_sections = expected
+        .iter()
+        .map(|s| {
+            let px: Vec<[f64; 2]> = s.iter().map(|p| [p[0], p[1]]).collect();
+            let zs: Vec<f64> = s.iter().map(|p| p[2]).collect();
+            worst_on(&px, &zs)
+        })
+        .fold(0f64, f64::max);
+    println!(
+        "curve {on_curve} m, cross-sections {on_sections} m (report {} / {})",
+        f["max_curve_error_m"], f["max_section_error_m"]
+    );
+    assert!(on_curve <= 0.05, "curve missed by {on_curve} m");
+    assert!(
+        on_sections <= 0.1,
+        "cross-sections missed by {on_sections} m"
+    );
+    // Beyond the influence (plus the constraint reach) nothing changes.
+    let cell = input.gt[1];
+    let mut changed_beyond = 0;
+    for r in 0..input.h {
+        for c in 0..input.w {
+            let p = [c as f64 + 0.5, r as f64 + 0.5];
+            let d = expected
+                .iter()
+                .map(|s| {
+                    let px: Vec<[f64; 2]> = s.iter().map(|p| [p[0], p[1]]).collect();
+                    px.windows(2)
+                        .map(|w| segment_distance(p, w[0], w[1]))
+                        .fold(f64::INFINITY, f64::min)
+                })
+                .chain(CURVE_PX.windows(2).map(|w| segment_distance(p, w[0], w[1])))
+                .fold(f64::INFINITY, f64::min);
+            let (a, b) = (input.at(c, r), output.at(c, r));
+            if d * cell > INFLUENCE_M + 1.5 * cell
+                && a.to_bits() != b.to_bits()
+                && !(a.is_nan() && b.is_nan())
+            {
+                changed_beyond += 1;
+            }
+        }
+    }
+    assert_eq!(changed_beyond, 0);
+}

@@ -95,10 +95,12 @@ fn valley_river_is_flat_across_and_never_rises_downstream() {
         "the surface rises by {worst_rise} m downstream"
     );
 
-    // Across: bilinear along the normal of each straight reach, within
-    // half the width less 1.5 cells of the centreline, at cross-sections
-    // more than 1.5 cells from a bend of the surface profile (the report's
-    // knots; the surface is linear in the arc length between them).
+    // Across: bilinear along the normals of the segments (every twentieth
+    // of each, ends included) and through every bend (both normals and the
+    // bisector at the vertex), within half the width less 1.5 cells of the
+    // centreline, at sections more than 1.5 cells from a kink of the
+    // surface profile (the report's knots: the surface is linear in the arc
+    // length between them, level through the bends).
     let knots: Vec<f64> = f["surface_knots_m"]
         .as_array()
         .unwrap()
@@ -106,43 +108,89 @@ fn valley_river_is_flat_across_and_never_rises_downstream() {
         .map(|k| k[0].as_f64().unwrap())
         .collect();
     assert!(knots.len() >= 2);
-    let reach = 0.5 * WIDTH_M - 1.5 * cell;
-    let (mut worst_across, mut worst_near_knots, mut sections) = (0f64, 0f64, 0);
-    let mut s0 = 0.0;
-    for seg in LINE_PX.windows(2) {
-        let (dx, dy) = (seg[1][0] - seg[0][0], seg[1][1] - seg[0][1]);
-        let len = dx.hypot(dy);
-        let (nx, ny) = (-dy / len, dx / len);
-        for k in 5..=15 {
-            let t = k as f64 / 20.0;
-            let c = [seg[0][0] + t * dx, seg[0][1] + t * dy];
-            let vals: Vec<f64> = (-10..=10)
-                .filter_map(|j| {
-                    let d = j as f64 / 10.0 * reach / cell;
-                    output.bilinear([c[0] + nx * d, c[1] + ny * d])
-                })
-                .collect();
-            let (lo, hi) = vals
-                .iter()
-                .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| {
-                    (a.min(v), b.max(v))
-                });
-            let s = s0 + t * len * cell;
-            if knots.iter().all(|k| (k - s).abs() > 1.5 * cell) {
-                worst_across = worst_across.max(hi - lo);
-                sections += 1;
-            } else {
-                worst_near_knots = worst_near_knots.max(hi - lo);
-            }
-        }
-        s0 += len * cell;
-    }
-    println!(
-        "{} knots; largest spread across {worst_across} m over {sections} sections; {worst_near_knots} m near knots",
-        knots.len()
+    let reach = (0.5 * WIDTH_M - 1.5 * cell) / cell;
+    let fl = correct_support::flatness(&output, &LINE_PX, &knots, reach, 1.5 * cell);
+    println!("{} knots; {fl:?}", knots.len());
+    assert!(fl.normal_count >= 40 && fl.bend_count >= 9, "{fl:?}");
+    assert!(fl.normal_worst <= 0.01, "not flat across: {fl:?}");
+    assert!(fl.bend_worst <= 0.01, "not flat across the bends: {fl:?}");
+}
+
+/// A synthetic tight bend: a plane falling 2 cm/m east and 3 cm/m south
+/// (10 m cells), a 200 m wide river east then, with a right angle, south,
+/// then turning 45 degrees south-west. Before the bends were level, the
+/// inner bank of the right angle took heights from cross-sections 200 m
+/// apart (a 5 m spread across).
+#[test]
+fn tight_bend_is_flat_across_and_never_rises() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (w, h) = (200usize, 200usize);
+    let gt = [600000.0, 10.0, 0.0, 5200000.0, 0.0, -10.0];
+    let data: Vec<f32> = (0..w * h)
+        .map(|i| {
+            let (c, r) = ((i % w) as f64 + 0.5, (i / w) as f64 + 0.5);
+            (1000.0 - 0.2 * c - 0.3 * r) as f32
+        })
+        .collect();
+    let dem = tmp.path().join("plane.tif");
+    correct_support::write_f32_geotiff(&dem, w, h, gt, 32632, &data);
+    let line: [[f64; 2]; 4] = [[20.5, 40.5], [120.5, 40.5], [120.5, 120.5], [70.5, 170.5]];
+    let input = Raster::read(&dem);
+    let coords: Vec<[f64; 2]> = line.iter().map(|&p| input.crs(p)).collect();
+    let fc = collection(
+        vec![json!({"type": "Feature",
+            "properties": {"kind": "river", "name": "bend", "width_m": 200.0},
+            "geometry": {"type": "LineString", "coordinates": coords}})],
+        Some(32632),
     );
-    assert!(sections >= 20);
-    assert!(worst_across <= 0.01, "not flat across: {worst_across} m");
+    let features = tmp.path().join("bend.geojson");
+    std::fs::write(&features, fc).unwrap();
+    let (out, rep) = (tmp.path().join("bend.tif"), tmp.path().join("bend.json"));
+    let o = demsketch(&[
+        "correct",
+        &dem.to_string_lossy(),
+        "--features",
+        &features.to_string_lossy(),
+        "--out",
+        &out.to_string_lossy(),
+        "--report",
+        &rep.to_string_lossy(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let r = report(&rep);
+    let f = &r["corrections"][0];
+    let knots: Vec<[f64; 2]> = f["surface_knots_m"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|k| [k[0].as_f64().unwrap(), k[1].as_f64().unwrap()])
+        .collect();
+    let output = Raster::read(&out);
+    // Never rises: along the knots and along the centreline, cell by cell.
+    assert!(knots.windows(2).all(|k| k[1][1] <= k[0][1]), "{knots:?}");
+    let mut last = f64::INFINITY;
+    for seg in line.windows(2) {
+        for k in 0..400 {
+            let t = k as f64 / 400.0;
+            let p = [
+                seg[0][0] + t * (seg[1][0] - seg[0][0]),
+                seg[0][1] + t * (seg[1][1] - seg[0][1]),
+            ];
+            let v = output.at(p[0] as usize, p[1] as usize);
+            assert!(v <= last, "rises downstream at {p:?}: {last} -> {v}");
+            last = v;
+        }
+    }
+    let s: Vec<f64> = knots.iter().map(|k| k[0]).collect();
+    let fl = correct_support::flatness(&output, &line, &s, (100.0 - 15.0) / 10.0, 15.0);
+    println!("tight bend: {} knots; {fl:?}", knots.len());
+    assert!(fl.normal_count >= 30 && fl.bend_count >= 6, "{fl:?}");
+    assert!(fl.normal_worst <= 0.01, "not flat across: {fl:?}");
+    assert!(fl.bend_worst <= 0.01, "not flat across the bends: {fl:?}");
+    // The water still falls: the outlet is lower than the source by most
+    // of the plane's fall along the line.
+    let drop = f["surface_start_m"].as_f64().unwrap() - f["surface_end_m"].as_f64().unwrap();
+    assert!(drop > 20.0, "drop {drop} m");
 }
 
 #[test]

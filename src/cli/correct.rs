@@ -1,6 +1,7 @@
 //! `demsketch correct DEM --features F.geojson --out OUT [--in-place]
 //! [--report R] [--water-mask M] [--dry-run] [--json]`: apply corrections drawn in map view
-//! (lakes, rivers, control curves; see `demsketch::correct`) and write the
+//! (lakes, rivers, control curves and their cross-sections; see
+//! `demsketch::correct`) and write the
 //! corrected DEM through the same atomic write-back as `edit`.
 
 use anyhow::Context;
@@ -24,6 +25,8 @@ by their \"kind\" property:
                  line runs downstream, default) or \"auto\" (lower end = outlet);
                  or a Polygon reach (flow along its axis, from the higher end)
   control_curve  LineString with Z heights or heights_m; influence_m
+  cross_section  LineString with Z heights or heights_m crossing a control
+                 curve; control_curve (its id or name); heights relative
 
 Exit codes:
   0  written (with --dry-run: a real run would write it)

@@ -18,13 +18,16 @@ struct Sample {
     cells: [usize; 4],
     weights: [f64; 4],
     z: f64,
+    /// The square root of the sample's weight (its row is scaled by it).
+    scale: f64,
 }
 
 /// Damping `lambda` of the fit.
 const DAMPING: f64 = 1e-8;
 
 /// Fits the heights of the constrained cells (`h0[i]` for `constrained[i]`,
-/// window of width `w`) to the curve `px` (window pixel space, `[x, y, z]`).
+/// window of width `w`) to the curves `lines` (window pixel space,
+/// `[x, y, z]`, each with the weight of its samples in the sum of squares).
 /// Returns the fitted heights (same indexing as `h0`; unconstrained cells
 /// unchanged) and the largest remaining `|bilinear - z|` at the samples.
 pub fn fit(
@@ -32,7 +35,7 @@ pub fn fit(
     h: usize,
     constrained: &[bool],
     h0: &[f64],
-    px: &[[f64; 3]],
+    lines: &[(&[[f64; 3]], f64)],
 ) -> (Vec<f64>, f64) {
     let mut unknown = vec![usize::MAX; constrained.len()];
     let mut cells = Vec::new();
@@ -42,7 +45,10 @@ pub fn fit(
             cells.push(i);
         }
     }
-    let samples = samples(w, h, &unknown, px);
+    let samples: Vec<Sample> = lines
+        .iter()
+        .flat_map(|&(px, weight)| samples(w, h, &unknown, px, weight.sqrt()))
+        .collect();
     let mut x: Vec<f64> = cells.iter().map(|&i| h0[i]).collect();
     if samples.is_empty() {
         return (h0.to_vec(), 0.0);
@@ -104,7 +110,7 @@ pub fn fit(
     let worst = samples
         .iter()
         .zip(&fitted)
-        .map(|(s, f)| (f - s.z).abs())
+        .map(|(s, f)| (f - s.z).abs() / s.scale)
         .fold(0.0, f64::max);
     let mut out = h0.to_vec();
     for (k, &i) in cells.iter().enumerate() {
@@ -115,7 +121,7 @@ pub fn fit(
 
 /// Samples every tenth of a cell along the curve whose four stencil cells
 /// are all unknowns.
-fn samples(w: usize, h: usize, unknown: &[usize], px: &[[f64; 3]]) -> Vec<Sample> {
+fn samples(w: usize, h: usize, unknown: &[usize], px: &[[f64; 3]], scale: f64) -> Vec<Sample> {
     let mut out = Vec::new();
     let mut add = |x: f64, y: f64, z: f64| {
         let (fx0, fy0) = (x - 0.5, y - 0.5);
@@ -151,7 +157,15 @@ fn samples(w: usize, h: usize, unknown: &[usize], px: &[[f64; 3]]) -> Vec<Sample
                     .unwrap_or(cells[k]);
             }
         }
-        out.push(Sample { cells, weights, z });
+        for wk in weights.iter_mut() {
+            *wk *= scale;
+        }
+        out.push(Sample {
+            cells,
+            weights,
+            z: z * scale,
+            scale,
+        });
     };
     if px.len() == 1 {
         add(px[0][0], px[0][1], px[0][2]);

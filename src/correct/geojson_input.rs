@@ -16,6 +16,13 @@
 //!   principal axis, from the higher end).
 //! - `control_curve`: LineString with heights as Z coordinates or a
 //!   `heights_m` array (one per vertex); optional `influence_m`.
+//! - `cross_section`: LineString with heights (as a control curve) and a
+//!   `control_curve` property naming the `id` or `name` of the control
+//!   curve it belongs to; it must cross that curve (in map view). Its
+//!   heights are taken relative to its own height where it crosses: the
+//!   section is moved vertically to meet the control curve there (as the
+//!   paper translates its cross-section curves along the control curve).
+//!   It is attached to the curve, not a correction of its own.
 
 use std::path::Path;
 use std::str::FromStr;
@@ -83,6 +90,9 @@ pub enum CorrectionKind {
         /// `[x, y, z]` in the DEM's CRS and metres.
         points: Vec<[f64; 3]>,
         influence_m: Option<f64>,
+        /// Cross-sections attached to the curve, `[x, y, z]` in the DEM's
+        /// CRS, already moved to meet the curve's height where they cross.
+        sections: Vec<Vec<[f64; 3]>>,
     },
 }
 
@@ -141,7 +151,8 @@ pub fn read(path: &Path, dem: &Dem) -> Result<Vec<Correction>, String> {
     if fc.features.is_empty() {
         return Err(format!("{p}: the FeatureCollection has no features"));
     }
-    fc.features
+    let parsed = fc
+        .features
         .iter()
         .enumerate()
         .map(|(i, f)| {
@@ -150,7 +161,93 @@ pub fn read(path: &Path, dem: &Dem) -> Result<Vec<Correction>, String> {
             parse_feature(i, id.clone(), f.geometry.as_ref(), &props, &transform, dem)
                 .map_err(|m| format!("{p}: {}: {m}", label(i, id.as_deref())))
         })
-        .collect()
+        .collect::<Result<Vec<_>, _>>()?;
+    attach_sections(parsed).map_err(|m| format!("{p}: {m}"))
+}
+
+/// A parsed feature: a correction, or a cross-section to attach to one.
+enum Parsed {
+    Correction(Correction),
+    Section {
+        index: usize,
+        id: Option<String>,
+        /// The `id` or `name` of its control curve.
+        curve: String,
+        /// `[x, y, z]`, DEM's CRS.
+        points: Vec<[f64; 3]>,
+    },
+}
+
+/// Attaches every cross-section to the control curve it names, moved
+/// vertically to meet the curve where they cross. The error names the
+/// cross-section.
+fn attach_sections(parsed: Vec<Parsed>) -> Result<Vec<Correction>, String> {
+    let mut out = Vec::new();
+    let mut sections = Vec::new();
+    for p in parsed {
+        match p {
+            Parsed::Correction(c) => out.push(c),
+            Parsed::Section {
+                index,
+                id,
+                curve,
+                points,
+            } => sections.push((index, id, curve, points)),
+        }
+    }
+    if out.is_empty() {
+        return Err("no features other than cross-sections".into());
+    }
+    for (index, id, curve, points) in sections {
+        let name = label(index, id.as_deref());
+        let target = out
+            .iter_mut()
+            .find(|c| c.id.as_deref() == Some(curve.as_str()))
+            .ok_or_else(|| {
+                format!("{name}: no feature \"{curve}\" to attach the cross-section to")
+            })?;
+        let CorrectionKind::ControlCurve {
+            points: cp,
+            sections,
+            ..
+        } = &mut target.kind
+        else {
+            return Err(format!(
+                "{name}: feature \"{curve}\" is a {}, not a control curve",
+                target.kind.name()
+            ));
+        };
+        let (zc, zs) = crossing(cp, &points).ok_or_else(|| {
+            format!("{name}: the cross-section does not cross its control curve \"{curve}\"")
+        })?;
+        let dz = zc - zs;
+        sections.push(points.iter().map(|q| [q[0], q[1], q[2] + dz]).collect());
+    }
+    Ok(out)
+}
+
+/// Where the polylines `a` and `b` first cross in map view: the height of
+/// each there (linear along its segment).
+pub fn crossing(a: &[[f64; 3]], b: &[[f64; 3]]) -> Option<(f64, f64)> {
+    for sa in a.windows(2) {
+        for sb in b.windows(2) {
+            let (p, r) = (sa[0], [sa[1][0] - sa[0][0], sa[1][1] - sa[0][1]]);
+            let (q, w) = (sb[0], [sb[1][0] - sb[0][0], sb[1][1] - sb[0][1]]);
+            let den = r[0] * w[1] - r[1] * w[0];
+            if den == 0.0 {
+                continue;
+            }
+            let (dx, dy) = (q[0] - p[0], q[1] - p[1]);
+            let t = (dx * w[1] - dy * w[0]) / den;
+            let u = (dx * r[1] - dy * r[0]) / den;
+            if (0.0..=1.0).contains(&t) && (0.0..=1.0).contains(&u) {
+                let za = sa[0][2] + t * (sa[1][2] - sa[0][2]);
+                let zb = sb[0][2] + u * (sb[1][2] - sb[0][2]);
+                return Some((za, zb));
+            }
+        }
+    }
+    None
 }
 
 /// The feature's `id` member, else its `id` or `name` property.
@@ -237,24 +334,50 @@ fn parse_feature(
     props: &JsonObject,
     t: &Transform,
     dem: &Dem,
-) -> Result<Correction, String> {
+) -> Result<Parsed, String> {
     let kind = match props.get("kind") {
         Some(serde_json::Value::String(s)) => s.as_str(),
         Some(v) => return Err(format!("property kind must be a string, not {v}")),
-        None => return Err("no \"kind\" property (lake, river or control_curve)".into()),
+        None => {
+            return Err("no \"kind\" property (lake, river, control_curve or cross_section)".into())
+        }
     };
     let geom = &geometry.ok_or("has no geometry")?.value;
     let kind = match kind {
         "lake" => parse_lake(geom, props, t, dem)?,
         "river" => parse_river(geom, props, t, dem)?,
         "control_curve" => parse_curve(geom, props, t, dem)?,
+        "cross_section" => {
+            let curve =
+                match props.get("control_curve") {
+                    Some(serde_json::Value::String(s)) => s.clone(),
+                    Some(serde_json::Value::Number(n)) => n.to_string(),
+                    _ => return Err(
+                        "a cross-section needs a control_curve property naming its control curve"
+                            .into(),
+                    ),
+                };
+            let CorrectionKind::ControlCurve { points, .. } = parse_curve(geom, props, t, dem)?
+            else {
+                return Err("a cross-section must be a LineString with heights".into());
+            };
+            if points.len() < 2 {
+                return Err("a cross-section needs at least two positions".into());
+            }
+            return Ok(Parsed::Section {
+                index,
+                id,
+                curve,
+                points,
+            });
+        }
         other => {
             return Err(format!(
-                "unknown kind \"{other}\" (expected lake, river or control_curve)"
+                "unknown kind \"{other}\" (expected lake, river, control_curve or cross_section)"
             ))
         }
     };
-    Ok(Correction { index, id, kind })
+    Ok(Parsed::Correction(Correction { index, id, kind }))
 }
 
 /// A position in the DEM's CRS and pixel space, checked to lie on the DEM.
@@ -430,5 +553,6 @@ fn parse_curve(
     Ok(CorrectionKind::ControlCurve {
         points,
         influence_m: positive(props, "influence_m")?,
+        sections: Vec::new(),
     })
 }

@@ -27,7 +27,6 @@ use std::time::Instant;
 use geo::BoundingRect;
 
 use crate::deform::locality::{affected_window, cell_size_m};
-use crate::deform::CurveConstraint;
 use crate::edit::report::StagedFile;
 use crate::raster::provenance::sha256_hex;
 use crate::raster::{
@@ -127,11 +126,11 @@ fn feature_window(
                 ys.fold(f64::NEG_INFINITY, f64::max),
             ]
         }
-        CorrectionKind::ControlCurve { points, .. } => {
-            let curve = CurveConstraint {
-                points: points.clone(),
-            };
-            return affected_window(dem, &[curve], cell, influence.unwrap_or(0.0));
+        CorrectionKind::ControlCurve {
+            points, sections, ..
+        } => {
+            let curves = control_curve::curves(points, sections);
+            return affected_window(dem, &curves, cell, influence.unwrap_or(0.0));
         }
     };
     let g = margin_px(c, cell, default_blend);
@@ -180,11 +179,10 @@ pub fn run(
             CorrectionKind::ControlCurve {
                 points,
                 influence_m,
+                sections,
             } => Some(influence_m.unwrap_or_else(|| {
-                let curve = CurveConstraint {
-                    points: points.clone(),
-                };
-                crate::deform::locality::default_influence_m(&dem, &[curve], cell)
+                let curves = control_curve::curves(points, sections);
+                crate::deform::locality::default_influence_m(&dem, &curves, cell)
             })),
             _ => None,
         };
@@ -383,15 +381,22 @@ fn apply_one(
             r.cells_changed = res.change.cells_changed;
             r.max_abs_dz_m = res.change.max_abs_dz_m;
         }
-        CorrectionKind::ControlCurve { points, .. } => {
+        CorrectionKind::ControlCurve {
+            points, sections, ..
+        } => {
             let infl =
                 influence.unwrap_or_else(|| control_curve::influence_for(dem, grid, points, None));
-            let res = control_curve::apply(dem, grid, points, infl).map_err(|e| match e {
-                control_curve::CurveError::Solver(s) => solver_error(s),
-                e => ApplyError::User(e.to_string()),
-            })?;
+            let res =
+                control_curve::apply(dem, grid, points, sections, infl).map_err(|e| match e {
+                    control_curve::CurveError::Solver(s) => solver_error(s),
+                    e => ApplyError::User(e.to_string()),
+                })?;
             r.influence_m = Some(res.influence_m);
             r.max_curve_error_m = Some(res.max_curve_error_m);
+            if !sections.is_empty() {
+                r.cross_sections = Some(sections.len());
+                r.max_section_error_m = Some(res.max_section_error_m);
+            }
             r.cells_changed = res.cells_changed;
             r.max_abs_dz_m = res.max_abs_dz_m;
         }

@@ -50,6 +50,13 @@ pub struct FeatureReport {
     /// Largest `|DEM - z|` along the curve afterwards (control curves).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub max_curve_error_m: Option<f64>,
+    /// Cross-sections attached to the curve (control curves with some).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub cross_sections: Option<usize>,
+    /// Largest `|DEM - z|` along the cross-sections afterwards (moved to
+    /// meet the curve), metres.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_section_error_m: Option<f64>,
 }
 
 impl FeatureReport {
@@ -71,6 +78,8 @@ impl FeatureReport {
             reversed: None,
             influence_m: None,
             max_curve_error_m: None,
+            cross_sections: None,
+            max_section_error_m: None,
         }
     }
 }

@@ -4,12 +4,33 @@
 //! bank heights (the DEM sampled bilinearly one cell beyond each bank); the
 //! surface is the lower convex hull of their running minimum from the
 //! source to the outlet (never above a bank, non-increasing, and linear in
-//! the arc length between a few kinks). Every
-//! cell whose centre is within half the width of the centreline gets the
-//! surface at the arc length of its nearest centreline point (interpolated
-//! linearly between stations, so it is affine across a straight reach and
-//! the bilinear surface is flat along its normals); the banks are blended
-//! as for lakes ([`super::water::flatten_and_blend`]).
+//! the arc length between a few kinks). Every cell whose centre is within
+//! half the width of the centreline gets the surface at the arc length of
+//! its nearest centreline point, so it is affine across a straight reach
+//! and the bilinear surface is flat along its normals.
+//!
+//! **Bends.** At a vertex where the centreline turns by `theta`, the
+//! normals of the two segments cross on the inner side: a cell near the
+//! inner bank is nearest to the upstream segment at arc length
+//! `s_v - d tan(theta / 2)` or to the downstream one at
+//! `s_v + d tan(theta / 2)` (`d` its distance from the centreline), so on a
+//! sloping surface the heights across the bend jumped along the bisector
+//! (up to 0.6 m on the Vinschgau valley fixture). No sloping surface can be
+//! flat along cross-sections whose direction turns (a bilinear surface flat
+//! along two directions is level), so the river is *level* over each bend:
+//! from `a = w/2 max(tan(theta / 2), sin theta) + 2 cells` before the
+//! vertex to as far after it. `w/2 tan(theta / 2)` is where the normals of
+//! the two segments meet the inner bank; `w/2 sin theta` is how far along
+//! the other segment the cells of a segment's normal at the vertex lie, so
+//! the level reach holds the normals of both segments at the vertex, their
+//! bisector and the fan of the outer side; the two cells keep every
+//! bilinear stencil of those sections in it. Overlapping bends merge.
+//! The hull is taken in the arc length with these level reaches removed
+//! (`u`), so the surface stays continuous, non-increasing and never above a
+//! bank, is exactly level through each bend and linear in `s` between the
+//! kinks the report lists (`surface_knots_m`: the hull's bends and the ends
+//! of the level reaches). The banks are blended as for lakes
+//! ([`super::water::flatten_and_blend`]).
 //!
 //! The flow runs in the line's order, or with `flow: "auto"` from the higher
 //! end (current DEM height at the end points) to the lower.
@@ -42,26 +63,140 @@ pub enum RiverError {
     Solver(#[from] crate::deform::multigrid::MultigridError),
 }
 
-/// Arc length (metres) of stations and the water surface there.
+/// A piecewise linear function through `knots` (`[x, z]`, increasing `x`),
+/// constant beyond its ends.
+fn piecewise(knots: &[[f64; 2]], x: f64) -> f64 {
+    let k = knots.partition_point(|v| v[0] <= x);
+    if k == 0 {
+        return knots[0][1];
+    }
+    if k >= knots.len() {
+        return knots[knots.len() - 1][1];
+    }
+    let (a, b) = (knots[k - 1], knots[k]);
+    let t = if b[0] > a[0] {
+        (x - a[0]) / (b[0] - a[0])
+    } else {
+        0.0
+    };
+    a[1] + t * (b[1] - a[1])
+}
+
+/// Arc-length intervals `[s0, s1]` (sorted, disjoint) where the surface is
+/// level, and the map from the arc length `s` to the arc length without
+/// them `u`.
+#[derive(Debug, Clone, Default)]
+struct LevelReaches(Vec<[f64; 2]>);
+
+impl LevelReaches {
+    /// The level reach of every bend of `pts` (see the module
+    /// documentation), merged where they overlap and clamped to the line.
+    fn at_bends(grid: &Grid, pts: &[[f64; 2]], width_m: f64) -> LevelReaches {
+        let (hx, hy) = (grid.cell.hx, grid.cell.hy);
+        let margin = 2.0 * hx.max(hy);
+        let mut total = 0.0;
+        let mut raw: Vec<[f64; 2]> = Vec::new();
+        let dir = |a: [f64; 2], b: [f64; 2]| {
+            let (dx, dy) = ((b[0] - a[0]) * hx, (b[1] - a[1]) * hy);
+            dy.atan2(dx)
+        };
+        for k in 0..pts.len().saturating_sub(1) {
+            let len = grid.metres(pts[k], pts[k + 1]);
+            if k > 0 && len > 0.0 {
+                // The previous segment of non-zero length.
+                if let Some(j) = (0..k)
+                    .rev()
+                    .find(|&j| grid.metres(pts[j], pts[j + 1]) > 0.0)
+                {
+                    let mut theta = dir(pts[k], pts[k + 1]) - dir(pts[j], pts[j + 1]);
+                    theta = (theta + std::f64::consts::PI).rem_euclid(2.0 * std::f64::consts::PI)
+                        - std::f64::consts::PI;
+                    let theta = theta.abs().min(170f64.to_radians());
+                    if theta > 1e-9 {
+                        let a = 0.5 * width_m * (0.5 * theta).tan().max(theta.sin()) + margin;
+                        raw.push([total - a, total + a]);
+                    }
+                }
+            }
+            total += len;
+        }
+        let mut merged: Vec<[f64; 2]> = Vec::new();
+        for r in raw {
+            let r = [r[0].max(0.0), r[1].min(total)];
+            if r[1] <= r[0] {
+                continue;
+            }
+            match merged.last_mut() {
+                Some(m) if r[0] <= m[1] => m[1] = m[1].max(r[1]),
+                _ => merged.push(r),
+            }
+        }
+        LevelReaches(merged)
+    }
+
+    /// The arc length without the level reaches before `s` (constant over
+    /// each level reach).
+    fn u(&self, s: f64) -> f64 {
+        let mut removed = 0.0;
+        for r in &self.0 {
+            if s <= r[0] {
+                break;
+            }
+            if s < r[1] {
+                return r[0] - removed;
+            }
+            removed += r[1] - r[0];
+        }
+        s - removed
+    }
+}
+
+/// The water surface along the river: the hull's knots in `u` and the
+/// level reaches.
 struct Profile {
-    s: Vec<f64>,
-    z: Vec<f64>,
-    /// The hull's vertices `[s, z]`: the surface is linear between them.
-    knots: Vec<[f64; 2]>,
+    /// `[u, z]`: the surface is linear in `u` between them.
+    hull: Vec<[f64; 2]>,
+    level: LevelReaches,
+    /// Arc length of the outlet.
+    length: f64,
 }
 
 impl Profile {
+    /// The surface at arc length `s`.
     fn at(&self, s: f64) -> f64 {
-        let k = self.s.partition_point(|&v| v <= s);
-        if k == 0 {
-            return self.z[0];
+        piecewise(&self.hull, self.level.u(s))
+    }
+
+    /// `[s, z]` where the surface bends: the ends, the hull's knots and the
+    /// ends of the level reaches, increasing `s`.
+    fn knots(&self) -> Vec<[f64; 2]> {
+        let mut s: Vec<f64> = vec![0.0, self.length];
+        for r in &self.level.0 {
+            s.extend_from_slice(r);
         }
-        if k >= self.s.len() {
-            return self.z[self.z.len() - 1];
+        // Hull knots strictly inside a stretch of `u` map back to one `s`.
+        for k in &self.hull {
+            let mut removed = 0.0;
+            let mut inside_level = false;
+            for r in &self.level.0 {
+                let u0 = r[0] - removed;
+                if k[0] < u0 {
+                    break;
+                }
+                if k[0] == u0 {
+                    inside_level = true;
+                    break;
+                }
+                removed += r[1] - r[0];
+            }
+            if !inside_level {
+                s.push(k[0] + removed);
+            }
         }
-        let (s0, s1) = (self.s[k - 1], self.s[k]);
-        let t = if s1 > s0 { (s - s0) / (s1 - s0) } else { 0.0 };
-        self.z[k - 1] + t * (self.z[k] - self.z[k - 1])
+        s.retain(|v| (0.0..=self.length).contains(v));
+        s.sort_by(f64::total_cmp);
+        s.dedup_by(|a, b| (*a - *b).abs() < 1e-9);
+        s.into_iter().map(|v| [v, self.at(v)]).collect()
     }
 }
 
@@ -82,8 +217,8 @@ fn oriented(grid: &Grid, line: &[[f64; 2]], flow_auto: bool) -> (Vec<[f64; 2]>, 
     (pts, reversed)
 }
 
-/// Stations along the centreline and the running minimum of the bank
-/// heights there.
+/// Stations along the centreline, the running minimum of the bank heights
+/// there, and the surface below them.
 fn profile(grid: &Grid, pts: &[[f64; 2]], width_m: f64) -> Option<Profile> {
     let (hx, hy) = (grid.cell.hx, grid.cell.hy);
     let offset = 0.5 * width_m + hx.max(hy);
@@ -125,49 +260,42 @@ fn profile(grid: &Grid, pts: &[[f64; 2]], width_m: f64) -> Option<Profile> {
         }
         *v = run;
     }
-    Some(lower_hull(Profile {
-        s,
-        z,
-        knots: Vec::new(),
-    }))
+    let level = LevelReaches::at_bends(grid, pts, width_m);
+    // Stations in `u`; those of one level reach share a `u` and keep the
+    // lowest (the running minimum's last) so the hull is a function.
+    let mut pts_u: Vec<[f64; 2]> = Vec::with_capacity(s.len());
+    for (&si, &zi) in s.iter().zip(&z) {
+        let u = level.u(si);
+        match pts_u.last_mut() {
+            Some(p) if p[0] == u => p[1] = p[1].min(zi),
+            _ => pts_u.push([u, zi]),
+        }
+    }
+    Some(Profile {
+        hull: lower_hull(&pts_u),
+        level,
+        length: s0,
+    })
 }
 
-/// The lower convex hull of the running minimum, sampled back at the
-/// stations: piecewise linear with few kinks (so the surface is affine in
-/// the arc length over long reaches, and flat across them), never above the
-/// running minimum (so never above a bank), and non-increasing (a convex
-/// function whose last point is its minimum).
-fn lower_hull(p: Profile) -> Profile {
-    let mut hull: Vec<usize> = Vec::new();
-    for i in 0..p.s.len() {
+/// The lower convex hull of a non-increasing sequence `[x, z]` (increasing
+/// `x`): piecewise linear with few kinks, never above the points, and
+/// non-increasing (a convex function whose last point is its minimum).
+fn lower_hull(p: &[[f64; 2]]) -> Vec<[f64; 2]> {
+    let mut hull: Vec<[f64; 2]> = Vec::new();
+    for &q in p {
         while hull.len() >= 2 {
             let (a, b) = (hull[hull.len() - 2], hull[hull.len() - 1]);
-            let cross =
-                (p.s[b] - p.s[a]) * (p.z[i] - p.z[a]) - (p.z[b] - p.z[a]) * (p.s[i] - p.s[a]);
+            let cross = (b[0] - a[0]) * (q[1] - a[1]) - (b[1] - a[1]) * (q[0] - a[0]);
             if cross <= 0.0 {
                 hull.pop();
             } else {
                 break;
             }
         }
-        hull.push(i);
+        hull.push(q);
     }
-    let knots = Profile {
-        s: hull.iter().map(|&i| p.s[i]).collect(),
-        z: hull.iter().map(|&i| p.z[i]).collect(),
-        knots: Vec::new(),
-    };
-    let z = p.s.iter().map(|&s| knots.at(s)).collect();
-    Profile {
-        s: p.s,
-        z,
-        knots: knots
-            .s
-            .iter()
-            .zip(&knots.z)
-            .map(|(&s, &z)| [s, z])
-            .collect(),
-    }
+    hull
 }
 
 /// Distance (metres) from `p` to the polyline and the arc length of the
@@ -256,10 +384,10 @@ pub fn apply(
     }
     let change = water::flatten_and_blend(grid, &water, blend_m)?;
     Ok(RiverResult {
-        surface_start_m: prof.z[0],
-        surface_end_m: prof.z[prof.z.len() - 1],
+        surface_start_m: prof.at(0.0),
+        surface_end_m: prof.at(prof.length),
         reversed,
-        knots: prof.knots,
+        knots: prof.knots(),
         change,
     })
 }
@@ -360,11 +488,16 @@ pub fn apply_polygon(
         }
         *v = run;
     }
-    let prof = lower_hull(Profile {
-        s: (0..n).map(|k| k as f64 * step).collect(),
-        z: bank,
-        knots: Vec::new(),
-    });
+    let stations: Vec<[f64; 2]> = bank
+        .iter()
+        .enumerate()
+        .map(|(k, &z)| [k as f64 * step, z])
+        .collect();
+    let prof = Profile {
+        hull: lower_hull(&stations),
+        level: LevelReaches::default(),
+        length: (n - 1) as f64 * step,
+    };
     let span = (n - 1) as f64 * step;
     let cells = super::lake::cells_inside(grid, area);
     if cells.is_empty() {
@@ -381,10 +514,10 @@ pub fn apply_polygon(
         .collect();
     let change = water::flatten_and_blend(grid, &water, blend_m)?;
     Ok(RiverResult {
-        surface_start_m: prof.z[0],
-        surface_end_m: prof.z[prof.z.len() - 1],
+        surface_start_m: prof.at(0.0),
+        surface_end_m: prof.at(prof.length),
         reversed,
-        knots: prof.knots,
+        knots: prof.knots(),
         change,
     })
 }

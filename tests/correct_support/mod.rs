@@ -157,3 +157,97 @@ pub fn collection(features: Vec<serde_json::Value>, epsg: Option<u32>) -> String
     }
     serde_json::to_string_pretty(&fc).unwrap()
 }
+
+/// Writes a single-band Float32 GeoTIFF (`epsg`, geotransform) through GDAL.
+pub fn write_f32_geotiff(path: &Path, w: usize, h: usize, gt: [f64; 6], epsg: u32, data: &[f32]) {
+    let driver = gdal::DriverManager::get_driver_by_name("GTiff").expect("GTiff driver");
+    let mut ds = driver
+        .create_with_band_type::<f32, _>(path, w, h, 1)
+        .expect("create GeoTIFF");
+    ds.set_geo_transform(&gt).expect("set geotransform");
+    let srs = SpatialRef::from_epsg(epsg).expect("EPSG");
+    ds.set_spatial_ref(&srs).expect("set srs");
+    let mut band = ds.rasterband(1).expect("band");
+    let mut buf = gdal::raster::Buffer::new((w, h), data.to_vec());
+    band.write((0, 0), (w, h), &mut buf).expect("write");
+}
+
+/// How flat a river is across: bilinear along cross-sections of a
+/// centreline (pixel space), each sampled at 21 points within `reach`
+/// pixels of the centreline. `normal` holds the normals of every segment at
+/// every twentieth of its length (ends included); `bend` the sections at
+/// every interior vertex (both segments' normals and their bisector).
+/// Sections whose centre lies within `exclude_m` of a knot (arc length,
+/// metres) are counted apart.
+#[derive(Debug, Default)]
+pub struct Flatness {
+    pub normal_worst: f64,
+    pub normal_count: usize,
+    pub bend_worst: f64,
+    pub bend_count: usize,
+    pub near_knots_worst: f64,
+}
+
+pub fn flatness(
+    out: &Raster,
+    line: &[[f64; 2]],
+    knots: &[f64],
+    reach: f64,
+    exclude_m: f64,
+) -> Flatness {
+    let cell = out.gt[1];
+    let spread = |c: [f64; 2], n: [f64; 2]| {
+        let vals: Vec<f64> = (-10..=10)
+            .filter_map(|j| {
+                let d = j as f64 / 10.0 * reach;
+                out.bilinear([c[0] + n[0] * d, c[1] + n[1] * d])
+            })
+            .collect();
+        let (lo, hi) = vals
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| {
+                (a.min(v), b.max(v))
+            });
+        hi - lo
+    };
+    let normal_of = |a: [f64; 2], b: [f64; 2]| {
+        let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
+        let len = dx.hypot(dy);
+        [-dy / len, dx / len]
+    };
+    let near = |s: f64| knots.iter().any(|k| (k - s).abs() <= exclude_m);
+    let mut f = Flatness::default();
+    let mut s0 = 0.0;
+    for (i, seg) in line.windows(2).enumerate() {
+        let (a, b) = (seg[0], seg[1]);
+        let len = (b[0] - a[0]).hypot(b[1] - a[1]);
+        let n = normal_of(a, b);
+        for k in 0..=20 {
+            let t = k as f64 / 20.0;
+            let c = [a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])];
+            let sp = spread(c, n);
+            if near(s0 + t * len * cell) {
+                f.near_knots_worst = f.near_knots_worst.max(sp);
+            } else {
+                f.normal_worst = f.normal_worst.max(sp);
+                f.normal_count += 1;
+            }
+        }
+        s0 += len * cell;
+        if i + 2 < line.len() {
+            let n2 = normal_of(b, line[i + 2]);
+            let bis = [n[0] + n2[0], n[1] + n2[1]];
+            let l = bis[0].hypot(bis[1]);
+            for d in [n, n2, [bis[0] / l, bis[1] / l]] {
+                let sp = spread(b, d);
+                if near(s0) {
+                    f.near_knots_worst = f.near_knots_worst.max(sp);
+                } else {
+                    f.bend_worst = f.bend_worst.max(sp);
+                    f.bend_count += 1;
+                }
+            }
+        }
+    }
+    f
+}
