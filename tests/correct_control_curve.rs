@@ -12,8 +12,8 @@ mod correct_support;
 
 use std::path::{Path, PathBuf};
 
-use common::{demsketch, fixture};
-use correct_support::{collection, report, to_lonlat, Raster};
+use common::fixture;
+use correct_support::{collection, correct_ok, to_lonlat, Raster};
 use serde_json::{json, Value};
 
 const DEM: &str = "vinschgau_250m_utm32n.tif";
@@ -27,18 +27,8 @@ fn run(tmp: &Path, name: &str, fc: String) -> (PathBuf, Value) {
         tmp.join(format!("{name}.tif")),
         tmp.join(format!("{name}.json")),
     );
-    let o = demsketch(&[
-        "correct",
-        &fixture(DEM).to_string_lossy(),
-        "--features",
-        &features.to_string_lossy(),
-        "--out",
-        &out.to_string_lossy(),
-        "--report",
-        &rep.to_string_lossy(),
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    (out, report(&rep))
+    let r = correct_ok(&fixture(DEM), &features, &out, &rep);
+    (out, r)
 }
 
 fn segment_distance(p: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {

@@ -12,8 +12,8 @@ mod correct_support;
 
 use std::path::Path;
 
-use common::{demsketch, fixture};
-use correct_support::{collection, inside, lonlat_to, report, Raster};
+use common::fixture;
+use correct_support::{collection, correct_ok, inside, lonlat_to, Raster};
 use serde_json::{json, Value};
 
 const DEM: &str = "vinschgau_250m_utm32n.tif";
@@ -31,18 +31,7 @@ fn lake_ring() -> Vec<[f64; 2]> {
 }
 
 fn run(features: &Path, out: &Path, rep: &Path) -> Value {
-    let o = demsketch(&[
-        "correct",
-        &fixture(DEM).to_string_lossy(),
-        "--features",
-        &features.to_string_lossy(),
-        "--out",
-        &out.to_string_lossy(),
-        "--report",
-        &rep.to_string_lossy(),
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    report(rep)
+    correct_ok(&fixture(DEM), &features, &out, &rep)
 }
 
 /// Checks the three acceptance lines for a lake with outer ring `ring`
@@ -254,17 +243,7 @@ fn coastal_lake_keeps_nodata_sea_on_a_dem_without_epsg_code() {
     let features = tmp.path().join("coast.geojson");
     std::fs::write(&features, fc).unwrap();
     let (out, rep) = (tmp.path().join("out.tif"), tmp.path().join("r.json"));
-    let o = demsketch(&[
-        "correct",
-        &dem.to_string_lossy(),
-        "--features",
-        &features.to_string_lossy(),
-        "--out",
-        &out.to_string_lossy(),
-        "--report",
-        &rep.to_string_lossy(),
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    correct_ok(&dem, &features, &out, &rep);
     let output = Raster::read(&out);
     let (mut sea, mut land) = (0, 0);
     for r in 698..710 {
@@ -313,18 +292,7 @@ fn lake_on_a_geographic_int16_dem() {
     let features = tmp.path().join("arenal.geojson");
     std::fs::write(&features, fc).unwrap();
     let (out, rep) = (tmp.path().join("out.tif"), tmp.path().join("r.json"));
-    let o = demsketch(&[
-        "correct",
-        &dem.to_string_lossy(),
-        "--features",
-        &features.to_string_lossy(),
-        "--out",
-        &out.to_string_lossy(),
-        "--report",
-        &rep.to_string_lossy(),
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let r = report(&rep);
+    let r = correct_ok(&dem, &features, &out, &rep);
     let cell = r["cell_size_m"][0].as_f64().unwrap();
     assert!((cell - 30.4).abs() < 0.5, "cell {cell} m");
     let output = Raster::read(&out);

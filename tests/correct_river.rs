@@ -11,8 +11,8 @@ mod correct_support;
 
 use std::path::{Path, PathBuf};
 
-use common::{demsketch, fixture};
-use correct_support::{collection, report, Raster};
+use common::fixture;
+use correct_support::{collection, correct_ok, Raster};
 use serde_json::{json, Value};
 
 const DEM: &str = "vinschgau_250m_utm32n.tif";
@@ -43,18 +43,8 @@ fn run_river(tmp: &Path, name: &str, line: &[[f64; 2]], flow: &str) -> (PathBuf,
         tmp.join(format!("{name}.tif")),
         tmp.join(format!("{name}.json")),
     );
-    let o = demsketch(&[
-        "correct",
-        &fixture(DEM).to_string_lossy(),
-        "--features",
-        &features.to_string_lossy(),
-        "--out",
-        &out.to_string_lossy(),
-        "--report",
-        &rep.to_string_lossy(),
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    (out, report(&rep))
+    let r = correct_ok(&fixture(DEM), &features, &out, &rep);
+    (out, r)
 }
 
 #[test]
@@ -146,18 +136,7 @@ fn tight_bend_is_flat_across_and_never_rises() {
     let features = tmp.path().join("bend.geojson");
     std::fs::write(&features, fc).unwrap();
     let (out, rep) = (tmp.path().join("bend.tif"), tmp.path().join("bend.json"));
-    let o = demsketch(&[
-        "correct",
-        &dem.to_string_lossy(),
-        "--features",
-        &features.to_string_lossy(),
-        "--out",
-        &out.to_string_lossy(),
-        "--report",
-        &rep.to_string_lossy(),
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let r = report(&rep);
+    let r = correct_ok(&dem, &features, &out, &rep);
     let f = &r["corrections"][0];
     let knots: Vec<[f64; 2]> = f["surface_knots_m"]
         .as_array()
@@ -238,18 +217,7 @@ fn river_polygon_reach_is_flat_across_its_axis_and_monotonic() {
     let features = tmp.path().join("reach.geojson");
     std::fs::write(&features, fc).unwrap();
     let (out, rep) = (tmp.path().join("reach.tif"), tmp.path().join("reach.json"));
-    let o = demsketch(&[
-        "correct",
-        &fixture(DEM).to_string_lossy(),
-        "--features",
-        &features.to_string_lossy(),
-        "--out",
-        &out.to_string_lossy(),
-        "--report",
-        &rep.to_string_lossy(),
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let r = report(&rep);
+    let r = correct_ok(&fixture(DEM), &features, &out, &rep);
     let f = &r["corrections"][0];
     assert_eq!(f["kind"], "river");
     let reversed = f["reversed"].as_bool().unwrap();

@@ -251,3 +251,25 @@ pub fn flatness(
     }
     f
 }
+
+/// Runs `demsketch correct DEM --features F --out OUT --report REPORT`,
+/// asserts that it succeeded, and returns the report.
+pub fn correct_ok(
+    dem: &Path,
+    features: &Path,
+    out: &Path,
+    report_path: &Path,
+) -> serde_json::Value {
+    let o = super::common::demsketch(&[
+        "correct",
+        &dem.to_string_lossy(),
+        "--features",
+        &features.to_string_lossy(),
+        "--out",
+        &out.to_string_lossy(),
+        "--report",
+        &report_path.to_string_lossy(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    report(report_path)
+}
