@@ -236,7 +236,7 @@ pub fn run(
     let t = Instant::now();
     let extracted = render_and_extract(&edit, &sketch, &dem, scenes, prepared)?;
     let views = &extracted.views;
-    let features = scene_features(views, &extracted.ridges);
+    let features = scene_features(views, &extracted.ridges, &sketch.options);
     timings.features = secs(t);
 
     let t = Instant::now();
@@ -439,8 +439,14 @@ struct Features<'v> {
 /// Stage 2, `features` (second half): each view's silhouettes and the
 /// ridges it sees, as the features its strokes are matched against
 /// ([`SceneView`]); multi-view sketches in one world frame, the first
-/// view's. Also counts them per view for the report.
-fn scene_features<'v>(views: &'v [ViewState], ridges: &RidgeNetwork) -> Features<'v> {
+/// view's. Features are cut where they come within the observer's fixed
+/// ground: no deformation may move it, so no free stroke part may be
+/// placed there. Also counts them per view for the report.
+fn scene_features<'v>(
+    views: &'v [ViewState],
+    ridges: &RidgeNetwork,
+    options: &SketchOptions,
+) -> Features<'v> {
     // Multi-view sketches are matched in one world frame: the first view's.
     let world = (views.len() > 1).then(|| views[0].frame);
     let scene_views: Vec<SceneView> = views
@@ -457,7 +463,10 @@ fn scene_features<'v>(views: &'v [ViewState], ridges: &RidgeNetwork) -> Features
                 p,
                 &v.before.silhouettes,
                 ridges,
-                &ViewFeatureOptions::default(),
+                &ViewFeatureOptions {
+                    min_depth_m: v.observer_radius(options.observer_radius_m),
+                    ..ViewFeatureOptions::default()
+                },
             )
         })
         .collect();

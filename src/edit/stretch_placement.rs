@@ -18,7 +18,10 @@
 //! raising a peak starts and ends the stroke on the shoulders that stay;
 //! a person adding a hill in front of a far range starts and ends it on
 //! the ground at its foot: either way the ends say where the landform is,
-//! whatever far feature happens to lie near the stroke in the image.
+//! whatever far feature happens to lie near the stroke in the image. A
+//! stretch drawn into the landform its two anchors lie on (a ridge cut
+//! along a skyline) is placed on that landform even when a nearer feature
+//! lies just under the stroke.
 
 use super::rendered_view::RenderedView;
 use crate::render::SKY;
@@ -179,7 +182,8 @@ pub fn place_free_stretches(
                 || meets_anchor(left, on[a], a == 0)
                 || meets_anchor(right, on[b - 1], b == n))
             && !contradicts(left, on[a], a == 0)
-            && !contradicts(right, on[b - 1], b == n);
+            && !contradicts(right, on[b - 1], b == n)
+            && !cuts_anchored_landform(before, &run_points, left, right);
         if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
             eprintln!(
                 "stretch {a}..{b} of {n}: on_feature {on_feature} near {:?} left {:?} right {:?} depth {} {}",
@@ -239,6 +243,51 @@ pub fn place_free_stretches(
         });
     }
     out
+}
+
+/// True when a stretch between two anchors on one landform (their depths
+/// agree within [`AGREEMENT`]) is drawn into that landform: at most of its
+/// points the unedited view shows terrain at the anchors' depth, while the
+/// stretch's matched depth is another. The stroke then leaves the
+/// silhouette and comes back to it lower: that landform is cut (Gain et
+/// al. 2009, section 3.1: the vertical surface through the two anchors).
+/// Raising a nearer feature to the stroke instead would leave the cut
+/// terrain standing behind it as well (the ridge cut drawn along a
+/// skyline that a near slope nearly meets).
+fn cuts_anchored_landform(
+    before: &RenderedView,
+    run: &[&PlacedPoint],
+    left: Option<Bound>,
+    right: Option<Bound>,
+) -> bool {
+    let (Some(l), Some(r)) = (left, right) else {
+        return false;
+    };
+    if (l.depth - r.depth).abs() > AGREEMENT * l.depth.min(r.depth) || run.is_empty() {
+        return false;
+    }
+    let (w, h) = (before.camera.width, before.camera.height);
+    let n = run.len();
+    let (mut inside, mut elsewhere) = (0usize, 0usize);
+    for (k, p) in run.iter().enumerate() {
+        let anchor = l.depth + (r.depth - l.depth) * (k as f64 + 0.5) / n as f64;
+        if (p.depth - anchor).abs() > AGREEMENT * anchor {
+            elsewhere += 1;
+        }
+        let Some([x, y]) = p.pixel else { continue };
+        if !(x >= 0.0 && y >= 0.0 && x < w as f64 && y < h as f64) {
+            continue;
+        }
+        let at = y as usize * w + x as usize;
+        if before.depth.triangle[at] == SKY {
+            continue;
+        }
+        let d = before.depth.depth[at] as f64;
+        if (d - anchor).abs() <= AGREEMENT * anchor {
+            inside += 1;
+        }
+    }
+    inside as f64 >= NEAR_COVERAGE * n as f64 && elsewhere as f64 >= NEAR_COVERAGE * n as f64
 }
 
 /// Points of a run beyond its feature's ends (placed along the feature's

@@ -268,6 +268,11 @@ pub struct ViewFeatureOptions {
     /// Ridge pieces entirely farther than this many pixels left or right of
     /// the image are dropped (they cannot cover a stroke).
     pub image_margin_px: f64,
+    /// Feature samples nearer to the eye than this (metres) are dropped,
+    /// the feature cut into pieces there: the edit holds the observer's
+    /// ground, so a stroke placed on a feature within it could never be
+    /// fitted (issue 11, item 1). 0 keeps every sample.
+    pub min_depth_m: f64,
 }
 
 impl Default for ViewFeatureOptions {
@@ -277,8 +282,36 @@ impl Default for ViewFeatureOptions {
             ridges: true,
             min_ridge_span_px: 2.0,
             image_margin_px: 0.0,
+            min_depth_m: 0.0,
         }
     }
+}
+
+/// `features` with the samples nearer than `min_depth_m` removed: each
+/// feature is cut where its samples come nearer, and the pieces of at
+/// least two samples keep the feature's id and kind (like the x-monotone
+/// pieces of a ridge line).
+pub fn without_near_samples(features: Vec<ViewFeature>, min_depth_m: f64) -> Vec<ViewFeature> {
+    if !(min_depth_m > 0.0) {
+        return features;
+    }
+    let mut out = Vec::with_capacity(features.len());
+    for f in features {
+        if f.samples.iter().all(|s| s.depth >= min_depth_m) {
+            out.push(f);
+            continue;
+        }
+        for piece in f.samples.split(|s| s.depth < min_depth_m) {
+            if piece.len() >= 2 {
+                out.push(ViewFeature {
+                    id: f.id,
+                    kind: f.kind,
+                    samples: piece.to_vec(),
+                });
+            }
+        }
+    }
+    out
 }
 
 /// The silhouettes of view `view_index` as features (ids in the module
@@ -470,6 +503,7 @@ impl<'a> SceneView<'a> {
         if opts.ridges {
             features.extend(ridge_features(ridges, &projection, opts));
         }
+        let features = without_near_samples(features, opts.min_depth_m);
         SceneView {
             name: name.to_string(),
             projection,
