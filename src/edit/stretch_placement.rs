@@ -186,7 +186,9 @@ pub fn place_free_stretches(
             && !cuts_anchored_landform(before, &run_points, left, right);
         if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
             eprintln!(
-                "stretch {a}..{b} of {n}: on_feature {on_feature} near {:?} left {:?} right {:?} depth {} {}",
+                "stretch {a}..{b} of {n} (x {:?}..{:?}): on_feature {on_feature} near {:?} left {:?} right {:?} depth {} {}",
+                placed.points[on[a]].pixel.map(|p| p[0]),
+                placed.points[on[b - 1]].pixel.map(|p| p[0]),
                 feature.map(|f| near_in_image(f, &run_points, near_px)),
                 left.map(|q| q.depth),
                 right.map(|q| q.depth),
@@ -210,11 +212,12 @@ pub fn place_free_stretches(
             continue;
         }
         let surface = Surface::new(proj, left, right);
-        for &k in &on[a..b] {
+        let cut = cut_depths(before, &on[a..b], placed);
+        for (j, &k) in on[a..b].iter().enumerate() {
             let Some(px) = placed.points[k].pixel else {
                 continue;
             };
-            if let Some(depth) = surface.depth(proj, px) {
+            if let Some(depth) = cut[j].or_else(|| surface.depth(proj, px)) {
                 placed.points[k] = PlacedPoint {
                     pixel: Some(px),
                     world: proj.unproject(px, depth),
@@ -288,6 +291,51 @@ fn cuts_anchored_landform(
         }
     }
     inside as f64 >= NEAR_COVERAGE * n as f64 && elsewhere as f64 >= NEAR_COVERAGE * n as f64
+}
+
+/// Half-width (points) of the running median that smooths [`cut_depths`].
+pub const CUT_MEDIAN_HALF: usize = 3;
+
+/// For a free run drawn into the terrain (the unedited view shows terrain,
+/// not sky, under at least [`NEAR_COVERAGE`] of its points): per point, the
+/// depth of the skyline above it, which is what the stroke cuts (the
+/// skyline is lowered onto the stroke at its own depth, as Tassé et al.
+/// section 5.2.1 lower a feature drawn above the stroke; nearer terrain
+/// left above the stroke is lowered by the rounds as protruding),
+/// smoothed by a running median over the run. `None` everywhere for a run
+/// drawn in the sky (a raise), and at points over sky.
+fn cut_depths(before: &RenderedView, run: &[usize], placed: &StrokeMatch) -> Vec<Option<f64>> {
+    let (w, h) = (before.camera.width, before.camera.height);
+    let shown: Vec<Option<f64>> = run
+        .iter()
+        .map(|&k| {
+            let [x, y] = placed.points[k].pixel?;
+            if !(x >= 0.0 && y >= 0.0 && x < w as f64 && y < h as f64) {
+                return None;
+            }
+            let (i, j) = (x as usize, y as usize);
+            if before.depth.triangle[j * w + i] == SKY {
+                return None;
+            }
+            // The skyline above: the first terrain pixel from the top.
+            let top = (0..=j).find(|&r| before.depth.triangle[r * w + i] != SKY)?;
+            Some(before.depth.depth[top * w + i] as f64)
+        })
+        .collect();
+    let inside = shown.iter().flatten().count();
+    if run.is_empty() || (inside as f64) < NEAR_COVERAGE * run.len() as f64 {
+        return vec![None; run.len()];
+    }
+    (0..shown.len())
+        .map(|j| {
+            shown[j]?;
+            let lo = j.saturating_sub(CUT_MEDIAN_HALF);
+            let hi = (j + CUT_MEDIAN_HALF + 1).min(shown.len());
+            let mut near: Vec<f64> = shown[lo..hi].iter().flatten().copied().collect();
+            near.sort_by(f64::total_cmp);
+            Some(near[near.len() / 2])
+        })
+        .collect()
 }
 
 /// Points of a run beyond its feature's ends (placed along the feature's
