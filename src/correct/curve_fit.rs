@@ -184,3 +184,51 @@ fn samples(w: usize, h: usize, unknown: &[usize], px: &[[f64; 3]], scale: f64) -
     }
     out
 }
+
+/// The same fit as [`fit`], solved directly by [`super::sparse_lsq`]
+/// (normal equations, envelope Cholesky) rather than by CGLS: for the joint
+/// fit of a curve and its cross-sections, whose rows differ in weight by
+/// orders of magnitude, so that the answer does not depend on an iteration
+/// cap. Returns the fitted heights and the largest remaining
+/// `|bilinear - z|` at the samples.
+pub fn fit_direct(
+    w: usize,
+    h: usize,
+    constrained: &[bool],
+    h0: &[f64],
+    lines: &[(&[[f64; 3]], f64)],
+) -> Result<(Vec<f64>, f64), super::sparse_lsq::LsqError> {
+    let mut unknown = vec![usize::MAX; constrained.len()];
+    let mut cells = Vec::new();
+    for (i, &k) in constrained.iter().enumerate() {
+        if k {
+            unknown[i] = cells.len();
+            cells.push(i);
+        }
+    }
+    let mut problem = super::sparse_lsq::Problem::new(cells.len());
+    let mut rows = Vec::new();
+    for &(px, weight) in lines {
+        for s in samples(w, h, &unknown, px, 1.0) {
+            let terms: Vec<(usize, f64)> = (0..4)
+                .map(|k| (unknown[s.cells[k]], s.weights[k]))
+                .collect();
+            let start: f64 = (0..4).map(|k| s.weights[k] * h0[s.cells[k]]).sum();
+            problem.add_row(&terms, s.z - start, weight);
+            rows.push((terms, s.z - start));
+        }
+    }
+    for k in 0..cells.len() {
+        problem.add_row(&[(k, 1.0)], 0.0, DAMPING);
+    }
+    let d = problem.solve()?;
+    let worst = rows
+        .iter()
+        .map(|(t, r)| (t.iter().map(|&(k, a)| a * d[k]).sum::<f64>() - r).abs())
+        .fold(0.0, f64::max);
+    let mut out = h0.to_vec();
+    for (k, &i) in cells.iter().enumerate() {
+        out[i] += d[k];
+    }
+    Ok((out, worst))
+}
