@@ -90,7 +90,7 @@ fn fit_curve(
     cell: crate::deform::CellSize,
     decided: &mut [bool],
     target: &mut [f64],
-) -> usize {
+) -> Result<usize, CurveError> {
     let curves = std::slice::from_ref(curve);
     let cons = constraints::rasterise(hm, curves, cell);
     // The rasteriser run on a zero surface gives the curve's height at each
@@ -111,7 +111,7 @@ fn fit_curve(
         .iter()
         .filter_map(|p| gt.crs_to_pixel(p[0], p[1]).map(|(x, y)| [x, y, p[2]]))
         .collect();
-    let (fitted, _) = super::curve_fit::fit(hm.width, hm.height, &keep, &h0, &[(&local, 1.0)]);
+    let (fitted, _) = super::curve_fit::fit(hm.width, hm.height, &keep, &h0, &[(&local, 1.0)])?;
     let mut count = 0;
     for i in 0..n {
         if keep[i] {
@@ -120,7 +120,7 @@ fn fit_curve(
             count += 1;
         }
     }
-    count
+    Ok(count)
 }
 
 /// Weight of the control curve's samples against a cross-section's in the
@@ -132,8 +132,6 @@ const CURVE_WEIGHT: f64 = 1e3;
 /// its cross-sections, started from the first fits (`target`), fitted to
 /// the curve (weight [`CURVE_WEIGHT`]) and the cross-sections together, so
 /// that the cells next to the curve also follow the sections' slopes.
-/// Solved directly: with weights 1000 apart, CGLS stops on its iteration
-/// cap before the sections' centimetres.
 fn refit_together(
     hm: &crate::raster::HeightMap,
     all: &[CurveConstraint],
@@ -155,7 +153,7 @@ fn refit_together(
         .enumerate()
         .map(|(k, l)| (l.as_slice(), if k == 0 { CURVE_WEIGHT } else { 1.0 }))
         .collect();
-    let (fitted, _) = super::curve_fit::fit_direct(hm.width, hm.height, decided, target, &lines)?;
+    let (fitted, _) = super::curve_fit::fit(hm.width, hm.height, decided, target, &lines)?;
     for (i, &d) in decided.iter().enumerate() {
         if d {
             target[i] = fitted[i];
@@ -196,12 +194,12 @@ pub fn apply(
     let mut decided = vec![false; n];
     let mut target = vec![0f64; n];
     // The control curve first, then the cross-sections.
-    if fit_curve(&hm, &all[0], cell, &mut decided, &mut target) == 0 {
+    if fit_curve(&hm, &all[0], cell, &mut decided, &mut target)? == 0 {
         return Err(CurveError::NothingConstrained);
     }
     if all.len() > 1 {
         for c in &all[1..] {
-            fit_curve(&hm, c, cell, &mut decided, &mut target);
+            fit_curve(&hm, c, cell, &mut decided, &mut target)?;
         }
         refit_together(&hm, &all, &decided, &mut target)?;
     }
