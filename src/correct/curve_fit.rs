@@ -9,8 +9,11 @@
 //! (all of them constrained by the rasteriser's rule), `h0` the start
 //! (the curve's height at each cell's closest curve point) and the small
 //! damping `lambda` keeps the system well posed where the samples do not
-//! determine a cell. Solved by CGLS (conjugate gradients on the normal
-//! equations), which needs only products with the sparse sampling matrix.
+//! determine a cell. Solved directly by [`super::sparse_lsq`] (normal
+//! equations, envelope Cholesky): the joint fit of a curve and its
+//! cross-sections weighs rows 1000 times apart, and CGLS (used before)
+//! stopped on its 5000-iteration cap, 14 times slower on the benchmark of
+//! `tools/bench_control_curve.sh`, with the same answer where it converged.
 
 /// One sample: the window indices and weights of its bilinear stencil and
 /// the height it asks for.
@@ -18,110 +21,14 @@ struct Sample {
     cells: [usize; 4],
     weights: [f64; 4],
     z: f64,
-    /// The square root of the sample's weight (its row is scaled by it).
-    scale: f64,
 }
 
 /// Damping `lambda` of the fit.
 const DAMPING: f64 = 1e-8;
 
-/// Fits the heights of the constrained cells (`h0[i]` for `constrained[i]`,
-/// window of width `w`) to the curves `lines` (window pixel space,
-/// `[x, y, z]`, each with the weight of its samples in the sum of squares).
-/// Returns the fitted heights (same indexing as `h0`; unconstrained cells
-/// unchanged) and the largest remaining `|bilinear - z|` at the samples.
-pub fn fit(
-    w: usize,
-    h: usize,
-    constrained: &[bool],
-    h0: &[f64],
-    lines: &[(&[[f64; 3]], f64)],
-) -> (Vec<f64>, f64) {
-    let mut unknown = vec![usize::MAX; constrained.len()];
-    let mut cells = Vec::new();
-    for (i, &k) in constrained.iter().enumerate() {
-        if k {
-            unknown[i] = cells.len();
-            cells.push(i);
-        }
-    }
-    let samples: Vec<Sample> = lines
-        .iter()
-        .flat_map(|&(px, weight)| samples(w, h, &unknown, px, weight.sqrt()))
-        .collect();
-    let mut x: Vec<f64> = cells.iter().map(|&i| h0[i]).collect();
-    if samples.is_empty() {
-        return (h0.to_vec(), 0.0);
-    }
-    let apply = |x: &[f64]| -> Vec<f64> {
-        samples
-            .iter()
-            .map(|s| (0..4).map(|k| s.weights[k] * x[unknown[s.cells[k]]]).sum())
-            .collect()
-    };
-    let apply_t = |r: &[f64]| -> Vec<f64> {
-        let mut out = vec![0.0; cells.len()];
-        for (s, &rv) in samples.iter().zip(r) {
-            for k in 0..4 {
-                out[unknown[s.cells[k]]] += s.weights[k] * rv;
-            }
-        }
-        out
-    };
-    // CGLS for the correction d = x - h0 of the damped problem.
-    let ax = apply(&x);
-    let mut r: Vec<f64> = samples.iter().zip(&ax).map(|(s, a)| s.z - a).collect();
-    let mut d = vec![0.0; cells.len()];
-    let mut s_vec = apply_t(&r);
-    let mut p = s_vec.clone();
-    let mut gamma: f64 = s_vec.iter().map(|v| v * v).sum();
-    for _ in 0..5000 {
-        if gamma < 1e-18 {
-            break;
-        }
-        let q = apply(&p);
-        let denom: f64 =
-            q.iter().map(|v| v * v).sum::<f64>() + DAMPING * p.iter().map(|v| v * v).sum::<f64>();
-        if denom <= 0.0 {
-            break;
-        }
-        let alpha = gamma / denom;
-        for (di, pi) in d.iter_mut().zip(&p) {
-            *di += alpha * pi;
-        }
-        for (ri, qi) in r.iter_mut().zip(&q) {
-            *ri -= alpha * qi;
-        }
-        s_vec = apply_t(&r);
-        for (si, di) in s_vec.iter_mut().zip(&d) {
-            *si -= DAMPING * di;
-        }
-        let g: f64 = s_vec.iter().map(|v| v * v).sum();
-        let beta = g / gamma;
-        gamma = g;
-        for (pi, si) in p.iter_mut().zip(&s_vec) {
-            *pi = si + beta * *pi;
-        }
-    }
-    for (xi, di) in x.iter_mut().zip(&d) {
-        *xi += di;
-    }
-    let fitted = apply(&x);
-    let worst = samples
-        .iter()
-        .zip(&fitted)
-        .map(|(s, f)| (f - s.z).abs() / s.scale)
-        .fold(0.0, f64::max);
-    let mut out = h0.to_vec();
-    for (k, &i) in cells.iter().enumerate() {
-        out[i] = x[k];
-    }
-    (out, worst)
-}
-
 /// Samples every tenth of a cell along the curve whose four stencil cells
 /// are all unknowns.
-fn samples(w: usize, h: usize, unknown: &[usize], px: &[[f64; 3]], scale: f64) -> Vec<Sample> {
+fn samples(w: usize, h: usize, unknown: &[usize], px: &[[f64; 3]]) -> Vec<Sample> {
     let mut out = Vec::new();
     let mut add = |x: f64, y: f64, z: f64| {
         let (fx0, fy0) = (x - 0.5, y - 0.5);
@@ -157,14 +64,10 @@ fn samples(w: usize, h: usize, unknown: &[usize], px: &[[f64; 3]], scale: f64) -
                     .unwrap_or(cells[k]);
             }
         }
-        for wk in weights.iter_mut() {
-            *wk *= scale;
-        }
         out.push(Sample {
             cells,
             weights,
-            z: z * scale,
-            scale,
+            z,
         });
     };
     if px.len() == 1 {
@@ -183,4 +86,51 @@ fn samples(w: usize, h: usize, unknown: &[usize], px: &[[f64; 3]], scale: f64) -
         }
     }
     out
+}
+
+/// Fits the heights of the constrained cells (`h0[i]` for `constrained[i]`,
+/// window of width `w`) to the curves `lines` (window pixel space,
+/// `[x, y, z]`, each with the weight of its samples in the sum of squares).
+/// Returns the fitted heights (same indexing as `h0`; unconstrained cells
+/// unchanged) and the largest remaining `|bilinear - z|` at the samples.
+pub fn fit(
+    w: usize,
+    h: usize,
+    constrained: &[bool],
+    h0: &[f64],
+    lines: &[(&[[f64; 3]], f64)],
+) -> Result<(Vec<f64>, f64), super::sparse_lsq::LsqError> {
+    let mut unknown = vec![usize::MAX; constrained.len()];
+    let mut cells = Vec::new();
+    for (i, &k) in constrained.iter().enumerate() {
+        if k {
+            unknown[i] = cells.len();
+            cells.push(i);
+        }
+    }
+    let mut problem = super::sparse_lsq::Problem::new(cells.len());
+    let mut rows = Vec::new();
+    for &(px, weight) in lines {
+        for s in samples(w, h, &unknown, px) {
+            let terms: Vec<(usize, f64)> = (0..4)
+                .map(|k| (unknown[s.cells[k]], s.weights[k]))
+                .collect();
+            let start: f64 = (0..4).map(|k| s.weights[k] * h0[s.cells[k]]).sum();
+            problem.add_row(&terms, s.z - start, weight);
+            rows.push((terms, s.z - start));
+        }
+    }
+    for k in 0..cells.len() {
+        problem.add_row(&[(k, 1.0)], 0.0, DAMPING);
+    }
+    let d = problem.solve()?;
+    let worst = rows
+        .iter()
+        .map(|(t, r)| (t.iter().map(|&(k, a)| a * d[k]).sum::<f64>() - r).abs())
+        .fold(0.0, f64::max);
+    let mut out = h0.to_vec();
+    for (k, &i) in cells.iter().enumerate() {
+        out[i] += d[k];
+    }
+    Ok((out, worst))
 }

@@ -19,6 +19,7 @@ pub mod grid;
 pub mod lake;
 pub mod report;
 pub mod river;
+pub mod sparse_lsq;
 pub mod water;
 
 use std::path::{Path, PathBuf};
@@ -389,6 +390,7 @@ fn apply_one(
             let res =
                 control_curve::apply(dem, grid, points, sections, infl).map_err(|e| match e {
                     control_curve::CurveError::Solver(s) => solver_error(s),
+                    control_curve::CurveError::Fit(f) => ApplyError::Internal(f.to_string()),
                     e => ApplyError::User(e.to_string()),
                 })?;
             r.influence_m = Some(res.influence_m);
