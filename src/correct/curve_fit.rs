@@ -64,11 +64,7 @@ fn samples(w: usize, h: usize, unknown: &[usize], px: &[[f64; 3]]) -> Vec<Sample
                     .unwrap_or(cells[k]);
             }
         }
-        out.push(Sample {
-            cells,
-            weights,
-            z,
-        });
+        out.push(Sample { cells, weights, z });
     };
     if px.len() == 1 {
         add(px[0][0], px[0][1], px[0][2]);
