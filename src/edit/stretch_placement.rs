@@ -269,7 +269,7 @@ fn cuts_anchored_landform(
     if (l.depth - r.depth).abs() > AGREEMENT * l.depth.min(r.depth) || run.is_empty() {
         return false;
     }
-    let (w, h) = (before.camera.width, before.camera.height);
+    let w = before.camera.width;
     let n = run.len();
     let (mut inside, mut elsewhere) = (0usize, 0usize);
     for (k, p) in run.iter().enumerate() {
@@ -277,20 +277,27 @@ fn cuts_anchored_landform(
         if (p.depth - anchor).abs() > AGREEMENT * anchor {
             elsewhere += 1;
         }
-        let Some([x, y]) = p.pixel else { continue };
-        if !(x >= 0.0 && y >= 0.0 && x < w as f64 && y < h as f64) {
+        let Some((i, j)) = terrain_pixel(before, p.pixel) else {
             continue;
-        }
-        let at = y as usize * w + x as usize;
-        if before.depth.triangle[at] == SKY {
-            continue;
-        }
-        let d = before.depth.depth[at] as f64;
+        };
+        let d = before.depth.depth[j * w + i] as f64;
         if (d - anchor).abs() <= AGREEMENT * anchor {
             inside += 1;
         }
     }
     inside as f64 >= NEAR_COVERAGE * n as f64 && elsewhere as f64 >= NEAR_COVERAGE * n as f64
+}
+
+/// The image pixel (column, row) under `pixel` when it lies in the view
+/// and shows terrain, not sky.
+fn terrain_pixel(before: &RenderedView, pixel: Option<[f64; 2]>) -> Option<(usize, usize)> {
+    let [x, y] = pixel?;
+    let (w, h) = (before.camera.width, before.camera.height);
+    if !(x >= 0.0 && y >= 0.0 && x < w as f64 && y < h as f64) {
+        return None;
+    }
+    let (i, j) = (x as usize, y as usize);
+    (before.depth.triangle[j * w + i] != SKY).then_some((i, j))
 }
 
 /// Half-width (points) of the running median that smooths [`cut_depths`].
@@ -305,18 +312,11 @@ pub const CUT_MEDIAN_HALF: usize = 3;
 /// smoothed by a running median over the run. `None` everywhere for a run
 /// drawn in the sky (a raise), and at points over sky.
 fn cut_depths(before: &RenderedView, run: &[usize], placed: &StrokeMatch) -> Vec<Option<f64>> {
-    let (w, h) = (before.camera.width, before.camera.height);
+    let w = before.camera.width;
     let shown: Vec<Option<f64>> = run
         .iter()
         .map(|&k| {
-            let [x, y] = placed.points[k].pixel?;
-            if !(x >= 0.0 && y >= 0.0 && x < w as f64 && y < h as f64) {
-                return None;
-            }
-            let (i, j) = (x as usize, y as usize);
-            if before.depth.triangle[j * w + i] == SKY {
-                return None;
-            }
+            let (i, j) = terrain_pixel(before, placed.points[k].pixel)?;
             // The skyline above: the first terrain pixel from the top.
             let top = (0..=j).find(|&r| before.depth.triangle[r * w + i] != SKY)?;
             Some(before.depth.depth[top * w + i] as f64)
