@@ -835,7 +835,9 @@ fn check_strokes_touch_terrain(
         (i0 - 1..=i0 + 1).any(|i| {
             (j0 - 1..=j0 + rows)
                 .any(|j| i >= 0 && j >= 0 && depth.depth_at(i as usize, j as usize).is_finite())
-        })
+        }) || (j0 + rows >= h as i64
+            // Under the image's lower border: the stroke is cut by the frame.
+            && v.before.terrain_at_or_below(p, rows as f64).is_some())
     };
     for s in &v.spec.strokes {
         if s.depth_m.is_some() {

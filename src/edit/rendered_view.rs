@@ -8,7 +8,7 @@ use crate::features::{
     extract_silhouettes, extract_silhouettes_where, FeatureError, SilhouetteParams, Silhouettes,
 };
 use crate::raster::HeightMap;
-use crate::render::{DepthBuffer, LocalTerrain, SKY};
+use crate::render::{pick, DepthBuffer, LocalTerrain, TerrainHit, SKY};
 use crate::sketch::{PointSource, Stroke, StrokeMatch};
 use crate::view::{Camera, LocalFrame};
 
@@ -272,6 +272,39 @@ impl RenderedView {
             .map(move |&(c, s)| self.silhouettes.curves[c as usize].samples[s as usize].pixel[1]);
         let sky = self.skyline_row[i].filter(|&j| j > 0).map(|j| j as f64);
         sil.chain(sky)
+    }
+
+    /// The first terrain the view shows at or below `pixel` in its
+    /// column, searched down to `max_rows` rows under it, and its row.
+    /// The search goes on below the image's lower border by casting the
+    /// rays of the rows there: a stroke cut by the frame stands on terrain
+    /// the frame does not show (Gain et al. 2009, section 3.1: the terrain
+    /// under a silhouette stroke's end points).
+    pub fn terrain_at_or_below(&self, pixel: [f64; 2], max_rows: f64) -> Option<(TerrainHit, f64)> {
+        let (w, h) = (self.camera.width, self.camera.height);
+        if !(pixel[0].is_finite() && pixel[1].is_finite()) || w == 0 || h == 0 {
+            return None;
+        }
+        let i = (pixel[0].floor().max(0.0) as usize).min(w - 1);
+        let j0 = pixel[1].floor().max(0.0);
+        let last = (pixel[1] + max_rows.max(0.0)).floor();
+        let in_image = (j0 as usize).min(h - 1)..(last.max(0.0) as usize + 1).min(h);
+        for j in in_image {
+            if self.depth.triangle[j * w + i] != SKY {
+                return self
+                    .depth
+                    .hit(&self.terrain, i, j)
+                    .map(|hit| (hit, j as f64));
+            }
+        }
+        let mut j = j0.max(h as f64);
+        while j <= last {
+            if let Some(hit) = pick(&self.terrain, &self.camera, i as f64 + 0.5, j + 0.5) {
+                return Some((hit, j));
+            }
+            j += 1.0;
+        }
+        None
     }
 }
 

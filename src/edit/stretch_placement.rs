@@ -83,18 +83,12 @@ fn ground_under_end(view: &RenderedView, pixel: [f64; 2]) -> Option<([f64; 3], f
     Some((local, depth))
 }
 
-/// The first terrain point the view shows at or below `pixel`, in the
-/// view's own frame, its depth and image row.
+/// The first terrain point within [`END_TOUCH_PX`] at or below `pixel`
+/// (in the image, then under its lower border), in the view's own frame,
+/// its depth and image row.
 fn terrain_below(view: &RenderedView, pixel: [f64; 2]) -> Option<([f64; 3], f64, f64)> {
-    let (w, h) = (view.camera.width, view.camera.height);
-    if !(pixel[0].is_finite() && pixel[1].is_finite()) {
-        return None;
-    }
-    let i = (pixel[0].floor().max(0.0) as usize).min(w.saturating_sub(1));
-    let j0 = (pixel[1].floor().max(0.0) as usize).min(h.saturating_sub(1));
-    let j = (j0..h).find(|&j| view.depth.triangle[j * w + i] != SKY)?;
-    let hit = view.depth.hit(&view.terrain, i, j)?;
-    Some((hit.local, hit.distance, j as f64))
+    let (hit, row) = view.terrain_at_or_below(pixel, END_TOUCH_PX)?;
+    Some((hit.local, hit.distance, row))
 }
 
 /// Re-places the free stretches of `placed` (see the module
