@@ -90,6 +90,7 @@ pub fn find_protruding(view: &RenderedView, strokes: &[StrokeCurve]) -> Vec<Prot
                 .samples
                 .iter()
                 .filter(|s| s.pixel[0] >= x0 && s.pixel[0] <= x1)
+                .filter(|s| !carries_anchored_stroke(strokes, s.pixel))
                 .map(|s| [s.world[0], s.world[1], s.world[2] - need[c]])
                 .collect();
             Protrusion {
@@ -103,6 +104,23 @@ pub fn find_protruding(view: &RenderedView, strokes: &[StrokeCurve]) -> Vec<Prot
     out.extend(extra);
     out
 }
+
+/// A silhouette sample within [`ANCHORED_NEAR_PX`] of a stroke's anchored
+/// stretch: the silhouette that stretch already lies on. Lowering it (the
+/// padding of a protrusion next to the stretch reaches it) would pull the
+/// silhouette from under a part of the stroke that needed no change.
+fn carries_anchored_stroke(strokes: &[StrokeCurve], pixel: [f64; 2]) -> bool {
+    strokes.iter().any(|g| {
+        g.is_anchored(pixel[0])
+            && g.stroke
+                .y_at(pixel[0])
+                .is_some_and(|y| (y - pixel[1]).abs() <= ANCHORED_NEAR_PX)
+    })
+}
+
+/// How near (pixels, vertically) a silhouette sample must lie to an
+/// anchored stretch of a stroke to count as the silhouette it lies on.
+pub const ANCHORED_NEAR_PX: f64 = 3.0;
 
 /// What one stroke finds: the silhouette samples over it that hide it
 /// (curve, lowering needed, column centre) and the depth-buffer fallback
