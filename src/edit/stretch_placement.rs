@@ -130,9 +130,10 @@ pub fn place_free_stretches(
             depth,
         })
     };
-    // The free runs, their bounds (the anchors beside them, or the terrain
-    // under the stroke's end) and whether the matched depth agrees.
-    let mut runs: Vec<(usize, usize, Option<Bound>, Option<Bound>, bool)> = Vec::new();
+    // The free runs and their bounds (the anchors beside them, or the
+    // terrain under the stroke's end); then whether the matched depth
+    // agrees.
+    let mut spans: Vec<(usize, usize, Option<Bound>, Option<Bound>)> = Vec::new();
     let mut a = 0;
     while a < n {
         if anchored(on[a]) {
@@ -153,6 +154,12 @@ pub fn place_free_stretches(
         } else {
             bound_at(on[b - 1], true)
         };
+        spans.push((a, b, left, right));
+        a = b;
+    }
+    drop_passed_anchors(placed, &on, &mut spans);
+    let mut runs: Vec<(usize, usize, Option<Bound>, Option<Bound>, bool)> = Vec::new();
+    for (a, b, left, right) in spans {
         // Stroke ends (not anchors) standing on nearer ground contradict.
         let contradicts = |bound: Option<Bound>, k: usize, is_end: bool| {
             let p = &placed.points[k];
@@ -191,7 +198,6 @@ pub fn place_free_stretches(
             );
         }
         runs.push((a, b, left, right, feature_ok));
-        a = b;
     }
     let mut replaced_ends = (false, false);
     for (a, b, left, right, feature_ok) in runs {
@@ -240,6 +246,50 @@ pub fn place_free_stretches(
         });
     }
     out
+}
+
+/// Anchors a stroke only passes: when both ends of the stroke are free
+/// (neither starts on an existing silhouette), an anchored run inside it
+/// whose free neighbours were both matched nearer than it (by more than
+/// [`AGREEMENT`]) is a silhouette the new landform's outline happens to
+/// run along for a few pixels (a hill in front of a far range whose
+/// outline crosses an inner ridge of it), not a shoulder the stroke
+/// leaves from: it bounds neither neighbour. Gain et al. (2009, section
+/// 3.1) place a silhouette by the terrain under its *end points*; a
+/// stroke whose ends stand on a silhouette keeps its anchors as bounds.
+fn drop_passed_anchors(
+    placed: &StrokeMatch,
+    on: &[usize],
+    spans: &mut [(usize, usize, Option<Bound>, Option<Bound>)],
+) {
+    let n = on.len();
+    let is_anchor = |k: usize| placed.points[k].source == PointSource::Silhouette;
+    if n == 0 || is_anchor(on[0]) || is_anchor(on[n - 1]) {
+        return;
+    }
+    let matched_depth = |a: usize, b: usize| -> Option<f64> {
+        let mut d: Vec<f64> = on[a..b]
+            .iter()
+            .map(|&k| &placed.points[k])
+            .filter(|p| p.source == PointSource::Feature)
+            .map(|p| p.depth)
+            .collect();
+        if d.is_empty() {
+            return None;
+        }
+        d.sort_by(f64::total_cmp);
+        Some(d[d.len() / 2])
+    };
+    for j in 1..spans.len() {
+        let (a1, b1, ..) = spans[j - 1];
+        let (a2, b2, ..) = spans[j];
+        let anchor = placed.points[on[b1]].depth;
+        let nearer = |d: Option<f64>| d.is_some_and(|d| d < anchor * (1.0 - AGREEMENT));
+        if nearer(matched_depth(a1, b1)) && nearer(matched_depth(a2, b2)) {
+            spans[j - 1].3 = None;
+            spans[j].2 = None;
+        }
+    }
 }
 
 /// True when a stretch between two anchors on one landform (their depths
