@@ -250,6 +250,12 @@ pub fn run(
 
     let t = Instant::now();
     let rounds = refine(&edit, views, &solver, &placed, deformation)?;
+    if rounds.kept_unedited {
+        notes.push(
+            "nothing changed: no deformation fitted the strokes better than the terrain as it is (each stroke's fit below is on the unedited terrain)"
+                .to_string(),
+        );
+    }
     let view_reports = measure_strokes(&edit, views, &features, &placed, &rounds);
     timings.lowering = secs(t);
 

@@ -42,6 +42,9 @@ pub(super) struct Rounds {
     pub(super) contour_iterations: Vec<usize>,
     /// Curve constraints the lowering added to the user's.
     pub(super) lowering_constraints: usize,
+    /// No round fitted the strokes better than the unedited terrain does:
+    /// the deformation was dropped and the DEM is left as it is.
+    pub(super) kept_unedited: bool,
 }
 
 /// Refine the initial `deformation` round by round until every stroke is
@@ -157,8 +160,21 @@ pub(super) fn refine(
         deformation = solver.solve(&constraints, &cell_list)?;
     }
     // The best round's terrain, if a later one did worse.
+    let mut kept_unedited = false;
     if let Some((b, d)) = best {
-        if fit_score(curves, &rendered) < b - 1e-9 {
+        let unedited: f64 = curves
+            .iter()
+            .zip(views)
+            .map(|(cs, v)| view_fit(cs, &v.before))
+            .sum();
+        if unedited >= b - 1e-9 && b < curves.iter().map(Vec::len).sum::<usize>() as f64 {
+            // Do no harm: the edit fits the strokes no better than the
+            // terrain as it is (the strokes already lie where its
+            // silhouettes are, to within what this edit can reach).
+            deformation = unchanged(d);
+            rendered = render_all(&deformation)?;
+            kept_unedited = true;
+        } else if fit_score(curves, &rendered) < b - 1e-9 {
             deformation = d;
             rendered = render_all(&deformation)?;
         }
@@ -175,7 +191,18 @@ pub(super) fn refine(
         silhouettes_lowered: lowered,
         contour_iterations: contour_rounds,
         lowering_constraints: constraints.len() - user_constraints,
+        kept_unedited,
     })
+}
+
+/// `d` with no displacement anywhere (nodata stays NaN).
+fn unchanged(mut d: Deformation) -> Deformation {
+    for m in d.displacement.iter_mut().filter(|m| !m.is_nan()) {
+        *m = 0.0;
+    }
+    d.stats.changed_cells = 0;
+    d.stats.max_abs_displacement_m = 0.0;
+    d
 }
 
 /// [`flatten_spikes`] on the final deformation, with the viewpoints as
@@ -209,6 +236,11 @@ fn fit_score(curves: &[Vec<StrokeCurve>], rendered: &[RenderedView]) -> f64 {
     curves
         .iter()
         .zip(rendered)
-        .map(|(cs, view)| cs.par_iter().map(|c| fitted_fraction(c, view)).sum::<f64>())
+        .map(|(cs, view)| view_fit(cs, view))
         .sum()
+}
+
+/// [`fit_score`] of one view's strokes.
+fn view_fit(strokes: &[StrokeCurve], view: &RenderedView) -> f64 {
+    strokes.par_iter().map(|c| fitted_fraction(c, view)).sum()
 }
