@@ -77,12 +77,15 @@ pub(super) fn refine(
     let mut lowered = vec![0usize; views.len()];
     let mut contour_rounds = vec![0usize; views.len()];
     let mut cells: BTreeMap<(i64, i64), f64> = BTreeMap::new();
-    let mut rendered: Vec<RenderedView>;
-    let mut best: Option<(f64, Deformation)> = None;
+    // The best round so far: its score, terrain and renders (kept, so
+    // that going back to it renders nothing again), and the renders of the
+    // latest round when it is not the best.
+    let mut best: Option<(f64, Deformation, Vec<RenderedView>)> = None;
+    let mut last: Option<(f64, Vec<RenderedView>)>;
     let mut stalled = 0;
     loop {
-        rendered = render_all(&deformation)?;
-        let score = fit_score(curves, &rendered);
+        let renders = render_all(&deformation)?;
+        let score = fit_score(curves, &renders);
         if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
             eprintln!(
                 "round: fit score {score:.3} (best {:?}), lowering {:?}, contour {:?}",
@@ -92,19 +95,26 @@ pub(super) fn refine(
             );
         }
         match &best {
-            Some((b, _)) if score <= *b + 1e-9 => {
+            Some((b, _, _)) if score <= *b + 1e-9 => {
                 stalled += 1;
-                if score < *b - 1e-9 || stalled >= STALLED_ROUNDS {
+                let stop = score < *b - 1e-9 || stalled >= STALLED_ROUNDS;
+                last = Some((score, renders));
+                if stop {
                     break;
                 }
             }
             _ => {
                 stalled = 0;
-                best = Some((score, deformation.clone()));
+                last = None;
+                best = Some((score, deformation.clone(), renders));
             }
         }
+        let rendered = match (&last, &best) {
+            (Some((_, r)), _) | (None, Some((_, _, r))) => r,
+            (None, None) => unreachable!("a round's renders are kept"),
+        };
         let mut changed = false;
-        for (k, (v, after)) in views.iter().zip(&rendered).enumerate() {
+        for (k, (v, after)) in views.iter().zip(rendered).enumerate() {
             if iterations[k] < opts.max_lowering_iterations {
                 let protruding = find_protruding(after, &curves[k]);
                 if !protruding.is_empty() {
@@ -156,13 +166,19 @@ pub(super) fn refine(
             .collect();
         deformation = solver.solve(&constraints, &cell_list)?;
     }
-    // The best round's terrain, if a later one did worse.
-    if let Some((b, d)) = best {
-        if fit_score(curves, &rendered) < b - 1e-9 {
-            deformation = d;
-            rendered = render_all(&deformation)?;
+    // The best round's terrain and renders, if a later one did worse.
+    let mut rendered = match (last, best) {
+        (Some((score, r)), Some((b, d, best_r))) => {
+            if score < b - 1e-9 {
+                deformation = d;
+                best_r
+            } else {
+                r
+            }
         }
-    }
+        (None, Some((_, _, r))) | (Some((_, r)), None) => r,
+        (None, None) => unreachable!("the loop renders at least once"),
+    };
     // No spikes: a lone apex (or pit) of the change field gets a
     // neighbour behind it within half a cell.
     if flatten_final_spikes(views, &mut deformation, &placed.demands.fixed) > 0 {
