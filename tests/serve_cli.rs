@@ -8,7 +8,7 @@
 
 mod common;
 
-use common::{demsketch, fixture};
+use common::{demsketch, fixture, gdal_translate, gdalinfo};
 
 fn stderr_line(out: &std::process::Output) -> String {
     let s = String::from_utf8_lossy(&out.stderr).trim_end().to_string();
@@ -119,4 +119,163 @@ fn bad_underlay_is_one_line_naming_it_exit_1() {
         assert!(!String::from_utf8_lossy(&out.stdout).contains("http://"));
         assert!(!out_path.exists());
     }
+}
+
+/// A running `demsketch serve` (killed when dropped) and its address.
+struct Server {
+    child: std::process::Child,
+    addr: String,
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// Start `demsketch serve ARGS --port 0` and wait for its URL; also the
+/// seconds from the start to the URL.
+fn serve(args: &[&str]) -> (Server, f64) {
+    use std::io::BufRead;
+    let t0 = std::time::Instant::now();
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_demsketch"))
+        .arg("serve")
+        .args(args)
+        .args(["--port", "0"])
+        .env("GDAL_PAM_ENABLED", "NO")
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .expect("start demsketch serve");
+    let stdout = child.stdout.take().expect("stdout");
+    let mut lines = std::io::BufReader::new(stdout).lines();
+    let addr = loop {
+        let line = lines
+            .next()
+            .expect("serve exited before printing its URL")
+            .expect("read stdout");
+        if let Some(rest) = line.split("http://").nth(1) {
+            break rest.trim_end_matches('/').to_string();
+        }
+    };
+    let secs = t0.elapsed().as_secs_f64();
+    (Server { child, addr }, secs)
+}
+
+/// `GET path` from the server: status and body (HTTP/1.1, one request).
+fn get(server: &Server, path: &str) -> (u32, Vec<u8>) {
+    use std::io::{Read, Write};
+    let mut s = std::net::TcpStream::connect(&server.addr).expect("connect");
+    write!(
+        s,
+        "GET {path} HTTP/1.1\r\nHost: {}\r\nConnection: close\r\n\r\n",
+        server.addr
+    )
+    .expect("send");
+    let mut raw = Vec::new();
+    s.read_to_end(&mut raw).expect("read");
+    let split = raw
+        .windows(4)
+        .position(|w| w == b"\r\n\r\n")
+        .expect("headers end");
+    let head = String::from_utf8_lossy(&raw[..split]).to_string();
+    let status = head
+        .split_whitespace()
+        .nth(1)
+        .and_then(|s| s.parse().ok())
+        .expect("status");
+    let body = raw[split + 4..].to_vec();
+    if let Some(len) = head.lines().find_map(|l| {
+        l.to_ascii_lowercase()
+            .strip_prefix("content-length:")
+            .map(|v| v.trim().to_string())
+    }) {
+        assert_eq!(len.parse::<usize>().ok(), Some(body.len()), "{head}");
+    }
+    (status, body)
+}
+
+/// RGBA pixels of a PNG.
+fn decode_rgba(png_bytes: &[u8]) -> (usize, usize, Vec<u8>) {
+    let mut reader = png::Decoder::new(std::io::Cursor::new(png_bytes))
+        .read_info()
+        .expect("a PNG");
+    let mut buf = vec![0; reader.output_buffer_size().expect("size")];
+    let info = reader.next_frame(&mut buf).expect("decode");
+    assert_eq!(info.color_type, png::ColorType::Rgba);
+    buf.truncate(info.buffer_size());
+    (info.width as usize, info.height as usize, buf)
+}
+
+/// An 8192 x 8192 orthophoto (the fixture underlay upsampled, with
+/// overviews by `gdaladdo`) opens fast: the server prints its URL within a
+/// few seconds and serves the underlay at the map's size, with the
+/// colours the fixture itself gives (read from the served PNG).
+#[test]
+fn large_underlay_opens_fast_through_its_overviews() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let small = fixture("underlay/zion_rgb_epsg4326.tif");
+    let big = dir.path().join("ortho8192.tif");
+    gdal_translate(
+        &small,
+        &big,
+        &[
+            "-outsize",
+            "8192",
+            "8192",
+            "-r",
+            "bilinear",
+            "-co",
+            "TILED=YES",
+            "-co",
+            "COMPRESS=DEFLATE",
+            "-co",
+            "ZLEVEL=1",
+        ],
+    );
+    let b = big.to_str().expect("utf-8");
+    common::run(
+        "gdaladdo",
+        &["-q", "-r", "average", b, "2", "4", "8", "16", "32"],
+    );
+    let info = gdalinfo(&big);
+    assert_eq!(info["size"], serde_json::json!([8192, 8192]));
+    let overviews = info["bands"][0]["overviews"].as_array().map_or(0, Vec::len);
+    assert_eq!(overviews, 5, "gdaladdo made the overviews");
+    let dem = fixture("zion_srtm_utm12n.tif");
+    let d = dem.to_str().expect("utf-8");
+    let (plain, plain_s) = serve(&[d]);
+    let (server, secs) = serve(&[d, "--underlay", b]);
+    let (ref_server, _) = serve(&[d, "--underlay", small.to_str().expect("utf-8")]);
+    eprintln!(
+        "start to URL: {plain_s:.2} s without an underlay, {secs:.2} s with the 8192 x 8192 one"
+    );
+    // Generous for a loaded machine; warping all 8192^2 pixels took longer.
+    assert!(secs < plain_s + 3.0, "{secs:.2} s to open the underlay");
+    drop(plain);
+    let (status, png_big) = get(&server, "/api/underlay.png");
+    assert_eq!(status, 200);
+    let (status, png_small) = get(&ref_server, "/api/underlay.png");
+    assert_eq!(status, 200);
+    let (w, h, big_px) = decode_rgba(&png_big);
+    let (w2, h2, small_px) = decode_rgba(&png_small);
+    assert_eq!((w, h), (w2, h2), "both at the map's size");
+    let (mut both, mut diff) = (0usize, 0u64);
+    for (p, q) in big_px.chunks_exact(4).zip(small_px.chunks_exact(4)) {
+        if p[3] == 255 && q[3] == 255 {
+            both += 1;
+            diff += (0..3).map(|k| p[k].abs_diff(q[k]) as u64).sum::<u64>();
+        }
+    }
+    let opaque = |px: &[u8]| px.chunks_exact(4).filter(|p| p[3] == 255).count();
+    let (ob, os) = (opaque(&big_px), opaque(&small_px));
+    assert!(os > w * h / 2, "the fixture covers most of the map");
+    assert!(
+        (ob as f64 - os as f64).abs() < 0.02 * os as f64,
+        "opaque pixels: {ob} with the large file, {os} with the fixture"
+    );
+    let mean = diff as f64 / (3 * both.max(1)) as f64;
+    eprintln!("{w} x {h}: mean channel difference {mean:.2} over {both} pixels");
+    assert!(mean < 6.0, "mean channel difference {mean:.2}");
 }

@@ -155,6 +155,30 @@ fn assert_raster_equals_casting(terrain: &LocalTerrain, cam: &Camera, what: &str
             _ => ((0.5 + 0.4 * (i as f64 / 23.0).sin()) * h as f64) as i32,
         })
         .collect();
+    // Rendered into the buffers of another view (the browser app's reuse),
+    // of the same size or not: the very same buffer.
+    for other_w in [w, w / 2 + 1] {
+        let other = Camera::new(
+            other_w,
+            h,
+            cam.heading_deg + 90.0,
+            cam.pitch_deg,
+            0.0,
+            cam.hfov_deg,
+        )
+        .expect("camera");
+        let reused =
+            DepthBuffer::render_reusing(terrain, cam, DepthBuffer::render(terrain, &other));
+        assert!(
+            reused
+                .depth
+                .iter()
+                .map(|d| d.to_bits())
+                .eq(fast.depth.iter().map(|d| d.to_bits()))
+                && reused.triangle == fast.triangle,
+            "{what}: render_reusing differs from render (other view {other_w} px wide)"
+        );
+    }
     let part = DepthBuffer::render_rows(terrain, cam, &last);
     for j in 0..h {
         for i in 0..w {

@@ -80,12 +80,15 @@ pub(super) fn refine(
     let mut lowered = vec![0usize; views.len()];
     let mut contour_rounds = vec![0usize; views.len()];
     let mut cells: BTreeMap<(i64, i64), f64> = BTreeMap::new();
-    let mut rendered: Vec<RenderedView>;
-    let mut best: Option<(f64, Deformation)> = None;
+    // The best round so far: its score, terrain and renders (kept, so
+    // that going back to it renders nothing again), and the renders of the
+    // latest round when it is not the best.
+    let mut best: Option<(f64, Deformation, Vec<RenderedView>)> = None;
+    let mut last: Option<(f64, Vec<RenderedView>)>;
     let mut stalled = 0;
     loop {
-        rendered = render_all(&deformation)?;
-        let score = fit_score(curves, &rendered);
+        let renders = render_all(&deformation)?;
+        let score = fit_score(curves, &renders);
         if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
             eprintln!(
                 "round: fit score {score:.3} (best {:?}), lowering {:?}, contour {:?}",
@@ -95,19 +98,26 @@ pub(super) fn refine(
             );
         }
         match &best {
-            Some((b, _)) if score <= *b + 1e-9 => {
+            Some((b, _, _)) if score <= *b + 1e-9 => {
                 stalled += 1;
-                if score < *b - 1e-9 || stalled >= STALLED_ROUNDS {
+                let stop = score < *b - 1e-9 || stalled >= STALLED_ROUNDS;
+                last = Some((score, renders));
+                if stop {
                     break;
                 }
             }
             _ => {
                 stalled = 0;
-                best = Some((score, deformation.clone()));
+                last = None;
+                best = Some((score, deformation.clone(), renders));
             }
         }
+        let rendered = match (&last, &best) {
+            (Some((_, r)), _) | (None, Some((_, _, r))) => r,
+            (None, None) => unreachable!("a round's renders are kept"),
+        };
         let mut changed = false;
-        for (k, (v, after)) in views.iter().zip(&rendered).enumerate() {
+        for (k, (v, after)) in views.iter().zip(rendered).enumerate() {
             if iterations[k] < opts.max_lowering_iterations {
                 let protruding = find_protruding(after, &curves[k]);
                 if !protruding.is_empty() {
@@ -159,25 +169,33 @@ pub(super) fn refine(
             .collect();
         deformation = solver.solve(&constraints, &cell_list)?;
     }
-    // The best round's terrain, if a later one did worse.
-    let mut kept_unedited = false;
-    if let Some((b, d)) = best {
-        let unedited: f64 = curves
-            .iter()
-            .zip(views)
-            .map(|(cs, v)| view_fit(cs, &v.before))
-            .sum();
-        if unedited >= b - 1e-9 && b < curves.iter().map(Vec::len).sum::<usize>() as f64 {
-            // Do no harm: the edit fits the strokes no better than the
-            // terrain as it is (the strokes already lie where its
-            // silhouettes are, to within what this edit can reach).
-            deformation = unchanged(d);
-            rendered = render_all(&deformation)?;
-            kept_unedited = true;
-        } else if fit_score(curves, &rendered) < b - 1e-9 {
-            deformation = d;
-            rendered = render_all(&deformation)?;
+    // The best round's terrain and renders, if a later one did worse.
+    let best_score = best.as_ref().map_or(0.0, |b| b.0);
+    let mut rendered = match (last, best) {
+        (Some((score, r)), Some((b, d, best_r))) => {
+            if score < b - 1e-9 {
+                deformation = d;
+                best_r
+            } else {
+                r
+            }
         }
+        (None, Some((_, _, r))) | (Some((_, r)), None) => r,
+        (None, None) => unreachable!("the loop renders at least once"),
+    };
+    // Do no harm: when the edit fits the strokes no better than the
+    // terrain as it is (the strokes already lie where its silhouettes are,
+    // to within what this edit can reach), nothing is changed.
+    let unedited: f64 = curves
+        .iter()
+        .zip(views)
+        .map(|(cs, v)| view_fit(cs, &v.before))
+        .sum();
+    let perfect = curves.iter().map(Vec::len).sum::<usize>() as f64;
+    let kept_unedited = unedited >= best_score - 1e-9 && best_score < perfect - 1e-9;
+    if kept_unedited {
+        deformation = unchanged(deformation);
+        rendered = render_all(&deformation)?;
     }
     // No spikes: a lone apex (or pit) of the change field gets a
     // neighbour behind it within half a cell.

@@ -11,7 +11,7 @@
 //! frame and in the DEM's CRS, with its cell and triangle.
 
 use super::terrain::LocalTerrain;
-use super::triangle_raster::rasterise;
+use super::triangle_raster::{rasterise, rasterise_into};
 use crate::view::{Camera, CameraModel};
 use rayon::prelude::*;
 
@@ -55,6 +55,16 @@ impl DepthBuffer {
     /// [`super::triangle_raster`]).
     pub fn render(terrain: &LocalTerrain, camera: &Camera) -> Self {
         Self::of(camera, rasterise(terrain, camera, None))
+    }
+
+    /// [`DepthBuffer::render`] into the buffers of `old` (an earlier view,
+    /// of any size): the same depths and triangles, without allocating
+    /// (or touching fresh pages) when the size is the same. For a caller
+    /// rendering view after view (the browser app).
+    pub fn render_reusing(terrain: &LocalTerrain, camera: &Camera, old: DepthBuffer) -> Self {
+        let (mut depth, mut triangle) = (old.depth, old.triangle);
+        rasterise_into(terrain, camera, None, &mut depth, &mut triangle, true);
+        Self::of(camera, (depth, triangle))
     }
 
     /// The buffer of `camera` from the rasteriser's depths and triangles.

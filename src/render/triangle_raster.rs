@@ -119,27 +119,66 @@ pub(crate) fn rasterise(
     camera: &Camera,
     last_row: Option<&[i32]>,
 ) -> (Vec<f32>, Vec<u32>) {
+    let n = camera.width * camera.height;
+    let (mut depth, mut triangle) = (vec![f32::INFINITY; n], vec![SKY; n]);
+    rasterise_into(terrain, camera, last_row, &mut depth, &mut triangle, false);
+    (depth, triangle)
+}
+
+/// [`rasterise`] into `depth` and `triangle`, resized to the image; with
+/// `reused`, buffers of an earlier view (whatever they hold), which each
+/// strip clears in parallel before drawing: a caller rendering view after
+/// view (the browser app) then neither allocates nor touches fresh pages.
+/// Without it, buffers already cleared (`f32::INFINITY`, [`SKY`]).
+pub(crate) fn rasterise_into(
+    terrain: &LocalTerrain,
+    camera: &Camera,
+    last_row: Option<&[i32]>,
+    depth: &mut Vec<f32>,
+    triangle: &mut Vec<u32>,
+    reused: bool,
+) {
     let (w, h) = (camera.width, camera.height);
     debug_assert!(last_row.is_none_or(|l| l.len() == w));
-    let mut depth = vec![f32::INFINITY; w * h];
-    let mut triangle = vec![SKY; w * h];
-    if terrain.nx < 2 || terrain.ny < 2 {
-        return (depth, triangle);
+    let mut reused = reused;
+    if depth.len() != w * h || triangle.len() != w * h {
+        depth.clear();
+        depth.resize(w * h, f32::INFINITY);
+        triangle.clear();
+        triangle.resize(w * h, SKY);
+        reused = false;
     }
+    let clear = |cols: &mut StripColumns| {
+        if reused {
+            for j in 0..cols.rows() {
+                let (t, id) = cols.row_mut(j);
+                t.fill(f32::INFINITY);
+                id.fill(SKY);
+            }
+        }
+    };
+    let empty = terrain.nx < 2 || terrain.ny < 2;
     let m = VertexToCamera::new(terrain, camera);
-    let blocks = block_boxes(terrain, camera, &m);
-    if blocks.is_empty() {
-        return (depth, triangle);
-    }
+    let blocks = if empty {
+        None
+    } else {
+        Some(block_boxes(terrain, camera, &m)).filter(|b| !b.is_empty())
+    };
+    let Some(blocks) = blocks else {
+        StripColumns::split(depth, triangle, w, STRIP)
+            .into_par_iter()
+            .for_each(|mut cols| clear(&mut cols));
+        return;
+    };
     // Each strip renders ray parameters in place, then turns them into
     // distances (sky: an infinite parameter gives an infinite distance).
-    StripColumns::split(&mut depth, &mut triangle, w, STRIP)
+    StripColumns::split(depth, triangle, w, STRIP)
         .into_par_iter()
         .for_each(|mut cols| {
+            clear(&mut cols);
             render_strip(terrain, camera, &m, &blocks, &mut cols, last_row);
             parameters_to_distances(camera, &mut cols);
         });
-    (depth, triangle)
 }
 
 /// Turn the ray parameters of a strip (distance over `|d|`, with the
@@ -965,11 +1004,14 @@ fn span_margin(edges: &[(f64, f64, f64); 3], px1: i32, py1: i32) -> f64 {
 }
 
 /// `floor` to i32 without a libm call or a branch, saturating far outside
-/// the image (truncation is floor for the positive shifted value).
+/// the image (truncation is floor for the shifted value, kept
+/// non-negative; `as` saturates above; NaN gives `-SHIFT`).
 #[inline]
 fn floor_i32(v: f64) -> i32 {
     const SHIFT: f64 = 4_194_304.0;
-    (v.clamp(-4e6, 4e6) + SHIFT) as i32 - SHIFT as i32
+    let t = v + SHIFT;
+    // one `maxsd`
+    (if t > 0.0 { t } else { 0.0 }) as i32 - SHIFT as i32
 }
 
 /// `ceil` to i32, as [`floor_i32`].

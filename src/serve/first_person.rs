@@ -194,7 +194,7 @@ pub fn render_png(state: &AppState, req: &ViewRequest) -> Result<(Vec<u8>, StepT
     let camera = camera_of(&req.camera)?;
     let scene = state.scene_for(&req.viewpoint)?;
     lap("scene", &mut times);
-    let depth = DepthBuffer::render(&scene.terrain, &camera);
+    let depth = state.render_depth(&scene.terrain, &camera);
     lap("render", &mut times);
     // Sun behind the viewer's right shoulder, as `demsketch view`.
     let opts = ShadeOptions {
@@ -218,6 +218,7 @@ pub fn render_png(state: &AppState, req: &ViewRequest) -> Result<(Vec<u8>, StepT
         }
     }
     lap("overlays", &mut times);
+    state.give_depth(depth);
     let png = encode_rgb(w, h, &rgb);
     state.give_picture(rgb);
     let png = png?;
@@ -246,7 +247,7 @@ pub struct FeaturesOut {
 pub fn features(state: &AppState, req: &ViewRequest) -> Result<FeaturesOut, ServeError> {
     let camera = camera_of(&req.camera)?;
     let scene = state.scene_for(&req.viewpoint)?;
-    let depth = DepthBuffer::render(&scene.terrain, &camera);
+    let depth = state.render_depth(&scene.terrain, &camera);
     let silhouettes = scene
         .silhouettes(&depth)?
         .into_iter()
@@ -265,6 +266,7 @@ pub fn features(state: &AppState, req: &ViewRequest) -> Result<FeaturesOut, Serv
                 .map(|j| j as f64)
         })
         .collect();
+    state.give_depth(depth);
     Ok(FeaturesOut {
         silhouettes,
         ridges,

@@ -16,7 +16,7 @@ use super::ServeError;
 use crate::features::RidgeNetwork;
 use crate::raster::path_check::{check_outputs, dem_inputs, Output};
 use crate::raster::{Dem, HeightMap, LayerKind};
-use crate::render::LocalTerrain;
+use crate::render::{DepthBuffer, LocalTerrain};
 use crate::view::{Georef, LocalFrame};
 
 /// The command line's choices.
@@ -93,6 +93,8 @@ pub struct Inner {
     pub workdir: crate::raster::atomic_file::Staging,
     /// Picture buffers of finished renders, reused by the next ones.
     pub pictures: Mutex<Vec<Vec<u8>>>,
+    /// Depth buffers of finished renders, reused by the next ones.
+    pub depths: Mutex<Vec<DepthBuffer>>,
 }
 
 /// The server's state, cheap to clone into handlers.
@@ -147,6 +149,7 @@ impl AppState {
             render_gate: tokio::sync::Semaphore::new(super::routes::MAX_RENDERS),
             workdir,
             pictures: Mutex::new(Vec::new()),
+            depths: Mutex::new(Vec::new()),
         })))
     }
 
@@ -170,6 +173,32 @@ impl AppState {
         if let Ok(mut p) = self.pictures.lock() {
             if p.len() < super::routes::MAX_RENDERS {
                 p.push(buf);
+            }
+        }
+    }
+
+    /// The depth buffer of `camera` over `terrain`, rendered into the
+    /// buffers of an earlier render when one is free (see
+    /// [`DepthBuffer::render_reusing`]); give it back with
+    /// [`AppState::give_depth`].
+    pub fn render_depth(
+        &self,
+        terrain: &LocalTerrain,
+        camera: &crate::view::Camera,
+    ) -> DepthBuffer {
+        let old = self.depths.lock().ok().and_then(|mut d| d.pop());
+        match old {
+            Some(old) => DepthBuffer::render_reusing(terrain, camera, old),
+            None => DepthBuffer::render(terrain, camera),
+        }
+    }
+
+    /// Give a depth buffer back for the next render (at most
+    /// [`super::routes::MAX_RENDERS`] are kept).
+    pub fn give_depth(&self, depth: DepthBuffer) {
+        if let Ok(mut d) = self.depths.lock() {
+            if d.len() < super::routes::MAX_RENDERS {
+                d.push(depth);
             }
         }
     }

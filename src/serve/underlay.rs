@@ -3,7 +3,11 @@
 //! classification, ...), reprojected and resampled by GDAL
 //! (`GDALReprojectImage`, bilinear) onto the grid of the map's overview
 //! ([`super::overview`]) in the DEM's CRS, and encoded once at start as an
-//! RGBA PNG: three or more bands are drawn as red, green and blue (an
+//! RGBA PNG. A file much finer than the map (an orthophoto of any size) is
+//! first read through GDAL's decimating reads of the part under the map
+//! (averaged, from the file's overviews when it has them, as the DEM's
+//! map overview is), so that only about one source pixel per map pixel is
+//! warped and a large file opens in a fraction of a second: three or more bands are drawn as red, green and blue (an
 //! alpha band as transparency), one or two as grey; 8-bit bands as they
 //! are, others stretched between their 2nd and 98th percentile; nodata and
 //! cells outside the file transparent. The page draws it with the
@@ -167,7 +171,10 @@ fn warp_to_grid(src: &Dataset, dem: &Dem, ov: &Overview) -> gdal::errors::Result
         band.set_no_data_value(Some(f64::NAN))?;
         band.fill(f64::NAN, None)?;
     }
-    gdal::raster::reproject(src, &dst)?;
+    match decimated_source(src, &srs, &dst, w, h)? {
+        Some(small) => gdal::raster::reproject(&small, &dst)?,
+        None => gdal::raster::reproject(src, &dst)?,
+    }
     let mut out = Vec::with_capacity(n);
     for b in 0..n {
         let nodata = src.rasterband(b + 1)?.no_data_value();
@@ -183,6 +190,150 @@ fn warp_to_grid(src: &Dataset, dem: &Dem, ov: &Overview) -> gdal::errors::Result
         out.push(v);
     }
     Ok(out)
+}
+
+/// Source pixels per map pixel under which the file is warped as it is.
+const DECIMATE_ABOVE: f64 = 2.0;
+
+/// The part of `src` under the map grid `dst` (`w` x `h`, CRS `dst_srs`),
+/// read decimated to about one pixel per map pixel into a MEM dataset of
+/// the same bands (nodata and colour interpretation kept, f32), when the
+/// file has more than [`DECIMATE_ABOVE`] pixels per map pixel; `None`
+/// when it has not, or when the map's points do not transform into the
+/// file's CRS (the file is then warped as it is).
+fn decimated_source(
+    src: &Dataset,
+    dst_srs: &gdal::spatial_ref::SpatialRef,
+    dst: &Dataset,
+    w: usize,
+    h: usize,
+) -> gdal::errors::Result<Option<Dataset>> {
+    let Some((win, scale)) = source_window(src, dst_srs, dst, w, h) else {
+        return Ok(None);
+    };
+    if scale <= DECIMATE_ABOVE {
+        return Ok(None);
+    }
+    let [x0, y0, x1, y1] = win;
+    let (ww, wh) = (x1 - x0, y1 - y0);
+    let f = scale.floor();
+    let (ow, oh) = (
+        ((ww as f64 / f).ceil() as usize).max(1),
+        ((wh as f64 / f).ceil() as usize).max(1),
+    );
+    let n = src.raster_count();
+    let mem = DriverManager::get_driver_by_name("MEM")?;
+    let mut out = mem.create_with_band_type::<f32, _>("", ow, oh, n)?;
+    let g = src.geo_transform()?;
+    let (sx, sy) = (ww as f64 / ow as f64, wh as f64 / oh as f64);
+    out.set_geo_transform(&[
+        g[0] + x0 as f64 * g[1] + y0 as f64 * g[2],
+        g[1] * sx,
+        g[2] * sy,
+        g[3] + x0 as f64 * g[4] + y0 as f64 * g[5],
+        g[4] * sx,
+        g[5] * sy,
+    ])?;
+    out.set_spatial_ref(&src.spatial_ref()?)?;
+    for b in 1..=n {
+        let band = src.rasterband(b)?;
+        let mut buf = band.read_as::<f32>(
+            (x0 as isize, y0 as isize),
+            (ww, wh),
+            (ow, oh),
+            Some(gdal::raster::ResampleAlg::Average),
+        )?;
+        let mut ob = out.rasterband(b)?;
+        if let Some(nd) = band.no_data_value() {
+            ob.set_no_data_value(Some(nd))?;
+        }
+        ob.set_color_interpretation(band.color_interpretation())?;
+        ob.write((0, 0), (ow, oh), &mut buf)?;
+    }
+    Ok(Some(out))
+}
+
+/// The pixel window `[x0, y0, x1, y1)` of `src` under the map grid `dst`
+/// (with a margin of a few map pixels) and the least number of source
+/// pixels one map pixel spans, from a 9 x 9 lattice of the map's points
+/// transformed into the file's pixels; `None` when they do not transform
+/// or miss the file.
+fn source_window(
+    src: &Dataset,
+    dst_srs: &gdal::spatial_ref::SpatialRef,
+    dst: &Dataset,
+    w: usize,
+    h: usize,
+) -> Option<([usize; 4], f64)> {
+    use gdal::spatial_ref::{AxisMappingStrategy, CoordTransform};
+    let mut src_srs = src.spatial_ref().ok()?;
+    src_srs.set_axis_mapping_strategy(AxisMappingStrategy::TraditionalGisOrder);
+    let to_src = CoordTransform::new(dst_srs, &src_srs).ok()?;
+    let dg = dst.geo_transform().ok()?;
+    let inv = invert_geo_transform(&src.geo_transform().ok()?)?;
+    // Lattice points (k, l) and their neighbours one map pixel right and down.
+    const N: usize = 9;
+    let (mut xs, mut ys) = (Vec::new(), Vec::new());
+    for l in 0..N {
+        for k in 0..N {
+            let (px, py) = (
+                k as f64 / (N - 1) as f64 * (w as f64 - 1.0),
+                l as f64 / (N - 1) as f64 * (h as f64 - 1.0),
+            );
+            for (dx, dy) in [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0)] {
+                let (x, y) = (px + dx, py + dy);
+                xs.push(dg[0] + x * dg[1] + y * dg[2]);
+                ys.push(dg[3] + x * dg[4] + y * dg[5]);
+            }
+        }
+    }
+    let mut zs = vec![0.0; xs.len()];
+    to_src.transform_coords(&mut xs, &mut ys, &mut zs).ok()?;
+    let pix = |k: usize| {
+        let (x, y) = (xs[k], ys[k]);
+        (
+            inv[0] + x * inv[1] + y * inv[2],
+            inv[3] + x * inv[4] + y * inv[5],
+        )
+    };
+    let mut scale = f64::INFINITY;
+    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+    for q in 0..N * N {
+        let (p, r, d) = (pix(3 * q), pix(3 * q + 1), pix(3 * q + 2));
+        for v in [p, r, d] {
+            if !(v.0.is_finite() && v.1.is_finite()) {
+                return None;
+            }
+        }
+        let len = |a: (f64, f64)| (a.0 - p.0).hypot(a.1 - p.1);
+        scale = scale.min(len(r)).min(len(d));
+        lo = [lo[0].min(p.0), lo[1].min(p.1)];
+        hi = [hi[0].max(p.0), hi[1].max(p.1)];
+    }
+    // The map's edge lies half a pixel outside its outer pixel centres; a
+    // margin of a few map pixels more covers the bilinear kernel.
+    let margin = 4.0 * scale;
+    let (sw, sh) = src.rasterband(1).ok()?.size();
+    let clip = |v: f64, n: usize| (v.max(0.0).min(n as f64)) as usize;
+    let (x0, x1) = (
+        clip((lo[0] - margin).floor(), sw),
+        clip((hi[0] + margin).ceil(), sw),
+    );
+    let (y0, y1) = (
+        clip((lo[1] - margin).floor(), sh),
+        clip((hi[1] + margin).ceil(), sh),
+    );
+    (x1 > x0 && y1 > y0 && scale.is_finite()).then_some(([x0, y0, x1, y1], scale))
+}
+
+/// The inverse of an affine geotransform (`None` when singular).
+fn invert_geo_transform(g: &[f64; 6]) -> Option<[f64; 6]> {
+    let det = g[1] * g[5] - g[2] * g[4];
+    if !(det.abs() > 0.0) || !det.is_finite() {
+        return None;
+    }
+    let (a, b, c, d) = (g[5] / det, -g[2] / det, -g[4] / det, g[1] / det);
+    Some([-(a * g[0] + b * g[3]), a, b, -(c * g[0] + d * g[3]), c, d])
 }
 
 /// One band as bytes: 8-bit values as they are, others stretched from
