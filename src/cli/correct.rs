@@ -1,6 +1,6 @@
 //! `demsketch correct DEM --features F.geojson --out OUT [--in-place]
 //! [--report R] [--water-mask M] [--dry-run] [--json]`: apply corrections drawn in map view
-//! (lakes, rivers, control curves and their cross-sections; see
+//! (lakes, rivers, control curves and their cross-sections, breaklines; see
 //! `demsketch::correct`) and write the
 //! corrected DEM through the same atomic write-back as `edit`.
 
@@ -27,6 +27,9 @@ by their \"kind\" property:
   control_curve  LineString with Z heights or heights_m; influence_m
   cross_section  LineString with Z heights or heights_m crossing a control
                  curve; control_curve (its id or name); heights relative
+  breakline      LineString with Z heights, heights_m or height_m; hard true
+                 (default: may kink across the line, never blend) or false
+                 (soft: smooth across); influence_m (default: 3 cells)
 
 Exit codes:
   0  written (with --dry-run: a real run would write it)

@@ -37,6 +37,8 @@ pub(super) struct Outcome {
     pub(super) curve_constraints: usize,
     pub(super) lowering_constraints: usize,
     pub(super) matching: MatchingReport,
+    /// What the sketch's map-view corrections did.
+    pub(super) corrections: Vec<crate::correct::FeatureReport>,
 }
 
 /// The worst stroke below the minimum fit, which stops the write.
@@ -73,6 +75,7 @@ pub(super) fn write_outputs(
         curve_constraints,
         lowering_constraints,
         matching,
+        corrections,
     } = outcome;
     edit.pb.set_message("writing corrected tiles");
     let t = Instant::now();
@@ -211,6 +214,7 @@ pub(super) fn write_outputs(
         dry_run: opts.dry_run,
         min_fit: opts.min_fit,
         matching,
+        corrections,
     };
     if let (Some(staged), Some(path)) = (staged_report, &opts.report) {
         let mut text = serde_json::to_string_pretty(&report)
