@@ -216,6 +216,27 @@ fn a_hard_breakline_restores_the_kink_of_a_blurred_roof() {
     assert!((slopes_out[0] - SLOPE_NEG).abs() <= 1e-4, "{slopes_out:?}");
     assert!((slopes_out[1] - SLOPE_POS).abs() <= 1e-4, "{slopes_out:?}");
 
+    // A soft breakline along the same ridge passes through it but stays
+    // smooth across: the kink is not restored (for the comparison in
+    // docs/corrections.md).
+    let soft = collection(
+        vec![json!({"type": "Feature", "properties": {"kind": "breakline", "name": "ridge",
+            "hard": false, "influence_m": INFLUENCE_M},
+            "geometry": {"type": "LineString", "coordinates": line}})],
+        Some(32632),
+    );
+    let (out_soft, rs) = run(&dem, tmp.path(), "soft", soft);
+    let soft_out = Raster::read(&out_soft);
+    let (h_soft, s_soft) = roof_errors(&soft_out, 2.0 * INFLUENCE_M, along);
+    println!(
+        "soft breakline: max |z - roof| {h_soft:.3} m, max neighbour-difference error {s_soft:.3} m, \
+         cross slopes {:.4} / {:.4}, max |DEM - z| on the line {:.4} m",
+        cross_slope(&soft_out, -1.0, INFLUENCE_M, along),
+        cross_slope(&soft_out, 1.0, INFLUENCE_M, along),
+        rs["corrections"][0]["max_curve_error_m"].as_f64().unwrap()
+    );
+    assert!(h_soft > 10.0 * h_out && s_soft > 10.0 * s_out);
+
     // Beyond the influence distance, bit-identical.
     let mut beyond = 0;
     for rr in 0..N {
