@@ -220,9 +220,11 @@ fn a_hard_breakline_restores_the_kink_of_a_blurred_roof() {
     // smooth across: the kink is not restored (for the comparison in
     // docs/corrections.md).
     let soft = collection(
-        vec![json!({"type": "Feature", "properties": {"kind": "breakline", "name": "ridge",
+        vec![
+            json!({"type": "Feature", "properties": {"kind": "breakline", "name": "ridge",
             "hard": false, "influence_m": INFLUENCE_M},
-            "geometry": {"type": "LineString", "coordinates": line}})],
+            "geometry": {"type": "LineString", "coordinates": line}}),
+        ],
         Some(32632),
     );
     let (out_soft, rs) = run(&dem, tmp.path(), "soft", soft);
@@ -272,6 +274,25 @@ fn distance_px(p: [f64; 2], px: &[[f64; 2]]) -> f64 {
             (p[0] - a[0] - t * dx).hypot(p[1] - a[1] - t * dy)
         })
         .fold(f64::INFINITY, f64::min)
+}
+
+/// True when the nearest point of the polyline `px` to `p` is one of its
+/// ends with `p` beyond it (the band of a hard breakline stops there).
+fn in_end_cap(p: [f64; 2], px: &[[f64; 2]]) -> bool {
+    let last = px.len() - 2;
+    let (mut best, mut cap) = (f64::INFINITY, false);
+    for (k, s) in px.windows(2).enumerate() {
+        let (a, b) = (s[0], s[1]);
+        let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
+        let raw = ((p[0] - a[0]) * dx + (p[1] - a[1]) * dy) / (dx * dx + dy * dy);
+        let t = raw.clamp(0.0, 1.0);
+        let d = (p[0] - a[0] - t * dx).hypot(p[1] - a[1] - t * dy);
+        if d < best {
+            best = d;
+            cap = (k == 0 && raw < 0.0) || (k == last && raw > 1.0);
+        }
+    }
+    cap
 }
 
 fn segment_distance_m(p: [f64; 2], px: &[[f64; 2]]) -> f64 {
@@ -345,7 +366,7 @@ fn a_hard_breakline_on_the_fixture_changes_nothing_beyond_its_influence() {
             if input.at(cc, rr).is_nan() {
                 continue;
             }
-            band += usize::from(d <= 750.0 + 1e-6);
+            band += usize::from(d <= 750.0 + 1e-6 && !in_end_cap(centre(cc, rr), &LINE_PX));
             if d <= 0.5 * cell {
                 lift += output.at(cc, rr) - input.at(cc, rr);
                 near += 1;
@@ -365,4 +386,77 @@ fn a_soft_breakline_on_the_fixture_passes_through_its_heights() {
     assert_eq!(f["hard"], false);
     let err = f["max_curve_error_m"].as_f64().unwrap();
     assert!(err <= 0.05, "soft breakline missed by {err} m");
+}
+
+#[test]
+fn renders_show_the_map_before_and_after_and_the_height_change() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dem = tmp.path().join("roof.tif");
+    let gt = [600000.0, CELL, 0.0, 5200000.0, 0.0, -CELL];
+    write_f32_geotiff(&dem, N, N, gt, 32632, &blurred_roof());
+    let input = Raster::read(&dem);
+    let c = N as f64 / 2.0;
+    let line: Vec<Vec<f64>> = [-1.0, 1.0]
+        .iter()
+        .map(|k| {
+            let p = [
+                c + k * HALF_LENGTH_PX * THETA.cos(),
+                c + k * HALF_LENGTH_PX * THETA.sin(),
+            ];
+            let q = input.crs(p);
+            vec![q[0], q[1], roof(p)]
+        })
+        .collect();
+    let features = tmp.path().join("ridge.geojson");
+    std::fs::write(
+        &features,
+        collection(
+            vec![
+                json!({"type": "Feature", "properties": {"kind": "breakline", "name": "ridge",
+                "influence_m": INFLUENCE_M},
+                "geometry": {"type": "LineString", "coordinates": line}}),
+            ],
+            Some(32632),
+        ),
+    )
+    .unwrap();
+    let renders = tmp.path().join("renders");
+    let out = tmp.path().join("out.tif");
+    let o = common::demsketch(&[
+        "correct",
+        &dem.to_string_lossy(),
+        "--features",
+        &features.to_string_lossy(),
+        "--out",
+        &out.to_string_lossy(),
+        "--renders",
+        &renders.to_string_lossy(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for name in ["map_before.png", "map_after.png", "height_change.png"] {
+        let p = renders.join(name);
+        // GDAL reads each picture: three Byte bands.
+        let ds = gdal::Dataset::open(&p).unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert_eq!(ds.raster_count(), 3, "{name}");
+        let (w, h) = ds.raster_size();
+        assert!(w >= 200 && h >= 200, "{name}: {w} x {h}");
+    }
+    // The breakline is drawn (magenta) on both maps.
+    for name in ["map_before.png", "map_after.png"] {
+        let ds = gdal::Dataset::open(renders.join(name)).unwrap();
+        let (w, h) = ds.raster_size();
+        let band = |b: usize| {
+            ds.rasterband(b)
+                .unwrap()
+                .read_as::<u8>((0, 0), (w, h), (w, h), None)
+                .unwrap()
+                .data()
+                .to_vec()
+        };
+        let (r, g, b) = (band(1), band(2), band(3));
+        let magenta = (0..w * h)
+            .filter(|&i| r[i] == 220 && g[i] == 30 && b[i] == 190)
+            .count();
+        assert!(magenta > 100, "{name}: {magenta} breakline pixels");
+    }
 }

@@ -21,10 +21,12 @@
 //! line); cutting the grid graph along the line and solving each side
 //! apart is harmonic, not planar, so it bends the slopes next to the line;
 //! natural-neighbour interpolation is not defined across constraint edges.
-//! Around the line's ends triangles may reach round the end, so the kink
-//! fades out there, within the influence distance. Cells beyond the band
-//! keep their heights exactly (bit-identical); band cells outside the
-//! triangulation's hull (at the DEM's edge) are left as they are.
+//! The band stops square at the line's ends: cells beyond an end (whose
+//! nearest point of the line is the end itself) are not re-interpolated
+//! but support the triangulation, so the kink fades out towards the ends
+//! and nothing changes past them. Cells beyond the band keep their heights
+//! exactly (bit-identical); band cells outside the triangulation's hull
+//! (at the DEM's edge) are left as they are.
 //!
 //! A **soft** breakline is a positional constraint with smoothing across:
 //! the surface passes through the line and stays smooth across it, which
@@ -124,27 +126,32 @@ fn line_metres(grid: &Grid, points: &[[f64; 3]]) -> Vec<[f64; 3]> {
     out
 }
 
-/// Squared distance from `p` to the segment `a`-`b` (2D).
-fn segment_d2(p: [f64; 2], a: [f64; 3], b: [f64; 3]) -> f64 {
+/// Squared distance from `p` to the segment `a`-`b` (2D), and where along
+/// it the perpendicular foot lies (`t`, unclamped: below 0 before `a`,
+/// above 1 after `b`).
+fn segment_d2(p: [f64; 2], a: [f64; 3], b: [f64; 3]) -> (f64, f64) {
     let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
     let len2 = dx * dx + dy * dy;
-    let t = if len2 > 0.0 {
-        (((p[0] - a[0]) * dx + (p[1] - a[1]) * dy) / len2).clamp(0.0, 1.0)
+    let raw = if len2 > 0.0 {
+        ((p[0] - a[0]) * dx + (p[1] - a[1]) * dy) / len2
     } else {
         0.0
     };
+    let t = raw.clamp(0.0, 1.0);
     let (ex, ey) = (a[0] + t * dx - p[0], a[1] + t * dy - p[1]);
-    ex * ex + ey * ey
+    (ex * ex + ey * ey, raw)
 }
 
 /// Squared distance in m^2 from every cell centre of the window to the
-/// line, for the cells within `reach_m` of it (infinity elsewhere): each
-/// segment visits only the cells of its own bounding box grown by
-/// `reach_m`.
-fn distance_to_line(grid: &Grid, line: &[[f64; 3]], reach_m: f64) -> Vec<f64> {
+/// line, for the cells within `reach_m` of it (infinity elsewhere), and
+/// whether the nearest point of the line is one of its ends with the cell
+/// beyond it (in the end caps): each segment visits only the cells of its
+/// own bounding box grown by `reach_m`.
+fn distance_to_line(grid: &Grid, line: &[[f64; 3]], reach_m: f64) -> (Vec<f64>, Vec<bool>) {
     let (w, h) = (grid.width(), grid.height());
     let (hx, hy) = (grid.cell.hx, grid.cell.hy);
     let mut d2 = vec![f64::INFINITY; w * h];
+    let mut cap = vec![false; w * h];
     let range = |lo: f64, hi: f64, cell: f64, n: usize| {
         let a = ((lo - reach_m) / cell - 0.5).floor().max(0.0) as usize;
         let b = (((hi + reach_m) / cell - 0.5).ceil().max(0.0) as usize + 1).min(n);
@@ -155,16 +162,21 @@ fn distance_to_line(grid: &Grid, line: &[[f64; 3]], reach_m: f64) -> Vec<f64> {
     } else {
         line.windows(2).map(|s| (s[0], s[1])).collect()
     };
-    for (a, b) in segs {
+    let last = segs.len() - 1;
+    for (k, (a, b)) in segs.into_iter().enumerate() {
         for r in range(a[1].min(b[1]), a[1].max(b[1]), hy, h) {
             for c in range(a[0].min(b[0]), a[0].max(b[0]), hx, w) {
                 let p = [(c as f64 + 0.5) * hx, (r as f64 + 0.5) * hy];
                 let i = r * w + c;
-                d2[i] = d2[i].min(segment_d2(p, a, b));
+                let (d, t) = segment_d2(p, a, b);
+                if d < d2[i] {
+                    d2[i] = d;
+                    cap[i] = (k == 0 && t < 0.0) || (k == last && t > 1.0);
+                }
             }
         }
     }
-    d2
+    (d2, cap)
 }
 
 /// The triangulation of the ring cells (`support`, window indices) and the
@@ -235,7 +247,7 @@ pub fn apply_hard(
 ) -> Result<BreaklineResult, BreaklineError> {
     let line = line_metres(grid, points);
     let outer = influence_m + support_m(grid.cell);
-    let d2 = distance_to_line(grid, &line, outer);
+    let (d2, cap) = distance_to_line(grid, &line, outer);
     let tol = 1.0 + 1e-9;
     let (mut band, mut support) = (Vec::new(), Vec::new());
     for (i, &d) in d2.iter().enumerate() {
@@ -243,7 +255,7 @@ pub fn apply_hard(
             continue;
         }
         let d = d.sqrt();
-        if d <= influence_m * tol {
+        if d <= influence_m * tol && !cap[i] {
             band.push(i);
         } else if d <= outer * tol {
             support.push(i);

@@ -10,7 +10,8 @@
 //! shores of [`lake`]s and [`river`]s; [`control_curve`] uses the edit's
 //! constraint rasteriser), and go back through the same atomic write-back
 //! as an edit (only changed tiles rewritten, cells no correction reached
-//! bit-identical). [`report`] says what each feature did. Nothing is written
+//! bit-identical). [`report`] says what each feature did, [`pictures`]
+//! draws the run. Nothing is written
 //! when any feature is invalid or fails.
 
 pub mod breakline;
@@ -20,6 +21,7 @@ pub mod geojson_input;
 pub mod grid;
 pub mod in_sketch;
 pub mod lake;
+pub mod pictures;
 pub mod report;
 pub mod river;
 pub mod sparse_lsq;
@@ -51,6 +53,9 @@ pub struct CorrectOptions {
     /// Also write the water cells (1) of lakes and rivers, 0 elsewhere, as
     /// a Byte raster on the grid of the corrected window.
     pub water_mask: Option<PathBuf>,
+    /// Write the pictures of [`pictures`] into this directory (on dry runs
+    /// too), once the DEM is written.
+    pub renders: Option<PathBuf>,
     pub write: WriteOptions,
     /// Largest window, in cells.
     pub max_window_cells: usize,
@@ -63,6 +68,7 @@ impl CorrectOptions {
             report: None,
             dry_run: false,
             water_mask: None,
+            renders: None,
             write: WriteOptions::default(),
             max_window_cells: 1 << 26,
         }
@@ -282,6 +288,17 @@ pub fn run(
     let t_solve = t1.elapsed().as_secs_f64();
 
     let t2 = Instant::now();
+    let staged_renders = match &opts.renders {
+        Some(dir) => {
+            let pics = pictures::pictures(&dem, &grid, &plan.corrections)
+                .map_err(|e| CorrectError::Internal(format!("pictures: {e}")))?;
+            Some(
+                crate::edit::StagedDir::create(dir, &pics)
+                    .map_err(|e| CorrectError::Input(e.to_string()))?,
+            )
+        }
+        None => None,
+    };
     let values = grid.write_values();
     let bytes = std::fs::read(features).unwrap_or_default();
     let hash = sha256_hex(&bytes);
@@ -309,6 +326,9 @@ pub fn run(
     };
     if let Some(path) = &opts.water_mask {
         write_water_mask(path, &dem, &grid)?;
+    }
+    if let Some(s) = staged_renders {
+        s.commit().map_err(|e| CorrectError::Input(e.to_string()))?;
     }
     let output = match &opts.destination {
         Destination::InPlace => dem_path.display().to_string(),

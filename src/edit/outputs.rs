@@ -378,14 +378,14 @@ fn content_hash(sketch: &SketchFile) -> String {
 /// Pictures written into a staging directory beside the target (exclusive,
 /// unpredictable name), each read back, then moved into the target
 /// directory on commit; removed if dropped uncommitted.
-struct StagedDir {
+pub(crate) struct StagedDir {
     target: PathBuf,
     staging: Option<crate::raster::atomic_file::Staging>,
     names: Vec<String>,
 }
 
 impl StagedDir {
-    fn create(target: &Path, pictures: &[Picture]) -> Result<StagedDir, EditError> {
+    pub(crate) fn create(target: &Path, pictures: &[Picture]) -> Result<StagedDir, EditError> {
         let werr = |m: String| EditError::Write {
             path: target.display().to_string(),
             message: m,
@@ -413,7 +413,7 @@ impl StagedDir {
         })
     }
 
-    fn commit(mut self) -> Result<(), EditError> {
+    pub(crate) fn commit(mut self) -> Result<(), EditError> {
         let werr = |p: &Path, e: std::io::Error| EditError::Write {
             path: p.display().to_string(),
             message: e.to_string(),
