@@ -210,3 +210,88 @@ fn cross_section_without_heights_or_curve() {
         "needs a control_curve property",
     );
 }
+
+fn breakline(coords: Vec<Vec<f64>>, extra: Value) -> Value {
+    let mut props = json!({"kind": "breakline", "name": "bad"});
+    for (k, v) in extra.as_object().unwrap() {
+        props[k] = v.clone();
+    }
+    json!({"type": "Feature", "properties": props,
+        "geometry": {"type": "LineString", "coordinates": coords}})
+}
+
+fn utm_z(p: [f64; 2], z: Option<f64>) -> Vec<f64> {
+    let q = utm(p);
+    match z {
+        Some(z) => vec![q[0], q[1], z],
+        None => vec![q[0], q[1]],
+    }
+}
+
+#[test]
+fn breakline_without_heights() {
+    expect_failure(
+        breakline(
+            vec![
+                utm_z([150.0, 60.0], Some(2000.0)),
+                utm_z([160.0, 62.0], None),
+            ],
+            json!({}),
+        ),
+        "position 1 has no height",
+    );
+}
+
+#[test]
+fn breakline_with_fewer_than_two_positions() {
+    expect_failure(
+        breakline(vec![utm_z([150.0, 60.0], Some(2000.0))], json!({})),
+        "at least two distinct positions",
+    );
+    // Two positions, the same one twice.
+    expect_failure(
+        breakline(
+            vec![
+                utm_z([150.0, 60.0], Some(2000.0)),
+                utm_z([150.0, 60.0], Some(2000.0)),
+            ],
+            json!({}),
+        ),
+        "at least two distinct positions",
+    );
+}
+
+#[test]
+fn self_intersecting_breakline() {
+    let bow = [[150.0, 60.0], [160.0, 70.0], [160.0, 60.0], [150.0, 70.0]];
+    expect_failure(
+        breakline(
+            bow.iter().map(|&p| utm_z(p, Some(2000.0))).collect(),
+            json!({}),
+        ),
+        "the breakline crosses itself",
+    );
+    // Folding straight back over itself is crossing too.
+    let fold = [[150.0, 60.0], [160.0, 60.0], [155.0, 60.0]];
+    expect_failure(
+        breakline(
+            fold.iter().map(|&p| utm_z(p, Some(2000.0))).collect(),
+            json!({}),
+        ),
+        "the breakline crosses itself",
+    );
+}
+
+#[test]
+fn breakline_with_a_bad_hard_property() {
+    expect_failure(
+        breakline(
+            vec![
+                utm_z([150.0, 60.0], Some(2000.0)),
+                utm_z([160.0, 62.0], Some(2000.0)),
+            ],
+            json!({"hard": "yes"}),
+        ),
+        "property hard must be true or false",
+    );
+}

@@ -1,6 +1,6 @@
 //! `demsketch correct DEM --features F.geojson --out OUT [--in-place]
-//! [--report R] [--water-mask M] [--dry-run] [--json]`: apply corrections drawn in map view
-//! (lakes, rivers, control curves and their cross-sections; see
+//! [--report R] [--water-mask M] [--renders DIR] [--dry-run] [--json]`: apply corrections drawn in map view
+//! (lakes, rivers, control curves and their cross-sections, breaklines; see
 //! `demsketch::correct`) and write the
 //! corrected DEM through the same atomic write-back as `edit`.
 
@@ -27,6 +27,9 @@ by their \"kind\" property:
   control_curve  LineString with Z heights or heights_m; influence_m
   cross_section  LineString with Z heights or heights_m crossing a control
                  curve; control_curve (its id or name); heights relative
+  breakline      LineString with Z heights, heights_m or height_m; hard true
+                 (default: may kink across the line, never blend) or false
+                 (soft: smooth across); influence_m (default: 3 cells)
 
 Exit codes:
   0  written (with --dry-run: a real run would write it)
@@ -65,6 +68,10 @@ pub struct CorrectArgs {
     /// GeoTIFF on the grid of the corrected window (written on dry runs too).
     #[arg(long, value_name = "MASK.tif")]
     pub water_mask: Option<PathBuf>,
+    /// Write pictures here: map_before.png and map_after.png (hillshade of
+    /// the corrected window, features drawn) and height_change.png.
+    #[arg(long, value_name = "DIR")]
+    pub renders: Option<PathBuf>,
 }
 
 pub fn run(args: CorrectArgs) -> anyhow::Result<()> {
@@ -99,6 +106,7 @@ pub fn run(args: CorrectArgs) -> anyhow::Result<()> {
         demsketch::raster::output_format::output_driver(m, None).map_err(|e| anyhow::anyhow!(e))?;
     }
     opts.water_mask = args.water_mask.clone();
+    opts.renders = args.renders.clone();
     let report = match run_correct(&args.dem, &args.features, &opts) {
         Ok(r) => r,
         Err(e) if e.is_user_error() => return Err(e.into()),

@@ -23,6 +23,12 @@
 //!   section is moved vertically to meet the control curve there (as the
 //!   paper translates its cross-section curves along the control curve).
 //!   It is attached to the curve, not a correction of its own.
+//! - `breakline`: LineString with heights as Z coordinates, a `heights_m`
+//!   array (one per vertex) or one `height_m` for every vertex; at least two
+//!   distinct positions, not crossing or touching itself; optional `hard`
+//!   (`true`, the default: the surface may kink across the line but not
+//!   blend; `false`: a soft breakline, smooth across) and `influence_m`
+//!   (default three cells).
 
 use std::path::Path;
 use std::str::FromStr;
@@ -85,6 +91,15 @@ pub enum CorrectionKind {
         area: MultiPolygon<f64>,
         blend_m: Option<f64>,
     },
+    /// A 3D breakline: hard (the surface may kink across it, never blend)
+    /// or soft (passes through it, smooth across); see [`super::breakline`].
+    Breakline {
+        /// `[x, y, z]` in the DEM's CRS and metres, at least two distinct
+        /// positions, not crossing itself.
+        points: Vec<[f64; 3]>,
+        hard: bool,
+        influence_m: Option<f64>,
+    },
     /// A curve the DEM must pass through.
     ControlCurve {
         /// `[x, y, z]` in the DEM's CRS and metres.
@@ -103,6 +118,7 @@ impl CorrectionKind {
             CorrectionKind::Lake { .. } => "lake",
             CorrectionKind::River { .. } | CorrectionKind::RiverArea { .. } => "river",
             CorrectionKind::ControlCurve { .. } => "control_curve",
+            CorrectionKind::Breakline { .. } => "breakline",
         }
     }
 }
@@ -136,7 +152,19 @@ impl Transform {
 pub fn read(path: &Path, dem: &Dem) -> Result<Vec<Correction>, String> {
     let p = path.display();
     let text = std::fs::read_to_string(path).map_err(|e| format!("{p}: cannot read: {e}"))?;
-    let gj = GeoJson::from_str(&text).map_err(|e| {
+    parse(&text, &p.to_string(), dem)
+}
+
+/// The corrections of a FeatureCollection held in a sketch file's
+/// `corrections` member; messages name `name` (the sketch file and the
+/// member) and the feature.
+pub fn from_value(v: &serde_json::Value, name: &str, dem: &Dem) -> Result<Vec<Correction>, String> {
+    parse(&v.to_string(), name, dem)
+}
+
+/// The corrections of the GeoJSON `text`; messages name `p`.
+fn parse(text: &str, p: &str, dem: &Dem) -> Result<Vec<Correction>, String> {
+    let gj = GeoJson::from_str(text).map_err(|e| {
         format!(
             "{p}: not GeoJSON: {}",
             e.to_string().lines().next().unwrap_or("")
@@ -339,7 +367,10 @@ fn parse_feature(
         Some(serde_json::Value::String(s)) => s.as_str(),
         Some(v) => return Err(format!("property kind must be a string, not {v}")),
         None => {
-            return Err("no \"kind\" property (lake, river, control_curve or cross_section)".into())
+            return Err(
+                "no \"kind\" property (lake, river, control_curve, cross_section or breakline)"
+                    .into(),
+            )
         }
     };
     let geom = &geometry.ok_or("has no geometry")?.value;
@@ -347,6 +378,7 @@ fn parse_feature(
         "lake" => parse_lake(geom, props, t, dem)?,
         "river" => parse_river(geom, props, t, dem)?,
         "control_curve" => parse_curve(geom, props, t, dem)?,
+        "breakline" => parse_breakline(geom, props, t, dem)?,
         "cross_section" => {
             let curve =
                 match props.get("control_curve") {
@@ -373,7 +405,7 @@ fn parse_feature(
         }
         other => {
             return Err(format!(
-                "unknown kind \"{other}\" (expected lake, river, control_curve or cross_section)"
+                "unknown kind \"{other}\" (expected lake, river, control_curve, cross_section or breakline)"
             ))
         }
     };
@@ -554,5 +586,173 @@ fn parse_curve(
         points,
         influence_m: positive(props, "influence_m")?,
         sections: Vec::new(),
+    })
+}
+
+/// The heights of a breakline's positions: Z coordinates, a `heights_m`
+/// array or one `height_m` (the error names the first position without).
+fn breakline_heights(line: &[Position], props: &JsonObject) -> Result<Vec<f64>, String> {
+    if let Some(h) = number(props, "height_m")? {
+        if props.get("heights_m").is_some_and(|v| !v.is_null()) {
+            return Err("give heights_m or height_m, not both".into());
+        }
+        return Ok(vec![h; line.len()]);
+    }
+    let VertexHeights(h) = per_vertex_heights(line, props)?;
+    h.into_iter()
+        .enumerate()
+        .map(|(i, z)| {
+            z.ok_or_else(|| {
+                format!("position {i} has no height (give Z coordinates, heights_m or height_m)")
+            })
+        })
+        .collect()
+}
+
+/// Per-vertex heights from `heights_m` or the Z coordinates (`None` where
+/// a position has neither).
+struct VertexHeights(Vec<Option<f64>>);
+
+fn per_vertex_heights(line: &[Position], props: &JsonObject) -> Result<VertexHeights, String> {
+    match props.get("heights_m") {
+        None | Some(serde_json::Value::Null) => Ok(VertexHeights(
+            line.iter()
+                .map(|p| p.as_slice().get(2).copied().filter(|z| z.is_finite()))
+                .collect(),
+        )),
+        Some(serde_json::Value::Array(a)) => {
+            let h = a
+                .iter()
+                .map(|v| v.as_f64().filter(|x| x.is_finite()))
+                .collect::<Option<Vec<_>>>()
+                .ok_or("heights_m must be an array of numbers")?;
+            if h.len() != line.len() {
+                return Err(format!(
+                    "heights_m has {} values for {} positions",
+                    h.len(),
+                    line.len()
+                ));
+            }
+            Ok(VertexHeights(h.into_iter().map(Some).collect()))
+        }
+        Some(_) => Err("heights_m must be an array of numbers".into()),
+    }
+}
+
+/// Where the polyline `px` (pixel space) crosses or touches itself: the
+/// indices of the first two non-adjacent segments that meet (adjacent
+/// segments meet only at their shared vertex unless they fold back).
+pub fn self_intersection(px: &[[f64; 2]]) -> Option<(usize, usize)> {
+    let n = px.len().saturating_sub(1);
+    let bbox = |i: usize| {
+        let (a, b) = (px[i], px[i + 1]);
+        [
+            a[0].min(b[0]),
+            a[1].min(b[1]),
+            a[0].max(b[0]),
+            a[1].max(b[1]),
+        ]
+    };
+    let boxes: Vec<[f64; 4]> = (0..n).map(bbox).collect();
+    for i in 0..n {
+        for j in i + 1..n {
+            let (p, q) = (boxes[i], boxes[j]);
+            if p[0] > q[2] || q[0] > p[2] || p[1] > q[3] || q[1] > p[3] {
+                continue;
+            }
+            let meet = if j == i + 1 {
+                folds_back(px[i], px[i + 1], px[j + 1])
+            } else {
+                segments_meet(px[i], px[i + 1], px[j], px[j + 1])
+            };
+            if meet {
+                return Some((i, j));
+            }
+        }
+    }
+    None
+}
+
+fn orient(a: [f64; 2], b: [f64; 2], c: [f64; 2]) -> f64 {
+    (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
+}
+
+fn on_segment(a: [f64; 2], b: [f64; 2], p: [f64; 2]) -> bool {
+    p[0] >= a[0].min(b[0])
+        && p[0] <= a[0].max(b[0])
+        && p[1] >= a[1].min(b[1])
+        && p[1] <= a[1].max(b[1])
+}
+
+/// True when the closed segments `a`-`b` and `c`-`d` share a point.
+fn segments_meet(a: [f64; 2], b: [f64; 2], c: [f64; 2], d: [f64; 2]) -> bool {
+    let (d1, d2) = (orient(c, d, a), orient(c, d, b));
+    let (d3, d4) = (orient(a, b, c), orient(a, b, d));
+    if ((d1 > 0.0 && d2 < 0.0) || (d1 < 0.0 && d2 > 0.0))
+        && ((d3 > 0.0 && d4 < 0.0) || (d3 < 0.0 && d4 > 0.0))
+    {
+        return true;
+    }
+    (d1 == 0.0 && on_segment(c, d, a))
+        || (d2 == 0.0 && on_segment(c, d, b))
+        || (d3 == 0.0 && on_segment(a, b, c))
+        || (d4 == 0.0 && on_segment(a, b, d))
+}
+
+/// True when the segment `b`-`c` turns straight back over `a`-`b`.
+fn folds_back(a: [f64; 2], b: [f64; 2], c: [f64; 2]) -> bool {
+    let (u, v) = ([a[0] - b[0], a[1] - b[1]], [c[0] - b[0], c[1] - b[1]]);
+    orient(a, b, c) == 0.0 && u[0] * v[0] + u[1] * v[1] > 0.0
+}
+
+fn parse_breakline(
+    geom: &GeometryValue,
+    props: &JsonObject,
+    t: &Transform,
+    dem: &Dem,
+) -> Result<CorrectionKind, String> {
+    let line = match geom {
+        GeometryValue::LineString { coordinates } => coordinates,
+        other => {
+            return Err(format!(
+                "a breakline must be a LineString, not a {}",
+                other.type_name()
+            ))
+        }
+    };
+    let heights = breakline_heights(line, props)?;
+    let mut points: Vec<[f64; 3]> = Vec::new();
+    let mut px: Vec<[f64; 2]> = Vec::new();
+    let mut orig = Vec::new();
+    for (k, (p, z)) in line.iter().zip(heights).enumerate() {
+        let (xy, pix) = place(p, t, dem)?;
+        // Repeated positions (as digitising leaves them) are dropped.
+        if px.last() != Some(&pix) {
+            points.push([xy[0], xy[1], z]);
+            px.push(pix);
+            orig.push(k);
+        }
+    }
+    if px.len() < 2 {
+        return Err(format!(
+            "a breakline needs at least two distinct positions, it has {}",
+            px.len()
+        ));
+    }
+    if let Some((i, j)) = self_intersection(&px) {
+        return Err(format!(
+            "the breakline crosses itself (the segment from position {} meets the one from position {})",
+            orig[i], orig[j]
+        ));
+    }
+    let hard = match props.get("hard") {
+        None | Some(serde_json::Value::Null) => true,
+        Some(serde_json::Value::Bool(b)) => *b,
+        Some(v) => return Err(format!("property hard must be true or false, not {v}")),
+    };
+    Ok(CorrectionKind::Breakline {
+        points,
+        hard,
+        influence_m: positive(props, "influence_m")?,
     })
 }

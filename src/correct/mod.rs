@@ -2,21 +2,26 @@
 //! analysts make from an orthophoto or a map rather than from a viewpoint —
 //! lakes flattened to one level, rivers flat across and never rising
 //! downstream (hydro-flattening, Maquettier section IV), and control curves
-//! with heights the terrain must follow (Maquettier section III). They come
+//! with heights the terrain must follow (Maquettier section III), and hard
+//! and soft breaklines ([`breakline`]). They come
 //! as GeoJSON features drawn in a GIS ([`geojson_input`]), are applied one
 //! after the other, in file order, to one seamless window of the DEM
 //! ([`grid`]) with the project's multigrid solver ([`water`] blends the
 //! shores of [`lake`]s and [`river`]s; [`control_curve`] uses the edit's
 //! constraint rasteriser), and go back through the same atomic write-back
 //! as an edit (only changed tiles rewritten, cells no correction reached
-//! bit-identical). [`report`] says what each feature did. Nothing is written
+//! bit-identical). [`report`] says what each feature did, [`pictures`]
+//! draws the run. Nothing is written
 //! when any feature is invalid or fails.
 
+pub mod breakline;
 pub mod control_curve;
 pub mod curve_fit;
 pub mod geojson_input;
 pub mod grid;
+pub mod in_sketch;
 pub mod lake;
+pub mod pictures;
 pub mod report;
 pub mod river;
 pub mod sparse_lsq;
@@ -48,6 +53,9 @@ pub struct CorrectOptions {
     /// Also write the water cells (1) of lakes and rivers, 0 elsewhere, as
     /// a Byte raster on the grid of the corrected window.
     pub water_mask: Option<PathBuf>,
+    /// Write the pictures of [`pictures`] into this directory (on dry runs
+    /// too), once the DEM is written.
+    pub renders: Option<PathBuf>,
     pub write: WriteOptions,
     /// Largest window, in cells.
     pub max_window_cells: usize,
@@ -60,6 +68,7 @@ impl CorrectOptions {
             report: None,
             dry_run: false,
             water_mask: None,
+            renders: None,
             write: WriteOptions::default(),
             max_window_cells: 1 << 26,
         }
@@ -99,7 +108,7 @@ fn margin_px(c: &Correction, cell: crate::deform::CellSize, default_blend: f64) 
         CorrectionKind::River {
             width_m, blend_m, ..
         } => 0.5 * width_m + blend_m.unwrap_or(default_blend) + cell.hx.max(cell.hy),
-        CorrectionKind::ControlCurve { .. } => 0.0,
+        CorrectionKind::ControlCurve { .. } | CorrectionKind::Breakline { .. } => 0.0,
     };
     [m / cell.hx + 3.0, m / cell.hy + 3.0]
 }
@@ -133,6 +142,15 @@ fn feature_window(
             let curves = control_curve::curves(points, sections);
             return affected_window(dem, &curves, cell, influence.unwrap_or(0.0));
         }
+        CorrectionKind::Breakline { points, hard, .. } => {
+            let curves = control_curve::curves(points, &[]);
+            let support = if *hard {
+                breakline::support_m(cell)
+            } else {
+                0.0
+            };
+            return affected_window(dem, &curves, cell, influence.unwrap_or(0.0) + support);
+        }
     };
     let g = margin_px(c, cell, default_blend);
     let (w, h) = (dem.width as f64, dem.height as f64);
@@ -150,16 +168,27 @@ fn union(a: Window, b: Window) -> Window {
     Window::new(c0, r0, (c1 - c0) as usize, (r1 - r0) as usize)
 }
 
-/// Applies the corrections of `features` (GeoJSON) to `dem_path` and writes
-/// the result (see the module documentation).
-pub fn run(
-    dem_path: &Path,
-    features: &Path,
-    opts: &CorrectOptions,
-) -> Result<CorrectReport, CorrectError> {
-    let t0 = Instant::now();
-    let dem = Dem::open(dem_path)?;
-    let corrections = geojson_input::read(features, &dem).map_err(CorrectError::Input)?;
+/// A planned set of corrections on one DEM: the features, each one's
+/// influence distance, and the window they may change (nothing read yet).
+#[derive(Debug, Clone)]
+pub struct Plan {
+    pub corrections: Vec<Correction>,
+    influences: Vec<Option<f64>>,
+    /// The union of the features' windows, in the DEM grid.
+    pub window: Window,
+    /// Cell size in metres.
+    pub cell: crate::deform::CellSize,
+    default_blend: f64,
+}
+
+/// Plans `corrections` on `dem`: influence distances and the window,
+/// before reading pixels. `name` (the features' file) starts the messages.
+pub fn plan(
+    dem: &Dem,
+    corrections: Vec<Correction>,
+    name: &str,
+    max_window_cells: usize,
+) -> Result<Plan, CorrectError> {
     let centre = dem
         .geotransform
         .pixel_to_crs(dem.width as f64 / 2.0, dem.height as f64 / 2.0);
@@ -170,9 +199,6 @@ pub fn run(
         lat.clamp(-89.9, 89.9),
     );
     let default_blend = 2.0 * cell.hx.max(cell.hy);
-    let fname = features.display();
-
-    // Plan: influence distances and the window, before reading pixels.
     let mut influences = Vec::new();
     let mut window: Option<Window> = None;
     for c in &corrections {
@@ -183,23 +209,71 @@ pub fn run(
                 sections,
             } => Some(influence_m.unwrap_or_else(|| {
                 let curves = control_curve::curves(points, sections);
-                crate::deform::locality::default_influence_m(&dem, &curves, cell)
+                crate::deform::locality::default_influence_m(dem, &curves, cell)
             })),
+            CorrectionKind::Breakline { influence_m, .. } => {
+                Some(influence_m.unwrap_or_else(|| breakline::default_influence_m(cell)))
+            }
             _ => None,
         };
         influences.push(infl);
-        let w = feature_window(&dem, c, cell, default_blend, infl).ok_or_else(|| {
-            CorrectError::Input(format!("{fname}: {}: lies outside the DEM", c.label()))
+        let w = feature_window(dem, c, cell, default_blend, infl).ok_or_else(|| {
+            CorrectError::Input(format!("{name}: {}: lies outside the DEM", c.label()))
         })?;
         window = Some(window.map_or(w, |u| union(u, w)));
     }
-    let window = window.ok_or_else(|| CorrectError::Input(format!("{fname}: no features")))?;
-    if window.len() > opts.max_window_cells {
+    let window = window.ok_or_else(|| CorrectError::Input(format!("{name}: no features")))?;
+    if window.len() > max_window_cells {
         return Err(CorrectError::Input(format!(
-            "{fname}: the corrections span {} x {} cells, more than the limit of {} cells",
-            window.width, window.height, opts.max_window_cells
+            "{name}: the corrections span {} x {} cells, more than the limit of {} cells",
+            window.width, window.height, max_window_cells
         )));
     }
+    Ok(Plan {
+        corrections,
+        influences,
+        window,
+        cell,
+        default_blend,
+    })
+}
+
+impl Plan {
+    /// Applies every correction, in order, to `grid` (which covers at
+    /// least [`Plan::window`]); messages start with `name`.
+    pub fn apply(
+        &self,
+        dem: &Dem,
+        grid: &mut grid::Grid,
+        name: &str,
+    ) -> Result<Vec<FeatureReport>, CorrectError> {
+        let mut reports = Vec::new();
+        for (c, infl) in self.corrections.iter().zip(&self.influences) {
+            let r = apply_one(dem, grid, c, self.default_blend, *infl).map_err(|e| match e {
+                ApplyError::User(m) => CorrectError::Input(format!("{name}: {}: {m}", c.label())),
+                ApplyError::Internal(m) => {
+                    CorrectError::Internal(format!("{name}: {}: {m}", c.label()))
+                }
+            })?;
+            reports.push(r);
+        }
+        Ok(reports)
+    }
+}
+
+/// Applies the corrections of `features` (GeoJSON) to `dem_path` and writes
+/// the result (see the module documentation).
+pub fn run(
+    dem_path: &Path,
+    features: &Path,
+    opts: &CorrectOptions,
+) -> Result<CorrectReport, CorrectError> {
+    let t0 = Instant::now();
+    let dem = Dem::open(dem_path)?;
+    let corrections = geojson_input::read(features, &dem).map_err(CorrectError::Input)?;
+    let fname = features.display().to_string();
+    let plan = plan(&dem, corrections, &fname, opts.max_window_cells)?;
+    let (window, cell) = (plan.window, plan.cell);
     let staged_report = match &opts.report {
         Some(p) => Some(StagedFile::create(p).map_err(|e| {
             CorrectError::Input(format!("{}: cannot write the report: {e}", p.display()))
@@ -210,19 +284,21 @@ pub fn run(
     let mut grid = grid::Grid::new(window, cell, dem.read_height_map(window)?);
 
     let t1 = Instant::now();
-    let mut reports = Vec::new();
-    for (c, infl) in corrections.iter().zip(&influences) {
-        let r = apply_one(&dem, &mut grid, c, default_blend, *infl).map_err(|e| match e {
-            ApplyError::User(m) => CorrectError::Input(format!("{fname}: {}: {m}", c.label())),
-            ApplyError::Internal(m) => {
-                CorrectError::Internal(format!("{fname}: {}: {m}", c.label()))
-            }
-        })?;
-        reports.push(r);
-    }
+    let reports = plan.apply(&dem, &mut grid, &fname)?;
     let t_solve = t1.elapsed().as_secs_f64();
 
     let t2 = Instant::now();
+    let staged_renders = match &opts.renders {
+        Some(dir) => {
+            let pics = pictures::pictures(&dem, &grid, &plan.corrections)
+                .map_err(|e| CorrectError::Internal(format!("pictures: {e}")))?;
+            Some(
+                crate::edit::StagedDir::create(dir, &pics)
+                    .map_err(|e| CorrectError::Input(e.to_string()))?,
+            )
+        }
+        None => None,
+    };
     let values = grid.write_values();
     let bytes = std::fs::read(features).unwrap_or_default();
     let hash = sha256_hex(&bytes);
@@ -250,6 +326,9 @@ pub fn run(
     };
     if let Some(path) = &opts.water_mask {
         write_water_mask(path, &dem, &grid)?;
+    }
+    if let Some(s) = staged_renders {
+        s.commit().map_err(|e| CorrectError::Input(e.to_string()))?;
     }
     let output = match &opts.destination {
         Destination::InPlace => dem_path.display().to_string(),
@@ -401,6 +480,30 @@ fn apply_one(
             }
             r.cells_changed = res.cells_changed;
             r.max_abs_dz_m = res.max_abs_dz_m;
+        }
+        CorrectionKind::Breakline { points, hard, .. } => {
+            let infl = influence.unwrap_or_else(|| breakline::default_influence_m(grid.cell));
+            r.hard = Some(*hard);
+            r.influence_m = Some(infl);
+            if *hard {
+                let res = breakline::apply_hard(grid, points, infl).map_err(|e| match e {
+                    breakline::BreaklineError::Triangulation(m) => ApplyError::Internal(m),
+                    e => ApplyError::User(e.to_string()),
+                })?;
+                r.band_cells = Some(res.band_cells);
+                r.cells_changed = res.cells_changed;
+                r.max_abs_dz_m = res.max_abs_dz_m;
+            } else {
+                let res =
+                    control_curve::apply(dem, grid, points, &[], infl).map_err(|e| match e {
+                        control_curve::CurveError::Solver(s) => solver_error(s),
+                        control_curve::CurveError::Fit(f) => ApplyError::Internal(f.to_string()),
+                        e => ApplyError::User(e.to_string()),
+                    })?;
+                r.max_curve_error_m = Some(res.max_curve_error_m);
+                r.cells_changed = res.cells_changed;
+                r.max_abs_dz_m = res.max_abs_dz_m;
+            }
         }
     }
     Ok(r)

@@ -1,7 +1,8 @@
 //! The report of `demsketch correct` (JSON): the run's window, what was
 //! written, and per feature its kind, the cells it changed, the largest
 //! height change and what it used (lake level, river surface, influence
-//! distance) or reached (control-curve error).
+//! distance) or reached (control-curve error), and for breaklines whether
+//! they are hard and how many cells they re-interpolated.
 
 use serde::Serialize;
 
@@ -14,7 +15,7 @@ pub struct FeatureReport {
     pub index: usize,
     /// The feature's id or name.
     pub id: Option<String>,
-    /// `lake`, `river` or `control_curve`.
+    /// `lake`, `river`, `control_curve` or `breakline`.
     pub kind: &'static str,
     /// Cells whose height this feature changed.
     pub cells_changed: usize,
@@ -57,6 +58,13 @@ pub struct FeatureReport {
     /// meet the curve), metres.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub max_section_error_m: Option<f64>,
+    /// Breaklines: true for a hard one, false for a soft one.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub hard: Option<bool>,
+    /// Hard breaklines: the valid cells within the influence distance,
+    /// re-interpolated from the triangulation.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub band_cells: Option<usize>,
 }
 
 impl FeatureReport {
@@ -80,6 +88,8 @@ impl FeatureReport {
             max_curve_error_m: None,
             cross_sections: None,
             max_section_error_m: None,
+            hard: None,
+            band_cells: None,
         }
     }
 }

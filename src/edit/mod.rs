@@ -22,6 +22,7 @@ pub mod fit;
 pub mod lowering;
 pub mod on_silhouette;
 mod outputs;
+pub(crate) use outputs::StagedDir;
 pub mod pipeline;
 pub mod rendered_view;
 pub mod renders;

@@ -37,6 +37,8 @@ pub(super) struct Outcome {
     pub(super) curve_constraints: usize,
     pub(super) lowering_constraints: usize,
     pub(super) matching: MatchingReport,
+    /// What the sketch's map-view corrections did.
+    pub(super) corrections: Vec<crate::correct::FeatureReport>,
 }
 
 /// The worst stroke below the minimum fit, which stops the write.
@@ -73,6 +75,7 @@ pub(super) fn write_outputs(
         curve_constraints,
         lowering_constraints,
         matching,
+        corrections,
     } = outcome;
     edit.pb.set_message("writing corrected tiles");
     let t = Instant::now();
@@ -211,6 +214,7 @@ pub(super) fn write_outputs(
         dry_run: opts.dry_run,
         min_fit: opts.min_fit,
         matching,
+        corrections,
     };
     if let (Some(staged), Some(path)) = (staged_report, &opts.report) {
         let mut text = serde_json::to_string_pretty(&report)
@@ -374,14 +378,14 @@ fn content_hash(sketch: &SketchFile) -> String {
 /// Pictures written into a staging directory beside the target (exclusive,
 /// unpredictable name), each read back, then moved into the target
 /// directory on commit; removed if dropped uncommitted.
-struct StagedDir {
+pub(crate) struct StagedDir {
     target: PathBuf,
     staging: Option<crate::raster::atomic_file::Staging>,
     names: Vec<String>,
 }
 
 impl StagedDir {
-    fn create(target: &Path, pictures: &[Picture]) -> Result<StagedDir, EditError> {
+    pub(crate) fn create(target: &Path, pictures: &[Picture]) -> Result<StagedDir, EditError> {
         let werr = |m: String| EditError::Write {
             path: target.display().to_string(),
             message: m,
@@ -409,7 +413,7 @@ impl StagedDir {
         })
     }
 
-    fn commit(mut self) -> Result<(), EditError> {
+    pub(crate) fn commit(mut self) -> Result<(), EditError> {
         let werr = |p: &Path, e: std::io::Error| EditError::Write {
             path: p.display().to_string(),
             message: e.to_string(),

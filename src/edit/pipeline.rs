@@ -249,13 +249,14 @@ pub fn run(
     timings.deformation = secs(t);
 
     let t = Instant::now();
-    let rounds = refine(&edit, views, &solver, &placed, deformation)?;
+    let mut rounds = refine(&edit, views, &solver, &placed, deformation)?;
     if rounds.kept_unedited {
         notes.push(
-            "nothing changed: no deformation fitted the strokes better than the terrain as it is (each stroke's fit below is on the unedited terrain)"
+            "nothing changed by the strokes: no deformation fitted them better than the terrain as it is (each stroke's fit below is on the unedited terrain)"
                 .to_string(),
         );
     }
+    let corrections = apply_corrections(&edit, &dem, &sketch, views, &placed, &mut rounds)?;
     let view_reports = measure_strokes(&edit, views, &features, &placed, &rounds);
     timings.lowering = secs(t);
 
@@ -270,6 +271,7 @@ pub fn run(
             stopped_early: placed.matched.stopped_early,
         },
         deformation: rounds.deformation,
+        corrections,
     };
     let sources = Sources {
         dem_path,
@@ -643,6 +645,51 @@ fn deform<'a>(
     };
     let deformation = solver.solve(&placed.demands.curves, &[])?;
     Ok((solver, deformation))
+}
+
+/// After the refinement rounds, the sketch's map-view corrections (its
+/// `corrections` member) on the terrain they gave
+/// ([`crate::correct::in_sketch`]: in turn, not in one solve, and why);
+/// the views are rendered again on the result, so the strokes are measured
+/// on the terrain that is written.
+fn apply_corrections(
+    edit: &Edit,
+    dem: &Dem,
+    sketch: &SketchFile,
+    views: &[ViewState],
+    placed: &Placed,
+    rounds: &mut Rounds,
+) -> Result<Vec<crate::correct::FeatureReport>, EditError> {
+    let Some(collection) = &sketch.corrections else {
+        return Ok(Vec::new());
+    };
+    edit.pb.set_message("map-view corrections");
+    let name = format!("{}: corrections", edit.sketch_name);
+    let (deformation, reports) = crate::correct::in_sketch::apply_after_edit(
+        dem,
+        collection,
+        &name,
+        &rounds.deformation,
+        1 << 26,
+    )
+    .map_err(|e| match e {
+        crate::correct::CorrectError::Raster(r) => EditError::Raster(r),
+        crate::correct::CorrectError::Internal(m) => EditError::Internal(m),
+        crate::correct::CorrectError::Input(message) => EditError::Unusable {
+            sketch: edit.sketch_name.clone(),
+            message: message
+                .strip_prefix(&format!("{}: ", edit.sketch_name))
+                .unwrap_or(&message)
+                .to_string(),
+        },
+    })?;
+    rounds.rendered = views
+        .iter()
+        .zip(&placed.regions)
+        .map(|(v, r)| render_edited(v, &deformation, edit.max_d, Some(r)))
+        .collect::<Result<_, _>>()?;
+    rounds.deformation = deformation;
+    Ok(reports)
 }
 
 /// Stage 5, `lowering` (last step): measures on the final terrain of the

@@ -40,6 +40,10 @@ pub struct EditReport {
     /// The stroke-feature search of the whole sketch (its views are
     /// matched jointly).
     pub matching: MatchingReport,
+    /// What each map-view correction of the sketch's `corrections` member
+    /// did (as in the report of `demsketch correct`); absent without any.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub corrections: Vec<crate::correct::FeatureReport>,
 }
 
 /// Branch-and-bound of the matching.

@@ -2,7 +2,9 @@
 //!
 //! A sketch file holds one or more views (a viewpoint, a camera and the
 //! strokes drawn over that view) and options for matching and deformation.
-//! Several views make a multi-view sketch, matched jointly. This module only
+//! Several views make a multi-view sketch, matched jointly. An optional
+//! `corrections` member holds map-view corrections (a GeoJSON
+//! FeatureCollection) applied in the same edit. This module only
 //! parses and validates: every problem becomes a [`SketchError`] value whose
 //! one-line message names the file, the view, the stroke and the problem.
 //!
@@ -56,6 +58,12 @@ pub struct SketchFile {
     pub views: Vec<ViewSpec>,
     #[serde(default)]
     pub options: SketchOptions,
+    /// Map-view corrections applied in the same edit: a GeoJSON
+    /// FeatureCollection as `demsketch correct --features` reads it (lakes,
+    /// rivers, control curves, breaklines; see `demsketch::correct`).
+    /// Checked against the DEM when the edit loads it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub corrections: Option<serde_json::Value>,
 }
 
 /// One view of a sketch: where the eye is, the camera, the strokes.
@@ -353,6 +361,14 @@ impl SketchFile {
             return Err(err("views".into(), "the sketch has no views".into()));
         }
         validate_options(&self.options).map_err(|p| err("options".into(), p))?;
+        if let Some(c) = &self.corrections {
+            if c.get("type").and_then(|t| t.as_str()) != Some("FeatureCollection") {
+                return Err(err(
+                    "corrections".into(),
+                    "must be a GeoJSON FeatureCollection".into(),
+                ));
+            }
+        }
         let mut names = HashSet::new();
         for (vi, view) in self.views.iter().enumerate() {
             if view.name.trim().is_empty() {
