@@ -212,7 +212,7 @@ pub fn place_free_stretches(
             continue;
         }
         let surface = Surface::new(proj, left, right);
-        let cut = cut_depths(before, &on[a..b], placed);
+        let cut = cut_depths(before, &on[a..b], placed, near_px);
         for (j, &k) in on[a..b].iter().enumerate() {
             let Some(px) = placed.points[k].pixel else {
                 continue;
@@ -348,22 +348,31 @@ fn terrain_pixel(before: &RenderedView, pixel: Option<[f64; 2]>) -> Option<(usiz
 pub const CUT_MEDIAN_HALF: usize = 3;
 
 /// For a free run drawn into the terrain (the unedited view shows terrain,
-/// not sky, under at least [`NEAR_COVERAGE`] of its points): per point, the
+/// not sky, under at least [`NEAR_COVERAGE`] of its points, and the
+/// skyline lies within `near_px` above them): per point, the
 /// depth of the skyline above it, which is what the stroke cuts (the
 /// skyline is lowered onto the stroke at its own depth, as Tassé et al.
 /// section 5.2.1 lower a feature drawn above the stroke; nearer terrain
 /// left above the stroke is lowered by the rounds as protruding),
 /// smoothed by a running median over the run. `None` everywhere for a run
 /// drawn in the sky (a raise), and at points over sky.
-fn cut_depths(before: &RenderedView, run: &[usize], placed: &StrokeMatch) -> Vec<Option<f64>> {
+fn cut_depths(
+    before: &RenderedView,
+    run: &[usize],
+    placed: &StrokeMatch,
+    near_px: f64,
+) -> Vec<Option<f64>> {
     let w = before.camera.width;
     let shown: Vec<Option<f64>> = run
         .iter()
         .map(|&k| {
             let (i, j) = terrain_pixel(before, placed.points[k].pixel)?;
-            // The skyline above: the first terrain pixel from the top.
+            // The skyline above: the first terrain pixel from the top,
+            // within `near_px` of the stroke (a stroke drawn far under the
+            // skyline does not cut it: at the skyline's depth its ray runs
+            // far under that landform's ground).
             let top = (0..=j).find(|&r| before.depth.triangle[r * w + i] != SKY)?;
-            Some(before.depth.depth[top * w + i] as f64)
+            ((j - top) as f64 <= near_px).then(|| before.depth.depth[top * w + i] as f64)
         })
         .collect();
     let inside = shown.iter().flatten().count();
@@ -444,6 +453,13 @@ struct Surface {
     normal: [f64; 3],
     /// Depth used where a ray runs parallel to the surface.
     depth: f64,
+    /// Depths the surface may give: on the vertical surface between two
+    /// terrain points, those of the two points (widened by
+    /// [`AGREEMENT`]). A ray that meets the plane beyond them (the two
+    /// points nearly in line with the eye, or a stretch reaching past
+    /// them) would otherwise place the stroke kilometres away, far under
+    /// the terrain.
+    range: (f64, f64),
 }
 
 impl Surface {
@@ -467,6 +483,10 @@ impl Surface {
                         point: l.world,
                         normal: [-along[1] / len, along[0] / len, 0.0],
                         depth: 0.5 * (l.depth + r.depth),
+                        range: (
+                            l.depth.min(r.depth) * (1.0 - AGREEMENT),
+                            l.depth.max(r.depth) * (1.0 + AGREEMENT),
+                        ),
                     };
                 }
                 let near = if l.depth <= r.depth { l } else { r };
@@ -477,6 +497,7 @@ impl Surface {
                 point: eye,
                 normal: [0.0, 0.0, 1.0],
                 depth: 1.0,
+                range: (0.0, f64::INFINITY),
             },
         }
     }
@@ -489,6 +510,7 @@ impl Surface {
             point: q.world,
             normal: [v[0] / len, v[1] / len, 0.0],
             depth: q.depth,
+            range: (0.0, f64::INFINITY),
         }
     }
 
@@ -502,6 +524,6 @@ impl Surface {
         } else {
             self.depth
         };
-        (t.is_finite() && t > 0.0).then_some(t)
+        (t.is_finite() && t > 0.0).then(|| t.clamp(self.range.0, self.range.1))
     }
 }
