@@ -315,3 +315,52 @@ fn failures_write_nothing() {
     );
     assert!(e.contains("bad.json"), "{e}");
 }
+
+/// Ten strokes, each a long silhouette of a 1200 x 600 view raised by a
+/// 6 px bump (the sketch `tools/bench_serve.py` builds, kept in
+/// `fixtures/sketches/zion512_bumps.json`), on the Zion fixture resampled
+/// to 512 x 512 by `gdalwarp` as that benchmark does. It once placed a
+/// stroke drawn far under a 23 km skyline at the skyline's depth, 2 km
+/// under the ground, and the edit failed on the UInt16 range. Now it
+/// succeeds and no cell moves by more than the 6 px bumps ask (at most
+/// some 100 m on the farthest silhouettes).
+#[test]
+fn many_bumped_silhouettes_on_a_resampled_dem_stay_in_range() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dem = tmp.path().join("zion512.tif");
+    let st = std::process::Command::new("gdalwarp")
+        .args(["-q", "-overwrite", "-ts", "512", "512", "-r", "cubicspline"])
+        .args(["-co", "TILED=YES", "-co", "COMPRESS=DEFLATE"])
+        .arg(fixture(DEM))
+        .arg(&dem)
+        .status()
+        .expect("gdalwarp runs");
+    assert!(st.success(), "gdalwarp");
+    let sketch = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/sketches/zion512_bumps.json");
+    let out = tmp.path().join("out.tif");
+    let r = demsketch(&[
+        "edit",
+        dem.to_str().unwrap(),
+        "--sketch",
+        sketch.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--allow-partial",
+    ]);
+    assert_eq!(
+        r.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&r.stderr)
+    );
+    let info = gdalinfo(&out);
+    assert_eq!(info["bands"][0]["type"], "UInt16", "{info}");
+    let (_, _, before, _) = gdal_values(&dem);
+    let (_, _, after, _) = gdal_values(&out);
+    let max = before
+        .iter()
+        .zip(&after)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0f64, f64::max);
+    assert!(max < 150.0, "max |dz| {max} m");
+}
