@@ -533,15 +533,7 @@ fn parse_curve(
     t: &Transform,
     dem: &Dem,
 ) -> Result<CorrectionKind, String> {
-    let line = match geom {
-        GeometryValue::LineString { coordinates } => coordinates,
-        other => {
-            return Err(format!(
-                "a control curve must be a LineString, not a {}",
-                other.type_name()
-            ))
-        }
-    };
+    let line = line_string(geom, "a control curve")?;
     if line.is_empty() {
         return Err("a control curve needs at least one position".into());
     }
@@ -699,6 +691,18 @@ fn segments_meet(a: [f64; 2], b: [f64; 2], c: [f64; 2], d: [f64; 2]) -> bool {
         || (d4 == 0.0 && on_segment(a, b, d))
 }
 
+/// The coordinates of `geom` when it is a LineString; `what` names the
+/// feature kind in the error.
+fn line_string<'a>(geom: &'a GeometryValue, what: &str) -> Result<&'a [Position], String> {
+    match geom {
+        GeometryValue::LineString { coordinates } => Ok(coordinates),
+        other => Err(format!(
+            "{what} must be a LineString, not a {}",
+            other.type_name()
+        )),
+    }
+}
+
 /// True when the segment `b`-`c` turns straight back over `a`-`b`.
 fn folds_back(a: [f64; 2], b: [f64; 2], c: [f64; 2]) -> bool {
     let (u, v) = ([a[0] - b[0], a[1] - b[1]], [c[0] - b[0], c[1] - b[1]]);
@@ -711,15 +715,7 @@ fn parse_breakline(
     t: &Transform,
     dem: &Dem,
 ) -> Result<CorrectionKind, String> {
-    let line = match geom {
-        GeometryValue::LineString { coordinates } => coordinates,
-        other => {
-            return Err(format!(
-                "a breakline must be a LineString, not a {}",
-                other.type_name()
-            ))
-        }
-    };
+    let line = line_string(geom, "a breakline")?;
     let heights = breakline_heights(line, props)?;
     let mut points: Vec<[f64; 3]> = Vec::new();
     let mut px: Vec<[f64; 2]> = Vec::new();
