@@ -61,6 +61,10 @@ pub struct CorrectOptions {
     pub max_window_cells: usize,
 }
 
+/// The largest window a correction may solve over by default, in cells
+/// (2^26, about 8200 x 8200).
+pub const MAX_WINDOW_CELLS: usize = 1 << 26;
+
 impl CorrectOptions {
     pub fn new(destination: Destination) -> Self {
         CorrectOptions {
@@ -70,7 +74,7 @@ impl CorrectOptions {
             water_mask: None,
             renders: None,
             write: WriteOptions::default(),
-            max_window_cells: 1 << 26,
+            max_window_cells: MAX_WINDOW_CELLS,
         }
     }
 }

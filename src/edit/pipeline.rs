@@ -670,7 +670,7 @@ fn apply_corrections(
         collection,
         &name,
         &rounds.deformation,
-        1 << 26,
+        crate::correct::MAX_WINDOW_CELLS,
     )
     .map_err(|e| match e {
         crate::correct::CorrectError::Raster(r) => EditError::Raster(r),
