@@ -15,7 +15,7 @@ mod correct_support;
 use std::path::Path;
 
 use common::fixture;
-use correct_support::{collection, correct_ok, write_f32_geotiff, Raster};
+use correct_support::{collection, correct_ok, correct_succeeds, write_f32_geotiff, Raster};
 use serde_json::{json, Value};
 
 const CELL: f64 = 10.0;
@@ -88,6 +88,22 @@ fn run(dem: &Path, tmp: &Path, name: &str, fc: String) -> (std::path::PathBuf, V
 /// Largest error against the roof and largest error of the height
 /// difference between 4-neighbours on the same side of the ridge, over
 /// the cells within `reach_m` of the ridge and `along_m` of its middle.
+/// The ridge as a 3D line in the DEM's CRS with Z on the roof, through
+/// the points at `ks` half-lengths from the centre along it.
+fn ridge_line(input: &Raster, ks: &[f64]) -> Vec<Vec<f64>> {
+    let c = N as f64 / 2.0;
+    ks.iter()
+        .map(|k| {
+            let p = [
+                c + k * HALF_LENGTH_PX * THETA.cos(),
+                c + k * HALF_LENGTH_PX * THETA.sin(),
+            ];
+            let q = input.crs(p);
+            vec![q[0], q[1], roof(p)]
+        })
+        .collect()
+}
+
 fn roof_errors(r: &Raster, reach_m: f64, along_m: f64) -> (f64, f64) {
     let keep = |c: usize, rr: usize| {
         let (t, d) = frame(centre(c, rr));
@@ -159,18 +175,7 @@ fn a_hard_breakline_restores_the_kink_of_a_blurred_roof() {
     write_f32_geotiff(&dem, N, N, gt, 32632, &blurred_roof());
     let input = Raster::read(&dem);
     // The ridge as a 3D line in UTM with Z: both ends and the middle.
-    let c = N as f64 / 2.0;
-    let line: Vec<Vec<f64>> = [-1.0, 0.0, 1.0]
-        .iter()
-        .map(|k| {
-            let p = [
-                c + k * HALF_LENGTH_PX * THETA.cos(),
-                c + k * HALF_LENGTH_PX * THETA.sin(),
-            ];
-            let q = input.crs(p);
-            vec![q[0], q[1], roof(p)]
-        })
-        .collect();
+    let line = ridge_line(&input, &[-1.0, 0.0, 1.0]);
     let fc = collection(
         vec![
             json!({"type": "Feature", "properties": {"kind": "breakline", "name": "ridge",
@@ -395,18 +400,7 @@ fn renders_show_the_map_before_and_after_and_the_height_change() {
     let gt = [600000.0, CELL, 0.0, 5200000.0, 0.0, -CELL];
     write_f32_geotiff(&dem, N, N, gt, 32632, &blurred_roof());
     let input = Raster::read(&dem);
-    let c = N as f64 / 2.0;
-    let line: Vec<Vec<f64>> = [-1.0, 1.0]
-        .iter()
-        .map(|k| {
-            let p = [
-                c + k * HALF_LENGTH_PX * THETA.cos(),
-                c + k * HALF_LENGTH_PX * THETA.sin(),
-            ];
-            let q = input.crs(p);
-            vec![q[0], q[1], roof(p)]
-        })
-        .collect();
+    let line = ridge_line(&input, &[-1.0, 1.0]);
     let features = tmp.path().join("ridge.geojson");
     std::fs::write(
         &features,
@@ -422,17 +416,12 @@ fn renders_show_the_map_before_and_after_and_the_height_change() {
     .unwrap();
     let renders = tmp.path().join("renders");
     let out = tmp.path().join("out.tif");
-    let o = common::demsketch(&[
-        "correct",
-        &dem.to_string_lossy(),
-        "--features",
-        &features.to_string_lossy(),
-        "--out",
-        &out.to_string_lossy(),
-        "--renders",
-        &renders.to_string_lossy(),
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    correct_succeeds(
+        &dem,
+        &features,
+        &out,
+        &["--renders", &renders.to_string_lossy()],
+    );
     for name in ["map_before.png", "map_after.png", "height_change.png"] {
         let p = renders.join(name);
         // GDAL reads each picture: three Byte bands.

@@ -260,16 +260,25 @@ pub fn correct_ok(
     out: &Path,
     report_path: &Path,
 ) -> serde_json::Value {
-    let o = super::common::demsketch(&[
-        "correct",
-        &dem.to_string_lossy(),
-        "--features",
-        &features.to_string_lossy(),
-        "--out",
-        &out.to_string_lossy(),
-        "--report",
-        &report_path.to_string_lossy(),
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    correct_succeeds(
+        dem,
+        features,
+        out,
+        &["--report", &report_path.to_string_lossy()],
+    );
     report(report_path)
+}
+
+/// Runs `demsketch correct DEM --features F --out OUT` with `extra`
+/// arguments and asserts that it succeeded.
+pub fn correct_succeeds(dem: &Path, features: &Path, out: &Path, extra: &[&str]) {
+    let (dem, features, out) = (
+        dem.to_string_lossy(),
+        features.to_string_lossy(),
+        out.to_string_lossy(),
+    );
+    let mut args = vec!["correct", &dem, "--features", &features, "--out", &out];
+    args.extend_from_slice(extra);
+    let o = super::common::demsketch(&args);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 }
