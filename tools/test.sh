@@ -4,6 +4,9 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 bash tools/setup.sh
 export GDAL_PAM_ENABLED=NO
+# A clean build gains nothing from incremental state, and it costs disk.
+export CARGO_INCREMENTAL="${CARGO_INCREMENTAL:-0}"
+echo "disk free before the build: $(df -h --output=avail . | tail -1)"
 cargo test --locked --no-fail-fast 2>&1
 # The independent fidelity evaluation (tools/fidelity, a second renderer), CI subset.
 # Lines of issue 11 the edit meets are required (CI fails on them); the others
