@@ -88,7 +88,7 @@ fn a_sketch_with_a_stroke_and_a_lake_flattens_the_lake_and_fits_the_stroke_as_be
     let input = Raster::read(&fixture(DEM));
     let plain = one_stroke_sketch();
     let mut with_lake = plain.clone();
-    with_lake["corrections"] = lake_collection(&input, "lake");
+    with_lake["map_features"] = lake_collection(&input, "lake");
 
     let (o, out_a, rep_a) = edit(tmp.path(), "plain", &plain);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
@@ -165,7 +165,7 @@ fn a_bad_correction_in_a_sketch_fails_the_edit_and_writes_nothing() {
     let tmp = tempfile::tempdir().unwrap();
     let input = Raster::read(&fixture(DEM));
     let mut sketch = one_stroke_sketch();
-    sketch["corrections"] = lake_collection(&input, "glacier");
+    sketch["map_features"] = lake_collection(&input, "glacier");
     write_sketch(tmp.path(), "bad", &sketch);
     let before = snapshot(tmp.path());
     let (o, out, rep) = run_edit(tmp.path(), "bad");
@@ -174,7 +174,7 @@ fn a_bad_correction_in_a_sketch_fails_the_edit_and_writes_nothing() {
     assert_eq!(err.trim().lines().count(), 1, "one line: {err}");
     assert!(err.contains("bad.json"), "names the sketch: {err}");
     assert!(
-        err.contains("corrections: feature 0 (\"pond\")"),
+        err.contains("map_features: feature 0 (\"pond\")"),
         "names the feature: {err}"
     );
     assert!(err.contains("unknown kind \"glacier\""), "{err}");
@@ -193,13 +193,23 @@ fn unknown_keys_next_to_the_corrections_are_still_rejected() {
     assert_eq!(o.status.code(), Some(1), "{err}");
     assert!(err.contains("unknown field `correction`"), "{err}");
 
+    // `corrections`, the member's older name, is still read as `map_features`.
     let mut sketch = one_stroke_sketch();
     sketch["corrections"] = json!({"type": "Feature"});
     let (o, _, _) = edit(tmp.path(), "notfc", &sketch);
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(1), "{err}");
     assert!(
-        err.contains("corrections: must be a GeoJSON FeatureCollection"),
+        err.contains("map_features: must be a GeoJSON FeatureCollection"),
         "{err}"
     );
+
+    // Both names at once: one member too many.
+    let mut sketch = one_stroke_sketch();
+    sketch["map_features"] = lake_collection(&input, "lake");
+    sketch["corrections"] = lake_collection(&input, "lake");
+    let (o, _, _) = edit(tmp.path(), "both", &sketch);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "one line: {err}");
 }

@@ -664,7 +664,7 @@ fn apply_corrections(
         return Ok(Vec::new());
     };
     edit.pb.set_message("map-view corrections");
-    let name = format!("{}: corrections", edit.sketch_name);
+    let name = format!("{}: map_features", edit.sketch_name);
     let (deformation, reports) = crate::correct::in_sketch::apply_after_edit(
         dem,
         collection,

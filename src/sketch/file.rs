@@ -3,7 +3,7 @@
 //! A sketch file holds one or more views (a viewpoint, a camera and the
 //! strokes drawn over that view) and options for matching and deformation.
 //! Several views make a multi-view sketch, matched jointly. An optional
-//! `corrections` member holds map-view corrections (a GeoJSON
+//! `map_features` member (older name: `corrections`) holds map-view corrections (a GeoJSON
 //! FeatureCollection) applied in the same edit. This module only
 //! parses and validates: every problem becomes a [`SketchError`] value whose
 //! one-line message names the file, the view, the stroke and the problem.
@@ -62,7 +62,14 @@ pub struct SketchFile {
     /// FeatureCollection as `demsketch correct --features` reads it (lakes,
     /// rivers, control curves, breaklines; see `demsketch::correct`).
     /// Checked against the DEM when the edit loads it.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    /// Read from `map_features` (the name in the sketch format) or, as
+    /// written by demsketch before 2026-12-02, `corrections`.
+    #[serde(
+        default,
+        rename = "map_features",
+        alias = "corrections",
+        skip_serializing_if = "Option::is_none"
+    )]
     pub corrections: Option<serde_json::Value>,
 }
 
@@ -364,7 +371,7 @@ impl SketchFile {
         if let Some(c) = &self.corrections {
             if c.get("type").and_then(|t| t.as_str()) != Some("FeatureCollection") {
                 return Err(err(
-                    "corrections".into(),
+                    "map_features".into(),
                     "must be a GeoJSON FeatureCollection".into(),
                 ));
             }
