@@ -555,6 +555,8 @@ def main():
         vpath = os.path.join(HERE, "validation.md")
         if os.path.exists(vpath):
             meta["validation"] = open(vpath).read()
+        if not a.md and cases.SEED_SALT:
+            sys.exit("run.py: --from-json with FIDELITY_SEED set needs --md (docs/fidelity.md is the tuned suite's)")
         write_md(a.md or os.path.join(ROOT, "docs", "fidelity.md"), j["cases"], summary(j["cases"]), meta)
         return
     if not os.path.exists(demsketch()):
@@ -590,7 +592,10 @@ def main():
     jpath = a.json or os.path.join(HERE, "results%s.json" % ("-ci" if a.subset == "ci" else ""))
     with open(jpath, "w") as f:
         json.dump({"meta": meta, "summary": lines, "cases": results}, f, indent=1, default=float)
-    md = a.md if a.md else (os.path.join(ROOT, "docs", "fidelity.md") if a.subset == "all" and not a.only else None)
+    # The default table is the tuned suite's: a hold-out run (FIDELITY_SEED
+    # set) writes a table only where --md names one.
+    default_md = a.subset == "all" and not a.only and not cases.SEED_SALT
+    md = a.md if a.md else (os.path.join(ROOT, "docs", "fidelity.md") if default_md else None)
     if md:
         vpath = os.path.join(HERE, "validation.md")
         if os.path.exists(vpath):
