@@ -479,3 +479,148 @@ fn a_single_geotiff_is_one_group_and_equals_edits_one_by_one() {
     assert_eq!(json(&st.join("summary.json"))["written"], 3);
     common::gdalinfo(&out);
 }
+
+/// A lake polygon (lon/lat) over cells `c0..c1` x `r0..r1` of the tile set.
+fn lake(c0: f64, r0: f64, c1: f64, r1: f64) -> String {
+    let ring: Vec<String> = [(c0, r0), (c1, r0), (c1, r1), (c0, r1), (c0, r0)]
+        .iter()
+        .map(|&(c, r)| {
+            let (lon, lat) = lonlat(c, r);
+            format!("[{lon},{lat}]")
+        })
+        .collect();
+    format!(
+        r#"{{"type":"FeatureCollection","features":[{{"type":"Feature",
+ "properties":{{"kind":"lake","name":"pond"}},
+ "geometry":{{"type":"Polygon","coordinates":[[{}]]}}}}]}}"#,
+        ring.join(",")
+    )
+}
+
+#[test]
+fn corrections_in_a_manifest_equal_correct_in_place_in_manifest_order() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dem = tile_set(tmp.path(), "dem");
+    let (_, sketches) = manifest(tmp.path(), 4);
+    // A lake on the tiles of the first sketches (after two of them, before
+    // the fourth: the order matters there), and one across the corner of
+    // four tiles (its own group).
+    std::fs::create_dir(tmp.path().join("fix")).unwrap();
+    let near = tmp.path().join("fix/near.geojson");
+    std::fs::write(&near, lake(14.0, 24.0, 30.0, 34.0)).unwrap();
+    let corner = tmp.path().join("fix/corner.geojson");
+    std::fs::write(&corner, lake(88.0, 86.0, 104.0, 110.0)).unwrap();
+    let m = tmp.path().join("manifest.json");
+    std::fs::write(
+        &m,
+        r#"{"edits":[{"id":"e00","sketch":"sketches/e00.json"},
+ {"id":"e01","sketch":"sketches/e01.json"},
+ {"id":"near","corrections":"fix/near.geojson"},
+ {"id":"e02","sketch":"sketches/e02.json"},
+ {"id":"e03","sketch":"sketches/e03.json"},
+ {"corrections":"fix/corner.geojson"}]}"#,
+    )
+    .unwrap();
+
+    // The reference: each applied in turn, in place, by edit or correct.
+    let out = tmp.path().join("out");
+    std::fs::create_dir(&out).unwrap();
+    for (name, bytes) in tiles(&dem) {
+        std::fs::write(out.join(name), bytes).unwrap();
+    }
+    let steps: Vec<(&str, &Path)> = vec![
+        ("edit", &sketches[0]),
+        ("edit", &sketches[1]),
+        ("correct", &near),
+        ("edit", &sketches[2]),
+        ("edit", &sketches[3]),
+        ("correct", &corner),
+    ];
+    for (what, input) in &steps {
+        let mut c = cmd();
+        c.arg(what).arg(&out).arg("--in-place").arg("--quiet");
+        if *what == "edit" {
+            c.arg("--sketch").arg(input).args(FLAGS);
+        } else {
+            c.arg("--features").arg(input);
+        }
+        let r = out_of(&mut c);
+        assert!(r.status.success(), "reference {what}: {}", stderr(&r));
+    }
+    let want = tiles(&out);
+    std::fs::remove_dir_all(&out).unwrap();
+
+    let r = batch(&dem, &m, &out, &[]);
+    assert!(r.status.success(), "batch failed: {}", stderr(&r));
+    let got = tiles(&out);
+    assert_eq!(differing(&got, &want), Vec::<String>::new(), "tiles differ");
+    // The corner lake changed the four tiles at the corner, and GDAL reads
+    // every tile.
+    let changed: Vec<String> = differing(&tiles(&dem), &got);
+    for t in [
+        "tile_1_1.tif",
+        "tile_1_2.tif",
+        "tile_2_1.tif",
+        "tile_2_2.tif",
+    ] {
+        assert!(
+            changed.contains(&t.to_string()),
+            "{t} unchanged: {changed:?}"
+        );
+    }
+    assert_eq!(gdal_checksums(&out).len(), SIDE * SIDE);
+
+    let plan = json(&state(&out).join("plan.json"));
+    let kinds: Vec<&str> = plan["edits"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|e| e["kind"].as_str().unwrap())
+        .collect();
+    assert_eq!(
+        kinds,
+        [
+            "sketch",
+            "sketch",
+            "corrections",
+            "sketch",
+            "sketch",
+            "corrections"
+        ]
+    );
+    assert_eq!(plan["edits"][5]["id"], "corner", "id from the file stem");
+    let s = json(&state(&out).join("summary.json"));
+    assert_eq!(s["written"], 6, "{s}");
+    let rep = json(&state(&out).join("reports").join("00002-near.json"));
+    assert_eq!(rep["corrections"][0]["kind"], "lake", "{rep}");
+}
+
+#[test]
+fn a_bad_corrections_edit_stops_the_batch_before_anything_is_written() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dem = tile_set(tmp.path(), "dem");
+    let (_, _) = manifest(tmp.path(), 1);
+    let bad = tmp.path().join("bad.geojson");
+    std::fs::write(
+        &bad,
+        lake(10.0, 10.0, 20.0, 20.0).replace("\"lake\"", "\"glacier\""),
+    )
+    .unwrap();
+    let m = tmp.path().join("manifest.json");
+    std::fs::write(
+        &m,
+        r#"{"edits":[{"id":"e00","sketch":"sketches/e00.json"},{"id":"ice","corrections":"bad.geojson"}]}"#,
+    )
+    .unwrap();
+    let out = tmp.path().join("out");
+    let r = batch(&dem, &m, &out, &[]);
+    assert_eq!(r.status.code(), Some(1), "{}", stderr(&r));
+    let e = stderr(&r);
+    assert_eq!(e.trim().lines().count(), 1, "one line: {e}");
+    assert!(
+        e.contains("manifest.json") && e.contains("edit \"ice\""),
+        "{e}"
+    );
+    assert!(e.contains("unknown kind \"glacier\""), "{e}");
+    assert!(!out.exists(), "OUT was written");
+}

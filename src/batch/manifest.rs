@@ -1,15 +1,19 @@
 //! The manifest of a batch: which sketches, in which order. Three forms:
 //!
-//! - a JSON file `{"edits": [{"id": "e1", "sketch": "sketches/e1.json"}, ...]}`
-//!   (DESIGN.md; `id` optional, default the sketch's file stem; paths
-//!   relative to the manifest);
+//! - a JSON file `{"edits": [{"id": "e1", "sketch": "sketches/e1.json"},
+//!   {"id": "e2", "corrections": "fix/lakes.geojson"}, ...]}` (DESIGN.md;
+//!   each edit a sketch or a map-view corrections file as `demsketch
+//!   correct --features` reads it; `id` optional, default the file's stem;
+//!   paths relative to the manifest);
 //! - a text file, one sketch path per line (blank lines and lines starting
 //!   with `#` skipped; relative to the manifest);
 //! - a directory: its `*.json` files, sorted by name.
 //!
 //! Every sketch is read and parsed here, and its SHA-256 kept, so that a
 //! missing or broken sketch stops the batch before anything is written, and
-//! a sketch changed after planning is noticed.
+//! a sketch changed after planning is noticed. A corrections file is read
+//! and hashed here too; its features are checked against the DEM when the
+//! plan is made ([`super::plan`]).
 
 use std::path::{Path, PathBuf};
 
@@ -19,18 +23,31 @@ use super::BatchError;
 use crate::raster::provenance::sha256_hex;
 use crate::sketch::SketchFile;
 
+/// What an edit of a manifest applies.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum EditKind {
+    /// A sketch, as `demsketch edit OUT --sketch S --in-place` applies it.
+    #[default]
+    Sketch,
+    /// Map-view corrections (GeoJSON), as `demsketch correct OUT
+    /// --features F --in-place` applies them.
+    Corrections,
+}
+
 /// One edit of a manifest.
 #[derive(Debug, Clone)]
 pub struct ManifestEdit {
     /// Unique within the manifest.
     pub id: String,
-    /// The sketch file (as the manifest names it, joined to the manifest's
-    /// directory, made absolute).
+    pub kind: EditKind,
+    /// The sketch or corrections file (as the manifest names it, joined to
+    /// the manifest's directory, made absolute).
     pub sketch: PathBuf,
-    /// SHA-256 of the sketch file's bytes.
+    /// SHA-256 of the file's bytes.
     pub sketch_sha256: String,
-    /// The sketch, parsed.
-    pub parsed: SketchFile,
+    /// The sketch, parsed (`None` for corrections).
+    pub parsed: Option<SketchFile>,
 }
 
 /// A manifest, read and checked.
@@ -80,7 +97,7 @@ impl Manifest {
             return Err(bad(path, "lists no sketch"));
         }
         let mut edits: Vec<ManifestEdit> = Vec::new();
-        for (k, (id, sketch)) in entries.into_iter().enumerate() {
+        for (k, (id, kind, sketch)) in entries.into_iter().enumerate() {
             let sketch = std::path::absolute(&sketch).unwrap_or(sketch);
             let id = id.unwrap_or_else(|| {
                 sketch
@@ -97,16 +114,26 @@ impl Manifest {
             if edits.iter().any(|e| e.id == id) {
                 return Err(bad(path, format!("edit id \"{id}\" appears twice")));
             }
+            let what = match kind {
+                EditKind::Sketch => "sketch",
+                EditKind::Corrections => "corrections",
+            };
             let bytes = std::fs::read(&sketch).map_err(|e| {
                 bad(
                     path,
-                    format!("edit \"{id}\": sketch {}: {e}", sketch.display()),
+                    format!("edit \"{id}\": {what} {}: {e}", sketch.display()),
                 )
             })?;
-            let parsed = SketchFile::from_path(&sketch)
-                .map_err(|e| bad(path, format!("edit \"{id}\": {e}")))?;
+            let parsed = match kind {
+                EditKind::Sketch => Some(
+                    SketchFile::from_path(&sketch)
+                        .map_err(|e| bad(path, format!("edit \"{id}\": {e}")))?,
+                ),
+                EditKind::Corrections => None,
+            };
             edits.push(ManifestEdit {
                 id,
+                kind,
                 sketch,
                 sketch_sha256: sha256_hex(&bytes),
                 parsed,
@@ -129,42 +156,38 @@ fn valid_id(id: &str) -> bool {
         && id.chars().any(|c| c != '.')
 }
 
-fn json_entries(
-    path: &Path,
-    text: &str,
-    base: &Path,
-) -> Result<Vec<(Option<String>, PathBuf)>, BatchError> {
+/// A manifest's entry: id (if given), kind, path.
+type Entry = (Option<String>, EditKind, PathBuf);
+
+fn json_entries(path: &Path, text: &str, base: &Path) -> Result<Vec<Entry>, BatchError> {
     let m: JsonManifest =
         serde_json::from_str(text).map_err(|e| bad(path, format!("not a batch manifest: {e}")))?;
     m.edits
         .into_iter()
         .enumerate()
         .map(|(k, e)| match (e.sketch, e.corrections) {
-            (Some(s), None) => Ok((e.id, base.join(s))),
-            (None, Some(_)) => Err(bad(
-                path,
-                format!(
-                    "edit {}: \"corrections\" edits are not supported by batch yet; give a \"sketch\"",
-                    k + 1
-                ),
-            )),
+            (Some(s), None) => Ok((e.id, EditKind::Sketch, base.join(s))),
+            (None, Some(c)) => Ok((e.id, EditKind::Corrections, base.join(c))),
             _ => Err(bad(
                 path,
-                format!("edit {}: give exactly one of \"sketch\" or \"corrections\"", k + 1),
+                format!(
+                    "edit {}: give exactly one of \"sketch\" or \"corrections\"",
+                    k + 1
+                ),
             )),
         })
         .collect()
 }
 
-fn text_entries(text: &str, base: &Path) -> Vec<(Option<String>, PathBuf)> {
+fn text_entries(text: &str, base: &Path) -> Vec<Entry> {
     text.lines()
         .map(str::trim)
         .filter(|l| !l.is_empty() && !l.starts_with('#'))
-        .map(|l| (None, base.join(l)))
+        .map(|l| (None, EditKind::Sketch, base.join(l)))
         .collect()
 }
 
-fn directory_entries(dir: &Path) -> Result<Vec<(Option<String>, PathBuf)>, BatchError> {
+fn directory_entries(dir: &Path) -> Result<Vec<Entry>, BatchError> {
     let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
         .map_err(|e| bad(dir, e.to_string()))?
         .flatten()
@@ -172,7 +195,10 @@ fn directory_entries(dir: &Path) -> Result<Vec<(Option<String>, PathBuf)>, Batch
         .filter(|p| p.is_file() && p.extension().is_some_and(|e| e == "json"))
         .collect();
     files.sort();
-    Ok(files.into_iter().map(|p| (None, p)).collect())
+    Ok(files
+        .into_iter()
+        .map(|p| (None, EditKind::Sketch, p))
+        .collect())
 }
 
 #[cfg(test)]
@@ -191,7 +217,7 @@ mod tests {
     #[test]
     fn text_lists_skip_comments_and_blank_lines() {
         let e = text_entries("# header\n\na.json\n  b.json  \n", Path::new("/m"));
-        let paths: Vec<PathBuf> = e.into_iter().map(|(_, p)| p).collect();
+        let paths: Vec<PathBuf> = e.into_iter().map(|(_, _, p)| p).collect();
         assert_eq!(
             paths,
             vec![PathBuf::from("/m/a.json"), PathBuf::from("/m/b.json")]

@@ -19,8 +19,9 @@
 //! - [`run`]: copying the DEM to the output, running one group or all of
 //!   them (rayon), the per-edit reports and the batch summary.
 //!
-//! Each edit itself is [`crate::edit::run`] with `--in-place` on the output,
-//! so its write-back is the edit's own (staged, verified, journalled renames,
+//! Each edit itself is [`crate::edit::run`] with `--in-place` on the output
+//! (or, for a corrections file, [`crate::correct::run`]), so its write-back
+//! is the edit's own (staged, verified, journalled renames,
 //! [`crate::raster::journal`]).
 
 pub mod footprint;
@@ -29,7 +30,7 @@ pub mod plan;
 pub mod record;
 pub mod run;
 
-pub use manifest::{Manifest, ManifestEdit};
+pub use manifest::{EditKind, Manifest, ManifestEdit};
 pub use plan::{BatchSettings, Group, Plan, PlannedEdit};
 pub use run::{finish, prepare_output, run_all, run_group, BatchProgress, GroupOutcome, Summary};
 
@@ -58,6 +59,13 @@ pub enum BatchError {
         #[source]
         source: Box<EditError>,
     },
+    /// A corrections edit failed in a way that stops its group.
+    #[error("edit \"{id}\": {source}")]
+    Correct {
+        id: String,
+        #[source]
+        source: Box<crate::correct::CorrectError>,
+    },
     /// An edit changed cells outside the footprint the plan gave it: the
     /// plan was not conservative (a bug); its group stops.
     #[error("edit \"{id}\": {message}")]
@@ -73,6 +81,7 @@ impl BatchError {
         match self {
             BatchError::Raster(e) => e.is_user_error(),
             BatchError::Edit { source, .. } => source.is_user_error(),
+            BatchError::Correct { source, .. } => source.is_user_error(),
             BatchError::Footprint { .. } | BatchError::Internal(_) => false,
             _ => true,
         }

@@ -16,7 +16,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use super::footprint::{dem_georef, footprint};
-use super::manifest::Manifest;
+use super::manifest::{EditKind, Manifest};
 use super::BatchError;
 use crate::edit::{EditOptions, DEFAULT_MIN_FIT};
 use crate::raster::{Dem, Destination, Window};
@@ -80,6 +80,11 @@ pub struct PlannedEdit {
     /// Position in the manifest (0-based).
     pub index: usize,
     pub id: String,
+    /// A sketch or corrections (plans written before corrections edits
+    /// existed have no `kind`: sketches).
+    #[serde(default)]
+    pub kind: EditKind,
+    /// The sketch or corrections file.
     pub sketch: PathBuf,
     pub sketch_sha256: String,
     /// `[col, row, width, height]` on the DEM grid.
@@ -191,11 +196,13 @@ impl Plan {
         let mut windows = Vec::new();
         let mut tile_sets = Vec::new();
         for e in &manifest.edits {
-            let w = footprint(dem, &georef, &e.parsed, settings.max_d()).map_err(|m| {
-                BatchError::Manifest {
-                    path: manifest.path.display().to_string(),
-                    message: format!("edit \"{}\" ({}): {m}", e.id, e.sketch.display()),
-                }
+            let w = match &e.parsed {
+                Some(sketch) => footprint(dem, &georef, sketch, settings.max_d()),
+                None => crate::correct::footprint(dem, &e.sketch).map_err(|err| err.to_string()),
+            }
+            .map_err(|m| BatchError::Manifest {
+                path: manifest.path.display().to_string(),
+                message: format!("edit \"{}\" ({}): {m}", e.id, e.sketch.display()),
             })?;
             tile_sets.push(dem.tiles_touching(&w));
             windows.push(w);
@@ -234,6 +241,7 @@ impl Plan {
                 PlannedEdit {
                     index: k,
                     id: e.id.clone(),
+                    kind: e.kind,
                     sketch: e.sketch.clone(),
                     sketch_sha256: e.sketch_sha256.clone(),
                     footprint: [w.col, w.row, w.width as i64, w.height as i64],

@@ -17,13 +17,14 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use super::footprint::contains;
+use super::manifest::EditKind;
 use super::plan::{tile_name, Plan, PlannedEdit};
 use super::record::{
     reports_dir, state_dir, tile_digests, tiles_dir, was_applied, Done, GroupRecords, Pending,
     Status, STATE_NAME,
 };
 use super::{io_err, BatchError};
-use crate::edit::{EditError, EditReport};
+use crate::edit::EditError;
 use crate::raster::atomic_file::{commit_guard, parent_dir, sync_dir, Staging};
 use crate::raster::edit_lock::EditLock;
 use crate::raster::provenance::sha256_hex;
@@ -148,21 +149,26 @@ fn check_sketch(plan_path: &Path, e: &PlannedEdit) -> Result<(), BatchError> {
     Ok(())
 }
 
-/// Check that what an edit wrote lies inside its footprint.
-fn check_footprint(e: &PlannedEdit, r: &EditReport) -> Result<(), BatchError> {
-    let w = r.deformation.window;
+/// Check that what an edit wrote (`changed_cells` within window `w`, in
+/// `tiles_written`) lies inside its footprint.
+fn check_footprint(
+    e: &PlannedEdit,
+    w: [i64; 4],
+    changed_cells: u64,
+    tiles_written: &[String],
+) -> Result<(), BatchError> {
     let win = crate::raster::Window::new(w[0], w[1], w[2].max(0) as usize, w[3].max(0) as usize);
     let outside = |m: String| BatchError::Footprint {
         id: e.id.clone(),
         message: m,
     };
-    if r.changed_cells > 0 && !contains(&e.footprint_window(), &win) {
+    if changed_cells > 0 && !contains(&e.footprint_window(), &win) {
         return Err(outside(format!(
             "its deformation window {w:?} leaves the footprint {:?} the plan gave it; its group stops (please report this)",
             e.footprint
         )));
     }
-    for t in &r.tiles_written {
+    for t in tiles_written {
         let n = tile_name(Path::new(t));
         if !e.tiles.contains(&n) {
             return Err(outside(format!(
@@ -194,6 +200,9 @@ fn run_edit(
 ) -> Result<Done, BatchError> {
     check_sketch(plan_path, e)?;
     let report = report_path(state, e);
+    if e.kind == EditKind::Corrections {
+        return run_corrections(plan, e, report);
+    }
     let opts = plan.settings.edit_options(Some(report.clone()));
     let t = Instant::now();
     let result = crate::edit::run(&plan.out, &e.sketch, &opts);
@@ -211,7 +220,12 @@ fn run_edit(
     };
     match result {
         Ok(r) => {
-            check_footprint(e, &r)?;
+            check_footprint(
+                e,
+                r.deformation.window,
+                r.changed_cells as u64,
+                &r.tiles_written,
+            )?;
             done.tiles_written = r
                 .tiles_written
                 .iter()
@@ -230,6 +244,51 @@ fn run_edit(
         }
         Err(err) => {
             return Err(BatchError::Edit {
+                id: e.id.clone(),
+                source: Box::new(err),
+            })
+        }
+    }
+    Ok(done)
+}
+
+/// Run one corrections edit of the plan, as `demsketch correct OUT
+/// --features F --in-place --report R` would; its record. A bad feature
+/// (found at planning already, so only if the DEM changed under it) is
+/// recorded as failed, as a sketch's user error is.
+fn run_corrections(plan: &Plan, e: &PlannedEdit, report: PathBuf) -> Result<Done, BatchError> {
+    let mut opts = crate::correct::CorrectOptions::new(crate::raster::Destination::InPlace);
+    opts.report = Some(report.clone());
+    let t = Instant::now();
+    let result = crate::correct::run(&plan.out, &e.sketch, &opts);
+    let mut done = Done {
+        id: e.id.clone(),
+        index: e.index,
+        group: e.group,
+        status: Status::Written,
+        tiles_written: Vec::new(),
+        changed_cells: 0,
+        report: None,
+        message: None,
+        seconds: t.elapsed().as_secs_f64(),
+    };
+    match result {
+        Ok(r) => {
+            check_footprint(e, r.window, r.changed_cells as u64, &r.tiles_written)?;
+            done.tiles_written = r
+                .tiles_written
+                .iter()
+                .map(|t| tile_name(Path::new(t)))
+                .collect();
+            done.changed_cells = r.changed_cells;
+            done.report = Some(report);
+        }
+        Err(err @ crate::correct::CorrectError::Input(_)) => {
+            done.status = Status::Failed;
+            done.message = Some(err.to_string().replace('\n', " "));
+        }
+        Err(err) => {
+            return Err(BatchError::Correct {
                 id: e.id.clone(),
                 source: Box::new(err),
             })

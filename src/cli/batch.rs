@@ -22,12 +22,14 @@ use super::{BelowMinFit, InternalError};
 
 /// Shown by `demsketch batch --help`.
 pub const BATCH_AFTER_HELP: &str = "\
-MANIFEST: a JSON file {\"edits\": [{\"id\": \"e1\", \"sketch\": \"sketches/e1.json\"}, ...]},
-a text file with one sketch path per line, or a directory of sketch files
-(*.json, in name order); paths relative to the manifest.
+MANIFEST: a JSON file {\"edits\": [{\"id\": \"e1\", \"sketch\": \"sketches/e1.json\"},
+{\"id\": \"e2\", \"corrections\": \"fix/lakes.geojson\"}, ...]}, a text file with one
+sketch path per line, or a directory of sketch files (*.json, in name
+order); paths relative to the manifest.
 
 OUT starts as a copy of DEM; every edit then rewrites OUT in place, exactly
-as `demsketch edit OUT --sketch S --in-place` with the same flags would
+as `demsketch edit OUT --sketch S --in-place` with the same flags would (a
+corrections edit: `demsketch correct OUT --features F --in-place`)
 (set SOURCE_DATE_EPOCH for byte-identical provenance times). Edits whose
 tiles overlap run in manifest order; the others in parallel. Reports:
 OUT/.demsketch_batch/reports/, summary: OUT/.demsketch_batch/summary.json.

@@ -265,6 +265,15 @@ impl Plan {
     }
 }
 
+/// The window of `dem` that the corrections of `features` (GeoJSON) may
+/// change, as [`run`] would plan it: every feature read and checked
+/// against the DEM, nothing else read.
+pub fn footprint(dem: &Dem, features: &Path) -> Result<Window, CorrectError> {
+    let corrections = geojson_input::read(features, dem).map_err(CorrectError::Input)?;
+    let name = features.display().to_string();
+    Ok(plan(dem, corrections, &name, MAX_WINDOW_CELLS)?.window)
+}
+
 /// Applies the corrections of `features` (GeoJSON) to `dem_path` and writes
 /// the result (see the module documentation).
 pub fn run(
