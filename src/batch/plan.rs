@@ -193,6 +193,14 @@ impl Plan {
             path: dem_path.display().to_string(),
             message: m,
         })?;
+        // Level tiles are shared by every group: the groups could not
+        // refresh them independently.
+        if dem.kind == crate::raster::LayerKind::TileDirectory && dem_path.join("1").is_dir() {
+            return Err(BatchError::Plan {
+                path: dem_path.display().to_string(),
+                message: "has pyramid levels (subdirectory 1, as gdal_retile.py -levels makes); batch does not refresh them: edit one by one (edit --in-place refreshes them) or rebuild the levels after the batch".into(),
+            });
+        }
         let mut windows = Vec::new();
         let mut tile_sets = Vec::new();
         for e in &manifest.edits {

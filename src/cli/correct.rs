@@ -72,6 +72,11 @@ pub struct CorrectArgs {
     /// the corrected window, features drawn) and height_change.png.
     #[arg(long, value_name = "DIR")]
     pub renders: Option<PathBuf>,
+    /// Resampling of a tile directory's pyramid (subdirectories 1, 2, ... as
+    /// `gdal_retile.py -levels` makes them), recomputed over the change after
+    /// an in-place correction, as given to gdal_retile.py -r [default: near].
+    #[arg(long, value_parser = |s: &str| demsketch::raster::pyramid::parse_resampling(s).map(str::to_string))]
+    pub pyramid_resampling: Option<String>,
 }
 
 pub fn run(args: CorrectArgs) -> anyhow::Result<()> {
@@ -107,6 +112,7 @@ pub fn run(args: CorrectArgs) -> anyhow::Result<()> {
     }
     opts.water_mask = args.water_mask.clone();
     opts.renders = args.renders.clone();
+    opts.write.pyramid_resampling = args.pyramid_resampling.clone();
     let report = match run_correct(&args.dem, &args.features, &opts) {
         Ok(r) => r,
         Err(e) if e.is_user_error() => return Err(e.into()),

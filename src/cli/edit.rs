@@ -114,6 +114,13 @@ pub struct EditArgs {
     /// one the file records (RESAMPLING metadata), else average].
     #[arg(long, value_parser = parse_overview_resampling)]
     pub overview_resampling: Option<String>,
+    /// Resampling of a tile directory's pyramid (subdirectories 1, 2, ... as
+    /// `gdal_retile.py -levels` makes them), whose tiles over the change
+    /// are recomputed after an in-place edit: near, bilinear, cubic,
+    /// cubicspline, lanczos, average or mode, as given to gdal_retile.py -r
+    /// [default: near, its default].
+    #[arg(long, value_parser = parse_pyramid_resampling)]
+    pub pyramid_resampling: Option<String>,
     /// Also write the height change (new minus old height, DEM units) as a
     /// Float32 GeoTIFF on the grid of the changed window, nodata -9999
     /// outside the DEM's valid cells. Written on dry runs too.
@@ -132,6 +139,10 @@ pub struct EditArgs {
 
 fn parse_overview_resampling(s: &str) -> Result<String, String> {
     demsketch::raster::overviews::parse_resampling(s).map(str::to_string)
+}
+
+fn parse_pyramid_resampling(s: &str) -> Result<String, String> {
+    demsketch::raster::pyramid::parse_resampling(s).map(str::to_string)
 }
 
 fn parse_lock_timeout(s: &str) -> Result<f64, String> {
@@ -253,6 +264,7 @@ pub fn run(args: EditArgs) -> anyhow::Result<()> {
     opts.write.format = args.format.clone();
     opts.write.creation_options = args.creation_options.clone();
     opts.write.overview_resampling = args.overview_resampling.clone();
+    opts.write.pyramid_resampling = args.pyramid_resampling.clone();
     opts.dz = args.dz.clone();
     opts.report = args.report.clone();
     opts.renders = args.renders.clone();

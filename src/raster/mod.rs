@@ -33,6 +33,7 @@ pub mod output_format;
 pub mod overviews;
 pub mod path_check;
 pub mod provenance;
+pub mod pyramid;
 pub mod sidecars;
 pub use output_format::WriteOptions;
 pub use provenance::ProvenanceRecord;

@@ -38,6 +38,10 @@ pub struct WriteOptions {
     /// space, but a tool that later modifies an output tile in place then
     /// modifies the input too.
     pub link_unchanged: bool,
+    /// `--pyramid-resampling`: the resampling of a tile directory's
+    /// `gdal_retile.py -levels` pyramid, refreshed after an in-place write
+    /// ([`super::pyramid`]); `None`: near, `gdal_retile.py`'s default.
+    pub pyramid_resampling: Option<String>,
 }
 
 impl WriteOptions {

@@ -288,6 +288,27 @@ impl Dem {
     }
 
     /// Write the tile edits to `dest`.
+    /// CRS bounds `[min x, min y, max x, max y]` of the windows `edits`
+    /// change.
+    fn changed_bounds(&self, edits: &[TileEdit]) -> [f64; 4] {
+        let mut b = [
+            f64::INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NEG_INFINITY,
+        ];
+        for e in edits {
+            let x = &self.tiles[e.tile].extent;
+            let (c0, r0) = ((x.col + e.local.col) as f64, (x.row + e.local.row) as f64);
+            let (c1, r1) = (c0 + e.local.width as f64, r0 + e.local.height as f64);
+            for (c, r) in [(c0, r0), (c1, r0), (c0, r1), (c1, r1)] {
+                let (px, py) = self.geotransform.pixel_to_crs(c, r);
+                b = [b[0].min(px), b[1].min(py), b[2].max(px), b[3].max(py)];
+            }
+        }
+        b
+    }
+
     fn commit_edits(
         &self,
         edits: Vec<TileEdit>,
@@ -316,9 +337,25 @@ impl Dem {
                 })
             }
             (Destination::InPlace, _) => {
-                let targets = self.write_in_place(&edits, provenance, opts)?;
+                // A gdal_retile.py pyramid beside the tiles: checked before
+                // anything is written, refreshed over the change after.
+                let pyramid = match self.kind {
+                    LayerKind::TileDirectory if !edits.is_empty() => {
+                        super::pyramid::Pyramid::discover(&self.path)?
+                    }
+                    _ => None,
+                };
+                let mut targets = self.write_in_place(&edits, provenance, opts)?;
                 for e in &edits {
                     self.invalidate_tile(e.tile);
+                }
+                if let Some(p) = pyramid {
+                    let resampling = opts.pyramid_resampling.as_deref().unwrap_or("near");
+                    targets.extend(p.refresh(
+                        self.changed_bounds(&edits),
+                        resampling,
+                        provenance,
+                    )?);
                 }
                 Ok(WriteReport {
                     tiles_written: targets,
