@@ -50,19 +50,26 @@ fn level_tiles(dir: &Path) -> Vec<PathBuf> {
     v
 }
 
-#[test]
-fn every_level_equals_gdal_retile_of_the_corrected_dem_and_the_rest_keeps_its_bytes() {
-    let tmp = tempfile::tempdir().unwrap();
-    let src = tmp.path().join("src.tif");
+/// A `size` x `size` cut of the Zion fixture (`src.tif`), its pyramid
+/// (`pyr/`, resampling `r`) and the lake's GeoJSON, under `dir`.
+fn pyramid_case(dir: &Path, size: &str, r: &str) -> (PathBuf, PathBuf, PathBuf) {
+    let src = dir.join("src.tif");
     gdal_translate(
         &fixture("zion_srtm_utm12n.tif"),
         &src,
-        &["-srcwin", "0", "0", "400", "400"],
+        &["-srcwin", "0", "0", size, size],
     );
-    let pyr = tmp.path().join("pyr");
-    retile(&src, &pyr, "bilinear");
-    let lake = tmp.path().join("lake.geojson");
+    let pyr = dir.join("pyr");
+    retile(&src, &pyr, r);
+    let lake = dir.join("lake.geojson");
     std::fs::write(&lake, LAKE).unwrap();
+    (src, pyr, lake)
+}
+
+#[test]
+fn every_level_equals_gdal_retile_of_the_corrected_dem_and_the_rest_keeps_its_bytes() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (src, pyr, lake) = pyramid_case(tmp.path(), "400", "bilinear");
     let before: Vec<Vec<u8>> = level_tiles(&pyr)
         .iter()
         .map(|t| std::fs::read(pyr.join(t)).unwrap())
@@ -129,16 +136,7 @@ fn every_level_equals_gdal_retile_of_the_corrected_dem_and_the_rest_keeps_its_by
 #[test]
 fn an_unknown_pyramid_resampling_is_one_line_and_touches_nothing() {
     let tmp = tempfile::tempdir().unwrap();
-    let src = tmp.path().join("src.tif");
-    gdal_translate(
-        &fixture("zion_srtm_utm12n.tif"),
-        &src,
-        &["-srcwin", "0", "0", "200", "200"],
-    );
-    let pyr = tmp.path().join("pyr");
-    retile(&src, &pyr, "near");
-    let lake = tmp.path().join("lake.geojson");
-    std::fs::write(&lake, LAKE).unwrap();
+    let (_, pyr, lake) = pyramid_case(tmp.path(), "200", "near");
     let before = snapshot(tmp.path());
     let o = demsketch(&[
         "correct",
@@ -161,16 +159,7 @@ fn an_unknown_pyramid_resampling_is_one_line_and_touches_nothing() {
 #[test]
 fn a_batch_on_a_pyramid_is_refused_before_anything_is_written() {
     let tmp = tempfile::tempdir().unwrap();
-    let src = tmp.path().join("src.tif");
-    gdal_translate(
-        &fixture("zion_srtm_utm12n.tif"),
-        &src,
-        &["-srcwin", "0", "0", "200", "200"],
-    );
-    let pyr = tmp.path().join("pyr");
-    retile(&src, &pyr, "near");
-    let lake = tmp.path().join("lake.geojson");
-    std::fs::write(&lake, LAKE).unwrap();
+    let (_, pyr, _) = pyramid_case(tmp.path(), "200", "near");
     let m = tmp.path().join("m.json");
     std::fs::write(&m, r#"{"edits":[{"corrections":"lake.geojson"}]}"#).unwrap();
     let before = snapshot(tmp.path());

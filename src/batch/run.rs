@@ -154,7 +154,7 @@ fn check_sketch(plan_path: &Path, e: &PlannedEdit) -> Result<(), BatchError> {
 fn check_footprint(
     e: &PlannedEdit,
     w: [i64; 4],
-    changed_cells: u64,
+    changed_cells: usize,
     tiles_written: &[String],
 ) -> Result<(), BatchError> {
     let win = crate::raster::Window::new(w[0], w[1], w[2].max(0) as usize, w[3].max(0) as usize);
@@ -191,6 +191,47 @@ fn environment(e: &EditError) -> bool {
     )
 }
 
+/// The record of edit `e`, which took `seconds`, that wrote nothing.
+fn unwritten(e: &PlannedEdit, status: Status, message: String, seconds: f64) -> Done {
+    Done {
+        id: e.id.clone(),
+        index: e.index,
+        group: e.group,
+        status,
+        tiles_written: Vec::new(),
+        changed_cells: 0,
+        report: None,
+        message: Some(message),
+        seconds,
+    }
+}
+
+/// The record of edit `e`, which took `seconds` and wrote `tiles_written`
+/// (`changed_cells` cells within window `w`) and `report`, once checked
+/// against its footprint.
+fn written(
+    e: &PlannedEdit,
+    (w, changed_cells, tiles_written): ([i64; 4], usize, &[String]),
+    report: PathBuf,
+    seconds: f64,
+) -> Result<Done, BatchError> {
+    check_footprint(e, w, changed_cells, tiles_written)?;
+    Ok(Done {
+        id: e.id.clone(),
+        index: e.index,
+        group: e.group,
+        status: Status::Written,
+        tiles_written: tiles_written
+            .iter()
+            .map(|t| tile_name(Path::new(t)))
+            .collect(),
+        changed_cells,
+        report: Some(report),
+        message: None,
+        seconds,
+    })
+}
+
 /// Run one edit of the plan; its record.
 fn run_edit(
     plan: &Plan,
@@ -207,49 +248,32 @@ fn run_edit(
     let t = Instant::now();
     let result = crate::edit::run(&plan.out, &e.sketch, &opts);
     let seconds = t.elapsed().as_secs_f64();
-    let mut done = Done {
-        id: e.id.clone(),
-        index: e.index,
-        group: e.group,
-        status: Status::Written,
-        tiles_written: Vec::new(),
-        changed_cells: 0,
-        report: report.is_file().then(|| report.clone()),
-        message: None,
-        seconds,
-    };
+    let kept_report = report.is_file().then(|| report.clone());
     match result {
-        Ok(r) => {
-            check_footprint(
+        Ok(r) => written(
+            e,
+            (r.deformation.window, r.changed_cells, &r.tiles_written),
+            report,
+            seconds,
+        ),
+        Err(err @ EditError::BelowMinFit { .. }) => Ok(Done {
+            report: kept_report,
+            ..unwritten(e, Status::BelowMinFit, err.to_string(), seconds)
+        }),
+        Err(err) if err.is_user_error() && !environment(&err) => Ok(Done {
+            report: kept_report,
+            ..unwritten(
                 e,
-                r.deformation.window,
-                r.changed_cells as u64,
-                &r.tiles_written,
-            )?;
-            done.tiles_written = r
-                .tiles_written
-                .iter()
-                .map(|t| tile_name(Path::new(t)))
-                .collect();
-            done.changed_cells = r.changed_cells;
-            done.report = Some(report);
-        }
-        Err(err @ EditError::BelowMinFit { .. }) => {
-            done.status = Status::BelowMinFit;
-            done.message = Some(err.to_string());
-        }
-        Err(err) if err.is_user_error() && !environment(&err) => {
-            done.status = Status::Failed;
-            done.message = Some(err.to_string().replace('\n', " "));
-        }
-        Err(err) => {
-            return Err(BatchError::Edit {
-                id: e.id.clone(),
-                source: Box::new(err),
-            })
-        }
+                Status::Failed,
+                err.to_string().replace('\n', " "),
+                seconds,
+            )
+        }),
+        Err(err) => Err(BatchError::Edit {
+            id: e.id.clone(),
+            source: Box::new(err),
+        }),
     }
-    Ok(done)
 }
 
 /// Run one corrections edit of the plan, as `demsketch correct OUT
@@ -261,40 +285,25 @@ fn run_corrections(plan: &Plan, e: &PlannedEdit, report: PathBuf) -> Result<Done
     opts.report = Some(report.clone());
     let t = Instant::now();
     let result = crate::correct::run(&plan.out, &e.sketch, &opts);
-    let mut done = Done {
-        id: e.id.clone(),
-        index: e.index,
-        group: e.group,
-        status: Status::Written,
-        tiles_written: Vec::new(),
-        changed_cells: 0,
-        report: None,
-        message: None,
-        seconds: t.elapsed().as_secs_f64(),
-    };
+    let seconds = t.elapsed().as_secs_f64();
     match result {
-        Ok(r) => {
-            check_footprint(e, r.window, r.changed_cells as u64, &r.tiles_written)?;
-            done.tiles_written = r
-                .tiles_written
-                .iter()
-                .map(|t| tile_name(Path::new(t)))
-                .collect();
-            done.changed_cells = r.changed_cells;
-            done.report = Some(report);
-        }
-        Err(err @ crate::correct::CorrectError::Input(_)) => {
-            done.status = Status::Failed;
-            done.message = Some(err.to_string().replace('\n', " "));
-        }
-        Err(err) => {
-            return Err(BatchError::Correct {
-                id: e.id.clone(),
-                source: Box::new(err),
-            })
-        }
+        Ok(r) => written(
+            e,
+            (r.window, r.changed_cells, &r.tiles_written),
+            report,
+            seconds,
+        ),
+        Err(err @ crate::correct::CorrectError::Input(_)) => Ok(unwritten(
+            e,
+            Status::Failed,
+            err.to_string().replace('\n', " "),
+            seconds,
+        )),
+        Err(err) => Err(BatchError::Correct {
+            id: e.id.clone(),
+            source: Box::new(err),
+        }),
     }
-    Ok(done)
 }
 
 /// Run group `g` of `plan` (read from `plan_path`): every edit not yet
