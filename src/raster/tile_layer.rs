@@ -85,6 +85,9 @@ pub struct Dem {
     /// The first tile's vertical description (unit, datum, scale, offset).
     pub vertical: Vertical,
     cache: BlockCache,
+    /// Heights that [`Dem::read_height_map`] returns instead of the stored
+    /// ones over a window ([`Dem::with_overlay`]).
+    overlay: Option<(Window, std::sync::Arc<Vec<f32>>)>,
 }
 
 fn is_tiff_name(p: &Path) -> bool {
@@ -344,6 +347,7 @@ impl Dem {
             width,
             height,
             cache: BlockCache::new(cache_budget),
+            overlay: None,
         })
     }
 
@@ -584,9 +588,29 @@ impl Dem {
         })
     }
 
+    /// This DEM as it reads with `heights` (metres, NaN = nodata, row-major
+    /// over `window`) in place of its stored heights there: what an edit
+    /// in progress sees of its own result before anything is written. Only
+    /// [`Dem::read_height_map`] sees them; writes, and the checks of what
+    /// a write changes, work on the stored values.
+    pub fn with_overlay(mut self, window: Window, heights: Vec<f32>) -> Dem {
+        debug_assert_eq!(heights.len(), window.len());
+        self.overlay = Some((window, std::sync::Arc::new(heights)));
+        self
+    }
+
     /// Read a window as a [`HeightMap`] (f32, NaN = nodata).
     pub fn read_height_map(&self, win: Window) -> Result<HeightMap, RasterError> {
-        let w = self.read_window::<f32>(win)?;
+        let mut w = self.read_window::<f32>(win)?;
+        if let Some((ow, heights)) = &self.overlay {
+            if let Some(both) = ow.intersect(&win) {
+                for r in both.row..both.row + both.height as i64 {
+                    let src = ((r - ow.row) as usize) * ow.width + (both.col - ow.col) as usize;
+                    let dst = ((r - win.row) as usize) * win.width + (both.col - win.col) as usize;
+                    w.data[dst..dst + both.width].copy_from_slice(&heights[src..src + both.width]);
+                }
+            }
+        }
         Ok(HeightMap {
             width: win.width,
             height: win.height,
