@@ -337,7 +337,7 @@ fn needs_second_pass(sketch: &SketchFile, first: &Outcome) -> bool {
 /// result is the first pass's deformation plus the second's, reported with
 /// the first pass's matches and placements (the landform the strokes
 /// asked for) and the final fit; it is kept only when it fits the strokes
-/// better than the first pass alone.
+/// at least as well as the first pass alone.
 fn second_pass(
     edit: &Edit,
     dem: &Dem,
@@ -346,7 +346,7 @@ fn second_pass(
 ) -> Result<Outcome, EditError> {
     edit.pb
         .set_message("second pass over the strokes left unfitted");
-    let d1 = &first.deformation;
+    let d1 = &quantized(dem, &first.deformation);
     let run_second = || -> Result<Outcome, EditError> {
         let overlay = Dem::open(&dem.path)?.with_overlay(d1.window, d1.edited().data);
         let Loaded {
@@ -383,7 +383,7 @@ fn second_pass(
             .map(|s| s.fit.fitted_fraction)
             .sum()
     };
-    if !(score(&second) > score(&first) + 1e-9) || second.deformation.stats.changed_cells == 0 {
+    if score(&second) < score(&first) - 1e-9 || second.deformation.stats.changed_cells == 0 {
         return Ok(first);
     }
     let total = compose(dem, d1, &second.deformation)?;
@@ -402,10 +402,26 @@ fn second_pass(
     }
     out.lowering_constraints += second.lowering_constraints;
     out.notes.push(format!(
-        "a second pass over the strokes the first left unfitted, on the terrain it made, raised their summed fit from {f1:.3} to {f2:.3}"
+        "a second pass over the strokes the first left unfitted, on the terrain it made, took their summed fit from {f1:.3} to {f2:.3}"
     ));
     out.deformation = total;
     Ok(out)
+}
+
+/// `d` with each changed cell's displacement made what the write stores:
+/// the edited height quantized to `dem`'s sample type (an integer DEM
+/// stores whole units), so that a second pass sees the terrain exactly as
+/// editing the written output again would.
+fn quantized(dem: &Dem, d: &Deformation) -> Deformation {
+    let mut q = d.clone();
+    let (st, v) = (dem.sample_type, &dem.vertical);
+    for (m, &h) in q.displacement.iter_mut().zip(&d.base.data) {
+        if *m != 0.0 && !m.is_nan() && !h.is_nan() {
+            let stored = v.to_metres(st.quantize(v.to_raw(h as f64 + *m as f64)));
+            *m = (stored - h as f64) as f32;
+        }
+    }
+    q
 }
 
 /// The deformation `a` followed by `b` (computed on the terrain `a` made)
