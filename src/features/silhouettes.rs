@@ -602,7 +602,7 @@ fn refine_bracket(
         // before `a.t`: the cast starts well short of it (by the cheap
         // block index, without building the per-view horizon index).
         match terrain.cast_segment(d, 0.9 * a.t, f64::INFINITY) {
-            Some(hit) if (hit.t / a.t).ln() < (b.t / hit.t).ln() => {
+            Some(hit) if nearer_in_log(a.t, hit.t, b.t) => {
                 a = Side {
                     y: ym,
                     t: hit.t,
@@ -648,6 +648,24 @@ fn refine_bracket(
     }
     if b.t.is_finite() && far0.t > b.t * (1.0 + p.min_jump) {
         refine_bracket(terrain, db, p, x, b, far0, depth_left - 1, out);
+    }
+}
+
+/// `(t / ta).ln() < (tb / t).ln()`: is `t` nearer to `ta` than to `tb` on
+/// a log scale (the bisection's split)? Decided by the ratios themselves
+/// where they differ by more than a billionth (the logarithm is monotonic
+/// and its rounding error far smaller), by the logarithms as written
+/// elsewhere (equal or nearly equal ratios, infinite or zero ones), so
+/// that the answer is the logarithms' in every case, at a fraction of
+/// their cost.
+#[inline]
+fn nearer_in_log(ta: f64, t: f64, tb: f64) -> bool {
+    let (x, y) = (t / ta, tb / t);
+    let ordinary = x > 0.0 && y > 0.0 && x.is_finite() && y.is_finite();
+    if ordinary && (x - y).abs() > 1e-9 * x.max(y) {
+        x < y
+    } else {
+        x.ln() < y.ln()
     }
 }
 

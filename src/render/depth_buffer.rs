@@ -31,6 +31,15 @@ pub struct DepthBuffer {
     pub triangle: Vec<u32>,
 }
 
+impl Drop for DepthBuffer {
+    /// The buffers go back to [`crate::buffer_pool`], for the next render
+    /// (the rounds of an edit render the same view again and again).
+    fn drop(&mut self) {
+        crate::buffer_pool::recycle_f32(std::mem::take(&mut self.depth));
+        crate::buffer_pool::recycle_u32(std::mem::take(&mut self.triangle));
+    }
+}
+
 /// What a pixel shows.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TerrainHit {
@@ -61,8 +70,11 @@ impl DepthBuffer {
     /// of any size): the same depths and triangles, without allocating
     /// (or touching fresh pages) when the size is the same. For a caller
     /// rendering view after view (the browser app).
-    pub fn render_reusing(terrain: &LocalTerrain, camera: &Camera, old: DepthBuffer) -> Self {
-        let (mut depth, mut triangle) = (old.depth, old.triangle);
+    pub fn render_reusing(terrain: &LocalTerrain, camera: &Camera, mut old: DepthBuffer) -> Self {
+        let (mut depth, mut triangle) = (
+            std::mem::take(&mut old.depth),
+            std::mem::take(&mut old.triangle),
+        );
         rasterise_into(terrain, camera, None, &mut depth, &mut triangle, true);
         Self::of(camera, (depth, triangle))
     }

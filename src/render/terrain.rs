@@ -426,25 +426,27 @@ impl LocalTerrain {
     /// planar triangles depart from a cell's bilinear patch by up to a
     /// quarter of its twist.
     pub fn twist_around(&self, id: u32) -> f64 {
+        let (nx, ny) = (self.nx, self.ny);
+        if nx < 2 || ny < 2 {
+            return 0.0;
+        }
         let cx = self.cells_x().max(1);
         let cell = (id / 2) as usize;
-        let (c, r) = ((cell % cx) as i64, (cell / cx) as i64);
-        let z = |c: i64, r: i64| {
-            if c < 0 || r < 0 {
-                None
-            } else {
-                self.vertex_z(c as usize, r as usize)
-            }
-        };
+        let (c, r) = (cell % cx, cell / cx);
+        // the cells around whose four vertices lie in the grid
+        let (c_lo, c_hi) = (c.saturating_sub(1), (c + 1).min(nx - 2));
+        let (r_lo, r_hi) = (r.saturating_sub(1), (r + 1).min(ny - 2));
         let mut twist = 0.0f64;
-        for dr in -1..=1 {
-            for dc in -1..=1 {
-                let (c, r) = (c + dc, r + dr);
-                if let (Some(a), Some(b), Some(cc), Some(d)) =
-                    (z(c, r), z(c + 1, r), z(c, r + 1), z(c + 1, r + 1))
-                {
-                    twist = twist.max((a + d - b - cc).abs());
+        for rr in r_lo..=r_hi {
+            let (row0, row1) = (&self.z[rr * nx..(rr + 1) * nx], &self.z[(rr + 1) * nx..]);
+            for cc in c_lo..=c_hi {
+                let (a, b) = (row0[cc], row0[cc + 1]);
+                let (e, d) = (row1[cc], row1[cc + 1]);
+                if a.is_nan() || b.is_nan() || e.is_nan() || d.is_nan() {
+                    continue;
                 }
+                let (a, b, e, d) = (a as f64, b as f64, e as f64, d as f64);
+                twist = twist.max((a + d - b - e).abs());
             }
         }
         twist
@@ -679,8 +681,8 @@ impl LocalTerrain {
             let tp = t + eps;
             let (px, py) = (ox + gx * tp, oy + gy * tp);
             let sh = level as u32 + shift;
-            let s = (1usize << sh) as f64;
-            let inv_s = 1.0 / s;
+            // 2^sh and its reciprocal, exactly, without a division
+            let (s, inv_s) = (pow2(sh as i32), pow2(-(sh as i32)));
             let (mw, mh) = mip_dims[level];
             let (Some((bx, tx)), Some((by, ty))) = (
                 axis_block(&ax, px, s, inv_s, mw, tp),
@@ -698,9 +700,7 @@ impl LocalTerrain {
                     let tq = t + eps;
                     let (qx, qy) = (ox + gx * tq, oy + gy * tq);
                     let ps = sh + 1;
-                    if (qx.max(0.0) as usize) >> ps != bx >> 1
-                        || (qy.max(0.0) as usize) >> ps != by >> 1
-                    {
+                    if floor_index(qx) >> ps != bx >> 1 || floor_index(qy) >> ps != by >> 1 {
                         level += 1;
                     }
                 }
@@ -732,9 +732,7 @@ impl LocalTerrain {
                 let (qx, qy) = (ox + gx * tq, oy + gy * tq);
                 let ps = shift + 1;
                 // (truncation is floor for the non-negative values kept by max)
-                if (qx.max(0.0) as usize) >> ps != bx >> 1
-                    || (qy.max(0.0) as usize) >> ps != by >> 1
-                {
+                if floor_index(qx) >> ps != bx >> 1 || floor_index(qy) >> ps != by >> 1 {
                     level += 1;
                 }
             }
@@ -757,7 +755,7 @@ impl LocalTerrain {
         let (ox, oy, gx, gy, dz) = ray;
         let nx = self.nx;
         let patch = self.patch(c, r)?;
-        let (bx, by) = (ox - c as f64, oy - r as f64);
+        let (bx, by) = (ox - index_f64(c), oy - index_f64(r));
         let t = patch.first_crossing((bx, by, gx, gy, dz), ta, tb)?;
         let half = u32::from((bx + gx * t) - (by + gy * t) < 0.0);
         Some(RayHit {
@@ -1037,6 +1035,28 @@ fn max_pyramid(base: Vec<f32>, w: usize, h: usize) -> (Vec<Vec<f32>>, Vec<(usize
     (mip, dims)
 }
 
+/// `2^e` exactly (`|e| < 1023`), built from its bits: the traversal's
+/// block sizes and their reciprocals without a conversion or a division.
+#[inline]
+fn pow2(e: i32) -> f64 {
+    f64::from_bits(((1023 + e) as u64) << 52)
+}
+
+/// A grid index as `f64`, the value `i as f64` gives (indices are far below
+/// 2^53), by the signed conversion, a single instruction on x86-64.
+#[inline]
+fn index_f64(i: usize) -> f64 {
+    i as i64 as f64
+}
+
+/// `v.max(0.0) as usize` (NaN and negative values give 0), by the signed
+/// conversion: the two agree for every value below 2^63, and the callers
+/// clamp the index to the grid, far below it.
+#[inline]
+fn floor_index(v: f64) -> usize {
+    v.max(0.0) as i64 as usize
+}
+
 /// One axis of a ray's horizontal track in vertex coordinates: `o + g t`,
 /// with `1 / g` precomputed (the traversal's block exits are products, not
 /// quotients) and `w` the extent of the cells along the axis.
@@ -1069,16 +1089,16 @@ impl RayAxis {
 fn axis_block(a: &RayAxis, p: f64, s: f64, inv_s: f64, n: usize, tp: f64) -> Option<(usize, f64)> {
     let exit = |b: usize| {
         if a.g > 0.0 {
-            (((b + 1) as f64 * s).min(a.w) - a.o) * a.inv_g
+            ((index_f64(b + 1) * s).min(a.w) - a.o) * a.inv_g
         } else if a.g < 0.0 {
-            (b as f64 * s - a.o) * a.inv_g
+            (index_f64(b) * s - a.o) * a.inv_g
         } else {
             f64::INFINITY
         }
     };
     // truncation is floor for the non-negative values kept by max (and
     // multiplying by a power of two's reciprocal is exact)
-    let mut b = ((p * inv_s).max(0.0) as usize).min(n - 1);
+    let mut b = floor_index(p * inv_s).min(n - 1);
     let mut te = exit(b);
     if te <= tp {
         if a.g > 0.0 {

@@ -120,8 +120,14 @@ pub(crate) fn rasterise(
     last_row: Option<&[i32]>,
 ) -> (Vec<f32>, Vec<u32>) {
     let n = camera.width * camera.height;
-    let (mut depth, mut triangle) = (vec![f32::INFINITY; n], vec![SKY; n]);
-    rasterise_into(terrain, camera, last_row, &mut depth, &mut triangle, false);
+    // Buffers of an earlier render where there are some (see
+    // `buffer_pool`), else fresh zeroed ones: either way each strip clears
+    // its own columns in parallel, so no page is touched serially.
+    let (mut depth, mut triangle) = (
+        crate::buffer_pool::overwritten_f32(n),
+        crate::buffer_pool::overwritten_u32(n),
+    );
+    rasterise_into(terrain, camera, last_row, &mut depth, &mut triangle, true);
     (depth, triangle)
 }
 
