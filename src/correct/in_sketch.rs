@@ -88,14 +88,7 @@ fn to_deformation(dem: &Dem, grid: Grid, d: &Deformation) -> Deformation {
         }
     }
     let mut stats = d.stats.clone();
-    stats.changed_cells = displacement
-        .iter()
-        .filter(|m| **m != 0.0 && !m.is_nan())
-        .count();
-    stats.max_abs_displacement_m = displacement
-        .iter()
-        .filter(|m| !m.is_nan())
-        .fold(0f64, |a, m| a.max(m.abs() as f64));
+    stats.recount(&displacement);
     Deformation {
         window,
         displacement,

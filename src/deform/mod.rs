@@ -115,6 +115,20 @@ pub struct DeformStats {
 }
 
 impl DeformStats {
+    /// `changed_cells` and `max_abs_displacement_m` counted again from
+    /// `displacement` (`M`, NaN on nodata), after it was built or combined
+    /// outside the solver.
+    pub fn recount(&mut self, displacement: &[f32]) {
+        self.changed_cells = displacement
+            .iter()
+            .filter(|m| **m != 0.0 && !m.is_nan())
+            .count();
+        self.max_abs_displacement_m = displacement
+            .iter()
+            .filter(|m| !m.is_nan())
+            .fold(0f64, |a, m| a.max(m.abs() as f64));
+    }
+
     /// The figures of a deformation that solved nothing: cell size and
     /// influence distance, every count and time zero.
     pub fn unsolved(cell_size_m: CellSize, influence_m: f64) -> DeformStats {

@@ -455,14 +455,7 @@ fn compose(dem: &Dem, a: &Deformation, b: &Deformation) -> Result<Deformation, E
         }
     }
     let mut stats = a.stats.clone();
-    stats.changed_cells = displacement
-        .iter()
-        .filter(|m| **m != 0.0 && !m.is_nan())
-        .count();
-    stats.max_abs_displacement_m = displacement
-        .iter()
-        .filter(|m| !m.is_nan())
-        .fold(0.0f64, |x, m| x.max(m.abs() as f64));
+    stats.recount(&displacement);
     stats.constrained_cells = constrained.iter().filter(|c| **c).count();
     stats.max_abs_constraint_m = a
         .stats
