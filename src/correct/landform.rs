@@ -1,0 +1,1059 @@
+//! Landforms from silhouettes (Gain et al. 2009, sections 3 and 4) and
+//! noise regions (their region mode), as map-view corrections.
+//!
+//! A `landform` feature names a stroke of a sketch view (`silhouette:
+//! {"view", "stroke"}`), so it needs the sketch (`demsketch correct
+//! --sketch`). [`resolve`] places the stroke as the paper's silhouette
+//! mode does (section 3.1): every pixel on the vertical surface through
+//! the terrain points under its two end pixels, by the same geometry as
+//! the edit's free stretches
+//! ([`crate::edit::stretch_placement::place_on_end_surface`]), or, with a
+//! `shadow` LineString, on the vertical ruled surface through the shadow
+//! (the paper's re-projection once the shadow is edited). The default
+//! shadow is the surface's trace on the ground (the placed curve's map
+//! projection); the default boundary is the paper's capsule: the smoothed
+//! silhouette's shoulders (from each end to its first local maximum)
+//! give base lengths `d1`, `d2`, the capsule's radius is their mean and
+//! its spine the shadow between the shoulders, so a single peak gets a
+//! round footprint and a ridge an elongated one. The feature's Polygon
+//! replaces it. Both defaults are in the report as GeoJSON, to be edited
+//! in a GIS and given back.
+//!
+//! [`apply`] then follows section 4: the silhouette's height profile is
+//! decomposed into detail bands by an à-trous (undecimated) binomial
+//! pyramid, `D_i = I_i - I_{i+1}`; the bands' standard deviations are
+//! fitted by an exponential decay (as the paper fits the sketched
+//! variances), and each band that the DEM's cells can carry becomes a
+//! layer of smooth value noise of that scale and deviation, blended in
+//! with the paper's weight `W = (a^2 - 1)^2` (`a`: the relative position
+//! between shadow and boundary, eqn 1). The terrain is then deformed so
+//! that it interpolates the silhouette and keeps the boundary: the cells
+//! under the placed curve are fitted so the bilinear surface passes
+//! through it ([`super::control_curve::solve_in`]) and the cells inside
+//! the boundary take the harmonic displacement of the project's multigrid
+//! (the multiresolution solve), cells outside stay bit-identical. Noise
+//! and solve are functions of the DEM's global cell indices, so a tile
+//! set gives the single file's result.
+//!
+//! A `noise_region` (region mode, section 3.3) adds the noise of its
+//! `noise_stroke` (placed the same way, for its scale in metres; it is not
+//! interpolated) inside its Polygon, blended in over the coarsest band's
+//! scale from the region's edge; `amplitude_m` rescales its deviation.
+
+use std::collections::HashMap;
+
+use geo::{ConvexHull, Coord, Distance, Euclidean, Intersects, LineString, MultiPoint};
+use geo::{MultiPolygon, Point, Polygon};
+
+use crate::deform::{CellSize, CurveConstraint};
+use crate::edit::rendered_view::RenderedView;
+use crate::edit::stretch_placement::place_on_end_surface;
+use crate::raster::{Dem, Window};
+use crate::render::Scene;
+use crate::sketch::{EyeHeightSpec, SceneProjection, SketchFile, ViewProjection, ViewSpec};
+use crate::view::{Camera, CameraModel, EyeHeight, Viewpoint};
+
+use super::grid::Grid;
+use super::{Correction, CorrectionKind};
+
+/// A stroke of a sketch view, as a feature names it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StrokeRef {
+    pub view: String,
+    pub stroke: String,
+}
+
+/// A stroke placed in the DEM's space, with the footprint it acts on.
+#[derive(Debug, Clone)]
+pub struct Placed {
+    /// The placed stroke, `[x, y, z]`: DEM CRS and absolute heights, one
+    /// point per image pixel along the stroke.
+    pub curve: Vec<[f64; 3]>,
+    /// The curve in the DEM's pixel space (its shadow in map view).
+    pub shadow_px: Vec<[f64; 2]>,
+    /// The footprint, DEM pixel space: the boundary (landforms) or the
+    /// region (noise regions).
+    pub boundary: MultiPolygon<f64>,
+    /// True when `boundary` is the default capsule.
+    pub default_boundary: bool,
+    /// True when both stroke ends stood on terrain (the vertical surface
+    /// through them), false for the drawing plane through one end; `None`
+    /// when a shadow was given.
+    pub both_ends: Option<bool>,
+    /// The shoulders' base lengths `[d1, d2]`, metres (landforms).
+    pub shoulders_m: [f64; 2],
+}
+
+/// The view a landform's stroke is drawn on, set up on the DEM.
+struct ViewSetup {
+    before: RenderedView,
+}
+
+/// Maximum view distance of the placement renders, metres (the edit's
+/// default).
+const MAX_VIEW_M: f64 = 50_000.0;
+/// Refraction coefficient of the placement renders (the edit's default).
+const REFRACTION: f64 = 1.0 / 7.0;
+
+fn set_up(dem: &Dem, v: &ViewSpec) -> Result<ViewSetup, String> {
+    let vp = Viewpoint {
+        lon: v.viewpoint.lon,
+        lat: v.viewpoint.lat,
+        height: match v.viewpoint.height() {
+            EyeHeightSpec::AboveSurface(h) => EyeHeight::AboveSurface(h),
+            EyeHeightSpec::Absolute(a) => EyeHeight::Absolute(a),
+        },
+    };
+    let camera = Camera::new(
+        v.camera.width as usize,
+        v.camera.height as usize,
+        v.camera.heading_deg,
+        v.camera.pitch_deg,
+        v.camera.roll_deg,
+        v.camera.hfov_deg,
+    )
+    .map_err(|e| format!("view \"{}\": {e}", v.name))?;
+    let scene = Scene::open_in_view(dem, &vp, Some(MAX_VIEW_M), REFRACTION, &camera)
+        .map_err(|e| format!("view \"{}\": {e}", v.name))?;
+    let before = RenderedView::from_terrain(scene.terrain, &camera)
+        .map_err(|e| format!("view \"{}\": {e}", v.name))?;
+    Ok(ViewSetup { before })
+}
+
+/// The stroke's vertices densified to at most one pixel apart.
+fn densify(points: &[[f64; 2]]) -> Vec<[f64; 2]> {
+    let mut out = Vec::new();
+    for w in points.windows(2) {
+        let (a, b) = (w[0], w[1]);
+        let n = (b[0] - a[0]).hypot(b[1] - a[1]).ceil().max(1.0) as usize;
+        for k in 0..n {
+            let t = k as f64 / n as f64;
+            out.push([a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])]);
+        }
+    }
+    if let Some(&last) = points.last() {
+        out.push(last);
+    }
+    out
+}
+
+/// Depth along the ray of `pixel` where it meets the vertical ruled
+/// surface through `shadow` (own-frame `(east, north)`): the nearest
+/// crossing in map view.
+fn ruled_surface_depth(
+    proj: &SceneProjection,
+    pixel: [f64; 2],
+    shadow: &[[f64; 2]],
+) -> Option<f64> {
+    let d = CameraModel::unproject(&proj.camera, pixel);
+    let horiz = d[0].hypot(d[1]);
+    if horiz < 1e-9 {
+        return None;
+    }
+    let r = [d[0] / horiz, d[1] / horiz];
+    let mut best: Option<f64> = None;
+    for s in shadow.windows(2) {
+        let (p, q) = (s[0], s[1]);
+        let w = [q[0] - p[0], q[1] - p[1]];
+        let den = r[0] * w[1] - r[1] * w[0];
+        if den.abs() < 1e-12 {
+            continue;
+        }
+        // origin + t r = p + u w
+        let t = (p[0] * w[1] - p[1] * w[0]) / den;
+        let u = (p[0] * r[1] - p[1] * r[0]) / den;
+        if t > 0.0 && (0.0..=1.0).contains(&u) && best.is_none_or(|b| t < b) {
+            best = Some(t);
+        }
+    }
+    // t is the horizontal distance: the depth along the unit ray.
+    best.map(|t| t / horiz)
+}
+
+/// Places `stroke` of view `v` (see the module documentation); `shadow`
+/// in the DEM's CRS.
+fn place_stroke(
+    dem: &Dem,
+    setup: &ViewSetup,
+    v: &ViewSpec,
+    stroke_id: &str,
+    shadow: Option<&[[f64; 2]]>,
+) -> Result<(Vec<[f64; 3]>, Vec<f64>, Option<bool>), String> {
+    let stroke = v
+        .strokes
+        .iter()
+        .find(|s| s.id == stroke_id)
+        .ok_or_else(|| {
+            let ids: Vec<&str> = v.strokes.iter().map(|s| s.id.as_str()).collect();
+            format!(
+                "view \"{}\" has no stroke \"{stroke_id}\" (its strokes: {})",
+                v.name,
+                if ids.is_empty() {
+                    "none".to_string()
+                } else {
+                    ids.join(", ")
+                }
+            )
+        })?;
+    if stroke.points.len() < 2 {
+        return Err(format!("stroke \"{stroke_id}\" needs at least two points"));
+    }
+    let before = &setup.before;
+    let proj = SceneProjection::new(before.camera, &before.terrain);
+    let pixels = densify(&stroke.points);
+    let cell = dem_cell_m(dem);
+    let observer = crate::edit::pipeline::OBSERVER_RADIUS_M.max(2.0 * cell);
+    let (world, both): (Vec<[f64; 3]>, Option<bool>) = match shadow {
+        Some(sh) => {
+            let frame = &before.terrain.frame;
+            let en: Vec<[f64; 2]> = sh
+                .iter()
+                .map(|p| {
+                    let (e, n) = frame.crs_to_en(p[0], p[1]);
+                    [e, n]
+                })
+                .collect();
+            let pts = pixels
+                .iter()
+                .map(|&px| {
+                    ruled_surface_depth(&proj, px, &en).map(|d| proj.unproject(px, d))
+                })
+                .collect::<Option<Vec<_>>>()
+                .ok_or_else(|| {
+                    format!("stroke \"{stroke_id}\": some of its rays do not meet the vertical surface through the shadow")
+                })?;
+            (pts, None)
+        }
+        None => {
+            let (placed, both) = place_on_end_surface(before, &proj, &pixels, observer)
+                .ok_or_else(|| {
+                    format!(
+                        "stroke \"{stroke_id}\": neither end stands on terrain in view \"{}\" (a silhouette is placed on the vertical surface through the terrain under its end points)",
+                        v.name
+                    )
+                })?;
+            (placed.into_iter().map(|(w, _)| w).collect(), Some(both))
+        }
+    };
+    let mut curve = Vec::with_capacity(world.len());
+    let mut ground = Vec::with_capacity(world.len());
+    for w in &world {
+        let p = proj.local_to_dem(*w);
+        let g = proj
+            .terrain_height(w[0], w[1])
+            .map(|h| proj.local_to_dem([w[0], w[1], h])[2])
+            .ok_or_else(|| {
+                format!(
+                    "stroke \"{stroke_id}\": its placed curve leaves the DEM (or crosses nodata)"
+                )
+            })?;
+        curve.push(p);
+        ground.push(g);
+    }
+    Ok((curve, ground, both))
+}
+
+/// The larger cell side of `dem`, metres (at its centre).
+fn dem_cell_m(dem: &Dem) -> f64 {
+    let c = dem_cell(dem);
+    c.hx.max(c.hy)
+}
+
+fn dem_cell(dem: &Dem) -> CellSize {
+    let centre = dem
+        .geotransform
+        .pixel_to_crs(dem.width as f64 / 2.0, dem.height as f64 / 2.0);
+    let lat = if dem.crs.geographic { centre.1 } else { 0.0 };
+    crate::deform::locality::cell_size_m(
+        &dem.geotransform,
+        dem.crs.geographic,
+        lat.clamp(-89.9, 89.9),
+    )
+}
+
+/// Binomial smoothing `[1, 4, 6, 4, 1] / 16` with taps `step` apart,
+/// mirrored at the ends (one level of the à-trous pyramid).
+fn smooth(v: &[f64], step: usize) -> Vec<f64> {
+    let n = v.len() as i64;
+    let at = |i: i64| -> f64 {
+        let mut j = i;
+        if n == 1 {
+            return v[0];
+        }
+        while j < 0 || j >= n {
+            j = if j < 0 { -j } else { 2 * (n - 1) - j };
+        }
+        v[j as usize]
+    };
+    let s = step as i64;
+    (0..n)
+        .map(|i| {
+            (at(i - 2 * s) + 4.0 * at(i - s) + 6.0 * at(i) + 4.0 * at(i + s) + at(i + 2 * s)) / 16.0
+        })
+        .collect()
+}
+
+/// One detail band of a profile's decomposition.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct Band {
+    /// Scale of the band (twice the taps' spacing), metres.
+    pub scale_m: f64,
+    /// Standard deviation of the band's detail `D_i`, metres.
+    pub sigma_m: f64,
+    /// The exponential-decay fit of the deviations at this band, metres.
+    pub fitted_sigma_m: f64,
+}
+
+/// The noise spectrum of a stroke: its detail bands and how much of its
+/// variance they hold.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Spectrum {
+    /// Finest first.
+    pub bands: Vec<Band>,
+    /// Energy of the detail bands over the energy (variance) of the
+    /// smoothest level: the wavelet energy ratio.
+    pub detail_energy_ratio: f64,
+}
+
+/// The spectrum of the height profile of `curve` (DEM CRS, absolute
+/// heights) resampled every `ds` metres along its map-view arc length.
+pub fn spectrum(curve: &[[f64; 3]], ds: f64, crs_to_m: [f64; 2]) -> Spectrum {
+    let mut s = vec![0.0];
+    for w in curve.windows(2) {
+        let d = ((w[1][0] - w[0][0]) * crs_to_m[0]).hypot((w[1][1] - w[0][1]) * crs_to_m[1]);
+        s.push(s.last().copied().unwrap_or(0.0) + d);
+    }
+    let len = s.last().copied().unwrap_or(0.0);
+    let n = (len / ds).floor() as usize + 1;
+    let mut prof = Vec::with_capacity(n);
+    let mut j = 0;
+    for k in 0..n {
+        let t = k as f64 * ds;
+        while j + 2 < s.len() && s[j + 1] < t {
+            j += 1;
+        }
+        let (a, b) = (s[j], s.get(j + 1).copied().unwrap_or(s[j]));
+        let f = if b > a {
+            ((t - a) / (b - a)).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        let z1 = curve.get(j + 1).map_or(curve[j][2], |p| p[2]);
+        prof.push(curve[j][2] + f * (z1 - curve[j][2]));
+    }
+    let mut bands = Vec::new();
+    let mut level = prof.clone();
+    let mut step = 1usize;
+    let mut detail_energy = 0.0;
+    while prof.len() >= 8 && (4 * step) as f64 * ds <= len / 2.0 {
+        let next = smooth(&level, step);
+        let var = level
+            .iter()
+            .zip(&next)
+            .map(|(a, b)| (a - b) * (a - b))
+            .sum::<f64>()
+            / level.len() as f64;
+        detail_energy += var;
+        bands.push(Band {
+            scale_m: 2.0 * step as f64 * ds,
+            sigma_m: var.sqrt(),
+            fitted_sigma_m: var.sqrt(),
+        });
+        level = next;
+        step *= 2;
+    }
+    let mean = level.iter().sum::<f64>() / level.len().max(1) as f64;
+    let smooth_energy =
+        level.iter().map(|v| (v - mean) * (v - mean)).sum::<f64>() / level.len().max(1) as f64;
+    fit_decay(&mut bands);
+    Spectrum {
+        bands,
+        detail_energy_ratio: if smooth_energy > 0.0 {
+            detail_energy / smooth_energy
+        } else {
+            0.0
+        },
+    }
+}
+
+/// Least-squares fit of `ln sigma = a + b i` over the bands with a
+/// deviation (the paper's exponential decay of the sketched variances).
+fn fit_decay(bands: &mut [Band]) {
+    let pts: Vec<(f64, f64)> = bands
+        .iter()
+        .enumerate()
+        .filter(|(_, b)| b.sigma_m > 1e-9)
+        .map(|(i, b)| (i as f64, b.sigma_m.ln()))
+        .collect();
+    if pts.len() < 2 {
+        return;
+    }
+    let n = pts.len() as f64;
+    let (sx, sy) = pts.iter().fold((0.0, 0.0), |a, p| (a.0 + p.0, a.1 + p.1));
+    let (mx, my) = (sx / n, sy / n);
+    let sxx: f64 = pts.iter().map(|p| (p.0 - mx) * (p.0 - mx)).sum();
+    let sxy: f64 = pts.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum();
+    let b = if sxx > 0.0 { sxy / sxx } else { 0.0 };
+    let a = my - b * mx;
+    for (i, band) in bands.iter_mut().enumerate() {
+        band.fitted_sigma_m = (a + b * i as f64).exp();
+    }
+}
+
+/// SplitMix64 of the lattice node: a value in `[-1, 1]`.
+fn node_value(i: i64, j: i64, band: u64, seed: u64) -> f64 {
+    let mut z = seed
+        ^ (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+        ^ (j as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)
+        ^ band.wrapping_mul(0x1656_67B1_9E37_79F9);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^= z >> 31;
+    (z >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+}
+
+fn fade(t: f64) -> f64 {
+    t * t * t * (t * (t * 6.0 - 15.0) + 10.0)
+}
+
+/// Standard deviation of one value-noise layer (uniform node values,
+/// quintic fade), averaged over the lattice square: the layers are
+/// divided by it to unit deviation.
+fn value_noise_sd() -> f64 {
+    let n = 1000;
+    let mut s = 0.0;
+    for k in 0..n {
+        let f = fade((k as f64 + 0.5) / n as f64);
+        s += (1.0 - f) * (1.0 - f) + f * f;
+    }
+    let e = s / n as f64;
+    (e * e / 3.0).sqrt()
+}
+
+/// Smooth value noise of lattice spacing `spacing_m` at `(x, y)` metres
+/// (global: the DEM's cell indices times the cell size), unit deviation.
+fn value_noise(x: f64, y: f64, spacing_m: f64, band: u64, seed: u64, sd: f64) -> f64 {
+    let (u, v) = (x / spacing_m, y / spacing_m);
+    let (i, j) = (u.floor(), v.floor());
+    let (fx, fy) = (fade(u - i), fade(v - j));
+    let (i, j) = (i as i64, j as i64);
+    let n00 = node_value(i, j, band, seed);
+    let n10 = node_value(i + 1, j, band, seed);
+    let n01 = node_value(i, j + 1, band, seed);
+    let n11 = node_value(i + 1, j + 1, band, seed);
+    let a = n00 + fx * (n10 - n00);
+    let b = n01 + fx * (n11 - n01);
+    (a + fy * (b - a)) / sd
+}
+
+/// The noise of `spec` at window cell `(c, r)` of `grid`: the sum over
+/// the bands the cells can carry (scale at least two cells) of the
+/// fitted deviation times a unit value-noise layer, times `gain`.
+struct NoiseField {
+    layers: Vec<(f64, f64)>,
+    seed: u64,
+    sd: f64,
+}
+
+impl NoiseField {
+    fn new(spec: &Spectrum, cell: CellSize, gain: f64, seed: u64) -> NoiseField {
+        let min_scale = 2.0 * cell.hx.max(cell.hy);
+        NoiseField {
+            layers: spec
+                .bands
+                .iter()
+                .filter(|b| b.scale_m >= min_scale)
+                .map(|b| (b.scale_m, b.fitted_sigma_m * gain))
+                .collect(),
+            seed,
+            sd: value_noise_sd(),
+        }
+    }
+
+    /// Deviation of the field, metres.
+    fn sigma(&self) -> f64 {
+        self.layers.iter().map(|l| l.1 * l.1).sum::<f64>().sqrt()
+    }
+
+    /// Largest scale it carries, metres.
+    fn coarsest_m(&self) -> f64 {
+        self.layers.iter().map(|l| l.0).fold(0.0, f64::max)
+    }
+
+    fn at(&self, grid: &Grid, c: usize, r: usize) -> f64 {
+        let x = (grid.window.col as f64 + c as f64 + 0.5) * grid.cell.hx;
+        let y = (grid.window.row as f64 + r as f64 + 0.5) * grid.cell.hy;
+        self.layers
+            .iter()
+            .enumerate()
+            .map(|(k, &(s, a))| a * value_noise(x, y, s, k as u64, self.seed, self.sd))
+            .sum()
+    }
+}
+
+/// A seed from the feature's index and stroke (stable across runs).
+fn seed_for(index: usize, r: &StrokeRef) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325 ^ index as u64;
+    for b in r.view.bytes().chain([0]).chain(r.stroke.bytes()) {
+        h = (h ^ b as u64).wrapping_mul(0x0100_0000_01b3);
+    }
+    h
+}
+
+/// Metres per CRS unit along x and y near the DEM's centre.
+fn crs_to_m(dem: &Dem) -> [f64; 2] {
+    let c = dem_cell(dem);
+    let g = dem.geotransform.0;
+    [c.hx / g[1].abs().max(1e-300), c.hy / g[5].abs().max(1e-300)]
+}
+
+/// Pixel-space points to the metric plane `(px hx, py hy)`.
+fn metric(p: [f64; 2], cell: CellSize) -> [f64; 2] {
+    [p[0] * cell.hx, p[1] * cell.hy]
+}
+
+/// The shoulders of the smoothed profile `h` (heights above the ground at
+/// arc lengths `s`): the base lengths from each end to the first local
+/// maximum reached from it.
+fn shoulders(s: &[f64], h: &[f64]) -> [f64; 2] {
+    let n = h.len();
+    if n < 3 {
+        let l = s.last().copied().unwrap_or(0.0);
+        return [l / 2.0, l / 2.0];
+    }
+    let mut sm = h.to_vec();
+    let half = (n / 20).max(1);
+    for _ in 0..3 {
+        sm = (0..n)
+            .map(|i| {
+                let (a, b) = (i.saturating_sub(half), (i + half + 1).min(n));
+                sm[a..b].iter().sum::<f64>() / (b - a) as f64
+            })
+            .collect();
+    }
+    let first = (1..n - 1)
+        .find(|&i| sm[i] >= sm[i - 1] && sm[i] >= sm[i + 1] && sm[i] > 0.0)
+        .unwrap_or(n / 2);
+    let last = (1..n - 1)
+        .rev()
+        .find(|&i| sm[i] >= sm[i - 1] && sm[i] >= sm[i + 1] && sm[i] > 0.0)
+        .unwrap_or(n / 2);
+    [s[first] - s[0], s[n - 1] - s[last.max(first)]]
+}
+
+/// The default boundary: a capsule of radius the shoulders' mean around
+/// the shadow between the shoulders (at least enclosing the whole shadow
+/// with two cells to spare), as a polygon in pixel space.
+fn capsule(
+    shadow_px: &[[f64; 2]],
+    heights: &[f64],
+    cell: CellSize,
+) -> (MultiPolygon<f64>, [f64; 2]) {
+    let m: Vec<[f64; 2]> = shadow_px.iter().map(|&p| metric(p, cell)).collect();
+    let mut s = vec![0.0];
+    for w in m.windows(2) {
+        s.push(s.last().copied().unwrap_or(0.0) + (w[1][0] - w[0][0]).hypot(w[1][1] - w[0][1]));
+    }
+    let sh = shoulders(&s, heights);
+    let (lo, hi) = (sh[0], s.last().copied().unwrap_or(0.0) - sh[1]);
+    let spine: Vec<[f64; 2]> = m
+        .iter()
+        .zip(&s)
+        .filter(|(_, &t)| t >= lo.min(hi) && t <= hi.max(lo))
+        .map(|(p, _)| *p)
+        .collect();
+    let spine = if spine.is_empty() {
+        vec![m[m.len() / 2]]
+    } else {
+        spine
+    };
+    let spine_ls = LineString::from(spine.iter().map(|p| (p[0], p[1])).collect::<Vec<_>>());
+    let reach = m
+        .iter()
+        .map(|p| Euclidean.distance(&Point::new(p[0], p[1]), &spine_ls))
+        .fold(0.0, f64::max);
+    let min_r = 3.0 * cell.hx.max(cell.hy);
+    let r = (0.5 * (sh[0] + sh[1]))
+        .max(reach + 2.0 * cell.hx.max(cell.hy))
+        .max(min_r);
+    let mut pts = Vec::new();
+    let step = (r / 4.0).max(1e-9);
+    let mut circle = |c: [f64; 2]| {
+        for k in 0..48 {
+            let a = k as f64 * std::f64::consts::TAU / 48.0;
+            pts.push(Point::new(
+                (c[0] + r * a.cos()) / cell.hx,
+                (c[1] + r * a.sin()) / cell.hy,
+            ));
+        }
+    };
+    for w in spine.windows(2) {
+        let d = (w[1][0] - w[0][0]).hypot(w[1][1] - w[0][1]);
+        let n = (d / step).ceil().max(1.0) as usize;
+        for k in 0..n {
+            let t = k as f64 / n as f64;
+            circle([
+                w[0][0] + t * (w[1][0] - w[0][0]),
+                w[0][1] + t * (w[1][1] - w[0][1]),
+            ]);
+        }
+    }
+    if let Some(&l) = spine.last() {
+        circle(l);
+    }
+    let hull: Polygon<f64> = MultiPoint::new(pts).convex_hull();
+    (MultiPolygon::new(vec![hull]), sh)
+}
+
+/// Places the stroke of every landform and noise region of
+/// `corrections` (see the module documentation). `sketch` is the sketch
+/// file and its name, `None` when none was given: a landform is then an
+/// error saying what to give (`hint`). Messages start with `name` and the
+/// feature.
+pub fn resolve(
+    dem: &Dem,
+    sketch: Option<(&SketchFile, &str)>,
+    corrections: &mut [Correction],
+    name: &str,
+    hint: &str,
+) -> Result<(), String> {
+    let mut setups: HashMap<String, ViewSetup> = HashMap::new();
+    let cell = dem_cell(dem);
+    for c in corrections.iter_mut() {
+        let label = c.label();
+        let err = |m: String| format!("{name}: {label}: {m}");
+        let (r, shadow, boundary) = match &c.kind {
+            CorrectionKind::Landform {
+                silhouette,
+                shadow,
+                boundary,
+                ..
+            } => (silhouette.clone(), shadow.clone(), boundary.clone()),
+            CorrectionKind::NoiseRegion { stroke, area, .. } => {
+                (stroke.clone(), None, Some(area.clone()))
+            }
+            _ => continue,
+        };
+        let Some((sk, sk_name)) = sketch else {
+            return Err(err(format!("its stroke is drawn on a sketch view: {hint}")));
+        };
+        let v = sk.views.iter().find(|v| v.name == r.view).ok_or_else(|| {
+            let names: Vec<&str> = sk.views.iter().map(|v| v.name.as_str()).collect();
+            err(format!(
+                "the sketch {sk_name} has no view \"{}\" (its views: {})",
+                r.view,
+                names.join(", ")
+            ))
+        })?;
+        if !setups.contains_key(&v.name) {
+            let s = set_up(dem, v).map_err(&err)?;
+            setups.insert(v.name.clone(), s);
+        }
+        let setup = &setups[&v.name];
+        let (curve, ground, both) =
+            place_stroke(dem, setup, v, &r.stroke, shadow.as_deref()).map_err(&err)?;
+        let gt = dem.geotransform;
+        let shadow_px: Vec<[f64; 2]> = curve
+            .iter()
+            .filter_map(|p| gt.crs_to_pixel(p[0], p[1]).map(|(x, y)| [x, y]))
+            .collect();
+        if shadow_px.len() != curve.len() {
+            return Err(err("the DEM's geotransform is singular".into()));
+        }
+        let heights: Vec<f64> = curve.iter().zip(&ground).map(|(p, g)| p[2] - g).collect();
+        let is_landform = matches!(c.kind, CorrectionKind::Landform { .. });
+        let (boundary, default_boundary, shoulders_m) = match boundary {
+            Some(b) => (b, false, [0.0, 0.0]),
+            None => {
+                let (b, sh) = capsule(&shadow_px, &heights, cell);
+                (b, true, sh)
+            }
+        };
+        if is_landform {
+            // The silhouette's ground track must lie in the boundary.
+            if let Some(k) = shadow_px
+                .iter()
+                .position(|p| !boundary.intersects(&Point::new(p[0], p[1])))
+            {
+                return Err(err(format!(
+                    "the silhouette's ground track leaves the boundary polygon (at stroke point {k} of {})",
+                    shadow_px.len()
+                )));
+            }
+            let w = dem.width as f64;
+            let h = dem.height as f64;
+            if shadow_px
+                .iter()
+                .any(|p| !(p[0] >= 0.0 && p[1] >= 0.0 && p[0] <= w && p[1] <= h))
+            {
+                return Err(err("the placed silhouette lies outside the DEM".into()));
+            }
+        }
+        let new = Placed {
+            curve,
+            shadow_px,
+            boundary,
+            default_boundary,
+            both_ends: both,
+            shoulders_m,
+        };
+        match &mut c.kind {
+            CorrectionKind::Landform { placed, .. }
+            | CorrectionKind::NoiseRegion { placed, .. } => *placed = Some(new),
+            _ => {}
+        }
+    }
+    Ok(())
+}
+
+/// What a landform or a noise region did.
+#[derive(Debug, Clone)]
+pub struct LandformResult {
+    pub cells_changed: usize,
+    pub max_abs_dz_m: f64,
+    /// Largest `|DEM - z|` along the placed silhouette afterwards
+    /// (landforms).
+    pub max_curve_error_m: Option<f64>,
+    pub spectrum: Spectrum,
+    /// Deviation of the noise field added (before the weights), metres.
+    pub noise_sigma_m: f64,
+    /// Root mean square of the noise added over the footprint, metres.
+    pub noise_rms_m: f64,
+}
+
+/// Why a landform could not be applied.
+#[derive(Debug, thiserror::Error)]
+pub enum LandformError {
+    #[error("the stroke was not placed (internal)")]
+    NotPlaced,
+    #[error("the boundary covers no cell of the DEM")]
+    Empty,
+    #[error("{0}")]
+    Curve(#[from] super::control_curve::CurveError),
+}
+
+/// Per cell of the window `win` of `grid` (window-local cells): inside
+/// the footprint, and the distance in metres to its edge.
+fn footprint(grid: &Grid, win: Window, area: &MultiPolygon<f64>) -> (Vec<bool>, Vec<f64>) {
+    let cell = grid.cell;
+    let rings: Vec<LineString<f64>> = area
+        .0
+        .iter()
+        .flat_map(|p| std::iter::once(p.exterior().clone()).chain(p.interiors().iter().cloned()))
+        .map(|r| {
+            LineString::new(
+                r.coords()
+                    .map(|q| Coord {
+                        x: q.x * cell.hx,
+                        y: q.y * cell.hy,
+                    })
+                    .collect(),
+            )
+        })
+        .collect();
+    let n = win.len();
+    let mut inside = vec![false; n];
+    let mut dist = vec![0.0; n];
+    for r in 0..win.height {
+        for c in 0..win.width {
+            let (px, py) = (
+                win.col as f64 + c as f64 + 0.5,
+                win.row as f64 + r as f64 + 0.5,
+            );
+            let i = r * win.width + c;
+            inside[i] = area.intersects(&Point::new(px, py));
+            if inside[i] {
+                let p = Point::new(px * cell.hx, py * cell.hy);
+                dist[i] = rings
+                    .iter()
+                    .map(|l| Euclidean.distance(&p, l))
+                    .fold(f64::INFINITY, f64::min);
+            }
+        }
+    }
+    (inside, dist)
+}
+
+/// The window of `grid` (DEM grid) covering `area`, with one cell to
+/// spare.
+fn area_window(grid: &Grid, area: &MultiPolygon<f64>) -> Option<Window> {
+    use geo::BoundingRect;
+    let b = area.bounding_rect()?;
+    let c0 = (b.min().x.floor() - 1.0) as i64;
+    let r0 = (b.min().y.floor() - 1.0) as i64;
+    let c1 = (b.max().x.ceil() + 1.0) as i64;
+    let r1 = (b.max().y.ceil() + 1.0) as i64;
+    Window::new(c0, r0, (c1 - c0).max(0) as usize, (r1 - r0).max(0) as usize)
+        .intersect(&grid.window)
+}
+
+/// Applies a landform (see the module documentation) to `grid`.
+pub fn apply_landform(
+    dem: &Dem,
+    grid: &mut Grid,
+    index: usize,
+    silhouette: &StrokeRef,
+    placed: Option<&Placed>,
+) -> Result<LandformResult, LandformError> {
+    let p = placed.ok_or(LandformError::NotPlaced)?;
+    let cell = grid.cell;
+    let win = area_window(grid, &p.boundary).ok_or(LandformError::Empty)?;
+    let spec = spectrum(&p.curve, 0.5 * cell.hx.min(cell.hy), crs_to_m(dem));
+    let field = NoiseField::new(&spec, cell, 1.0, seed_for(index, silhouette));
+    let (inside, edge) = footprint(grid, win, &p.boundary);
+    // Noise first, weighted by the relative position between shadow and
+    // boundary (eqn 1, 2), then the deformation (eqn 3).
+    let shadow = LineString::from(
+        p.shadow_px
+            .iter()
+            .map(|q| (q[0] * cell.hx, q[1] * cell.hy))
+            .collect::<Vec<_>>(),
+    );
+    let (lc, lr) = (
+        (win.col - grid.window.col) as usize,
+        (win.row - grid.window.row) as usize,
+    );
+    let (mut sum2, mut count) = (0.0, 0usize);
+    if field.sigma() > 0.0 {
+        for r in 0..win.height {
+            for c in 0..win.width {
+                let i = r * win.width + c;
+                let g = (r + lr) * grid.width() + c + lc;
+                if !inside[i] || grid.values[g].is_nan() {
+                    continue;
+                }
+                let pt = Point::new(
+                    (win.col as f64 + c as f64 + 0.5) * cell.hx,
+                    (win.row as f64 + r as f64 + 0.5) * cell.hy,
+                );
+                let ds = Euclidean.distance(&pt, &shadow);
+                let a = ds / (ds + edge[i]).max(1e-12);
+                let w = (a * a - 1.0) * (a * a - 1.0);
+                let dz = w * field.at(grid, c + lc, r + lr);
+                grid.values[g] += dz;
+                sum2 += dz * dz;
+                count += 1;
+            }
+        }
+    }
+    let curve = [CurveConstraint {
+        points: p.curve.clone(),
+    }];
+    super::control_curve::solve_in(grid, &curve, win, |_, _| inside.clone())?;
+    let (mut changed, mut max_abs) = (0usize, 0f64);
+    for r in 0..win.height {
+        for c in 0..win.width {
+            let g = (r + lr) * grid.width() + c + lc;
+            let (v, b) = (grid.values[g], grid.base.data[g] as f64);
+            if !v.is_nan() && v != b {
+                changed += 1;
+                max_abs = max_abs.max((v - b).abs());
+            }
+        }
+    }
+    Ok(LandformResult {
+        cells_changed: changed,
+        max_abs_dz_m: max_abs,
+        max_curve_error_m: Some(super::control_curve::curve_error(grid, &p.curve)),
+        noise_sigma_m: field.sigma(),
+        noise_rms_m: if count > 0 {
+            (sum2 / count as f64).sqrt()
+        } else {
+            0.0
+        },
+        spectrum: spec,
+    })
+}
+
+/// Applies a noise region (region mode) to `grid`.
+pub fn apply_noise_region(
+    dem: &Dem,
+    grid: &mut Grid,
+    index: usize,
+    stroke: &StrokeRef,
+    amplitude_m: Option<f64>,
+    placed: Option<&Placed>,
+) -> Result<LandformResult, LandformError> {
+    let p = placed.ok_or(LandformError::NotPlaced)?;
+    let cell = grid.cell;
+    let win = area_window(grid, &p.boundary).ok_or(LandformError::Empty)?;
+    let spec = spectrum(&p.curve, 0.5 * cell.hx.min(cell.hy), crs_to_m(dem));
+    let unit = NoiseField::new(&spec, cell, 1.0, seed_for(index, stroke));
+    let gain = match amplitude_m {
+        Some(a) if unit.sigma() > 0.0 => a / unit.sigma(),
+        _ => 1.0,
+    };
+    let field = NoiseField::new(&spec, cell, gain, seed_for(index, stroke));
+    let blend = field.coarsest_m().max(2.0 * cell.hx.max(cell.hy));
+    let (inside, edge) = footprint(grid, win, &p.boundary);
+    let (lc, lr) = (
+        (win.col - grid.window.col) as usize,
+        (win.row - grid.window.row) as usize,
+    );
+    let (mut sum2, mut count, mut changed, mut max_abs) = (0.0, 0usize, 0usize, 0f64);
+    for r in 0..win.height {
+        for c in 0..win.width {
+            let i = r * win.width + c;
+            let g = (r + lr) * grid.width() + c + lc;
+            if !inside[i] || grid.values[g].is_nan() || field.sigma() == 0.0 {
+                continue;
+            }
+            let t = (edge[i] / blend).min(1.0);
+            let w = t * t * (3.0 - 2.0 * t);
+            let dz = w * field.at(grid, c + lc, r + lr);
+            if dz != 0.0 {
+                grid.values[g] += dz;
+                changed += 1;
+                max_abs = max_abs.max(dz.abs());
+            }
+            sum2 += dz * dz;
+            count += 1;
+        }
+    }
+    Ok(LandformResult {
+        cells_changed: changed,
+        max_abs_dz_m: max_abs,
+        max_curve_error_m: None,
+        noise_sigma_m: field.sigma(),
+        noise_rms_m: if count > 0 {
+            (sum2 / count as f64).sqrt()
+        } else {
+            0.0
+        },
+        spectrum: spec,
+    })
+}
+
+/// The footprint (boundary or region) and the shadow of a placed stroke
+/// as GeoJSON geometries in the DEM's CRS, for the report: the defaults
+/// to edit in a GIS and give back as the feature's Polygon and `shadow`.
+pub fn geojson_of(dem: &Dem, p: &Placed) -> (serde_json::Value, serde_json::Value) {
+    let gt = dem.geotransform;
+    let ring = |r: &LineString<f64>| -> Vec<[f64; 2]> {
+        r.coords()
+            .map(|q| {
+                let (x, y) = gt.pixel_to_crs(q.x, q.y);
+                [x, y]
+            })
+            .collect()
+    };
+    let polys: Vec<Vec<Vec<[f64; 2]>>> = p
+        .boundary
+        .0
+        .iter()
+        .map(|poly| {
+            std::iter::once(ring(poly.exterior()))
+                .chain(poly.interiors().iter().map(ring))
+                .collect()
+        })
+        .collect();
+    let boundary = if polys.len() == 1 {
+        serde_json::json!({"type": "Polygon", "coordinates": polys[0]})
+    } else {
+        serde_json::json!({"type": "MultiPolygon", "coordinates": polys})
+    };
+    // The shadow, thinned to every tenth point (and the last).
+    let n = p.curve.len();
+    let shadow: Vec<[f64; 2]> = p
+        .curve
+        .iter()
+        .enumerate()
+        .filter(|(k, _)| k % 10 == 0 || *k + 1 == n)
+        .map(|(_, q)| [q[0], q[1]])
+        .collect();
+    (
+        boundary,
+        serde_json::json!({"type": "LineString", "coordinates": shadow}),
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn line(n: usize, f: impl Fn(f64) -> f64) -> Vec<[f64; 3]> {
+        (0..n)
+            .map(|k| {
+                let x = k as f64;
+                [x, 0.0, f(x)]
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_jagged_profile_has_more_detail_energy_than_a_smooth_one() {
+        let smooth = line(401, |x| 100.0 * (std::f64::consts::PI * x / 400.0).sin());
+        let jagged = line(401, |x| {
+            100.0 * (std::f64::consts::PI * x / 400.0).sin()
+                + if (x as usize / 4) % 2 == 0 { 3.0 } else { -3.0 }
+        });
+        let (a, b) = (
+            spectrum(&smooth, 1.0, [1.0, 1.0]),
+            spectrum(&jagged, 1.0, [1.0, 1.0]),
+        );
+        assert!(!a.bands.is_empty());
+        assert!(
+            b.detail_energy_ratio > 20.0 * a.detail_energy_ratio,
+            "jagged {} smooth {}",
+            b.detail_energy_ratio,
+            a.detail_energy_ratio
+        );
+        let fine = |s: &Spectrum| s.bands[..3].iter().map(|b| b.sigma_m).sum::<f64>();
+        assert!(fine(&b) > 10.0 * fine(&a));
+    }
+
+    #[test]
+    fn a_flat_profile_has_no_detail() {
+        let s = spectrum(&line(200, |_| 5.0), 1.0, [1.0, 1.0]);
+        assert!(s.bands.iter().all(|b| b.sigma_m < 1e-9));
+        assert_eq!(s.detail_energy_ratio, 0.0);
+    }
+
+    #[test]
+    fn value_noise_has_about_unit_deviation_and_is_a_function_of_position() {
+        let sd = value_noise_sd();
+        let mut s2 = 0.0;
+        let n = 200;
+        for i in 0..n {
+            for j in 0..n {
+                let v = value_noise(i as f64 * 3.7, j as f64 * 2.9, 10.0, 0, 7, sd);
+                s2 += v * v;
+            }
+        }
+        let rms = (s2 / (n * n) as f64).sqrt();
+        assert!((rms - 1.0).abs() < 0.1, "rms {rms}");
+        assert_eq!(
+            value_noise(123.0, 45.0, 10.0, 1, 7, sd),
+            value_noise(123.0, 45.0, 10.0, 1, 7, sd)
+        );
+    }
+
+    #[test]
+    fn a_single_peak_gets_a_round_capsule_and_a_ridge_an_elongated_one() {
+        let cell = CellSize { hx: 10.0, hy: 10.0 };
+        let track: Vec<[f64; 2]> = (0..=100).map(|k| [k as f64, 50.0]).collect();
+        let peak: Vec<f64> = (0..=100).map(|k| 50.0 - (k as f64 - 50.0).abs()).collect();
+        let ridge: Vec<f64> = (0..=100)
+            .map(|k| (k as f64).min(100.0 - k as f64).min(10.0))
+            .collect();
+        let extent = |b: &MultiPolygon<f64>| {
+            use geo::BoundingRect;
+            let r = b.bounding_rect().unwrap();
+            (r.width(), r.height())
+        };
+        let (pb, psh) = capsule(&track, &peak, cell);
+        let (rb, rsh) = capsule(&track, &ridge, cell);
+        let (pw, ph) = extent(&pb);
+        let (rw, rh) = extent(&rb);
+        assert!(
+            (psh[0] - 500.0).abs() < 30.0 && (psh[1] - 500.0).abs() < 30.0,
+            "{psh:?}"
+        );
+        assert!((pw / ph - 1.0).abs() < 0.1, "peak {pw} x {ph}");
+        assert!(rw / rh > 3.0, "ridge {rw} x {rh} {rsh:?}");
+        for p in &track {
+            assert!(pb.intersects(&Point::new(p[0], p[1])));
+            assert!(rb.intersects(&Point::new(p[0], p[1])));
+        }
+    }
+}
