@@ -184,7 +184,7 @@ pub fn apply(
     let win = affected_window(dem, &all, cell, influence_m)
         .and_then(|w| w.intersect(&grid.window))
         .ok_or(CurveError::NothingConstrained)?;
-    let (cells_changed, max_abs) = solve_in(grid, &all, win, |cons, _| {
+    let (cells_changed, max_abs) = solve_in(grid, &all, win, true, |cons, _| {
         influence_mask(cons, cell, influence_m)
     })?;
     Ok(CurveResult {
@@ -201,7 +201,9 @@ pub fn apply(
 
 /// The solve of [`apply`] over `win` (DEM grid, inside the grid's window):
 /// the curves `all` (the first is the control curve, the others its
-/// cross-sections) fitted, then the cells `inside` says may move (a mask
+/// cross-sections) fitted (with `fit`; else the cells of their stencils
+/// take the rasteriser's heights, the curve's at the closest point), then
+/// the cells `inside` says may move (a mask
 /// over `win`, given the curves' constraint raster and the window's
 /// heights) diffused harmonically, every other cell kept. Returns the
 /// cells changed and the largest `|dz|`. The landforms of
@@ -210,6 +212,7 @@ pub fn solve_in(
     grid: &mut Grid,
     all: &[CurveConstraint],
     win: crate::raster::Window,
+    fit: bool,
     inside: impl FnOnce(&constraints::ConstraintRaster, &crate::raster::HeightMap) -> Vec<bool>,
 ) -> Result<(usize, f64), CurveError> {
     let cell = grid.cell;
@@ -223,10 +226,14 @@ pub fn solve_in(
     let mut decided = vec![false; n];
     let mut target = vec![0f64; n];
     // The control curve first, then the cross-sections.
-    if fit_curve(&hm, &all[0], cell, &mut decided, &mut target)? == 0 {
+    if !fit {
+        if !cons.constrained.iter().any(|&c| c) {
+            return Err(CurveError::NothingConstrained);
+        }
+    } else if fit_curve(&hm, &all[0], cell, &mut decided, &mut target)? == 0 {
         return Err(CurveError::NothingConstrained);
     }
-    if all.len() > 1 {
+    if fit && all.len() > 1 {
         for c in &all[1..] {
             fit_curve(&hm, c, cell, &mut decided, &mut target)?;
         }

@@ -271,19 +271,27 @@ fn dem_cell(dem: &Dem) -> CellSize {
     )
 }
 
-/// Binomial smoothing `[1, 4, 6, 4, 1] / 16` with taps `step` apart,
-/// mirrored at the ends (one level of the à-trous pyramid).
+/// Binomial smoothing `[1, 4, 6, 4, 1] / 16` with taps `step` apart (one
+/// level of the à-trous pyramid). Beyond the ends the profile is extended
+/// by point reflection through the end value (`v(-i) = 2 v(0) - v(i)`),
+/// which keeps straight ramps straight: a silhouette rising from the
+/// ground keeps its end heights at every level instead of being lifted
+/// (the paper's "ends require special attention").
 fn smooth(v: &[f64], step: usize) -> Vec<f64> {
     let n = v.len() as i64;
     let at = |i: i64| -> f64 {
-        let mut j = i;
         if n == 1 {
             return v[0];
         }
-        while j < 0 || j >= n {
-            j = if j < 0 { -j } else { 2 * (n - 1) - j };
+        if i < 0 {
+            let j = (-i).min(n - 1);
+            2.0 * v[0] - v[j as usize]
+        } else if i >= n {
+            let j = (2 * (n - 1) - i).max(0);
+            2.0 * v[(n - 1) as usize] - v[j as usize]
+        } else {
+            v[i as usize]
         }
-        v[j as usize]
     };
     let s = step as i64;
     (0..n)
@@ -315,6 +323,11 @@ pub struct Spectrum {
     pub detail_energy_ratio: f64,
 }
 
+/// The noise bands of a stroke reach scales up to its map-view length
+/// over this: coarser detail is the landform's shape, which the
+/// deformation gives (eqn 3); as noise it would come back as random lumps.
+pub const NOISE_SCALE_DIVISOR: f64 = 16.0;
+
 /// The spectrum of the height profile of `curve` (DEM CRS, absolute
 /// heights) resampled every `ds` metres along its map-view arc length.
 pub fn spectrum(curve: &[[f64; 3]], ds: f64, crs_to_m: [f64; 2]) -> Spectrum {
@@ -345,7 +358,7 @@ pub fn spectrum(curve: &[[f64; 3]], ds: f64, crs_to_m: [f64; 2]) -> Spectrum {
     let mut level = prof.clone();
     let mut step = 1usize;
     let mut detail_energy = 0.0;
-    while prof.len() >= 8 && (4 * step) as f64 * ds <= len / 2.0 {
+    while prof.len() >= 8 && (2 * step) as f64 * ds <= len / NOISE_SCALE_DIVISOR {
         let next = smooth(&level, step);
         let var = level
             .iter()
@@ -541,6 +554,28 @@ fn shoulders(s: &[f64], h: &[f64]) -> [f64; 2] {
     [s[first] - s[0], s[n - 1] - s[last.max(first)]]
 }
 
+/// Distance from `p` to the polyline `line` (one point: to that point).
+fn polyline_distance(p: [f64; 2], line: &[[f64; 2]]) -> f64 {
+    let seg = |a: [f64; 2], b: [f64; 2]| {
+        let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
+        let l2 = dx * dx + dy * dy;
+        let t = if l2 > 0.0 {
+            (((p[0] - a[0]) * dx + (p[1] - a[1]) * dy) / l2).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        (p[0] - a[0] - t * dx).hypot(p[1] - a[1] - t * dy)
+    };
+    match line {
+        [] => f64::INFINITY,
+        [a] => seg(*a, *a),
+        _ => line
+            .windows(2)
+            .map(|w| seg(w[0], w[1]))
+            .fold(f64::INFINITY, f64::min),
+    }
+}
+
 /// The default boundary: a capsule of radius the shoulders' mean around
 /// the shadow between the shoulders (at least enclosing the whole shadow
 /// with two cells to spare), as a polygon in pixel space.
@@ -567,10 +602,9 @@ fn capsule(
     } else {
         spine
     };
-    let spine_ls = LineString::from(spine.iter().map(|p| (p[0], p[1])).collect::<Vec<_>>());
     let reach = m
         .iter()
-        .map(|p| Euclidean.distance(&Point::new(p[0], p[1]), &spine_ls))
+        .map(|&p| polyline_distance(p, &spine))
         .fold(0.0, f64::max);
     let min_r = 3.0 * cell.hx.max(cell.hy);
     let r = (0.5 * (sh[0] + sh[1]))
@@ -669,6 +703,15 @@ pub fn resolve(
                 (b, true, sh)
             }
         };
+        if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
+            use geo::BoundingRect;
+            eprintln!(
+                "landform: track {:?}..{:?}, boundary {:?}",
+                shadow_px.first(),
+                shadow_px.last(),
+                boundary.bounding_rect()
+            );
+        }
         if is_landform {
             // The silhouette's ground track must lie in the boundary.
             if let Some(k) = shadow_px
@@ -787,7 +830,118 @@ fn area_window(grid: &Grid, area: &MultiPolygon<f64>) -> Option<Window> {
         .intersect(&grid.window)
 }
 
-/// Applies a landform (see the module documentation) to `grid`.
+/// The silhouette's height above the ground along its shadow, split into
+/// the bands of the à-trous pyramid (coarsest last): the profile of each
+/// band on a uniform arc-length grid.
+struct Profile {
+    /// Arc-length spacing of the samples, metres.
+    ds: f64,
+    /// Per band, its values; their sum is the height above the ground.
+    bands: Vec<Vec<f64>>,
+    /// Per band, the boundary's scale (Gain et al.: `c_i / c_0`, the
+    /// filter widths' ratio, here at least [`MIN_BOUNDARY_SCALE`]).
+    scale: Vec<f64>,
+}
+
+/// The finest bands' boundaries are scaled in at most this far: a band
+/// localised nearer its shadow would let the coarser ones in front of and
+/// behind the silhouette hide its notches from the view.
+pub const MIN_BOUNDARY_SCALE: f64 = 0.5;
+
+impl Profile {
+    fn new(s: &[f64], h: &[f64], ds: f64) -> Profile {
+        let len = s.last().copied().unwrap_or(0.0);
+        let n = (len / ds).floor() as usize + 1;
+        let mut level: Vec<f64> = (0..n).map(|k| interp(s, h, k as f64 * ds)).collect();
+        let mut bands = Vec::new();
+        let mut widths = Vec::new();
+        let mut step = 1usize;
+        while n >= 8 && (4 * step) as f64 * ds <= len / 2.0 {
+            let next = smooth(&level, step);
+            bands.push(level.iter().zip(&next).map(|(a, b)| a - b).collect());
+            widths.push(step as f64);
+            level = next;
+            step *= 2;
+        }
+        bands.push(level);
+        widths.push(step as f64);
+        let coarsest = widths.last().copied().unwrap_or(1.0);
+        let scale = widths
+            .iter()
+            .map(|w| (w / coarsest).max(MIN_BOUNDARY_SCALE))
+            .collect();
+        Profile { ds, bands, scale }
+    }
+
+    /// Band `k` at arc length `t`.
+    fn at(&self, k: usize, t: f64) -> f64 {
+        let b = &self.bands[k];
+        let x = (t / self.ds).clamp(0.0, (b.len() - 1) as f64);
+        let i = (x.floor() as usize).min(b.len().saturating_sub(2));
+        let f = x - i as f64;
+        if b.len() == 1 {
+            return b[0];
+        }
+        b[i] + f * (b[i + 1] - b[i])
+    }
+}
+
+/// Linear interpolation of `(s, v)` at `t` (clamped to the ends).
+fn interp(s: &[f64], v: &[f64], t: f64) -> f64 {
+    let k = s.partition_point(|&x| x < t);
+    if k == 0 {
+        return v[0];
+    }
+    if k >= s.len() {
+        return v[v.len() - 1];
+    }
+    let (a, b) = (s[k - 1], s[k]);
+    let f = if b > a { (t - a) / (b - a) } else { 0.0 };
+    v[k - 1] + f * (v[k] - v[k - 1])
+}
+
+/// The closest point of the polyline `line` to `p`: its arc length
+/// (`cum` holds the vertices' arc lengths) and distance.
+fn closest_on(p: [f64; 2], line: &[[f64; 2]], cum: &[f64]) -> (f64, f64) {
+    if line.len() == 1 {
+        return (0.0, (p[0] - line[0][0]).hypot(p[1] - line[0][1]));
+    }
+    let mut best = (0.0, f64::INFINITY);
+    for (k, w) in line.windows(2).enumerate() {
+        let (a, b) = (w[0], w[1]);
+        let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
+        let l2 = dx * dx + dy * dy;
+        let t = if l2 > 0.0 {
+            (((p[0] - a[0]) * dx + (p[1] - a[1]) * dy) / l2).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        let d = (p[0] - a[0] - t * dx).hypot(p[1] - a[1] - t * dy);
+        if d < best.1 {
+            best = (cum[k] + t * (cum[k + 1] - cum[k]), d);
+        }
+    }
+    best
+}
+
+/// Gain et al.'s blending function `(a^2 - 1)^2` of the relative position
+/// `a` between shadow (0) and boundary (1), 0 beyond.
+fn blend(a: f64) -> f64 {
+    if a >= 1.0 {
+        0.0
+    } else {
+        (a * a - 1.0) * (a * a - 1.0)
+    }
+}
+
+/// Cells next to the placed silhouette (within this many cells) take the
+/// multigrid's harmonic correction that makes the bilinear surface pass
+/// through it exactly.
+pub const CORRECTION_CELLS: f64 = 3.0;
+
+/// Applies a landform (see the module documentation) to `grid`: noise
+/// (eqn 2), the multi-scale deformation (eqn 3), then the multigrid's
+/// correction so the terrain interpolates the silhouette.
 pub fn apply_landform(
     dem: &Dem,
     grid: &mut Grid,
@@ -798,48 +952,87 @@ pub fn apply_landform(
     let p = placed.ok_or(LandformError::NotPlaced)?;
     let cell = grid.cell;
     let win = area_window(grid, &p.boundary).ok_or(LandformError::Empty)?;
-    let spec = spectrum(&p.curve, 0.5 * cell.hx.min(cell.hy), crs_to_m(dem));
+    let ds = 0.5 * cell.hx.min(cell.hy);
+    let spec = spectrum(&p.curve, ds, crs_to_m(dem));
     let field = NoiseField::new(&spec, cell, 1.0, seed_for(index, silhouette));
     let (inside, edge) = footprint(grid, win, &p.boundary);
-    // Noise first, weighted by the relative position between shadow and
-    // boundary (eqn 1, 2), then the deformation (eqn 3).
-    let shadow = LineString::from(
-        p.shadow_px
-            .iter()
-            .map(|q| (q[0] * cell.hx, q[1] * cell.hy))
-            .collect::<Vec<_>>(),
-    );
+    let shadow: Vec<[f64; 2]> = p.shadow_px.iter().map(|&q| metric(q, cell)).collect();
+    let mut cum = vec![0.0];
+    for w in shadow.windows(2) {
+        cum.push(cum.last().copied().unwrap_or(0.0) + (w[1][0] - w[0][0]).hypot(w[1][1] - w[0][1]));
+    }
     let (lc, lr) = (
         (win.col - grid.window.col) as usize,
         (win.row - grid.window.row) as usize,
     );
+    // Per footprint cell: its arc length on the shadow and its relative
+    // position between shadow and boundary (eqn 1).
+    let mut param: Vec<Option<(f64, f64)>> = vec![None; win.len()];
+    for r in 0..win.height {
+        for c in 0..win.width {
+            let i = r * win.width + c;
+            let g = (r + lr) * grid.width() + c + lc;
+            if !inside[i] || grid.values[g].is_nan() {
+                continue;
+            }
+            let pt = [
+                (win.col as f64 + c as f64 + 0.5) * cell.hx,
+                (win.row as f64 + r as f64 + 0.5) * cell.hy,
+            ];
+            let (t, d) = closest_on(pt, &shadow, &cum);
+            param[i] = Some((t, d / (d + edge[i]).max(1e-12)));
+        }
+    }
+    // Noise, blended in over the whole footprint (eqn 2).
     let (mut sum2, mut count) = (0.0, 0usize);
     if field.sigma() > 0.0 {
         for r in 0..win.height {
             for c in 0..win.width {
-                let i = r * win.width + c;
-                let g = (r + lr) * grid.width() + c + lc;
-                if !inside[i] || grid.values[g].is_nan() {
+                let Some((_, a)) = param[r * win.width + c] else {
                     continue;
-                }
-                let pt = Point::new(
-                    (win.col as f64 + c as f64 + 0.5) * cell.hx,
-                    (win.row as f64 + r as f64 + 0.5) * cell.hy,
-                );
-                let ds = Euclidean.distance(&pt, &shadow);
-                let a = ds / (ds + edge[i]).max(1e-12);
-                let w = (a * a - 1.0) * (a * a - 1.0);
-                let dz = w * field.at(grid, c + lc, r + lr);
+                };
+                let g = (r + lr) * grid.width() + c + lc;
+                let dz = blend(a) * field.at(grid, c + lc, r + lr);
                 grid.values[g] += dz;
                 sum2 += dz * dz;
                 count += 1;
             }
         }
     }
+    // The silhouette's height above the (noisy) ground under it, band by
+    // band, each blended in within its scaled boundary (eqn 3).
+    let heights: Vec<f64> = p
+        .curve
+        .iter()
+        .zip(&p.shadow_px)
+        .map(|(q, s)| {
+            let g = grid.bilinear(grid.local(*s)).unwrap_or(q[2]);
+            q[2] - g
+        })
+        .collect();
+    let profile = Profile::new(&cum, &heights, ds);
+    for r in 0..win.height {
+        for c in 0..win.width {
+            let Some((t, a)) = param[r * win.width + c] else {
+                continue;
+            };
+            let g = (r + lr) * grid.width() + c + lc;
+            let dz: f64 = (0..profile.bands.len())
+                .map(|k| blend(a / profile.scale[k]) * profile.at(k, t))
+                .sum();
+            grid.values[g] += dz;
+        }
+    }
+    // The multigrid's correction next to the silhouette: the bilinear
+    // surface through the placed curve exactly.
     let curve = [CurveConstraint {
         points: p.curve.clone(),
     }];
-    super::control_curve::solve_in(grid, &curve, win, |_, _| inside.clone())?;
+    let reach = CORRECTION_CELLS * cell.hx.max(cell.hy);
+    super::control_curve::solve_in(grid, &curve, win, false, |cons, _| {
+        let near = crate::deform::locality::influence_mask(cons, cell, reach);
+        near.iter().zip(&inside).map(|(&a, &b)| a && b).collect()
+    })?;
     let (mut changed, mut max_abs) = (0usize, 0f64);
     for r in 0..win.height {
         for c in 0..win.width {
