@@ -69,13 +69,13 @@ fn stroke(jag: f64) -> Vec<[f64; 2]> {
 fn sketch() -> Value {
     let ll = to_lonlat(32632, &[[X0 + VIEW[0], Y0 - VIEW[1]]])[0];
     json!({"views": [{"name": "hill",
-        "viewpoint": {"lon": ll[0], "lat": ll[1], "eye_height_m": 1.7},
-        "camera": {"heading_deg": 0.0, "hfov_deg": 60.0, "width": 640, "height": 360},
-        "strokes": [
-            {"id": "smooth", "points": stroke(0.0)},
-            {"id": "jagged", "points": stroke(4.0)},
-            {"id": "noise", "points": stroke(4.0)}
-        ]}]})
+    "viewpoint": {"lon": ll[0], "lat": ll[1], "eye_height_m": 1.7},
+    "camera": {"heading_deg": 0.0, "hfov_deg": 60.0, "width": 640, "height": 360},
+    "strokes": [
+        {"id": "smooth", "points": stroke(0.0)},
+        {"id": "jagged", "points": stroke(4.0)},
+        {"id": "noise", "points": stroke(4.0)}
+    ]}]})
 }
 
 fn landform(name: &str, stroke_id: &str, geometry: Value) -> Value {
@@ -177,7 +177,10 @@ fn corrections(rep: &Value) -> &Value {
 #[test]
 fn a_silhouette_stroke_gives_a_landform_the_judge_fits_and_a_jagged_one_is_rougher() {
     let case = Case::new();
-    let rep = case.ok("smooth", vec![landform("hill_smooth", "smooth", Value::Null)]);
+    let rep = case.ok(
+        "smooth",
+        vec![landform("hill_smooth", "smooth", Value::Null)],
+    );
     let f = corrections(&rep);
     println!(
         "smooth: {}",
@@ -200,7 +203,8 @@ fn a_silhouette_stroke_gives_a_landform_the_judge_fits_and_a_jagged_one_is_rough
     assert!((780.0..840.0).contains(&peak), "peak {peak}");
     let input = Raster::read(&case.path("plain.tif"));
     let smooth = Raster::read(&case.path("smooth.tif"));
-    let ring: Vec<[f64; 2]> = serde_json::from_value(f["landform"]["boundary"]["coordinates"][0].clone()).unwrap();
+    let ring: Vec<[f64; 2]> =
+        serde_json::from_value(f["landform"]["boundary"]["coordinates"][0].clone()).unwrap();
     let ring_px: Vec<[f64; 2]> = ring.iter().map(|p| input.pixel(p[0], p[1])).collect();
     let mut changed = 0;
     for r in 0..input.h {
@@ -217,7 +221,10 @@ fn a_silhouette_stroke_gives_a_landform_the_judge_fits_and_a_jagged_one_is_rough
     }
     assert!(changed > 1000, "{changed} cells changed");
 
-    let rep_j = case.ok("jagged", vec![landform("hill_jagged", "jagged", Value::Null)]);
+    let rep_j = case.ok(
+        "jagged",
+        vec![landform("hill_jagged", "jagged", Value::Null)],
+    );
     let j = corrections(&rep_j);
     let jagged = Raster::read(&case.path("jagged.tif"));
     let (es, ej) = (
@@ -252,25 +259,34 @@ fn the_default_boundary_given_back_as_the_polygon_gives_the_same_landform() {
         Raster::read(&case.path("first.tif")),
         Raster::read(&case.path("again.tif")),
     );
-    let worst = a
-        .v
-        .iter()
-        .zip(&b.v)
-        .map(|(x, y)| (x - y).abs())
-        .fold(0.0, f64::max);
+    let worst =
+        a.v.iter()
+            .zip(&b.v)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0, f64::max);
     assert!(worst < 1e-3, "max |diff| {worst} m");
 
     // A smaller boundary (a square of 40 cells around the peak's foot)
     // keeps every cell outside it.
     let input = Raster::read(&case.path("plain.tif"));
-    let sq: Vec<[f64; 2]> = [[226.0, 252.0], [266.0, 252.0], [266.0, 292.0], [226.0, 292.0], [226.0, 252.0]]
-        .iter()
-        .map(|&p| input.crs(p))
-        .collect();
+    let sq: Vec<[f64; 2]> = [
+        [226.0, 252.0],
+        [266.0, 252.0],
+        [266.0, 292.0],
+        [226.0, 292.0],
+        [226.0, 252.0],
+    ]
+    .iter()
+    .map(|&p| input.crs(p))
+    .collect();
     let o = case.correct(
         &case.path("plain.tif"),
         "small",
-        vec![landform("hill", "smooth", json!({"type": "Polygon", "coordinates": [sq]}))],
+        vec![landform(
+            "hill",
+            "smooth",
+            json!({"type": "Polygon", "coordinates": [sq]}),
+        )],
     );
     let err = String::from_utf8_lossy(&o.stderr);
     // The silhouette's ground track runs beyond that square: refused.
@@ -282,10 +298,16 @@ fn the_default_boundary_given_back_as_the_polygon_gives_the_same_landform() {
 fn a_noise_region_roughens_its_polygon_only() {
     let case = Case::new();
     let input = Raster::read(&case.path("plain.tif"));
-    let sq: Vec<[f64; 2]> = [[100.0, 100.0], [200.0, 100.0], [200.0, 200.0], [100.0, 200.0], [100.0, 100.0]]
-        .iter()
-        .map(|&p| input.crs(p))
-        .collect();
+    let sq: Vec<[f64; 2]> = [
+        [100.0, 100.0],
+        [200.0, 100.0],
+        [200.0, 200.0],
+        [100.0, 200.0],
+        [100.0, 100.0],
+    ]
+    .iter()
+    .map(|&p| input.crs(p))
+    .collect();
     let region = |amp: Option<f64>| {
         let mut props = json!({"kind": "noise_region", "name": "rough",
             "noise_stroke": {"view": "hill", "stroke": "noise"}});
@@ -304,7 +326,10 @@ fn a_noise_region_roughens_its_polygon_only() {
         for c in 0..input.w {
             if out.at(c, r).to_bits() != input.at(c, r).to_bits() {
                 changed += 1;
-                assert!((100..200).contains(&c) && (100..200).contains(&r), "({c}, {r})");
+                assert!(
+                    (100..200).contains(&c) && (100..200).contains(&r),
+                    "({c}, {r})"
+                );
             }
         }
     }
@@ -315,7 +340,9 @@ fn a_noise_region_roughens_its_polygon_only() {
     assert!(rms > 1.0);
     // amplitude_m sets the field's deviation.
     let rep = case.ok("region5", vec![region(Some(5.0))]);
-    let s = corrections(&rep)["noise"]["noise_sigma_m"].as_f64().unwrap();
+    let s = corrections(&rep)["noise"]["noise_sigma_m"]
+        .as_f64()
+        .unwrap();
     assert!((s - 5.0).abs() < 1e-6, "sigma {s}");
 }
 
@@ -338,7 +365,16 @@ fn expect_failure(case: &Case, args_sketch: bool, feature: Value, needle: &str) 
         rep.to_string_lossy(),
         sk.to_string_lossy(),
     );
-    let mut args = vec!["correct", &plain, "--features", &fs, "--out", &out_s, "--report", &rep_s];
+    let mut args = vec![
+        "correct",
+        &plain,
+        "--features",
+        &fs,
+        "--out",
+        &out_s,
+        "--report",
+        &rep_s,
+    ];
     if args_sketch {
         args.extend(["--sketch", &sk_s]);
     }
@@ -346,7 +382,10 @@ fn expect_failure(case: &Case, args_sketch: bool, feature: Value, needle: &str) 
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(1), "{err}");
     assert_eq!(err.trim().lines().count(), 1, "one line: {err}");
-    assert!(err.contains("bad.geojson") && err.contains("feature 0 (\"bad\")"), "{err}");
+    assert!(
+        err.contains("bad.geojson") && err.contains("feature 0 (\"bad\")"),
+        "{err}"
+    );
     assert!(err.contains(needle), "says '{needle}': {err}");
     assert!(!out.exists() && !rep.exists());
     let mut after = snapshot(case.dir.path());
@@ -359,11 +398,21 @@ fn expect_failure(case: &Case, args_sketch: bool, feature: Value, needle: &str) 
 #[test]
 fn bad_landforms_fail_with_one_line_naming_the_feature() {
     let case = Case::new();
-    expect_failure(&case, true, landform("bad", "no_such", Value::Null), "has no stroke \"no_such\"");
+    expect_failure(
+        &case,
+        true,
+        landform("bad", "no_such", Value::Null),
+        "has no stroke \"no_such\"",
+    );
     let mut missing_view = landform("bad", "smooth", Value::Null);
     missing_view["properties"]["silhouette"]["view"] = json!("elsewhere");
     expect_failure(&case, true, missing_view, "has no view \"elsewhere\"");
-    expect_failure(&case, false, landform("bad", "smooth", Value::Null), "--sketch");
+    expect_failure(
+        &case,
+        false,
+        landform("bad", "smooth", Value::Null),
+        "--sketch",
+    );
     let mut no_ref = landform("bad", "smooth", Value::Null);
     no_ref["properties"]
         .as_object_mut()
@@ -380,7 +429,12 @@ fn bad_landforms_fail_with_one_line_naming_the_feature() {
         .unwrap()
         .push(json!({"id": "sky", "points": [[100.0, 40.0], [200.0, 30.0], [300.0, 40.0]]}));
     std::fs::write(case.path("sketch.json"), sk.to_string()).unwrap();
-    expect_failure(&case, true, landform("bad", "sky", Value::Null), "neither end stands on terrain");
+    expect_failure(
+        &case,
+        true,
+        landform("bad", "sky", Value::Null),
+        "neither end stands on terrain",
+    );
     let region = json!({"type": "Feature",
         "properties": {"kind": "noise_region", "name": "bad",
             "noise_stroke": {"view": "hill", "stroke": "nope"}},
@@ -452,5 +506,8 @@ fn a_landform_across_tile_corners_equals_the_single_file_result() {
     }
     println!("landform: {changed} cells changed; tiled vs single file: max |diff| {worst} m");
     assert!(changed > 1000);
-    assert!(worst <= 1e-3, "tiled and single-file results differ by {worst} m");
+    assert!(
+        worst <= 1e-3,
+        "tiled and single-file results differ by {worst} m"
+    );
 }

@@ -413,15 +413,19 @@ fn fit_decay(bands: &mut [Band]) {
     }
 }
 
-/// SplitMix64 of the lattice node: a value in `[-1, 1]`.
-fn node_value(i: i64, j: i64, band: u64, seed: u64) -> f64 {
-    let mut z = seed
-        ^ (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
-        ^ (j as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)
-        ^ band.wrapping_mul(0x1656_67B1_9E37_79F9);
+/// SplitMix64's finaliser.
+fn mix(mut z: u64) -> u64 {
+    z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
     z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
     z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^= z >> 31;
+    z ^ (z >> 31)
+}
+
+/// The value of a lattice node, in `[-1, 1]`: the seed, band and node
+/// indices mixed in turn (SplitMix64), so no direction of the lattice is
+/// correlated.
+fn node_value(i: i64, j: i64, band: u64, seed: u64) -> f64 {
+    let z = mix(mix(mix(seed ^ band) ^ i as u64) ^ j as u64);
     (z >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
 }
 
