@@ -295,6 +295,39 @@ fn the_default_boundary_given_back_as_the_polygon_gives_the_same_landform() {
 }
 
 #[test]
+fn a_bent_shadow_bends_the_landform_and_the_judge_still_fits_it() {
+    let case = Case::new();
+    let rep = case.ok("straight", vec![landform("hill", "smooth", Value::Null)]);
+    let shadow: Vec<[f64; 2]> =
+        serde_json::from_value(corrections(&rep)["landform"]["shadow"]["coordinates"].clone())
+            .unwrap();
+    // The middle of the shadow moved up to 150 m north (away from the eye).
+    let n = shadow.len() as f64 - 1.0;
+    let bent: Vec<[f64; 2]> = shadow
+        .iter()
+        .enumerate()
+        .map(|(k, p)| {
+            let t = k as f64 / n;
+            [p[0], p[1] + 150.0 * (std::f64::consts::PI * t).sin()]
+        })
+        .collect();
+    let mut f = landform("bent", "smooth", Value::Null);
+    f["properties"]["shadow"] = json!({"type": "LineString", "coordinates": bent});
+    let rep = case.ok("bent", vec![f]);
+    let lf = &corrections(&rep)["landform"];
+    assert!(lf.get("both_ends_on_terrain").is_none(), "{lf}");
+    let placed: Vec<[f64; 2]> =
+        serde_json::from_value(lf["shadow"]["coordinates"].clone()).unwrap();
+    let mid = placed[placed.len() / 2];
+    let old = shadow[shadow.len() / 2];
+    println!("shadow middle moved {:.1} m north", mid[1] - old[1]);
+    assert!((mid[1] - old[1] - 150.0).abs() < 15.0, "{mid:?} {old:?}");
+    let fit = case.judge("bent", "smooth");
+    println!("judge, bent shadow: {fit}");
+    assert!(fit["fit_after"].as_f64().unwrap() >= 0.95, "{fit}");
+}
+
+#[test]
 fn a_noise_region_roughens_its_polygon_only() {
     let case = Case::new();
     let input = Raster::read(&case.path("plain.tif"));
