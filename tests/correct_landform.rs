@@ -544,3 +544,34 @@ fn a_landform_across_tile_corners_equals_the_single_file_result() {
         "tiled and single-file results differ by {worst} m"
     );
 }
+
+#[test]
+fn a_landform_in_a_sketch_s_map_features_is_refused_with_one_line() {
+    let case = Case::new();
+    let mut sk = sketch();
+    sk["map_features"] = json!({"type": "FeatureCollection",
+        "features": [landform("inside", "smooth", Value::Null)]});
+    let path = case.path("with_landform.json");
+    std::fs::write(&path, sk.to_string()).unwrap();
+    let before = snapshot(case.dir.path());
+    let out = case.path("edited.tif");
+    let o = demsketch(&[
+        "edit",
+        &case.path("plain.tif").to_string_lossy(),
+        "--sketch",
+        &path.to_string_lossy(),
+        "--out",
+        &out.to_string_lossy(),
+        "-q",
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "one line: {err}");
+    assert!(
+        err.contains("map_features: feature 0 (\"inside\")")
+            && err.contains("correct --features F --sketch S"),
+        "{err}"
+    );
+    assert!(!out.exists());
+    assert_eq!(snapshot(case.dir.path()), before, "something was written");
+}
