@@ -61,8 +61,8 @@ use crate::edit::rendered_view::RenderedView;
 use crate::edit::stretch_placement::place_on_end_surface;
 use crate::raster::{Dem, Window};
 use crate::render::Scene;
-use crate::sketch::{EyeHeightSpec, SceneProjection, SketchFile, ViewProjection, ViewSpec};
-use crate::view::{Camera, CameraModel, EyeHeight, Viewpoint};
+use crate::sketch::{SceneProjection, SketchFile, ViewProjection, ViewSpec};
+use crate::view::CameraModel;
 
 use super::grid::Grid;
 use super::{Correction, CorrectionKind};
@@ -107,23 +107,10 @@ const MAX_VIEW_M: f64 = 50_000.0;
 const REFRACTION: f64 = 1.0 / 7.0;
 
 fn set_up(dem: &Dem, v: &ViewSpec) -> Result<ViewSetup, String> {
-    let vp = Viewpoint {
-        lon: v.viewpoint.lon,
-        lat: v.viewpoint.lat,
-        height: match v.viewpoint.height() {
-            EyeHeightSpec::AboveSurface(h) => EyeHeight::AboveSurface(h),
-            EyeHeightSpec::Absolute(a) => EyeHeight::Absolute(a),
-        },
-    };
-    let camera = Camera::new(
-        v.camera.width as usize,
-        v.camera.height as usize,
-        v.camera.heading_deg,
-        v.camera.pitch_deg,
-        v.camera.roll_deg,
-        v.camera.hfov_deg,
-    )
-    .map_err(|e| format!("view \"{}\": {e}", v.name))?;
+    let vp = v.eye();
+    let camera = v
+        .pinhole()
+        .map_err(|e| format!("view \"{}\": {e}", v.name))?;
     let scene = Scene::open_in_view(dem, &vp, Some(MAX_VIEW_M), REFRACTION, &camera)
         .map_err(|e| format!("view \"{}\": {e}", v.name))?;
     let before = RenderedView::from_terrain(scene.terrain, &camera)
@@ -571,24 +558,11 @@ fn shoulders(s: &[f64], h: &[f64]) -> [f64; 2] {
 
 /// Distance from `p` to the polyline `line` (one point: to that point).
 fn polyline_distance(p: [f64; 2], line: &[[f64; 2]]) -> f64 {
-    let seg = |a: [f64; 2], b: [f64; 2]| {
-        let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
-        let l2 = dx * dx + dy * dy;
-        let t = if l2 > 0.0 {
-            (((p[0] - a[0]) * dx + (p[1] - a[1]) * dy) / l2).clamp(0.0, 1.0)
-        } else {
-            0.0
-        };
-        (p[0] - a[0] - t * dx).hypot(p[1] - a[1] - t * dy)
-    };
-    match line {
-        [] => f64::INFINITY,
-        [a] => seg(*a, *a),
-        _ => line
-            .windows(2)
-            .map(|w| seg(w[0], w[1]))
-            .fold(f64::INFINITY, f64::min),
+    if line.is_empty() {
+        return f64::INFINITY;
     }
+    let cum = vec![0.0; line.len()];
+    closest_on(p, line, &cum).1
 }
 
 /// The default boundary: a capsule of radius the shoulders' mean around
@@ -762,6 +736,29 @@ pub fn resolve(
         }
     }
     Ok(())
+}
+
+impl LandformResult {
+    fn new(
+        (cells_changed, max_abs_dz_m): (usize, f64),
+        max_curve_error_m: Option<f64>,
+        field: &NoiseField,
+        (sum2, count): (f64, usize),
+        spectrum: Spectrum,
+    ) -> LandformResult {
+        LandformResult {
+            cells_changed,
+            max_abs_dz_m,
+            max_curve_error_m,
+            noise_sigma_m: field.sigma(),
+            noise_rms_m: if count > 0 {
+                (sum2 / count as f64).sqrt()
+            } else {
+                0.0
+            },
+            spectrum,
+        }
+    }
 }
 
 /// What a landform or a noise region did.
@@ -1109,18 +1106,14 @@ pub fn apply_landform(
             }
         }
     }
-    Ok(LandformResult {
-        cells_changed: changed,
-        max_abs_dz_m: max_abs,
-        max_curve_error_m: Some(super::control_curve::curve_error(grid, &p.curve)),
-        noise_sigma_m: field.sigma(),
-        noise_rms_m: if count > 0 {
-            (sum2 / count as f64).sqrt()
-        } else {
-            0.0
-        },
-        spectrum: spec,
-    })
+    let curve_error = super::control_curve::curve_error(grid, &p.curve);
+    Ok(LandformResult::new(
+        (changed, max_abs),
+        Some(curve_error),
+        &field,
+        (sum2, count),
+        spec,
+    ))
 }
 
 /// Applies a noise region (region mode) to `grid`.
@@ -1168,18 +1161,13 @@ pub fn apply_noise_region(
             count += 1;
         }
     }
-    Ok(LandformResult {
-        cells_changed: changed,
-        max_abs_dz_m: max_abs,
-        max_curve_error_m: None,
-        noise_sigma_m: field.sigma(),
-        noise_rms_m: if count > 0 {
-            (sum2 / count as f64).sqrt()
-        } else {
-            0.0
-        },
-        spectrum: spec,
-    })
+    Ok(LandformResult::new(
+        (changed, max_abs),
+        None,
+        &field,
+        (sum2, count),
+        spec,
+    ))
 }
 
 /// The footprint (boundary or region) and the shadow of a placed stroke
