@@ -29,6 +29,7 @@ pub mod report;
 pub mod river;
 pub mod sparse_lsq;
 pub mod water;
+pub mod wavelet_noise;
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;

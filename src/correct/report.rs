@@ -103,7 +103,7 @@ pub struct LandformReport {
 #[derive(Debug, Clone, Serialize)]
 pub struct NoiseReport {
     /// The stroke's detail bands, finest first.
-    pub bands: Vec<super::landform::Band>,
+    pub bands: Vec<super::wavelet_noise::Band>,
     /// Energy of the stroke's detail bands over that of its smoothest
     /// level (the wavelet energy ratio).
     pub detail_energy_ratio: f64,
