@@ -135,10 +135,15 @@ impl Case {
 
     /// The judge's fit of `stroke` on the output `name`.
     fn judge(&self, name: &str, stroke: &str) -> Value {
+        self.judge_on("plain.tif", name, stroke)
+    }
+
+    /// The judge's fit of `stroke` on the output `name` of the DEM `input`.
+    fn judge_on(&self, input: &str, name: &str, stroke: &str) -> Value {
         let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/fidelity/landform_fit.py");
         let o = Command::new("/usr/bin/python3")
             .arg(script)
-            .arg(self.path("plain.tif"))
+            .arg(self.path(input))
             .arg(self.path(&format!("{name}.tif")))
             .arg(self.path("sketch.json"))
             .args(["hill", stroke])
@@ -326,6 +331,33 @@ fn a_bent_shadow_bends_the_landform_and_the_judge_still_fits_it() {
     assert!((mid[1] - old[1] - 150.0).abs() < 15.0, "{mid:?} {old:?}");
     let fit = case.judge("bent", "smooth");
     println!("judge, bent shadow: {fit}");
+    assert!(fit["fit_after"].as_f64().unwrap() >= 0.95, "{fit}");
+}
+
+#[test]
+fn a_landform_on_a_lon_lat_dem_is_fitted_too() {
+    let case = Case::new();
+    // The plain warped to EPSG:4326 (cells about 13 x 10 m).
+    let ll = case.path("plain_ll.tif");
+    common::run(
+        "gdalwarp",
+        &[
+            "-q",
+            "-t_srs",
+            "EPSG:4326",
+            "-r",
+            "bilinear",
+            "-tr",
+            "0.00012",
+            "0.00009",
+            &case.path("plain.tif").to_string_lossy(),
+            &ll.to_string_lossy(),
+        ],
+    );
+    let o = case.correct(&ll, "ll", vec![landform("hill", "smooth", Value::Null)]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let fit = case.judge_on("plain_ll.tif", "ll", "smooth");
+    println!("judge, lon/lat DEM: {fit}");
     assert!(fit["fit_after"].as_f64().unwrap() >= 0.95, "{fit}");
 }
 
