@@ -364,12 +364,26 @@ pub fn run(args: ViewArgs) -> anyhow::Result<()> {
     }
     let dem = Dem::open(&args.dem)?;
     check_view_outputs(&args, &dem)?;
-    let scene = Scene::open(
-        &dem,
-        &view.viewpoint,
-        args.camera.max_distance,
-        args.camera.refraction,
-    )?;
+    // The viewshed covers every cell within the distance; a picture and
+    // its features need only what the camera's horizontal field of view
+    // takes in, and only that is read (the ridges too are detected over
+    // it, as an edit detects them for its views).
+    let scene = if args.viewshed.is_some() {
+        Scene::open(
+            &dem,
+            &view.viewpoint,
+            args.camera.max_distance,
+            args.camera.refraction,
+        )?
+    } else {
+        Scene::open_wedge(
+            &dem,
+            &view.viewpoint,
+            args.camera.max_distance,
+            args.camera.refraction,
+            &view.camera,
+        )?
+    };
     super::timing("load", t_all.elapsed().as_secs_f64());
     let t = Instant::now();
     let depth = DepthBuffer::render(&scene.terrain, &view.camera);
