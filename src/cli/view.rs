@@ -362,7 +362,8 @@ pub fn run(args: ViewArgs) -> anyhow::Result<()> {
     if let Some(t) = Some(args.target_height).filter(|t| !t.is_finite()) {
         anyhow::bail!("--target-height {t} must be a finite number of metres");
     }
-    let dem = Dem::open(&args.dem)?;
+    // Each cell is read once: decoded blocks are not cached.
+    let dem = Dem::open(&args.dem)?.without_block_cache();
     check_view_outputs(&args, &dem)?;
     // The viewshed covers every cell within the distance; a picture and
     // its features need only what the camera's horizontal field of view

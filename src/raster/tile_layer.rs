@@ -390,6 +390,14 @@ impl Dem {
         })
     }
 
+    /// This DEM without a cache of decoded blocks, for a DEM whose windows
+    /// are read once (`view`): the blocks of a large window are not kept
+    /// beside it (they would double what the read holds, in fresh pages).
+    pub fn without_block_cache(mut self) -> Dem {
+        self.cache = BlockCache::new(0);
+        self
+    }
+
     /// The window covering the whole DEM.
     pub fn full_window(&self) -> Window {
         Window::new(0, 0, self.width, self.height)
@@ -422,20 +430,27 @@ impl Dem {
     /// tiles. Cells outside every tile, and nodata cells, are invalid (their
     /// value is NaN).
     pub fn read_window<T: Sample>(&self, win: Window) -> Result<WindowData<T>, RasterError> {
-        self.read(win, true)
+        self.read(win, true, true)
     }
 
     /// Read a window of stored values (before scale, offset and unit), as
     /// [`Dem::read_window`] otherwise does.
     pub fn read_window_raw<T: Sample>(&self, win: Window) -> Result<WindowData<T>, RasterError> {
-        self.read(win, false)
+        self.read(win, false, true)
     }
 
     /// Read a window, in metres when `metres`, else as stored. Nodata is
     /// tested on the stored value, in the precision of the sample type as
     /// GDAL does (a Float32 file's nodata of -3.4e38 is the f32 nearest to
     /// it); the conversion to metres is done in f64, before rounding to `T`.
-    fn read<T: Sample>(&self, win: Window, metres: bool) -> Result<WindowData<T>, RasterError> {
+    /// Without `mask` the validity mask is left empty (a height map marks
+    /// invalid cells NaN and needs none).
+    fn read<T: Sample>(
+        &self,
+        win: Window,
+        metres: bool,
+        mask: bool,
+    ) -> Result<WindowData<T>, RasterError> {
         let n = win.len();
         let bytes = (n as u64).saturating_mul(std::mem::size_of::<T>() as u64 + 1);
         let budget = memory_budget();
@@ -602,6 +617,13 @@ impl Dem {
                 }
             })
             .collect::<Result<Vec<()>, _>>()?;
+        if !mask {
+            return Ok(WindowData {
+                window: win,
+                data,
+                valid: Vec::new(),
+            });
+        }
         // Cells outside every tile, and nodata (set to NaN above), are
         // invalid.
         let mut valid =
@@ -640,7 +662,8 @@ impl Dem {
 
     /// Read a window as a [`HeightMap`] (f32, NaN = nodata).
     pub fn read_height_map(&self, win: Window) -> Result<HeightMap, RasterError> {
-        let mut w = self.read_window::<f32>(win)?;
+        // NaN marks the invalid cells: no mask is made.
+        let mut w = self.read::<f32>(win, true, false)?;
         if let Some((ow, heights)) = &self.overlay {
             if let Some(both) = ow.intersect(&win) {
                 for r in both.row..both.row + both.height as i64 {
