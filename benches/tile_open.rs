@@ -70,16 +70,23 @@ fn make_tiles(dir: &Path, n: usize) {
 
 fn bench(c: &mut Criterion) {
     let n = tiles_across();
+    // DEMSKETCH_BENCH_TILE_DIR keeps the directory (made if empty).
     let tmp = tempfile::tempdir().expect("temporary directory");
+    let dir = std::env::var_os("DEMSKETCH_BENCH_TILE_DIR")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| tmp.path().to_path_buf());
+    std::fs::create_dir_all(&dir).expect("tile directory");
     let t = Instant::now();
-    make_tiles(tmp.path(), n);
+    if std::fs::read_dir(&dir).expect("list").next().is_none() {
+        make_tiles(&dir, n);
+    }
     eprintln!(
         "made {} tiles of {TILE} x {TILE} in {:.2} s",
         n * n,
         t.elapsed().as_secs_f64()
     );
     // One open outside the timer: check what it opened.
-    let dem = Dem::open(tmp.path()).expect("open the tile directory");
+    let dem = Dem::open(&dir).expect("open the tile directory");
     assert_eq!(dem.tiles.len(), n * n);
     assert_eq!((dem.width, dem.height), (n * TILE, n * TILE));
     drop(dem);
@@ -89,7 +96,7 @@ fn bench(c: &mut Criterion) {
         .measurement_time(Duration::from_secs(5));
     g.bench_function(format!("open_{n}x{n}_tiles_of_{TILE}x{TILE}"), |b| {
         // The DEM is dropped outside the timer: `Dem::open` alone.
-        b.iter_with_large_drop(|| Dem::open(tmp.path()).expect("open"))
+        b.iter_with_large_drop(|| Dem::open(&dir).expect("open"))
     });
     g.finish();
 }

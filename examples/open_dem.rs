@@ -21,14 +21,27 @@ fn main() -> anyhow::Result<()> {
         let dem = Dem::open(std::path::Path::new(&path))?;
         let open = t.elapsed().as_secs_f64();
         let tiles = dem.tiles.len();
+        let rss = rss_mb();
         let t = Instant::now();
         drop(dem);
         println!(
-            "open {:.1} ms ({tiles} tiles, {:.2} us/tile), drop {:.1} ms",
+            "open {:.1} ms ({tiles} tiles, {:.2} us/tile, resident {rss:.0} MB), drop {:.1} ms (resident {:.0} MB)",
             open * 1e3,
             open * 1e6 / tiles as f64,
-            t.elapsed().as_secs_f64() * 1e3
+            t.elapsed().as_secs_f64() * 1e3,
+            rss_mb()
         );
     }
     Ok(())
+}
+
+/// This process's resident memory, MB (`VmRSS`).
+fn rss_mb() -> f64 {
+    std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|s| {
+            let line = s.lines().find(|l| l.starts_with("VmRSS:"))?.to_string();
+            line.split_whitespace().nth(1)?.parse::<f64>().ok()
+        })
+        .map_or(f64::NAN, |kb| kb / 1024.0)
 }
