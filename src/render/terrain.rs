@@ -154,11 +154,7 @@ impl LocalTerrain {
         (c0, r0, c1, r1): (usize, usize, usize, usize),
     ) -> Self {
         let p = frame.p;
-        let det = p[0][0] * p[1][1] - p[0][1] * p[1][0];
-        let pinv = [
-            [p[1][1] / det, -p[0][1] / det],
-            [-p[1][0] / det, p[0][0] / det],
-        ];
+        let pinv = inverse_2x2(p);
         let (ex, ey) = frame.eye_pixel;
         let nx = c1.saturating_sub(c0).max(1);
         let ny = r1.saturating_sub(r0).max(1);
@@ -916,14 +912,22 @@ fn quadratic_roots(a: f64, b: f64, c: f64) -> [Option<f64>; 2] {
     [Some(q / a), Some(c / q)]
 }
 
+/// The inverse of the 2 x 2 matrix `p` (a frame's local metres -> pixel
+/// map, inverted: pixel -> local metres, or the reverse).
+fn inverse_2x2(p: [[f64; 2]; 2]) -> [[f64; 2]; 2] {
+    let det = p[0][0] * p[1][1] - p[0][1] * p[1][0];
+    [
+        [p[1][1] / det, -p[0][1] / det],
+        [-p[1][0] / det, p[0][0] / det],
+    ]
+}
+
 impl Drop for LocalTerrain {
     fn drop(&mut self) {
         buffer_pool::recycle_f32(std::mem::take(&mut self.z));
     }
 }
 
-/// The pyramid over `base` (`w` x `h` block maxima): each level the max of
-/// 2 x 2 blocks of the one below, up to a single block.
 /// The cells a terrain keeps of a grid of `(width, height)` cells: those
 /// within `max_d` of `frame`'s eye, and within `camera`'s wedge if given
 /// (see [`LocalTerrain::in_view`]).
@@ -934,11 +938,7 @@ fn extent(
     camera: Option<&crate::view::Camera>,
 ) -> (usize, usize, usize, usize) {
     let p = frame.p;
-    let det = p[0][0] * p[1][1] - p[0][1] * p[1][0];
-    let pinv = [
-        [p[1][1] / det, -p[0][1] / det],
-        [-p[1][0] / det, p[0][0] / det],
-    ];
+    let pinv = inverse_2x2(p);
     let (ex, ey) = frame.eye_pixel;
     let (mut c0, mut r0, mut c1, mut r1) = (0usize, 0usize, width, height);
     if max_d.is_finite() {
@@ -1062,6 +1062,8 @@ fn view_wedge_box(
     ))
 }
 
+/// The pyramid over `base` (`w` x `h` block maxima): each level the max of
+/// 2 x 2 blocks of the one below, up to a single block.
 fn max_pyramid(base: Vec<f32>, w: usize, h: usize) -> (Vec<Vec<f32>>, Vec<(usize, usize)>) {
     let mut mip = vec![base];
     let mut dims = vec![(w.max(1), h.max(1))];
