@@ -295,3 +295,106 @@ fn breakline_with_a_bad_hard_property() {
         "property hard must be true or false",
     );
 }
+
+/// A property the kind does not have (a misspelling, or one from another
+/// kind) is refused by name, with the properties the kind takes.
+#[test]
+fn unknown_property_of_each_kind() {
+    let line = |props: Value| {
+        let (a, b) = (utm([100.0, 100.0]), utm([110.0, 100.0]));
+        json!({"type": "Feature", "properties": props,
+            "geometry": {"type": "LineString", "coordinates": [[a[0], a[1], 1000.0], [b[0], b[1], 1000.0]]}})
+    };
+    let area = |props: Value| {
+        json!({"type": "Feature", "properties": props,
+            "geometry": {"type": "Polygon", "coordinates": [lake_square([100.0, 100.0])]}})
+    };
+    let stroke = json!({"view": "v", "stroke": "s"});
+    let cases = [
+        (
+            area(json!({"kind": "lake", "name": "bad", "levle_m": 1000.0})),
+            "unknown property \"levle_m\" for a lake (expected one of: level_m, blend_m, id, name, kind, fid)",
+        ),
+        (
+            line(json!({"kind": "river", "name": "bad", "width_m": 30.0, "downstream": true})),
+            "unknown property \"downstream\" for a river (expected one of: width_m, flow, blend_m,",
+        ),
+        (
+            area(json!({"kind": "river", "name": "bad", "width_m": 30.0})),
+            "unknown property \"width_m\" for a river (expected one of: blend_m, id,",
+        ),
+        (
+            line(json!({"kind": "control_curve", "name": "bad", "slope_deg": 10.0})),
+            "unknown property \"slope_deg\" for a control_curve (expected one of: heights_m, influence_m,",
+        ),
+        (
+            line(json!({"kind": "cross_section", "name": "bad", "control": "c1"})),
+            "unknown property \"control\" for a cross_section (expected one of: control_curve, heights_m,",
+        ),
+        (
+            line(json!({"kind": "breakline", "name": "bad", "hieght_m": 1000.0})),
+            "unknown property \"hieght_m\" for a breakline (expected one of: heights_m, height_m, hard, influence_m,",
+        ),
+        (
+            json!({"type": "Feature", "properties": {"kind": "landform", "name": "bad",
+                "silhouette": stroke, "shade": [[0.0, 0.0], [1.0, 1.0]]}, "geometry": null}),
+            "unknown property \"shade\" for a landform (expected one of: silhouette, shadow,",
+        ),
+        (
+            area(json!({"kind": "noise_region", "name": "bad", "noise_stroke": stroke, "amplitude": 5.0})),
+            "unknown property \"amplitude\" for a noise_region (expected one of: noise_stroke, amplitude_m,",
+        ),
+    ];
+    for (bad, needle) in cases {
+        expect_failure(bad, needle);
+    }
+}
+
+#[test]
+fn fid_that_is_not_an_integer() {
+    expect_failure(
+        json!({"type": "Feature", "properties": {"kind": "lake", "name": "bad", "fid": "seven"},
+            "geometry": {"type": "Polygon", "coordinates": [lake_square([100.0, 100.0])]}}),
+        "property fid must be an integer",
+    );
+}
+
+/// QGIS writes an integer `fid` on every feature saved from a GeoPackage
+/// layer: accepted on every kind, and it changes nothing.
+#[test]
+fn qgis_fid_is_accepted() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (a, b) = (utm([100.0, 100.0]), utm([110.0, 100.0]));
+    let features = |fid: bool| {
+        let mut lake = json!({"kind": "lake", "name": "pond", "blend_m": 300.0});
+        let mut road = json!({"kind": "control_curve", "name": "road", "influence_m": 2000.0});
+        let mut sec = json!({"kind": "cross_section", "name": "s1", "control_curve": "road"});
+        if fid {
+            lake["fid"] = json!(1);
+            road["fid"] = json!(2);
+            sec["fid"] = json!(3);
+        }
+        let (c, d) = (utm([105.0, 97.0]), utm([105.0, 103.0]));
+        collection(
+            vec![
+                json!({"type": "Feature", "properties": lake,
+                    "geometry": {"type": "Polygon", "coordinates": [lake_square([73.0, 33.0])]}}),
+                json!({"type": "Feature", "properties": road,
+                    "geometry": {"type": "LineString", "coordinates": [[a[0], a[1], 1500.0], [b[0], b[1], 1500.0]]}}),
+                json!({"type": "Feature", "properties": sec,
+                    "geometry": {"type": "LineString", "coordinates": [[c[0], c[1], 1510.0], [d[0], d[1], 1490.0]]}}),
+            ],
+            Some(32632),
+        )
+    };
+    let mut outs = Vec::new();
+    for fid in [false, true] {
+        let f = tmp.path().join(format!("f{fid}.geojson"));
+        std::fs::write(&f, features(fid)).unwrap();
+        let out = tmp.path().join(format!("o{fid}.tif"));
+        correct_support::correct_succeeds(&fixture(DEM), &f, &out, &[]);
+        outs.push(Raster::read(&out));
+    }
+    let bits = |r: &Raster| r.v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    assert_eq!(bits(&outs[0]), bits(&outs[1]), "fid changed the result");
+}

@@ -36,6 +36,10 @@
 //!   file's CRS); see [`super::landform`].
 //! - `noise_region`: a Polygon and `noise_stroke` (as `silhouette`), with
 //!   an optional `amplitude_m`.
+//!
+//! Every kind also takes `id`, `name`, `kind` and QGIS's integer `fid`;
+//! any other property is an error naming it (a misspelt `levle_m` is
+//! refused, not ignored).
 
 use std::path::Path;
 use std::str::FromStr;
@@ -400,6 +404,7 @@ fn parse_feature(
             )
         }
     };
+    check_properties(kind, geometry.map(|g| &g.value), props)?;
     if kind == "landform" {
         let kind = parse_landform(geometry.map(|g| &g.value), props, t, dem)?;
         return Ok(Parsed::Correction(Correction { index, id, kind }));
@@ -442,6 +447,65 @@ fn parse_feature(
         }
     };
     Ok(Parsed::Correction(Correction { index, id, kind }))
+}
+
+/// Properties every feature may carry: `kind`, the `id` or `name` that
+/// names it, and `fid`, the integer QGIS adds to every feature it writes
+/// from a GeoPackage layer.
+const COMMON_PROPERTIES: [&str; 4] = ["id", "name", "kind", "fid"];
+
+/// The properties a feature of `kind` may carry besides
+/// [`COMMON_PROPERTIES`] (a river's depend on its geometry: a centreline
+/// has a width and a flow direction, a polygon reach neither). `None` for
+/// an unknown kind.
+fn kind_properties(
+    kind: &str,
+    geometry: Option<&GeometryValue>,
+) -> Option<&'static [&'static str]> {
+    Some(match kind {
+        "lake" => &["level_m", "blend_m"],
+        "river" => match geometry {
+            Some(GeometryValue::Polygon { .. } | GeometryValue::MultiPolygon { .. }) => {
+                &["blend_m"]
+            }
+            _ => &["width_m", "flow", "blend_m"],
+        },
+        "control_curve" => &["heights_m", "influence_m"],
+        "cross_section" => &["control_curve", "heights_m"],
+        "breakline" => &["heights_m", "height_m", "hard", "influence_m"],
+        "landform" => &["silhouette", "shadow"],
+        "noise_region" => &["noise_stroke", "amplitude_m"],
+        _ => return None,
+    })
+}
+
+/// Refuses a property that a feature of `kind` does not have (a misspelt
+/// `levle_m` is an error, not ignored), and a `fid` that is not an integer
+/// as QGIS writes it. An unknown kind is left to [`parse_feature`]'s error.
+fn check_properties(
+    kind: &str,
+    geometry: Option<&GeometryValue>,
+    props: &JsonObject,
+) -> Result<(), String> {
+    let Some(own) = kind_properties(kind, geometry) else {
+        return Ok(());
+    };
+    let allowed = || own.iter().chain(COMMON_PROPERTIES.iter());
+    // The first unknown one by name (the map keeps its keys sorted).
+    if let Some(bad) = props.keys().find(|k| !allowed().any(|a| a == k)) {
+        let expected: Vec<&str> = allowed().copied().collect();
+        return Err(format!(
+            "unknown property \"{bad}\" for a {kind} (expected one of: {})",
+            expected.join(", ")
+        ));
+    }
+    match props.get("fid") {
+        None | Some(serde_json::Value::Null) => Ok(()),
+        Some(v) if v.is_i64() || v.is_u64() => Ok(()),
+        Some(v) => Err(format!(
+            "property fid must be an integer (the feature number QGIS writes), not {v}"
+        )),
+    }
 }
 
 /// A position in the DEM's CRS and pixel space, checked to lie on the DEM.
