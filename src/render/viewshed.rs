@@ -9,18 +9,24 @@
 //!
 //! Two ways to compute it:
 //! - [`viewshed`], the default: a radial sweep in the manner of Franklin and
-//!   Ray's R2 algorithm. One ray from the eye to every vertex on the border
-//!   of the terrain window; along each ray the triangulated surface is a
-//!   polyline whose vertices are the ray's crossings of grid lines and cell
+//!   Ray's R2 algorithm. The grid around the eye is cut into four halves
+//!   (east and west, where `|du| >= |dv|`, rays advancing column by
+//!   column; north and south, row by row). In each, one ray goes from the
+//!   eye to every border vertex of the half, plus the two along its edges
+//!   (slopes -1 and +1). Along a ray the triangulated surface is a polyline
+//!   whose vertices are the ray's crossings of grid lines and cell
 //!   diagonals, and the largest elevation angle of the terrain so far is
 //!   the running maximum over those crossings, exactly (between two
 //!   crossings the height is linear in distance, so `z / s` is monotonic).
-//!   Each cell centre takes the answer of the ray that passes nearest to it
-//!   (within half a cell); cells within [`EXACT_NEAR_CELLS`] of the eye,
-//!   where rays fan out, are cast exactly. The work is one pass over each
-//!   ray instead of one cast per cell: far less than GDAL's sweep, and it
-//!   agrees with exact lines of sight on all but the cells next to a
-//!   horizon (see `tests/view_viewshed.rs`).
+//!   Each ray owns the vertices whose direction from the eye is nearer to
+//!   it than to its two neighbours (a wedge between the bisecting slopes,
+//!   at most about one vertex per line) and decides them from its own point
+//!   on that line: every vertex is written once, by one ray, with no
+//!   per-vertex bookkeeping. Rays advance in bundles of neighbours a few
+//!   lines at a time (the heights they read stay in cache), bundles in
+//!   parallel. Cells within [`EXACT_NEAR_CELLS`] of the eye, where rays fan
+//!   out, are cast exactly. It agrees with exact lines of sight on all but
+//!   the cells next to a horizon (see `tests/view_viewshed.rs`).
 //! - [`viewshed_exact`]: one exact cast ([`LocalTerrain::cast`]) per cell,
 //!   rows in parallel: the reference the sweep is tested against.
 
@@ -280,6 +286,8 @@ impl Half {
                 };
                 RayWalk {
                     slope,
+                    inv_slope: 1.0 / slope,
+                    inv_slope_m1: 1.0 / (slope - 1.0),
                     m_per_x: m_per_x(slope),
                     end,
                     lo,
@@ -296,8 +304,11 @@ impl Half {
 /// One ray of [`viewshed`] and how far it has come.
 #[derive(Clone)]
 struct RayWalk {
-    /// Minor per major step.
+    /// Minor per major step, its inverse and that of `slope - 1` (major
+    /// per unit of minor and of `minor - major` along the ray).
     slope: f64,
+    inv_slope: f64,
+    inv_slope_m1: f64,
     /// Horizontal metres per major step.
     m_per_x: f64,
     /// Major coordinate of its end.
@@ -443,7 +454,7 @@ impl<'a> Sweep<'a> {
             let (lo, hi) = (y0.min(y1), y0.max(y1));
             let k = floor(lo) + 1.0;
             if k < hi {
-                let xm = prev + (x - prev) * (k - y0) / (y1 - y0);
+                let xm = prev + (k - y0) * ray.inv_slope;
                 let f = xm - m0;
                 let hgt = zv(m0 as i64, k as i64) * (1.0 - f) + zv(m0 as i64 + 1, k as i64) * f;
                 raise(&mut best, hgt, (xm - ex).abs() * m_per_x);
@@ -453,7 +464,7 @@ impl<'a> Sweep<'a> {
             let (lo, hi) = (g0.min(g1), g0.max(g1));
             let mut k = floor(lo) + 1.0;
             while k < hi {
-                let xm = prev + (x - prev) * (k - g0) / (g1 - g0);
+                let xm = prev + (k - g0) * ray.inv_slope_m1;
                 let f = xm - m0;
                 let n0 = m0 + k;
                 let hgt =
