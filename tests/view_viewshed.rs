@@ -227,13 +227,13 @@ fn sweep_agrees_with_exact_lines_of_sight_on_real_dems() {
 
 /// With a target far above the terrain every valid cell is visible: the
 /// sweep must decide every cell (each vertex is owned by exactly one ray,
-/// holes on a ray included), from viewpoints in the middle, near a corner
+/// holes on a ray included), from viewpoints in the middle, near an edge
 /// and on a DEM with nodata.
 #[test]
 fn sweep_decides_every_cell() {
     for (name, col, row) in [
         ("zion_srtm_utm12n.tif", 210, 103),
-        ("zion_srtm_utm12n.tif", 2, 510),
+        ("zion_srtm_utm12n.tif", 30, 480),
         ("vinschgau_250m_utm32n.tif", 101, 110),
         ("nz_1km_nan_nodata.tif", 600, 800),
     ] {
