@@ -228,6 +228,32 @@ fn mismatched_tiles_fail_cleanly() {
     });
     expect_user_error(d, &["info", &s(&misaligned)], &["b.tif", "not aligned"]);
 
+    // Overlapping tiles: the error names the first tile (in name order)
+    // that overlaps an earlier one, and the first earlier one it overlaps
+    // (the open checks overlaps with a sweep, then names them so).
+    let overlap = tile_dir_with(d, "overlap", |b| {
+        gdal_translate(&zion, b, &["-srcwin", "200", "0", "200", "200"])
+    });
+    gdal_translate(
+        &zion,
+        &overlap.join("c.tif"),
+        &["-srcwin", "300", "100", "200", "200"],
+    );
+    gdal_translate(
+        &zion,
+        &overlap.join("d.tif"),
+        &["-srcwin", "0", "150", "200", "200"],
+    );
+    let msg = expect_user_error(d, &["info", &s(&overlap)], &["overlaps tile"]);
+    assert!(
+        msg.contains("c.tif") && msg.contains("overlaps tile") && msg.contains("b.tif"),
+        "{msg}"
+    );
+    assert!(
+        msg.find("c.tif") < msg.find("overlaps tile"),
+        "names c.tif as the overlapping tile: {msg}"
+    );
+
     let empty = d.join("no_tiles");
     std::fs::create_dir(&empty).expect("mkdir");
     expect_user_error(d, &["info", &s(&empty)], &["no_tiles", "no GeoTIFF tiles"]);

@@ -394,3 +394,68 @@ fn shaded_view_of_zion_is_written() {
     // Max distance: nothing beyond 15 km.
     assert!(db.depth.iter().all(|d| !d.is_finite() || *d < 15_100.0));
 }
+
+/// `Scene::open_wedge` reads only the box of the camera's wedge and builds
+/// the terrain `Scene::open_in_view` builds from the whole square: the same
+/// DEM cells, the same vertex heights and frame to the bit (the eye's pixel
+/// moved by whole cells), the same depth buffer and triangle of every
+/// pixel; with or without a maximum distance, narrow and wide views.
+#[test]
+fn wedge_scene_is_the_in_view_scene_read_in_part() {
+    use demsketch::raster::Dem;
+    use demsketch::render::Scene;
+    let dem = Dem::open(&fixture("zion_srtm_utm12n.tif")).unwrap();
+    let (x, y) = dem.geotransform.pixel_to_crs(210.5, 103.5);
+    let georef = Georef::for_crs(&dem.crs, "zion").unwrap();
+    let (lon, lat) = georef.crs_to_lonlat(x, y).unwrap();
+    let vp = Viewpoint::above_surface(lon, lat, 1.7);
+    for (heading, pitch, fov, max_d) in [
+        (20.0, 1.0, 35.0, None),
+        (200.0, -10.0, 60.0, Some(9000.0)),
+        (95.0, 3.0, 120.0, None),
+        (300.0, -89.0, 90.0, Some(20000.0)),
+    ] {
+        let what = format!("heading {heading}, pitch {pitch}, fov {fov}, {max_d:?}");
+        let cam = Camera::new(320, 180, heading, pitch, 0.0, fov).unwrap();
+        let full = Scene::open_in_view(&dem, &vp, max_d, 1.0 / 7.0, &cam).unwrap();
+        let part = Scene::open_wedge(&dem, &vp, max_d, 1.0 / 7.0, &cam).unwrap();
+        let (a, b) = (&full.terrain, &part.terrain);
+        assert_eq!(
+            (
+                full.window_offset.0 + a.col0 as i64,
+                full.window_offset.1 + a.row0 as i64
+            ),
+            (
+                part.window_offset.0 + b.col0 as i64,
+                part.window_offset.1 + b.row0 as i64
+            ),
+            "{what}: origin"
+        );
+        assert_eq!((a.nx, a.ny), (b.nx, b.ny), "{what}: size");
+        assert_eq!(
+            (part.window.width, part.window.height),
+            (b.nx, b.ny),
+            "{what}: only the terrain's cells are read"
+        );
+        assert!(
+            a.z.iter()
+                .zip(&b.z)
+                .all(|(p, q)| p.to_bits() == q.to_bits()),
+            "{what}: vertex heights"
+        );
+        assert_eq!(
+            (a.frame.ground, a.frame.eye_alt, a.frame.p),
+            (b.frame.ground, b.frame.eye_alt, b.frame.p),
+            "{what}: frame"
+        );
+        let (da, db) = (DepthBuffer::render(a, &cam), DepthBuffer::render(b, &cam));
+        assert!(
+            da.depth
+                .iter()
+                .zip(&db.depth)
+                .all(|(p, q)| p.to_bits() == q.to_bits()),
+            "{what}: depths"
+        );
+        assert_eq!(da.triangle, db.triangle, "{what}: triangles");
+    }
+}

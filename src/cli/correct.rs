@@ -1,6 +1,7 @@
 //! `demsketch correct DEM --features F.geojson --out OUT [--in-place]
 //! [--report R] [--water-mask M] [--renders DIR] [--dry-run] [--json]`: apply corrections drawn in map view
-//! (lakes, rivers, control curves and their cross-sections, breaklines; see
+//! (lakes, rivers, control curves and their cross-sections, breaklines,
+//! landforms from silhouette strokes of `--sketch` and noise regions; see
 //! `demsketch::correct`) and write the
 //! corrected DEM through the same atomic write-back as `edit`.
 
@@ -30,6 +31,10 @@ by their \"kind\" property:
   breakline      LineString with Z heights, heights_m or height_m; hard true
                  (default: may kink across the line, never blend) or false
                  (soft: smooth across); influence_m (default: 3 cells)
+  landform       Polygon boundary (null geometry: the default capsule);
+                 silhouette {\"view\": NAME, \"stroke\": ID} naming a stroke
+                 of --sketch; shadow (LineString, optional)
+  noise_region   Polygon; noise_stroke (as silhouette); amplitude_m
 
 Exit codes:
   0  written (with --dry-run: a real run would write it)
@@ -44,6 +49,10 @@ pub struct CorrectArgs {
     /// Corrections as a GeoJSON FeatureCollection (as QGIS writes it).
     #[arg(long)]
     pub features: PathBuf,
+    /// The sketch file whose views and strokes the landform and
+    /// noise_region features name (its strokes are not matched as an edit).
+    #[arg(long, value_name = "SKETCH.json")]
+    pub sketch: Option<PathBuf>,
     /// Corrected GeoTIFF (single-file DEM) or directory receiving the full
     /// tile set (tile directory).
     #[arg(
@@ -112,6 +121,7 @@ pub fn run(args: CorrectArgs) -> anyhow::Result<()> {
     }
     opts.water_mask = args.water_mask.clone();
     opts.renders = args.renders.clone();
+    opts.sketch = args.sketch.clone();
     opts.write.pyramid_resampling = args.pyramid_resampling.clone();
     let report = match run_correct(&args.dem, &args.features, &opts) {
         Ok(r) => r,

@@ -19,7 +19,7 @@ use demsketch::raster::path_check::{self, dem_inputs, Input, Output};
 use demsketch::raster::Dem;
 use demsketch::render::{
     depth_for_file, draw_polyline, shade, viewshed, viewshed_exact, visible_polylines, write_png,
-    DepthBuffer, Scene, ShadeOptions, DEPTH_NODATA,
+    DepthBuffer, LocalTerrain, Scene, ShadeOptions, DEPTH_NODATA,
 };
 use demsketch::view::{Camera, EyeHeight, Viewpoint};
 use serde::Deserialize;
@@ -220,8 +220,9 @@ pub struct ViewArgs {
     #[arg(long, requires = "viewshed")]
     pub viewshed_exact: bool,
     /// Also write the view's features as GeoJSON: silhouettes (with their
-    /// pixel polylines), T-junctions and the ridge lines, in lon/lat/z; each
-    /// feature's id is the feature_id an edit's report gives it.
+    /// pixel polylines), T-junctions and the ridge lines of the part of the
+    /// DEM the camera's horizontal field of view takes in, in lon/lat/z;
+    /// each feature's id is the feature_id an edit's report gives it.
     #[arg(long)]
     pub features: Option<PathBuf>,
     /// Format of --depth and --viewshed, a GDAL driver name as
@@ -367,17 +368,57 @@ pub fn run(args: ViewArgs) -> anyhow::Result<()> {
     if let Some(t) = Some(args.target_height).filter(|t| !t.is_finite()) {
         anyhow::bail!("--target-height {t} must be a finite number of metres");
     }
-    let dem = Dem::open(&args.dem)?;
+    // Each cell is read once: decoded blocks are not cached.
+    let dem = Dem::open(&args.dem)?.without_block_cache();
     check_view_outputs(&args, &dem)?;
-    let scene = Scene::open(
-        &dem,
-        &view.viewpoint,
-        args.camera.max_distance,
-        args.camera.refraction,
-    )?;
+    // The viewshed covers every cell within the distance; a picture and
+    // its features need only what the camera's horizontal field of view
+    // takes in, and without a viewshed only that is read. The picture,
+    // the silhouettes and the ridges come from the terrain of that wedge
+    // either way (the ridges detected over it, as an edit detects them for
+    // its views), so that --viewshed changes none of them.
+    let scene = if args.viewshed.is_some() {
+        Scene::open(
+            &dem,
+            &view.viewpoint,
+            args.camera.max_distance,
+            args.camera.refraction,
+        )?
+    } else {
+        Scene::open_wedge(
+            &dem,
+            &view.viewpoint,
+            args.camera.max_distance,
+            args.camera.refraction,
+            &view.camera,
+        )?
+    };
+    let max_d = args
+        .camera
+        .max_distance
+        .filter(|d| d.is_finite() && *d > 0.0);
+    let wedge_terrain;
+    let terrain = if args.viewshed.is_some() {
+        // The same terrain as `Scene::open_wedge` builds (tested).
+        wedge_terrain = LocalTerrain::in_view(&scene.window, &scene.frame, max_d, &view.camera);
+        &wedge_terrain
+    } else {
+        &scene.terrain
+    };
+    // The cells the terrain covers (all of the window without a viewshed).
+    let seen = if (terrain.nx, terrain.ny) == (scene.window.width, scene.window.height) {
+        None
+    } else {
+        Some(
+            scene
+                .window
+                .crop(terrain.col0, terrain.row0, terrain.nx, terrain.ny),
+        )
+    };
+    let seen = seen.as_ref().unwrap_or(&scene.window);
     super::timing("load", t_all.elapsed().as_secs_f64());
     let t = Instant::now();
-    let depth = DepthBuffer::render(&scene.terrain, &view.camera);
+    let depth = DepthBuffer::render(terrain, &view.camera);
     super::timing("render", t.elapsed().as_secs_f64());
     let t = Instant::now();
     let overlays: Vec<Overlay> = if args.overlay.is_empty() {
@@ -394,10 +435,10 @@ pub fn run(args: ViewArgs) -> anyhow::Result<()> {
         args.features.is_some() || want(Overlay::Silhouettes) || want(Overlay::Junctions);
     let need_ridges = args.features.is_some() || want(Overlay::Ridges);
     let silhouettes: Option<Silhouettes> = need_sil
-        .then(|| extract_silhouettes(&scene.terrain, &depth, &SilhouetteParams::default()))
+        .then(|| extract_silhouettes(terrain, &depth, &SilhouetteParams::default()))
         .transpose()?;
     let ridges: Option<RidgeNetwork> = need_ridges
-        .then(|| detect_ridges(&scene.window, &RidgeParams::default()))
+        .then(|| detect_ridges(seen, &RidgeParams::default()))
         .transpose()?;
 
     super::timing("features", t.elapsed().as_secs_f64());
@@ -409,12 +450,12 @@ pub fn run(args: ViewArgs) -> anyhow::Result<()> {
         sun_azimuth_deg: view.camera.heading_deg + 135.0,
         ..ShadeOptions::default()
     };
-    let mut rgb = shade(&depth, &scene.terrain, &opts);
+    let mut rgb = shade(&depth, terrain, &opts);
     let line = (w.max(h) as f64 / 800.0).clamp(1.0, 4.0);
     if let (true, Some(net)) = (want(Overlay::Ridges), &ridges) {
-        let cell = scene.terrain.frame.p[0][0].hypot(scene.terrain.frame.p[1][0]);
+        let cell = terrain.frame.p[0][0].hypot(terrain.frame.p[1][0]);
         for l in &net.lines {
-            for part in visible_polylines(&scene.terrain, &depth, net.line_points(l), 2.0 * cell) {
+            for part in visible_polylines(terrain, &depth, net.line_points(l), 2.0 * cell) {
                 draw_polyline(&mut rgb, w, h, &part, [255, 214, 0], line);
             }
         }

@@ -184,26 +184,62 @@ pub fn apply(
     let win = affected_window(dem, &all, cell, influence_m)
         .and_then(|w| w.intersect(&grid.window))
         .ok_or(CurveError::NothingConstrained)?;
+    let (cells_changed, max_abs) = solve_in(grid, &all, win, true, |cons, _| {
+        influence_mask(cons, cell, influence_m)
+    })?;
+    Ok(CurveResult {
+        influence_m,
+        cells_changed,
+        max_abs_dz_m: max_abs,
+        max_curve_error_m: curve_error(grid, points),
+        max_section_error_m: sections
+            .iter()
+            .map(|s| curve_error(grid, s))
+            .fold(0.0, f64::max),
+    })
+}
+
+/// The solve of [`apply`] over `win` (DEM grid, inside the grid's window):
+/// the curves `all` (the first is the control curve, the others its
+/// cross-sections) fitted (with `fit`; else the cells of their stencils
+/// take the rasteriser's heights, the curve's at the closest point), then
+/// the cells `inside` says may move (a mask
+/// over `win`, given the curves' constraint raster and the window's
+/// heights) diffused harmonically, every other cell kept. Returns the
+/// cells changed and the largest `|dz|`. The landforms of
+/// [`super::landform`] solve through it with their boundary as the mask.
+pub fn solve_in(
+    grid: &mut Grid,
+    all: &[CurveConstraint],
+    win: crate::raster::Window,
+    fit: bool,
+    inside: impl FnOnce(&constraints::ConstraintRaster, &crate::raster::HeightMap) -> Vec<bool>,
+) -> Result<(usize, f64), CurveError> {
+    let cell = grid.cell;
     let (lc, lr) = (
         (win.col - grid.window.col) as usize,
         (win.row - grid.window.row) as usize,
     );
     let hm = grid.current().crop(lc, lr, win.width, win.height);
-    let cons = constraints::rasterise(&hm, &all, cell);
+    let cons = constraints::rasterise(&hm, all, cell);
     let n = win.len();
     let mut decided = vec![false; n];
     let mut target = vec![0f64; n];
     // The control curve first, then the cross-sections.
-    if fit_curve(&hm, &all[0], cell, &mut decided, &mut target)? == 0 {
+    if !fit {
+        if !cons.constrained.iter().any(|&c| c) {
+            return Err(CurveError::NothingConstrained);
+        }
+    } else if fit_curve(&hm, &all[0], cell, &mut decided, &mut target)? == 0 {
         return Err(CurveError::NothingConstrained);
     }
-    if all.len() > 1 {
+    if fit && all.len() > 1 {
         for c in &all[1..] {
             fit_curve(&hm, c, cell, &mut decided, &mut target)?;
         }
-        refit_together(&hm, &all, &decided, &mut target)?;
+        refit_together(&hm, all, &decided, &mut target)?;
     }
-    let inside = influence_mask(&cons, cell, influence_m);
+    let inside = inside(&cons, &hm);
     let mut fixed = vec![true; n];
     for i in 0..n {
         if !cons.constrained[i] && inside[i] && !hm.data[i].is_nan() {
@@ -248,16 +284,7 @@ pub fn apply(
             max_abs = max_abs.max(m.abs() as f64);
         }
     }
-    Ok(CurveResult {
-        influence_m,
-        cells_changed,
-        max_abs_dz_m: max_abs,
-        max_curve_error_m: curve_error(grid, points),
-        max_section_error_m: sections
-            .iter()
-            .map(|s| curve_error(grid, s))
-            .fold(0.0, f64::max),
-    })
+    Ok((cells_changed, max_abs))
 }
 
 /// Largest `|DEM - z|` along the curve (bilinear on the current heights,

@@ -29,6 +29,13 @@
 //!   (`true`, the default: the surface may kink across the line but not
 //!   blend; `false`: a soft breakline, smooth across) and `influence_m`
 //!   (default three cells).
+//! - `landform`: a silhouette stroke of a sketch view, `silhouette:
+//!   {"view": NAME, "stroke": ID}`, with its boundary as the feature's
+//!   Polygon (a `null` geometry: the default capsule) and an optional
+//!   `shadow` (a LineString geometry object or its coordinates, in the
+//!   file's CRS); see [`super::landform`].
+//! - `noise_region`: a Polygon and `noise_stroke` (as `silhouette`), with
+//!   an optional `amplitude_m`.
 
 use std::path::Path;
 use std::str::FromStr;
@@ -100,6 +107,24 @@ pub enum CorrectionKind {
         hard: bool,
         influence_m: Option<f64>,
     },
+    /// A landform from a silhouette stroke (Gain et al. 2009), see
+    /// [`super::landform`]; placed by [`super::landform::resolve`].
+    Landform {
+        silhouette: super::landform::StrokeRef,
+        /// The boundary, pixel space (`None`: the default capsule).
+        boundary: Option<MultiPolygon<f64>>,
+        /// The shadow, DEM CRS (`None`: the default).
+        shadow: Option<Vec<[f64; 2]>>,
+        placed: Option<super::landform::Placed>,
+    },
+    /// A region given the noise of a representative stroke.
+    NoiseRegion {
+        /// The region, pixel space.
+        area: MultiPolygon<f64>,
+        stroke: super::landform::StrokeRef,
+        amplitude_m: Option<f64>,
+        placed: Option<super::landform::Placed>,
+    },
     /// A curve the DEM must pass through.
     ControlCurve {
         /// `[x, y, z]` in the DEM's CRS and metres.
@@ -119,6 +144,8 @@ impl CorrectionKind {
             CorrectionKind::River { .. } | CorrectionKind::RiverArea { .. } => "river",
             CorrectionKind::ControlCurve { .. } => "control_curve",
             CorrectionKind::Breakline { .. } => "breakline",
+            CorrectionKind::Landform { .. } => "landform",
+            CorrectionKind::NoiseRegion { .. } => "noise_region",
         }
     }
 }
@@ -368,13 +395,18 @@ fn parse_feature(
         Some(v) => return Err(format!("property kind must be a string, not {v}")),
         None => {
             return Err(
-                "no \"kind\" property (lake, river, control_curve, cross_section or breakline)"
+                "no \"kind\" property (lake, river, control_curve, cross_section, breakline, landform or noise_region)"
                     .into(),
             )
         }
     };
+    if kind == "landform" {
+        let kind = parse_landform(geometry.map(|g| &g.value), props, t, dem)?;
+        return Ok(Parsed::Correction(Correction { index, id, kind }));
+    }
     let geom = &geometry.ok_or("has no geometry")?.value;
     let kind = match kind {
+        "noise_region" => parse_noise_region(geom, props, t, dem)?,
         "lake" => parse_lake(geom, props, t, dem)?,
         "river" => parse_river(geom, props, t, dem)?,
         "control_curve" => parse_curve(geom, props, t, dem)?,
@@ -405,7 +437,7 @@ fn parse_feature(
         }
         other => {
             return Err(format!(
-                "unknown kind \"{other}\" (expected lake, river, control_curve, cross_section or breakline)"
+                "unknown kind \"{other}\" (expected lake, river, control_curve, cross_section, breakline, landform or noise_region)"
             ))
         }
     };
@@ -750,5 +782,108 @@ fn parse_breakline(
         points,
         hard,
         influence_m: positive(props, "influence_m")?,
+    })
+}
+
+/// A `silhouette` or `noise_stroke` property: `{"view": NAME, "stroke": ID}`.
+fn stroke_ref(props: &JsonObject, key: &str) -> Result<super::landform::StrokeRef, String> {
+    let v = props
+        .get(key)
+        .ok_or_else(|| format!("needs a {key} property ({{\"view\": NAME, \"stroke\": ID}})"))?;
+    let field = |k: &str| match v.get(k) {
+        Some(serde_json::Value::String(s)) => Ok(s.clone()),
+        Some(serde_json::Value::Number(n)) => Ok(n.to_string()),
+        _ => Err(format!(
+            "property {key} must be {{\"view\": NAME, \"stroke\": ID}}, not {v}"
+        )),
+    };
+    Ok(super::landform::StrokeRef {
+        view: field("view")?,
+        stroke: field("stroke")?,
+    })
+}
+
+/// A Polygon or MultiPolygon in pixel space (`what` names the feature).
+fn area(
+    geom: &GeometryValue,
+    t: &Transform,
+    dem: &Dem,
+    what: &str,
+) -> Result<MultiPolygon<f64>, String> {
+    match geom {
+        GeometryValue::Polygon { coordinates } => {
+            Ok(MultiPolygon::new(vec![polygon(coordinates, t, dem)?]))
+        }
+        GeometryValue::MultiPolygon { coordinates } => Ok(MultiPolygon::new(
+            coordinates
+                .iter()
+                .map(|p| polygon(p, t, dem))
+                .collect::<Result<_, _>>()?,
+        )),
+        other => Err(format!(
+            "{what} must be a Polygon or MultiPolygon, not a {}",
+            other.type_name()
+        )),
+    }
+}
+
+fn parse_landform(
+    geom: Option<&GeometryValue>,
+    props: &JsonObject,
+    t: &Transform,
+    dem: &Dem,
+) -> Result<CorrectionKind, String> {
+    let silhouette = stroke_ref(props, "silhouette")?;
+    let boundary = match geom {
+        None => None,
+        Some(g) => Some(area(g, t, dem, "a landform's boundary")?),
+    };
+    let shadow = match props.get("shadow") {
+        None | Some(serde_json::Value::Null) => None,
+        Some(v) => {
+            let coords = v.get("coordinates").unwrap_or(v);
+            let pos: Vec<Position> = serde_json::from_value(coords.clone()).map_err(|_| {
+                "property shadow must be a LineString (or its coordinates)".to_string()
+            })?;
+            if v.get("type").is_some_and(|ty| ty != "LineString") {
+                return Err("property shadow must be a LineString".into());
+            }
+            let mut xy: Vec<[f64; 2]> = Vec::new();
+            let mut px: Vec<[f64; 2]> = Vec::new();
+            for p in &pos {
+                let (a, b) = place(p, t, dem)?;
+                if px.last() != Some(&b) {
+                    xy.push(a);
+                    px.push(b);
+                }
+            }
+            if px.len() < 2 {
+                return Err("the shadow needs at least two distinct positions".into());
+            }
+            if let Some((i, j)) = self_intersection(&px) {
+                return Err(format!("the shadow crosses itself (segments {i} and {j})"));
+            }
+            Some(xy)
+        }
+    };
+    Ok(CorrectionKind::Landform {
+        silhouette,
+        boundary,
+        shadow,
+        placed: None,
+    })
+}
+
+fn parse_noise_region(
+    geom: &GeometryValue,
+    props: &JsonObject,
+    t: &Transform,
+    dem: &Dem,
+) -> Result<CorrectionKind, String> {
+    Ok(CorrectionKind::NoiseRegion {
+        area: area(geom, t, dem, "a noise region")?,
+        stroke: stroke_ref(props, "noise_stroke")?,
+        amplitude_m: positive(props, "amplitude_m")?,
+        placed: None,
     })
 }

@@ -35,8 +35,16 @@ pub fn apply_after_edit(
     d: &Deformation,
     max_window_cells: usize,
 ) -> Result<(Deformation, Vec<FeatureReport>), CorrectError> {
-    let corrections =
+    let mut corrections =
         geojson_input::from_value(collection, name, dem).map_err(CorrectError::Input)?;
+    super::landform::resolve(
+        dem,
+        None,
+        &mut corrections,
+        name,
+        super::LANDFORM_HINT_IN_SKETCH,
+    )
+    .map_err(CorrectError::Input)?;
     let plan = plan(dem, corrections, name, max_window_cells)?;
     let window = union(plan.window, d.window);
     let mut grid = Grid::new(window, plan.cell, dem.read_height_map(window)?);

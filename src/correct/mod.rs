@@ -3,7 +3,9 @@
 //! lakes flattened to one level, rivers flat across and never rising
 //! downstream (hydro-flattening, Maquettier section IV), and control curves
 //! with heights the terrain must follow (Maquettier section III), and hard
-//! and soft breaklines ([`breakline`]). They come
+//! and soft breaklines ([`breakline`]), and landforms from silhouette
+//! strokes of a sketch view and noise regions ([`landform`], Gain et al.
+//! 2009; `--sketch`). They come
 //! as GeoJSON features drawn in a GIS ([`geojson_input`]), are applied one
 //! after the other, in file order, to one seamless window of the DEM
 //! ([`grid`]) with the project's multigrid solver ([`water`] blends the
@@ -21,11 +23,13 @@ pub mod geojson_input;
 pub mod grid;
 pub mod in_sketch;
 pub mod lake;
+pub mod landform;
 pub mod pictures;
 pub mod report;
 pub mod river;
 pub mod sparse_lsq;
 pub mod water;
+pub mod wavelet_noise;
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -59,6 +63,9 @@ pub struct CorrectOptions {
     pub write: WriteOptions,
     /// Largest window, in cells.
     pub max_window_cells: usize,
+    /// The sketch file whose views and strokes the landforms and noise
+    /// regions name (`--sketch`).
+    pub sketch: Option<PathBuf>,
 }
 
 /// The largest window a correction may solve over by default, in cells
@@ -75,6 +82,7 @@ impl CorrectOptions {
             renders: None,
             write: WriteOptions::default(),
             max_window_cells: MAX_WINDOW_CELLS,
+            sketch: None,
         }
     }
 }
@@ -112,7 +120,10 @@ fn margin_px(c: &Correction, cell: crate::deform::CellSize, default_blend: f64) 
         CorrectionKind::River {
             width_m, blend_m, ..
         } => 0.5 * width_m + blend_m.unwrap_or(default_blend) + cell.hx.max(cell.hy),
-        CorrectionKind::ControlCurve { .. } | CorrectionKind::Breakline { .. } => 0.0,
+        CorrectionKind::ControlCurve { .. }
+        | CorrectionKind::Breakline { .. }
+        | CorrectionKind::Landform { .. }
+        | CorrectionKind::NoiseRegion { .. } => 0.0,
     };
     [m / cell.hx + 3.0, m / cell.hy + 3.0]
 }
@@ -128,6 +139,10 @@ fn feature_window(
     let b = match &c.kind {
         CorrectionKind::Lake { area, .. } | CorrectionKind::RiverArea { area, .. } => {
             let r = area.bounding_rect()?;
+            [r.min().x, r.min().y, r.max().x, r.max().y]
+        }
+        CorrectionKind::Landform { placed, .. } | CorrectionKind::NoiseRegion { placed, .. } => {
+            let r = placed.as_ref()?.boundary.bounding_rect()?;
             [r.min().x, r.min().y, r.max().x, r.max().y]
         }
         CorrectionKind::River { centreline, .. } => {
@@ -269,8 +284,10 @@ impl Plan {
 /// change, as [`run`] would plan it: every feature read and checked
 /// against the DEM, nothing else read.
 pub fn footprint(dem: &Dem, features: &Path) -> Result<Window, CorrectError> {
-    let corrections = geojson_input::read(features, dem).map_err(CorrectError::Input)?;
+    let mut corrections = geojson_input::read(features, dem).map_err(CorrectError::Input)?;
     let name = features.display().to_string();
+    landform::resolve(dem, None, &mut corrections, &name, LANDFORM_HINT_BATCH)
+        .map_err(CorrectError::Input)?;
     Ok(plan(dem, corrections, &name, MAX_WINDOW_CELLS)?.window)
 }
 
@@ -283,8 +300,28 @@ pub fn run(
 ) -> Result<CorrectReport, CorrectError> {
     let t0 = Instant::now();
     let dem = Dem::open(dem_path)?;
-    let corrections = geojson_input::read(features, &dem).map_err(CorrectError::Input)?;
+    let mut corrections = geojson_input::read(features, &dem).map_err(CorrectError::Input)?;
     let fname = features.display().to_string();
+    let sketch = match &opts.sketch {
+        Some(p) => Some(
+            crate::sketch::SketchFile::from_path(p)
+                .map_err(|e| CorrectError::Input(e.to_string()))?,
+        ),
+        None => None,
+    };
+    let sketch_name = opts
+        .sketch
+        .as_ref()
+        .map(|p| p.display().to_string())
+        .unwrap_or_default();
+    landform::resolve(
+        &dem,
+        sketch.as_ref().map(|s| (s, sketch_name.as_str())),
+        &mut corrections,
+        &fname,
+        LANDFORM_HINT_CORRECT,
+    )
+    .map_err(CorrectError::Input)?;
     let plan = plan(&dem, corrections, &fname, opts.max_window_cells)?;
     let (window, cell) = (plan.window, plan.cell);
     let staged_report = match &opts.report {
@@ -401,6 +438,16 @@ fn write_water_mask(path: &Path, dem: &Dem, grid: &grid::Grid) -> Result<(), Cor
     Ok(())
 }
 
+/// What a landform without a sketch is told, for `correct`.
+pub const LANDFORM_HINT_CORRECT: &str =
+    "give the sketch file with --sketch (demsketch correct DEM --features F --sketch S)";
+/// ... in a batch manifest's corrections.
+const LANDFORM_HINT_BATCH: &str =
+    "a batch applies landforms only through `demsketch correct --sketch`";
+/// ... in a sketch file's `map_features`.
+pub const LANDFORM_HINT_IN_SKETCH: &str =
+    "landforms belong in the features of `demsketch correct --features F --sketch S`, not in a sketch's map_features (its strokes would also be matched as first-person strokes)";
+
 enum ApplyError {
     User(String),
     Internal(String),
@@ -494,6 +541,30 @@ fn apply_one(
             r.cells_changed = res.cells_changed;
             r.max_abs_dz_m = res.max_abs_dz_m;
         }
+        CorrectionKind::Landform {
+            silhouette, placed, ..
+        } => {
+            let res = landform::apply_landform(dem, grid, c.index, silhouette, placed.as_ref())
+                .map_err(landform_error)?;
+            landform_report(dem, &mut r, &res, placed.as_ref());
+        }
+        CorrectionKind::NoiseRegion {
+            stroke,
+            amplitude_m,
+            placed,
+            ..
+        } => {
+            let res = landform::apply_noise_region(
+                dem,
+                grid,
+                c.index,
+                stroke,
+                *amplitude_m,
+                placed.as_ref(),
+            )
+            .map_err(landform_error)?;
+            landform_report(dem, &mut r, &res, None);
+        }
         CorrectionKind::Breakline { points, hard, .. } => {
             let infl = influence.unwrap_or_else(|| breakline::default_influence_m(grid.cell));
             r.hard = Some(*hard);
@@ -520,4 +591,53 @@ fn apply_one(
         }
     }
     Ok(r)
+}
+
+fn landform_error(e: landform::LandformError) -> ApplyError {
+    match e {
+        landform::LandformError::Curve(control_curve::CurveError::Solver(s)) => solver_error(s),
+        landform::LandformError::Curve(control_curve::CurveError::Fit(f)) => {
+            ApplyError::Internal(f.to_string())
+        }
+        landform::LandformError::NotPlaced => ApplyError::Internal(e.to_string()),
+        e => ApplyError::User(e.to_string()),
+    }
+}
+
+/// The report of a landform (with its placement) or a noise region.
+fn landform_report(
+    dem: &Dem,
+    r: &mut FeatureReport,
+    res: &landform::LandformResult,
+    placed: Option<&landform::Placed>,
+) {
+    r.cells_changed = res.cells_changed;
+    r.max_abs_dz_m = res.max_abs_dz_m;
+    r.max_curve_error_m = res.max_curve_error_m;
+    let mut noise = report::NoiseReport {
+        bands: res.spectrum.bands.clone(),
+        detail_energy_ratio: res.spectrum.detail_energy_ratio,
+        noise_sigma_m: res.noise_sigma_m,
+        noise_rms_m: res.noise_rms_m,
+    };
+    if !noise.detail_energy_ratio.is_finite() {
+        noise.detail_energy_ratio = 0.0;
+    }
+    r.noise = Some(noise);
+    if let Some(p) = placed {
+        let (boundary, shadow) = landform::geojson_of(dem, p);
+        r.landform = Some(report::LandformReport {
+            silhouette_points: p.curve.len(),
+            both_ends_on_terrain: p.both_ends,
+            default_boundary: p.default_boundary,
+            shoulders_m: p.default_boundary.then_some(p.shoulders_m),
+            peak_m: p
+                .curve
+                .iter()
+                .map(|q| q[2])
+                .fold(f64::NEG_INFINITY, f64::max),
+            boundary,
+            shadow,
+        });
+    }
 }

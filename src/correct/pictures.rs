@@ -78,6 +78,30 @@ fn feature_lines(dem: &Dem, grid: &Grid, c: &Correction) -> Vec<(Vec<[f64; 2]>, 
         } => std::iter::once((from_crs(points), [240, 130, 20]))
             .chain(sections.iter().map(|s| (from_crs(s), [250, 215, 40])))
             .collect(),
+        CorrectionKind::Landform { placed, .. } | CorrectionKind::NoiseRegion { placed, .. } => {
+            let Some(p) = placed else { return Vec::new() };
+            let mut out: Vec<(Vec<[f64; 2]>, [u8; 3])> = p
+                .boundary
+                .0
+                .iter()
+                .map(|poly| {
+                    (
+                        poly.exterior()
+                            .coords()
+                            .map(|q| local([q.x, q.y]))
+                            .collect(),
+                        [40, 170, 60],
+                    )
+                })
+                .collect();
+            if matches!(c.kind, CorrectionKind::Landform { .. }) {
+                out.push((
+                    p.shadow_px.iter().map(|&q| local(q)).collect(),
+                    [200, 30, 30],
+                ));
+            }
+            out
+        }
         CorrectionKind::Breakline { points, hard, .. } => {
             let colour = if *hard {
                 [220, 30, 190]

@@ -15,7 +15,8 @@ pub struct FeatureReport {
     pub index: usize,
     /// The feature's id or name.
     pub id: Option<String>,
-    /// `lake`, `river`, `control_curve` or `breakline`.
+    /// `lake`, `river`, `control_curve`, `breakline`, `landform` or
+    /// `noise_region`.
     pub kind: &'static str,
     /// Cells whose height this feature changed.
     pub cells_changed: usize,
@@ -65,6 +66,51 @@ pub struct FeatureReport {
     /// re-interpolated from the triangulation.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub band_cells: Option<usize>,
+    /// Landforms: where the silhouette went and the footprint used.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub landform: Option<LandformReport>,
+    /// Landforms and noise regions: the stroke's noise and what was added.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub noise: Option<NoiseReport>,
+}
+
+/// The placement of a landform's silhouette.
+#[derive(Debug, Clone, Serialize)]
+pub struct LandformReport {
+    /// Points of the placed silhouette (one per image pixel).
+    pub silhouette_points: usize,
+    /// True: placed on the vertical surface through the terrain under both
+    /// stroke ends; false: on the drawing plane through one; absent: on
+    /// the surface through the given shadow.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub both_ends_on_terrain: Option<bool>,
+    /// True when the boundary is the default capsule.
+    pub default_boundary: bool,
+    /// The default capsule's shoulder base lengths `[d1, d2]`, metres.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub shoulders_m: Option<[f64; 2]>,
+    /// Highest point of the placed silhouette, metres.
+    pub peak_m: f64,
+    /// The boundary as a GeoJSON geometry in the DEM's CRS (edit it and
+    /// give it back as the feature's geometry).
+    pub boundary: serde_json::Value,
+    /// The shadow as a GeoJSON LineString in the DEM's CRS (give it back
+    /// as the `shadow` property).
+    pub shadow: serde_json::Value,
+}
+
+/// The noise of a stroke (wavelet analysis) and the noise added.
+#[derive(Debug, Clone, Serialize)]
+pub struct NoiseReport {
+    /// The stroke's detail bands, finest first.
+    pub bands: Vec<super::wavelet_noise::Band>,
+    /// Energy of the stroke's detail bands over that of its smoothest
+    /// level (the wavelet energy ratio).
+    pub detail_energy_ratio: f64,
+    /// Deviation of the noise field from the bands the DEM can carry, m.
+    pub noise_sigma_m: f64,
+    /// Root mean square of the noise added over the footprint, metres.
+    pub noise_rms_m: f64,
 }
 
 impl FeatureReport {
@@ -90,6 +136,8 @@ impl FeatureReport {
             max_section_error_m: None,
             hard: None,
             band_cells: None,
+            landform: None,
+            noise: None,
         }
     }
 }

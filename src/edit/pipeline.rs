@@ -57,7 +57,7 @@ use crate::sketch::{
     match_sketch, EyeHeightSpec, PointSource, SceneProjection, SceneView, SketchFile, SketchMatch,
     SketchOptions, Stroke, ViewFeatureOptions, ViewInput, ViewSpec,
 };
-use crate::view::{Camera, EyeHeight, LocalFrame, Viewpoint};
+use crate::view::{Camera, LocalFrame};
 
 /// Options of an edit.
 #[derive(Debug, Clone)]
@@ -504,28 +504,13 @@ fn load_views(edit: &Edit, dem: Dem, sketch_path: &Path) -> Result<Loaded, EditE
     }
     let mut scenes = Vec::new();
     for v in &sketch.views {
-        let vp = Viewpoint {
-            lon: v.viewpoint.lon,
-            lat: v.viewpoint.lat,
-            height: match v.viewpoint.height() {
-                EyeHeightSpec::AboveSurface(h) => EyeHeight::AboveSurface(h),
-                EyeHeightSpec::Absolute(a) => EyeHeight::Absolute(a),
-            },
-        };
+        let vp = v.eye();
         let view_err = |source| EditError::View {
             sketch: sketch_name.clone(),
             view: v.name.clone(),
             source,
         };
-        let camera = Camera::new(
-            v.camera.width as usize,
-            v.camera.height as usize,
-            v.camera.heading_deg,
-            v.camera.pitch_deg,
-            v.camera.roll_deg,
-            v.camera.hfov_deg,
-        )
-        .map_err(|e| view_err(e.into()))?;
+        let camera = v.pinhole().map_err(|e| view_err(e.into()))?;
         let scene = Scene::open_in_view(&dem, &vp, edit.max_d, edit.opts.refraction, &camera)
             .map_err(view_err)?;
         if let EyeHeightSpec::Absolute(a) = v.viewpoint.height() {

@@ -527,3 +527,40 @@ impl Surface {
         (t.is_finite() && t > 0.0).then(|| t.clamp(self.range.0, self.range.1))
     }
 }
+
+/// Where a whole stroke of `pixels` goes when it is placed as Gain et al.
+/// (2009, section 3.1) place a silhouette stroke: on the vertical surface
+/// through the terrain points under its two end pixels (the first terrain
+/// at or below each, within [`END_TOUCH_PX`]), or on the drawing plane
+/// through the one end that stands on terrain. Per pixel, the world point
+/// and its depth; `None` when neither end stands on terrain beyond
+/// `observer_radius_m`. The second value says whether both ends did. The
+/// map-view landforms of [`crate::correct::landform`] place their
+/// silhouettes with it, by the same geometry as the free stretches here.
+pub fn place_on_end_surface(
+    before: &RenderedView,
+    proj: &SceneProjection,
+    pixels: &[[f64; 2]],
+    observer_radius_m: f64,
+) -> Option<(Vec<([f64; 3], f64)>, bool)> {
+    let bound = |px: [f64; 2]| {
+        let (local, depth) = ground_under_end(before, px)?;
+        (depth > observer_radius_m).then_some(Bound {
+            world: proj.own_to_world(local),
+            depth,
+        })
+    };
+    let (left, right) = (bound(*pixels.first()?), bound(*pixels.last()?));
+    if left.is_none() && right.is_none() {
+        return None;
+    }
+    let surface = Surface::new(proj, left, right);
+    let placed = pixels
+        .iter()
+        .map(|&px| {
+            let depth = surface.depth(proj, px)?;
+            Some((proj.unproject(px, depth), depth))
+        })
+        .collect::<Option<Vec<_>>>()?;
+    Some((placed, left.is_some() && right.is_some()))
+}

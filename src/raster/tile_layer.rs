@@ -66,9 +66,27 @@ pub enum LayerKind {
 /// A tile as opened, before it is placed on the layer grid.
 struct Part {
     tile: Tile,
-    crs: Crs,
+    /// The CRS of a tile GDAL reads (a native tile's is its GeoTIFF's).
+    gdal_crs: Option<Crs>,
     /// The CRS is a projected or geographic one (not local or absent).
     earth_crs: bool,
+}
+
+impl Part {
+    fn crs(&self) -> &Crs {
+        // (A GDAL tile always has its CRS: the last arm is not reached.)
+        static UNKNOWN: Crs = Crs {
+            epsg: None,
+            wkt: String::new(),
+            proj: None,
+            geographic: false,
+        };
+        match (&self.gdal_crs, &self.tile.source) {
+            (Some(c), _) => c,
+            (None, TileSource::Tiff(t)) => &t.crs,
+            (None, TileSource::Gdal(_)) => &UNKNOWN,
+        }
+    }
 }
 
 /// A DEM as one grid over all its tiles.
@@ -122,15 +140,32 @@ impl Dem {
         }
         let meta = std::fs::metadata(path).map_err(|e| RasterError::io(path, e))?;
         if meta.is_dir() {
-            let mut files: Vec<PathBuf> = std::fs::read_dir(path)
+            // The entries' types come with the listing: only symbolic
+            // links cost a stat (to find where they lead).
+            let mut files: Vec<(std::ffi::OsString, PathBuf, bool)> = std::fs::read_dir(path)
                 .map_err(|e| RasterError::io(path, e))?
-                .filter_map(|e| e.ok().map(|e| e.path()))
-                .filter(|p| is_tiff_name(p) && (p.is_file() || p.is_symlink()))
+                .filter_map(|e| e.ok())
+                .filter_map(|e| {
+                    let p = e.path();
+                    if !is_tiff_name(&p) {
+                        return None;
+                    }
+                    match e.file_type().ok()? {
+                        t if t.is_file() => Some((e.file_name(), p, true)),
+                        t if t.is_symlink() => {
+                            let to_file = p.is_file();
+                            Some((e.file_name(), p, to_file))
+                        }
+                        _ => None,
+                    }
+                })
                 .collect();
-            files.sort();
+            // One parent: the order of the paths is that of the names,
+            // compared as bytes (cheaper than comparing paths).
+            files.sort_unstable_by(|a, b| a.0.as_encoded_bytes().cmp(b.0.as_encoded_bytes()));
             // A tile name whose symlink leads nowhere is a missing tile,
             // not a hole to skip silently.
-            if let Some(broken) = files.iter().find(|p| !p.is_file()) {
+            if let Some((_, broken, _)) = files.iter().find(|(_, _, is_file)| !is_file) {
                 let to = std::fs::read_link(broken)
                     .map(|t| t.display().to_string())
                     .unwrap_or_default();
@@ -147,13 +182,16 @@ impl Dem {
                     path: path.to_path_buf(),
                 });
             }
+            // One memory budget for every tile's header checks.
+            let budget = memory_budget();
             let tiles = files
                 .par_iter()
-                .map(|f| Self::open_tile(f))
+                .with_min_len(64)
+                .map(|(_, f, _)| Self::open_tile(f, budget))
                 .collect::<Result<Vec<_>, _>>()?;
             Self::mosaic(path, LayerKind::TileDirectory, tiles)
         } else if is_tiff_name(path) || Self::sniff_tiff(path) {
-            let tile = Self::open_tile(path)?;
+            let tile = Self::open_tile(path, memory_budget())?;
             Self::mosaic(path, LayerKind::GeoTiff, vec![tile])
         } else {
             let tile = Self::open_gdal(path)?;
@@ -173,8 +211,8 @@ impl Dem {
     /// Open one GeoTIFF natively, or through GDAL where the native decoder
     /// does not support it (GDAL's error is kept only if GDAL fails too and
     /// the native one says less).
-    fn open_tile(path: &Path) -> Result<Part, RasterError> {
-        let t = match GeoTiff::open(path) {
+    fn open_tile(path: &Path, budget: u64) -> Result<Part, RasterError> {
+        let t = match GeoTiff::open_with_budget(path, budget) {
             Ok(t) => t,
             Err(native @ (RasterError::NotNative { .. } | RasterError::Crs { .. })) => {
                 // GDAL's own complaints are not shown: if it fails too, the
@@ -192,7 +230,7 @@ impl Dem {
         };
         Ok(Part {
             earth_crs: true,
-            crs: t.crs.clone(),
+            gdal_crs: None,
             tile: Tile {
                 path: path.to_path_buf(),
                 extent: Window::new(0, 0, t.width as usize, t.height as usize),
@@ -244,7 +282,7 @@ impl Dem {
             earth_crs: srs
                 .as_ref()
                 .is_some_and(|s| s.is_projected() || s.is_geographic()),
-            crs,
+            gdal_crs: Some(crs),
             tile: Tile {
                 path: path.to_path_buf(),
                 extent: Window::new(0, 0, w, h),
@@ -264,7 +302,7 @@ impl Dem {
         let (ref_path, ref_gt, ref_crs, ref_nodata, ref_type, ref_vertical) = (
             first.tile.path.clone(),
             first.tile.geotransform,
-            first.crs.clone(),
+            first.crs().clone(),
             first.tile.nodata,
             first.tile.sample_type,
             first.tile.vertical.clone(),
@@ -277,7 +315,8 @@ impl Dem {
         };
         // Pixel offsets of each tile relative to the first.
         let mut placed = Vec::with_capacity(parts.len());
-        for Part { tile, crs, .. } in &parts {
+        for part in &parts {
+            let (tile, crs) = (&part.tile, part.crs());
             let (p, t) = (&tile.path, tile.geotransform.0);
             if !crs.same_as(&ref_crs) {
                 return Err(mismatch(p, "different CRS".into()));
@@ -318,19 +357,19 @@ impl Dem {
         }
         let c0 = placed.iter().map(|t| t.0).min().unwrap_or(0);
         let r0 = placed.iter().map(|t| t.1).min().unwrap_or(0);
-        let mut tiles: Vec<Tile> = Vec::with_capacity(parts.len());
-        for (Part { mut tile, .. }, (c, r)) in parts.into_iter().zip(placed) {
-            tile.extent = Window::new(c - c0, r - r0, tile.extent.width, tile.extent.height);
-            if let Some(other) = tiles
-                .iter()
-                .find(|t| t.extent.intersect(&tile.extent).is_some())
-            {
-                return Err(mismatch(
-                    &tile.path,
-                    format!("overlaps tile {}", other.path.display()),
-                ));
-            }
-            tiles.push(tile);
+        let tiles: Vec<Tile> = parts
+            .into_iter()
+            .zip(placed)
+            .map(|(Part { mut tile, .. }, (c, r))| {
+                tile.extent = Window::new(c - c0, r - r0, tile.extent.width, tile.extent.height);
+                tile
+            })
+            .collect();
+        if let Some((i, j)) = first_overlap(&tiles) {
+            return Err(mismatch(
+                &tiles[i].path,
+                format!("overlaps tile {}", tiles[j].path.display()),
+            ));
         }
         let width = tiles.iter().map(|t| t.extent.col_end()).max().unwrap_or(0) as usize;
         let height = tiles.iter().map(|t| t.extent.row_end()).max().unwrap_or(0) as usize;
@@ -349,6 +388,14 @@ impl Dem {
             cache: BlockCache::new(cache_budget),
             overlay: None,
         })
+    }
+
+    /// This DEM without a cache of decoded blocks, for a DEM whose windows
+    /// are read once (`view`): the blocks of a large window are not kept
+    /// beside it (they would double what the read holds, in fresh pages).
+    pub fn without_block_cache(mut self) -> Dem {
+        self.cache = BlockCache::new(0);
+        self
     }
 
     /// The window covering the whole DEM.
@@ -383,20 +430,27 @@ impl Dem {
     /// tiles. Cells outside every tile, and nodata cells, are invalid (their
     /// value is NaN).
     pub fn read_window<T: Sample>(&self, win: Window) -> Result<WindowData<T>, RasterError> {
-        self.read(win, true)
+        self.read(win, true, true)
     }
 
     /// Read a window of stored values (before scale, offset and unit), as
     /// [`Dem::read_window`] otherwise does.
     pub fn read_window_raw<T: Sample>(&self, win: Window) -> Result<WindowData<T>, RasterError> {
-        self.read(win, false)
+        self.read(win, false, true)
     }
 
     /// Read a window, in metres when `metres`, else as stored. Nodata is
     /// tested on the stored value, in the precision of the sample type as
     /// GDAL does (a Float32 file's nodata of -3.4e38 is the f32 nearest to
     /// it); the conversion to metres is done in f64, before rounding to `T`.
-    fn read<T: Sample>(&self, win: Window, metres: bool) -> Result<WindowData<T>, RasterError> {
+    /// Without `mask` the validity mask is left empty (a height map marks
+    /// invalid cells NaN and needs none).
+    fn read<T: Sample>(
+        &self,
+        win: Window,
+        metres: bool,
+        mask: bool,
+    ) -> Result<WindowData<T>, RasterError> {
         let n = win.len();
         let bytes = (n as u64).saturating_mul(std::mem::size_of::<T>() as u64 + 1);
         let budget = memory_budget();
@@ -563,6 +617,13 @@ impl Dem {
                 }
             })
             .collect::<Result<Vec<()>, _>>()?;
+        if !mask {
+            return Ok(WindowData {
+                window: win,
+                data,
+                valid: Vec::new(),
+            });
+        }
         // Cells outside every tile, and nodata (set to NaN above), are
         // invalid.
         let mut valid =
@@ -601,7 +662,8 @@ impl Dem {
 
     /// Read a window as a [`HeightMap`] (f32, NaN = nodata).
     pub fn read_height_map(&self, win: Window) -> Result<HeightMap, RasterError> {
-        let mut w = self.read_window::<f32>(win)?;
+        // NaN marks the invalid cells: no mask is made.
+        let mut w = self.read::<f32>(win, true, false)?;
         if let Some((ow, heights)) = &self.overlay {
             if let Some(both) = ow.intersect(&win) {
                 for r in both.row..both.row + both.height as i64 {
@@ -713,6 +775,59 @@ impl Dem {
     }
 }
 
+/// The first tile (in the layer's order) that overlaps an earlier one, and
+/// the first earlier one it overlaps: `(later, earlier)`. Whether any two
+/// overlap is decided by a sweep over the columns in O(n log n); only
+/// then are pairs compared, to name the same two tiles as a pairwise
+/// check in order would.
+fn first_overlap(tiles: &[Tile]) -> Option<(usize, usize)> {
+    let extents: Vec<Window> = tiles.iter().map(|t| t.extent).collect();
+    if !any_overlap(&extents) {
+        return None;
+    }
+    (1..extents.len()).find_map(|i| {
+        (0..i)
+            .find(|&j| extents[j].intersect(&extents[i]).is_some())
+            .map(|j| (i, j))
+    })
+}
+
+/// True when two of `extents` share a cell. Sweeps the rectangles in
+/// order of their first column; the ones still open at the sweep's column
+/// are kept by first row. While none overlap, the open ones are disjoint
+/// row ranges, so a new rectangle can only meet the open one that starts
+/// last before its end row.
+fn any_overlap(extents: &[Window]) -> bool {
+    use std::cmp::Reverse;
+    use std::collections::{BTreeMap, BinaryHeap};
+    let mut order: Vec<&Window> = extents
+        .iter()
+        .filter(|w| w.width > 0 && w.height > 0)
+        .collect();
+    order.sort_unstable_by_key(|w| (w.col, w.row));
+    // First row -> end row of the open rectangles; their end columns, to
+    // close them as the sweep passes.
+    let mut open: BTreeMap<i64, i64> = BTreeMap::new();
+    let mut ends: BinaryHeap<Reverse<(i64, i64)>> = BinaryHeap::new();
+    for w in order {
+        while let Some(&Reverse((col_end, row))) = ends.peek() {
+            if col_end > w.col {
+                break;
+            }
+            ends.pop();
+            open.remove(&row);
+        }
+        if let Some((_, &row_end)) = open.range(..w.row_end()).next_back() {
+            if row_end > w.row {
+                return true;
+            }
+        }
+        open.insert(w.row, w.row_end());
+        ends.push(Reverse((w.col_end(), w.row)));
+    }
+    false
+}
+
 /// Set nodata cells (and NaN) of stored values to NaN.
 #[inline]
 fn mask_nodata<T: Sample>(out: &mut [T], nodata: Option<f64>) {
@@ -795,4 +910,55 @@ impl<T> SharedOut<T> {
 pub fn read_height_map(path: &Path) -> Result<HeightMap, RasterError> {
     let dem = Dem::open(path)?;
     dem.read_height_map(dem.full_window())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{any_overlap, Window};
+
+    /// The sweep agrees with comparing every pair, on random rectangles
+    /// (lattices with gaps, touching edges, shifted and empty ones).
+    #[test]
+    fn sweep_finds_the_overlaps_pairs_find() {
+        let mut seed = 0x2545_f491_4f6c_dd1du64;
+        let mut next = |n: u64| {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed % n) as i64
+        };
+        let mut found = 0;
+        for case in 0..2000 {
+            let n = 1 + next(12) as usize;
+            let mut ws = Vec::new();
+            for _ in 0..n {
+                let (c, r) = if case % 2 == 0 {
+                    (4 * next(5), 4 * next(5))
+                } else {
+                    (next(16), next(16))
+                };
+                let (w, h) = if case % 2 == 0 {
+                    (4 - (next(9) / 8), 4)
+                } else {
+                    (next(7), next(7))
+                };
+                ws.push(Window::new(c, r, w as usize, h as usize));
+            }
+            let pairs = (0..ws.len()).any(|i| (0..i).any(|j| ws[i].intersect(&ws[j]).is_some()));
+            assert_eq!(any_overlap(&ws), pairs, "case {case}: {ws:?}");
+            found += usize::from(pairs);
+        }
+        assert!(found > 100 && found < 1900, "{found} overlapping cases");
+    }
+
+    #[test]
+    fn a_lattice_does_not_overlap() {
+        let ws: Vec<Window> = (0..64)
+            .flat_map(|r| (0..64).map(move |c| Window::new(c * 16, r * 16, 16, 16)))
+            .collect();
+        assert!(!any_overlap(&ws));
+        let mut shifted = ws.clone();
+        shifted[1000].col += 1;
+        assert!(any_overlap(&shifted));
+    }
 }

@@ -176,10 +176,25 @@ pub fn vertical_of_srs(
 }
 
 /// The vertical CRS named by an EPSG code (GeoTIFF's
-/// `VerticalCSTypeGeoKey`): its name and unit.
+/// `VerticalCSTypeGeoKey`): its name and unit. Looked up in PROJ's
+/// database once per code and process (every tile of a directory names
+/// the same one).
 pub fn vertical_of_epsg(code: u32) -> Option<(String, Option<(String, f64)>)> {
-    let srs = crate::raster::crs::srs_from_epsg(code).ok()?;
-    vertical_of_srs(&srs)
+    use std::collections::HashMap;
+    use std::sync::{Mutex, OnceLock};
+    type Found = Option<(String, Option<(String, f64)>)>;
+    static CACHE: OnceLock<Mutex<HashMap<u32, Found>>> = OnceLock::new();
+    let cache = CACHE.get_or_init(Default::default);
+    if let Some(hit) = cache.lock().ok().and_then(|c| c.get(&code).cloned()) {
+        return hit;
+    }
+    let found = crate::raster::crs::srs_from_epsg(code)
+        .ok()
+        .and_then(|srs| vertical_of_srs(&srs));
+    if let Ok(mut c) = cache.lock() {
+        c.entry(code).or_insert_with(|| found.clone());
+    }
+    found
 }
 
 /// Give band 1 of `dst` the scale, offset and unit of band 1 of `src`

@@ -44,6 +44,59 @@ impl Scene {
         Self::open_for(dem, vp, max_distance, k, Some(camera))
     }
 
+    /// Like [`Scene::open_in_view`], reading only the cells the terrain
+    /// keeps: the camera's horizontal wedge within the maximum distance
+    /// (its bounding box, [`LocalTerrain::extent_in`]), not the whole
+    /// square around the eye. The scene's window is that box. The terrain
+    /// is the one [`Scene::open_in_view`] builds (the same vertices, with
+    /// the same bits: the frame is resolved on the square's grid and moved
+    /// by whole cells), for a fraction of the reading where the view looks
+    /// across a large DEM. For work that renders and casts along the
+    /// camera's rays only (`view` without a viewshed).
+    pub fn open_wedge(
+        dem: &Dem,
+        vp: &Viewpoint,
+        max_distance: Option<f64>,
+        k: f64,
+        camera: &crate::view::Camera,
+    ) -> Result<Scene, RenderError> {
+        let name = dem.path.display().to_string();
+        let georef = Georef::for_crs(&dem.crs, &name)?;
+        let max_d = max_distance.filter(|d| d.is_finite() && *d > 0.0);
+        let square = Self::window_of(dem, &georef, vp.lon, vp.lat, max_d)?;
+        // The grid of the square, as `read_height_map` would georeference it.
+        let gt = dem
+            .geotransform
+            .offset(square.col as f64, square.row as f64);
+        let size = (square.width, square.height);
+        // Where the eye is and what it sees need no heights: the wedge is
+        // found first (with any ground), then only it is read.
+        let probe = georef.local_frame_on(vp, &gt, size, &|_, _| Some(0.0), k)?;
+        let (c0, r0, c1, r1) = LocalTerrain::extent_in(size, &probe, max_d, Some(camera));
+        let win = Window::new(
+            square.col + c0 as i64,
+            square.row + r0 as i64,
+            c1 - c0,
+            r1 - r0,
+        );
+        let window = dem.read_height_map(win)?;
+        // The ground under the eye from the wedge's cells (it holds the eye
+        // and the cells around it), at the square's pixel moved by whole
+        // cells: the same bilinear weights.
+        let ground = |px: f64, py: f64| window.bilinear(px - c0 as f64, py - r0 as f64);
+        let frame = georef
+            .local_frame_on(vp, &gt, size, &ground, k)?
+            .shifted(c0, r0);
+        let terrain = LocalTerrain::over(&window, &frame, max_d);
+        Ok(Scene {
+            window,
+            window_offset: (win.col, win.row),
+            georef,
+            frame,
+            terrain,
+        })
+    }
+
     /// The window of `dem` a view from `(lon, lat)` reads: the cells
     /// within `max_distance` metres of it (a square in metres on the
     /// ground, grown by two cells; the whole DEM without a limit). Fails

@@ -111,39 +111,51 @@ impl LocalTerrain {
         Self::build(dem, frame, max_distance, Some(camera))
     }
 
+    /// The terrain of all of `dem` (no extent computed): `dem` is already
+    /// the part the terrain covers, `extent_in` of the grid `frame` was
+    /// resolved on ([`LocalTerrain::extent_in`]) read alone, and `frame`
+    /// expressed for it ([`LocalFrame::shifted`]). Built so, the terrain
+    /// has the same vertices, with the same bits, as
+    /// [`LocalTerrain::in_view`] on the whole grid.
+    pub fn over(dem: &HeightMap, frame: &LocalFrame, max_distance: Option<f64>) -> Self {
+        let max_d = max_distance.filter(|d| *d > 0.0).unwrap_or(f64::INFINITY);
+        Self::build_over(dem, frame, max_d, (0, 0, dem.width, dem.height))
+    }
+
+    /// The cells `(c0, r0, c1, r1)` (end exclusive) of a grid of `size`
+    /// cells that [`LocalTerrain::in_view`] (`camera` given) or
+    /// [`LocalTerrain::new`] would keep around `frame`'s eye: within the
+    /// maximum distance, and within the camera's horizontal wedge.
+    pub fn extent_in(
+        size: (usize, usize),
+        frame: &LocalFrame,
+        max_distance: Option<f64>,
+        camera: Option<&crate::view::Camera>,
+    ) -> (usize, usize, usize, usize) {
+        let max_d = max_distance.filter(|d| *d > 0.0).unwrap_or(f64::INFINITY);
+        extent(size, frame, max_d, camera)
+    }
+
     fn build(
         dem: &HeightMap,
         frame: &LocalFrame,
         max_distance: Option<f64>,
         camera: Option<&crate::view::Camera>,
     ) -> Self {
-        let p = frame.p;
-        let det = p[0][0] * p[1][1] - p[0][1] * p[1][0];
-        let pinv = [
-            [p[1][1] / det, -p[0][1] / det],
-            [-p[1][0] / det, p[0][0] / det],
-        ];
         let max_d = max_distance.filter(|d| *d > 0.0).unwrap_or(f64::INFINITY);
+        let cells = extent((dem.width, dem.height), frame, max_d, camera);
+        Self::build_over(dem, frame, max_d, cells)
+    }
+
+    fn build_over(
+        dem: &HeightMap,
+        frame: &LocalFrame,
+        max_d: f64,
+        (c0, r0, c1, r1): (usize, usize, usize, usize),
+    ) -> Self {
+        let p = frame.p;
+        let pinv = inverse_2x2(p);
         let (ex, ey) = frame.eye_pixel;
-        let (mut c0, mut r0, mut c1, mut r1) = (0usize, 0usize, dem.width, dem.height);
-        if max_d.is_finite() {
-            // Pixel half-extents of a circle of radius max_d.
-            let rx = max_d * pinv[0][0].hypot(pinv[0][1]) + 2.0;
-            let ry = max_d * pinv[1][0].hypot(pinv[1][1]) + 2.0;
-            c0 = (ex - rx).floor().max(0.0) as usize;
-            r0 = (ey - ry).floor().max(0.0) as usize;
-            c1 = ((ex + rx).ceil().max(0.0) as usize).min(dem.width);
-            r1 = ((ey + ry).ceil().max(0.0) as usize).min(dem.height);
-        }
-        if let Some((a, b, c, d)) = camera.and_then(|cam| view_wedge_box(dem, frame, max_d, cam)) {
-            (c0, r0, c1, r1) = (c0.max(a), r0.max(b), c1.min(c), r1.min(d));
-            if c1 <= c0 || r1 <= r0 {
-                // the wedge misses the DEM: keep the eye's cell
-                c0 = (ex.floor().max(0.0) as usize).min(dem.width.saturating_sub(1));
-                r0 = (ey.floor().max(0.0) as usize).min(dem.height.saturating_sub(1));
-                (c1, r1) = (c0 + 1, r0 + 1);
-            }
-        }
         let nx = c1.saturating_sub(c0).max(1);
         let ny = r1.saturating_sub(r0).max(1);
         let coef = frame.curvature.coefficient();
@@ -900,21 +912,65 @@ fn quadratic_roots(a: f64, b: f64, c: f64) -> [Option<f64>; 2] {
     [Some(q / a), Some(c / q)]
 }
 
+/// The inverse of the 2 x 2 matrix `p` (a frame's local metres -> pixel
+/// map, inverted: pixel -> local metres, or the reverse).
+fn inverse_2x2(p: [[f64; 2]; 2]) -> [[f64; 2]; 2] {
+    let det = p[0][0] * p[1][1] - p[0][1] * p[1][0];
+    [
+        [p[1][1] / det, -p[0][1] / det],
+        [-p[1][0] / det, p[0][0] / det],
+    ]
+}
+
 impl Drop for LocalTerrain {
     fn drop(&mut self) {
         buffer_pool::recycle_f32(std::mem::take(&mut self.z));
     }
 }
 
-/// The pyramid over `base` (`w` x `h` block maxima): each level the max of
-/// 2 x 2 blocks of the one below, up to a single block.
+/// The cells a terrain keeps of a grid of `(width, height)` cells: those
+/// within `max_d` of `frame`'s eye, and within `camera`'s wedge if given
+/// (see [`LocalTerrain::in_view`]).
+fn extent(
+    (width, height): (usize, usize),
+    frame: &LocalFrame,
+    max_d: f64,
+    camera: Option<&crate::view::Camera>,
+) -> (usize, usize, usize, usize) {
+    let p = frame.p;
+    let pinv = inverse_2x2(p);
+    let (ex, ey) = frame.eye_pixel;
+    let (mut c0, mut r0, mut c1, mut r1) = (0usize, 0usize, width, height);
+    if max_d.is_finite() {
+        // Pixel half-extents of a circle of radius max_d.
+        let rx = max_d * pinv[0][0].hypot(pinv[0][1]) + 2.0;
+        let ry = max_d * pinv[1][0].hypot(pinv[1][1]) + 2.0;
+        c0 = (ex - rx).floor().max(0.0) as usize;
+        r0 = (ey - ry).floor().max(0.0) as usize;
+        c1 = ((ex + rx).ceil().max(0.0) as usize).min(width);
+        r1 = ((ey + ry).ceil().max(0.0) as usize).min(height);
+    }
+    if let Some((a, b, c, d)) =
+        camera.and_then(|cam| view_wedge_box((width, height), frame, max_d, cam))
+    {
+        (c0, r0, c1, r1) = (c0.max(a), r0.max(b), c1.min(c), r1.min(d));
+        if c1 <= c0 || r1 <= r0 {
+            // the wedge misses the DEM: keep the eye's cell
+            c0 = (ex.floor().max(0.0) as usize).min(width.saturating_sub(1));
+            r0 = (ey.floor().max(0.0) as usize).min(height.saturating_sub(1));
+            (c1, r1) = (c0 + 1, r0 + 1);
+        }
+    }
+    (c0, r0, c1, r1)
+}
+
 #[allow(clippy::type_complexity)]
 /// The pixel box `(c0, r0, c1, r1)` (end exclusive, clipped to `dem`) of
 /// the horizontal wedge `camera` sees from `frame`'s eye out to `max_d`
 /// (the far corner of `dem` when infinite), or `None` when the azimuths of
 /// its pixel rays span more than a half-turn or a ray is nearly vertical.
 fn view_wedge_box(
-    dem: &HeightMap,
+    (width, height): (usize, usize),
     frame: &LocalFrame,
     max_d: f64,
     camera: &crate::view::Camera,
@@ -962,7 +1018,7 @@ fn view_wedge_box(
     let radius = if max_d.is_finite() {
         max_d
     } else {
-        let (wd, hd) = (dem.width as f64, dem.height as f64);
+        let (wd, hd) = (width as f64, height as f64);
         [(0.0, 0.0), (wd, 0.0), (0.0, hd), (wd, hd)]
             .iter()
             .map(|&(x, y)| {
@@ -999,13 +1055,15 @@ fn view_wedge_box(
     let pad = 3.0;
     let clip = |v: f64, n: usize| (v.max(0.0) as usize).min(n);
     Some((
-        clip((x0 - pad).floor(), dem.width),
-        clip((y0 - pad).floor(), dem.height),
-        clip((x1 + pad).ceil(), dem.width),
-        clip((y1 + pad).ceil(), dem.height),
+        clip((x0 - pad).floor(), width),
+        clip((y0 - pad).floor(), height),
+        clip((x1 + pad).ceil(), width),
+        clip((y1 + pad).ceil(), height),
     ))
 }
 
+/// The pyramid over `base` (`w` x `h` block maxima): each level the max of
+/// 2 x 2 blocks of the one below, up to a single block.
 fn max_pyramid(base: Vec<f32>, w: usize, h: usize) -> (Vec<Vec<f32>>, Vec<(usize, usize)>) {
     let mut mip = vec![base];
     let mut dims = vec![(w.max(1), h.max(1))];

@@ -572,6 +572,31 @@ fn validate_options(o: &SketchOptions) -> Result<(), String> {
 }
 
 impl ViewSpec {
+    /// The viewpoint of this view, its eye height resolved.
+    pub fn eye(&self) -> crate::view::Viewpoint {
+        crate::view::Viewpoint {
+            lon: self.viewpoint.lon,
+            lat: self.viewpoint.lat,
+            height: match self.viewpoint.height() {
+                EyeHeightSpec::AboveSurface(h) => crate::view::EyeHeight::AboveSurface(h),
+                EyeHeightSpec::Absolute(a) => crate::view::EyeHeight::Absolute(a),
+            },
+        }
+    }
+
+    /// The camera of this view.
+    pub fn pinhole(&self) -> Result<crate::view::Camera, crate::view::ViewError> {
+        let c = &self.camera;
+        crate::view::Camera::new(
+            c.width as usize,
+            c.height as usize,
+            c.heading_deg,
+            c.pitch_deg,
+            c.roll_deg,
+            c.hfov_deg,
+        )
+    }
+
     /// Prepares this view's strokes (orientation, fold-back handling,
     /// resampling, tangents) with the sketch's options. Returns the strokes
     /// and notes about split strokes; a rejected fold-back is an error that

@@ -218,20 +218,42 @@ impl Georef {
         dem: &HeightMap,
         refraction_k: f64,
     ) -> Result<LocalFrame, ViewError> {
+        self.local_frame_on(
+            vp,
+            &dem.geotransform,
+            (dem.width, dem.height),
+            &|px, py| dem.bilinear(px, py),
+            refraction_k,
+        )
+    }
+
+    /// [`Georef::local_frame`] on a grid of `size` cells with geotransform
+    /// `gt` whose heights are not all in memory: `ground(px, py)` is the
+    /// bilinear surface at pixel `(px, py)` of that grid (read from a
+    /// smaller window around the eye, see [`crate::render::Scene`]).
+    pub fn local_frame_on(
+        &self,
+        vp: &Viewpoint,
+        gt: &crate::raster::GeoTransform,
+        size: (usize, usize),
+        ground: &dyn Fn(f64, f64) -> Option<f64>,
+        refraction_k: f64,
+    ) -> Result<LocalFrame, ViewError> {
+        let (width, height) = size;
         let (x, y) = self.lonlat_to_crs(vp.lon, vp.lat)?;
         let outside = || ViewError::OutsideDem {
             dem: self.dem.clone(),
             lon: vp.lon,
             lat: vp.lat,
         };
-        let (px, py) = dem.geotransform.crs_to_pixel(x, y).ok_or_else(outside)?;
-        if !(px >= 0.0 && py >= 0.0 && px < dem.width as f64 && py < dem.height as f64) {
+        let (px, py) = gt.crs_to_pixel(x, y).ok_or_else(outside)?;
+        if !(px >= 0.0 && py >= 0.0 && px < width as f64 && py < height as f64) {
             return Err(outside());
         }
         // Bilinear surface; in the outer half cell clamp to the cell centres.
-        let cx = px.clamp(0.5, dem.width as f64 - 0.5);
-        let cy = py.clamp(0.5, dem.height as f64 - 0.5);
-        let ground = dem.bilinear(cx, cy).ok_or_else(|| ViewError::OnNodata {
+        let cx = px.clamp(0.5, width as f64 - 0.5);
+        let cy = py.clamp(0.5, height as f64 - 0.5);
+        let ground = ground(cx, cy).ok_or_else(|| ViewError::OnNodata {
             dem: self.dem.clone(),
             lon: vp.lon,
             lat: vp.lat,
@@ -262,7 +284,7 @@ impl Georef {
             eye_alt,
             m,
             Curvature::at_latitude(vp.lat, refraction_k),
-            dem,
+            gt,
         ))
     }
 }
@@ -329,9 +351,9 @@ impl LocalFrame {
         eye_alt: f64,
         m: [[f64; 2]; 2],
         curvature: Curvature,
-        dem: &HeightMap,
+        geotransform: &crate::raster::GeoTransform,
     ) -> Self {
-        let g = dem.geotransform.0;
+        let g = geotransform.0;
         let gt = [[g[1], g[2]], [g[4], g[5]]];
         LocalFrame {
             lon,
@@ -369,7 +391,7 @@ impl LocalFrame {
             eye_alt,
             [[1.0, 0.0], [0.0, 1.0]],
             curvature,
-            dem,
+            &dem.geotransform,
         )
     }
 
@@ -383,6 +405,17 @@ impl LocalFrame {
             .geotransform
             .crs_to_pixel(self.eye_crs.0, self.eye_crs.1)
             .unwrap_or((f64::NAN, f64::NAN));
+        f
+    }
+
+    /// Same frame for the window that starts `(col, row)` cells into the
+    /// grid this one was resolved on: the eye's pixel is moved by whole
+    /// cells (exactly, in floating point), everything else is kept, so
+    /// that vertex positions relative to the eye come out with the same
+    /// bits in both grids.
+    pub fn shifted(&self, col: usize, row: usize) -> Self {
+        let mut f = *self;
+        f.eye_pixel = (self.eye_pixel.0 - col as f64, self.eye_pixel.1 - row as f64);
         f
     }
 

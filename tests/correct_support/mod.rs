@@ -282,3 +282,40 @@ pub fn correct_succeeds(dem: &Path, features: &Path, out: &Path, extra: &[&str])
     let o = super::common::demsketch(&args);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 }
+
+/// Splits `src` into an `n` x `n` tile set in `dir` (`tile_{row}_{col}.tif`,
+/// `gdal_translate -srcwin`), for the seam tests.
+pub fn split(src: &Path, dir: &Path, n: usize) {
+    let r = Raster::read(src);
+    for ty in 0..n {
+        for tx in 0..n {
+            let (x0, x1) = (r.w * tx / n, r.w * (tx + 1) / n);
+            let (y0, y1) = (r.h * ty / n, r.h * (ty + 1) / n);
+            let win = [x0, y0, x1 - x0, y1 - y0].map(|v| v.to_string());
+            let dst = dir.join(format!("tile_{ty}_{tx}.tif"));
+            super::common::gdal_translate(
+                src,
+                &dst,
+                &["-srcwin", &win[0], &win[1], &win[2], &win[3]],
+            );
+        }
+    }
+}
+
+/// A VRT (`gdalbuildvrt`) over the GeoTIFF tiles of `dir`, written to
+/// `vrt`; returns how many tiles it holds.
+pub fn vrt_of_tiles(dir: &Path, vrt: &Path) -> usize {
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .flatten()
+        .map(|e| e.path().to_string_lossy().into_owned())
+        .filter(|p| p.ends_with(".tif"))
+        .collect();
+    names.sort();
+    let n = names.len();
+    let mut args = vec!["-q".to_string(), vrt.to_string_lossy().into_owned()];
+    args.extend(names);
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    super::common::run("gdalbuildvrt", &args);
+    n
+}

@@ -287,7 +287,10 @@ impl GeoKeys {
 
     /// The CRS these keys describe. EPSG codes are resolved through GDAL's
     /// PROJ database to WKT; user-defined projections are built as PROJ
-    /// strings, validated by PROJ and converted to WKT.
+    /// strings, validated by PROJ and converted to WKT. Each distinct
+    /// definition is looked up once per process ([`resolved`]): the tiles
+    /// of a directory share one CRS, and a PROJ look-up costs more than
+    /// reading a small tile's header.
     pub fn crs(&self, path: &Path) -> Result<Crs, RasterError> {
         let geographic = self.is_geographic();
         let crs_err = |message: String| RasterError::Crs {
@@ -295,14 +298,18 @@ impl GeoKeys {
             message,
         };
         if let Some(code) = self.epsg() {
-            let srs = crate::raster::crs::srs_from_epsg(code)
-                .map_err(|e| crs_err(format!("EPSG:{code} is not a known CRS ({e})")))?;
-            return Ok(Crs {
-                epsg: Some(code),
-                wkt: srs.to_wkt().unwrap_or_default(),
-                proj: None,
-                geographic,
-            });
+            let key = CrsKey::Epsg(code, geographic);
+            return resolved(key, || {
+                let srs = crate::raster::crs::srs_from_epsg(code)
+                    .map_err(|e| format!("EPSG:{code} is not a known CRS ({e})"))?;
+                Ok(Crs {
+                    epsg: Some(code),
+                    wkt: srs.to_wkt().unwrap_or_default(),
+                    proj: None,
+                    geographic,
+                })
+            })
+            .map_err(crs_err);
         }
         let definition = if geographic {
             format!("+proj=longlat {} +no_defs +type=crs", self.ellipsoid_proj())
@@ -323,20 +330,54 @@ impl GeoKeys {
                 }
             }
         };
-        // PROJ (through GDAL's OSR, which frees what it made on failure,
-        // unlike the proj crate's constructor) checks the definition.
-        let wkt = crate::raster::crs::srs_from_proj4(&definition)
-            .and_then(|s| s.to_wkt().map_err(|e| e.to_string()))
-            .map_err(|e| {
-                crs_err(format!(
-                    "PROJ rejects the CRS built from the GeoKeys '{definition}': {e}"
-                ))
-            })?;
-        Ok(Crs {
-            epsg: None,
-            wkt,
-            proj: Some(definition),
-            geographic,
+        let key = CrsKey::Proj(definition.clone(), geographic);
+        resolved(key, || {
+            // PROJ (through GDAL's OSR, which frees what it made on
+            // failure, unlike the proj crate's constructor) checks the
+            // definition.
+            let wkt = crate::raster::crs::srs_from_proj4(&definition)
+                .and_then(|s| s.to_wkt().map_err(|e| e.to_string()))
+                .map_err(|e| {
+                    format!("PROJ rejects the CRS built from the GeoKeys '{definition}': {e}")
+                })?;
+            Ok(Crs {
+                epsg: None,
+                wkt,
+                proj: Some(definition.clone()),
+                geographic,
+            })
         })
+        .map_err(crs_err)
     }
+}
+
+/// What a CRS built from GeoKeys depends on: the EPSG code, or the PROJ
+/// definition built from the user-defined keys (and whether it is
+/// geographic).
+#[derive(Debug, Clone, PartialEq, Eq, Hash)]
+enum CrsKey {
+    Epsg(u32, bool),
+    Proj(String, bool),
+}
+
+/// The CRS (or the message of the error) for `key`, built by `build` the
+/// first time the process sees it. PROJ's database does not change while
+/// the process runs, so the answer is the same for every tile naming it.
+fn resolved(key: CrsKey, build: impl FnOnce() -> Result<Crs, String>) -> Result<Crs, String> {
+    use std::sync::{Arc, Mutex, OnceLock};
+    type Cache = Mutex<HashMap<CrsKey, Arc<Result<Crs, String>>>>;
+    static CACHE: OnceLock<Cache> = OnceLock::new();
+    let cache = CACHE.get_or_init(Default::default);
+    // Only the shared answer is taken under the lock; it is copied after.
+    let hit = cache.lock().ok().and_then(|c| c.get(&key).cloned());
+    if let Some(hit) = hit {
+        return (*hit).clone();
+    }
+    // Built outside the lock: tiles opened in parallel may build the same
+    // CRS twice at first, with the same result.
+    let value = build();
+    if let Ok(mut c) = cache.lock() {
+        c.entry(key).or_insert_with(|| Arc::new(value.clone()));
+    }
+    value
 }

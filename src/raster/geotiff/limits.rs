@@ -73,10 +73,15 @@ fn vm_size() -> Option<u64> {
 /// The `tiff` decoder's limits for a file of `file_len` bytes: no tag value
 /// list longer than the file could hold, and never more than the budget.
 pub fn decoder_limits(file_len: u64) -> Limits {
+    decoder_limits_within(file_len, memory_budget())
+}
+
+/// [`decoder_limits`] under a budget already computed.
+pub(super) fn decoder_limits_within(file_len: u64, budget: u64) -> Limits {
     let per_value = std::mem::size_of::<tiff::decoder::ifd::Value>() as u64;
     let bound = file_len
         .saturating_mul(per_value)
-        .clamp(1 << 20, memory_budget().max(1 << 20));
+        .clamp(1 << 20, budget.max(1 << 20));
     let bound = usize::try_from(bound).unwrap_or(usize::MAX);
     let mut l = Limits::default();
     l.decoding_buffer_size = bound;

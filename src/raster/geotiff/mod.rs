@@ -30,6 +30,9 @@ use super::{Crs, GeoTransform, RasterError, SampleType, Vertical};
 const TAG_GDAL_METADATA: u16 = 42112;
 const TAG_GDAL_NODATA: u16 = 42113;
 
+/// Files up to this size are read into memory at open rather than mapped.
+const SMALL_FILE: u64 = 64 << 10;
+
 /// How a TIFF's pixels are cut into blocks.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct BlockLayout {
@@ -133,20 +136,51 @@ impl GeoTiff {
     /// are not TIFF, are truncated, lack a georeference or use an encoding
     /// this reader does not decode.
     pub fn open(path: &Path) -> Result<GeoTiff, RasterError> {
-        let file = std::fs::File::open(path).map_err(|e| RasterError::io(path, e))?;
+        Self::open_with_budget(path, memory_budget())
+    }
+
+    /// [`GeoTiff::open`] with the memory budget given ([`memory_budget`]
+    /// reads four files of `/proc`: a directory of tiles computes it once).
+    pub fn open_with_budget(path: &Path, budget: u64) -> Result<GeoTiff, RasterError> {
+        use std::io::Read;
+        let mut file = std::fs::File::open(path).map_err(|e| RasterError::io(path, e))?;
+        // A small file is read: mapping it, faulting its pages in and
+        // unmapping it (a TLB shoot-down on every core) cost several times
+        // reading a few pages, and a directory of small tiles opens
+        // thousands. The first read says which it is (no stat).
+        thread_local! {
+            static HEAD: std::cell::RefCell<Vec<u8>> = const { std::cell::RefCell::new(Vec::new()) };
+        }
+        let small = HEAD.with(|head| -> std::io::Result<Option<Vec<u8>>> {
+            let mut head = head.borrow_mut();
+            head.resize(SMALL_FILE as usize + 1, 0);
+            let mut got = 0;
+            while got < head.len() {
+                match file.read(&mut head[got..]) {
+                    Ok(0) => break,
+                    Ok(n) => got += n,
+                    Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                    Err(e) => return Err(e),
+                }
+            }
+            Ok((got <= SMALL_FILE as usize).then(|| head[..got].to_vec()))
+        });
+        if let Some(data) = small.map_err(|e| RasterError::io(path, e))? {
+            return Self::parse(path, Arc::new(Bytes::Owned(data)), budget);
+        }
         // SAFETY: the map is read-only; a file truncated by another process
         // while mapped is outside what any GIS reader can guard against.
         let map = unsafe { Mmap::map(&file) }.map_err(|e| RasterError::io(path, e))?;
-        Self::parse(path, Arc::new(Bytes::Map(map)))
+        Self::parse(path, Arc::new(Bytes::Map(map)), budget)
     }
 
     /// Parse a GeoTIFF held in memory (`label` names it in errors): what
     /// the fuzz harness runs on.
     pub fn from_bytes(label: &Path, data: Vec<u8>) -> Result<GeoTiff, RasterError> {
-        Self::parse(label, Arc::new(Bytes::Owned(data)))
+        Self::parse(label, Arc::new(Bytes::Owned(data)), memory_budget())
     }
 
-    fn parse(path: &Path, bytes: Arc<Bytes>) -> Result<GeoTiff, RasterError> {
+    fn parse(path: &Path, bytes: Arc<Bytes>, budget: u64) -> Result<GeoTiff, RasterError> {
         if bytes.len() < 8 || !(bytes.starts_with(b"II") || bytes.starts_with(b"MM")) {
             return Err(RasterError::NotTiff {
                 path: path.to_path_buf(),
@@ -159,7 +193,7 @@ impl GeoTiff {
         }
         let mut dec = Decoder::new(Cursor::new(&bytes[..]))
             .map_err(|e| tiff_err(path, e))?
-            .with_limits(decoder_limits(bytes.len() as u64));
+            .with_limits(limits::decoder_limits_within(bytes.len() as u64, budget));
 
         // Walk the IFD chain: the first full-resolution, non-mask image is
         // the DEM; reduced-resolution images are its overviews.
@@ -197,7 +231,7 @@ impl GeoTiff {
         })?;
         dec.seek_to_image(ifd_index)
             .map_err(|e| tiff_err(path, e))?;
-        Self::describe(path, bytes.clone(), dec, ifd_index, overviews)
+        Self::describe(path, bytes.clone(), dec, ifd_index, overviews, budget)
     }
 
     fn describe(
@@ -206,6 +240,7 @@ impl GeoTiff {
         mut dec: Decoder<Cursor<&[u8]>>,
         ifd_index: usize,
         overviews: Vec<(u32, u32)>,
+        budget: u64,
     ) -> Result<GeoTiff, RasterError> {
         let p = path;
         let unsupported = |what: String| RasterError::Unsupported {
@@ -216,12 +251,7 @@ impl GeoTiff {
         // count would otherwise make the decoder reserve gigabytes).
         let file_len = bytes.len() as u64;
         if let Some(ptr) = dec.ifd_pointer() {
-            let dir = dec.read_directory(ptr).map_err(|e| tiff_err(p, e))?;
-            let over = dir
-                .iter()
-                .find(|(_, e)| e.count() > file_len)
-                .map(|(tag, e)| (tag.to_u16(), e.count()));
-            if let Some((tag, count)) = over {
+            if let Some((tag, count)) = oversized_entry(&bytes, ptr.0) {
                 return Err(RasterError::Corrupt {
                     path: p.to_path_buf(),
                     detail: format!(
@@ -341,7 +371,6 @@ impl GeoTiff {
             blocks_down: height.div_ceil(bh),
         };
         let block_bytes = bw as u64 * bh as u64 * sample_type.bytes() as u64;
-        let budget = memory_budget();
         if block_bytes > budget {
             return Err(RasterError::TooLarge {
                 path: p.to_path_buf(),
@@ -626,6 +655,44 @@ impl GeoTiff {
     pub fn decoded_row_len(&self, index: u32) -> usize {
         self.block_extent(index).2 as usize
     }
+}
+
+/// The entry of the image file directory at `offset` that claims the most
+/// values beyond the file's size, as `(tag, count)` (the lowest such tag):
+/// read from the directory's bytes (its entries' counts), without decoding
+/// it again. `None` when every count fits, or the directory cannot be read
+/// (the decoder, which read it already, says what is wrong then).
+fn oversized_entry(bytes: &[u8], offset: u64) -> Option<(u16, u64)> {
+    let little = bytes.get(..2)? == b"II";
+    let big = {
+        let v = bytes.get(2..4)?;
+        (if little { v[0] } else { v[1] }) == 43
+    };
+    let uint = |at: usize, n: usize| -> Option<u64> {
+        let b = bytes.get(at..at.checked_add(n)?)?;
+        Some(if little {
+            b.iter().rev().fold(0u64, |v, &x| (v << 8) | u64::from(x))
+        } else {
+            b.iter().fold(0u64, |v, &x| (v << 8) | u64::from(x))
+        })
+    };
+    let at = usize::try_from(offset).ok()?;
+    let (entries, first, size, count_at, count_len) = if big {
+        (uint(at, 8)?, at + 8, 20, 4, 8)
+    } else {
+        (uint(at, 2)?, at + 2, 12, 4, 4)
+    };
+    let file_len = bytes.len() as u64;
+    let mut worst: Option<(u16, u64)> = None;
+    for i in 0..usize::try_from(entries).ok()? {
+        let e = first.checked_add(i.checked_mul(size)?)?;
+        let tag = u16::try_from(uint(e, 2)?).ok()?;
+        let count = uint(e + count_at, count_len)?;
+        if count > file_len && worst.is_none_or(|(t, _)| tag < t) {
+            worst = Some((tag, count));
+        }
+    }
+    worst
 }
 
 /// Parse a `GDAL_NODATA` string the way GDAL does ("nan", "-inf", numbers).
