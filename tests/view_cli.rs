@@ -358,3 +358,48 @@ fn locate_prints_the_terrain_point_as_json() {
     );
     assert!(h > 1000.0 && h < 3000.0 && dist > 0.0 && dist < 20_000.0);
 }
+
+/// `--viewshed-exact` writes the exact reference; the default sweep agrees
+/// with it on at least 99 % of the cells; both are Byte GeoTIFFs on the
+/// DEM's grid, read with GDAL.
+#[test]
+fn viewshed_exact_flag_and_the_sweep_agree() {
+    let dir = tempfile::tempdir().unwrap();
+    let read = |extra: &[&str], name: &str| -> Vec<u8> {
+        let p = dir.path().join(name);
+        let png = dir.path().join(format!("{name}.png"));
+        let mut args = vec![
+            "view".to_string(),
+            fixture(ZION).to_string_lossy().into_owned(),
+            "--lon".into(),
+            "-113.0463".into(),
+            "--lat".into(),
+            "37.3225".into(),
+            "--size".into(),
+            "64x32".into(),
+            "--out".into(),
+            png.to_string_lossy().into_owned(),
+            "--viewshed".into(),
+            p.to_string_lossy().into_owned(),
+        ];
+        args.extend(extra.iter().map(|s| s.to_string()));
+        let refs: Vec<&str> = args.iter().map(|s| s.as_str()).collect();
+        let out = demsketch(&refs);
+        assert!(out.status.success(), "{}", stderr_line(&out));
+        let ds = gdal::Dataset::open(&p).unwrap();
+        let band = ds.rasterband(1).unwrap();
+        assert_eq!(band.band_type(), gdal::raster::GdalDataType::UInt8);
+        let (w, h) = band.size();
+        band.read_as::<u8>((0, 0), (w, h), (w, h), None)
+            .unwrap()
+            .data()
+            .to_vec()
+    };
+    let sweep = read(&[], "sweep.tif");
+    let exact = read(&["--viewshed-exact"], "exact.tif");
+    assert_eq!(sweep.len(), exact.len());
+    let same = sweep.iter().zip(&exact).filter(|(a, b)| a == b).count();
+    let frac = same as f64 / sweep.len() as f64;
+    assert!(frac >= 0.99, "agreement {frac}");
+    assert!(exact.iter().any(|&v| v == 255));
+}

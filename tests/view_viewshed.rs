@@ -147,6 +147,30 @@ fn viewshed_respects_max_distance_and_writes_geotiff() {
     let ds = gdal::Dataset::open(&p).unwrap();
     assert_eq!(ds.geo_transform().unwrap(), dem.geotransform.0);
     assert_eq!(ds.raster_size(), (dem.width, dem.height));
+    let band = ds.rasterband(1).unwrap();
+    let back = band
+        .read_as::<u8>(
+            (0, 0),
+            (dem.width, dem.height),
+            (dem.width, dem.height),
+            None,
+        )
+        .unwrap();
+    assert_eq!(back.data(), &vs.data[..], "values read back by GDAL");
+    if have_tool("gdalinfo") {
+        let out = std::process::Command::new("gdalinfo")
+            .arg(&p)
+            .output()
+            .unwrap();
+        assert!(out.status.success());
+        let info = String::from_utf8_lossy(&out.stdout);
+        assert!(info.contains("Driver: GTiff"), "{info}");
+        assert!(info.contains("Type=Byte"), "{info}");
+        assert!(
+            info.contains(&format!("Size is {}, {}", dem.width, dem.height)),
+            "{info}"
+        );
+    }
 }
 
 /// Share of valid cells on which the sweep ([`viewshed`]) and one exact
@@ -199,4 +223,40 @@ fn sweep_agrees_with_exact_lines_of_sight_on_real_dems() {
         .map(|&(n, c, r)| sweep_against_exact(n, c, r))
         .fold(1.0f64, f64::min);
     assert!(worst >= 0.99, "worst agreement {worst}");
+}
+
+/// With a target far above the terrain every valid cell is visible: the
+/// sweep must decide every cell (each vertex is owned by exactly one ray,
+/// holes on a ray included), from viewpoints in the middle, near an edge
+/// and on a DEM with nodata.
+#[test]
+fn sweep_decides_every_cell() {
+    for (name, col, row) in [
+        ("zion_srtm_utm12n.tif", 210, 103),
+        ("zion_srtm_utm12n.tif", 30, 480),
+        ("vinschgau_250m_utm32n.tif", 101, 110),
+        ("nz_1km_nan_nodata.tif", 600, 800),
+    ] {
+        let dem = load(&fixture(name));
+        let (x, y) = dem
+            .geotransform
+            .pixel_to_crs(col as f64 + 0.5, row as f64 + 0.5);
+        let georef = Georef::new(&dem, name).unwrap();
+        let (lon, lat) = georef.crs_to_lonlat(x, y).unwrap();
+        let frame = georef
+            .local_frame(&Viewpoint::above_surface(lon, lat, 1.7), &dem, 1.0 / 7.0)
+            .unwrap();
+        let terrain = LocalTerrain::new(&dem, &frame, None);
+        let vs = viewshed(&terrain, &dem, 1.0e6);
+        for (i, (&v, h)) in vs.data.iter().zip(&dem.data).enumerate() {
+            let want = if h.is_nan() { 0 } else { 255 };
+            assert_eq!(
+                v,
+                want,
+                "{name} from ({col},{row}): cell ({}, {})",
+                i % dem.width,
+                i / dem.width
+            );
+        }
+    }
 }

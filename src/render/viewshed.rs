@@ -9,18 +9,24 @@
 //!
 //! Two ways to compute it:
 //! - [`viewshed`], the default: a radial sweep in the manner of Franklin and
-//!   Ray's R2 algorithm. One ray from the eye to every vertex on the border
-//!   of the terrain window; along each ray the triangulated surface is a
-//!   polyline whose vertices are the ray's crossings of grid lines and cell
+//!   Ray's R2 algorithm. The grid around the eye is cut into four halves
+//!   (east and west, where `|du| >= |dv|`, rays advancing column by
+//!   column; north and south, row by row). In each, one ray goes from the
+//!   eye to every border vertex of the half, plus the two along its edges
+//!   (slopes -1 and +1). Along a ray the triangulated surface is a polyline
+//!   whose vertices are the ray's crossings of grid lines and cell
 //!   diagonals, and the largest elevation angle of the terrain so far is
 //!   the running maximum over those crossings, exactly (between two
 //!   crossings the height is linear in distance, so `z / s` is monotonic).
-//!   Each cell centre takes the answer of the ray that passes nearest to it
-//!   (within half a cell); cells within [`EXACT_NEAR_CELLS`] of the eye,
-//!   where rays fan out, are cast exactly. The work is one pass over each
-//!   ray instead of one cast per cell: far less than GDAL's sweep, and it
-//!   agrees with exact lines of sight on all but the cells next to a
-//!   horizon (see `tests/view_viewshed.rs`).
+//!   Each ray owns the vertices whose direction from the eye is nearer to
+//!   it than to its two neighbours (a wedge between the bisecting slopes,
+//!   at most about one vertex per line) and decides them from its own point
+//!   on that line: every vertex is written once, by one ray, with no
+//!   per-vertex bookkeeping. Rays advance in bundles of neighbours a few
+//!   lines at a time (the heights they read stay in cache), bundles in
+//!   parallel. Cells within [`EXACT_NEAR_CELLS`] of the eye, where rays fan
+//!   out, are cast exactly. It agrees with exact lines of sight on all but
+//!   the cells next to a horizon (see `tests/view_viewshed.rs`).
 //! - [`viewshed_exact`]: one exact cast ([`LocalTerrain::cast`]) per cell,
 //!   rows in parallel: the reference the sweep is tested against.
 
@@ -30,7 +36,7 @@ use super::RenderError;
 use crate::raster::{Crs, GeoTransform, HeightMap};
 use rayon::prelude::*;
 use std::path::Path;
-use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::atomic::{AtomicU8, Ordering};
 
 /// A viewshed on the grid of the DEM the terrain was built from.
 #[derive(Debug, Clone)]
@@ -74,65 +80,247 @@ pub fn viewshed(terrain: &LocalTerrain, dem: &HeightMap, target_height: f64) -> 
     if nx < 2 || ny < 2 {
         return on_grid(terrain, dem, |c, r| sweep.exact(c, r));
     }
-    // Per vertex, the nearest ray's answer: (offset << 1) | visible,
-    // row-major for rays along columns, column-major for the others.
-    let keys: Vec<AtomicU32> = (0..nx * ny).map(|_| AtomicU32::new(u32::MAX)).collect();
-    let keys_t: Vec<AtomicU32> = (0..nx * ny).map(|_| AtomicU32::new(u32::MAX)).collect();
-    let (eu, ev) = sweep.eye;
-    let (umaj, vmaj): (Vec<_>, Vec<_>) = border_vertices(nx, ny)
-        .into_iter()
-        .partition(|&(c, r)| (c as f64 - eu).abs() >= (r as f64 - ev).abs());
-    umaj.par_iter()
-        .for_each(|&(c, r)| sweep.ray(c as f64, r as f64, &terrain.z, &keys));
-    // Rays that advance along rows read the heights column by column:
-    // from a transposed copy, so that each step reads nearby memory.
-    let zt = transpose(&terrain.z, nx, ny);
-    vmaj.par_iter()
-        .for_each(|&(c, r)| sweep.ray(c as f64, r as f64, &zt, &keys_t));
-    drop(zt);
-    on_grid(terrain, dem, |c, r| {
-        sweep.near_or_invalid(c, r).unwrap_or_else(|| {
-            let k = keys[r * nx + c]
-                .load(Ordering::Relaxed)
-                .min(keys_t[c * ny + r].load(Ordering::Relaxed));
-            // a vertex no ray passed (none should, beyond the near
-            // square): cast it
-            if k == u32::MAX {
-                sweep.exact(c, r)
-            } else {
-                k & 1 == 1
-            }
-        })
-    })
-}
-
-/// Column-major copy of a row-major `nx` x `ny` grid, in cache-sized
-/// blocks, columns in parallel.
-fn transpose(z: &[f32], nx: usize, ny: usize) -> Vec<f32> {
-    const B: usize = 64;
-    let mut out = vec![0f32; nx * ny];
-    out.par_chunks_mut(ny * B)
-        .enumerate()
-        .for_each(|(bc, chunk)| {
-            let c0 = bc * B;
-            let cols = chunk.len() / ny;
-            for r0 in (0..ny).step_by(B) {
-                for c in c0..c0 + cols {
-                    let dst = &mut chunk[(c - c0) * ny..(c - c0 + 1) * ny];
-                    for r in r0..(r0 + B).min(ny) {
-                        dst[r] = z[r * nx + c];
-                    }
+    let (width, height) = (dem.width, dem.height);
+    let mut data = vec![0u8; width * height];
+    {
+        // SAFETY: AtomicU8 has the size, alignment and bit validity of u8,
+        // and `data` is not otherwise accessed while `out` lives.
+        let out: &[AtomicU8] = unsafe { &*(data.as_mut_slice() as *mut [u8] as *const [AtomicU8]) };
+        let grid = OutGrid {
+            out,
+            width,
+            height,
+            col0: terrain.col0,
+            row0: terrain.row0,
+        };
+        let halves = Half::all(&sweep);
+        let bundles: Vec<(&Half, Vec<RayWalk>)> = halves
+            .iter()
+            .flat_map(|h| {
+                let rays = h.rays(&sweep);
+                rays.chunks(RAY_BUNDLE)
+                    .map(|c| (h, c.to_vec()))
+                    .collect::<Vec<_>>()
+            })
+            .collect();
+        bundles.into_par_iter().for_each(|(h, mut rays)| {
+            // the rays of a bundle advance together, a few lines at a
+            // time, so that the heights they read stay in cache
+            loop {
+                let mut live = false;
+                for ray in rays.iter_mut() {
+                    live |= sweep.advance(h, ray, &terrain.z, &grid, BUNDLE_STEPS);
+                }
+                if !live {
+                    break;
                 }
             }
         });
-    out
+        // the square around the eye, cast exactly
+        let (eu, ev) = sweep.eye;
+        let near = EXACT_NEAR_CELLS + 1.0;
+        let (c_lo, c_hi) = ((eu - near).ceil().max(0.0), (eu + near).floor());
+        let (r_lo, r_hi) = ((ev - near).ceil().max(0.0), (ev + near).floor());
+        if c_hi >= 0.0 && r_hi >= 0.0 {
+            for r in r_lo as usize..=(r_hi as usize).min(ny - 1) {
+                for c in c_lo as usize..=(c_hi as usize).min(nx - 1) {
+                    if sweep.near_or_invalid(c, r) == Some(true) {
+                        grid.set(c, r);
+                    }
+                }
+            }
+        }
+    }
+    Viewshed {
+        width,
+        height,
+        data,
+        geotransform: dem.geotransform,
+        crs: dem.crs.clone(),
+    }
 }
 
-/// Every vertex on the border of an `nx` x `ny` vertex grid.
-fn border_vertices(nx: usize, ny: usize) -> Vec<(usize, usize)> {
-    let mut v: Vec<(usize, usize)> = (0..nx).flat_map(|c| [(c, 0), (c, ny - 1)]).collect();
-    v.extend((1..ny - 1).flat_map(|r| [(0, r), (nx - 1, r)]));
-    v
+/// Rays per bundle of [`viewshed`] (neighbours in azimuth).
+const RAY_BUNDLE: usize = 32;
+/// Grid lines each ray of a bundle advances before the next ray's turn.
+const BUNDLE_STEPS: usize = 32;
+
+/// The output grid, written by the rays: each vertex by exactly one.
+struct OutGrid<'a> {
+    out: &'a [AtomicU8],
+    width: usize,
+    height: usize,
+    col0: usize,
+    row0: usize,
+}
+
+impl OutGrid<'_> {
+    /// Mark terrain vertex `(c, r)` visible.
+    #[inline]
+    fn set(&self, c: usize, r: usize) {
+        let (col, row) = (self.col0 + c, self.row0 + r);
+        if col < self.width && row < self.height {
+            self.out[row * self.width + col].store(255, Ordering::Relaxed);
+        }
+    }
+}
+
+/// One of the four halves of the grid around the eye that [`viewshed`]
+/// sweeps: east and west (vertices with `|du| >= |dv|`, rays advancing
+/// along columns) and north and south (`|du| < |dv|`, along rows). Axes are
+/// (major, minor): the axis the rays advance along by whole lines, and the
+/// other.
+struct Half {
+    u_major: bool,
+    /// Direction of the rays along the major axis, +1 or -1.
+    sx: f64,
+    /// Eye in (major, minor) vertex coordinates.
+    ex: f64,
+    ey: f64,
+    /// Strides of (major, minor) in the row-major heights.
+    sm: usize,
+    sn: usize,
+    nmaj: usize,
+    nmin: usize,
+}
+
+impl Half {
+    fn all(sweep: &Sweep) -> Vec<Half> {
+        let t = sweep.terrain;
+        let (eu, ev) = sweep.eye;
+        let mut v = Vec::new();
+        for u_major in [true, false] {
+            for sx in [1.0, -1.0] {
+                let (ex, ey, sm, sn, nmaj, nmin) = if u_major {
+                    (eu, ev, 1, t.nx, t.nx, t.ny)
+                } else {
+                    (ev, eu, t.nx, 1, t.ny, t.nx)
+                };
+                v.push(Half {
+                    u_major,
+                    sx,
+                    ex,
+                    ey,
+                    sm,
+                    sn,
+                    nmaj,
+                    nmin,
+                });
+            }
+        }
+        v
+    }
+
+    /// Whether vertex (major offset `dx`, minor offset `dy`) from the eye
+    /// belongs to this half (`dx` has the half's sign).
+    #[inline]
+    fn owns(&self, dx: f64, dy: f64) -> bool {
+        if self.u_major {
+            dy.abs() <= dx.abs()
+        } else {
+            dy.abs() < dx.abs()
+        }
+    }
+
+    /// The rays of this half, by increasing slope: one to each border
+    /// vertex of the half and the two along its edges (slopes -1 and +1),
+    /// each owning the vertices nearer to it than to its neighbours.
+    fn rays(&self, sweep: &Sweep) -> Vec<RayWalk> {
+        let (nmaj, nmin) = (self.nmaj as f64, self.nmin as f64);
+        let xb = if self.sx > 0.0 { nmaj - 1.0 } else { 0.0 };
+        let mut ends: Vec<(f64, f64)> = Vec::new(); // (slope, end major)
+                                                    // border vertices: the far major line, then the two minor borders
+        for n in 0..self.nmin {
+            let (dx, dy) = (xb - self.ex, n as f64 - self.ey);
+            if dx * self.sx > 0.0 && self.owns(dx, dy) {
+                ends.push((dy / dx, xb));
+            }
+        }
+        for yb in [0.0, nmin - 1.0] {
+            for m in 0..self.nmaj {
+                let (dx, dy) = (m as f64 - self.ex, yb - self.ey);
+                if dx * self.sx > 0.0 && m as f64 != xb && self.owns(dx, dy) {
+                    ends.push((dy / dx, m as f64));
+                }
+            }
+        }
+        // the edges of the half: slopes -1 and +1 to where they leave
+        for k in [-1.0, 1.0] {
+            let room_maj = (xb - self.ex).abs();
+            let room_min = if k * self.sx > 0.0 {
+                nmin - 1.0 - self.ey
+            } else {
+                self.ey
+            };
+            let len = room_maj.min(room_min);
+            if len > 0.0 {
+                ends.push((k, self.ex + self.sx * len));
+            }
+        }
+        ends.sort_by(|a, b| a.0.total_cmp(&b.0));
+        ends.dedup_by(|b, a| b.0 == a.0);
+        let m_per_x = |slope: f64| {
+            if self.u_major {
+                sweep.metres(1.0, slope)
+            } else {
+                sweep.metres(slope, 1.0)
+            }
+        };
+        let first_x = if self.sx > 0.0 {
+            floor(self.ex) + 1.0
+        } else {
+            -floor(-self.ex) - 1.0
+        };
+        (0..ends.len())
+            .map(|i| {
+                let (slope, end) = ends[i];
+                let lo = if i == 0 {
+                    f64::NEG_INFINITY
+                } else {
+                    0.5 * (ends[i - 1].0 + slope)
+                };
+                let hi = if i + 1 == ends.len() {
+                    f64::INFINITY
+                } else {
+                    0.5 * (ends[i + 1].0 + slope)
+                };
+                RayWalk {
+                    slope,
+                    inv_slope: 1.0 / slope,
+                    inv_slope_m1: 1.0 / (slope - 1.0),
+                    m_per_x: m_per_x(slope),
+                    end,
+                    lo,
+                    hi,
+                    x: first_x,
+                    prev: self.ex,
+                    best: f64::NEG_INFINITY,
+                }
+            })
+            .collect()
+    }
+}
+
+/// One ray of [`viewshed`] and how far it has come.
+#[derive(Clone)]
+struct RayWalk {
+    /// Minor per major step, its inverse and that of `slope - 1` (major
+    /// per unit of minor and of `minor - major` along the ray).
+    slope: f64,
+    inv_slope: f64,
+    inv_slope_m1: f64,
+    /// Horizontal metres per major step.
+    m_per_x: f64,
+    /// Major coordinate of its end.
+    end: f64,
+    /// The slopes between which it owns the vertices.
+    lo: f64,
+    hi: f64,
+    /// Next major line, the previous one (or the eye) and the largest tan
+    /// elevation of the terrain so far.
+    x: f64,
+    prev: f64,
+    best: f64,
 }
 
 /// What the rays of one viewshed share.
@@ -181,13 +369,28 @@ impl<'a> Sweep<'a> {
         }
         let near = EXACT_NEAR_CELLS + 1.0;
         if du.abs() <= near && dv.abs() <= near {
-            return Some(self.exact(c, r));
+            return Some(self.exact_short(c, r));
         }
         None
     }
 
     /// One exact line of sight to vertex `(c, r)`.
     fn exact(&self, c: usize, r: usize) -> bool {
+        self.exact_by(c, r, |d, limit| self.terrain.cast(d, limit).is_none())
+    }
+
+    /// [`Sweep::exact`] for the few vertices near the eye: the same answer
+    /// through the coarse cast index, building neither the full one nor the
+    /// horizon index.
+    fn exact_short(&self, c: usize, r: usize) -> bool {
+        self.exact_by(c, r, |d, limit| {
+            self.terrain.cast_segment(d, 0.0, limit).is_none()
+        })
+    }
+
+    /// The line of sight to vertex `(c, r)`, `clear(direction, limit)`
+    /// saying whether the terrain leaves it free up to `limit` metres.
+    fn exact_by(&self, c: usize, r: usize, clear: impl Fn([f64; 3], f64) -> bool) -> bool {
         let Some(p) = self.terrain.vertex_local(c, r) else {
             return false;
         };
@@ -198,114 +401,165 @@ impl<'a> Sweep<'a> {
         }
         let d = [target[0] / dist, target[1] / dist, target[2] / dist];
         let limit = dist - (1e-6 * dist + 1e-3);
-        limit <= 0.0 || self.terrain.cast(d, limit).is_none()
+        limit <= 0.0 || clear(d, limit)
     }
 
-    /// March the ray from the eye to border vertex `(bu, bv)`: at each grid
-    /// line of its major axis, record for the vertex nearest the ray
-    /// whether the ray's point there is visible, keyed by that distance so
-    /// that the nearest ray wins ([`AtomicU32::fetch_min`]).
+    /// Advance `ray` of half `h` over at most `steps` lines of its major
+    /// axis; false once it has ended. At each line, the vertices of the
+    /// line that the ray owns are visible when they rise above the largest
+    /// elevation angle of the terrain nearer on the ray (with 1 mm of
+    /// slack, as the exact cast's margin); then the terrain on the line
+    /// counts for what lies beyond.
     ///
-    /// Coordinates are (major, minor): the axis the ray advances along by
-    /// whole lines, and the other (|slope| <= 1). Cell diagonals run from
-    /// (m, n) to (m + 1, n + 1) in either order of the axes, so they are the
-    /// lines `minor - major = k`. Every crossing lies on a grid edge, where
-    /// the surface is the linear interpolation of the edge's two vertices.
-    /// `z` is the terrain's heights and `keys` the answers, row-major for
-    /// rays whose major axis is u (columns), transposed (column-major) for
-    /// the others.
-    fn ray(&self, bu: f64, bv: f64, z: &[f32], keys: &[AtomicU32]) {
-        let t = self.terrain;
-        let (eu, ev) = self.eye;
-        let (du, dv) = (bu - eu, bv - ev);
-        if du == 0.0 && dv == 0.0 {
-            return;
-        }
-        let u_major = du.abs() >= dv.abs();
-        // strides of (major, minor) in `z` and in `keys` (row-major)
-        let (ex, ey, dx, dy, nmaj, nmin, sm, sn) = if u_major {
-            (eu, ev, du, dv, t.nx, t.ny, 1, t.nx)
-        } else {
-            (ev, eu, dv, du, t.ny, t.nx, 1, t.ny)
-        };
+    /// Between two lines the ray crosses lines of the minor axis and cell
+    /// diagonals, which run from (m, n) to (m + 1, n + 1) in either order of
+    /// the axes, so they are the lines `minor - major = k`. Every crossing
+    /// lies on a grid edge, where the surface is the linear interpolation
+    /// of the edge's two vertices, and between crossings the height is
+    /// linear in distance: the running maximum over the crossings is exact.
+    fn advance(
+        &self,
+        h: &Half,
+        ray: &mut RayWalk,
+        z: &[f32],
+        grid: &OutGrid,
+        steps: usize,
+    ) -> bool {
+        let (ex, ey, sx) = (h.ex, h.ey, h.sx);
+        let (nmaj, nmin) = (h.nmaj, h.nmin);
         // height of vertex (major, minor); NaN off the grid or nodata
         let zv = |m: i64, n: i64| -> f64 {
             if m < 0 || n < 0 || m as usize >= nmaj || n as usize >= nmin {
                 return f64::NAN;
             }
-            z[m as usize * sm + n as usize * sn] as f64
+            z[m as usize * h.sm + n as usize * h.sn] as f64
         };
-        let slope = dy / dx;
-        let sx = dx.signum();
-        let m_per_x = if u_major {
-            self.metres(1.0, slope)
-        } else {
-            self.metres(slope, 1.0)
-        };
-        let end = ex + dx;
-        let mut best = f64::NEG_INFINITY; // largest tan elevation so far
+        let slope = ray.slope;
+        let m_per_x = ray.m_per_x;
         let near = EXACT_NEAR_CELLS + 1.0;
-        let mut x = if sx > 0.0 {
-            floor(ex) + 1.0
-        } else {
-            -floor(-ex) - 1.0
-        };
-        let mut prev = ex;
-        while (x - end) * sx <= 1e-9 && x >= 0.0 && x <= (nmaj - 1) as f64 {
+        let max_d2 = self.terrain.max_distance * self.terrain.max_distance;
+        let (mut x, mut prev, mut best) = (ray.x, ray.prev, ray.best);
+        let mut left = steps;
+        let live = loop {
+            if !((x - ray.end) * sx <= 1e-9 && x >= 0.0 && x <= (nmaj - 1) as f64) {
+                break false;
+            }
+            if left == 0 {
+                break true;
+            }
+            left -= 1;
             let m0 = floor(prev.min(x));
             let (y0, y1) = (ey + (prev - ex) * slope, ey + (x - ex) * slope);
             // a line of the minor axis crossed inside the strip
             let (lo, hi) = (y0.min(y1), y0.max(y1));
             let k = floor(lo) + 1.0;
             if k < hi {
-                let xm = prev + (x - prev) * (k - y0) / (y1 - y0);
+                let xm = prev + (k - y0) * ray.inv_slope;
                 let f = xm - m0;
-                let h = zv(m0 as i64, k as i64) * (1.0 - f) + zv(m0 as i64 + 1, k as i64) * f;
-                raise(&mut best, h, (xm - ex).abs() * m_per_x);
+                let hgt = zv(m0 as i64, k as i64) * (1.0 - f) + zv(m0 as i64 + 1, k as i64) * f;
+                raise(&mut best, hgt, (xm - ex).abs() * m_per_x);
             }
             // cell diagonals crossed inside the strip: g = minor - major
             let (g0, g1) = (y0 - prev, y1 - x);
             let (lo, hi) = (g0.min(g1), g0.max(g1));
             let mut k = floor(lo) + 1.0;
             while k < hi {
-                let xm = prev + (x - prev) * (k - g0) / (g1 - g0);
+                let xm = prev + (k - g0) * ray.inv_slope_m1;
                 let f = xm - m0;
                 let n0 = m0 + k;
-                let h = zv(m0 as i64, n0 as i64) * (1.0 - f) + zv(m0 as i64 + 1, n0 as i64 + 1) * f;
-                raise(&mut best, h, (xm - ex).abs() * m_per_x);
+                let hgt =
+                    zv(m0 as i64, n0 as i64) * (1.0 - f) + zv(m0 as i64 + 1, n0 as i64 + 1) * f;
+                raise(&mut best, hgt, (xm - ex).abs() * m_per_x);
                 k += 1.0;
             }
-            // the ray's point on this major line (clamped against rounding
-            // at the border the ray ends on)
-            let y1 = y1.clamp(0.0, (nmin - 1) as f64);
-            let yf = floor(y1);
-            let fy = y1 - yf;
-            let h = zv(x as i64, yf as i64) * (1.0 - fy)
+            // the ray's point on this line (clamped against rounding at the
+            // border the ray ends on)
+            let dxl = x - ex;
+            let yc = y1.clamp(0.0, (nmin - 1) as f64);
+            let yf = floor(yc);
+            let fy = yc - yf;
+            let hgt = zv(x as i64, yf as i64) * (1.0 - fy)
                 + if fy > 0.0 {
                     zv(x as i64, yf as i64 + 1) * fy
                 } else {
                     0.0
                 };
-            let s_x = (x - ex).abs() * m_per_x;
-            let yr = y1.round();
-            if (x - ex).abs() > near && yr >= 0.0 && yr <= (nmin - 1) as f64 && !h.is_nan() {
-                // It is visible when it rises above everything nearer on
-                // the ray (with 1 mm of slack, as the exact cast's margin);
-                // the answer goes to the vertex of the line nearest the ray
-                // (as in Franklin and Ray's R2).
-                let visible = h + self.target_height + 1e-3 >= best * s_x;
-                let off = ((y1 - yr).abs().min(0.5) * 2.0 * (1u32 << 30) as f64) as u32;
-                let key = (off << 1) | visible as u32;
-                let slot = &keys[x as usize * sm + yr as usize * sn];
-                // (read first: near the eye every ray passes the same cells)
-                if key < slot.load(Ordering::Relaxed) {
-                    slot.fetch_min(key, Ordering::Relaxed);
-                }
+            let s_x = dxl.abs() * m_per_x;
+            // it is visible when it rises above everything nearer on the
+            // ray; the answer goes to the vertices of the line that the
+            // ray passes nearest (as in Franklin and Ray's R2)
+            if dxl.abs() > near {
+                let horizon = best;
+                let visible = |zt: f64, s2: f64| {
+                    if hgt.is_nan() {
+                        // the ray's point touches a hole: the vertex's own
+                        // height at its own distance
+                        zt + self.target_height + 1e-3 >= horizon * s2.sqrt()
+                    } else {
+                        hgt + self.target_height + 1e-3 >= horizon * s_x
+                    }
+                };
+                self.claim(h, ray, x, dxl, &zv, grid, max_d2, visible);
             }
             // the terrain on this line counts for what lies beyond it
-            raise(&mut best, h, s_x);
+            raise(&mut best, hgt, s_x);
             prev = x;
             x += sx;
+        };
+        ray.x = x;
+        ray.prev = prev;
+        ray.best = best;
+        live
+    }
+
+    /// Mark visible the vertices of major line `x` (offset `dxl` from the
+    /// eye) that `ray` owns, those of the half whose slope from the eye
+    /// lies in `(lo, hi]`, for which `visible(height, squared distance)`
+    /// (nodata and those beyond the maximum distance skipped).
+    #[allow(clippy::too_many_arguments)]
+    #[inline]
+    fn claim(
+        &self,
+        h: &Half,
+        ray: &RayWalk,
+        x: f64,
+        dxl: f64,
+        zv: &impl Fn(i64, i64) -> f64,
+        grid: &OutGrid,
+        max_d2: f64,
+        visible: impl Fn(f64, f64) -> bool,
+    ) {
+        let ey = h.ey;
+        let top = (h.nmin - 1) as f64;
+        // the half's vertices of this line lie within |dxl| of the eye
+        let lim_lo = (ey - dxl.abs() - 1.0).max(0.0);
+        let lim_hi = (ey + dxl.abs() + 1.0).min(top);
+        let (a, b) = (ey + dxl * ray.lo, ey + dxl * ray.hi);
+        // slope in (lo, hi]: minor in (a, b] ahead of the eye, [b, a) behind
+        let (n_lo, n_hi) = if dxl > 0.0 {
+            (floor(a.max(lim_lo - 1.0)) + 1.0, floor(b.min(lim_hi + 1.0)))
+        } else {
+            (
+                -floor(-b.max(lim_lo - 1.0)),
+                -floor(-a.min(lim_hi + 1.0)) - 1.0,
+            )
+        };
+        let (n_lo, n_hi) = (n_lo.max(lim_lo), n_hi.min(lim_hi));
+        let mut n = n_lo;
+        while n <= n_hi {
+            let dy = n - ey;
+            let zt = zv(x as i64, n as i64);
+            if h.owns(dxl, dy) && !zt.is_nan() {
+                let (du, dv) = if h.u_major { (dxl, dy) } else { (dy, dxl) };
+                let e = self.a[0][0] * du + self.a[0][1] * dv;
+                let nn = self.a[1][0] * du + self.a[1][1] * dv;
+                let s2 = e * e + nn * nn;
+                if s2 <= max_d2 && visible(zt, s2) {
+                    let (c, r) = if h.u_major { (x, n) } else { (n, x) };
+                    grid.set(c as usize, r as usize);
+                }
+            }
+            n += 1.0;
         }
     }
 }
