@@ -328,8 +328,12 @@ fn unknown_property_of_each_kind() {
             "unknown property \"slope_deg\" for a control_curve (expected one of: heights_m, influence_m,",
         ),
         (
-            line(json!({"kind": "cross_section", "name": "bad", "control": "c1"})),
-            "unknown property \"control\" for a cross_section (expected one of: control_curve, heights_m,",
+            line(json!({"kind": "cross_section", "name": "bad", "control_curv": "c1"})),
+            "unknown property \"control_curv\" for a cross_section (expected one of: control_curve, control, heights_m,",
+        ),
+        (
+            line(json!({"kind": "cross_section", "name": "bad", "control": "c1", "control_curve": "c1"})),
+            "a cross-section names its control curve once: control or control_curve, not both",
         ),
         (
             line(json!({"kind": "breakline", "name": "bad", "hieght_m": 1000.0})),

@@ -225,11 +225,12 @@ fn sections_case(tmp: &Path, dem: &Path, scale: f64) {
             .iter()
             .map(|p| to_crs([p[0], p[1]], p[2] + given_dz))
             .collect();
-        features.push(
-            json!({"type": "Feature", "properties": {"kind": "cross_section",
-            "name": format!("section{j}"), "control_curve": "dike"},
-            "geometry": {"type": "LineString", "coordinates": coords}}),
-        );
+        // One section names its curve with `control`, read as `control_curve`.
+        let link = if j == 1 { "control" } else { "control_curve" };
+        let mut props = json!({"kind": "cross_section", "name": format!("section{j}")});
+        props[link] = json!("dike");
+        features.push(json!({"type": "Feature", "properties": props,
+            "geometry": {"type": "LineString", "coordinates": coords}}));
         expected.push(sec);
     }
     let (out, r) = run_on(dem, tmp, "sections", collection(features, Some(32632)));

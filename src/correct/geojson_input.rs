@@ -417,15 +417,25 @@ fn parse_feature(
         "control_curve" => parse_curve(geom, props, t, dem)?,
         "breakline" => parse_breakline(geom, props, t, dem)?,
         "cross_section" => {
-            let curve =
-                match props.get("control_curve") {
-                    Some(serde_json::Value::String(s)) => s.clone(),
-                    Some(serde_json::Value::Number(n)) => n.to_string(),
-                    _ => return Err(
+            // `control` is DESIGN.md's name for it; `control_curve` the
+            // guide's (both read, one at a time).
+            if props.contains_key("control") && props.contains_key("control_curve") {
+                return Err(
+                    "a cross-section names its control curve once: control or control_curve, not both"
+                        .into(),
+                );
+            }
+            let named = props.get("control_curve").or_else(|| props.get("control"));
+            let curve = match named {
+                Some(serde_json::Value::String(s)) => s.clone(),
+                Some(serde_json::Value::Number(n)) => n.to_string(),
+                _ => {
+                    return Err(
                         "a cross-section needs a control_curve property naming its control curve"
                             .into(),
-                    ),
-                };
+                    )
+                }
+            };
             let CorrectionKind::ControlCurve { points, .. } = parse_curve(geom, props, t, dem)?
             else {
                 return Err("a cross-section must be a LineString with heights".into());
@@ -471,7 +481,7 @@ fn kind_properties(
             _ => &["width_m", "flow", "blend_m"],
         },
         "control_curve" => &["heights_m", "influence_m"],
-        "cross_section" => &["control_curve", "heights_m"],
+        "cross_section" => &["control_curve", "control", "heights_m"],
         "breakline" => &["heights_m", "height_m", "hard", "influence_m"],
         "landform" => &["silhouette", "shadow"],
         "noise_region" => &["noise_stroke", "amplitude_m"],
