@@ -76,6 +76,22 @@ def test_edit_equals_the_command(tmp_path):
     assert want != digests(dem)
 
 
+def test_in_place_and_below_min_fit(tmp_path):
+    dem = tile_set(tmp_path)
+    before = digests(dem)
+    s = tmp_path / "s.json"
+    s.write_text(sketch(172.0, 172.0, 270.0, 1.5))
+    # A fit no stroke can reach: nothing written, the report is.
+    report = tmp_path / "r.json"
+    with pytest.raises(demsketch.BelowMinFitError, match="min.fit|nothing written"):
+        demsketch.edit(dem, s, in_place=True, report=report, max_distance=1000.0, min_fit=1.5)
+    assert digests(dem) == before and report.is_file()
+    r = demsketch.edit(dem, s, in_place=True, **OPTIONS)
+    assert r["written"] and digests(dem) != before
+    with pytest.raises(demsketch.DemsketchError, match="not both"):
+        demsketch.edit(dem, s, tmp_path / "o", in_place=True)
+
+
 def test_errors_are_one_line_exceptions(tmp_path):
     with pytest.raises(demsketch.DemsketchError) as e:
         demsketch.open(tmp_path / "missing.tif")
