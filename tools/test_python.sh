@@ -22,6 +22,12 @@ fi
 export CARGO_TARGET_DIR="$ROOT/target"
 export CARGO_INCREMENTAL="${CARGO_INCREMENTAL:-0}"
 export GDAL_PAM_ENABLED=NO
+# python/ has its own Cargo.lock: a dependency added to the root crate must
+# be added there too.
+if ! cargo metadata --locked --format-version 1 --manifest-path python/Cargo.toml >/dev/null 2>&1; then
+  echo "test_python: python/Cargo.lock is out of date with the crates it builds; run: (cd python && cargo update -p demsketch) and commit it" >&2
+  exit 1
+fi
 rm -rf target/wheels
 # A plain linux wheel linked against the system's GDAL and PROJ (no
 # auditwheel repair: it is installed here, not uploaded), stripped.
