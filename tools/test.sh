@@ -19,3 +19,6 @@ cargo build --release --locked 2>&1 && DEMSKETCH="${DEMSKETCH:-target/release/de
 # The browser app (demsketch serve) driven through Chromium: edit flow and
 # hostile requests (tests/browser/run.py).
 .venv-browser/bin/python tests/browser/run.py --bin target/release/demsketch
+# The Python package (python/): wheel built with maturin, tests with Dask
+# (tools/test_python.sh installs maturin, dask, distributed from PyPI).
+bash tools/test_python.sh

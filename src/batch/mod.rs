@@ -18,6 +18,8 @@
 //!   moment resumes without redoing or double-applying an edit.
 //! - [`run`]: copying the DEM to the output, running one group or all of
 //!   them (rayon), the per-edit reports and the batch summary.
+//! - [`steps`]: the array-job steps (plan, run one index, finish) as the
+//!   CLI and the Python package call them.
 //!
 //! Each edit itself is [`crate::edit::run`] with `--in-place` on the output
 //! (or, for a corrections file, [`crate::correct::run`]), so its write-back
@@ -29,6 +31,7 @@ pub mod manifest;
 pub mod plan;
 pub mod record;
 pub mod run;
+pub mod steps;
 
 pub use manifest::{EditKind, Manifest, ManifestEdit};
 pub use plan::{BatchSettings, Group, Plan, PlannedEdit};

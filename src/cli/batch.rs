@@ -9,13 +9,9 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use demsketch::batch::record::Status;
-use demsketch::batch::run::{
-    check_stored_plan, clean_output, count_done, lock_output, recover_group,
-};
-use demsketch::batch::{
-    finish, prepare_output, run_all, run_group, BatchError, BatchSettings, Manifest, Plan, Summary,
-};
-use demsketch::raster::{journal, Dem};
+use demsketch::batch::run::{check_stored_plan, clean_output, count_done, lock_output};
+use demsketch::batch::{finish, run_all, steps, BatchError, BatchSettings, Plan, Summary};
+use demsketch::raster::journal;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 use super::{BelowMinFit, InternalError};
@@ -176,15 +172,12 @@ pub fn run(args: BatchArgs) -> anyhow::Result<()> {
 
 /// Read the manifest and the DEM and plan the batch (nothing written).
 fn make_plan(dem: &Path, jobs: &Path, out: &Path, flags: &EditFlags) -> anyhow::Result<Plan> {
-    let manifest = Manifest::read(jobs).map_err(cli_err)?;
-    let layer = Dem::open(dem)?;
-    Plan::build(dem, &layer, &manifest, out, flags.settings()).map_err(cli_err)
+    steps::make_plan(dem, jobs, out, flags.settings()).map_err(cli_err)
 }
 
 /// Copy the DEM to OUT, the plan with it.
 fn prepare(plan: &Plan) -> anyhow::Result<()> {
-    let layer = Dem::open(&plan.dem)?;
-    prepare_output(plan, &layer).map_err(cli_err)
+    steps::prepare(plan).map_err(cli_err)
 }
 
 fn waiting(m: &str) {
@@ -334,26 +327,8 @@ fn whole(args: BatchArgs) -> anyhow::Result<()> {
 
 /// `demsketch batch plan`.
 fn plan(a: PlanArgs) -> anyhow::Result<()> {
-    let parent = demsketch::raster::atomic_file::parent_dir(&a.plan);
-    if !parent.is_dir() {
-        anyhow::bail!("{}: its parent directory does not exist", a.plan.display());
-    }
-    if a.out.exists() {
-        anyhow::bail!("{}: already exists; give a new --out", a.out.display());
-    }
-    let plan = make_plan(&a.dem, &a.jobs, &a.out, &a.flags)?;
-    prepare(&plan)?;
-    let text = plan.to_json();
-    demsketch::raster::atomic_file::replace_file(
-        &a.plan,
-        |tmp| std::fs::write(tmp, text.as_bytes()).map_err(|e| e.to_string()),
-        |tmp| {
-            (std::fs::read_to_string(tmp).map_err(|e| e.to_string())? == text)
-                .then_some(())
-                .ok_or_else(|| "it reads back different".to_string())
-        },
-    )
-    .map_err(|m| anyhow::anyhow!("{}: {m}", a.plan.display()))?;
+    let plan = steps::plan_to_file(&a.dem, &a.jobs, &a.out, &a.plan, a.flags.settings())
+        .map_err(cli_err)?;
     if !super::quiet() {
         eprintln!(
             "{}: {} edits in {} groups; run `demsketch batch run --plan {} --index N` for N = 0 to {}, then `demsketch batch finish --plan {}`",
@@ -390,30 +365,22 @@ fn group_index(a: &RunArgs) -> anyhow::Result<usize> {
 /// `demsketch batch run --plan P --index N`.
 fn run_index(a: RunArgs) -> anyhow::Result<()> {
     let g = group_index(&a)?;
+    // The plan is read here for the progress bar's length only;
+    // [`steps::run_index`] reads and checks it.
     let plan = Plan::read(&a.plan).map_err(cli_err)?;
-    if g >= plan.groups.len() {
-        anyhow::bail!(
-            "{}: group index {g} is out of range: the plan has {} groups (0 to {})",
-            a.plan.display(),
-            plan.groups.len(),
-            plan.groups.len().saturating_sub(1)
-        );
-    }
-    check_stored_plan(&plan, &a.plan).map_err(cli_err)?;
-    let _lock = lock_output(&plan, true, timeout(a.lock_timeout), waiting).map_err(cli_err)?;
-    for n in recover_group(&plan, g).map_err(cli_err)? {
-        if !super::quiet() {
-            eprintln!("demsketch: {n}");
-        }
-    }
-    let pb = progress_bar(plan.groups[g].edits.len());
+    let pb = progress_bar(plan.groups.get(g).map_or(0, |x| x.edits.len()));
     pb.set_position(count_done(&plan, Some(g)) as u64);
     pb.reset_eta();
     let progress =
         |d: &demsketch::batch::record::Done, before: bool| report_progress(&pb, d, before);
-    let outcome = run_group(&plan, &a.plan, g, &progress);
+    let mut note = |m: &str| {
+        if !super::quiet() {
+            eprintln!("demsketch: {m}");
+        }
+    };
+    let ran = steps::run_index(&a.plan, g, timeout(a.lock_timeout), &mut note, &progress);
     pb.finish_and_clear();
-    let outcome = outcome.map_err(cli_err)?;
+    let (plan, outcome) = ran.map_err(cli_err)?;
     if !super::quiet() {
         let written = outcome
             .done
@@ -433,15 +400,12 @@ fn run_index(a: RunArgs) -> anyhow::Result<()> {
 
 /// `demsketch batch finish --plan P`.
 fn finish_step(a: FinishArgs) -> anyhow::Result<()> {
-    let plan = Plan::read(&a.plan).map_err(cli_err)?;
-    check_stored_plan(&plan, &a.plan).map_err(cli_err)?;
-    let _lock = lock_output(&plan, false, timeout(a.lock_timeout), waiting).map_err(cli_err)?;
-    let notes = journal::recover(&plan.out, &demsketch::batch::record::tiles_dir(&plan.out))?;
-    for n in notes.into_iter().chain(clean_output(&plan)) {
+    let mut note = |m: &str| {
         if !super::quiet() {
-            eprintln!("demsketch: {n}");
+            eprintln!("demsketch: {m}");
         }
-    }
-    let summary = finish(&plan, &a.plan, None).map_err(cli_err)?;
+    };
+    let summary =
+        steps::finish_plan(&a.plan, timeout(a.lock_timeout), &mut note).map_err(cli_err)?;
     conclude(&summary)
 }

@@ -14,10 +14,7 @@
 
 use anyhow::Context;
 use demsketch::edit::{run as run_edit, EditError, EditOptions};
-use demsketch::raster::atomic_file::clean_stale;
-use demsketch::raster::edit_lock::{lock_dir, EditLock};
-use demsketch::raster::path_check::{check_outputs, dem_inputs, Input, Output};
-use demsketch::raster::{journal, Dem, Destination, LayerKind};
+use demsketch::raster::Destination;
 use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::time::Duration;
@@ -158,67 +155,6 @@ fn parse_lock_timeout(s: &str) -> Result<f64, String> {
     Ok(v)
 }
 
-/// Take the DEM's edit lock, finish or undo an edit a killed run left,
-/// remove temporary files of dead runs (each said in one line on stderr),
-/// and check the outputs against the inputs.
-fn prepare(args: &EditArgs) -> anyhow::Result<Option<EditLock>> {
-    // A DEM that is not a file or directory on disk (missing, or a GDAL
-    // virtual path such as /vsizip/) has no directory to lock: its own
-    // error, or no lock (it cannot be rewritten in place).
-    let lock = if lock_dir(&args.dem).is_dir() && args.dem.exists() {
-        let lock = EditLock::acquire(&args.dem, Duration::from_secs_f64(args.lock_timeout), |m| {
-            eprintln!("demsketch: {m}")
-        })?;
-        for note in journal::recover(&args.dem, &lock.dir)? {
-            eprintln!("demsketch: {note}");
-        }
-        for note in clean_stale(&lock.dir) {
-            eprintln!("demsketch: {note}");
-        }
-        Some(lock)
-    } else {
-        None
-    };
-    let dem = Dem::open(&args.dem)?;
-    let mut inputs = dem_inputs(&dem);
-    inputs.push(Input {
-        what: format!("the sketch {}", args.sketch.display()),
-        path: args.sketch.clone(),
-        is_dir: false,
-    });
-    let mut outputs = Vec::new();
-    if let (Some(out), false) = (&args.out, args.in_place) {
-        outputs.push(Output {
-            flag: "--out".into(),
-            path: out.clone(),
-            is_dir: dem.kind == LayerKind::TileDirectory,
-        });
-    }
-    if let Some(r) = &args.report {
-        outputs.push(Output {
-            flag: "--report".into(),
-            path: r.clone(),
-            is_dir: false,
-        });
-    }
-    if let Some(r) = &args.renders {
-        outputs.push(Output {
-            flag: "--renders".into(),
-            path: r.clone(),
-            is_dir: true,
-        });
-    }
-    if let Some(p) = &args.dz {
-        outputs.push(Output {
-            flag: "--dz".into(),
-            path: p.clone(),
-            is_dir: false,
-        });
-    }
-    check_outputs(&inputs, &outputs)?;
-    Ok(lock)
-}
-
 pub(super) fn parse_min_fit(s: &str) -> Result<f64, String> {
     let v: f64 = s
         .trim()
@@ -258,7 +194,6 @@ pub fn run(args: EditArgs) -> anyhow::Result<()> {
     }
     demsketch::raster::output_format::check_creation_options(&args.creation_options)
         .map_err(|m| anyhow::anyhow!(m))?;
-    let _lock = prepare(&args)?;
     let mut opts = EditOptions::new(destination);
     opts.write.link_unchanged = args.link;
     opts.write.format = args.format.clone();
@@ -276,6 +211,15 @@ pub fn run(args: EditArgs) -> anyhow::Result<()> {
     opts.min_fit = args.min_fit;
     opts.allow_partial = args.allow_partial;
     opts.dry_run = args.dry_run;
+    // The lock, recovery of a killed edit and the output checks
+    // ([`demsketch::edit::guard`]), each note one line on stderr.
+    let _lock = demsketch::edit::guard::prepare(
+        &args.dem,
+        &args.sketch,
+        &opts,
+        Duration::from_secs_f64(args.lock_timeout),
+        &mut |m| eprintln!("demsketch: {m}"),
+    )?;
     let report = match run_edit(&args.dem, &args.sketch, &opts) {
         Ok(r) => r,
         Err(e @ EditError::BelowMinFit { .. }) => {

@@ -19,6 +19,7 @@
 
 pub mod contour;
 pub mod fit;
+pub mod guard;
 pub mod lowering;
 pub mod on_silhouette;
 mod outputs;
