@@ -784,6 +784,70 @@ impl LocalTerrain {
         BilinearPatch::new([i, i + 1, i + nx, i + nx + 1].map(|k| self.z[k] as f64))
     }
 
+    /// The first intersection of the ray from the eye along unit direction
+    /// `d` with the bilinear patch of the cell of triangle `id` alone, past
+    /// `t_start` and within the maximum view distance: what
+    /// [`LocalTerrain::cast_segment`] finds when nothing before that cell
+    /// is hit, for one patch's work instead of a traversal. For rays known
+    /// to meet the terrain first in that cell (the silhouettes' bisection
+    /// between two rays of one column that both hit it), with a check of
+    /// that: `None` when the ray enters the cell after `latest_entry`, is
+    /// already under the patch where it enters (it met the terrain
+    /// before), or misses the patch (or the cell is next to nodata): the
+    /// caller then casts.
+    pub fn cast_in_cell(
+        &self,
+        d: [f64; 3],
+        id: u32,
+        t_start: f64,
+        latest_entry: f64,
+    ) -> Option<RayHit> {
+        let cx = self.cells_x();
+        if cx == 0 || self.ny < 2 {
+            return None;
+        }
+        let cell = (id / 2) as usize;
+        let (c, r) = (cell % cx, cell / cx);
+        if c + 1 >= self.nx || r + 1 >= self.ny {
+            return None;
+        }
+        let m = self.en_to_v;
+        let gx = m[0][0] * d[0] + m[0][1] * d[1];
+        let gy = m[1][0] * d[0] + m[1][1] * d[1];
+        let (ox, oy) = self.eye_v;
+        // The ray's stretch over the cell, within the view distance.
+        let (mut ta, mut tb) = (t_start.max(0.0), f64::INFINITY);
+        let dh = (d[0] * d[0] + d[1] * d[1]).sqrt();
+        if self.max_distance.is_finite() && dh > 0.0 {
+            tb = tb.min(self.max_distance / dh);
+        }
+        for (o, g) in [(ox - index_f64(c), gx), (oy - index_f64(r), gy)] {
+            if g == 0.0 {
+                if !(0.0..=1.0).contains(&o) {
+                    return None;
+                }
+            } else {
+                let (a, b) = (-o / g, (1.0 - o) / g);
+                ta = ta.max(a.min(b));
+                tb = tb.min(a.max(b));
+            }
+        }
+        if !(tb > ta && ta <= latest_entry) {
+            return None;
+        }
+        let patch = self.patch(c, r)?;
+        let ray = (ox - index_f64(c), oy - index_f64(r), gx, gy, d[2]);
+        if patch.clearance(ray, ta)[2] <= 0.0 {
+            return None;
+        }
+        let t = patch.first_crossing(ray, ta, tb)?;
+        let half = u32::from((ray.0 + gx * t) - (ray.1 + gy * t) < 0.0);
+        Some(RayHit {
+            t,
+            triangle: (r * cx + c) as u32 * 2 + half,
+        })
+    }
+
     /// Distance along unit ray `d` from the eye to the bilinear patch of the
     /// cell of triangle `id`, where the ray crosses that cell: the crossing
     /// nearest `t_near` (the rasteriser's depth, which follows the patch to
