@@ -661,11 +661,15 @@ fn refine_bracket(
 /// and `b` (far) of one column. The ray passes above the near side's ray,
 /// which met no terrain before `a.t`, so the cast starts well short of it
 /// (by the cheap block index, without building the per-view horizon
-/// index). Where both sides hit one cell, only that cell's patch is
-/// intersected: in a column's plane a ray between two others first meets
-/// the terrain between where they do, here in that cell (the traversal is
-/// the fallback where the cell's check refuses). On the edit's dry-run
-/// benchmark this is three quarters of the casts near the eye.
+/// index). Where the far side hits terrain, the ray's cells are walked
+/// from the near side's on, [`CELL_WALK`] at most: in a column's plane a
+/// ray between two others first meets the terrain between where they do,
+/// most often in the same cell or the next (the traversal is the fallback
+/// where the walk's check refuses or it ends).
+/// Most cells a bisection's ray is walked through before the traversal
+/// takes over.
+const CELL_WALK: usize = 8;
+
 fn cast_between(
     terrain: &LocalTerrain,
     d: [f64; 3],
@@ -673,8 +677,8 @@ fn cast_between(
     b: &Side,
 ) -> Option<crate::render::RayHit> {
     let t0 = 0.9 * a.t;
-    if a.tri / 2 == b.tri / 2 && a.tri != crate::render::SKY && b.t.is_finite() {
-        if let Some(hit) = terrain.cast_in_cell(d, a.tri, t0, a.t) {
+    if a.tri != crate::render::SKY && b.t.is_finite() {
+        if let Some(hit) = terrain.cast_from_cell(d, a.tri, t0, a.t, CELL_WALK) {
             return Some(hit);
         }
     }
