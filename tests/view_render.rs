@@ -459,3 +459,72 @@ fn wedge_scene_is_the_in_view_scene_read_in_part() {
         assert_eq!(da.triangle, db.triangle, "{what}: triangles");
     }
 }
+
+/// The silhouettes' bisection intersects a single cell's patch where both
+/// sides of its bracket hit that cell (`LocalTerrain::cast_from_cell`): on
+/// rays whose traversal hit lies in a cell, that cell alone gives the same
+/// hit, and a cell the ray meets only after an earlier hit is refused.
+#[test]
+fn a_cast_in_the_cell_of_the_hit_equals_the_traversal() {
+    let mut rng = Lcg(11);
+    let noise: Vec<f64> = (0..48 * 48).map(|_| rng.next() * 40.0).collect();
+    let mut dem = synthetic(48, 48, 25.0, |x, y| {
+        100.0 + 30.0 * ((x / 200.0).sin() + (y / 150.0).cos())
+    });
+    for (v, n) in dem.data.iter_mut().zip(&noise) {
+        *v += *n as f32;
+    }
+    let (ex, ey) = dem.geotransform.pixel_to_crs(10.3, 12.7);
+    let ground = dem.bilinear(10.3, 12.7).unwrap();
+    let frame = LocalFrame::planar(&dem, (ex, ey), ground + 2.0, Curvature::default());
+    let terrain = LocalTerrain::new(&dem, &frame, None);
+    let (mut same, mut refused, mut walks) = (0, 0, 0);
+    for _ in 0..400 {
+        let az = rng.next() * std::f64::consts::TAU;
+        let el = (rng.next() - 0.7) * 0.6;
+        let d = [az.sin() * el.cos(), az.cos() * el.cos(), el.sin()];
+        let Some(hit) = terrain.cast_segment(d, 0.0, f64::INFINITY) else {
+            continue;
+        };
+        let cell = terrain
+            .cast_from_cell(d, hit.triangle, 0.0, hit.t, 1)
+            .expect("the cell of the hit");
+        assert_eq!(cell.triangle, hit.triangle);
+        assert!(
+            (cell.t - hit.t).abs() < 1e-9 * hit.t.max(1.0),
+            "{cell:?} vs {hit:?}"
+        );
+        same += 1;
+        // Walked from a cell the ray crosses before the hit.
+        let back = (hit.t - 70.0).max(0.0);
+        let (bx, by) = terrain.en_to_v(d[0] * back, d[1] * back);
+        let cx = terrain.nx as i64 - 1;
+        let (bc, br) = (bx.floor() as i64, by.floor() as i64);
+        if bc >= 0 && br >= 0 && bc < cx && br < terrain.ny as i64 - 1 {
+            let id = (2 * (br * cx + bc)) as u32;
+            if let Some(walked) = terrain.cast_from_cell(d, id, back, hit.t, 16) {
+                assert_eq!(walked.triangle, hit.triangle);
+                assert!((walked.t - hit.t).abs() < 1e-9 * hit.t.max(1.0));
+                walks += 1;
+            }
+        }
+        // The next cell along the ray lies beyond the hit, under the
+        // terrain where the ray enters it: refused.
+        let (vx, vy) = terrain.en_to_v(d[0] * hit.t, d[1] * hit.t);
+        let (gx, gy) = terrain.en_to_v(d[0] * (hit.t + 60.0), d[1] * (hit.t + 60.0));
+        let (c0, r0) = (vx.floor() as i64, vy.floor() as i64);
+        let (c1, r1) = (gx.floor() as i64, gy.floor() as i64);
+        if (c1, r1) != (c0, r0) && c1 >= 0 && r1 >= 0 && c1 < cx && r1 < terrain.ny as i64 - 1 {
+            let id = (2 * (r1 * cx + c1)) as u32;
+            if let Some(later) = terrain.cast_from_cell(d, id, hit.t, f64::INFINITY, 1) {
+                // only where the ray came out above the terrain again
+                assert!(later.t > hit.t, "{later:?} before {hit:?}");
+            } else {
+                refused += 1;
+            }
+        }
+    }
+    assert!(same > 100, "{same} rays checked");
+    assert!(refused > 20, "{refused} later cells refused");
+    assert!(walks > 50, "{walks} walks over several cells");
+}

@@ -19,7 +19,8 @@
 //!    the grazing ray there gives the silhouette's sub-pixel position and
 //!    the 3D terrain point that forms it; a polyline that rises to the far
 //!    pixel's ray is a crease and is rejected. Where the walk is numerically
-//!    inconclusive, bisection with exact ray casts takes over.
+//!    inconclusive, bisection with exact ray casts takes over; a bracket
+//!    whose depth gap closes is a crease and is left at once.
 //! 3. Samples of neighbouring columns are linked into polylines ordered along
 //!    image x when their depths agree and the pixels between them belong to
 //!    the occluding surface.
@@ -595,13 +596,18 @@ fn refine_bracket(
     let cam = &db.camera;
     let px = x as f64 + 0.5;
     let (mut a, mut b) = (near0, far0);
+    let closed = |a: &Side, b: &Side| b.t.is_finite() && b.t <= a.t * (1.0 + p.min_jump);
     for _ in 0..p.refine_iterations {
+        // A gap that has closed is a crease: the rays between the two
+        // sides meet the terrain between their distances (in a column's
+        // plane a higher ray's first hit is never nearer), so it stays
+        // closed. Most candidates end here, after two or three casts.
+        if closed(&a, &b) {
+            return;
+        }
         let ym = 0.5 * (a.y + b.y);
         let d = cam.unproject([px, ym]);
-        // The ray passes above the near side's ray, which met no terrain
-        // before `a.t`: the cast starts well short of it (by the cheap
-        // block index, without building the per-view horizon index).
-        match terrain.cast_segment(d, 0.9 * a.t, f64::INFINITY) {
+        match cast_between(terrain, d, &a, &b) {
             Some(hit) if nearer_in_log(a.t, hit.t, b.t) => {
                 a = Side {
                     y: ym,
@@ -625,7 +631,7 @@ fn refine_bracket(
             }
         }
     }
-    if b.t.is_finite() && b.t <= a.t * (1.0 + p.min_jump) {
+    if closed(&a, &b) {
         return;
     }
     let da = cam.unproject([px, a.y]);
@@ -649,6 +655,34 @@ fn refine_bracket(
     if b.t.is_finite() && far0.t > b.t * (1.0 + p.min_jump) {
         refine_bracket(terrain, db, p, x, b, far0, depth_left - 1, out);
     }
+}
+
+/// The first hit of the ray `d` of a bisection between sides `a` (near)
+/// and `b` (far) of one column. The ray passes above the near side's ray,
+/// which met no terrain before `a.t`, so the cast starts well short of it
+/// (by the cheap block index, without building the per-view horizon
+/// index). Where the far side hits terrain, the ray's cells are walked
+/// from the near side's on, [`CELL_WALK`] at most: in a column's plane a
+/// ray between two others first meets the terrain between where they do,
+/// most often in the same cell or the next (the traversal is the fallback
+/// where the walk's check refuses or it ends).
+/// Most cells a bisection's ray is walked through before the traversal
+/// takes over.
+const CELL_WALK: usize = 8;
+
+fn cast_between(
+    terrain: &LocalTerrain,
+    d: [f64; 3],
+    a: &Side,
+    b: &Side,
+) -> Option<crate::render::RayHit> {
+    let t0 = 0.9 * a.t;
+    if a.tri != crate::render::SKY && b.t.is_finite() {
+        if let Some(hit) = terrain.cast_from_cell(d, a.tri, t0, a.t, CELL_WALK) {
+            return Some(hit);
+        }
+    }
+    terrain.cast_segment(d, t0, f64::INFINITY)
 }
 
 /// `(t / ta).ln() < (tb / t).ln()`: is `t` nearer to `ta` than to `tb` on

@@ -784,6 +784,99 @@ impl LocalTerrain {
         BilinearPatch::new([i, i + 1, i + nx, i + nx + 1].map(|k| self.z[k] as f64))
     }
 
+    /// The first intersection of the ray from the eye along unit direction
+    /// `d` with the terrain, found by walking the cells the ray crosses
+    /// from the cell of triangle `id` on, at most `max_cells` of them, past
+    /// `t_start` and within the maximum view distance: what
+    /// [`LocalTerrain::cast_segment`] finds when nothing before that cell
+    /// is hit, for a few patches' work instead of a traversal of the block
+    /// index. For rays known to meet the terrain first at or a little
+    /// beyond that cell (the silhouettes' bisection between two rays of one
+    /// column), with a check of that: `None` when the ray enters the cell
+    /// after `latest_entry`, is already under the patch where it enters (it
+    /// met the terrain before), meets no terrain within `max_cells` cells,
+    /// or reaches nodata or the grid's edge: the caller then casts.
+    pub fn cast_from_cell(
+        &self,
+        d: [f64; 3],
+        id: u32,
+        t_start: f64,
+        latest_entry: f64,
+        max_cells: usize,
+    ) -> Option<RayHit> {
+        let cx = self.cells_x();
+        if cx == 0 || self.ny < 2 {
+            return None;
+        }
+        let cell = (id / 2) as usize;
+        let (mut c, mut r) = (cell % cx, cell / cx);
+        if c + 1 >= self.nx || r + 1 >= self.ny {
+            return None;
+        }
+        let m = self.en_to_v;
+        let gx = m[0][0] * d[0] + m[0][1] * d[1];
+        let gy = m[1][0] * d[0] + m[1][1] * d[1];
+        let (ox, oy) = self.eye_v;
+        let dh = (d[0] * d[0] + d[1] * d[1]).sqrt();
+        let t_max = if self.max_distance.is_finite() && dh > 0.0 {
+            self.max_distance / dh
+        } else {
+            f64::INFINITY
+        };
+        let mut t_lo = t_start.max(0.0);
+        for k in 0..max_cells {
+            // The ray's stretch over cell (c, r), and where it leaves it.
+            let (mut ta, mut tb) = (t_lo, t_max);
+            let (mut exit_x, mut exit_y) = (f64::INFINITY, f64::INFINITY);
+            for (o, g, exit) in [
+                (ox - index_f64(c), gx, &mut exit_x),
+                (oy - index_f64(r), gy, &mut exit_y),
+            ] {
+                if g == 0.0 {
+                    if !(0.0..=1.0).contains(&o) {
+                        return None;
+                    }
+                } else {
+                    let (a, b) = (-o / g, (1.0 - o) / g);
+                    ta = ta.max(a.min(b));
+                    *exit = a.max(b);
+                    tb = tb.min(*exit);
+                }
+            }
+            if !(tb > ta) || (k == 0 && ta > latest_entry) {
+                return None;
+            }
+            let patch = self.patch(c, r)?;
+            let ray = (ox - index_f64(c), oy - index_f64(r), gx, gy, d[2]);
+            if k == 0 && patch.clearance(ray, ta)[2] <= 0.0 {
+                return None;
+            }
+            if let Some(t) = patch.first_crossing(ray, ta, tb) {
+                let half = u32::from((ray.0 + gx * t) - (ray.1 + gy * t) < 0.0);
+                return Some(RayHit {
+                    t,
+                    triangle: (r * cx + c) as u32 * 2 + half,
+                });
+            }
+            if tb >= t_max {
+                return None;
+            }
+            // On to the cell beyond the edge the ray leaves by (both at a
+            // corner).
+            if exit_x <= exit_y {
+                c = if gx > 0.0 { c + 1 } else { c.checked_sub(1)? };
+            }
+            if exit_y <= exit_x {
+                r = if gy > 0.0 { r + 1 } else { r.checked_sub(1)? };
+            }
+            if c + 1 >= self.nx || r + 1 >= self.ny {
+                return None;
+            }
+            t_lo = tb;
+        }
+        None
+    }
+
     /// Distance along unit ray `d` from the eye to the bilinear patch of the
     /// cell of triangle `id`, where the ray crosses that cell: the crossing
     /// nearest `t_near` (the rasteriser's depth, which follows the patch to
