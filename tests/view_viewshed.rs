@@ -13,7 +13,7 @@
 
 mod view_support;
 
-use demsketch::render::{viewshed, viewshed_exact, LocalTerrain};
+use demsketch::render::{viewshed, viewshed_exact, viewshed_from_dem, viewshed_rays, LocalTerrain};
 use demsketch::view::{Georef, Viewpoint};
 use view_support::*;
 
@@ -250,7 +250,17 @@ fn sweep_decides_every_cell() {
         ("nz_1km_nan_nodata.tif", 600, 800),
     ] {
         let (dem, terrain) = terrain_at(name, col, row, None);
+        // the propagation, the ray sweep it replaced, and the propagation
+        // straight from the DEM (the same answer, bit for bit)
         let vs = viewshed(&terrain, &dem, 1.0e6);
+        let rays = viewshed_rays(&terrain, &dem, 1.0e6);
+        assert_eq!(rays.data, vs.data, "{name}: the ray sweep");
+        let direct = viewshed_from_dem(&dem, &terrain.frame, None, 0.0);
+        assert_eq!(
+            direct.data,
+            viewshed(&terrain, &dem, 0.0).data,
+            "{name}: from the DEM"
+        );
         for (i, (&v, h)) in vs.data.iter().zip(&dem.data).enumerate() {
             let want = if h.is_nan() { 0 } else { 255 };
             assert_eq!(
