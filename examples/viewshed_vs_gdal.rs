@@ -1,14 +1,15 @@
 //! Viewshed: demsketch against `gdal_viewshed` (GDAL on this machine) in one
 //! run, on the same DEM, observer and curvature coefficient (0.85714, i.e.
 //! refraction k = 1/7). For each case prints the share of valid cells on
-//! which the two agree and the wall-clock time of each: ours covers reading
-//! the DEM, resolving the viewpoint, building the terrain and computing the
-//! viewshed (best of 3, in-process); GDAL's is the `gdal_viewshed` process
-//! (best of 3). It also times the exact reference (one cast per cell,
-//! `viewshed_exact`, once; skipped above 20 M cells) and gives the sweep's
-//! agreement with it.
+//! which the two agree and the wall-clock time of each, the median of
+//! several runs alternating between the two: ours covers reading the DEM,
+//! resolving the viewpoint and computing the viewshed (`viewshed_from_dem`,
+//! in-process), and, in its own column, also writing it as a GeoTIFF; GDAL's
+//! is the `gdal_viewshed` process (read, compute, write). It also times the
+//! exact reference (one cast per cell, `viewshed_exact`, once; skipped
+//! above 20 M cells) and gives our agreement with it.
 //!
-//!     cargo run --release --example viewshed_vs_gdal
+//!     cargo run --release --example viewshed_vs_gdal [-- RUNS]
 //!
 //! The cases are the three fixtures of `tests/view_viewshed.rs` (Zion UTM,
 //! Arenal in EPSG:4326, Vinschgau) and, for timings on larger grids, Zion
@@ -16,7 +17,7 @@
 //! and 8192 x 8192 cells.
 
 use demsketch::raster::read_height_map;
-use demsketch::render::{viewshed, viewshed_exact, LocalTerrain};
+use demsketch::render::{viewshed_exact, viewshed_from_dem, write_viewshed_tiff, LocalTerrain};
 use demsketch::view::{Georef, Viewpoint};
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -42,14 +43,24 @@ fn best_of<T>(n: usize, mut f: impl FnMut() -> T) -> (T, f64) {
     (out.expect("n > 0"), best)
 }
 
-fn run(case: &Case, tmp: &Path) -> anyhow::Result<()> {
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
+
+fn run(case: &Case, tmp: &Path, runs: usize) -> anyhow::Result<()> {
     let map = read_height_map(&case.path)?;
     let (x, y) = map
         .geotransform
         .pixel_to_crs(case.col as f64 + 0.5, case.row as f64 + 0.5);
     let georef = Georef::new(&map, &case.name)?;
     let (lon, lat) = georef.crs_to_lonlat(x, y)?;
-    let (ours, ours_s) = best_of(3, || -> anyhow::Result<_> {
+    let ours_once = || -> anyhow::Result<_> {
         let map = read_height_map(&case.path)?;
         let georef = Georef::new(&map, &case.name)?;
         let frame = georef.local_frame(
@@ -57,10 +68,40 @@ fn run(case: &Case, tmp: &Path) -> anyhow::Result<()> {
             &map,
             1.0 / 7.0,
         )?;
-        let terrain = LocalTerrain::new(&map, &frame, None);
-        Ok(viewshed(&terrain, &map, 0.0))
-    });
-    let ours = ours?;
+        Ok(viewshed_from_dem(&map, &frame, None, 0.0))
+    };
+    let out = tmp.join(format!("{}.gdal.tif", case.name));
+    let ours_tif = tmp.join(format!("{}.ours.tif", case.name));
+    let gdal_once = || -> anyhow::Result<()> {
+        let st = Command::new("gdal_viewshed")
+            .args(["-q", "-ox", &format!("{x:.6}"), "-oy", &format!("{y:.6}")])
+            .args(["-oz", &case.eye.to_string(), "-cc", "0.85714"])
+            .args(["-vv", "255", "-iv", "0"])
+            .arg(&case.path)
+            .arg(&out)
+            .status()?;
+        anyhow::ensure!(st.success(), "gdal_viewshed failed on {}", case.name);
+        Ok(())
+    };
+    // alternate: ours, ours + write, GDAL; medians
+    let (mut t_ours, mut t_write, mut t_gdal) = (Vec::new(), Vec::new(), Vec::new());
+    let mut ours = None;
+    for _ in 0..runs {
+        let t = Instant::now();
+        let vs = ours_once()?;
+        t_ours.push(t.elapsed().as_secs_f64());
+        drop(vs);
+        let t = Instant::now();
+        let vs = ours_once()?;
+        write_viewshed_tiff(&vs, &ours_tif)?;
+        t_write.push(t.elapsed().as_secs_f64());
+        ours = Some(vs);
+        let t = Instant::now();
+        gdal_once()?;
+        t_gdal.push(t.elapsed().as_secs_f64());
+    }
+    let ours = ours.expect("runs > 0");
+    let (ours_s, write_s, gdal_s) = (median(t_ours), median(t_write), median(t_gdal));
     let cells = map.width * map.height;
     let exact = if cells <= 20_000_000 {
         let (e, s) = best_of(1, || -> anyhow::Result<_> {
@@ -76,17 +117,6 @@ fn run(case: &Case, tmp: &Path) -> anyhow::Result<()> {
     } else {
         None
     };
-    let out = tmp.join(format!("{}.gdal.tif", case.name));
-    let (st, gdal_s) = best_of(3, || {
-        Command::new("gdal_viewshed")
-            .args(["-q", "-ox", &format!("{x:.6}"), "-oy", &format!("{y:.6}")])
-            .args(["-oz", &case.eye.to_string(), "-cc", "0.85714"])
-            .args(["-vv", "255", "-iv", "0"])
-            .arg(&case.path)
-            .arg(&out)
-            .status()
-    });
-    anyhow::ensure!(st?.success(), "gdal_viewshed failed on {}", case.name);
     let ds = gdal::Dataset::open(&out)?;
     let band = ds.rasterband(1)?;
     let (w, h) = band.size();
@@ -117,7 +147,7 @@ fn run(case: &Case, tmp: &Path) -> anyhow::Result<()> {
         None => ("-".into(), "-".into()),
     };
     println!(
-        "| {} | {} x {} | cell ({}, {}), {} m | {:.2} % | {} | {:.1} ms | {} | {:.1} ms | {:.2} |",
+        "| {} | {} x {} | cell ({}, {}), {} m | {:.2} % | {} | {:.1} ms | {:.1} ms | {} | {:.1} ms | {:.2} | {:.2} |",
         case.name,
         map.width,
         map.height,
@@ -127,14 +157,21 @@ fn run(case: &Case, tmp: &Path) -> anyhow::Result<()> {
         100.0 * agree as f64 / total as f64,
         vs_exact,
         ours_s * 1e3,
+        write_s * 1e3,
         exact_ms,
         gdal_s * 1e3,
-        ours_s / gdal_s
+        ours_s / gdal_s,
+        write_s / gdal_s
     );
     Ok(())
 }
 
 fn main() -> anyhow::Result<()> {
+    let runs: usize = match std::env::args().nth(1) {
+        Some(a) => a.parse()?,
+        None => 5,
+    };
+    anyhow::ensure!(runs > 0, "RUNS must be at least 1");
     let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures");
     let tmp = tempfile::tempdir()?;
     let resampled = |name: &str, w: &str, h: &str| -> anyhow::Result<PathBuf> {
@@ -185,11 +222,11 @@ fn main() -> anyhow::Result<()> {
         case("zion 8192^2 (resampled)", big8k, 4096, 1640, 1.7),
     ];
     println!(
-        "| DEM | cells | observer | agreement with GDAL | agreement with exact | demsketch (sweep) | exact | gdal_viewshed | sweep / GDAL |"
+        "| DEM | cells | observer | agreement with GDAL | agreement with exact | demsketch | demsketch + write | exact | gdal_viewshed | demsketch / GDAL | + write / GDAL |"
     );
-    println!("|---|---|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|");
     for c in &cases {
-        run(c, tmp.path())?;
+        run(c, tmp.path(), runs)?;
     }
     Ok(())
 }

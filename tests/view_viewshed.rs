@@ -13,7 +13,7 @@
 
 mod view_support;
 
-use demsketch::render::{viewshed, viewshed_exact, LocalTerrain};
+use demsketch::render::{viewshed, viewshed_exact, viewshed_from_dem, viewshed_rays, LocalTerrain};
 use demsketch::view::{Georef, Viewpoint};
 use view_support::*;
 
@@ -173,10 +173,14 @@ fn viewshed_respects_max_distance_and_writes_geotiff() {
     }
 }
 
-/// Share of valid cells on which the sweep ([`viewshed`]) and one exact
-/// line of sight per cell ([`viewshed_exact`]) agree, from 1.7 m above the
-/// centre of cell (col, row) of a fixture, and the time of each.
-fn sweep_against_exact(name: &str, col: usize, row: usize) -> f64 {
+/// A fixture and its terrain from 1.7 m above the centre of cell
+/// (col, row), refraction k = 1/7, within `max_d` metres (`None`: all).
+fn terrain_at(
+    name: &str,
+    col: usize,
+    row: usize,
+    max_d: Option<f64>,
+) -> (demsketch::raster::HeightMap, LocalTerrain) {
     let dem = load(&fixture(name));
     let (x, y) = dem
         .geotransform
@@ -186,7 +190,15 @@ fn sweep_against_exact(name: &str, col: usize, row: usize) -> f64 {
     let frame = georef
         .local_frame(&Viewpoint::above_surface(lon, lat, 1.7), &dem, 1.0 / 7.0)
         .unwrap();
-    let terrain = LocalTerrain::new(&dem, &frame, Some(50_000.0));
+    let terrain = LocalTerrain::new(&dem, &frame, max_d);
+    (dem, terrain)
+}
+
+/// Share of valid cells on which the sweep ([`viewshed`]) and one exact
+/// line of sight per cell ([`viewshed_exact`]) agree, from 1.7 m above the
+/// centre of cell (col, row) of a fixture, and the time of each.
+fn sweep_against_exact(name: &str, col: usize, row: usize) -> f64 {
+    let (dem, terrain) = terrain_at(name, col, row, Some(50_000.0));
     let sweep = viewshed(&terrain, &dem, 0.0);
     let exact = viewshed_exact(&terrain, &dem, 0.0);
     let (mut agree, mut total) = (0usize, 0usize);
@@ -237,17 +249,18 @@ fn sweep_decides_every_cell() {
         ("vinschgau_250m_utm32n.tif", 101, 110),
         ("nz_1km_nan_nodata.tif", 600, 800),
     ] {
-        let dem = load(&fixture(name));
-        let (x, y) = dem
-            .geotransform
-            .pixel_to_crs(col as f64 + 0.5, row as f64 + 0.5);
-        let georef = Georef::new(&dem, name).unwrap();
-        let (lon, lat) = georef.crs_to_lonlat(x, y).unwrap();
-        let frame = georef
-            .local_frame(&Viewpoint::above_surface(lon, lat, 1.7), &dem, 1.0 / 7.0)
-            .unwrap();
-        let terrain = LocalTerrain::new(&dem, &frame, None);
+        let (dem, terrain) = terrain_at(name, col, row, None);
+        // the propagation, the ray sweep it replaced, and the propagation
+        // straight from the DEM (the same answer, bit for bit)
         let vs = viewshed(&terrain, &dem, 1.0e6);
+        let rays = viewshed_rays(&terrain, &dem, 1.0e6);
+        assert_eq!(rays.data, vs.data, "{name}: the ray sweep");
+        let direct = viewshed_from_dem(&dem, &terrain.frame, None, 0.0);
+        assert_eq!(
+            direct.data,
+            viewshed(&terrain, &dem, 0.0).data,
+            "{name}: from the DEM"
+        );
         for (i, (&v, h)) in vs.data.iter().zip(&dem.data).enumerate() {
             let want = if h.is_nan() { 0 } else { 255 };
             assert_eq!(

@@ -215,8 +215,8 @@ pub struct ViewArgs {
     #[arg(long, default_value_t = 0.0)]
     pub target_height: f64,
     /// Compute --viewshed with one exact line of sight per cell instead of
-    /// the radial sweep (several times slower; the sweep agrees with it on
-    /// at least 99 % of cells).
+    /// horizon propagation (tens of times slower; the propagation agrees
+    /// with it on at least 99 % of cells).
     #[arg(long, requires = "viewshed")]
     pub viewshed_exact: bool,
     /// Also write the view's features as GeoJSON: silhouettes (with their

@@ -33,7 +33,9 @@ pub use shaded_image::{
 };
 pub use terrain::{LocalTerrain, RayHit};
 pub use triangle_raster::PATCH_TOLERANCE_PX;
-pub use viewshed::{viewshed, viewshed_exact, write_viewshed_tiff, Viewshed};
+pub use viewshed::{
+    viewshed, viewshed_exact, viewshed_from_dem, viewshed_rays, write_viewshed_tiff, Viewshed,
+};
 
 /// Errors of rendering and writing views. One line naming the file and the problem.
 #[derive(Debug, thiserror::Error)]
