@@ -167,10 +167,12 @@ pub const OBSERVER_RADIUS_M: f64 = 100.0;
 /// A view of the sketch set up on the DEM.
 pub(super) struct ViewState<'a> {
     pub(super) spec: &'a ViewSpec,
-    /// The DEM window read for the view (the box of the camera's wedge
-    /// within the view distance, [`Scene::open_wedge`]), where it lies on
-    /// the DEM grid, and the view's local frame (expressed for that window).
-    pub(super) window: HeightMap,
+    /// Where the DEM window read for the view (the box of the camera's
+    /// wedge within the view distance, [`Scene::open_wedge`]) lies on the
+    /// DEM grid, and the view's local frame (expressed for that window).
+    /// The window's heights are [`Extracted::windows`], dropped once the
+    /// strokes are placed: everything later renders from the view's
+    /// terrain.
     pub(super) window_offset: (i64, i64),
     /// The ground held around the eye ([`ViewState::observer_cells`]),
     /// where the wedge's box does not cover it (behind the eye).
@@ -281,8 +283,17 @@ fn edit_pass<'s>(
     timings.features = secs(t);
 
     let t = Instant::now();
-    let placed = match_strokes(edit, &sketch.options, dem, &views, &features, &mut notes)?;
+    let placed = match_strokes(
+        edit,
+        (&sketch.options, dem),
+        (&views, &extracted.windows),
+        &features,
+        &mut notes,
+    )?;
     timings.matching = secs(t);
+    // The views' heights were for the held cells, now placed: the rounds
+    // re-render from the views' terrains (`render_edited`).
+    drop(extracted.windows);
 
     let t = Instant::now();
     let (solver, deformation) = deform(edit, dem, dem_name, &sketch.options, &views, &placed)?;
@@ -483,6 +494,13 @@ fn compose(dem: &Dem, a: &Deformation, b: &Deformation) -> Result<Deformation, E
 pub(super) struct EyeGround {
     map: HeightMap,
     offset: (i64, i64),
+    /// The grid of the square of the view distance around the eye (as
+    /// reading it would georeference it) and its offset in the DEM's: CRS
+    /// points are turned into cells on it, as when the view read the whole
+    /// square (the same cells to the last bit, where a point lies on a
+    /// line between cell centres).
+    grid: crate::raster::GeoTransform,
+    grid_offset: (i64, i64),
 }
 
 /// Per view: the DEM around its viewpoint, its camera and the ground
@@ -521,6 +539,7 @@ fn load_views(edit: &Edit, dem: Dem, sketch_path: &Path) -> Result<Loaded, EditE
         notes.extend(n);
         prepared.push(strokes);
     }
+    check_view_sizes(edit, &dem, &sketch)?;
     let mut scenes = Vec::new();
     for v in &sketch.views {
         let vp = v.eye();
@@ -562,10 +581,76 @@ fn load_views(edit: &Edit, dem: Dem, sketch_path: &Path) -> Result<Loaded, EditE
     })
 }
 
+/// Bytes of memory an edit takes per cell of its views' windows, at most
+/// (measured: 45 on a 45.8 M-cell view at 100 km): the window read, the
+/// view's terrain and cast index before the edit, the terrains of the
+/// rounds' renders kept (the best, the latest and the current one), the
+/// ridge detection's arrays.
+pub const EDIT_BYTES_PER_CELL: u64 = 48;
+
+/// The size limits of the stages after the load, checked before reading
+/// any height (issue 15: the deformation's window limit used to be hit only
+/// at a re-solve, after seconds of work and gigabytes): the windows every
+/// view reads ([`Scene::wedge_window`]), their union (where the ridges are
+/// detected: at most 2^30 cells) and the memory the edit will take over
+/// them ([`EDIT_BYTES_PER_CELL`] per cell) against the memory budget
+/// ([`crate::raster::geotiff::memory_budget`]).
+fn check_view_sizes(edit: &Edit, dem: &Dem, sketch: &SketchFile) -> Result<(), EditError> {
+    let mut windows = Vec::new();
+    for v in &sketch.views {
+        let view_err = |source| EditError::View {
+            sketch: edit.sketch_name.clone(),
+            view: v.name.clone(),
+            source,
+        };
+        let camera = v.pinhole().map_err(|e| view_err(e.into()))?;
+        let w = Scene::wedge_window(dem, &v.eye(), edit.max_d, edit.opts.refraction, &camera)
+            .map_err(view_err)?;
+        windows.push(w);
+    }
+    let Some(first) = windows.first() else {
+        return Ok(());
+    };
+    let (mut c0, mut r0, mut c1, mut r1) = (first.col, first.row, first.col_end(), first.row_end());
+    for w in &windows {
+        c0 = c0.min(w.col);
+        r0 = r0.min(w.row);
+        c1 = c1.max(w.col_end());
+        r1 = r1.max(w.row_end());
+    }
+    let union = ((c1 - c0) as u64).saturating_mul((r1 - r0) as u64);
+    let cells: u64 = windows.iter().map(|w| w.len() as u64).sum();
+    let bytes = cells.saturating_mul(EDIT_BYTES_PER_CELL);
+    let budget = crate::raster::geotiff::memory_budget();
+    let distance = match edit.max_d {
+        Some(d) => format!("--max-distance {d} m"),
+        None => "the whole DEM (no --max-distance)".to_string(),
+    };
+    let message = if union >= 1 << 30 {
+        format!(
+            "the views see {union} cells within {distance} (ridge detection handles at most 2^30): lower --max-distance"
+        )
+    } else if bytes > budget {
+        format!(
+            "the views see {cells} cells within {distance}: the edit would take about {} MB, over the memory budget of {} MB (DEMSKETCH_MEMORY_BUDGET_MB): lower --max-distance",
+            bytes >> 20,
+            budget >> 20
+        )
+    } else {
+        return Ok(());
+    };
+    Err(EditError::Unusable {
+        sketch: edit.sketch_name.clone(),
+        message,
+    })
+}
+
 /// The views rendered before the edit, and the ridges around them
 /// ([`render_and_extract`]).
 struct Extracted<'a> {
     views: Vec<ViewState<'a>>,
+    /// Per view: the heights of its window ([`ViewState::window`]).
+    windows: Vec<HeightMap>,
     ridges: RidgeNetwork,
 }
 
@@ -617,6 +702,7 @@ fn render_and_extract<'a>(
     );
     let ridges = ridges?;
     let mut views: Vec<ViewState> = Vec::new();
+    let mut heights = Vec::new();
     for (((v, (window, window_offset, frame, camera, eye_ground)), strokes), before) in
         sketch.views.iter().zip(parts).zip(prepared).zip(befores)
     {
@@ -624,7 +710,6 @@ fn render_and_extract<'a>(
             .map_err(|e| EditError::Internal(format!("view \"{}\": features: {e}", v.name)))?;
         views.push(ViewState {
             spec: v,
-            window,
             window_offset,
             eye_ground,
             frame,
@@ -632,11 +717,16 @@ fn render_and_extract<'a>(
             strokes,
             before,
         });
+        heights.push(window);
     }
     for v in &views {
         check_strokes_touch_terrain(v, dem, edit.max_d, &edit.sketch_name)?;
     }
-    Ok(Extracted { views, ridges })
+    Ok(Extracted {
+        views,
+        windows: heights,
+        ridges,
+    })
 }
 
 /// The terrain features each view offers the strokes ([`scene_features`]).
@@ -723,9 +813,8 @@ pub(super) struct Placed {
 /// placed at all.
 fn match_strokes(
     edit: &Edit,
-    options: &SketchOptions,
-    dem: &Dem,
-    views: &[ViewState],
+    (options, dem): (&SketchOptions, &Dem),
+    (views, windows): (&[ViewState], &[HeightMap]),
     features: &Features,
     notes: &mut Vec<String>,
 ) -> Result<Placed, EditError> {
@@ -757,7 +846,7 @@ fn match_strokes(
     if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
         trace_candidates(&matched);
     }
-    let demands = place_demands(views, scene_views, &mut matched.views, options);
+    let demands = place_demands(views, windows, scene_views, &mut matched.views, options);
     notes.extend(depth_notes(views, &demands.strokes));
     let issues: Vec<Vec<Option<&'static str>>> = scene_views
         .iter()
@@ -1155,6 +1244,7 @@ pub(super) struct Demands {
 /// observer's ground.
 fn place_demands(
     views: &[ViewState],
+    windows: &[HeightMap],
     scene_views: &[SceneView],
     matched: &mut [crate::sketch::ViewMatch],
     options: &SketchOptions,
@@ -1167,7 +1257,12 @@ fn place_demands(
         placement: Vec::new(),
     };
     let mut held = Vec::new();
-    for ((v, sv), m) in views.iter().zip(scene_views).zip(matched.iter_mut()) {
+    for (((v, w), sv), m) in views
+        .iter()
+        .zip(windows)
+        .zip(scene_views)
+        .zip(matched.iter_mut())
+    {
         let mut cs = Vec::new();
         let mut fractions = Vec::new();
         let mut placements = Vec::new();
@@ -1190,7 +1285,7 @@ fn place_demands(
             d.curves
                 .extend(free_stretches(&dem_points, &depths, &anchored));
             for (p, _) in dem_points.iter().zip(&anchored).filter(|(_, &a)| a) {
-                held.extend(v.stencil_cells(p[0], p[1]));
+                held.extend(v.stencil_cells(w, p[0], p[1]));
             }
             cs.push(StrokeCurve::new(s, sm));
         }
@@ -1207,8 +1302,9 @@ fn place_demands(
         d.fixed
             .extend(held.into_iter().filter(|c| !near.contains(&(c.col, c.row))));
     }
-    for v in views {
-        d.fixed.extend(v.observer_cells(options.observer_radius_m));
+    for (v, w) in views.iter().zip(windows) {
+        d.fixed
+            .extend(v.observer_cells(w, options.observer_radius_m));
     }
     d
 }
@@ -1223,14 +1319,10 @@ fn cells_near_curves(
     curves: &[CurveConstraint],
     reach: i64,
 ) -> std::collections::HashSet<(i64, i64)> {
-    let gt = &v.window.geotransform;
+    let gt = &v.eye_ground.grid;
     let mut near = std::collections::HashSet::new();
     let mut mark = |x: f64, y: f64| {
-        if let Some((px, py)) = gt.crs_to_pixel(x, y) {
-            let (c, r) = (
-                (px - 0.5).floor() as i64 + v.window_offset.0,
-                (py - 0.5).floor() as i64 + v.window_offset.1,
-            );
+        if let Some((c, r)) = v.cell_of(x, y) {
             for dr in -reach..=reach + 1 {
                 for dc in -reach..=reach + 1 {
                     near.insert((c + dc, r + dr));
@@ -1359,29 +1451,39 @@ impl ViewState<'_> {
     }
 
     /// The cells of the bilinear stencil of DEM CRS point `(x, y)`, held
-    /// at their input heights.
-    fn stencil_cells(&self, x: f64, y: f64) -> Vec<CellConstraint> {
-        let Some((px, py)) = self.window.geotransform.crs_to_pixel(x, y) else {
+    /// at their input heights (`window`: the view's window's heights).
+    fn stencil_cells(&self, window: &HeightMap, x: f64, y: f64) -> Vec<CellConstraint> {
+        let Some((c0, r0)) = self.cell_of(x, y) else {
             return Vec::new();
         };
-        let (c0, r0) = ((px - 0.5).floor() as i64, (py - 0.5).floor() as i64);
         [(c0, r0), (c0 + 1, r0), (c0, r0 + 1), (c0 + 1, r0 + 1)]
             .into_iter()
-            .filter_map(|(c, r)| self.held_cell(c, r))
+            .filter_map(|(c, r)| self.held_cell(window, c, r))
             .collect()
     }
 
-    /// Window cell `(c, r)` held at its input height (in whole-DEM
-    /// coordinates); `None` outside the window and the eye's ground
-    /// ([`EyeGround`]), or on nodata.
-    fn held_cell(&self, c: i64, r: i64) -> Option<CellConstraint> {
-        let (col, row) = (c + self.window_offset.0, r + self.window_offset.1);
+    /// The DEM cell (whole-DEM grid) whose centre is the upper left one of
+    /// the bilinear stencil of CRS point `(x, y)`, found on the grid of the
+    /// square around the eye ([`EyeGround::grid`]).
+    fn cell_of(&self, x: f64, y: f64) -> Option<(i64, i64)> {
+        let (px, py) = self.eye_ground.grid.crs_to_pixel(x, y)?;
+        let off = self.eye_ground.grid_offset;
+        Some((
+            (px - 0.5).floor() as i64 + off.0,
+            (py - 0.5).floor() as i64 + off.1,
+        ))
+    }
+
+    /// DEM cell `(col, row)` (whole-DEM grid) held at its input height;
+    /// `None` outside the window and the eye's ground ([`EyeGround`]), or
+    /// on nodata.
+    fn held_cell(&self, window: &HeightMap, col: i64, row: i64) -> Option<CellConstraint> {
         let at = |map: &HeightMap, off: (i64, i64)| {
             let (x, y) = (col - off.0, row - off.1);
             (x >= 0 && y >= 0 && (x as usize) < map.width && (y as usize) < map.height)
                 .then(|| map.get(x as usize, y as usize))
         };
-        let h = at(&self.window, self.window_offset)
+        let h = at(window, self.window_offset)
             .or_else(|| at(&self.eye_ground.map, self.eye_ground.offset))??;
         Some(CellConstraint {
             col,
@@ -1400,7 +1502,7 @@ impl ViewState<'_> {
     /// The ground the observer stands on: every cell whose surface reaches
     /// within `radius_m` of the viewpoint (default 100 m, at least two
     /// cells), held at its input height.
-    fn observer_cells(&self, radius_m: Option<f64>) -> Vec<CellConstraint> {
+    fn observer_cells(&self, window: &HeightMap, radius_m: Option<f64>) -> Vec<CellConstraint> {
         let Some((reach, nc, nr)) = observer_reach(&self.frame, radius_m) else {
             return Vec::new();
         };
@@ -1413,7 +1515,11 @@ impl ViewState<'_> {
                 if e.hypot(n) > reach {
                     continue;
                 }
-                out.extend(self.held_cell(c, r));
+                out.extend(self.held_cell(
+                    window,
+                    c + self.window_offset.0,
+                    r + self.window_offset.1,
+                ));
             }
         }
         out
@@ -1460,14 +1566,19 @@ fn eye_ground(
     max_d: Option<f64>,
     radius_m: Option<f64>,
 ) -> Result<EyeGround, crate::render::RenderError> {
+    let square = Scene::window_of(dem, &scene.georef, vp.lon, vp.lat, max_d)?;
+    let grid = dem
+        .geotransform
+        .offset(square.col as f64, square.row as f64);
     let empty = || EyeGround {
         map: scene.window.crop(0, 0, 0, 0),
         offset: (0, 0),
+        grid,
+        grid_offset: (square.col, square.row),
     };
     let Some((_, nc, nr)) = observer_reach(&scene.frame, radius_m) else {
         return Ok(empty());
     };
-    let square = Scene::window_of(dem, &scene.georef, vp.lon, vp.lat, max_d)?;
     let (ex, ey) = scene.frame.eye_pixel;
     let (c, r) = (
         scene.window_offset.0 + ex.floor() as i64,
@@ -1480,6 +1591,8 @@ fn eye_ground(
     Ok(EyeGround {
         map: dem.read_height_map(w)?,
         offset: (w.col, w.row),
+        grid,
+        grid_offset: (square.col, square.row),
     })
 }
 

@@ -243,7 +243,12 @@ impl LocalTerrain {
         let max_d = self.max_distance;
         let max_d2 = max_d * max_d * 1.0001 + 1.0;
         let (tc0, tr0) = (self.col0, self.row0);
-        let mut z = self.z.clone();
+        // A recycled buffer (the terrains of earlier rounds give theirs
+        // back), copied in parallel.
+        let mut z = buffer_pool::overwritten_f32(self.z.len());
+        z.par_chunks_mut(1 << 16)
+            .zip(self.z.par_chunks(1 << 16))
+            .for_each(|(a, b)| a.copy_from_slice(b));
         // The rectangle within the terrain's vertices.
         let (a0, b0) = (c0.max(tc0), r0.max(tr0));
         let (a1, b1) = (c1.min(tc0 + self.nx), r1.min(tr0 + self.ny));
