@@ -524,3 +524,50 @@ fn an_edit_that_changes_nothing_still_writes_the_format_asked_for() {
         gdal_values(&fixture("zion_srtm_utm12n.tif")).2
     );
 }
+
+/// The size limits are checked before any height is read: an edit whose
+/// views would take more memory than the budget stops at once, in one line
+/// that says to lower --max-distance, with nothing written.
+#[test]
+fn an_edit_over_the_memory_budget_stops_before_reading() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = dir.path().join("o.tif");
+    // The bundled sketch with its images a tenth of the size (the camera's
+    // own memory check comes first): the views' windows alone are over 1 MB.
+    let text = std::fs::read_to_string(sketch()).expect("sketch");
+    let mut v: Value = serde_json::from_str(&text).expect("json");
+    for view in v["views"].as_array_mut().expect("views") {
+        for k in ["width", "height"] {
+            let n = view["camera"][k].as_u64().expect("size");
+            view["camera"][k] = Value::from(n / 10);
+        }
+        for st in view["strokes"].as_array_mut().expect("strokes") {
+            for p in st["points"].as_array_mut().expect("points") {
+                for c in p.as_array_mut().expect("point") {
+                    *c = Value::from(c.as_f64().expect("coordinate") / 10.0);
+                }
+            }
+        }
+    }
+    let small = dir.path().join("small.json");
+    std::fs::write(&small, v.to_string()).expect("write");
+    let r = std::process::Command::new(env!("CARGO_BIN_EXE_demsketch"))
+        .args([
+            "edit",
+            &s(&dem()),
+            "--sketch",
+            &s(&small),
+            "--out",
+            &s(&out),
+        ])
+        .env("DEMSKETCH_MEMORY_BUDGET_MB", "1")
+        .output()
+        .expect("demsketch");
+    assert_eq!(r.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(
+        err.contains("over the memory budget") && err.contains("lower --max-distance"),
+        "{err}"
+    );
+    assert!(!out.exists());
+}

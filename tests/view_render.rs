@@ -527,4 +527,59 @@ fn a_cast_in_the_cell_of_the_hit_equals_the_traversal() {
     assert!(same > 100, "{same} rays checked");
     assert!(refused > 20, "{refused} later cells refused");
     assert!(walks > 50, "{walks} walks over several cells");
+
+}
+/// `LocalTerrain::with_heights` (the edit's re-renders) gives the terrain a
+/// build over a copy of the grid with those heights swapped in gives: the
+/// same vertex heights to the bit, the same depth buffer and triangles.
+#[test]
+fn patched_terrain_is_the_terrain_of_the_patched_grid() {
+    use demsketch::raster::Dem;
+    use demsketch::render::Scene;
+    let dem = Dem::open(&fixture("zion_srtm_utm12n.tif")).unwrap();
+    let (x, y) = dem.geotransform.pixel_to_crs(210.5, 103.5);
+    let georef = Georef::for_crs(&dem.crs, "zion").unwrap();
+    let (lon, lat) = georef.crs_to_lonlat(x, y).unwrap();
+    let vp = Viewpoint::above_surface(lon, lat, 1.7);
+    let cam = Camera::new(320, 180, 200.0, -3.0, 0.0, 60.0).unwrap();
+    let scene = Scene::open_wedge(&dem, &vp, Some(9000.0), 1.0 / 7.0, &cam).unwrap();
+    // A bump over a rectangle partly outside the terrain's cells.
+    let (w, h) = (scene.window.width, scene.window.height);
+    let rect = (w / 3, h / 4, w + 5, h / 2);
+    let bump = |c: usize, r: usize| -> Option<f32> {
+        let v = scene.window.get(c, r)?;
+        (c % 7 != 0).then(|| v + 0.37 * ((c + 3 * r) % 11) as f32)
+    };
+    let mut map = scene.window.clone();
+    for r in rect.1..rect.3.min(h) {
+        for c in rect.0..rect.2.min(w) {
+            if let Some(v) = bump(c, r) {
+                map.data[r * w + c] = v;
+            }
+        }
+    }
+    let want = LocalTerrain::over(&map, &scene.frame, Some(9000.0));
+    let got = scene.terrain.with_heights(rect, &bump);
+    assert_eq!(
+        (got.nx, got.ny, got.col0, got.row0),
+        (want.nx, want.ny, want.col0, want.row0)
+    );
+    assert!(
+        got.z
+            .iter()
+            .zip(&want.z)
+            .all(|(p, q)| p.to_bits() == q.to_bits()),
+        "vertex heights"
+    );
+    assert!(got.z.iter().zip(&scene.terrain.z).any(|(p, q)| p != q));
+    let (da, db) = (
+        DepthBuffer::render(&got, &cam),
+        DepthBuffer::render(&want, &cam),
+    );
+    assert!(da
+        .depth
+        .iter()
+        .zip(&db.depth)
+        .all(|(p, q)| p.to_bits() == q.to_bits()));
+    assert_eq!(da.triangle, db.triangle);
 }

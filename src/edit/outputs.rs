@@ -84,7 +84,7 @@ pub(super) fn write_outputs(
         // the whole view.
         let whole = views
             .iter()
-            .map(|v| render_edited(v, &deformation, edit.max_d, None))
+            .map(|v| render_edited(v, &deformation, None))
             .collect::<Result<Vec<_>, _>>()?;
         pictures(views, &whole, &deformation)?
     } else {

@@ -167,10 +167,16 @@ pub const OBSERVER_RADIUS_M: f64 = 100.0;
 /// A view of the sketch set up on the DEM.
 pub(super) struct ViewState<'a> {
     pub(super) spec: &'a ViewSpec,
-    /// The DEM window read around the viewpoint, where it lies on the DEM
-    /// grid, and the view's local frame (resolved on that window).
-    pub(super) window: HeightMap,
+    /// Where the DEM window read for the view (the box of the camera's
+    /// wedge within the view distance, [`Scene::open_wedge`]) lies on the
+    /// DEM grid, and the view's local frame (expressed for that window).
+    /// The window's heights are [`Extracted::windows`], dropped once the
+    /// strokes are placed: everything later renders from the view's
+    /// terrain.
     pub(super) window_offset: (i64, i64),
+    /// The ground held around the eye ([`ViewState::observer_cells`]),
+    /// where the wedge's box does not cover it (behind the eye).
+    pub(super) eye_ground: EyeGround,
     pub(super) frame: LocalFrame,
     pub(super) camera: Camera,
     pub(super) strokes: Vec<Stroke>,
@@ -267,7 +273,7 @@ pub fn run(
 fn edit_pass<'s>(
     edit: &Edit,
     (sketch, dem, dem_name): (&'s SketchFile, &Dem, &str),
-    (scenes, prepared, mut notes): (Vec<(Scene, Camera)>, Vec<Vec<Stroke>>, Vec<String>),
+    (scenes, prepared, mut notes): (Vec<ViewScene>, Vec<Vec<Stroke>>, Vec<String>),
     timings: &mut Timings,
 ) -> Result<(Vec<ViewState<'s>>, Outcome), EditError> {
     let t = Instant::now();
@@ -277,8 +283,17 @@ fn edit_pass<'s>(
     timings.features = secs(t);
 
     let t = Instant::now();
-    let placed = match_strokes(edit, &sketch.options, dem, &views, &features, &mut notes)?;
+    let placed = match_strokes(
+        edit,
+        (&sketch.options, dem),
+        (&views, &extracted.windows),
+        &features,
+        &mut notes,
+    )?;
     timings.matching = secs(t);
+    // The views' heights were for the held cells, now placed: the rounds
+    // re-render from the views' terrains (`render_edited`).
+    drop(extracted.windows);
 
     let t = Instant::now();
     let (solver, deformation) = deform(edit, dem, dem_name, &sketch.options, &views, &placed)?;
@@ -473,6 +488,25 @@ fn compose(dem: &Dem, a: &Deformation, b: &Deformation) -> Result<Deformation, E
     })
 }
 
+/// The DEM cells around a view's eye that its observer's fixed ground can
+/// take ([`observer_reach`]), within the square of the view distance, with
+/// their offset in the DEM grid.
+pub(super) struct EyeGround {
+    map: HeightMap,
+    offset: (i64, i64),
+    /// The grid of the square of the view distance around the eye (as
+    /// reading it would georeference it) and its offset in the DEM's: CRS
+    /// points are turned into cells on it, as when the view read the whole
+    /// square (the same cells to the last bit, where a point lies on a
+    /// line between cell centres).
+    grid: crate::raster::GeoTransform,
+    grid_offset: (i64, i64),
+}
+
+/// Per view: the DEM around its viewpoint, its camera and the ground
+/// around its eye.
+type ViewScene = (Scene, Camera, EyeGround);
+
 /// The inputs of an edit, read and checked ([`load_views`]).
 struct Loaded {
     sketch: SketchFile,
@@ -481,14 +515,17 @@ struct Loaded {
     notes: Vec<String>,
     /// Per view: its strokes, prepared for matching.
     prepared: Vec<Vec<Stroke>>,
-    /// Per view: the DEM around its viewpoint and its camera.
-    scenes: Vec<(Scene, Camera)>,
+    /// Per view: the DEM around its viewpoint, its camera and the ground
+    /// around its eye.
+    scenes: Vec<ViewScene>,
 }
 
 /// Stage 1, `load`: reads the sketch and opens the DEM, prepares every
 /// view's strokes, and sets up each view on the DEM: its viewpoint
-/// resolved, its camera built, and the DEM window within the maximum view
-/// distance read around it ([`Scene::open_in_view`]). Refuses a viewpoint
+/// resolved, its camera built, and the DEM read where the camera can see
+/// within the maximum view distance ([`Scene::open_wedge`]: the box of its
+/// horizontal wedge, not the whole square around the eye), plus the cells
+/// around the eye its fixed ground can take ([`EyeGround`]). Refuses a viewpoint
 /// whose absolute altitude is not above the ground. Everything later
 /// stages read comes from here; nothing is rendered yet.
 fn load_views(edit: &Edit, dem: Dem, sketch_path: &Path) -> Result<Loaded, EditError> {
@@ -502,6 +539,7 @@ fn load_views(edit: &Edit, dem: Dem, sketch_path: &Path) -> Result<Loaded, EditE
         notes.extend(n);
         prepared.push(strokes);
     }
+    check_view_sizes(edit, &dem, &sketch)?;
     let mut scenes = Vec::new();
     for v in &sketch.views {
         let vp = v.eye();
@@ -511,7 +549,7 @@ fn load_views(edit: &Edit, dem: Dem, sketch_path: &Path) -> Result<Loaded, EditE
             source,
         };
         let camera = v.pinhole().map_err(|e| view_err(e.into()))?;
-        let scene = Scene::open_in_view(&dem, &vp, edit.max_d, edit.opts.refraction, &camera)
+        let scene = Scene::open_wedge(&dem, &vp, edit.max_d, edit.opts.refraction, &camera)
             .map_err(view_err)?;
         if let EyeHeightSpec::Absolute(a) = v.viewpoint.height() {
             if a <= scene.frame.ground {
@@ -524,7 +562,15 @@ fn load_views(edit: &Edit, dem: Dem, sketch_path: &Path) -> Result<Loaded, EditE
                 });
             }
         }
-        scenes.push((scene, camera));
+        let eye_ground = eye_ground(
+            &dem,
+            &scene,
+            &vp,
+            edit.max_d,
+            sketch.options.observer_radius_m,
+        )
+        .map_err(view_err)?;
+        scenes.push((scene, camera, eye_ground));
     }
     Ok(Loaded {
         sketch,
@@ -535,10 +581,76 @@ fn load_views(edit: &Edit, dem: Dem, sketch_path: &Path) -> Result<Loaded, EditE
     })
 }
 
+/// Bytes of memory an edit takes per cell of its views' windows, at most
+/// (measured: 45 on a 45.8 M-cell view at 100 km): the window read, the
+/// view's terrain and cast index before the edit, the terrains of the
+/// rounds' renders kept (the best, the latest and the current one), the
+/// ridge detection's arrays.
+pub const EDIT_BYTES_PER_CELL: u64 = 48;
+
+/// The size limits of the stages after the load, checked before reading
+/// any height (issue 15: the deformation's window limit used to be hit only
+/// at a re-solve, after seconds of work and gigabytes): the windows every
+/// view reads ([`Scene::wedge_window`]), their union (where the ridges are
+/// detected: at most 2^30 cells) and the memory the edit will take over
+/// them ([`EDIT_BYTES_PER_CELL`] per cell) against the memory budget
+/// ([`crate::raster::geotiff::memory_budget`]).
+fn check_view_sizes(edit: &Edit, dem: &Dem, sketch: &SketchFile) -> Result<(), EditError> {
+    let mut windows = Vec::new();
+    for v in &sketch.views {
+        let view_err = |source| EditError::View {
+            sketch: edit.sketch_name.clone(),
+            view: v.name.clone(),
+            source,
+        };
+        let camera = v.pinhole().map_err(|e| view_err(e.into()))?;
+        let w = Scene::wedge_window(dem, &v.eye(), edit.max_d, edit.opts.refraction, &camera)
+            .map_err(view_err)?;
+        windows.push(w);
+    }
+    let Some(first) = windows.first() else {
+        return Ok(());
+    };
+    let (mut c0, mut r0, mut c1, mut r1) = (first.col, first.row, first.col_end(), first.row_end());
+    for w in &windows {
+        c0 = c0.min(w.col);
+        r0 = r0.min(w.row);
+        c1 = c1.max(w.col_end());
+        r1 = r1.max(w.row_end());
+    }
+    let union = ((c1 - c0) as u64).saturating_mul((r1 - r0) as u64);
+    let cells: u64 = windows.iter().map(|w| w.len() as u64).sum();
+    let bytes = cells.saturating_mul(EDIT_BYTES_PER_CELL);
+    let budget = crate::raster::geotiff::memory_budget();
+    let distance = match edit.max_d {
+        Some(d) => format!("--max-distance {d} m"),
+        None => "the whole DEM (no --max-distance)".to_string(),
+    };
+    let message = if union >= 1 << 30 {
+        format!(
+            "the views see {union} cells within {distance} (ridge detection handles at most 2^30): lower --max-distance"
+        )
+    } else if bytes > budget {
+        format!(
+            "the views see {cells} cells within {distance}: the edit would take about {} MB, over the memory budget of {} MB (DEMSKETCH_MEMORY_BUDGET_MB): lower --max-distance",
+            bytes >> 20,
+            budget >> 20
+        )
+    } else {
+        return Ok(());
+    };
+    Err(EditError::Unusable {
+        sketch: edit.sketch_name.clone(),
+        message,
+    })
+}
+
 /// The views rendered before the edit, and the ridges around them
 /// ([`render_and_extract`]).
 struct Extracted<'a> {
     views: Vec<ViewState<'a>>,
+    /// Per view: the heights of its window ([`ViewState::window`]).
+    windows: Vec<HeightMap>,
     ridges: RidgeNetwork,
 }
 
@@ -553,7 +665,7 @@ fn render_and_extract<'a>(
     edit: &Edit,
     sketch: &'a SketchFile,
     dem: &Dem,
-    scenes: Vec<(Scene, Camera)>,
+    scenes: Vec<ViewScene>,
     prepared: Vec<Vec<Stroke>>,
 ) -> Result<Extracted<'a>, EditError> {
     edit.pb
@@ -562,7 +674,7 @@ fn render_and_extract<'a>(
     // side, each also parallel inside.
     let mut parts = Vec::new();
     let mut terrains = Vec::new();
-    for (scene, camera) in scenes {
+    for (scene, camera, eye_ground) in scenes {
         let Scene {
             window,
             window_offset,
@@ -570,7 +682,7 @@ fn render_and_extract<'a>(
             terrain,
             ..
         } = scene;
-        parts.push((window, window_offset, frame, camera));
+        parts.push((window, window_offset, frame, camera, eye_ground));
         terrains.push((terrain, camera));
     }
     let windows: Vec<(&HeightMap, (i64, i64))> = parts.iter().map(|p| (&p.0, p.1)).collect();
@@ -590,25 +702,31 @@ fn render_and_extract<'a>(
     );
     let ridges = ridges?;
     let mut views: Vec<ViewState> = Vec::new();
-    for (((v, (window, window_offset, frame, camera)), strokes), before) in
+    let mut heights = Vec::new();
+    for (((v, (window, window_offset, frame, camera, eye_ground)), strokes), before) in
         sketch.views.iter().zip(parts).zip(prepared).zip(befores)
     {
         let before = before
             .map_err(|e| EditError::Internal(format!("view \"{}\": features: {e}", v.name)))?;
         views.push(ViewState {
             spec: v,
-            window,
             window_offset,
+            eye_ground,
             frame,
             camera,
             strokes,
             before,
         });
+        heights.push(window);
     }
     for v in &views {
         check_strokes_touch_terrain(v, dem, edit.max_d, &edit.sketch_name)?;
     }
-    Ok(Extracted { views, ridges })
+    Ok(Extracted {
+        views,
+        windows: heights,
+        ridges,
+    })
 }
 
 /// The terrain features each view offers the strokes ([`scene_features`]).
@@ -695,9 +813,8 @@ pub(super) struct Placed {
 /// placed at all.
 fn match_strokes(
     edit: &Edit,
-    options: &SketchOptions,
-    dem: &Dem,
-    views: &[ViewState],
+    (options, dem): (&SketchOptions, &Dem),
+    (views, windows): (&[ViewState], &[HeightMap]),
     features: &Features,
     notes: &mut Vec<String>,
 ) -> Result<Placed, EditError> {
@@ -729,7 +846,7 @@ fn match_strokes(
     if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
         trace_candidates(&matched);
     }
-    let demands = place_demands(views, scene_views, &mut matched.views, options);
+    let demands = place_demands(views, windows, scene_views, &mut matched.views, options);
     notes.extend(depth_notes(views, &demands.strokes));
     let issues: Vec<Vec<Option<&'static str>>> = scene_views
         .iter()
@@ -861,7 +978,7 @@ fn apply_corrections(
     rounds.rendered = views
         .iter()
         .zip(&placed.regions)
-        .map(|(v, r)| render_edited(v, &deformation, edit.max_d, Some(r)))
+        .map(|(v, r)| render_edited(v, &deformation, Some(r)))
         .collect::<Result<_, _>>()?;
     rounds.deformation = deformation;
     Ok(reports)
@@ -1127,6 +1244,7 @@ pub(super) struct Demands {
 /// observer's ground.
 fn place_demands(
     views: &[ViewState],
+    windows: &[HeightMap],
     scene_views: &[SceneView],
     matched: &mut [crate::sketch::ViewMatch],
     options: &SketchOptions,
@@ -1139,7 +1257,12 @@ fn place_demands(
         placement: Vec::new(),
     };
     let mut held = Vec::new();
-    for ((v, sv), m) in views.iter().zip(scene_views).zip(matched.iter_mut()) {
+    for (((v, w), sv), m) in views
+        .iter()
+        .zip(windows)
+        .zip(scene_views)
+        .zip(matched.iter_mut())
+    {
         let mut cs = Vec::new();
         let mut fractions = Vec::new();
         let mut placements = Vec::new();
@@ -1162,7 +1285,7 @@ fn place_demands(
             d.curves
                 .extend(free_stretches(&dem_points, &depths, &anchored));
             for (p, _) in dem_points.iter().zip(&anchored).filter(|(_, &a)| a) {
-                held.extend(v.stencil_cells(p[0], p[1]));
+                held.extend(v.stencil_cells(w, p[0], p[1]));
             }
             cs.push(StrokeCurve::new(s, sm));
         }
@@ -1179,8 +1302,9 @@ fn place_demands(
         d.fixed
             .extend(held.into_iter().filter(|c| !near.contains(&(c.col, c.row))));
     }
-    for v in views {
-        d.fixed.extend(v.observer_cells(options.observer_radius_m));
+    for (v, w) in views.iter().zip(windows) {
+        d.fixed
+            .extend(v.observer_cells(w, options.observer_radius_m));
     }
     d
 }
@@ -1195,14 +1319,10 @@ fn cells_near_curves(
     curves: &[CurveConstraint],
     reach: i64,
 ) -> std::collections::HashSet<(i64, i64)> {
-    let gt = &v.window.geotransform;
+    let gt = &v.eye_ground.grid;
     let mut near = std::collections::HashSet::new();
     let mut mark = |x: f64, y: f64| {
-        if let Some((px, py)) = gt.crs_to_pixel(x, y) {
-            let (c, r) = (
-                (px - 0.5).floor() as i64 + v.window_offset.0,
-                (py - 0.5).floor() as i64 + v.window_offset.1,
-            );
+        if let Some((c, r)) = v.cell_of(x, y) {
             for dr in -reach..=reach + 1 {
                 for dc in -reach..=reach + 1 {
                     near.insert((c + dc, r + dr));
@@ -1319,12 +1439,6 @@ impl Solver<'_> {
 }
 
 impl ViewState<'_> {
-    /// Metres per cell of the view's window along its columns and rows.
-    fn cell_m(&self) -> (f64, f64) {
-        let p = self.frame.p;
-        (p[0][0].hypot(p[1][0]), p[0][1].hypot(p[1][1]))
-    }
-
     /// The DEM cell under the eye, as a one-cell window.
     fn eye_cell(&self) -> Window {
         let (ex, ey) = self.frame.eye_pixel;
@@ -1337,28 +1451,43 @@ impl ViewState<'_> {
     }
 
     /// The cells of the bilinear stencil of DEM CRS point `(x, y)`, held
-    /// at their input heights.
-    fn stencil_cells(&self, x: f64, y: f64) -> Vec<CellConstraint> {
-        let Some((px, py)) = self.window.geotransform.crs_to_pixel(x, y) else {
+    /// at their input heights (`window`: the view's window's heights).
+    fn stencil_cells(&self, window: &HeightMap, x: f64, y: f64) -> Vec<CellConstraint> {
+        let Some((c0, r0)) = self.cell_of(x, y) else {
             return Vec::new();
         };
-        let (c0, r0) = ((px - 0.5).floor() as i64, (py - 0.5).floor() as i64);
         [(c0, r0), (c0 + 1, r0), (c0, r0 + 1), (c0 + 1, r0 + 1)]
             .into_iter()
-            .filter_map(|(c, r)| self.held_cell(c, r))
+            .filter_map(|(c, r)| self.held_cell(window, c, r))
             .collect()
     }
 
-    /// Window cell `(c, r)` held at its input height (in whole-DEM
-    /// coordinates); `None` outside the window or on nodata.
-    fn held_cell(&self, c: i64, r: i64) -> Option<CellConstraint> {
-        if c < 0 || r < 0 {
-            return None;
-        }
-        let h = self.window.get(c as usize, r as usize)?;
+    /// The DEM cell (whole-DEM grid) whose centre is the upper left one of
+    /// the bilinear stencil of CRS point `(x, y)`, found on the grid of the
+    /// square around the eye ([`EyeGround::grid`]).
+    fn cell_of(&self, x: f64, y: f64) -> Option<(i64, i64)> {
+        let (px, py) = self.eye_ground.grid.crs_to_pixel(x, y)?;
+        let off = self.eye_ground.grid_offset;
+        Some((
+            (px - 0.5).floor() as i64 + off.0,
+            (py - 0.5).floor() as i64 + off.1,
+        ))
+    }
+
+    /// DEM cell `(col, row)` (whole-DEM grid) held at its input height;
+    /// `None` outside the window and the eye's ground ([`EyeGround`]), or
+    /// on nodata.
+    fn held_cell(&self, window: &HeightMap, col: i64, row: i64) -> Option<CellConstraint> {
+        let at = |map: &HeightMap, off: (i64, i64)| {
+            let (x, y) = (col - off.0, row - off.1);
+            (x >= 0 && y >= 0 && (x as usize) < map.width && (y as usize) < map.height)
+                .then(|| map.get(x as usize, y as usize))
+        };
+        let h = at(window, self.window_offset)
+            .or_else(|| at(&self.eye_ground.map, self.eye_ground.offset))??;
         Some(CellConstraint {
-            col: c + self.window_offset.0,
-            row: r + self.window_offset.1,
+            col,
+            row,
             height: h as f64,
         })
     }
@@ -1367,25 +1496,17 @@ impl ViewState<'_> {
     /// `observer_radius_m`), else [`OBSERVER_RADIUS_M`] and at least two
     /// cells.
     fn observer_radius(&self, radius_m: Option<f64>) -> f64 {
-        let (hx, hy) = self.cell_m();
-        radius_m.unwrap_or(OBSERVER_RADIUS_M.max(2.0 * hx.max(hy)))
+        observer_radius(&self.frame, radius_m)
     }
 
     /// The ground the observer stands on: every cell whose surface reaches
     /// within `radius_m` of the viewpoint (default 100 m, at least two
     /// cells), held at its input height.
-    fn observer_cells(&self, radius_m: Option<f64>) -> Vec<CellConstraint> {
-        let (hx, hy) = self.cell_m();
-        let radius = self.observer_radius(radius_m);
-        if !(hx > 0.0 && hy > 0.0 && radius.is_finite()) {
+    fn observer_cells(&self, window: &HeightMap, radius_m: Option<f64>) -> Vec<CellConstraint> {
+        let Some((reach, nc, nr)) = observer_reach(&self.frame, radius_m) else {
             return Vec::new();
-        }
-        let reach = radius + hx.hypot(hy);
+        };
         let (ex, ey) = self.frame.eye_pixel;
-        let (nc, nr) = (
-            (reach / hx).ceil() as i64 + 1,
-            (reach / hy).ceil() as i64 + 1,
-        );
         let (c_eye, r_eye) = (ex.floor() as i64, ey.floor() as i64);
         let mut out = Vec::new();
         for r in r_eye - nr..=r_eye + nr {
@@ -1394,11 +1515,85 @@ impl ViewState<'_> {
                 if e.hypot(n) > reach {
                     continue;
                 }
-                out.extend(self.held_cell(c, r));
+                out.extend(self.held_cell(
+                    window,
+                    c + self.window_offset.0,
+                    r + self.window_offset.1,
+                ));
             }
         }
         out
     }
+}
+
+/// Metres per cell along the columns and rows of the grid `frame` is on.
+fn cell_m(frame: &LocalFrame) -> (f64, f64) {
+    let p = frame.p;
+    (p[0][0].hypot(p[1][0]), p[0][1].hypot(p[1][1]))
+}
+
+/// See [`ViewState::observer_radius`].
+fn observer_radius(frame: &LocalFrame, radius_m: Option<f64>) -> f64 {
+    let (hx, hy) = cell_m(frame);
+    radius_m.unwrap_or(OBSERVER_RADIUS_M.max(2.0 * hx.max(hy)))
+}
+
+/// How far the observer's fixed ground reaches ([`ViewState::observer_cells`]):
+/// metres from the viewpoint, and cells across and down either side of the
+/// eye's cell; `None` when nothing is held.
+fn observer_reach(frame: &LocalFrame, radius_m: Option<f64>) -> Option<(f64, i64, i64)> {
+    let (hx, hy) = cell_m(frame);
+    let radius = observer_radius(frame, radius_m);
+    if !(hx > 0.0 && hy > 0.0 && radius.is_finite()) {
+        return None;
+    }
+    let reach = radius + hx.hypot(hy);
+    Some((
+        reach,
+        (reach / hx).ceil() as i64 + 1,
+        (reach / hy).ceil() as i64 + 1,
+    ))
+}
+
+/// The cells around `scene`'s eye that its observer's fixed ground can take
+/// ([`observer_reach`]), within the square of the view distance around the
+/// viewpoint (the cells a view could hold before it read only its wedge):
+/// read from `dem` (a few hundred cells by default).
+fn eye_ground(
+    dem: &Dem,
+    scene: &Scene,
+    vp: &crate::view::Viewpoint,
+    max_d: Option<f64>,
+    radius_m: Option<f64>,
+) -> Result<EyeGround, crate::render::RenderError> {
+    let square = Scene::window_of(dem, &scene.georef, vp.lon, vp.lat, max_d)?;
+    let grid = dem
+        .geotransform
+        .offset(square.col as f64, square.row as f64);
+    let empty = || EyeGround {
+        map: scene.window.crop(0, 0, 0, 0),
+        offset: (0, 0),
+        grid,
+        grid_offset: (square.col, square.row),
+    };
+    let Some((_, nc, nr)) = observer_reach(&scene.frame, radius_m) else {
+        return Ok(empty());
+    };
+    let (ex, ey) = scene.frame.eye_pixel;
+    let (c, r) = (
+        scene.window_offset.0 + ex.floor() as i64,
+        scene.window_offset.1 + ey.floor() as i64,
+    );
+    let around = Window::new(c - nc, r - nr, (2 * nc + 1) as usize, (2 * nr + 1) as usize);
+    let Some(w) = around.intersect(&square) else {
+        return Ok(empty());
+    };
+    Ok(EyeGround {
+        map: dem.read_height_map(w)?,
+        offset: (w.col, w.row),
+        grid,
+        grid_offset: (square.col, square.row),
+    })
 }
 
 /// Fail early, before any work, when an output cannot be written: its
@@ -1452,56 +1647,74 @@ fn ridge_network(
     let inside = windows.iter().find(|(map, off)| {
         Window::new(off.0, off.1, map.width, map.height).intersect(&union) == Some(union)
     });
+    // The whole of one window (one view whose terrain is all of its wedge's
+    // box): the window itself, no copy.
     let map = match inside {
-        Some((map, off)) => map.crop(
+        Some((map, off))
+            if (off.0, off.1, map.width, map.height)
+                == (union.col, union.row, union.width, union.height) =>
+        {
+            std::borrow::Cow::Borrowed(*map)
+        }
+        Some((map, off)) => std::borrow::Cow::Owned(map.crop(
             (union.col - off.0) as usize,
             (union.row - off.1) as usize,
             union.width,
             union.height,
-        ),
-        None => dem.read_height_map(union)?,
+        )),
+        None => std::borrow::Cow::Owned(dem.read_height_map(union)?),
     };
     detect_ridges(&map, &RidgeParams::default())
         .map_err(|e| EditError::Internal(format!("ridges: {e}")))
 }
 
 /// Render a view on the DEM with the deformation applied: only `region` of
-/// it ([`StrokeRegion`]), or the whole view.
+/// it ([`StrokeRegion`]), or the whole view. The terrain is the view's
+/// terrain before the edit with the deformation's cells patched in
+/// ([`edited_terrain`]): the view's window is neither copied nor
+/// triangulated again.
 pub(super) fn render_edited(
     v: &ViewState,
     d: &Deformation,
-    max_d: Option<f64>,
     region: Option<&StrokeRegion>,
 ) -> Result<RenderedView, EditError> {
-    let edited = edited_window(&v.window, v.window_offset, d);
+    let terrain = edited_terrain(&v.before.terrain, v.window_offset, d);
     match region {
-        Some(r) => RenderedView::render_region(&edited, &v.frame, &v.camera, max_d, r),
-        None => RenderedView::render(&edited, &v.frame, &v.camera, max_d),
+        Some(r) => RenderedView::render_terrain_region(terrain, &v.camera, r),
+        None => RenderedView::from_terrain(terrain, &v.camera),
     }
     .map_err(|e| EditError::Internal(format!("view \"{}\": features: {e}", v.spec.name)))
 }
 
-/// `map` (a window of the DEM at `offset`) with `H + M` swapped in where the
-/// deformation's window overlaps it.
-pub(crate) fn edited_window(map: &HeightMap, offset: (i64, i64), d: &Deformation) -> HeightMap {
-    let mut out = map.clone();
-    let mw = Window::new(offset.0, offset.1, map.width, map.height);
-    let Some(ov) = mw.intersect(&d.window) else {
-        return out;
-    };
-    for r in ov.row..ov.row_end() {
-        let src = ((r - d.window.row) as usize) * d.window.width;
-        let dst = ((r - offset.1) as usize) * map.width;
-        for c in ov.col..ov.col_end() {
-            let s = src + (c - d.window.col) as usize;
-            let t = dst + (c - offset.0) as usize;
-            let (h, m) = (d.base.data[s], d.displacement[s]);
-            if !h.is_nan() && m.is_finite() && m != 0.0 {
-                out.data[t] = h + m;
-            }
+/// `terrain` (built over a window of the DEM at `offset`) with `H + M`
+/// swapped in where the deformation changes a cell: the terrain the same
+/// view would have on the edited DEM, to the bit
+/// ([`LocalTerrain::with_heights`]).
+pub(crate) fn edited_terrain(
+    terrain: &crate::render::LocalTerrain,
+    offset: (i64, i64),
+    d: &Deformation,
+) -> crate::render::LocalTerrain {
+    let w = d.window;
+    // The deformation's window in the terrain's grid, clipped at its origin.
+    let (c0, r0) = ((w.col - offset.0).max(0), (w.row - offset.1).max(0));
+    let (c1, r1) = (
+        (w.col_end() - offset.0).max(0),
+        (w.row_end() - offset.1).max(0),
+    );
+    let height = |c: usize, r: usize| -> Option<f32> {
+        let (x, y) = (c as i64 + offset.0 - w.col, r as i64 + offset.1 - w.row);
+        if x < 0 || y < 0 || x as usize >= w.width || y as usize >= w.height {
+            return None;
         }
-    }
-    out
+        let s = y as usize * w.width + x as usize;
+        let (h, m) = (d.base.data[s], d.displacement[s]);
+        (!h.is_nan() && m.is_finite() && m != 0.0).then(|| h + m)
+    };
+    terrain.with_heights(
+        (c0 as usize, r0 as usize, c1 as usize, r1 as usize),
+        &height,
+    )
 }
 
 #[cfg(test)]

@@ -165,6 +165,15 @@ impl RenderedView {
         region: &StrokeRegion,
     ) -> Result<RenderedView, FeatureError> {
         let terrain = LocalTerrain::in_view(map, frame, max_distance, camera);
+        Self::render_terrain_region(terrain, camera, region)
+    }
+
+    /// [`RenderedView::render_region`] on an already built terrain.
+    pub fn render_terrain_region(
+        terrain: LocalTerrain,
+        camera: &Camera,
+        region: &StrokeRegion,
+    ) -> Result<RenderedView, FeatureError> {
         // The edit casts many rays on this terrain (silhouettes, hidden
         // strokes): the full cast index is built beside the render.
         let (depth, ()) = rayon::join(

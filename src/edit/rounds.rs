@@ -70,7 +70,7 @@ pub(super) fn refine(
         views
             .iter()
             .zip(regions)
-            .map(|(v, r)| render_edited(v, deformation, edit.max_d, Some(r)))
+            .map(|(v, r)| render_edited(v, deformation, Some(r)))
             .collect()
     };
     edit.pb.set_message("lowering protruding silhouettes");

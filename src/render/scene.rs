@@ -8,6 +8,18 @@ use super::{LocalTerrain, RenderError};
 use crate::raster::{Dem, HeightMap, Window};
 use crate::view::{Georef, LocalFrame, ViewError, Viewpoint};
 
+/// What [`Scene::open_wedge`] reads, found before reading.
+struct WedgePlan {
+    georef: Georef,
+    /// The grid of the square around the eye, and its size.
+    gt: crate::raster::GeoTransform,
+    size: (usize, usize),
+    /// The wedge's box: its origin in the square, and in the DEM.
+    c0: usize,
+    r0: usize,
+    win: Window,
+}
+
 /// A viewpoint resolved on a DEM, with the terrain around it.
 pub struct Scene {
     /// The DEM window that was read (whole DEM without a maximum distance).
@@ -60,9 +72,58 @@ impl Scene {
         k: f64,
         camera: &crate::view::Camera,
     ) -> Result<Scene, RenderError> {
+        let max_d = max_distance.filter(|d| d.is_finite() && *d > 0.0);
+        let plan = Self::wedge_plan(dem, vp, max_d, k, camera)?;
+        let WedgePlan {
+            georef,
+            gt,
+            size,
+            c0,
+            r0,
+            win,
+        } = plan;
+        let window = dem.read_height_map(win)?;
+        // The ground under the eye from the wedge's cells (it holds the eye
+        // and the cells around it), at the square's pixel moved by whole
+        // cells: the same bilinear weights.
+        let ground = |px: f64, py: f64| window.bilinear(px - c0 as f64, py - r0 as f64);
+        let frame = georef
+            .local_frame_on(vp, &gt, size, &ground, k)?
+            .shifted(c0, r0);
+        let terrain = LocalTerrain::over(&window, &frame, max_d);
+        Ok(Scene {
+            window,
+            window_offset: (win.col, win.row),
+            georef,
+            frame,
+            terrain,
+        })
+    }
+
+    /// The window [`Scene::open_wedge`] reads, found without reading any
+    /// height: for checking sizes before the work.
+    pub fn wedge_window(
+        dem: &Dem,
+        vp: &Viewpoint,
+        max_distance: Option<f64>,
+        k: f64,
+        camera: &crate::view::Camera,
+    ) -> Result<Window, RenderError> {
+        let max_d = max_distance.filter(|d| d.is_finite() && *d > 0.0);
+        Ok(Self::wedge_plan(dem, vp, max_d, k, camera)?.win)
+    }
+
+    /// Where the wedge of `camera` lies: the square around the eye, its
+    /// grid, and the wedge's box in it and in the DEM.
+    fn wedge_plan(
+        dem: &Dem,
+        vp: &Viewpoint,
+        max_d: Option<f64>,
+        k: f64,
+        camera: &crate::view::Camera,
+    ) -> Result<WedgePlan, RenderError> {
         let name = dem.path.display().to_string();
         let georef = Georef::for_crs(&dem.crs, &name)?;
-        let max_d = max_distance.filter(|d| d.is_finite() && *d > 0.0);
         let square = Self::window_of(dem, &georef, vp.lon, vp.lat, max_d)?;
         // The grid of the square, as `read_height_map` would georeference it.
         let gt = dem
@@ -79,21 +140,13 @@ impl Scene {
             c1 - c0,
             r1 - r0,
         );
-        let window = dem.read_height_map(win)?;
-        // The ground under the eye from the wedge's cells (it holds the eye
-        // and the cells around it), at the square's pixel moved by whole
-        // cells: the same bilinear weights.
-        let ground = |px: f64, py: f64| window.bilinear(px - c0 as f64, py - r0 as f64);
-        let frame = georef
-            .local_frame_on(vp, &gt, size, &ground, k)?
-            .shifted(c0, r0);
-        let terrain = LocalTerrain::over(&window, &frame, max_d);
-        Ok(Scene {
-            window,
-            window_offset: (win.col, win.row),
+        Ok(WedgePlan {
             georef,
-            frame,
-            terrain,
+            gt,
+            size,
+            c0,
+            r0,
+            win,
         })
     }
 

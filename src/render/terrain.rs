@@ -221,6 +221,93 @@ impl LocalTerrain {
         }
     }
 
+    /// This terrain with the heights of some cells replaced: `height(col,
+    /// row)` (cells of the grid the terrain was built from, within the
+    /// rectangle `(c0, r0, c1, r1)`, end exclusive) gives a cell's new
+    /// height, `None` to keep it. The changed vertices are computed as
+    /// [`LocalTerrain::new`] computes them, so the result has the same bits
+    /// as building the terrain again over a copy of the grid with those
+    /// heights swapped in, without the copy and for the cost of a copy of
+    /// the vertex heights plus the changed cells. The acceleration
+    /// structures are built again on use.
+    pub fn with_heights(
+        &self,
+        (c0, r0, c1, r1): (usize, usize, usize, usize),
+        height: &(dyn Fn(usize, usize) -> Option<f32> + Sync),
+    ) -> LocalTerrain {
+        let frame = &self.frame;
+        let p = frame.p;
+        let (ex, ey) = frame.eye_pixel;
+        let coef = frame.curvature.coefficient();
+        let eye_alt = frame.eye_alt;
+        let max_d = self.max_distance;
+        let max_d2 = max_d * max_d * 1.0001 + 1.0;
+        let (tc0, tr0) = (self.col0, self.row0);
+        // A recycled buffer (the terrains of earlier rounds give theirs
+        // back), copied in parallel.
+        let mut z = buffer_pool::overwritten_f32(self.z.len());
+        z.par_chunks_mut(1 << 16)
+            .zip(self.z.par_chunks(1 << 16))
+            .for_each(|(a, b)| a.copy_from_slice(b));
+        // The rectangle within the terrain's vertices.
+        let (a0, b0) = (c0.max(tc0), r0.max(tr0));
+        let (a1, b1) = (c1.min(tc0 + self.nx), r1.min(tr0 + self.ny));
+        if a0 < a1 && b0 < b1 {
+            let nx = self.nx;
+            z.par_chunks_mut(nx)
+                .enumerate()
+                .skip(b0 - tr0)
+                .take(b1 - b0)
+                .for_each(|(r, row)| {
+                    let src_r = tr0 + r;
+                    // As in `build_over`, term by term.
+                    let dy = src_r as f64 + 0.5 - ey;
+                    let (e0, n0) = (p[0][1] * dy, p[1][1] * dy);
+                    let dx0 = tc0 as f64 + 0.5 - ex;
+                    for c in a0 - tc0..a1 - tc0 {
+                        let Some(h) = height(tc0 + c, src_r) else {
+                            continue;
+                        };
+                        let dx = dx0 + c as f64;
+                        let e = p[0][0] * dx + e0;
+                        let n = p[1][0] * dx + n0;
+                        let d2 = e * e + n * n;
+                        let v = (h as f64 - eye_alt - coef * d2) as f32;
+                        row[c] = if d2 > max_d2 { f32::NAN } else { v };
+                    }
+                });
+        }
+        let (zmin, zmax) = z
+            .par_chunks(1 << 16)
+            .map(|ch| {
+                ch.iter()
+                    .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &v| {
+                        (if v < a { v } else { a }, if v > b { v } else { b })
+                    })
+            })
+            .reduce(
+                || (f32::INFINITY, f32::NEG_INFINITY),
+                |x, y| (x.0.min(y.0), x.1.max(y.1)),
+            );
+        LocalTerrain {
+            frame: self.frame,
+            col0: self.col0,
+            row0: self.row0,
+            nx: self.nx,
+            ny: self.ny,
+            z,
+            max_distance: self.max_distance,
+            eye_v: self.eye_v,
+            en_to_v: self.en_to_v,
+            zmin: zmin as f64,
+            zmax: zmax as f64,
+            index: std::sync::OnceLock::new(),
+            horizon: std::sync::OnceLock::new(),
+            ranges: std::sync::OnceLock::new(),
+            coarse_index: std::sync::OnceLock::new(),
+        }
+    }
+
     /// The max-height pyramid, built on first use.
     fn index(&self) -> &CastIndex {
         self.index.get_or_init(|| {
