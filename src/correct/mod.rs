@@ -445,9 +445,6 @@ pub const LANDFORM_HINT_CORRECT: &str =
 /// ... in a batch manifest's corrections.
 const LANDFORM_HINT_BATCH: &str =
     "a batch applies landforms only through `demsketch correct --sketch`";
-/// ... in a sketch file's `map_features`.
-pub const LANDFORM_HINT_IN_SKETCH: &str =
-    "landforms belong in the features of `demsketch correct --features F --sketch S`, not in a sketch's map_features (its strokes would also be matched as first-person strokes)";
 
 enum ApplyError {
     User(String),
