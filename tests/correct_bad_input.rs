@@ -316,16 +316,28 @@ fn unknown_property_of_each_kind() {
             "unknown property \"levle_m\" for a lake (expected one of: level_m, blend_m, id, name, kind, fid)",
         ),
         (
-            line(json!({"kind": "river", "name": "bad", "width_m": 30.0, "downstream": true})),
-            "unknown property \"downstream\" for a river (expected one of: width_m, flow, blend_m,",
+            line(json!({"kind": "river", "name": "bad", "width_m": 30.0, "downstrem": true})),
+            "unknown property \"downstrem\" for a river (expected one of: width_m, downstream, flow, blend_m,",
+        ),
+        (
+            line(json!({"kind": "river", "name": "bad", "width_m": 30.0, "downstream": "north"})),
+            "downstream \"north\" must be \"end\" or true",
+        ),
+        (
+            line(json!({"kind": "river", "name": "bad", "width_m": 30.0, "downstream": "end", "flow": "auto"})),
+            "a river's direction is given once: downstream or flow, not both",
         ),
         (
             area(json!({"kind": "river", "name": "bad", "width_m": 30.0})),
             "unknown property \"width_m\" for a river (expected one of: blend_m, id,",
         ),
         (
-            line(json!({"kind": "control_curve", "name": "bad", "slope_deg": 10.0})),
-            "unknown property \"slope_deg\" for a control_curve (expected one of: heights_m, influence_m,",
+            line(json!({"kind": "control_curve", "name": "bad", "slope_dg": 10.0})),
+            "unknown property \"slope_dg\" for a control_curve (expected one of: heights_m, influence_m, slope_deg,",
+        ),
+        (
+            line(json!({"kind": "control_curve", "name": "bad", "slope_deg": 95.0})),
+            "slope_deg 95.0 must be a number of degrees in (-90, 90) or two of them [left, right]",
         ),
         (
             line(json!({"kind": "cross_section", "name": "bad", "control_curv": "c1"})),

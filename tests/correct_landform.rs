@@ -555,16 +555,44 @@ fn a_landform_across_tile_corners_equals_the_single_file_result() {
     );
 }
 
+/// A landform in a sketch's `map_features` (issue 14 item 2), with a
+/// control curve beside it: `demsketch edit` places the landform's stroke
+/// on the sketch's own view (the stroke is not matched as a first-person
+/// stroke) and applies both in the same edit. Checked on the written file
+/// (GDAL): the landform's cells equal `correct --features --sketch`'s
+/// within 1e-3 m, the judge fits its silhouette at >= 0.95, the control
+/// curve is met within 0.05 m, and the report lists both features.
 #[test]
-fn a_landform_in_a_sketch_s_map_features_is_refused_with_one_line() {
+fn a_landform_in_a_sketch_s_map_features_is_applied_in_the_edit() {
     let case = Case::new();
+    let input = Raster::read(&case.path("plain.tif"));
+    let curve_px = [[60.5, 60.5], [140.5, 70.5]];
+    let curve: Vec<[f64; 3]> = curve_px
+        .iter()
+        .map(|&p| {
+            let c = input.crs(p);
+            [c[0], c[1], input.bilinear(p).unwrap() + 20.0]
+        })
+        .collect();
+    let embankment = json!({"type": "Feature",
+        "properties": {"kind": "control_curve", "name": "embankment", "influence_m": 300.0},
+        "geometry": {"type": "LineString", "coordinates": curve}});
     let mut sk = sketch();
-    sk["map_features"] = json!({"type": "FeatureCollection",
-        "features": [landform("inside", "smooth", Value::Null)]});
-    let path = case.path("with_landform.json");
+    // Only the landform's stroke in the view.
+    sk["views"][0]["strokes"] = json!([{"id": "smooth", "points": stroke(0.0)}]);
+    let features: Value = serde_json::from_str(&collection(
+        vec![
+            landform("inside", "smooth", Value::Null),
+            embankment.clone(),
+        ],
+        Some(32632),
+    ))
+    .unwrap();
+    sk["map_features"] = features;
+    let path = case.path("sketch.json");
     std::fs::write(&path, sk.to_string()).unwrap();
-    let before = snapshot(case.dir.path());
     let out = case.path("edited.tif");
+    let rep = case.path("edited.json");
     let o = demsketch(&[
         "edit",
         &case.path("plain.tif").to_string_lossy(),
@@ -572,16 +600,103 @@ fn a_landform_in_a_sketch_s_map_features_is_refused_with_one_line() {
         &path.to_string_lossy(),
         "--out",
         &out.to_string_lossy(),
+        "--report",
+        &rep.to_string_lossy(),
         "-q",
     ]);
     let err = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(1), "{err}");
-    assert_eq!(err.trim().lines().count(), 1, "one line: {err}");
-    assert!(
-        err.contains("map_features: feature 0 (\"inside\")")
-            && err.contains("correct --features F --sketch S"),
-        "{err}"
-    );
-    assert!(!out.exists());
-    assert_eq!(snapshot(case.dir.path()), before, "something was written");
+    assert!(o.status.success(), "{err}");
+    let info = common::gdalinfo(&out);
+    assert_eq!(info["size"], json!([N, N]), "{info}");
+    let r = report(&rep);
+    let feats = r["map_features"]
+        .as_array()
+        .or_else(|| r["corrections"].as_array())
+        .unwrap_or_else(|| panic!("no map_features in the report: {r}"));
+    let kinds: Vec<&str> = feats.iter().filter_map(|f| f["kind"].as_str()).collect();
+    assert_eq!(kinds, ["landform", "control_curve"], "{r}");
+    // The same landform from `correct --features F --sketch S`.
+    let alone = case.ok("alone", vec![landform("inside", "smooth", Value::Null)]);
+    let ring: Vec<[f64; 2]> = serde_json::from_value(
+        corrections(&alone)["landform"]["boundary"]["coordinates"][0].clone(),
+    )
+    .unwrap();
+    let ring_px: Vec<[f64; 2]> = ring.iter().map(|p| input.pixel(p[0], p[1])).collect();
+    let (edited, alone) = (Raster::read(&out), Raster::read(&case.path("alone.tif")));
+    let mut worst = 0f64;
+    for r in 0..input.h {
+        for c in 0..input.w {
+            if correct_support::inside(&ring_px, [c as f64 + 0.5, r as f64 + 0.5]) {
+                worst = worst.max((edited.at(c, r) - alone.at(c, r)).abs());
+            }
+        }
+    }
+    println!("landform in map_features vs correct --sketch: max |diff| {worst} m");
+    assert!(worst <= 1e-3, "{worst}");
+    let fit = case.judge("edited", "smooth");
+    println!("judge, landform in map_features: {fit}");
+    assert!(fit["fit_after"].as_f64().unwrap() >= 0.95, "{fit}");
+    let mut on_curve = 0f64;
+    for i in 0..=100 {
+        let t = i as f64 / 100.0;
+        let p = [
+            curve_px[0][0] + t * (curve_px[1][0] - curve_px[0][0]),
+            curve_px[0][1] + t * (curve_px[1][1] - curve_px[0][1]),
+        ];
+        let z = curve[0][2] + t * (curve[1][2] - curve[0][2]);
+        on_curve = on_curve.max((edited.bilinear(p).unwrap() - z).abs());
+    }
+    assert!(on_curve <= 0.05, "control curve missed by {on_curve} m");
+}
+
+/// On a real DEM held out of the tuning (`fixtures/zion_srtm90m_epsg4326.tif`,
+/// SRTM 3", about 74 x 93 m cells): the long ridge stroke of
+/// `fixtures/sketches/zion90_landform_ridge.json` (view "west", 300 px
+/// wide, its ends on the ground the judge sees about 3 km away, from
+/// `tools/fidelity/landform_real.py`). The judge fits the landform's
+/// silhouette at 0.947 (0.83 before the cells were held below the sight
+/// line through the silhouette); asserted >= 0.94.
+#[test]
+fn a_landform_on_a_real_dem_is_fitted_by_the_judge() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dem = common::fixture("zion_srtm90m_epsg4326.tif");
+    let sketch = common::fixture("sketches/zion90_landform_ridge.json");
+    let f = tmp.path().join("lf.geojson");
+    std::fs::write(
+        &f,
+        collection(
+            vec![json!({"type": "Feature",
+                "properties": {"kind": "landform", "name": "ridge",
+                    "silhouette": {"view": "west", "stroke": "ridge"}},
+                "geometry": null})],
+            None,
+        ),
+    )
+    .unwrap();
+    let out = tmp.path().join("out.tif");
+    let o = demsketch(&[
+        "correct",
+        &dem.to_string_lossy(),
+        "--features",
+        &f.to_string_lossy(),
+        "--sketch",
+        &sketch.to_string_lossy(),
+        "--out",
+        &out.to_string_lossy(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/fidelity/landform_fit.py");
+    let o = Command::new("/usr/bin/python3")
+        .arg(script)
+        .arg(&dem)
+        .arg(&out)
+        .arg(&sketch)
+        .args(["west", "ridge"])
+        .output()
+        .expect("run the judge");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let fit: Value = serde_json::from_slice(&o.stdout).unwrap();
+    println!("judge, Zion 90 m ridge at 3 km: {fit}");
+    assert!(fit["fit_before"].as_f64().unwrap() < 0.2, "{fit}");
+    assert!(fit["fit_after"].as_f64().unwrap() >= 0.94, "{fit}");
 }

@@ -29,11 +29,20 @@ const LINE_PX: [[f64; 2]; 7] = [
 ];
 
 fn run_river(tmp: &Path, name: &str, line: &[[f64; 2]], flow: &str) -> (PathBuf, Value) {
+    run_river_with(tmp, name, line, json!({"flow": flow}))
+}
+
+/// As [`run_river`] with `extra` properties (the direction's).
+fn run_river_with(tmp: &Path, name: &str, line: &[[f64; 2]], extra: Value) -> (PathBuf, Value) {
     let input = Raster::read(&fixture(DEM));
     let coords: Vec<[f64; 2]> = line.iter().map(|&p| input.crs(p)).collect();
+    let mut props = json!({"kind": "river", "name": "etsch", "width_m": WIDTH_M});
+    for (k, v) in extra.as_object().unwrap() {
+        props[k] = v.clone();
+    }
     let fc = collection(
         vec![json!({"type": "Feature",
-            "properties": {"kind": "river", "name": "etsch", "width_m": WIDTH_M, "flow": flow},
+            "properties": props,
             "geometry": {"type": "LineString", "coordinates": coords}})],
         Some(32632),
     );
@@ -190,6 +199,43 @@ fn flow_auto_finds_the_outlet_of_a_reversed_line() {
         differ, 0,
         "{differ} cells differ between line order and flow auto"
     );
+}
+
+/// DESIGN.md's `downstream`: `"end"`/`true` keep the line's order,
+/// `"start"`/`false` reverse it, and without it (nor `flow`) the heights
+/// decide; all four give the line-order surface on the line drawn the
+/// matching way.
+#[test]
+fn downstream_names_the_outlet_and_without_it_the_heights_decide() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (a, _) = run_river(tmp.path(), "line", &LINE_PX, "line");
+    let a = Raster::read(&a);
+    let mut rev = LINE_PX.to_vec();
+    rev.reverse();
+    let cases = [
+        ("end", &LINE_PX[..], json!({"downstream": "end"}), false),
+        ("true", &LINE_PX[..], json!({"downstream": true}), false),
+        ("start", &rev[..], json!({"downstream": "start"}), true),
+        ("false", &rev[..], json!({"downstream": false}), true),
+        ("absent", &rev[..], json!({}), true),
+    ];
+    for (name, line, props, reversed) in cases {
+        let (b, r) = run_river_with(tmp.path(), name, line, props);
+        assert_eq!(r["corrections"][0]["reversed"], reversed, "{name}");
+        let b = Raster::read(&b);
+        let differ =
+            a.v.iter()
+                .zip(&b.v)
+                .filter(|(x, y)| (*x - *y).abs() > 1e-3)
+                .count();
+        assert_eq!(differ, 0, "downstream {name}: {differ} cells differ");
+    }
+    // The line drawn upstream with downstream "end" is taken at its word:
+    // the surface differs (it never rises toward the line's end).
+    let (c, r) = run_river_with(tmp.path(), "wrong", &rev, json!({"downstream": "end"}));
+    assert_eq!(r["corrections"][0]["reversed"], false);
+    let c = Raster::read(&c);
+    assert!(a.v.iter().zip(&c.v).any(|(x, y)| (x - y).abs() > 1.0));
 }
 
 #[test]

@@ -527,7 +527,6 @@ fn a_cast_in_the_cell_of_the_hit_equals_the_traversal() {
     assert!(same > 100, "{same} rays checked");
     assert!(refused > 20, "{refused} later cells refused");
     assert!(walks > 50, "{walks} walks over several cells");
-
 }
 /// `LocalTerrain::with_heights` (the edit's re-renders) gives the terrain a
 /// build over a copy of the grid with those heights swapped in gives: the

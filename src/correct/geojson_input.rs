@@ -11,11 +11,21 @@
 //! - `lake`: Polygon or MultiPolygon (holes are islands); optional
 //!   `level_m` (else the lowest shoreline height) and `blend_m`.
 //! - `river`: LineString centreline with `width_m`; optional `blend_m` and
-//!   `flow` (`"line"`, the default: the line runs downstream; `"auto"`: the
-//!   lower end is the outlet); or a Polygon reach (flow along its
-//!   principal axis, from the higher end).
+//!   `downstream` (`"end"` or `true`: the line runs downstream, its last
+//!   vertex is the outlet; `"start"` or `false`: its first vertex is the
+//!   outlet); without it the end with the lower DEM height is the outlet
+//!   (DESIGN.md's corrections table). The older `flow` (`"line"`: as
+//!   `downstream: "end"`; `"auto"`: by the heights) is still read, not
+//!   with `downstream`. Or a Polygon reach (flow along its principal axis,
+//!   from the higher end).
 //! - `control_curve`: LineString with heights as Z coordinates or a
-//!   `heights_m` array (one per vertex); optional `influence_m`.
+//!   `heights_m` array (one per vertex); optional `influence_m` and
+//!   `slope_deg`, the cross slope at the curve when no cross-section is
+//!   given: one number, the surface falling to the right of the line at
+//!   that angle (negative: to the left), as a road's crossfall; or
+//!   `[left, right]`, the fall away from the curve on each side (the
+//!   paper's left and right slopes: `[10, 10]` a ridge, `[-10, -10]` a
+//!   channel); see [`slope_sections`].
 //! - `cross_section`: LineString with heights (as a control curve) and a
 //!   `control_curve` property naming the `id` or `name` of the control
 //!   curve it belongs to; it must cross that curve (in map view). Its
@@ -87,13 +97,12 @@ pub enum CorrectionKind {
     },
     /// A river, flat across and non-increasing downstream.
     River {
-        /// Centreline, pixel space, upstream first (already reversed for
-        /// `flow: "auto"` when needed, see [`super::river`]).
+        /// Centreline, pixel space, in the file's vertex order.
         centreline: Vec<[f64; 2]>,
         width_m: f64,
         blend_m: Option<f64>,
-        /// `flow: "auto"`: the lower end is the outlet.
-        flow_auto: bool,
+        /// Which way it flows (`downstream`, `flow`, else the heights).
+        flow: super::river::Flow,
     },
     /// A river reach given as a polygon: flow along its principal axis
     /// (see [`super::river::apply_polygon`]).
@@ -135,8 +144,13 @@ pub enum CorrectionKind {
         points: Vec<[f64; 3]>,
         influence_m: Option<f64>,
         /// Cross-sections attached to the curve, `[x, y, z]` in the DEM's
-        /// CRS, already moved to meet the curve's height where they cross.
+        /// CRS, already moved to meet the curve's height where they cross
+        /// (or made from `slope_deg`, see [`slope_sections`]).
         sections: Vec<Vec<[f64; 3]>>,
+        /// `slope_deg`: the surface's fall away from the curve, degrees, on
+        /// its left and right (looking along the line); one number `s` is
+        /// the tilt `[-s, s]` (falling to the right).
+        slope_deg: Option<[f64; 2]>,
     },
 }
 
@@ -221,7 +235,95 @@ fn parse(text: &str, p: &str, dem: &Dem) -> Result<Vec<Correction>, String> {
                 .map_err(|m| format!("{p}: {}: {m}", label(i, id.as_deref())))
         })
         .collect::<Result<Vec<_>, _>>()?;
-    attach_sections(parsed).map_err(|m| format!("{p}: {m}"))
+    let mut out = attach_sections(parsed).map_err(|m| format!("{p}: {m}"))?;
+    for c in &mut out {
+        let label = c.label();
+        if let CorrectionKind::ControlCurve {
+            points,
+            sections,
+            slope_deg: Some(slope),
+            ..
+        } = &mut c.kind
+        {
+            if !sections.is_empty() {
+                return Err(format!(
+                    "{p}: {}: slope_deg gives the cross slope when no cross-section is given; this curve has {} (give one or the other)",
+                    label,
+                    sections.len()
+                ));
+            }
+            *sections = slope_sections(dem, points, *slope);
+        }
+    }
+    Ok(out)
+}
+
+/// How far each side of a control curve the cross slope of `slope_deg` is
+/// imposed, in cells: the slope is that of the surface *at* the curve;
+/// beyond, the field of influence blends it into the terrain.
+pub const SLOPE_SECTION_CELLS: f64 = 2.0;
+
+/// Cross-sections from a control curve's `slope_deg` (`[left, right]`,
+/// degrees; positive: the surface falls away from the curve on that side),
+/// as the paper translates a cross-section curve along the control curve:
+/// one every [`SLOPE_SECTION_CELLS`] cells of arc length (and at every
+/// vertex), perpendicular to the curve there, reaching
+/// [`SLOPE_SECTION_CELLS`] cells to each side, its heights the curve's
+/// minus `tan(slope) * distance`.
+pub fn slope_sections(dem: &Dem, points: &[[f64; 3]], slope: [f64; 2]) -> Vec<Vec<[f64; 3]>> {
+    let gt = dem.geotransform.0;
+    let centre = dem
+        .geotransform
+        .pixel_to_crs(dem.width as f64 / 2.0, dem.height as f64 / 2.0);
+    let lat = if dem.crs.geographic { centre.1 } else { 0.0 };
+    let cell = crate::deform::locality::cell_size_m(
+        &dem.geotransform,
+        dem.crs.geographic,
+        lat.clamp(-89.9, 89.9),
+    );
+    // Metres per CRS unit along x and y.
+    let m = [
+        cell.hx / gt[1].abs().max(1e-300),
+        cell.hy / gt[5].abs().max(1e-300),
+    ];
+    let reach = SLOPE_SECTION_CELLS * cell.hx.max(cell.hy);
+    let step = reach;
+    let (tl, tr) = (slope[0].to_radians().tan(), slope[1].to_radians().tan());
+    let mut out = Vec::new();
+    for (k, w) in points.windows(2).enumerate() {
+        let (a, b) = (w[0], w[1]);
+        let (dx, dy) = ((b[0] - a[0]) * m[0], (b[1] - a[1]) * m[1]);
+        let len = dx.hypot(dy);
+        if len <= 0.0 {
+            continue;
+        }
+        // Unit tangent (metres) and its left normal.
+        let (ux, uy) = (dx / len, dy / len);
+        let (lx, ly) = (-uy, ux);
+        let n = (len / step).ceil().max(1.0) as usize;
+        let last = k + 2 == points.len();
+        for j in 0..n + usize::from(last) {
+            let t = j as f64 / n as f64;
+            let c = [
+                a[0] + t * (b[0] - a[0]),
+                a[1] + t * (b[1] - a[1]),
+                a[2] + t * (b[2] - a[2]),
+            ];
+            let at = |d: f64| {
+                // d > 0: left of the line, d < 0: right.
+                let fall = if d >= 0.0 { tl * d } else { tr * -d };
+                [c[0] + lx * d / m[0], c[1] + ly * d / m[1], c[2] - fall]
+            };
+            out.push(vec![
+                at(reach),
+                at(0.5 * reach),
+                c,
+                at(-0.5 * reach),
+                at(-reach),
+            ]);
+        }
+    }
+    out
 }
 
 /// A parsed feature: a correction, or a cross-section to attach to one.
@@ -478,9 +580,9 @@ fn kind_properties(
             Some(GeometryValue::Polygon { .. } | GeometryValue::MultiPolygon { .. }) => {
                 &["blend_m"]
             }
-            _ => &["width_m", "flow", "blend_m"],
+            _ => &["width_m", "downstream", "flow", "blend_m"],
         },
-        "control_curve" => &["heights_m", "influence_m"],
+        "control_curve" => &["heights_m", "influence_m", "slope_deg"],
         "cross_section" => &["control_curve", "control", "heights_m"],
         "breakline" => &["heights_m", "height_m", "hard", "influence_m"],
         "landform" => &["silhouette", "shadow"],
@@ -620,16 +722,34 @@ fn parse_river(
         return Err("a river centreline needs two distinct positions".into());
     }
     let width_m = positive(props, "width_m")?.ok_or("a river centreline needs width_m")?;
-    let flow_auto = match props.get("flow").and_then(|v| v.as_str()) {
-        None | Some("line") => false,
-        Some("auto") => true,
-        Some(other) => return Err(format!("flow \"{other}\" must be \"line\" or \"auto\"")),
+    use super::river::Flow;
+    let flow = match (props.get("downstream"), props.get("flow")) {
+        (Some(_), Some(_)) => {
+            return Err("a river's direction is given once: downstream or flow, not both".into())
+        }
+        (Some(d), None) => match d {
+            serde_json::Value::Bool(true) => Flow::Line,
+            serde_json::Value::Bool(false) => Flow::Reversed,
+            serde_json::Value::String(s) if s == "end" => Flow::Line,
+            serde_json::Value::String(s) if s == "start" => Flow::Reversed,
+            other => {
+                return Err(format!(
+                    "downstream {other} must be \"end\" or true (the line is drawn downstream: its last vertex is the outlet) or \"start\" or false (its first vertex is the outlet)"
+                ))
+            }
+        },
+        (None, Some(f)) => match f.as_str() {
+            Some("line") => Flow::Line,
+            Some("auto") => Flow::Heights,
+            _ => return Err(format!("flow {f} must be \"line\" or \"auto\"")),
+        },
+        (None, None) => Flow::Heights,
     };
     Ok(CorrectionKind::River {
         centreline,
         width_m,
         blend_m: positive(props, "blend_m")?,
-        flow_auto,
+        flow,
     })
 }
 
@@ -680,10 +800,33 @@ fn parse_curve(
             place(p, t, dem).map(|(xy, _)| [xy[0], xy[1], z])
         })
         .collect::<Result<Vec<_>, _>>()?;
+    let slope_deg = match props.get("slope_deg") {
+        None | Some(serde_json::Value::Null) => None,
+        Some(v) => {
+            let pair = match v {
+                serde_json::Value::Array(a) if a.len() == 2 => {
+                    a.iter().map(|x| x.as_f64()).collect::<Option<Vec<_>>>()
+                }
+                serde_json::Value::Array(_) => None,
+                // One number: the tilt of a road's crossfall, falling to
+                // the right of the line (rising on its left).
+                other => other.as_f64().map(|x| vec![-x, x]),
+            };
+            match pair.as_deref() {
+                Some(&[l, r]) if l.abs() < 90.0 && r.abs() < 90.0 => Some([l, r]),
+                _ => {
+                    return Err(format!(
+                        "slope_deg {v} must be a number of degrees in (-90, 90) or two of them [left, right]"
+                    ))
+                }
+            }
+        }
+    };
     Ok(CorrectionKind::ControlCurve {
         points,
         influence_m: positive(props, "influence_m")?,
         sections: Vec::new(),
+        slope_deg,
     })
 }
 

@@ -13,18 +13,24 @@
 //! triangulation; rounds that moved those cells again (the lowering of
 //! protruding silhouettes) would undo them. Applying the corrections last
 //! makes each of them hold on the written DEM exactly as `correct` alone
-//! would make it hold; the strokes' fit is then measured on the final
+//! would make it hold (landforms too: their silhouette strokes, drawn in
+//! the sketch's views and taken out of the first-person strokes, are placed
+//! on the unedited DEM's views as `correct --features F --sketch S` places
+//! them, and the landform is built on the edited terrain); the strokes' fit is then measured on the final
 //! terrain (the edit re-renders its views after the corrections), so a
 //! correction that changes what a view shows is seen in the report.
 
 use crate::deform::Deformation;
 use crate::raster::Dem;
+use crate::sketch::SketchFile;
 
 use super::grid::Grid;
 use super::{geojson_input, plan, union, CorrectError, FeatureReport};
 
 /// Applies the corrections of `collection` (named `name` in messages) on
-/// top of the edit's deformation `d`: returns the deformation of both
+/// top of the edit's deformation `d`; its landforms and noise regions
+/// place their strokes on the views of `sketch` (the file as given, and its
+/// name), on the unedited DEM as `correct --sketch` does: returns the deformation of both
 /// together (over the union of the windows) and what each feature did.
 /// Cells the edit moved and no correction reached keep exactly the edit's
 /// displacement.
@@ -32,6 +38,7 @@ pub fn apply_after_edit(
     dem: &Dem,
     collection: &serde_json::Value,
     name: &str,
+    sketch: (&SketchFile, &str),
     d: &Deformation,
     max_window_cells: usize,
 ) -> Result<(Deformation, Vec<FeatureReport>), CorrectError> {
@@ -39,10 +46,10 @@ pub fn apply_after_edit(
         geojson_input::from_value(collection, name, dem).map_err(CorrectError::Input)?;
     super::landform::resolve(
         dem,
-        None,
+        Some(sketch),
         &mut corrections,
         name,
-        super::LANDFORM_HINT_IN_SKETCH,
+        super::LANDFORM_HINT_CORRECT,
     )
     .map_err(CorrectError::Input)?;
     let plan = plan(dem, corrections, name, max_window_cells)?;

@@ -94,6 +94,104 @@ pub struct Placed {
     pub both_ends: Option<bool>,
     /// The shoulders' base lengths `[d1, d2]`, metres (landforms).
     pub shoulders_m: [f64; 2],
+    /// The sight-line bound of the footprint's cells (landforms).
+    pub sight: Option<Sight>,
+}
+
+/// Per cell of a window of the DEM (global cell indices), the highest
+/// absolute height at which the cell centre still appears at least
+/// [`SIGHT_MARGIN_PX`] below the stroke from its view (NaN: the cell is not
+/// in the stroke's columns). Gain et al. make the terrain interpolate the
+/// silhouette; on sloping ground their displacement also lifts the ground
+/// behind the shadow above the sight line through the silhouette, so the
+/// crest the view sees is not the stroke (on the Zion fixture up to 2.5 px
+/// above it near the stroke's ends). Cells are held below this bound.
+#[derive(Debug, Clone)]
+pub struct Sight {
+    pub window: Window,
+    pub max_z: Vec<f64>,
+}
+
+/// How far below the stroke (pixels) the footprint's cells other than the
+/// silhouette's own are held.
+pub const SIGHT_MARGIN_PX: f64 = 0.5;
+
+impl Sight {
+    fn bound(&self, col: i64, row: i64) -> f64 {
+        let w = self.window;
+        if col < w.col || row < w.row {
+            return f64::NAN;
+        }
+        let (c, r) = ((col - w.col) as usize, (row - w.row) as usize);
+        if c >= w.width || r >= w.height {
+            return f64::NAN;
+        }
+        self.max_z[r * w.width + c]
+    }
+}
+
+/// The stroke's highest row (smallest y) at image column `x`, from its
+/// densified pixels; `None` outside its columns.
+fn stroke_row(pixels: &[[f64; 2]], x: f64) -> Option<f64> {
+    let mut best: Option<f64> = None;
+    for w in pixels.windows(2) {
+        let (a, b) = (w[0], w[1]);
+        let (lo, hi) = (a[0].min(b[0]), a[0].max(b[0]));
+        if x < lo || x > hi {
+            continue;
+        }
+        let y = if hi > lo {
+            a[1] + (x - a[0]) / (b[0] - a[0]) * (b[1] - a[1])
+        } else {
+            a[1].min(b[1])
+        };
+        best = Some(best.map_or(y, |v: f64| v.min(y)));
+    }
+    best
+}
+
+/// The sight bound (see [`Sight`]) over the window `win` (global cells).
+fn sight_bound(dem: &Dem, proj: &SceneProjection, pixels: &[[f64; 2]], win: Window) -> Sight {
+    let gt = dem.geotransform;
+    let frame = proj.own_frame();
+    let mut max_z = vec![f64::NAN; win.len()];
+    for r in 0..win.height {
+        for c in 0..win.width {
+            let (x, y) = gt.pixel_to_crs(
+                (win.col + c as i64) as f64 + 0.5,
+                (win.row + r as i64) as f64 + 0.5,
+            );
+            let (e, n) = frame.crs_to_en(x, y);
+            let horiz = e.hypot(n);
+            if horiz < 1e-6 {
+                continue;
+            }
+            // The cell's column (a vertical line is one column at pitch
+            // 0; two rounds otherwise), the ray below the stroke there.
+            let mut z = 0.0;
+            let mut ok = false;
+            for _ in 0..3 {
+                let Some((px, _)) = proj.project([e, n, z]) else {
+                    break;
+                };
+                let Some(sy) = stroke_row(pixels, px[0]) else {
+                    ok = false;
+                    break;
+                };
+                let d = CameraModel::unproject(&proj.camera, [px[0], sy + SIGHT_MARGIN_PX]);
+                let h = d[0].hypot(d[1]);
+                if h < 1e-9 {
+                    break;
+                }
+                z = d[2] * horiz / h;
+                ok = true;
+            }
+            if ok {
+                max_z[r * win.width + c] = proj.local_to_dem([e, n, z])[2];
+            }
+        }
+    }
+    Sight { window: win, max_z }
 }
 
 /// The view a landform's stroke is drawn on, set up on the DEM.
@@ -494,6 +592,18 @@ pub fn resolve(
                 return Err(err("the placed silhouette lies outside the DEM".into()));
             }
         }
+        let sight = if is_landform {
+            let stroke = v.strokes.iter().find(|s| s.id == r.stroke);
+            let pixels = stroke.map(|s| densify(&s.points)).unwrap_or_default();
+            let before = &setup.before;
+            let proj = SceneProjection::new(before.camera, &before.terrain);
+            let full = Window::new(0, 0, dem.width, dem.height);
+            bbox_window(&boundary)
+                .and_then(|w| w.intersect(&full))
+                .map(|w| sight_bound(dem, &proj, &pixels, w))
+        } else {
+            None
+        };
         let new = Placed {
             curve,
             shadow_px,
@@ -501,6 +611,7 @@ pub fn resolve(
             default_boundary,
             both_ends: both,
             shoulders_m,
+            sight,
         };
         match &mut c.kind {
             CorrectionKind::Landform { placed, .. }
@@ -605,14 +716,23 @@ fn footprint(grid: &Grid, win: Window, area: &MultiPolygon<f64>) -> (Vec<bool>, 
 /// The window of `grid` (DEM grid) covering `area`, with one cell to
 /// spare.
 fn area_window(grid: &Grid, area: &MultiPolygon<f64>) -> Option<Window> {
+    bbox_window(area).and_then(|w| w.intersect(&grid.window))
+}
+
+/// The window (DEM cells) covering `area`'s bounding box, one cell to spare.
+fn bbox_window(area: &MultiPolygon<f64>) -> Option<Window> {
     use geo::BoundingRect;
     let b = area.bounding_rect()?;
     let c0 = (b.min().x.floor() - 1.0) as i64;
     let r0 = (b.min().y.floor() - 1.0) as i64;
     let c1 = (b.max().x.ceil() + 1.0) as i64;
     let r1 = (b.max().y.ceil() + 1.0) as i64;
-    Window::new(c0, r0, (c1 - c0).max(0) as usize, (r1 - r0).max(0) as usize)
-        .intersect(&grid.window)
+    Some(Window::new(
+        c0,
+        r0,
+        (c1 - c0).max(0) as usize,
+        (r1 - r0).max(0) as usize,
+    ))
 }
 
 /// The silhouette's height above the ground along its shadow, split into
@@ -799,6 +919,10 @@ pub fn apply_landform(
         (win.col - grid.window.col) as usize,
         (win.row - grid.window.row) as usize,
     );
+    // The heights before this landform, window-local.
+    let prior: Vec<f64> = (0..win.len())
+        .map(|i| grid.values[(i / win.width + lr) * grid.width() + i % win.width + lc])
+        .collect();
     // Per footprint cell: its arc length on the shadow and its relative
     // position between shadow and boundary (eqn 1).
     let attach = Attach::new(&shadow, &cum);
@@ -858,6 +982,25 @@ pub fn apply_landform(
             grid.values[g] += dz;
         }
     }
+    // Below the sight line through the silhouette (see [`Sight`]).
+    let hold = |grid: &mut Grid, keep: Option<&[bool]>| {
+        let Some(sight) = &p.sight else { return };
+        for r in 0..win.height {
+            for c in 0..win.width {
+                let i = r * win.width + c;
+                if param[i].is_none() || keep.is_some_and(|k| k[i]) {
+                    continue;
+                }
+                let g = (r + lr) * grid.width() + c + lc;
+                let bound = sight.bound(win.col + c as i64, win.row + r as i64);
+                if bound.is_nan() || grid.values[g] <= bound {
+                    continue;
+                }
+                grid.values[g] = bound.max(prior[i]).min(grid.values[g]);
+            }
+        }
+    };
+    hold(grid, None);
     // The multigrid's correction next to the silhouette: the bilinear
     // surface through the placed curve exactly.
     let curve = [CurveConstraint {
@@ -868,6 +1011,19 @@ pub fn apply_landform(
         let near = crate::deform::locality::influence_mask(cons, cell, reach);
         near.iter().zip(&inside).map(|(&a, &b)| a && b).collect()
     })?;
+    // Again after the correction, but for the cells of the bilinear
+    // stencils the silhouette's points lie in (they carry it).
+    let mut stencil = vec![false; win.len()];
+    for q in &p.shadow_px {
+        let (c0, r0) = ((q[0] - 0.5).floor() as i64, (q[1] - 0.5).floor() as i64);
+        for (dc, dr) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+            let (c, r) = (c0 + dc - win.col, r0 + dr - win.row);
+            if c >= 0 && r >= 0 && (c as usize) < win.width && (r as usize) < win.height {
+                stencil[r as usize * win.width + c as usize] = true;
+            }
+        }
+    }
+    hold(grid, Some(&stencil));
     let (mut changed, mut max_abs) = (0usize, 0f64);
     for r in 0..win.height {
         for c in 0..win.width {

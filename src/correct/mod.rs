@@ -226,6 +226,7 @@ pub fn plan(
                 points,
                 influence_m,
                 sections,
+                ..
             } => Some(influence_m.unwrap_or_else(|| {
                 let curves = control_curve::curves(points, sections);
                 crate::deform::locality::default_influence_m(dem, &curves, cell)
@@ -444,9 +445,6 @@ pub const LANDFORM_HINT_CORRECT: &str =
 /// ... in a batch manifest's corrections.
 const LANDFORM_HINT_BATCH: &str =
     "a batch applies landforms only through `demsketch correct --sketch`";
-/// ... in a sketch file's `map_features`.
-pub const LANDFORM_HINT_IN_SKETCH: &str =
-    "landforms belong in the features of `demsketch correct --features F --sketch S`, not in a sketch's map_features (its strokes would also be matched as first-person strokes)";
 
 enum ApplyError {
     User(String),
@@ -487,16 +485,14 @@ fn apply_one(
             centreline,
             width_m,
             blend_m,
-            flow_auto,
+            flow,
         } => {
             let blend = blend_m.unwrap_or(default_blend);
             let res =
-                river::apply(grid, centreline, *width_m, *flow_auto, blend).map_err(
-                    |e| match e {
-                        river::RiverError::Solver(s) => solver_error(s),
-                        e => ApplyError::User(e.to_string()),
-                    },
-                )?;
+                river::apply(grid, centreline, *width_m, *flow, blend).map_err(|e| match e {
+                    river::RiverError::Solver(s) => solver_error(s),
+                    e => ApplyError::User(e.to_string()),
+                })?;
             r.blend_m = Some(blend);
             r.surface_start_m = Some(res.surface_start_m);
             r.surface_end_m = Some(res.surface_end_m);

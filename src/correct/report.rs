@@ -43,7 +43,7 @@ pub struct FeatureReport {
     /// surface profile bends; linear (so flat across) in between.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub surface_knots_m: Option<Vec<[f64; 2]>>,
-    /// True when `flow: "auto"` reversed the centreline.
+    /// True when the centreline was reversed (by the heights or `downstream`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub reversed: Option<bool>,
     /// Influence distance (control curves), metres.

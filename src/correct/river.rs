@@ -32,11 +32,25 @@
 //! of the level reaches). The banks are blended as for lakes
 //! ([`super::water::flatten_and_blend`]).
 //!
-//! The flow runs in the line's order, or with `flow: "auto"` from the higher
-//! end (current DEM height at the end points) to the lower.
+//! The flow runs as [`Flow`] says: in the line's order (`downstream: true`
+//! or `"end"`, or `flow: "line"`), against it (`downstream: false` or
+//! `"start"`), or, when neither property is given (or with `flow: "auto"`),
+//! from the higher end (current DEM height at the end points) to the lower,
+//! as the corrections table of DESIGN.md says.
 
 use super::grid::Grid;
 use super::water::{self, Change};
+
+/// Which way a river centreline flows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Flow {
+    /// The line is drawn downstream: its last vertex is the outlet.
+    Line,
+    /// The line is drawn upstream: its first vertex is the outlet.
+    Reversed,
+    /// The end with the lower DEM height is the outlet.
+    Heights,
+}
 
 /// What a river did.
 #[derive(Debug, Clone, PartialEq)]
@@ -44,7 +58,8 @@ pub struct RiverResult {
     /// Water surface at the source and at the outlet, metres.
     pub surface_start_m: f64,
     pub surface_end_m: f64,
-    /// True when the centreline was reversed (`flow: "auto"`).
+    /// True when the centreline was reversed (by the heights or by
+    /// `downstream`).
     pub reversed: bool,
     /// `[arc length from the source, surface]` in metres where the surface
     /// profile bends (first and last: the ends); linear in between.
@@ -201,10 +216,13 @@ impl Profile {
 }
 
 /// The centreline in window pixel space, upstream first.
-fn oriented(grid: &Grid, line: &[[f64; 2]], flow_auto: bool) -> (Vec<[f64; 2]>, bool) {
+fn oriented(grid: &Grid, line: &[[f64; 2]], flow: Flow) -> (Vec<[f64; 2]>, bool) {
     let mut pts: Vec<[f64; 2]> = line.iter().map(|&p| grid.local(p)).collect();
     let mut reversed = false;
-    if flow_auto {
+    if flow == Flow::Reversed {
+        pts.reverse();
+        reversed = true;
+    } else if flow == Flow::Heights {
         let first = grid.bilinear(pts[0]);
         let last = grid.bilinear(pts[pts.len() - 1]);
         if let (Some(a), Some(b)) = (first, last) {
@@ -328,10 +346,10 @@ pub fn apply(
     grid: &mut Grid,
     line: &[[f64; 2]],
     width_m: f64,
-    flow_auto: bool,
+    flow: Flow,
     blend_m: f64,
 ) -> Result<RiverResult, RiverError> {
-    let (pts, reversed) = oriented(grid, line, flow_auto);
+    let (pts, reversed) = oriented(grid, line, flow);
     let prof = profile(grid, &pts, width_m).ok_or(RiverError::NoHeights)?;
     let half = 0.5 * width_m;
     let (gx, gy) = (half / grid.cell.hx + 1.0, half / grid.cell.hy + 1.0);

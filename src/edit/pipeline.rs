@@ -283,10 +283,11 @@ fn edit_pass<'s>(
     timings.features = secs(t);
 
     let t = Instant::now();
+    let map_only = sketch.corrections.is_some() && views.iter().all(|v| v.strokes.is_empty());
     let placed = match_strokes(
         edit,
         (&sketch.options, dem),
-        (&views, &extracted.windows),
+        (&views, &extracted.windows, map_only),
         &features,
         &mut notes,
     )?;
@@ -531,7 +532,8 @@ struct Loaded {
 fn load_views(edit: &Edit, dem: Dem, sketch_path: &Path) -> Result<Loaded, EditError> {
     let sketch_name = &edit.sketch_name;
     edit.pb.set_message("loading DEM and sketch");
-    let sketch = SketchFile::from_path(sketch_path)?;
+    let mut sketch = SketchFile::from_path(sketch_path)?;
+    sketch.split_map_feature_strokes();
     let mut notes = Vec::new();
     let mut prepared = Vec::new();
     for v in &sketch.views {
@@ -814,7 +816,7 @@ pub(super) struct Placed {
 fn match_strokes(
     edit: &Edit,
     (options, dem): (&SketchOptions, &Dem),
-    (views, windows): (&[ViewState], &[HeightMap]),
+    (views, windows, map_only): (&[ViewState], &[HeightMap], bool),
     features: &Features,
     notes: &mut Vec<String>,
 ) -> Result<Placed, EditError> {
@@ -867,11 +869,14 @@ fn match_strokes(
         .zip(&demands.strokes)
         .map(|(v, cs)| StrokeRegion::new(cs, v.camera.width, v.camera.height))
         .collect();
-    if demands
-        .strokes
-        .iter()
-        .flatten()
-        .all(|c| c.depths.is_empty())
+    // A sketch whose only strokes are those of its map features' landforms
+    // (`map_only`: taken out of the views) edits through those alone.
+    if !map_only
+        && demands
+            .strokes
+            .iter()
+            .flatten()
+            .all(|c| c.depths.is_empty())
     {
         return Err(EditError::Unusable {
             sketch: edit.sketch_name.clone(),
@@ -957,10 +962,21 @@ fn apply_corrections(
     };
     edit.pb.set_message("map-view corrections");
     let name = format!("{}: map_features", edit.sketch_name);
+    // Landforms place their strokes on the views as the file gives them.
+    let full = SketchFile {
+        views: sketch
+            .map_feature_views
+            .clone()
+            .unwrap_or_else(|| sketch.views.clone()),
+        options: sketch.options.clone(),
+        corrections: None,
+        map_feature_views: None,
+    };
     let (deformation, reports) = crate::correct::in_sketch::apply_after_edit(
         dem,
         collection,
         &name,
+        (&full, &edit.sketch_name),
         &rounds.deformation,
         crate::correct::MAX_WINDOW_CELLS,
     )

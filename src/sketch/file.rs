@@ -71,6 +71,55 @@ pub struct SketchFile {
         skip_serializing_if = "Option::is_none"
     )]
     pub corrections: Option<serde_json::Value>,
+    /// The views as the file gives them, when [`SketchFile::split_map_feature_strokes`]
+    /// took the strokes the landforms and noise regions of `map_features`
+    /// name out of `views` (they are placed by those features, not matched
+    /// as first-person strokes). Not part of the file.
+    #[serde(skip)]
+    pub map_feature_views: Option<Vec<ViewSpec>>,
+}
+
+impl SketchFile {
+    /// Takes the strokes that the `landform` and `noise_region` features of
+    /// `map_features` name (`silhouette`, `noise_stroke`: `{"view",
+    /// "stroke"}`) out of `views`, keeping the views as given in
+    /// [`SketchFile::map_feature_views`]: those strokes are drawn for the
+    /// map-view features, which place them themselves, and are not matched
+    /// as first-person strokes of the edit. Nothing changes when no such
+    /// feature names a stroke.
+    pub fn split_map_feature_strokes(&mut self) {
+        let Some(fc) = &self.corrections else { return };
+        let mut named: HashSet<(String, String)> = HashSet::new();
+        for f in fc
+            .get("features")
+            .and_then(|f| f.as_array())
+            .into_iter()
+            .flatten()
+        {
+            let Some(p) = f.get("properties").and_then(|p| p.as_object()) else {
+                continue;
+            };
+            let key = match p.get("kind").and_then(|k| k.as_str()) {
+                Some("landform") => "silhouette",
+                Some("noise_region") => "noise_stroke",
+                _ => continue,
+            };
+            let r = p.get(key);
+            let field = |k: &str| r.and_then(|r| r.get(k)).and_then(|v| v.as_str());
+            if let (Some(v), Some(s)) = (field("view"), field("stroke")) {
+                named.insert((v.to_string(), s.to_string()));
+            }
+        }
+        if named.is_empty() {
+            return;
+        }
+        self.map_feature_views = Some(self.views.clone());
+        for v in &mut self.views {
+            let name = v.name.clone();
+            v.strokes
+                .retain(|s| !named.contains(&(name.clone(), s.id.clone())));
+        }
+    }
 }
 
 /// One view of a sketch: where the eye is, the camera, the strokes.

@@ -1,0 +1,250 @@
+#!/usr/bin/python3
+"""Landforms from silhouettes on the real fixtures (issue 14 item 5): the
+judge's fit of each landform's silhouette, DEM by DEM and stroke by stroke.
+
+    /usr/bin/python3 tools/fidelity/landform_real.py [--md TABLE.md] [--json OUT.json]
+        [--only DEM_SUBSTRING] [--keep DIR]
+
+For each fixture a viewpoint and heading are chosen automatically (the
+first candidate cell, scanned in a fixed order, from which the judge sees
+the ground at every stroke distance over the stroke's columns), then for
+each stroke style and distance D (1-3 km) a stroke is drawn in image space:
+its end points on the ground the judge sees at depth D, its body a bump of
+the style's shape, raised until it clears the nearer terrain by 3 px (so
+the landform can be seen at all). `demsketch correct DEM --features F
+--sketch S` builds the landform (default shadow and boundary) and
+`landform_fit.py`'s measure (judge.fit, 1 px) is taken on the after-DEM.
+The DEM used for tuning is listed in TUNED; the others are held out.
+"""
+import argparse
+import json
+import math
+import os
+import subprocess
+import sys
+import tempfile
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import judge  # noqa: E402
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+BIN = os.environ.get("DEMSKETCH", os.path.join(ROOT, "target/release/demsketch"))
+W, H, HFOV = 640, 360, 60.0
+FIXTURES = [
+    "zion_srtm_utm12n.tif",
+    "zion_srtm90m_epsg4326.tif",
+    "arenal_aster30m_epsg4326.tif",
+    "texas_srtm90m_tiled_int16.tif",
+    "vinschgau_250m_utm32n.tif",
+]
+TUNED = {"zion_srtm_utm12n.tif"}
+# style: (column span px, bump height px, shape)
+STYLES = {
+    "smooth": (120, 40, "bump"),
+    "jagged": (120, 40, "jag"),
+    "long": (300, 30, "ridge"),
+    "short": (50, 25, "bump"),
+    "asym": (140, 45, "asym"),
+}
+DISTANCES = [1000.0, 2000.0, 3000.0]
+
+
+def shape(kind, t):
+    """Height share at t in [0, 1] (0 at both ends)."""
+    if kind in ("bump", "jag"):
+        return 1.0 - (2 * t - 1) ** 2
+    if kind == "ridge":
+        return min(1.0, 4 * t, 4 * (1 - t))
+    if kind == "asym":
+        return (t / 0.3) if t < 0.3 else (1 - t) / 0.7
+    raise ValueError(kind)
+
+
+def ground_rows(depth, D):
+    """Per column: a row (centre) where the judge sees terrain at depth
+    D..1.25 D, inside a run of at least 9 such rows and 4 rows from its ends
+    (not on an occlusion boundary), NaN if none; and the top of the nearer
+    terrain (depth < 0.8 D)."""
+    at = np.full(W, np.nan)
+    near_top = np.full(W, float(H))
+    for c in range(W):
+        col = depth[:, c]
+        run = []
+        for y in range(H - 1, -1, -1):
+            d = col[y]
+            if d < 0.8 * D:
+                near_top[c] = y
+            if D <= d <= 1.25 * D:
+                run.append(y)
+            elif run:
+                break
+            if math.isinf(d):
+                break
+        if len(run) >= 9:
+            inner = run[4:-4]
+            y = min(inner, key=lambda yy: abs(col[yy] - 1.1 * D))
+            at[c] = y + 0.5
+    return at, near_top
+
+
+def draw(style, D, rows, near_top, c_mid):
+    span, hpx, kind = STYLES[style]
+    c0, c1 = c_mid - span // 2, c_mid + span // 2
+    if c0 < 5 or c1 > W - 5 or math.isnan(rows[c0]) or math.isnan(rows[c1]):
+        return None
+    y0, y1 = rows[c0], rows[c1]
+    xs = np.arange(c0, c1 + 1, 2.0) + 0.5
+    xs[-1] = c1 + 0.5
+    ts = (xs - c0) / (c1 - c0)
+    base = y0 + ts * (y1 - y0)
+    sh = np.array([shape(kind, t) for t in ts])
+    # raise the bump until it clears the nearer terrain by 3 px
+    need = hpx
+    for x, b, s in zip(xs, base, sh):
+        if s > 0.2:
+            top = near_top[int(x)] - 3.0
+            if b - hpx * s > top:
+                need = max(need, (b - top) / s)
+    hpx = min(need, 150.0)
+    ys = base - hpx * sh
+    if kind == "jag":
+        for k in range(1, len(ys) - 1):
+            ys[k] += 3.0 if (k // 3) % 2 else -3.0
+    return [[float(x), float(y)] for x, y in zip(xs, ys)], hpx
+
+
+def choose_view(dem):
+    """A viewpoint and heading from which the ground is seen at every
+    distance over the middle columns: candidates on a grid of cells in a
+    fixed order, headings every 45 degrees."""
+    ny, nx = dem.ny, dem.nx
+    best = None
+    for fy in (0.5, 0.35, 0.65, 0.25, 0.75):
+        for fx in (0.5, 0.35, 0.65, 0.25, 0.75):
+            px, py = nx * fx, ny * fy
+            lon, lat = dem.pixel_to_ll(px, py)
+            g = dem.height_ll(lon, lat)
+            if not math.isfinite(g):
+                continue
+            for heading in range(0, 360, 45):
+                r = judge.render(dem, lon, lat, g + 1.7, heading, HFOV, W, H)
+                depth = judge.depth_image(r)
+                score = 0
+                for D in DISTANCES:
+                    rows, _ = ground_rows(depth, D)
+                    score += int(np.isfinite(rows[150:490]).sum())
+                if best is None or score > best[0]:
+                    best = (score, lon, lat, heading, depth)
+            if best and best[0] > 0.9 * 340 * len(DISTANCES):
+                return best
+    return best
+
+
+def run_case(dem_path, dem, view, style, D, tmp):
+    score, lon, lat, heading, depth = view
+    rows, near_top = ground_rows(depth, D)
+    ok = np.isfinite(rows)
+    # the stroke's middle column: the most central one with both ends on ground
+    span = STYLES[style][0]
+    for off in sorted(range(-200, 201, 4), key=abs):
+        cm = W // 2 + off
+        c0, c1 = cm - span // 2, cm + span // 2
+        if 5 <= c0 and c1 < W - 5 and ok[c0] and ok[c1]:
+            break
+    else:
+        return {"status": "no ground at this distance"}
+    drawn = draw(style, D, rows, near_top, cm)
+    if drawn is None:
+        return {"status": "no ground at this distance"}
+    pts, hpx = drawn
+    sketch = {"views": [{"name": "v", "viewpoint": {"lon": lon, "lat": lat, "eye_height_m": 1.7},
+                         "camera": {"heading_deg": float(heading), "hfov_deg": HFOV,
+                                    "width": W, "height": H},
+                         "strokes": [{"id": "s", "points": pts}]}]}
+    sk = os.path.join(tmp, "sketch.json")
+    with open(sk, "w") as f:
+        json.dump(sketch, f)
+    feats = os.path.join(tmp, "f.geojson")
+    with open(feats, "w") as f:
+        json.dump({"type": "FeatureCollection", "features": [
+            {"type": "Feature", "properties": {"kind": "landform", "name": "lf",
+                                               "silhouette": {"view": "v", "stroke": "s"}},
+             "geometry": None}]}, f)
+    out, rep = os.path.join(tmp, "out.tif"), os.path.join(tmp, "rep.json")
+    for p in (out, rep):
+        if os.path.exists(p):
+            os.remove(p)
+    o = subprocess.run([BIN, "correct", dem_path, "--features", feats, "--sketch", sk,
+                        "--out", out, "--report", rep], capture_output=True, text=True)
+    res = {"lonlat": [round(lon, 5), round(lat, 5)], "heading": heading, "cols": [pts[0][0], pts[-1][0]],
+           "bump_px": round(hpx, 1)}
+    if o.returncode != 0:
+        res["status"] = "correct failed: " + o.stderr.strip()[-200:]
+        return res
+    with open(rep) as f:
+        lf = json.load(f)["corrections"][0]
+    res["peak_m"] = lf.get("landform", {}).get("peak_m")
+    res["curve_error_m"] = lf.get("max_curve_error_m", lf.get("landform", {}).get("max_curve_error_m"))
+    fo = subprocess.run(["/usr/bin/python3", os.path.join(ROOT, "tools/fidelity/landform_fit.py"),
+                         dem_path, out, sk, "v", "s"], capture_output=True, text=True)
+    if fo.returncode != 0:
+        res["status"] = "judge failed: " + fo.stderr.strip()[-200:]
+        return res
+    res.update(json.loads(fo.stdout))
+    res["status"] = "ok"
+    return res
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--md")
+    ap.add_argument("--json")
+    ap.add_argument("--only")
+    ap.add_argument("--styles")
+    ap.add_argument("--keep")
+    a = ap.parse_args()
+    rows = []
+    styles = a.styles.split(",") if a.styles else list(STYLES)
+    for name in FIXTURES:
+        if a.only and a.only not in name:
+            continue
+        path = os.path.join(ROOT, "fixtures", name)
+        dem = judge.Dem(path)
+        view = choose_view(dem)
+        for D in DISTANCES:
+            for style in styles:
+                tmp = a.keep or tempfile.mkdtemp(prefix="lfreal")
+                if a.keep:
+                    tmp = os.path.join(a.keep, f"{name[:-4]}_{style}_{int(D)}")
+                    os.makedirs(tmp, exist_ok=True)
+                res = run_case(path, dem, view, style, D, tmp)
+                res.update({"dem": name, "style": style, "distance_m": D,
+                            "held_out": name not in TUNED})
+                rows.append(res)
+                print(json.dumps(res), flush=True)
+    if a.json:
+        with open(a.json, "w") as f:
+            json.dump(rows, f, indent=1)
+    if a.md:
+        fits = [r["fit_after"] for r in rows if r.get("status") == "ok"]
+        with open(a.md, "w") as f:
+            f.write("| DEM | held out | stroke | distance | view (lon, lat, heading) | bump px | "
+                    "fit before | fit after | median dev px | status |\n")
+            f.write("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n")
+            for r in rows:
+                ll = r.get("lonlat", ["", ""])
+                f.write(f"| {r['dem'][:-4]} | {'yes' if r['held_out'] else 'no (tuned)'} | {r['style']} | "
+                        f"{r['distance_m'] / 1000:.0f} km | {ll[0]}, {ll[1]}, {r.get('heading', '')} | "
+                        f"{r.get('bump_px', '')} | {r.get('fit_before', float('nan')):.2f} | "
+                        f"{r.get('fit_after', float('nan')):.2f} | {r.get('median_dev_px') or float('nan'):.2f} | "
+                        f"{r['status']} |\n")
+            if fits:
+                f.write(f"\n{sum(x >= 0.95 for x in fits)} of {len(fits)} measured landforms fitted "
+                        f">= 0.95 (min {min(fits):.2f}, median {sorted(fits)[len(fits) // 2]:.2f}); "
+                        f"{len(rows) - len(fits)} not measured.\n")
+
+
+if __name__ == "__main__":
+    main()
