@@ -144,7 +144,9 @@ pub(crate) fn write_json<T: Serialize + for<'de> Deserialize<'de> + PartialEq>(
 }
 
 /// Read a JSON record; `Ok(None)` when it does not exist.
-pub(crate) fn read_json<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<Option<T>, BatchError> {
+pub(crate) fn read_json<T: for<'de> Deserialize<'de>>(
+    path: &Path,
+) -> Result<Option<T>, BatchError> {
     match std::fs::read(path) {
         Ok(b) => serde_json::from_slice(&b)
             .map(Some)

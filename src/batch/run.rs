@@ -93,9 +93,9 @@ pub fn prepare_output(plan: &Plan, dem: &Dem) -> Result<(), BatchError> {
                 for (k, level) in p.level_tiles().iter().enumerate() {
                     let dir = staging.path().join((k + 1).to_string());
                     std::fs::create_dir(&dir).map_err(|e| io_err(out, e))?;
-                    level.par_iter().try_for_each(|t| {
-                        copy(t, &dir.join(t.file_name().unwrap_or_default()))
-                    })?;
+                    level
+                        .par_iter()
+                        .try_for_each(|t| copy(t, &dir.join(t.file_name().unwrap_or_default())))?;
                 }
             }
             // The plan goes in with the tiles: an OUT that exists is always

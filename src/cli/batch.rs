@@ -350,13 +350,8 @@ fn whole(args: BatchArgs) -> anyhow::Result<()> {
             eprintln!("demsketch: {m}");
         }
     };
-    let summary = finish(
-        &plan,
-        &stored,
-        Some(t.elapsed().as_secs_f64()),
-        &mut note,
-    )
-    .map_err(cli_err)?;
+    let summary =
+        finish(&plan, &stored, Some(t.elapsed().as_secs_f64()), &mut note).map_err(cli_err)?;
     conclude(&summary)
 }
 
