@@ -16,6 +16,8 @@
 //! - The array-job steps (plan, the indices in a shuffled order in
 //!   separate processes, finish) give the same bytes; the levels are
 //!   refreshed by the finish step.
+//! - Internal and external (.ovr) overviews of the tiles: the batch's
+//!   files (tiles and .ovr) are byte-identical to edits one by one.
 //! - An unknown --pyramid-resampling exits 1 and writes nothing.
 
 mod batch_support;
@@ -385,4 +387,95 @@ fn an_unknown_pyramid_resampling_is_refused_before_anything_is_written() {
         "{err}"
     );
     assert!(snapshot(tmp.path()) == before && !out.exists());
+}
+
+/// Every file of a directory (tiles and their `.ovr`), by name.
+fn files(dir: &Path) -> Vec<(String, Vec<u8>)> {
+    let mut v: Vec<(String, Vec<u8>)> = std::fs::read_dir(dir)
+        .unwrap()
+        .flatten()
+        .filter(|e| e.path().is_file())
+        .map(|e| {
+            (
+                e.file_name().to_string_lossy().into_owned(),
+                std::fs::read(e.path()).unwrap(),
+            )
+        })
+        .collect();
+    v.sort();
+    v
+}
+
+#[test]
+fn a_batch_refreshes_internal_and_external_overviews_as_edits_one_by_one_do() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dem = batch_support::tile_set(tmp.path(), "dem");
+    // Internal overviews on the left half, external (.ovr) on the right.
+    for ty in 0..batch_support::SIDE {
+        for tx in 0..batch_support::SIDE {
+            let t = dem.join(format!("tile_{ty}_{tx}.tif"));
+            let t = t.to_string_lossy();
+            let mut args = vec!["-q", "-r", "average"];
+            if tx >= 2 {
+                args.push("-ro");
+            }
+            args.extend([t.as_ref(), "2", "4"]);
+            run("gdaladdo", &args);
+        }
+    }
+    assert!(dem.join("tile_0_3.tif.ovr").is_file());
+    let (m, sketches) = batch_support::manifest(tmp.path(), 6);
+    let out = tmp.path().join("out");
+    std::fs::create_dir(&out).unwrap();
+    for (name, bytes) in files(&dem) {
+        std::fs::write(out.join(name), bytes).unwrap();
+    }
+    for s in &sketches {
+        let r = out_of(
+            cmd()
+                .arg("edit")
+                .arg(&out)
+                .arg("--sketch")
+                .arg(s)
+                .arg("--in-place")
+                .args(FLAGS)
+                .arg("--quiet"),
+        );
+        assert!(r.status.success(), "reference edit: {}", stderr(&r));
+    }
+    let want = files(&out);
+    std::fs::remove_dir_all(&out).unwrap();
+    let r = out_of(
+        cmd()
+            .arg("batch")
+            .arg(&dem)
+            .arg("--jobs")
+            .arg(&m)
+            .arg("--out")
+            .arg(&out)
+            .args(FLAGS)
+            .arg("--quiet"),
+    );
+    assert!(r.status.success(), "batch: {}", stderr(&r));
+    let got = files(&out);
+    assert_eq!(
+        got.iter().map(|f| &f.0).collect::<Vec<_>>(),
+        want.iter().map(|f| &f.0).collect::<Vec<_>>()
+    );
+    let differ: Vec<&String> = got
+        .iter()
+        .zip(&want)
+        .filter(|(a, b)| a.1 != b.1)
+        .map(|(a, _)| &a.0)
+        .collect();
+    assert!(
+        differ.is_empty(),
+        "differ from edits one by one: {differ:?}"
+    );
+    // The overviews were refreshed: some .ovr changed.
+    let before = files(&dem);
+    assert!(got
+        .iter()
+        .zip(&before)
+        .any(|(a, b)| a.0.ends_with(".ovr") && a.1 != b.1));
 }
