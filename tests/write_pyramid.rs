@@ -155,26 +155,3 @@ fn an_unknown_pyramid_resampling_is_one_line_and_touches_nothing() {
     );
     assert!(snapshot(tmp.path()) == before, "something was written");
 }
-
-#[test]
-fn a_batch_on_a_pyramid_is_refused_before_anything_is_written() {
-    let tmp = tempfile::tempdir().unwrap();
-    let (_, pyr, _) = pyramid_case(tmp.path(), "200", "near");
-    let m = tmp.path().join("m.json");
-    std::fs::write(&m, r#"{"edits":[{"corrections":"lake.geojson"}]}"#).unwrap();
-    let before = snapshot(tmp.path());
-    let out = tmp.path().join("out");
-    let o = demsketch(&[
-        "batch",
-        &pyr.to_string_lossy(),
-        "--jobs",
-        &m.to_string_lossy(),
-        "--out",
-        &out.to_string_lossy(),
-    ]);
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(1), "{err}");
-    assert_eq!(err.trim().lines().count(), 1, "one line: {err}");
-    assert!(err.contains("pyramid levels"), "{err}");
-    assert!(snapshot(tmp.path()) == before && !out.exists());
-}

@@ -276,7 +276,8 @@ fn edit(
 #[pyfunction]
 #[pyo3(signature = (dem, jobs, out, plan, *, max_distance=50_000.0, refraction=1.0 / 7.0,
                     max_lowering_iterations=4, max_contour_iterations=6,
-                    min_fit=demsketch::edit::DEFAULT_MIN_FIT, allow_partial=false))]
+                    min_fit=demsketch::edit::DEFAULT_MIN_FIT, allow_partial=false,
+                    pyramid_resampling=None))]
 #[allow(clippy::too_many_arguments)]
 fn batch_plan(
     py: Python<'_>,
@@ -290,6 +291,7 @@ fn batch_plan(
     max_contour_iterations: usize,
     min_fit: f64,
     allow_partial: bool,
+    pyramid_resampling: Option<String>,
 ) -> PyResult<String> {
     let settings = BatchSettings {
         max_distance_m: max_distance,
@@ -298,6 +300,7 @@ fn batch_plan(
         max_contour_iterations,
         min_fit,
         allow_partial,
+        pyramid_resampling,
     };
     let p = py
         .detach(|| steps::plan_to_file(&dem, &jobs, &out, &plan, settings))

@@ -18,6 +18,9 @@
 //!   moment resumes without redoing or double-applying an edit.
 //! - [`run`]: copying the DEM to the output, running one group or all of
 //!   them (rayon), the per-edit reports and the batch summary.
+//! - [`pyramid`]: the final step on a tile directory with
+//!   `gdal_retile.py -levels` pyramid levels: the level tiles recomputed
+//!   once, over the union of what the edits changed.
 //! - [`steps`]: the array-job steps (plan, run one index, finish) as the
 //!   CLI and the Python package call them.
 //!
@@ -29,6 +32,7 @@
 pub mod footprint;
 pub mod manifest;
 pub mod plan;
+pub mod pyramid;
 pub mod record;
 pub mod run;
 pub mod steps;

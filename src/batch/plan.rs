@@ -34,6 +34,11 @@ pub struct BatchSettings {
     pub max_contour_iterations: usize,
     pub min_fit: f64,
     pub allow_partial: bool,
+    /// `--pyramid-resampling`: the resampling of a tile directory's
+    /// `gdal_retile.py -levels` pyramid, refreshed by the batch's final
+    /// step ([`super::pyramid`]); `None`: near.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pyramid_resampling: Option<String>,
 }
 
 impl Default for BatchSettings {
@@ -46,6 +51,7 @@ impl Default for BatchSettings {
             max_contour_iterations: 6,
             min_fit: DEFAULT_MIN_FIT,
             allow_partial: false,
+            pyramid_resampling: None,
         }
     }
 }
@@ -64,6 +70,9 @@ impl BatchSettings {
         o.min_fit = self.min_fit;
         o.allow_partial = self.allow_partial;
         o.progress = false;
+        // The pyramid is the batch's final step, over every edit at once
+        // (super::pyramid).
+        o.write.defer_pyramid = true;
         o
     }
 
@@ -187,20 +196,24 @@ impl Plan {
         dem: &Dem,
         manifest: &Manifest,
         out: &Path,
-        settings: BatchSettings,
+        mut settings: BatchSettings,
     ) -> Result<Plan, BatchError> {
         let georef = dem_georef(dem).map_err(|m| BatchError::Plan {
             path: dem_path.display().to_string(),
             message: m,
         })?;
-        // Level tiles are shared by every group: the groups could not
-        // refresh them independently.
-        if dem.kind == crate::raster::LayerKind::TileDirectory && dem_path.join("1").is_dir() {
-            return Err(BatchError::Plan {
-                path: dem_path.display().to_string(),
-                message: "has pyramid levels (subdirectory 1, as gdal_retile.py -levels makes); batch does not refresh them: edit one by one (edit --in-place refreshes them) or rebuild the levels after the batch".into(),
-            });
+        // Level tiles are shared by every group: the edits leave them and
+        // the batch's final step refreshes them (super::pyramid). A
+        // pyramid demsketch cannot keep up to date stops the batch here.
+        if let Some(r) = &settings.pyramid_resampling {
+            let name =
+                crate::raster::pyramid::parse_resampling(r).map_err(|m| BatchError::Plan {
+                    path: dem_path.display().to_string(),
+                    message: m,
+                })?;
+            settings.pyramid_resampling = Some(name.to_string());
         }
+        super::pyramid::check(dem_path, dem)?;
         let mut windows = Vec::new();
         let mut tile_sets = Vec::new();
         for e in &manifest.edits {

@@ -105,6 +105,11 @@ pub struct Done {
     /// Why it was not written, or a note.
     pub message: Option<String>,
     pub seconds: f64,
+    /// `[col, row, width, height]`: the window holding its changed cells
+    /// (its deformation window), when it changed any; for the pyramid
+    /// step ([`super::pyramid`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub window: Option<[i64; 4]>,
 }
 
 fn pending_path(dir: &Path, index: usize) -> PathBuf {
@@ -116,7 +121,7 @@ fn done_path(dir: &Path, index: usize) -> PathBuf {
 }
 
 /// Write `value` as JSON to `path`, atomically and verified.
-fn write_json<T: Serialize + for<'de> Deserialize<'de> + PartialEq>(
+pub(crate) fn write_json<T: Serialize + for<'de> Deserialize<'de> + PartialEq>(
     path: &Path,
     value: &T,
 ) -> Result<(), BatchError> {
@@ -139,7 +144,9 @@ fn write_json<T: Serialize + for<'de> Deserialize<'de> + PartialEq>(
 }
 
 /// Read a JSON record; `Ok(None)` when it does not exist.
-fn read_json<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<Option<T>, BatchError> {
+pub(crate) fn read_json<T: for<'de> Deserialize<'de>>(
+    path: &Path,
+) -> Result<Option<T>, BatchError> {
     match std::fs::read(path) {
         Ok(b) => serde_json::from_slice(&b)
             .map(Some)

@@ -87,6 +87,17 @@ pub fn prepare_output(plan: &Plan, dem: &Dem) -> Result<(), BatchError> {
                     &staging.file(t.path.file_name().unwrap_or_default()),
                 )
             })?;
+            // The pyramid levels (gdal_retile.py -levels), each level's
+            // tiles in its subdirectory.
+            if let Some(p) = super::pyramid::check(dem_path, dem)? {
+                for (k, level) in p.level_tiles().iter().enumerate() {
+                    let dir = staging.path().join((k + 1).to_string());
+                    std::fs::create_dir(&dir).map_err(|e| io_err(out, e))?;
+                    level
+                        .par_iter()
+                        .try_for_each(|t| copy(t, &dir.join(t.file_name().unwrap_or_default())))?;
+                }
+            }
             // The plan goes in with the tiles: an OUT that exists is always
             // one with its plan.
             write_plan_file(&staging.path().join(STATE_NAME), plan)?;
@@ -203,6 +214,7 @@ fn unwritten(e: &PlannedEdit, status: Status, message: String, seconds: f64) -> 
         report: None,
         message: Some(message),
         seconds,
+        window: None,
     }
 }
 
@@ -229,6 +241,7 @@ fn written(
         report: Some(report),
         message: None,
         seconds,
+        window: (changed_cells > 0).then_some(w),
     })
 }
 
@@ -283,6 +296,8 @@ fn run_edit(
 fn run_corrections(plan: &Plan, e: &PlannedEdit, report: PathBuf) -> Result<Done, BatchError> {
     let mut opts = crate::correct::CorrectOptions::new(crate::raster::Destination::InPlace);
     opts.report = Some(report.clone());
+    // The pyramid is the batch's final step (super::pyramid).
+    opts.write.defer_pyramid = true;
     let t = Instant::now();
     let result = crate::correct::run(&plan.out, &e.sketch, &opts);
     let seconds = t.elapsed().as_secs_f64();
@@ -357,6 +372,7 @@ pub fn run_group(
                         "applied by a run killed before it was recorded; not applied again".into(),
                     ),
                     seconds: 0.0,
+                    window: None,
                 };
                 records.write_done(&d)?;
                 progress.edit_done(&d, false);
@@ -464,6 +480,10 @@ pub struct Summary {
     pub wall_seconds: Option<f64>,
     /// Per edit, in manifest order.
     pub records: Vec<Done>,
+    /// The pyramid step, on a tile directory with pyramid levels, once
+    /// every edit is done ([`super::pyramid`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub pyramid: Option<super::pyramid::PyramidDone>,
 }
 
 impl Summary {
@@ -473,9 +493,17 @@ impl Summary {
     }
 }
 
-/// Gather every edit's record into the summary and write it
-/// (`STATE/summary.json`, atomically). `wall` is the run's wall time.
-pub fn finish(plan: &Plan, plan_path: &Path, wall: Option<f64>) -> Result<Summary, BatchError> {
+/// Gather every edit's record into the summary and, once every edit is
+/// done, refresh the output's pyramid levels ([`super::pyramid`]); write
+/// the summary (`STATE/summary.json`, atomically). `wall` is the run's wall
+/// time; each recovery note goes to `note`. The caller holds the output's
+/// edit lock exclusively.
+pub fn finish(
+    plan: &Plan,
+    plan_path: &Path,
+    wall: Option<f64>,
+    note: &mut dyn FnMut(&str),
+) -> Result<Summary, BatchError> {
     let state = state_dir(&plan.out);
     let mut s = Summary {
         out: plan.out.clone(),
@@ -493,6 +521,7 @@ pub fn finish(plan: &Plan, plan_path: &Path, wall: Option<f64>) -> Result<Summar
         edit_seconds: 0.0,
         wall_seconds: wall,
         records: Vec::new(),
+        pyramid: None,
     };
     let mut tiles = std::collections::BTreeSet::new();
     for e in &plan.edits {
@@ -518,6 +547,9 @@ pub fn finish(plan: &Plan, plan_path: &Path, wall: Option<f64>) -> Result<Summar
         }
     }
     s.tiles_written = tiles.len();
+    if s.incomplete.is_empty() {
+        s.pyramid = super::pyramid::refresh(plan, &s.records, note)?;
+    }
     let text = serde_json::to_vec_pretty(&s).map_err(|e| BatchError::Internal(e.to_string()))?;
     let path = state.join("summary.json");
     crate::raster::atomic_file::replace_file(

@@ -10,8 +10,10 @@
 //!   run again (a retried task) applies nothing twice (the batch journal,
 //!   [`super::record`]);
 //! - [`finish_plan`]: under the exclusive lock, finish every interrupted
-//!   edit journal, remove the temporary files of dead runs and write the
-//!   summary of every edit's record.
+//!   edit journal, remove the temporary files of dead runs, refresh the
+//!   pyramid levels of a tile directory that has them (once every edit is
+//!   done, [`super::pyramid`]) and write the summary of every edit's
+//!   record.
 
 use std::path::Path;
 use std::time::Duration;
@@ -118,5 +120,5 @@ pub fn finish_plan(
     for n in notes.into_iter().chain(clean_output(&plan)) {
         note(&n);
     }
-    finish(&plan, plan_path, None)
+    finish(&plan, plan_path, None, note)
 }

@@ -32,11 +32,19 @@ OUT/.demsketch_batch/reports/, summary: OUT/.demsketch_batch/summary.json.
 A killed batch resumes with --resume, without redoing or double-applying an
 edit.
 
+Pyramids: a tile directory with levels in subdirectories 1, 2, ... (as
+`gdal_retile.py -levels N` makes) is copied with them; the edits leave the
+levels and the batch's last step recomputes the level tiles over every
+area the edits changed, once, as `gdal_retile.py -r R` computes them (R:
+--pyramid-resampling, default near). The level tiles away from the changes
+keep their bytes. Internal and external overviews (.ovr) of the tiles are
+refreshed by each edit, as `edit --in-place` does.
+
 Array jobs: `demsketch batch plan DEM --jobs M --out OUT --plan plan.json`,
 then `demsketch batch run --plan plan.json --index N` for every group N (in
 any order, in parallel, on any machine that sees OUT; the index may come
 from SLURM_ARRAY_TASK_ID or JOB_COMPLETION_INDEX), then `demsketch batch
-finish --plan plan.json`.
+finish --plan plan.json` (which also refreshes the pyramid levels).
 
 Exit codes:
   0  every edit written
@@ -65,6 +73,12 @@ pub struct EditFlags {
     /// Write an edit even when a stroke's fit is below --min-fit.
     #[arg(long)]
     pub allow_partial: bool,
+    /// Resampling of a tile directory's pyramid (subdirectories 1, 2, ... as
+    /// `gdal_retile.py -levels` makes), refreshed once at the end of the
+    /// batch: the `-r` it was built with (near, bilinear, cubic,
+    /// cubicspline, lanczos, average, mode) [default: near].
+    #[arg(long, value_parser = |s: &str| demsketch::raster::pyramid::parse_resampling(s).map(str::to_string))]
+    pub pyramid_resampling: Option<String>,
 }
 
 impl EditFlags {
@@ -76,6 +90,7 @@ impl EditFlags {
             max_contour_iterations: self.max_contour_iterations,
             min_fit: self.min_fit,
             allow_partial: self.allow_partial,
+            pyramid_resampling: self.pyramid_resampling.clone(),
         }
     }
 }
@@ -111,7 +126,8 @@ pub enum BatchStep {
     Plan(PlanArgs),
     /// Run one group of a plan (for array-job engines).
     Run(RunArgs),
-    /// Finish a planned batch: check every group ran, write the summary.
+    /// Finish a planned batch: check every group ran, refresh the pyramid
+    /// levels (if any), write the summary.
     Finish(FinishArgs),
 }
 
@@ -236,7 +252,7 @@ fn report_progress(pb: &ProgressBar, d: &demsketch::batch::record::Done, before:
 fn conclude(s: &Summary) -> anyhow::Result<()> {
     if !super::quiet() {
         eprintln!(
-            "{}: {} of {} edits written in {} groups ({} below --min-fit, {} failed, {} recovered), {} cells changed in {} tiles{}",
+            "{}: {} of {} edits written in {} groups ({} below --min-fit, {} failed, {} recovered), {} cells changed in {} tiles{}{}",
             s.out.display(),
             s.written,
             s.edits,
@@ -246,6 +262,14 @@ fn conclude(s: &Summary) -> anyhow::Result<()> {
             s.recovered,
             s.changed_cells,
             s.tiles_written,
+            s.pyramid
+                .as_ref()
+                .map(|p| format!(
+                    ", {} pyramid tiles of {} levels refreshed",
+                    p.tiles_written.len(),
+                    p.levels
+                ))
+                .unwrap_or_default(),
             s.wall_seconds
                 .map(|w| format!(", {w:.1} s ({:.2} edits/s)", s.edits as f64 / w.max(1e-9)))
                 .unwrap_or_default()
@@ -321,7 +345,13 @@ fn whole(args: BatchArgs) -> anyhow::Result<()> {
     let ran = run_all(&plan, &stored, &progress);
     pb.finish_and_clear();
     ran.map_err(cli_err)?;
-    let summary = finish(&plan, &stored, Some(t.elapsed().as_secs_f64())).map_err(cli_err)?;
+    let mut note = |m: &str| {
+        if !super::quiet() {
+            eprintln!("demsketch: {m}");
+        }
+    };
+    let summary =
+        finish(&plan, &stored, Some(t.elapsed().as_secs_f64()), &mut note).map_err(cli_err)?;
     conclude(&summary)
 }
 

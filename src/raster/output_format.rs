@@ -42,6 +42,10 @@ pub struct WriteOptions {
     /// `gdal_retile.py -levels` pyramid, refreshed after an in-place write
     /// ([`super::pyramid`]); `None`: near, `gdal_retile.py`'s default.
     pub pyramid_resampling: Option<String>,
+    /// Leave a tile directory's `gdal_retile.py -levels` pyramid as it is:
+    /// the caller refreshes it itself, over the union of several writes
+    /// (a batch, once at its end: [`crate::batch::pyramid`]).
+    pub defer_pyramid: bool,
 }
 
 impl WriteOptions {

@@ -143,6 +143,14 @@ impl Pyramid {
         self.levels.len()
     }
 
+    /// The level tiles' files, level 1 first.
+    pub fn level_tiles(&self) -> Vec<Vec<PathBuf>> {
+        self.levels
+            .iter()
+            .map(|l| l.iter().map(|t| t.path.clone()).collect())
+            .collect()
+    }
+
     /// Recompute the level tiles over `changed` (CRS bounds `[min x, min
     /// y, max x, max y]` of the base cells an edit changed) with
     /// `resampling` (a name of [`parse_resampling`]); the level tiles
@@ -153,43 +161,70 @@ impl Pyramid {
         resampling: &str,
         provenance: &Provenance,
     ) -> Result<Vec<PathBuf>, RasterError> {
+        self.refresh_areas(&[changed], resampling, provenance)
+    }
+
+    /// [`Pyramid::refresh`] over several changed areas at once (the edits
+    /// of a batch): each level tile over any of them is recomputed once,
+    /// from the level below as it is then, and written only where its
+    /// cells differ. A level tile's cells are a function of the base
+    /// alone, so this gives the cells refreshing after every edit would,
+    /// and running it again changes nothing (a refresh cut short is
+    /// finished by running it again).
+    pub fn refresh_areas(
+        &self,
+        changed: &[[f64; 4]],
+        resampling: &str,
+        provenance: &Provenance,
+    ) -> Result<Vec<PathBuf>, RasterError> {
         let alg = RESAMPLINGS
             .iter()
             .find(|(n, _)| *n == parse_resampling(resampling).unwrap_or("near"))
             .map_or(gdal_sys::GDALResampleAlg::GRA_NearestNeighbour, |r| r.1);
         let mut written = Vec::new();
         let mut below: Vec<PathBuf> = tiffs(&self.base)?;
-        let mut area = changed;
+        let mut areas: Vec<[f64; 4]> = changed
+            .iter()
+            .copied()
+            .filter(|a| a.iter().all(|v| v.is_finite()) && a[0] <= a[2] && a[1] <= a[3])
+            .collect();
         for level in &self.levels {
-            // What a kernel of the level below reaches, around the change.
-            let mut next = area;
+            // What a kernel of the level below reaches, around each change.
+            let mut next = areas.clone();
             let mut any = false;
             for t in level {
                 let margin = self.kernel_margin(t)?;
-                let grown = [
-                    area[0] - margin,
-                    area[1] - margin,
-                    area[2] + margin,
-                    area[3] + margin,
-                ];
-                if !overlaps(t.bounds, grown) {
+                let mut hit = false;
+                for (area, n) in areas.iter().zip(next.iter_mut()) {
+                    let grown = [
+                        area[0] - margin,
+                        area[1] - margin,
+                        area[2] + margin,
+                        area[3] + margin,
+                    ];
+                    if !overlaps(t.bounds, grown) {
+                        continue;
+                    }
+                    hit = true;
+                    *n = [
+                        n[0].min(t.bounds[0].max(grown[0])),
+                        n[1].min(t.bounds[1].max(grown[1])),
+                        n[2].max(t.bounds[2].min(grown[2])),
+                        n[3].max(t.bounds[3].min(grown[3])),
+                    ];
+                }
+                if !hit {
                     continue;
                 }
                 if rebuild_tile(t, &below, alg, provenance)? {
                     written.push(t.path.clone());
                 }
                 any = true;
-                next = [
-                    next[0].min(t.bounds[0].max(grown[0])),
-                    next[1].min(t.bounds[1].max(grown[1])),
-                    next[2].max(t.bounds[2].min(grown[2])),
-                    next[3].max(t.bounds[3].min(grown[3])),
-                ];
             }
             if !any {
                 break;
             }
-            area = next;
+            areas = next;
             below = level.iter().map(|t| t.path.clone()).collect();
         }
         Ok(written)

@@ -291,16 +291,29 @@ impl Dem {
     /// CRS bounds `[min x, min y, max x, max y]` of the windows `edits`
     /// change.
     fn changed_bounds(&self, edits: &[TileEdit]) -> [f64; 4] {
+        self.windows_bounds(edits.iter().map(|e| {
+            let x = &self.tiles[e.tile].extent;
+            Window::new(
+                x.col + e.local.col,
+                x.row + e.local.row,
+                e.local.width,
+                e.local.height,
+            )
+        }))
+    }
+
+    /// CRS bounds `[min x, min y, max x, max y]` of the union of `windows`
+    /// (of the DEM grid); infinite and inverted when there are none.
+    pub fn windows_bounds(&self, windows: impl IntoIterator<Item = Window>) -> [f64; 4] {
         let mut b = [
             f64::INFINITY,
             f64::INFINITY,
             f64::NEG_INFINITY,
             f64::NEG_INFINITY,
         ];
-        for e in edits {
-            let x = &self.tiles[e.tile].extent;
-            let (c0, r0) = ((x.col + e.local.col) as f64, (x.row + e.local.row) as f64);
-            let (c1, r1) = (c0 + e.local.width as f64, r0 + e.local.height as f64);
+        for w in windows {
+            let (c0, r0) = (w.col as f64, w.row as f64);
+            let (c1, r1) = (c0 + w.width as f64, r0 + w.height as f64);
             for (c, r) in [(c0, r0), (c1, r0), (c0, r1), (c1, r1)] {
                 let (px, py) = self.geotransform.pixel_to_crs(c, r);
                 b = [b[0].min(px), b[1].min(py), b[2].max(px), b[3].max(py)];
@@ -340,7 +353,7 @@ impl Dem {
                 // A gdal_retile.py pyramid beside the tiles: checked before
                 // anything is written, refreshed over the change after.
                 let pyramid = match self.kind {
-                    LayerKind::TileDirectory if !edits.is_empty() => {
+                    LayerKind::TileDirectory if !edits.is_empty() && !opts.defer_pyramid => {
                         super::pyramid::Pyramid::discover(&self.path)?
                     }
                     _ => None,
