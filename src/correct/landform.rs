@@ -110,6 +110,10 @@ pub struct Placed {
 pub struct Sight {
     pub window: Window,
     pub max_z: Vec<f64>,
+    /// Per cell, the absolute height at which the cell centre appears on
+    /// the stroke itself (the sight cone through the silhouette; NaN
+    /// outside its columns).
+    pub cone_z: Vec<f64>,
 }
 
 /// How far below the stroke (pixels) the footprint's cells other than the
@@ -118,6 +122,14 @@ pub const SIGHT_MARGIN_PX: f64 = 0.5;
 
 impl Sight {
     fn bound(&self, col: i64, row: i64) -> f64 {
+        self.get(&self.max_z, col, row)
+    }
+
+    fn cone(&self, col: i64, row: i64) -> f64 {
+        self.get(&self.cone_z, col, row)
+    }
+
+    fn get(&self, v: &[f64], col: i64, row: i64) -> f64 {
         let w = self.window;
         if col < w.col || row < w.row {
             return f64::NAN;
@@ -126,7 +138,7 @@ impl Sight {
         if c >= w.width || r >= w.height {
             return f64::NAN;
         }
-        self.max_z[r * w.width + c]
+        v[r * w.width + c]
     }
 }
 
@@ -152,6 +164,22 @@ fn stroke_row(pixels: &[[f64; 2]], x: f64) -> Option<f64> {
 
 /// The sight bound (see [`Sight`]) over the window `win` (global cells).
 fn sight_bound(dem: &Dem, proj: &SceneProjection, pixels: &[[f64; 2]], win: Window) -> Sight {
+    Sight {
+        window: win,
+        max_z: sight_heights(dem, proj, pixels, win, SIGHT_MARGIN_PX),
+        cone_z: sight_heights(dem, proj, pixels, win, 0.0),
+    }
+}
+
+/// Per cell of `win`, the absolute height at which its centre appears
+/// `margin_px` below the stroke (NaN outside the stroke's columns).
+fn sight_heights(
+    dem: &Dem,
+    proj: &SceneProjection,
+    pixels: &[[f64; 2]],
+    win: Window,
+    margin_px: f64,
+) -> Vec<f64> {
     let gt = dem.geotransform;
     let frame = proj.own_frame();
     let mut max_z = vec![f64::NAN; win.len()];
@@ -178,7 +206,7 @@ fn sight_bound(dem: &Dem, proj: &SceneProjection, pixels: &[[f64; 2]], win: Wind
                     ok = false;
                     break;
                 };
-                let d = CameraModel::unproject(&proj.camera, [px[0], sy + SIGHT_MARGIN_PX]);
+                let d = CameraModel::unproject(&proj.camera, [px[0], sy + margin_px]);
                 let h = d[0].hypot(d[1]);
                 if h < 1e-9 {
                     break;
@@ -191,7 +219,7 @@ fn sight_bound(dem: &Dem, proj: &SceneProjection, pixels: &[[f64; 2]], win: Wind
             }
         }
     }
-    Sight { window: win, max_z }
+    max_z
 }
 
 /// The view a landform's stroke is drawn on, set up on the DEM.
@@ -983,6 +1011,24 @@ pub fn apply_landform(
         }
     }
     // Below the sight line through the silhouette (see [`Sight`]).
+    // The stencils' cells on the sight cone through the silhouette: the
+    // bilinear surface there is seen on the stroke.
+    let on_cone = |grid: &mut Grid, cells: &[bool]| {
+        let Some(sight) = &p.sight else { return };
+        for r in 0..win.height {
+            for c in 0..win.width {
+                let i = r * win.width + c;
+                if param[i].is_none() || !cells[i] {
+                    continue;
+                }
+                let z = sight.cone(win.col + c as i64, win.row + r as i64);
+                if z.is_finite() {
+                    let g = (r + lr) * grid.width() + c + lc;
+                    grid.values[g] = z;
+                }
+            }
+        }
+    };
     let hold = |grid: &mut Grid, keep: Option<&[bool]>| {
         let Some(sight) = &p.sight else { return };
         for r in 0..win.height {
@@ -1024,6 +1070,7 @@ pub fn apply_landform(
         }
     }
     hold(grid, Some(&stencil));
+    on_cone(grid, &stencil);
     let (mut changed, mut max_abs) = (0usize, 0f64);
     for r in 0..win.height {
         for c in 0..win.width {
