@@ -166,21 +166,28 @@ fn stroke_row(pixels: &[[f64; 2]], x: f64) -> Option<f64> {
 fn sight_bound(dem: &Dem, proj: &SceneProjection, pixels: &[[f64; 2]], win: Window) -> Sight {
     Sight {
         window: win,
-        max_z: sight_heights(dem, proj, pixels, win, SIGHT_MARGIN_PX),
-        cone_z: sight_heights(dem, proj, pixels, win, 0.0),
+        max_z: sight_heights(dem, proj, pixels, win, SIGHT_MARGIN_PX, true),
+        cone_z: sight_heights(dem, proj, pixels, win, 0.0, false),
     }
 }
 
 /// Per cell of `win`, the absolute height at which its centre appears
-/// `margin_px` below the stroke (NaN outside the stroke's columns).
+/// `margin_px` below the stroke (NaN outside the stroke's columns; with
+/// `clamp`, beyond its ends, below the row of its nearest end: at 3 km a
+/// 90 m cell is 16 px wide, and the bilinear patches of the stroke's end
+/// columns reach cells whose centres lie beyond them).
 fn sight_heights(
     dem: &Dem,
     proj: &SceneProjection,
     pixels: &[[f64; 2]],
     win: Window,
     margin_px: f64,
+    clamp: bool,
 ) -> Vec<f64> {
     let gt = dem.geotransform;
+    let x_range = pixels.iter().map(|p| p[0]).fold(None, |acc: Option<(f64, f64)>, x| {
+        Some(acc.map_or((x, x), |(lo, hi)| (lo.min(x), hi.max(x))))
+    });
     let frame = proj.own_frame();
     let mut max_z = vec![f64::NAN; win.len()];
     for r in 0..win.height {
@@ -202,7 +209,12 @@ fn sight_heights(
                 let Some((px, _)) = proj.project([e, n, z]) else {
                     break;
                 };
-                let Some(sy) = stroke_row(pixels, px[0]) else {
+                // Beyond the stroke's ends (held cells only): its end's row.
+                let x = match (clamp, x_range) {
+                    (true, Some((lo, hi))) => px[0].clamp(lo, hi),
+                    _ => px[0],
+                };
+                let Some(sy) = stroke_row(pixels, x) else {
                     ok = false;
                     break;
                 };

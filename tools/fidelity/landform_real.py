@@ -47,6 +47,7 @@ STYLES = {
     "long": (300, 30, "ridge"),
     "short": (50, 25, "bump"),
     "asym": (140, 45, "asym"),
+    "dome": (160, 40, "dome"),
 }
 DISTANCES = [1000.0, 2000.0, 3000.0]
 
@@ -57,6 +58,8 @@ def shape(kind, t):
         return 1.0 - (2 * t - 1) ** 2
     if kind == "ridge":
         return min(1.0, 4 * t, 4 * (1 - t))
+    if kind == "dome":
+        return math.sqrt(max(0.0, 1.0 - (2 * t - 1) ** 2))
     if kind == "asym":
         return (t / 0.3) if t < 0.3 else (1 - t) / 0.7
     raise ValueError(kind)
@@ -193,8 +196,32 @@ def run_case(dem_path, dem, view, style, D, tmp):
         res["status"] = "judge failed: " + fo.stderr.strip()[-200:]
         return res
     res.update(json.loads(fo.stdout))
-    res["status"] = "ok"
+    res.update(resolvable(dem, depth, pts, D))
+    res["status"] = "ok" if res["silhouette_share"] >= 0.95 else (
+        f"stroke over terrain in {100 * (1 - res['silhouette_share']):.0f}% of its columns")
+    if res["cells_across"] < 6:
+        res["status"] += f"; sub-cell: {res['cells_across']:.1f} cells across"
     return res
+
+
+def resolvable(dem, depth, pts, D):
+    """What the DEM and the view allow before any code runs: the share of
+    the stroke's columns where the before render shows sky, or terrain at
+    least 5% and a cell farther than the ground the stroke's ends stand on,
+    just above the stroke (where else the judge cannot count a boundary
+    unless the ground behind the landform is dug), and how many cells
+    across the landform is at that distance."""
+    cols = judge.stroke_columns(pts, W)
+    ends = [depth[min(H - 1, int(q[1])), min(W - 1, int(q[0]))] for q in (pts[0], pts[-1])]
+    d_end = max([e for e in ends if math.isfinite(e)] or [1.25 * D])
+    good = 0
+    for c, ys in cols.items():
+        y = int(math.floor(min(ys))) - 1
+        d = depth[y, c] if 0 <= y < H else math.inf
+        good += d >= max(1.05 * d_end, d_end + dem.cell_m)
+    f = (W / 2.0) / math.tan(math.radians(HFOV) / 2.0)
+    across = (pts[-1][0] - pts[0][0]) / f * 1.1 * D / dem.cell_m
+    return {"silhouette_share": good / max(1, len(cols)), "cells_across": across}
 
 
 def main():
