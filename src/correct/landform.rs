@@ -100,8 +100,9 @@ pub struct Placed {
 
 /// Per cell of a window of the DEM (global cell indices), the highest
 /// absolute height at which the cell centre still appears at least
-/// [`SIGHT_MARGIN_PX`] below the stroke from its view (NaN: the cell is not
-/// in the stroke's columns). Gain et al. make the terrain interpolate the
+/// [`SIGHT_MARGIN_PX`] below the stroke from its view (beyond the stroke's
+/// ends, below its nearest end's row; NaN where the cell cannot be
+/// projected). Gain et al. make the terrain interpolate the
 /// silhouette; on sloping ground their displacement also lifts the ground
 /// behind the shadow above the sight line through the silhouette, so the
 /// crest the view sees is not the stroke (on the Zion fixture up to 2.5 px
@@ -185,9 +186,12 @@ fn sight_heights(
     clamp: bool,
 ) -> Vec<f64> {
     let gt = dem.geotransform;
-    let x_range = pixels.iter().map(|p| p[0]).fold(None, |acc: Option<(f64, f64)>, x| {
-        Some(acc.map_or((x, x), |(lo, hi)| (lo.min(x), hi.max(x))))
-    });
+    let x_range = pixels
+        .iter()
+        .map(|p| p[0])
+        .fold(None, |acc: Option<(f64, f64)>, x| {
+            Some(acc.map_or((x, x), |(lo, hi)| (lo.min(x), hi.max(x))))
+        });
     let frame = proj.own_frame();
     let mut max_z = vec![f64::NAN; win.len()];
     for r in 0..win.height {
@@ -1070,7 +1074,11 @@ pub fn apply_landform(
         near.iter().zip(&inside).map(|(&a, &b)| a && b).collect()
     })?;
     // Again after the correction, but for the cells of the bilinear
-    // stencils the silhouette's points lie in (they carry it).
+    // stencils the silhouette's points lie in: those are put on the sight
+    // cone through the stroke (the surface that projects onto it, which
+    // holds the placed curve), so that the bilinear surface between them
+    // is seen on the stroke in every column, not only at the curve's
+    // points (on Zion 30 m, smooth bump at 3 km: judge 0.56 -> 0.88).
     let mut stencil = vec![false; win.len()];
     for q in &p.shadow_px {
         let (c0, r0) = ((q[0] - 0.5).floor() as i64, (q[1] - 0.5).floor() as i64);
