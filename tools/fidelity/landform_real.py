@@ -231,10 +231,14 @@ def main():
     ap.add_argument("--only")
     ap.add_argument("--styles")
     ap.add_argument("--keep")
+    ap.add_argument("--from-json", help="write --md from an earlier --json run")
     a = ap.parse_args()
     rows = []
+    if a.from_json:
+        with open(a.from_json) as f:
+            rows = json.load(f)
     styles = a.styles.split(",") if a.styles else list(STYLES)
-    for name in FIXTURES:
+    for name in [] if a.from_json else FIXTURES:
         if a.only and a.only not in name:
             continue
         path = os.path.join(ROOT, "fixtures", name)
@@ -255,22 +259,31 @@ def main():
         with open(a.json, "w") as f:
             json.dump(rows, f, indent=1)
     if a.md:
-        fits = [r["fit_after"] for r in rows if r.get("status") == "ok"]
+        measured = [r for r in rows if "fit_after" in r]
+        fits = [r["fit_after"] for r in measured]
+        normal = [r["fit_after"] for r in measured if r["status"] == "ok"]
         with open(a.md, "w") as f:
             f.write("| DEM | held out | stroke | distance | view (lon, lat, heading) | bump px | "
-                    "fit before | fit after | median dev px | status |\n")
-            f.write("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n")
+                    "fit before | fit after | median dev px | silhouette share | cells across | status |\n")
+            f.write("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n")
             for r in rows:
                 ll = r.get("lonlat", ["", ""])
                 f.write(f"| {r['dem'][:-4]} | {'yes' if r['held_out'] else 'no (tuned)'} | {r['style']} | "
                         f"{r['distance_m'] / 1000:.0f} km | {ll[0]}, {ll[1]}, {r.get('heading', '')} | "
                         f"{r.get('bump_px', '')} | {r.get('fit_before', float('nan')):.2f} | "
-                        f"{r.get('fit_after', float('nan')):.2f} | {r.get('median_dev_px') or float('nan'):.2f} | "
-                        f"{r['status']} |\n")
+                        f"{r.get('fit_after', float('nan')):.3f} | {r.get('median_dev_px') or float('nan'):.2f} | "
+                        f"{r.get('silhouette_share', float('nan')):.2f} | {r.get('cells_across', float('nan')):.1f} | "
+                        f"{r.get('silhouette_share', float('nan')):.2f} | "
+                        f"{r.get('cells_across', float('nan')):.1f} | {r['status']} |\n")
             if fits:
                 f.write(f"\n{sum(x >= 0.95 for x in fits)} of {len(fits)} measured landforms fitted "
                         f">= 0.95 (min {min(fits):.2f}, median {sorted(fits)[len(fits) // 2]:.2f}); "
                         f"{len(rows) - len(fits)} not measured.\n")
+                if normal:
+                    f.write(f"Of the {len(normal)} with status ok (the stroke over sky or farther "
+                            f"terrain in >= 95% of its columns): {sum(x >= 0.95 for x in normal)} "
+                            f">= 0.95 (min {min(normal):.2f}, median "
+                            f"{sorted(normal)[len(normal) // 2]:.2f}).\n")
 
 
 if __name__ == "__main__":
