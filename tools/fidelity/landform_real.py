@@ -272,7 +272,6 @@ def main():
                         f"{r['distance_m'] / 1000:.0f} km | {ll[0]}, {ll[1]}, {r.get('heading', '')} | "
                         f"{r.get('bump_px', '')} | {r.get('fit_before', float('nan')):.2f} | "
                         f"{r.get('fit_after', float('nan')):.3f} | {r.get('median_dev_px') or float('nan'):.2f} | "
-                        f"{r.get('silhouette_share', float('nan')):.2f} | {r.get('cells_across', float('nan')):.1f} | "
                         f"{r.get('silhouette_share', float('nan')):.2f} | "
                         f"{r.get('cells_across', float('nan')):.1f} | {r['status']} |\n")
             if fits:
