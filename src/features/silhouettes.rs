@@ -607,7 +607,7 @@ fn refine_bracket(
         }
         let ym = 0.5 * (a.y + b.y);
         let d = cam.unproject([px, ym]);
-        match cast_between(terrain, d, &a) {
+        match cast_between(terrain, d, &a, &b) {
             Some(hit) if nearer_in_log(a.t, hit.t, b.t) => {
                 a = Side {
                     y: ym,
@@ -657,23 +657,27 @@ fn refine_bracket(
     }
 }
 
+/// The first hit of the ray `d` of a bisection between sides `a` (near)
+/// and `b` (far) of one column. The ray passes above the near side's ray,
+/// which met no terrain before `a.t`, so the cast starts well short of it
+/// (by the cheap block index, without building the per-view horizon
+/// index). Where the far side hits terrain, the ray's cells are walked
+/// from the near side's on, [`CELL_WALK`] at most: in a column's plane a
+/// ray between two others first meets the terrain between where they do,
+/// most often in the same cell or the next (the traversal is the fallback
+/// where the walk's check refuses or it ends).
 /// Most cells a bisection's ray is walked through before the traversal
-/// takes over ([`cast_between`]).
+/// takes over.
 const CELL_WALK: usize = 8;
 
-/// The first hit of the ray `d` of a bisection above the near side `a` of
-/// one column. The ray passes above the near side's ray, which met no
-/// terrain before `a.t`, so the cast starts well short of it (by the cheap
-/// block index, without building the per-view horizon index). The ray's
-/// cells are first walked from the near side's on, [`CELL_WALK`] at most:
-/// in a column's plane a ray between two others first meets the terrain
-/// between where they do, most often in the same cell or the next; so does
-/// a ray just above a skyline's near side (the far side sky), where half
-/// the bisection's rays graze the same ridge. The traversal is the fallback
-/// where the walk's check refuses or it ends.
-fn cast_between(terrain: &LocalTerrain, d: [f64; 3], a: &Side) -> Option<crate::render::RayHit> {
+fn cast_between(
+    terrain: &LocalTerrain,
+    d: [f64; 3],
+    a: &Side,
+    b: &Side,
+) -> Option<crate::render::RayHit> {
     let t0 = 0.9 * a.t;
-    if a.tri != crate::render::SKY {
+    if a.tri != crate::render::SKY && b.t.is_finite() {
         if let Some(hit) = terrain.cast_from_cell(d, a.tri, t0, a.t, CELL_WALK) {
             return Some(hit);
         }
