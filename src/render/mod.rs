@@ -21,6 +21,7 @@ mod shaded_image;
 mod strip_columns;
 mod terrain;
 mod triangle_raster;
+mod vertex_heights;
 mod viewshed;
 
 pub use depth_buffer::{pick, DepthBuffer, TerrainHit, SKY};
@@ -33,6 +34,7 @@ pub use shaded_image::{
 };
 pub use terrain::{LocalTerrain, RayHit};
 pub use triangle_raster::PATCH_TOLERANCE_PX;
+pub use vertex_heights::VertexHeights;
 pub use viewshed::{
     viewshed, viewshed_exact, viewshed_from_dem, viewshed_rays, write_viewshed_tiff, Viewshed,
 };
