@@ -561,7 +561,14 @@ fn patched_terrain_is_the_terrain_of_the_patched_grid() {
     // Rendered first, the terrain has its block ranges: the patched
     // terrain patches them (and takes its height range from them).
     drop(DepthBuffer::render(&scene.terrain, &cam));
+    scene.terrain.build_cast_index();
     let got = scene.terrain.with_heights(rect, &bump);
+    // The cast index and block ranges patched, not built again: the same
+    // bits as a build over the patched grid.
+    assert!(
+        demsketch::render::acceleration_bits(&got) == demsketch::render::acceleration_bits(&want),
+        "cast index and block ranges"
+    );
     assert_eq!(got.height_range(), want.height_range());
     assert_eq!(
         (got.nx, got.ny, got.col0, got.row0),
@@ -603,6 +610,10 @@ fn patched_terrain_is_the_terrain_of_the_patched_grid() {
     let want2 = LocalTerrain::over(&map2, &scene.frame, Some(9000.0));
     drop(DepthBuffer::render(&got, &cam));
     let got2 = got.with_heights(rect2, &lower);
+    assert!(
+        demsketch::render::acceleration_bits(&got2) == demsketch::render::acceleration_bits(&want2),
+        "cast index and block ranges, patched twice"
+    );
     assert!(
         got2.z
             .iter()

@@ -32,6 +32,8 @@ pub use shaded_image::{
     depth_for_file, draw_polyline, shade, shade_into, write_depth_tiff, write_png, ShadeOptions,
     DEPTH_NODATA,
 };
+#[doc(hidden)]
+pub use terrain::acceleration_bits;
 pub use terrain::{LocalTerrain, RayHit};
 pub use triangle_raster::PATCH_TOLERANCE_PX;
 pub use vertex_heights::VertexHeights;

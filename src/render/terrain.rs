@@ -303,6 +303,12 @@ impl LocalTerrain {
         if let Some(r) = ranges {
             let _ = ranges_lock.set(r);
         }
+        // Likewise the full cast index, when the parent built it (each
+        // round's re-render builds it beside the render).
+        let index_lock = std::sync::OnceLock::new();
+        if let Some(old) = self.index.get() {
+            let _ = index_lock.set(patched_index(old, &z, self.nx, self.ny, changed));
+        }
         LocalTerrain {
             frame: self.frame,
             col0: self.col0,
@@ -315,7 +321,7 @@ impl LocalTerrain {
             en_to_v: self.en_to_v,
             zmin: zmin as f64,
             zmax: zmax as f64,
-            index: std::sync::OnceLock::new(),
+            index: index_lock,
             horizon: std::sync::OnceLock::new(),
             ranges: ranges_lock,
             coarse_index: std::sync::OnceLock::new(),
@@ -1308,6 +1314,79 @@ impl BlockRanges {
             self.hi.iter().fold(f32::NEG_INFINITY, |a, &v| a.max(v)),
         )
     }
+}
+
+/// `old` (the full cast index of a terrain of `nx` x `ny` vertices) for
+/// the vertex heights `z`, which differ from those it was built on only in
+/// the vertices `changed` (`(c0, r0, c1, r1)`, end exclusive): the level-0
+/// blocks holding them computed again as [`LocalTerrain::build_mip`] does,
+/// then every level above over their parents as [`max_pyramid`] does, the
+/// rest copied. The same values as a build over `z`.
+fn patched_index(
+    old: &CastIndex,
+    z: &VertexHeights,
+    nx: usize,
+    ny: usize,
+    changed: Option<(usize, usize, usize, usize)>,
+) -> CastIndex {
+    let mut mip = old.mip.clone();
+    let out = |mip| CastIndex {
+        mip,
+        mip_dims: old.mip_dims.clone(),
+        shift: old.shift,
+    };
+    let Some((c0, r0, c1, r1)) = changed.filter(|_| old.shift == 1) else {
+        return out(mip);
+    };
+    // Level 0: block b holds vertices 2 b ..= 2 b + 2.
+    let span = |a: usize, b: usize, n: usize| (a.saturating_sub(1) / 2, ((b - 1) / 2).min(n - 1));
+    let (w0, h0) = old.mip_dims[0];
+    let (mut x0, mut x1) = span(c0, c1, w0);
+    let (mut y0, mut y1) = span(r0, r1, h0);
+    for by in y0..=y1 {
+        let rows: Vec<_> = (2 * by..(2 * by + 3).min(ny)).map(|r| z.row(r)).collect();
+        for bx in x0..=x1 {
+            let mut m = f32::NAN;
+            for row in &rows {
+                for &v in &row[2 * bx..(2 * bx + 3).min(nx)] {
+                    m = m.max(v);
+                }
+            }
+            mip[0][by * w0 + bx] = if m.is_nan() { f32::NEG_INFINITY } else { m };
+        }
+    }
+    // Each level up: block b is the max of blocks 2 b, 2 b + 1 below.
+    for l in 1..mip.len() {
+        let (w, h) = old.mip_dims[l - 1];
+        let w2 = old.mip_dims[l].0;
+        (x0, x1, y0, y1) = (x0 / 2, x1 / 2, y0 / 2, y1 / 2);
+        let (below, above) = mip.split_at_mut(l);
+        let (prev, next) = (&below[l - 1], &mut above[0]);
+        for r in y0..=y1 {
+            let a = &prev[2 * r * w..(2 * r + 1) * w];
+            let b = if 2 * r + 1 < h {
+                &prev[(2 * r + 1) * w..(2 * r + 2) * w]
+            } else {
+                a
+            };
+            for c in x0..=x1 {
+                let cc = (2 * c + 1).min(w - 1);
+                next[r * w2 + c] = a[2 * c].max(a[cc]).max(b[2 * c]).max(b[cc]);
+            }
+        }
+    }
+    out(mip)
+}
+
+/// The cast index and block ranges of `t` as bits (built on demand): for
+/// tests that a patched terrain's equal a fresh build's.
+#[doc(hidden)]
+pub fn acceleration_bits(t: &LocalTerrain) -> (Vec<u32>, Vec<u32>) {
+    let idx = t.index();
+    let r = t.block_ranges();
+    let mip = idx.mip.iter().flatten().map(|v| v.to_bits()).collect();
+    let ranges = r.lo.iter().chain(&r.hi).map(|v| v.to_bits()).collect();
+    (mip, ranges)
 }
 
 /// The pyramid over `base` (`w` x `h` block maxima): each level the max of
