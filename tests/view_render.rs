@@ -558,7 +558,18 @@ fn patched_terrain_is_the_terrain_of_the_patched_grid() {
         }
     }
     let want = LocalTerrain::over(&map, &scene.frame, Some(9000.0));
+    // Rendered first, the terrain has its block ranges: the patched
+    // terrain patches them (and takes its height range from them).
+    drop(DepthBuffer::render(&scene.terrain, &cam));
+    scene.terrain.build_cast_index();
     let got = scene.terrain.with_heights(rect, &bump);
+    // The cast index and block ranges patched, not built again: the same
+    // bits as a build over the patched grid.
+    assert!(
+        demsketch::render::acceleration_bits(&got) == demsketch::render::acceleration_bits(&want),
+        "cast index and block ranges"
+    );
+    assert_eq!(got.height_range(), want.height_range());
     assert_eq!(
         (got.nx, got.ny, got.col0, got.row0),
         (want.nx, want.ny, want.col0, want.row0)
@@ -574,6 +585,46 @@ fn patched_terrain_is_the_terrain_of_the_patched_grid() {
     let (da, db) = (
         DepthBuffer::render(&got, &cam),
         DepthBuffer::render(&want, &cam),
+    );
+    assert!(da
+        .depth
+        .iter()
+        .zip(&db.depth)
+        .all(|(p, q)| p.to_bits() == q.to_bits()));
+    assert_eq!(da.triangle, db.triangle);
+    // Patched again (the heights shared, the patches merged): the same as
+    // building over both changes.
+    let rect2 = (w / 5, h / 3, w / 2, h / 3 + 9);
+    let lower = |c: usize, r: usize| -> Option<f32> {
+        let v = map.get(c, r)?;
+        (r % 3 != 1).then(|| v - 2.5)
+    };
+    let mut map2 = map.clone();
+    for r in rect2.1..rect2.3 {
+        for c in rect2.0..rect2.2 {
+            if let Some(v) = lower(c, r) {
+                map2.data[r * w + c] = v;
+            }
+        }
+    }
+    let want2 = LocalTerrain::over(&map2, &scene.frame, Some(9000.0));
+    drop(DepthBuffer::render(&got, &cam));
+    let got2 = got.with_heights(rect2, &lower);
+    assert!(
+        demsketch::render::acceleration_bits(&got2) == demsketch::render::acceleration_bits(&want2),
+        "cast index and block ranges, patched twice"
+    );
+    assert!(
+        got2.z
+            .iter()
+            .zip(&want2.z)
+            .all(|(p, q)| p.to_bits() == q.to_bits()),
+        "vertex heights, patched twice"
+    );
+    assert_eq!(got2.height_range(), want2.height_range());
+    let (da, db) = (
+        DepthBuffer::render(&got2, &cam),
+        DepthBuffer::render(&want2, &cam),
     );
     assert!(da
         .depth

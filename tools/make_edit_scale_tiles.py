@@ -30,7 +30,12 @@ h = int(round(src.RasterYSize * -gt0[5] / CELL))
 res = gdal.Warp("", src, format="MEM", width=w, height=h, resampleAlg="cubic",
                 outputType=gdal.GDT_Float32, dstNodata=None, srcNodata=65535)
 z = res.GetRasterBand(1).ReadAsArray().astype(np.float32)
-z = np.where(np.isfinite(z) & (z > 0), z, np.nanmedian(z)).astype(np.float32)
+# The fixture's nodata (65535, its reprojected corners) must not pass as
+# heights: left in, it stood as 65 km walls along the mirror seams (the
+# "vertical lines in the sky" of a 100 km view, which hid everything
+# beyond 18 km).
+valid = np.isfinite(z) & (z > 0) & (z < 65535)
+z = np.where(valid, z, np.median(z[valid])).astype(np.float32)
 # One period: the fixture and its mirrors.
 top = np.concatenate([z, z[:, ::-1]], axis=1)
 period = np.concatenate([top, top[::-1, :]], axis=0)

@@ -150,6 +150,11 @@ impl EditOptions {
     }
 }
 
+/// The edit's cache of decoded blocks: the views' wedges are read once
+/// (their terrains serve every re-render), so their blocks need not be kept;
+/// the deformation's windows and the write re-read a few tiles.
+const EDIT_BLOCK_CACHE_BYTES: usize = 64 << 20;
+
 /// A stroke end touches the terrain when a terrain pixel lies within this
 /// share of the image height below it (or a column beside it) in the view
 /// before the edit ...
@@ -243,7 +248,11 @@ pub fn run(
         notes,
         prepared,
         scenes,
-    } = load_views(&edit, Dem::open(dem_path)?, sketch_path)?;
+    } = load_views(
+        &edit,
+        Dem::open(dem_path)?.with_block_cache_budget(EDIT_BLOCK_CACHE_BYTES),
+        sketch_path,
+    )?;
     timings.load = secs(t);
 
     let dem_name = dem_path.display().to_string();

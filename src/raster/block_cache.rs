@@ -37,6 +37,11 @@ impl BlockCache {
         }
     }
 
+    /// The byte budget.
+    pub fn budget(&self) -> usize {
+        self.budget
+    }
+
     pub fn get(&self, key: BlockKey) -> Option<Arc<DecodingResult>> {
         let mut g = self.inner.lock().ok()?;
         g.clock += 1;

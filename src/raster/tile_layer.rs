@@ -398,6 +398,18 @@ impl Dem {
         self
     }
 
+    /// This DEM with its cache of decoded blocks bounded by `bytes` (when
+    /// under the default, a quarter of the memory budget): for work that
+    /// reads one large window once and then small ones (an edit reads the
+    /// views' wedges, then the deformation's windows), so that the large
+    /// window's blocks are not all kept beside it.
+    pub fn with_block_cache_budget(mut self, bytes: usize) -> Dem {
+        if bytes < self.cache.budget() {
+            self.cache = BlockCache::new(bytes);
+        }
+        self
+    }
+
     /// The window covering the whole DEM.
     pub fn full_window(&self) -> Window {
         Window::new(0, 0, self.width, self.height)

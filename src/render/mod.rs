@@ -21,6 +21,7 @@ mod shaded_image;
 mod strip_columns;
 mod terrain;
 mod triangle_raster;
+mod vertex_heights;
 mod viewshed;
 
 pub use depth_buffer::{pick, DepthBuffer, TerrainHit, SKY};
@@ -31,8 +32,11 @@ pub use shaded_image::{
     depth_for_file, draw_polyline, shade, shade_into, write_depth_tiff, write_png, ShadeOptions,
     DEPTH_NODATA,
 };
+#[doc(hidden)]
+pub use terrain::acceleration_bits;
 pub use terrain::{LocalTerrain, RayHit};
 pub use triangle_raster::PATCH_TOLERANCE_PX;
+pub use vertex_heights::VertexHeights;
 pub use viewshed::{
     viewshed, viewshed_exact, viewshed_from_dem, viewshed_rays, write_viewshed_tiff, Viewshed,
 };

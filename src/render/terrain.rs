@@ -17,6 +17,7 @@
 //! patch looks large (see `triangle_raster`).
 
 use super::horizon::{Block, HorizonIndex};
+use super::vertex_heights::VertexHeights;
 use crate::buffer_pool;
 use crate::raster::HeightMap;
 use crate::view::LocalFrame;
@@ -42,8 +43,9 @@ pub struct LocalTerrain {
     /// Number of vertices across and down (the DEM window's size).
     pub nx: usize,
     pub ny: usize,
-    /// Apparent vertex heights relative to the eye (NaN = nodata), row-major.
-    pub z: Vec<f32>,
+    /// Apparent vertex heights relative to the eye (NaN = nodata), row-major
+    /// (shared with the terrains patched from this one).
+    pub z: VertexHeights,
     /// Maximum horizontal view distance in metres (infinite: the whole DEM).
     pub max_distance: f64,
     /// Eye position in vertex coordinates.
@@ -202,6 +204,7 @@ impl LocalTerrain {
                 || (f32::INFINITY, f32::NEG_INFINITY),
                 |x, y| (x.0.min(y.0), x.1.max(y.1)),
             );
+        let z = VertexHeights::new(z, nx);
         LocalTerrain {
             frame: *frame,
             col0: c0,
@@ -243,52 +246,69 @@ impl LocalTerrain {
         let max_d = self.max_distance;
         let max_d2 = max_d * max_d * 1.0001 + 1.0;
         let (tc0, tr0) = (self.col0, self.row0);
-        // A recycled buffer (the terrains of earlier rounds give theirs
-        // back), copied in parallel.
-        let mut z = buffer_pool::overwritten_f32(self.z.len());
-        z.par_chunks_mut(1 << 16)
-            .zip(self.z.par_chunks(1 << 16))
-            .for_each(|(a, b)| a.copy_from_slice(b));
-        // The rectangle within the terrain's vertices.
+        // The rectangle within the terrain's vertices, patched over the
+        // shared heights (see `vertex_heights`).
         let (a0, b0) = (c0.max(tc0), r0.max(tr0));
         let (a1, b1) = (c1.min(tc0 + self.nx), r1.min(tr0 + self.ny));
-        if a0 < a1 && b0 < b1 {
-            let nx = self.nx;
-            z.par_chunks_mut(nx)
-                .enumerate()
-                .skip(b0 - tr0)
-                .take(b1 - b0)
-                .for_each(|(r, row)| {
-                    let src_r = tr0 + r;
-                    // As in `build_over`, term by term.
-                    let dy = src_r as f64 + 0.5 - ey;
-                    let (e0, n0) = (p[0][1] * dy, p[1][1] * dy);
-                    let dx0 = tc0 as f64 + 0.5 - ex;
-                    for c in a0 - tc0..a1 - tc0 {
-                        let Some(h) = height(tc0 + c, src_r) else {
-                            continue;
-                        };
-                        let dx = dx0 + c as f64;
-                        let e = p[0][0] * dx + e0;
-                        let n = p[1][0] * dx + n0;
-                        let d2 = e * e + n * n;
-                        let v = (h as f64 - eye_alt - coef * d2) as f32;
-                        row[c] = if d2 > max_d2 { f32::NAN } else { v };
-                    }
-                });
+        let changed = (a0 < a1 && b0 < b1).then(|| (a0 - tc0, b0 - tr0, a1 - tc0, b1 - tr0));
+        let z = match changed {
+            None => self.z.clone(),
+            Some(rect) => self.z.patched(rect, &|c, r, old| {
+                let src_r = tr0 + r;
+                let Some(h) = height(tc0 + c, src_r) else {
+                    return old;
+                };
+                // As in `build_over`, term by term.
+                let dy = src_r as f64 + 0.5 - ey;
+                let (e0, n0) = (p[0][1] * dy, p[1][1] * dy);
+                let dx0 = tc0 as f64 + 0.5 - ex;
+                let dx = dx0 + c as f64;
+                let e = p[0][0] * dx + e0;
+                let n = p[1][0] * dx + n0;
+                let d2 = e * e + n * n;
+                let v = (h as f64 - eye_alt - coef * d2) as f32;
+                if d2 > max_d2 {
+                    f32::NAN
+                } else {
+                    v
+                }
+            }),
+        };
+        // The block ranges of this terrain's parent with the changed
+        // rectangle's blocks computed again (when the parent has them):
+        // the height range then follows from them, with no scan of the
+        // vertices.
+        let ranges = self
+            .ranges
+            .get()
+            .filter(|r| r.bw > 0 && r.bh > 0)
+            .map(|r| patched_ranges(r, &z, self.nx, self.ny, changed));
+        let (zmin, zmax) = match &ranges {
+            Some(r) => r.height_range(),
+            None => (0..self.ny)
+                .into_par_iter()
+                .map(|r| {
+                    z.row(r)
+                        .iter()
+                        .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &v| {
+                            (if v < a { v } else { a }, if v > b { v } else { b })
+                        })
+                })
+                .reduce(
+                    || (f32::INFINITY, f32::NEG_INFINITY),
+                    |x, y| (x.0.min(y.0), x.1.max(y.1)),
+                ),
+        };
+        let ranges_lock = std::sync::OnceLock::new();
+        if let Some(r) = ranges {
+            let _ = ranges_lock.set(r);
         }
-        let (zmin, zmax) = z
-            .par_chunks(1 << 16)
-            .map(|ch| {
-                ch.iter()
-                    .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &v| {
-                        (if v < a { v } else { a }, if v > b { v } else { b })
-                    })
-            })
-            .reduce(
-                || (f32::INFINITY, f32::NEG_INFINITY),
-                |x, y| (x.0.min(y.0), x.1.max(y.1)),
-            );
+        // Likewise the full cast index, when the parent built it (each
+        // round's re-render builds it beside the render).
+        let index_lock = std::sync::OnceLock::new();
+        if let Some(old) = self.index.get() {
+            let _ = index_lock.set(patched_index(old, &z, self.nx, self.ny, changed));
+        }
         LocalTerrain {
             frame: self.frame,
             col0: self.col0,
@@ -301,9 +321,9 @@ impl LocalTerrain {
             en_to_v: self.en_to_v,
             zmin: zmin as f64,
             zmax: zmax as f64,
-            index: std::sync::OnceLock::new(),
+            index: index_lock,
             horizon: std::sync::OnceLock::new(),
-            ranges: std::sync::OnceLock::new(),
+            ranges: ranges_lock,
             coarse_index: std::sync::OnceLock::new(),
         }
     }
@@ -347,30 +367,9 @@ impl LocalTerrain {
                 .map_init(
                     || (vec![0f32; nx], vec![0f32; nx]),
                     |(col_lo, col_hi), by| {
-                        let r0 = by * RANGE_BLOCK;
-                        let r1 = ((by + 1) * RANGE_BLOCK).min(cy);
-                        // lowest and highest vertex of each column over rows
-                        // r0..=r1 (comparisons skip NaN and vectorise)
-                        col_lo.fill(f32::INFINITY);
-                        col_hi.fill(f32::NEG_INFINITY);
-                        for r in r0..=r1 {
-                            let row = &z[r * nx..(r + 1) * nx];
-                            for ((l, h), &v) in col_lo.iter_mut().zip(col_hi.iter_mut()).zip(row) {
-                                *l = if v < *l { v } else { *l };
-                                *h = if v > *h { v } else { *h };
-                            }
-                        }
+                        column_ranges(z, cy, by, col_lo, col_hi);
                         (0..bw)
-                            .map(|bx| {
-                                let c0 = bx * RANGE_BLOCK;
-                                let c1 = ((bx + 1) * RANGE_BLOCK).min(cx);
-                                let lo =
-                                    col_lo[c0..=c1].iter().fold(f32::INFINITY, |a, &v| a.min(v));
-                                let hi = col_hi[c0..=c1]
-                                    .iter()
-                                    .fold(f32::NEG_INFINITY, |a, &v| a.max(v));
-                                (lo, hi)
-                            })
+                            .map(|bx| block_of_columns(col_lo, col_hi, cx, bx))
                             .unzip()
                     },
                 )
@@ -478,9 +477,9 @@ impl LocalTerrain {
             |colmax, (by, out)| {
                 // column maxima of vertex rows 2 by ..= 2 by + 2
                 let rows = 2 * by..(2 * by + 3).min(ny);
-                colmax[..nx].copy_from_slice(&z[rows.start * nx..(rows.start + 1) * nx]);
+                colmax[..nx].copy_from_slice(&z.row(rows.start));
                 for r in rows.start + 1..rows.end {
-                    for (m, &v) in colmax[..nx].iter_mut().zip(&z[r * nx..(r + 1) * nx]) {
+                    for (m, &v) in colmax[..nx].iter_mut().zip(z.row(r).iter()) {
                         // f32::max skips NaN and vectorises
                         *m = m.max(v);
                     }
@@ -516,7 +515,7 @@ impl LocalTerrain {
         if c >= self.nx || r >= self.ny {
             return None;
         }
-        let v = self.z[r * self.nx + c];
+        let v = self.z.at(r * self.nx + c);
         (!v.is_nan()).then_some(v as f64)
     }
 
@@ -537,7 +536,7 @@ impl LocalTerrain {
         let (r_lo, r_hi) = (r.saturating_sub(1), (r + 1).min(ny - 2));
         let mut twist = 0.0f64;
         for rr in r_lo..=r_hi {
-            let (row0, row1) = (&self.z[rr * nx..(rr + 1) * nx], &self.z[(rr + 1) * nx..]);
+            let (row0, row1) = (self.z.row(rr), self.z.row(rr + 1));
             for cc in c_lo..=c_hi {
                 let (a, b) = (row0[cc], row0[cc + 1]);
                 let (e, d) = (row1[cc], row1[cc + 1]);
@@ -879,7 +878,7 @@ impl LocalTerrain {
     #[inline]
     fn corners(&self, c: usize, r: usize) -> Option<[f64; 4]> {
         let (i, nx) = (r * self.nx + c, self.nx);
-        let h = [i, i + 1, i + nx, i + nx + 1].map(|k| self.z[k] as f64);
+        let h = [i, i + 1, i + nx, i + nx + 1].map(|k| self.z.at(k) as f64);
         (!h.iter().any(|v| v.is_nan())).then_some(h)
     }
 
@@ -1138,7 +1137,9 @@ fn inverse_2x2(p: [[f64; 2]; 2]) -> [[f64; 2]; 2] {
 
 impl Drop for LocalTerrain {
     fn drop(&mut self) {
-        buffer_pool::recycle_f32(std::mem::take(&mut self.z));
+        if let Some(z) = self.z.take_unshared() {
+            buffer_pool::recycle_f32(z);
+        }
     }
 }
 
@@ -1274,6 +1275,152 @@ fn view_wedge_box(
         clip((x1 + pad).ceil(), width),
         clip((y1 + pad).ceil(), height),
     ))
+}
+
+/// Lowest and highest vertex of each column of `z` (`nx` across) over the
+/// vertex rows of block row `by` (rows `by * RANGE_BLOCK ..=` the next
+/// block's first, within `cy` cells): comparisons skip NaN and vectorise.
+fn column_ranges(z: &VertexHeights, cy: usize, by: usize, lo: &mut [f32], hi: &mut [f32]) {
+    let r0 = by * RANGE_BLOCK;
+    let r1 = ((by + 1) * RANGE_BLOCK).min(cy);
+    lo.fill(f32::INFINITY);
+    hi.fill(f32::NEG_INFINITY);
+    for r in r0..=r1 {
+        let row = z.row(r);
+        for ((l, h), &v) in lo.iter_mut().zip(hi.iter_mut()).zip(row.iter()) {
+            *l = if v < *l { v } else { *l };
+            *h = if v > *h { v } else { *h };
+        }
+    }
+}
+
+/// The range of block column `bx` (its vertex columns, boundary included,
+/// within `cx` cells) from the column ranges of its block row.
+fn block_of_columns(lo: &[f32], hi: &[f32], cx: usize, bx: usize) -> (f32, f32) {
+    let c0 = bx * RANGE_BLOCK;
+    let c1 = ((bx + 1) * RANGE_BLOCK).min(cx);
+    (
+        lo[c0..=c1].iter().fold(f32::INFINITY, |a, &v| a.min(v)),
+        hi[c0..=c1].iter().fold(f32::NEG_INFINITY, |a, &v| a.max(v)),
+    )
+}
+
+/// `old` (the block ranges of a terrain of `nx` x `ny` vertices) with the
+/// blocks holding a vertex of `changed` (vertex rectangle `(c0, r0, c1, r1)`,
+/// end exclusive) computed again from `z`: the ranges
+/// [`LocalTerrain::block_ranges`] gives on `z`, for the cost of the changed
+/// blocks.
+fn patched_ranges(
+    old: &BlockRanges,
+    z: &VertexHeights,
+    nx: usize,
+    ny: usize,
+    changed: Option<(usize, usize, usize, usize)>,
+) -> BlockRanges {
+    let mut r = old.clone();
+    let Some((c0, r0, c1, r1)) = changed else {
+        return r;
+    };
+    let (cx, cy) = (nx.saturating_sub(1), ny.saturating_sub(1));
+    // A vertex on a block edge belongs to the blocks on both sides.
+    let bx0 = c0.saturating_sub(1) / RANGE_BLOCK;
+    let by0 = r0.saturating_sub(1) / RANGE_BLOCK;
+    let bx1 = ((c1 - 1) / RANGE_BLOCK).min(r.bw - 1);
+    let by1 = ((r1 - 1) / RANGE_BLOCK).min(r.bh - 1);
+    let (mut lo, mut hi) = (vec![0f32; nx], vec![0f32; nx]);
+    for by in by0..=by1 {
+        column_ranges(z, cy, by, &mut lo, &mut hi);
+        for bx in bx0..=bx1 {
+            let (l, h) = block_of_columns(&lo, &hi, cx, bx);
+            r.lo[by * r.bw + bx] = l;
+            r.hi[by * r.bw + bx] = h;
+        }
+    }
+    r
+}
+
+impl BlockRanges {
+    /// Lowest and highest vertex over all blocks (every vertex lies in
+    /// one): the terrain's height range.
+    fn height_range(&self) -> (f32, f32) {
+        (
+            self.lo.iter().fold(f32::INFINITY, |a, &v| a.min(v)),
+            self.hi.iter().fold(f32::NEG_INFINITY, |a, &v| a.max(v)),
+        )
+    }
+}
+
+/// `old` (the full cast index of a terrain of `nx` x `ny` vertices) for
+/// the vertex heights `z`, which differ from those it was built on only in
+/// the vertices `changed` (`(c0, r0, c1, r1)`, end exclusive): the level-0
+/// blocks holding them computed again as [`LocalTerrain::build_mip`] does,
+/// then every level above over their parents as [`max_pyramid`] does, the
+/// rest copied. The same values as a build over `z`.
+fn patched_index(
+    old: &CastIndex,
+    z: &VertexHeights,
+    nx: usize,
+    ny: usize,
+    changed: Option<(usize, usize, usize, usize)>,
+) -> CastIndex {
+    let mut mip = old.mip.clone();
+    let out = |mip| CastIndex {
+        mip,
+        mip_dims: old.mip_dims.clone(),
+        shift: old.shift,
+    };
+    let Some((c0, r0, c1, r1)) = changed.filter(|_| old.shift == 1) else {
+        return out(mip);
+    };
+    // Level 0: block b holds vertices 2 b ..= 2 b + 2.
+    let span = |a: usize, b: usize, n: usize| (a.saturating_sub(1) / 2, ((b - 1) / 2).min(n - 1));
+    let (w0, h0) = old.mip_dims[0];
+    let (mut x0, mut x1) = span(c0, c1, w0);
+    let (mut y0, mut y1) = span(r0, r1, h0);
+    for by in y0..=y1 {
+        let rows: Vec<_> = (2 * by..(2 * by + 3).min(ny)).map(|r| z.row(r)).collect();
+        for bx in x0..=x1 {
+            let mut m = f32::NAN;
+            for row in &rows {
+                for &v in &row[2 * bx..(2 * bx + 3).min(nx)] {
+                    m = m.max(v);
+                }
+            }
+            mip[0][by * w0 + bx] = if m.is_nan() { f32::NEG_INFINITY } else { m };
+        }
+    }
+    // Each level up: block b is the max of blocks 2 b, 2 b + 1 below.
+    for l in 1..mip.len() {
+        let (w, h) = old.mip_dims[l - 1];
+        let w2 = old.mip_dims[l].0;
+        (x0, x1, y0, y1) = (x0 / 2, x1 / 2, y0 / 2, y1 / 2);
+        let (below, above) = mip.split_at_mut(l);
+        let (prev, next) = (&below[l - 1], &mut above[0]);
+        for r in y0..=y1 {
+            let a = &prev[2 * r * w..(2 * r + 1) * w];
+            let b = if 2 * r + 1 < h {
+                &prev[(2 * r + 1) * w..(2 * r + 2) * w]
+            } else {
+                a
+            };
+            for c in x0..=x1 {
+                let cc = (2 * c + 1).min(w - 1);
+                next[r * w2 + c] = a[2 * c].max(a[cc]).max(b[2 * c]).max(b[cc]);
+            }
+        }
+    }
+    out(mip)
+}
+
+/// The cast index and block ranges of `t` as bits (built on demand): for
+/// tests that a patched terrain's equal a fresh build's.
+#[doc(hidden)]
+pub fn acceleration_bits(t: &LocalTerrain) -> (Vec<u32>, Vec<u32>) {
+    let idx = t.index();
+    let r = t.block_ranges();
+    let mip = idx.mip.iter().flatten().map(|v| v.to_bits()).collect();
+    let ranges = r.lo.iter().chain(&r.hi).map(|v| v.to_bits()).collect();
+    (mip, ranges)
 }
 
 /// The pyramid over `base` (`w` x `h` block maxima): each level the max of

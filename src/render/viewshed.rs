@@ -103,13 +103,14 @@ pub fn viewshed_rays(terrain: &LocalTerrain, dem: &HeightMap, target_height: f64
                     .collect::<Vec<_>>()
             })
             .collect();
+        let heights = terrain.z.slice();
         bundles.into_par_iter().for_each(|(h, mut rays)| {
             // the rays of a bundle advance together, a few lines at a
             // time, so that the heights they read stay in cache
             loop {
                 let mut live = false;
                 for ray in rays.iter_mut() {
-                    live |= sweep.advance(h, ray, &terrain.z, &grid, BUNDLE_STEPS);
+                    live |= sweep.advance(h, ray, &heights, &grid, BUNDLE_STEPS);
                 }
                 if !live {
                     break;
@@ -223,13 +224,14 @@ trait Heights: Sync {
 
 impl Heights for LocalTerrain {
     fn row(&self, r: usize, c_lo: usize, c_hi: usize, buf: &mut [f64]) {
-        let src = &self.z[r * self.nx + c_lo..=r * self.nx + c_hi];
+        let row = self.z.row(r);
+        let src = &row[c_lo..=c_hi];
         for (o, &v) in buf[c_lo + 1..=c_hi + 1].iter_mut().zip(src) {
             *o = v as f64;
         }
     }
     fn at(&self, c: usize, r: usize) -> f64 {
-        self.z[r * self.nx + c] as f64
+        self.z.at(r * self.nx + c) as f64
     }
 }
 

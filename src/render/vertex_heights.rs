@@ -1,0 +1,155 @@
+//! The vertex heights of a [`super::LocalTerrain`], shared between a terrain
+//! and the terrains patched from it: a base grid (reference counted) and at
+//! most one patched rectangle over it. An edit's rounds re-render the same
+//! view with a few thousand cells changed out of tens of millions; with
+//! the base shared, each round's terrain costs its changed rectangle, not a
+//! copy of the whole grid (time, and the fresh pages the kernel must zero).
+
+use std::borrow::Cow;
+use std::sync::Arc;
+
+/// Row-major vertex heights, `nx` across: `base` with `patch` over it.
+#[derive(Debug, Clone)]
+pub struct VertexHeights {
+    base: Arc<Vec<f32>>,
+    patch: Option<Patch>,
+    nx: usize,
+}
+
+/// A rectangle of vertices `(c0, r0)` of `w` x `h` whose heights replace
+/// the base's; `k_lo..k_hi` the linear indices it spans (a quick test).
+#[derive(Debug, Clone)]
+struct Patch {
+    c0: usize,
+    r0: usize,
+    w: usize,
+    h: usize,
+    k_lo: usize,
+    k_hi: usize,
+    data: Vec<f32>,
+}
+
+impl VertexHeights {
+    /// Heights `z` of a grid `nx` across, with no patch.
+    pub(crate) fn new(z: Vec<f32>, nx: usize) -> Self {
+        VertexHeights {
+            base: Arc::new(z),
+            patch: None,
+            nx: nx.max(1),
+        }
+    }
+
+    /// Number of vertices.
+    pub fn len(&self) -> usize {
+        self.base.len()
+    }
+
+    /// Whether there is no vertex.
+    pub fn is_empty(&self) -> bool {
+        self.base.is_empty()
+    }
+
+    /// The height of vertex `k` (row-major index).
+    #[inline]
+    pub fn at(&self, k: usize) -> f32 {
+        *self.at_ref(k)
+    }
+
+    #[inline]
+    fn at_ref(&self, k: usize) -> &f32 {
+        if let Some(p) = &self.patch {
+            if k >= p.k_lo && k < p.k_hi {
+                let r = k / self.nx;
+                let c = k - r * self.nx;
+                if c >= p.c0 && c < p.c0 + p.w {
+                    return &p.data[(r - p.r0) * p.w + (c - p.c0)];
+                }
+            }
+        }
+        &self.base[k]
+    }
+
+    /// Vertex row `r`: borrowed where no patch crosses it.
+    pub fn row(&self, r: usize) -> Cow<'_, [f32]> {
+        let nx = self.nx;
+        let base = &self.base[r * nx..(r + 1) * nx];
+        match &self.patch {
+            Some(p) if r >= p.r0 && r < p.r0 + p.h => {
+                let mut row = base.to_vec();
+                let src = &p.data[(r - p.r0) * p.w..(r - p.r0 + 1) * p.w];
+                row[p.c0..p.c0 + p.w].copy_from_slice(src);
+                Cow::Owned(row)
+            }
+            _ => Cow::Borrowed(base),
+        }
+    }
+
+    /// All heights as one slice: borrowed without a patch (a terrain built
+    /// from a grid), else a copy.
+    pub fn slice(&self) -> Cow<'_, [f32]> {
+        match &self.patch {
+            None => Cow::Borrowed(&self.base[..]),
+            Some(_) => Cow::Owned(self.iter().copied().collect()),
+        }
+    }
+
+    /// Every height, row-major.
+    pub fn iter(&self) -> impl Iterator<Item = &f32> + '_ {
+        (0..self.len()).map(move |k| self.at_ref(k))
+    }
+
+    /// These heights with the vertices of `(c0, r0, c1, r1)` (end
+    /// exclusive, within the grid) set by `set(c, r, old)` (their new
+    /// height, or `old` to keep it): the base is shared, the patch covers
+    /// the rectangle (and any earlier patch).
+    pub(crate) fn patched(
+        &self,
+        (c0, r0, c1, r1): (usize, usize, usize, usize),
+        set: &(dyn Fn(usize, usize, f32) -> f32 + Sync),
+    ) -> VertexHeights {
+        let (mut a0, mut b0, mut a1, mut b1) = (c0, r0, c1, r1);
+        if let Some(p) = &self.patch {
+            a0 = a0.min(p.c0);
+            b0 = b0.min(p.r0);
+            a1 = a1.max(p.c0 + p.w);
+            b1 = b1.max(p.r0 + p.h);
+        }
+        let (w, h) = (a1 - a0, b1 - b0);
+        let nx = self.nx;
+        let mut data = Vec::with_capacity(w * h);
+        for r in b0..b1 {
+            for c in a0..a1 {
+                let old = self.at(r * nx + c);
+                let inside = c >= c0 && c < c1 && r >= r0 && r < r1;
+                data.push(if inside { set(c, r, old) } else { old });
+            }
+        }
+        VertexHeights {
+            base: Arc::clone(&self.base),
+            patch: Some(Patch {
+                c0: a0,
+                r0: b0,
+                w,
+                h,
+                k_lo: b0 * nx + a0,
+                k_hi: (b1 - 1) * nx + a1,
+                data,
+            }),
+            nx,
+        }
+    }
+
+    /// The base grid when no other terrain shares it (for recycling).
+    pub(crate) fn take_unshared(&mut self) -> Option<Vec<f32>> {
+        let base = std::mem::take(&mut self.base);
+        Arc::try_unwrap(base).ok()
+    }
+}
+
+impl<'a> IntoIterator for &'a VertexHeights {
+    type Item = &'a f32;
+    type IntoIter = Box<dyn Iterator<Item = &'a f32> + 'a>;
+    fn into_iter(self) -> Self::IntoIter {
+        Box::new(self.iter())
+    }
+}
