@@ -359,7 +359,7 @@ function setupViewEvents() {
   let look = null;
   cv.addEventListener("pointerdown", (e) => {
     cv.setPointerCapture(e.pointerId);
-    $("view-wrap").focus();
+    $("view-wrap").focus({ preventScroll: true });
     const t = tool();
     if (t === "draw" && e.button === 0) { app.drawing = [viewPixel(e)]; drawStrokes(); }
     else if (t === "move") startMove(viewPixel(e));
