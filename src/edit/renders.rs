@@ -69,8 +69,13 @@ pub fn height_change_map(
     // Scale so that the picture is at least ~500 px wide when the grid is small.
     let scale = (500 / nx.max(1)).clamp(1, 8);
     let (mw, mh) = (nx * scale, ny * scale);
-    let bar_w = 120;
-    let (w, h) = (mw + bar_w, mh.max(220));
+    let h = mh.max(220);
+    // Labels about 1/25 of the picture's height, so that they stay
+    // readable when a tall picture is shown scaled down (the app shows
+    // it 320 px high); the bar is as wide as its longest label needs.
+    let text_scale = (h / 125).max(2);
+    let bar_w = 46 + 9 * 4 * text_scale + 8;
+    let w = mw + bar_w;
     let mut rgb = vec![255u8; w * h * 3];
     let m = change
         .iter()
@@ -125,13 +130,14 @@ pub fn height_change_map(
         }
     }
     for (t, y) in [(1.0, by0), (0.0, (by0 + by1) / 2), (-1.0, by1 - 1)] {
-        let label = format!("{:+.1}m", t * m);
-        let label = if t == 0.0 { "0m".to_string() } else { label };
+        let label = format!("{:+.1} m", t * m);
+        let label = if t == 0.0 { "0 m".to_string() } else { label };
         for x in bx1..bx1 + 4 {
             let p = (y * w + x) * 3;
             rgb[p..p + 3].copy_from_slice(&[0, 0, 0]);
         }
-        draw_text(&mut rgb, w, h, bx1 + 6, y.saturating_sub(5), &label, 2);
+        let y_text = (y + 1).saturating_sub(5 * text_scale / 2).min(h - 5 * text_scale);
+        draw_text(&mut rgb, w, h, bx1 + 6, y_text, &label, text_scale);
     }
     (w, h, rgb)
 }
