@@ -195,8 +195,12 @@ fn strokes_traced_from_the_skyline_are_fitted_and_visible() {
     let tmp = tempfile::tempdir().unwrap();
     let sk = tmp.path().join("traced.json");
     std::fs::write(&sk, serde_json::to_string(&sketch).unwrap()).unwrap();
-    let opts = demsketch::edit::EditOptions::new(Destination::Path(tmp.path().join("o.tif")));
+    let mut opts = demsketch::edit::EditOptions::new(Destination::Path(tmp.path().join("o.tif")));
+    // A caller's stage bar (the browser app's) follows the edit's stages.
+    let stage = indicatif::ProgressBar::hidden();
+    opts.stage = Some(stage.clone());
     let rep = demsketch::edit::run(&dem_path, &sk, &opts).unwrap();
+    assert_eq!(stage.message(), "writing corrected tiles");
     const FITTED_MIN: f64 = 0.95;
     for s in &rep.views[0].strokes {
         eprintln!(

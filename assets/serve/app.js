@@ -535,7 +535,7 @@ async function poll(id) {
     const j = await api(`/api/jobs/${id}?wait_ms=1000`);
     const what = j.kind === "write" ? "writing" : "dry run";
     if (j.state === "queued") $("edit-status").textContent = `${what} ${id}: queued (${j.queued_ahead} ahead)`;
-    else if (j.state === "running") $("edit-status").textContent = `${what} ${id}: running ${j.elapsed_s.toFixed(1)} s`;
+    else if (j.state === "running") $("edit-status").textContent = `${what} ${id}: running ${j.elapsed_s.toFixed(1)} s${j.stage ? ": " + j.stage : ""}`;
     else return j;
   }
 }

@@ -80,6 +80,11 @@ pub struct EditOptions {
     pub max_contour_iterations: usize,
     /// Show progress on stderr (only drawn when stderr is a terminal).
     pub progress: bool,
+    /// A progress bar, drawn or hidden, whose message the edit sets to the
+    /// stage it is in: for a caller that shows progress elsewhere (the
+    /// browser app reads it while the edit runs). Replaces the stderr
+    /// spinner of `progress`.
+    pub stage: Option<ProgressBar>,
     /// A stroke is fitted when at least this share of its columns is
     /// (`fitted_fraction`); below it, nothing is written
     /// ([`EditError::BelowMinFit`]) unless `allow_partial`.
@@ -110,6 +115,7 @@ impl EditOptions {
             max_lowering_iterations: 4,
             max_contour_iterations: 6,
             progress: false,
+            stage: None,
             min_fit: DEFAULT_MIN_FIT,
             allow_partial: false,
             dry_run: false,
@@ -202,9 +208,14 @@ pub(super) fn secs(t: Instant) -> f64 {
     t.elapsed().as_secs_f64()
 }
 
-/// Progress on stderr: a spinner with the current stage, hidden when stderr
-/// is not a terminal or progress is off.
-fn progress_bar(on: bool) -> ProgressBar {
+/// The caller's stage bar when it gave one, else progress on stderr: a
+/// spinner with the current stage, hidden when stderr is not a terminal or
+/// progress is off.
+fn progress_bar(opts: &EditOptions) -> ProgressBar {
+    if let Some(pb) = &opts.stage {
+        return pb.clone();
+    }
+    let on = opts.progress;
     let target = if on {
         ProgressDrawTarget::stderr()
     } else {
@@ -236,7 +247,7 @@ pub fn run(
         opts,
         sketch_name: sketch_path.display().to_string(),
         max_d: opts.max_distance_m.filter(|d| d.is_finite() && *d > 0.0),
-        pb: progress_bar(opts.progress),
+        pb: progress_bar(opts),
     };
     let mut timings = Timings::default();
     check_output_paths(opts)?;

@@ -136,7 +136,9 @@ pub fn height_change_map(
             let p = (y * w + x) * 3;
             rgb[p..p + 3].copy_from_slice(&[0, 0, 0]);
         }
-        let y_text = (y + 1).saturating_sub(5 * text_scale / 2).min(h - 5 * text_scale);
+        let y_text = (y + 1)
+            .saturating_sub(5 * text_scale / 2)
+            .min(h - 5 * text_scale);
         draw_text(&mut rgb, w, h, bx1 + 6, y_text, &label, text_scale);
     }
     (w, h, rgb)

@@ -14,6 +14,7 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
+use indicatif::ProgressBar;
 use serde::Serialize;
 
 use super::pictures::picture_names;
@@ -57,6 +58,9 @@ pub struct JobView {
     pub queued_ahead: usize,
     /// Seconds since it started running (or ran, when finished).
     pub elapsed_s: f64,
+    /// While it runs: the stage the edit is in ("matching strokes to
+    /// terrain features", ...).
+    pub stage: Option<String>,
     /// The edit's report (also when a stroke's fit is below the minimum).
     pub report: Option<serde_json::Value>,
     /// Why it failed, or why a real run would not write (one line).
@@ -78,6 +82,8 @@ struct Job {
     allow_partial: bool,
     dir: PathBuf,
     started: Option<Instant>,
+    /// The edit's stage bar (hidden), read while the job runs.
+    stage: ProgressBar,
     finished: Option<Instant>,
     /// A dry run's pictures drawn so far, by name.
     pictures: BTreeMap<String, Arc<Vec<u8>>>,
@@ -144,6 +150,9 @@ impl Jobs {
             (Some(s), None) => s.elapsed().as_secs_f64(),
             _ => 0.0,
         };
+        v.stage = (job.view.state == JobState::Running)
+            .then(|| job.stage.message())
+            .filter(|m| !m.is_empty());
         Ok(v)
     }
 
@@ -306,6 +315,7 @@ fn submit(
                     state: JobState::Queued,
                     queued_ahead: 0,
                     elapsed_s: 0.0,
+                    stage: None,
                     report: None,
                     message: None,
                     writable: false,
@@ -317,6 +327,7 @@ fn submit(
                 allow_partial,
                 dir,
                 started: None,
+                stage: ProgressBar::hidden(),
                 finished: None,
                 pictures: BTreeMap::new(),
             },
@@ -333,20 +344,24 @@ fn submit(
             Ok(mut jobs) => jobs.get_mut(&id).map(|j| {
                 j.view.state = JobState::Running;
                 j.started = Some(Instant::now());
-                (j.sketch.clone(), j.allow_partial, j.dir.clone())
+                (
+                    j.sketch.clone(),
+                    j.allow_partial,
+                    j.dir.clone(),
+                    j.stage.clone(),
+                )
             }),
             Err(_) => None,
         };
-        let Some((sketch, allow_partial, dir)) = inputs else {
+        let Some((sketch, allow_partial, dir, stage)) = inputs else {
             return;
         };
         let st2 = st.clone();
-        let outcome =
-            tokio::task::spawn_blocking(move || run_job(&st2, kind, &sketch, allow_partial, &dir))
-                .await
-                .unwrap_or_else(|e| {
-                    Outcome::failed(format!("internal error: the edit stopped: {e}"))
-                });
+        let outcome = tokio::task::spawn_blocking(move || {
+            run_job(&st2, kind, &sketch, allow_partial, &dir, stage)
+        })
+        .await
+        .unwrap_or_else(|e| Outcome::failed(format!("internal error: the edit stopped: {e}")));
         if let Ok(mut jobs) = st.jobs.lock() {
             if let Some(j) = jobs.get_mut(&id) {
                 j.finished = Some(Instant::now());
@@ -412,8 +427,9 @@ fn run_job(
     sketch: &str,
     allow_partial: bool,
     dir: &Path,
+    stage: ProgressBar,
 ) -> Outcome {
-    match run_job_inner(state, kind, sketch, allow_partial, dir) {
+    match run_job_inner(state, kind, sketch, allow_partial, dir, stage) {
         Ok(o) => o,
         Err(m) => Outcome::failed(m),
     }
@@ -425,6 +441,7 @@ fn run_job_inner(
     sketch: &str,
     allow_partial: bool,
     dir: &Path,
+    stage: ProgressBar,
 ) -> Result<Outcome, String> {
     std::fs::create_dir_all(dir).map_err(|e| format!("internal error: {}: {e}", dir.display()))?;
     let sketch_path = dir.join("sketch.json");
@@ -457,6 +474,7 @@ fn run_job_inner(
     };
     let mut opts = edit_options(state, destination, allow_partial);
     opts.dry_run = kind == JobKind::DryRun;
+    opts.stage = Some(stage);
     opts.report = Some(dir.join("report.json"));
     if kind == JobKind::DryRun {
         // The pictures are drawn from the height change when fetched.
