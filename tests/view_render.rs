@@ -565,33 +565,8 @@ fn patched_terrain_is_the_terrain_of_the_patched_grid() {
     let got = scene.terrain.with_heights(rect, &bump);
     // The cast index and block ranges patched, not built again: the same
     // bits as a build over the patched grid.
-    assert!(
-        demsketch::render::acceleration_bits(&got) == demsketch::render::acceleration_bits(&want),
-        "cast index and block ranges"
-    );
-    assert_eq!(got.height_range(), want.height_range());
-    assert_eq!(
-        (got.nx, got.ny, got.col0, got.row0),
-        (want.nx, want.ny, want.col0, want.row0)
-    );
-    assert!(
-        got.z
-            .iter()
-            .zip(&want.z)
-            .all(|(p, q)| p.to_bits() == q.to_bits()),
-        "vertex heights"
-    );
+    assert_same_terrain(&got, &want, &cam, "patched once");
     assert!(got.z.iter().zip(&scene.terrain.z).any(|(p, q)| p != q));
-    let (da, db) = (
-        DepthBuffer::render(&got, &cam),
-        DepthBuffer::render(&want, &cam),
-    );
-    assert!(da
-        .depth
-        .iter()
-        .zip(&db.depth)
-        .all(|(p, q)| p.to_bits() == q.to_bits()));
-    assert_eq!(da.triangle, db.triangle);
     // Patched again (the heights shared, the patches merged): the same as
     // building over both changes.
     let rect2 = (w / 5, h / 3, w / 2, h / 3 + 9);
@@ -610,26 +585,44 @@ fn patched_terrain_is_the_terrain_of_the_patched_grid() {
     let want2 = LocalTerrain::over(&map2, &scene.frame, Some(9000.0));
     drop(DepthBuffer::render(&got, &cam));
     let got2 = got.with_heights(rect2, &lower);
+    assert_same_terrain(&got2, &want2, &cam, "patched twice");
+}
+
+/// Two terrains are the same to the bit: cast index and block ranges,
+/// vertex heights, height range, grid, and what they render (depth and
+/// triangles).
+fn assert_same_terrain(got: &LocalTerrain, want: &LocalTerrain, cam: &Camera, what: &str) {
     assert!(
-        demsketch::render::acceleration_bits(&got2) == demsketch::render::acceleration_bits(&want2),
-        "cast index and block ranges, patched twice"
+        demsketch::render::acceleration_bits(got) == demsketch::render::acceleration_bits(want),
+        "{what}: cast index and block ranges"
+    );
+    assert_eq!(
+        (got.nx, got.ny, got.col0, got.row0),
+        (want.nx, want.ny, want.col0, want.row0),
+        "{what}: grid"
     );
     assert!(
-        got2.z
+        got.z
             .iter()
-            .zip(&want2.z)
+            .zip(&want.z)
             .all(|(p, q)| p.to_bits() == q.to_bits()),
-        "vertex heights, patched twice"
+        "{what}: vertex heights"
     );
-    assert_eq!(got2.height_range(), want2.height_range());
+    assert_eq!(
+        got.height_range(),
+        want.height_range(),
+        "{what}: height range"
+    );
     let (da, db) = (
-        DepthBuffer::render(&got2, &cam),
-        DepthBuffer::render(&want2, &cam),
+        DepthBuffer::render(got, cam),
+        DepthBuffer::render(want, cam),
     );
-    assert!(da
-        .depth
-        .iter()
-        .zip(&db.depth)
-        .all(|(p, q)| p.to_bits() == q.to_bits()));
-    assert_eq!(da.triangle, db.triangle);
+    assert!(
+        da.depth
+            .iter()
+            .zip(&db.depth)
+            .all(|(p, q)| p.to_bits() == q.to_bits()),
+        "{what}: depth"
+    );
+    assert_eq!(da.triangle, db.triangle, "{what}: triangles");
 }
