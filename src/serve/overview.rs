@@ -25,6 +25,9 @@ pub struct Overview {
     pub min_max: Option<(f32, f32)>,
     /// The shaded picture (PNG, RGBA).
     pub png: Vec<u8>,
+    /// Some tile file has no overviews, so its every cell was read (a
+    /// large DEM then opens slowly: `gdaladdo` is the remedy).
+    pub read_in_full: bool,
 }
 
 impl Overview {
@@ -38,8 +41,10 @@ impl Overview {
             dem.height as f64 / height as f64,
         );
         let mut heights = vec![f32::NAN; width * height];
+        let mut read_in_full = false;
         for tile in &dem.tiles {
-            read_tile(tile, sx, sy, width, height, &mut heights)?;
+            let had_overviews = read_tile(tile, sx, sy, width, height, &mut heights)?;
+            read_in_full |= !had_overviews && (sx > 1.5 || sy > 1.5);
         }
         let min_max = heights.iter().filter(|v| v.is_finite()).fold(
             None,
@@ -65,6 +70,7 @@ impl Overview {
             heights,
             min_max,
             png,
+            read_in_full,
         })
     }
 
@@ -80,7 +86,7 @@ impl Overview {
 }
 
 /// Read the overview pixels whose centres fall in `tile` by one decimating
-/// read of the tile's file through GDAL.
+/// read of the tile's file through GDAL; whether the file has overviews.
 fn read_tile(
     tile: &crate::raster::Tile,
     sx: f64,
@@ -88,13 +94,13 @@ fn read_tile(
     width: usize,
     height: usize,
     out: &mut [f32],
-) -> Result<(), ServeError> {
+) -> Result<bool, ServeError> {
     let e = tile.extent;
     let first = |start: i64, s: f64| ((start as f64 / s - 0.5).ceil().max(0.0)) as usize;
     let (i0, i1) = (first(e.col, sx), first(e.col_end(), sx).min(width));
     let (j0, j1) = (first(e.row, sy), first(e.row_end(), sy).min(height));
     if i0 >= i1 || j0 >= j1 {
-        return Ok(());
+        return Ok(true);
     }
     // The tile's pixels under those overview pixels.
     let clamp = |v: f64, n: usize| (v.round().max(0.0) as usize).min(n);
@@ -109,8 +115,9 @@ fn read_tile(
     let (ow, oh) = (i1 - i0, j1 - j0);
     let name = tile.path.display().to_string();
     let err = |m: String| ServeError::Internal(format!("{name}: overview: {m}"));
-    let read = |ds: &gdal::Dataset| -> Result<Vec<f64>, ServeError> {
+    let read = |ds: &gdal::Dataset| -> Result<(Vec<f64>, bool), ServeError> {
         let band = ds.rasterband(1).map_err(|e| err(e.to_string()))?;
+        let has_overviews = band.overview_count().is_ok_and(|n| n > 0);
         let alg = if sx > 1.5 || sy > 1.5 {
             ResampleAlg::Average
         } else {
@@ -124,9 +131,9 @@ fn read_tile(
                 Some(alg),
             )
             .map_err(|e| err(e.to_string()))?;
-        Ok(buf.into_shape_and_vec().1)
+        Ok((buf.into_shape_and_vec().1, has_overviews))
     };
-    let raw = match &tile.source {
+    let (raw, has_overviews) = match &tile.source {
         TileSource::Gdal(ds) => {
             let ds = ds
                 .lock()
@@ -149,7 +156,7 @@ fn read_tile(
             }
         }
     }
-    Ok(())
+    Ok(has_overviews)
 }
 
 /// Size of a DEM cell in metres (across, down) at the DEM's centre.

@@ -131,7 +131,21 @@ impl AppState {
                     .map_err(ServeError::BadRequest)?;
             }
         }
+        let t = std::time::Instant::now();
         let overview = Overview::build(&dem, config.overview_px)?;
+        if overview.read_in_full && t.elapsed().as_secs_f64() > 0.5 {
+            let target = if config.dem.is_file() {
+                config.dem.display().to_string()
+            } else {
+                "TILE (each tile)".to_string()
+            };
+            eprintln!(
+                "demsketch serve: note: {}: the map took {:.1} s because the DEM has no overviews \
+                 (every cell was read); `gdaladdo -r average {target} 2 4 8 16 32` makes it open at once",
+                config.dem.display(),
+                t.elapsed().as_secs_f64()
+            );
+        }
         let underlay = match &config.underlay {
             Some(p) => Some(Underlay::build(p, &dem, &overview)?),
             None => None,
