@@ -428,13 +428,24 @@ c.width = img.naturalWidth; c.height = img.naturalHeight;
 const g = c.getContext('2d'); g.drawImage(img, 0, 0);
 const d = g.getImageData(0, 0, c.width, c.height).data;
 const out = [];
+const px = (x, y) => { const k = (y * c.width + x) * 4; return [d[k], d[k + 1], d[k + 2]]; };
+const dist = (p, q) => Math.abs(p[0] - q[0]) + Math.abs(p[1] - q[1]) + Math.abs(p[2] - q[2]);
+const W = 8;
 for (let x = x0; x <= x1; x += step) {
-  // The sky's colour changes slowly down a column; the skyline is the
-  // first row that differs from the row two above by a clear step.
-  for (let y = 2; y < c.height; y++) {
-    const k = (y * c.width + x) * 4, u = ((y - 2) * c.width + x) * 4;
-    const diff = Math.abs(d[k] - d[u]) + Math.abs(d[k + 1] - d[u + 1]) + Math.abs(d[k + 2] - d[u + 2]);
-    if (diff > 24) { out.push([x, y - 0.5]); break; }
+  // The sky's colour changes slowly down a column; the skyline is near the
+  // first row that differs from the row W above by a clear step (a sunlit
+  // summit fades into the sky over a few rows of the JPEG, so a step
+  // between neighbouring rows can miss it), at the steepest change of the
+  // W rows above it.
+  for (let y = W; y < c.height; y++) {
+    if (dist(px(x, y), px(x, y - W)) <= 24) continue;
+    let best = y, most = -1;
+    for (let r = y - W + 1; r <= y; r++) {
+      const s = dist(px(x, r), px(x, r - 1));
+      if (s > most) { most = s; best = r; }
+    }
+    out.push([x, best - 0.5]);
+    break;
   }
 }
 return out;
@@ -651,6 +662,7 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--bin", default=os.path.join(ROOT, "target", "release", "demsketch"))
     ap.add_argument("--screenshots", help="save the screenshots here (docs/serve)")
+    ap.add_argument("--keep", action="store_true", help="keep each test's temporary directory (printed)")
     ap.add_argument("tests", nargs="*")
     args = ap.parse_args()
     os.environ.setdefault("GDAL_PAM_ENABLED", "NO")
@@ -669,7 +681,10 @@ def main():
             traceback.print_exc()
             print(f"browser test {n}: FAILED ({time.time() - t0:.1f} s)", flush=True)
         finally:
-            shutil.rmtree(tmp, ignore_errors=True)
+            if args.keep:
+                print(f"  kept {tmp}", flush=True)
+            else:
+                shutil.rmtree(tmp, ignore_errors=True)
     print(f"browser: {passed} passed, {failed} failed")
     sys.exit(1 if failed else 0)
 
