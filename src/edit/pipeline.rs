@@ -1311,6 +1311,16 @@ fn place_demands(
                 v.observer_radius(options.observer_radius_m),
                 sm,
             ));
+            if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
+                for p in &sm.points {
+                    if let Some(px) = p.pixel {
+                        eprintln!(
+                            "placed {} x {:.1} y {:.1} depth {:.0} {:?}",
+                            s.id, px[0], px[1], p.depth, p.source
+                        );
+                    }
+                }
+            }
             let dem_points = sv.projection.placed_to_dem(&sm.points);
             let anchored: Vec<bool> = sm
                 .points
