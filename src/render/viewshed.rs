@@ -32,8 +32,8 @@
 use super::atomic::write_atomically;
 use super::terrain::LocalTerrain;
 use super::RenderError;
-use crate::raster::{Crs, GeoTransform, HeightMap};
-use crate::view::LocalFrame;
+use crate::raster::{Crs, Dem, GeoTransform, HeightMap, Window};
+use crate::view::{Georef, LocalFrame, Viewpoint};
 use rayon::prelude::*;
 use std::path::Path;
 use std::sync::atomic::{AtomicU8, Ordering};
@@ -166,7 +166,7 @@ pub fn viewshed(terrain: &LocalTerrain, dem: &HeightMap, target_height: f64) -> 
         terrain.max_distance,
         target_height,
     );
-    prop.run(dem)
+    infallible(prop.run(dem.width, dem.height, &dem.geotransform, &dem.crs))
 }
 
 /// [`viewshed`] straight from the DEM: the same answer as
@@ -201,45 +201,142 @@ pub fn viewshed_from_dem(
     }
     let heights = DemHeights {
         dem,
-        c0,
-        r0,
-        nx,
-        p: frame.p,
-        eye_pixel: frame.eye_pixel,
-        coef: frame.curvature.coefficient(),
-        eye_alt: frame.eye_alt,
-        max_d2: max_d * max_d * 1.0001 + 1.0,
+        ap: Apparent::new(frame, (c0, r0, nx), max_d),
     };
-    Prop::new(&heights, frame, (c0, r0, nx, ny), max_d, target_height).run(dem)
+    let prop = Prop::new(&heights, frame, (c0, r0, nx, ny), max_d, target_height);
+    infallible(prop.run(dem.width, dem.height, &dem.geotransform, &dem.crs))
+}
+
+/// [`viewshed_from_dem`] over a DEM read from its file as the sweep goes:
+/// each quadrant reads bands of whole blocks of rows outward from the eye
+/// into a buffer of its own (as gdal_viewshed reads lines), so that the
+/// DEM is never in memory as a whole, and each band is swept while its
+/// blocks are still in cache. The same answer as [`viewshed_from_dem`] on
+/// the DEM read whole, bit for bit; `frame` is on `dem`'s grid (see
+/// [`eye_frame`]). Fails when a band cannot be read.
+///
+/// ```no_run
+/// # use demsketch::render::{eye_frame, viewshed_from_file};
+/// # fn f(dem: &demsketch::raster::Dem, georef: &demsketch::view::Georef,
+/// #      vp: &demsketch::view::Viewpoint) -> Result<(), demsketch::render::RenderError> {
+/// let frame = eye_frame(dem, georef, vp, 1.0 / 7.0)?;
+/// let vs = viewshed_from_file(dem, &frame, None, 0.0)?;
+/// # Ok(())
+/// # }
+/// ```
+pub fn viewshed_from_file(
+    dem: &Dem,
+    frame: &LocalFrame,
+    max_distance: Option<f64>,
+    target_height: f64,
+) -> Result<Viewshed, RenderError> {
+    let max_d = max_distance.filter(|d| *d > 0.0).unwrap_or(f64::INFINITY);
+    let (c0, r0, c1, r1) =
+        LocalTerrain::extent_in((dem.width, dem.height), frame, max_distance, None);
+    let nx = c1.saturating_sub(c0).max(1);
+    let ny = r1.saturating_sub(r0).max(1);
+    if nx < 2 || ny < 2 {
+        let map = dem.read_height_map(dem.full_window())?;
+        return Ok(viewshed_from_dem(&map, frame, max_distance, target_height));
+    }
+    let ap = Apparent::new(frame, (c0, r0, nx), max_d);
+    let (ex, ey) = frame.eye_pixel;
+    let eye = (ex - 0.5 - c0 as f64, ey - 0.5 - r0 as f64);
+    let heights = FileHeights::new(dem, ap, ny, eye)?;
+    let prop = Prop::new(&heights, frame, (c0, r0, nx, ny), max_d, target_height);
+    prop.run(dem.width, dem.height, &dem.geotransform, &dem.crs)
+}
+
+/// The local frame of viewpoint `vp` on `dem`'s whole grid, reading only
+/// the cells around it (for [`viewshed_from_file`]): the frame
+/// [`Georef::local_frame`] gives on the DEM read whole.
+pub fn eye_frame(
+    dem: &Dem,
+    georef: &Georef,
+    vp: &Viewpoint,
+    refraction_k: f64,
+) -> Result<LocalFrame, RenderError> {
+    let size = (dem.width, dem.height);
+    let gt = dem.geotransform;
+    // where the eye is needs no heights: found first with any ground
+    let probe = georef.local_frame_on(vp, &gt, size, &|_, _| Some(0.0), refraction_k)?;
+    let (px, py) = probe.eye_pixel;
+    let c = (floor(px) as i64 - 2).max(0);
+    let r = (floor(py) as i64 - 2).max(0);
+    let win = Window::new(c, r, 5, 5)
+        .intersect(&dem.full_window())
+        .unwrap_or_else(|| Window::new(0, 0, 0, 0));
+    let near = dem.read_height_map(win)?;
+    let ground = |x: f64, y: f64| near.bilinear(x - win.col as f64, y - win.row as f64);
+    Ok(georef.local_frame_on(vp, &gt, size, &ground, refraction_k)?)
+}
+
+/// The value of a result that cannot fail.
+fn infallible<T>(r: Result<T, std::convert::Infallible>) -> T {
+    match r {
+        Ok(v) => v,
+        Err(e) => match e {},
+    }
 }
 
 /// Where [`Prop`] takes the apparent heights (relative to the eye,
 /// curvature and refraction subtracted) of the terrain's vertices from.
 trait Heights: Sync {
+    /// What reading a row may fail with ([`std::convert::Infallible`] for
+    /// heights in memory).
+    type Error: Send;
     /// Vertices `c_lo..=c_hi` of row `r` into `buf[c + 1]` (NaN: nodata).
-    fn row(&self, r: usize, c_lo: usize, c_hi: usize, buf: &mut [f64]);
-    /// Vertex `(c, r)`, NaN for nodata.
+    /// `band` is the calling sweep's own buffer of rows read ahead (used by
+    /// heights read from a file).
+    fn row(
+        &self,
+        r: usize,
+        c_lo: usize,
+        c_hi: usize,
+        buf: &mut [f64],
+        band: &mut Band,
+    ) -> Result<(), Self::Error>;
+    /// Vertex `(c, r)`, NaN for nodata (only asked for vertices within a
+    /// few cells of the eye).
     fn at(&self, c: usize, r: usize) -> f64;
 }
 
+/// Rows of DEM heights read ahead by one quadrant's sweep: DEM rows
+/// `rows.0..rows.1`, columns `cols.0..cols.1`, row-major, NaN for nodata.
+#[derive(Default)]
+struct Band {
+    rows: (usize, usize),
+    cols: (usize, usize),
+    data: Vec<f32>,
+}
+
 impl Heights for LocalTerrain {
-    fn row(&self, r: usize, c_lo: usize, c_hi: usize, buf: &mut [f64]) {
+    type Error = std::convert::Infallible;
+    fn row(
+        &self,
+        r: usize,
+        c_lo: usize,
+        c_hi: usize,
+        buf: &mut [f64],
+        _: &mut Band,
+    ) -> Result<(), Self::Error> {
         let row = self.z.row(r);
         let src = &row[c_lo..=c_hi];
         for (o, &v) in buf[c_lo + 1..=c_hi + 1].iter_mut().zip(src) {
             *o = v as f64;
         }
+        Ok(())
     }
     fn at(&self, c: usize, r: usize) -> f64 {
         self.z.at(r * self.nx + c) as f64
     }
 }
 
-/// The apparent heights of a window of a DEM, computed as
-/// [`LocalTerrain`] computes them (the same expression, so the same bits).
-struct DemHeights<'a> {
-    dem: &'a HeightMap,
-    /// The window: first column and row, and width.
+/// How the apparent height of a DEM cell is computed from its height, as
+/// [`LocalTerrain`] computes it (the same expression, so the same bits).
+#[derive(Clone, Copy)]
+struct Apparent {
+    /// The window's first column and row in the DEM, and its width.
     c0: usize,
     r0: usize,
     nx: usize,
@@ -251,27 +348,36 @@ struct DemHeights<'a> {
     max_d2: f64,
 }
 
-impl DemHeights<'_> {
-    /// Vertices `c_lo..=c_hi` of row `r` into `out` (as long).
-    fn fill(&self, r: usize, c_lo: usize, c_hi: usize, out: &mut [f64]) {
-        let src_r = self.r0 + r;
-        let dem = self.dem;
-        out.fill(f64::NAN);
-        if src_r >= dem.height {
-            return;
+impl Apparent {
+    fn new(frame: &LocalFrame, (c0, r0, nx): (usize, usize, usize), max_d: f64) -> Self {
+        Apparent {
+            c0,
+            r0,
+            nx,
+            p: frame.p,
+            eye_pixel: frame.eye_pixel,
+            coef: frame.curvature.coefficient(),
+            eye_alt: frame.eye_alt,
+            max_d2: max_d * max_d * 1.0001 + 1.0,
         }
+    }
+
+    /// The columns of the window's row that lie on a DEM `dem_width`
+    /// cells wide, of those asked for (`c_lo..=c_hi`): `c_lo..end`.
+    fn end(&self, dem_width: usize, c_lo: usize, c_hi: usize) -> usize {
+        let inside = dem_width.saturating_sub(self.c0).min(self.nx);
+        (c_hi + 1).min(inside).max(c_lo)
+    }
+
+    /// Apparent heights of window vertices `c_lo..` of DEM row `src_r`
+    /// from their DEM heights `src` into `out` (as long as `src`).
+    #[inline]
+    fn convert(&self, src_r: usize, c_lo: usize, src: &[f32], out: &mut [f64]) {
         // the expression of LocalTerrain's build, term for term
         let (p, (ex, ey)) = (self.p, self.eye_pixel);
         let dy = src_r as f64 + 0.5 - ey;
         let (e0, n0) = (p[0][1] * dy, p[1][1] * dy);
         let dx0 = self.c0 as f64 + 0.5 - ex;
-        let inside = dem.width.saturating_sub(self.c0).min(self.nx);
-        let end = (c_hi + 1).min(inside);
-        if c_lo >= end {
-            return;
-        }
-        let base = src_r * dem.width + self.c0;
-        let src = &dem.data[base + c_lo..base + end];
         let (eye_alt, coef, max_d2) = (self.eye_alt, self.coef, self.max_d2);
         for (k, (o, &h)) in out.iter_mut().zip(src).enumerate() {
             let dx = dx0 + (c_lo + k) as f64;
@@ -284,13 +390,170 @@ impl DemHeights<'_> {
     }
 }
 
+/// The apparent heights of a window of a DEM in memory.
+struct DemHeights<'a> {
+    dem: &'a HeightMap,
+    ap: Apparent,
+}
+
+impl DemHeights<'_> {
+    /// Vertices `c_lo..=c_hi` of row `r` into `out` (as long).
+    fn fill(&self, r: usize, c_lo: usize, c_hi: usize, out: &mut [f64]) {
+        let src_r = self.ap.r0 + r;
+        let dem = self.dem;
+        out.fill(f64::NAN);
+        if src_r >= dem.height {
+            return;
+        }
+        let end = self.ap.end(dem.width, c_lo, c_hi);
+        let base = src_r * dem.width + self.ap.c0;
+        let src = &dem.data[base + c_lo..base + end];
+        self.ap.convert(src_r, c_lo, src, out);
+    }
+}
+
 impl Heights for DemHeights<'_> {
-    fn row(&self, r: usize, c_lo: usize, c_hi: usize, buf: &mut [f64]) {
+    type Error = std::convert::Infallible;
+    fn row(
+        &self,
+        r: usize,
+        c_lo: usize,
+        c_hi: usize,
+        buf: &mut [f64],
+        _: &mut Band,
+    ) -> Result<(), Self::Error> {
         self.fill(r, c_lo, c_hi, &mut buf[c_lo + 1..=c_hi + 1]);
+        Ok(())
     }
     fn at(&self, c: usize, r: usize) -> f64 {
         let mut one = [f64::NAN];
         self.fill(r, c, c, &mut one);
+        one[0]
+    }
+}
+
+/// The apparent heights of a window of a DEM read from its file in bands
+/// of rows as each quadrant's sweep reaches them (whole blocks of the file,
+/// so that no block is decoded twice by one quadrant), into a buffer the
+/// quadrant reuses: the DEM is never in memory as a whole.
+struct FileHeights<'a> {
+    dem: &'a Dem,
+    ap: Apparent,
+    /// Rows per band (a multiple of the file's block height).
+    band_rows: usize,
+    /// The vertices around the eye ([`Heights::at`]): window vertex
+    /// `(near.0, near.1)` is the map's first cell.
+    near: (usize, usize, HeightMap),
+}
+
+/// Window vertices on each side of the eye that [`FileHeights`] keeps for
+/// the exact walk near the eye (which reaches [`EXACT_NEAR_CELLS`] + 2).
+const NEAR_MARGIN: usize = 8;
+
+impl<'a> FileHeights<'a> {
+    fn new(dem: &'a Dem, ap: Apparent, ny: usize, eye: (f64, f64)) -> Result<Self, RenderError> {
+        let block = match dem.tiles.as_slice() {
+            [t] => match &t.source {
+                crate::raster::TileSource::Tiff(tiff) => tiff.layout.block_height as usize,
+                crate::raster::TileSource::Gdal(_) => 64,
+            },
+            _ => 64,
+        }
+        .max(1);
+        let band_rows = block * 64usize.div_ceil(block);
+        let span = |e: f64, n: usize| {
+            let e = floor(e).max(0.0) as usize;
+            let lo = e.saturating_sub(NEAR_MARGIN).min(n.saturating_sub(1));
+            let hi = (e + NEAR_MARGIN + 1).min(n);
+            (lo, hi.max(lo))
+        };
+        let (cl, ch) = span(eye.0, ap.end(dem.width, 0, ap.nx.saturating_sub(1)));
+        let (rl, rh) = span(eye.1, dem.height.saturating_sub(ap.r0).min(ny));
+        let win = Window::new(
+            (ap.c0 + cl) as i64,
+            (ap.r0 + rl) as i64,
+            ch - cl,
+            rh - rl,
+        );
+        let map = if win.width > 0 && win.height > 0 {
+            dem.read_height_map(win)?
+        } else {
+            HeightMap {
+                width: 0,
+                height: 0,
+                data: Vec::new(),
+                geotransform: dem.geotransform,
+                crs: dem.crs.clone(),
+            }
+        };
+        Ok(FileHeights {
+            dem,
+            ap,
+            band_rows,
+            near: (cl, rl, map),
+        })
+    }
+}
+
+impl Heights for FileHeights<'_> {
+    type Error = RenderError;
+    fn row(
+        &self,
+        r: usize,
+        c_lo: usize,
+        c_hi: usize,
+        buf: &mut [f64],
+        band: &mut Band,
+    ) -> Result<(), RenderError> {
+        let out = &mut buf[c_lo + 1..=c_hi + 1];
+        out.fill(f64::NAN);
+        let src_r = self.ap.r0 + r;
+        let dem = self.dem;
+        if src_r >= dem.height {
+            return Ok(());
+        }
+        let end = self.ap.end(dem.width, c_lo, c_hi);
+        if end == c_lo {
+            return Ok(());
+        }
+        let cols = (self.ap.c0 + c_lo, self.ap.c0 + end);
+        if !(band.rows.0 <= src_r
+            && src_r < band.rows.1
+            && band.cols.0 <= cols.0
+            && cols.1 <= band.cols.1)
+        {
+            let lo = src_r / self.band_rows * self.band_rows;
+            let hi = (lo + self.band_rows).min(dem.height);
+            let win = Window::new(cols.0 as i64, lo as i64, cols.1 - cols.0, hi - lo);
+            // (the previous band's buffer goes first, so that the
+            // allocator hands its pages to the next)
+            band.data = Vec::new();
+            band.data = dem.read_height_map(win)?.data;
+            band.rows = (lo, hi);
+            band.cols = cols;
+        }
+        let w = band.cols.1 - band.cols.0;
+        let at = (src_r - band.rows.0) * w + (cols.0 - band.cols.0);
+        let src = &band.data[at..at + (cols.1 - cols.0)];
+        self.ap.convert(src_r, c_lo, src, out);
+        Ok(())
+    }
+    fn at(&self, c: usize, r: usize) -> f64 {
+        let (cl, rl, map) = &self.near;
+        let (Some(dc), Some(dr)) = (c.checked_sub(*cl), r.checked_sub(*rl)) else {
+            debug_assert!(false, "vertex ({c}, {r}) is not near the eye");
+            return f64::NAN;
+        };
+        if dc >= map.width || dr >= map.height {
+            debug_assert!(
+                c >= self.ap.nx || self.ap.r0 + r >= self.dem.height,
+                "vertex ({c}, {r}) is not near the eye"
+            );
+            return f64::NAN;
+        }
+        let mut one = [f64::NAN];
+        self.ap
+            .convert(self.ap.r0 + r, c, &map.data[dr * map.width + dc..][..1], &mut one);
         one[0]
     }
 }
@@ -339,9 +602,15 @@ impl<'a, H: Heights> Prop<'a, H> {
         }
     }
 
-    /// The viewshed on `dem`'s grid, the four quadrants in parallel.
-    fn run(&self, dem: &HeightMap) -> Viewshed {
-        let (width, height) = (dem.width, dem.height);
+    /// The viewshed on the DEM's grid (`width` x `height` cells, with
+    /// that georeferencing), the four quadrants in parallel.
+    fn run(
+        &self,
+        width: usize,
+        height: usize,
+        geotransform: &GeoTransform,
+        crs: &Crs,
+    ) -> Result<Viewshed, H::Error> {
         let mut data = vec![0u8; width * height];
         {
             // SAFETY: AtomicU8 has the size, alignment and bit validity of
@@ -357,17 +626,17 @@ impl<'a, H: Heights> Prop<'a, H> {
             };
             [(1i8, 1i8), (1, -1), (-1, 1), (-1, -1)]
                 .into_par_iter()
-                .for_each(|(sx, sy)| {
-                    Quadrant::new(self.eye, (self.nx, self.ny), sx, sy).propagate(self, &grid);
-                });
+                .try_for_each(|(sx, sy)| {
+                    Quadrant::new(self.eye, (self.nx, self.ny), sx, sy).propagate(self, &grid)
+                })?;
         }
-        Viewshed {
+        Ok(Viewshed {
             width,
             height,
             data,
-            geotransform: dem.geotransform,
-            crs: dem.crs.clone(),
-        }
+            geotransform: *geotransform,
+            crs: crs.clone(),
+        })
     }
 }
 
@@ -410,16 +679,17 @@ impl Quadrant {
     }
 
     /// Sweep the quadrant, marking the visible cells it owns.
-    fn propagate<H: Heights>(&self, sweep: &Prop<H>, grid: &OutGrid) {
+    fn propagate<H: Heights>(&self, sweep: &Prop<H>, grid: &OutGrid) -> Result<(), H::Error> {
         let nx = sweep.nx;
         let (eu, ev) = sweep.eye;
-        let fill = |r, c_lo, c_hi, buf: &mut [f64]| sweep.heights.row(r, c_lo, c_hi, buf);
+        let mut band = Band::default();
+        let mut fill = |r, c_lo, c_hi, buf: &mut [f64]| sweep.heights.row(r, c_lo, c_hi, buf, &mut band);
         let pad = nx + 2;
         let (Some(&c_first), Some(&c_last)) = (self.cols.first(), self.cols.last()) else {
-            return;
+            return Ok(());
         };
         if self.rows.is_empty() {
-            return;
+            return Ok(());
         }
         let (c_lo, c_hi) = (c_first.min(c_last), c_first.max(c_last));
         let blank_z = vec![f64::NAN; pad];
@@ -441,9 +711,9 @@ impl Quadrant {
             // row a (and b, the other axis row, when there are two)
             let (mut g_a, mut g_b) = (blank_g.clone(), blank_g.clone());
             let (mut z_a, mut z_b) = (blank_z.clone(), blank_z.clone());
-            fill(axis[0], c_lo, c_hi, &mut z_a);
+            fill(axis[0], c_lo, c_hi, &mut z_a)?;
             if axis.len() > 1 {
-                fill(axis[1], c_lo, c_hi, &mut z_b);
+                fill(axis[1], c_lo, c_hi, &mut z_b)?;
             }
             for &c in &self.cols {
                 let vis = sweep.cell(c, axis[0], &z_a, &z_b, &mut g_a, &g_b);
@@ -465,7 +735,7 @@ impl Quadrant {
             }
         }
         for &r in &self.rows[axis.len()..] {
-            fill(r, c_lo, c_hi, &mut z_cur);
+            fill(r, c_lo, c_hi, &mut z_cur)?;
             let own_r = owns_row(r);
             for &c in &self.cols {
                 let vis = sweep.cell(c, r, &z_cur, &z_prev, &mut g_cur, &g_prev);
@@ -476,6 +746,7 @@ impl Quadrant {
             std::mem::swap(&mut g_cur, &mut g_prev);
             std::mem::swap(&mut z_cur, &mut z_prev);
         }
+        Ok(())
     }
 }
 
