@@ -39,7 +39,7 @@ pub use triangle_raster::PATCH_TOLERANCE_PX;
 pub use vertex_heights::VertexHeights;
 pub use viewshed::{
     eye_frame, viewshed, viewshed_exact, viewshed_from_dem, viewshed_from_file, viewshed_rays,
-    write_viewshed_tiff, Viewshed,
+    write_viewshed_tiff, write_viewshed_tiff_with, Viewshed, VIEWSHED_TIFF_OPTIONS,
 };
 
 /// Errors of rendering and writing views. One line naming the file and the problem.

@@ -734,9 +734,29 @@ impl Quadrant {
                 (g_prev, z_prev) = (g_a, z_a);
             }
         }
+        let mut rows = RowScratch::new(sweep, pad);
+        let near = EXACT_NEAR_CELLS + 1.0;
         for &r in &self.rows[axis.len()..] {
             fill(r, c_lo, c_hi, &mut z_cur)?;
             let own_r = owns_row(r);
+            if (r as f64 - ev).abs() > near {
+                let cells = RowCells {
+                    r,
+                    sx: self.sx,
+                    c_lo,
+                    c_hi,
+                    z_r: &z_cur,
+                    z_o: &z_prev,
+                    g_o: &g_prev,
+                };
+                rows.row(sweep, &cells, &mut g_cur);
+                if own_r {
+                    rows.mark(sweep, &cells, grid);
+                }
+                std::mem::swap(&mut g_cur, &mut g_prev);
+                std::mem::swap(&mut z_cur, &mut z_prev);
+                continue;
+            }
             for &c in &self.cols {
                 let vis = sweep.cell(c, r, &z_cur, &z_prev, &mut g_cur, &g_prev);
                 if vis && own_r && owns_col(c) {
@@ -916,6 +936,346 @@ impl<H: Heights> Prop<'_, H> {
             z00 + fx * (z10 - z00) + fy * (z11 - z10)
         } else {
             z00 + fy * (z01 - z00) + fx * (z11 - z01)
+        }
+    }
+}
+
+/// The constants of one row's vector passes ([`RowScratch`]).
+struct RowPass {
+    /// `dv` times the second column of the metric matrix.
+    a01: f64,
+    a11: f64,
+    /// `|dv|`, the target height and the squared maximum distance.
+    adv: f64,
+    th: f64,
+    max_d2: f64,
+}
+
+/// Per column of a stretch: `du`, its east and north images, then
+/// heights of the row (`z_r`) and of the row before (`z_o`) and horizons
+/// of the row before (`g_o`), each at the column and at its neighbour
+/// towards the eye.
+type RowArgs<'a> = (
+    &'a [f64],
+    &'a [f64],
+    &'a [f64],
+    &'a [f64],
+    &'a [f64],
+    &'a [f64],
+    &'a [f64],
+    &'a [f64],
+    &'a [f64],
+);
+type ColArgs<'a> = (
+    &'a [f64],
+    &'a [f64],
+    &'a [f64],
+    &'a [f64],
+    &'a [f64],
+    &'a [f64],
+    &'a [f64],
+);
+
+impl RowPass {
+    /// [`Prop::cell`] over a stretch where the line of sight crosses the
+    /// previous row (`ANTI`: the vertices lie across a cell diagonal).
+    #[inline(always)]
+    fn rows<const ANTI: bool>(&self, args: RowArgs, g_r: &mut [f64], vis: &mut [u8]) {
+        let (du, ae, an, z_r, z_r_c, z_o, z_o_c, g_o, g_o_c) = args;
+        let n = g_r.len();
+        let (du, ae, an, z_r, z_r_c) = (&du[..n], &ae[..n], &an[..n], &z_r[..n], &z_r_c[..n]);
+        let (z_o, z_o_c, g_o, g_o_c, vis) = (&z_o[..n], &z_o_c[..n], &g_o[..n], &g_o_c[..n], &mut vis[..n]);
+        let (adv, am1) = (self.adv, self.adv - 1.0);
+        for k in 0..n {
+            let adu = du[k].abs();
+            let e = ae[k] + self.a01;
+            let nn = an[k] + self.a11;
+            let s2 = e * e + nn * nn;
+            let d = s2.sqrt();
+            let inv_d = 1.0 / d;
+            let w = adu / adv;
+            let (zq0, zq1) = (z_o[k], z_o_c[k]);
+            let mut h = g_o[k] * (1.0 - w) + g_o_c[k] * w;
+            let kk = adv * inv_d;
+            let zc = zq0 * (1.0 - w) + zq1 * w;
+            let t = zc * kk / am1;
+            h = if t > h { t } else { h };
+            if ANTI {
+                let s = w / (1.0 + w);
+                let zx = zq0 * (1.0 - s) + z_r_c[k] * s;
+                let t = zx * kk / (am1 + s);
+                h = if t > h { t } else { h };
+            }
+            let z = z_r[k];
+            let own = z * inv_d;
+            g_r[k] = if own > h { own } else { h };
+            vis[k] = (z + self.th + 1e-3 >= h * d && s2 <= self.max_d2) as u8;
+        }
+    }
+
+    /// What [`Prop::cell`] computes without the neighbour's horizon over a
+    /// stretch where the line of sight crosses the previous column: the
+    /// weight `w`, the largest tan elevation of the last step `tm`, the
+    /// vertex's own and its distance (NaN beyond the maximum distance).
+    #[inline(always)]
+    fn cols<const ANTI: bool>(
+        &self,
+        args: ColArgs,
+        (w_out, tm_out, own_out, dist_out): (&mut [f64], &mut [f64], &mut [f64], &mut [f64]),
+    ) {
+        let (du, ae, an, z_r, z_r_c, z_o, z_o_c) = args;
+        let n = w_out.len();
+        let (du, ae, an, z_r, z_r_c) = (&du[..n], &ae[..n], &an[..n], &z_r[..n], &z_r_c[..n]);
+        let (z_o, z_o_c) = (&z_o[..n], &z_o_c[..n]);
+        let (tm_out, own_out, dist_out) = (&mut tm_out[..n], &mut own_out[..n], &mut dist_out[..n]);
+        let adv = self.adv;
+        for k in 0..n {
+            let adu = du[k].abs();
+            let e = ae[k] + self.a01;
+            let nn = an[k] + self.a11;
+            let s2 = e * e + nn * nn;
+            let d = s2.sqrt();
+            let inv_d = 1.0 / d;
+            let w = adv / adu;
+            let (zq0, zq1) = (z_r_c[k], z_o_c[k]);
+            let kk = adu * inv_d;
+            let zc = zq0 * (1.0 - w) + zq1 * w;
+            let bm1 = adu - 1.0;
+            let mut tm = zc * kk / bm1;
+            if ANTI {
+                let s = w / (1.0 + w);
+                let zx = zq0 * (1.0 - s) + z_o[k] * s;
+                let t = zx * kk / (bm1 + s);
+                // the larger, a NaN (a hole) counting for nothing
+                tm = if t > tm || tm != tm { t } else { tm };
+            }
+            w_out[k] = w;
+            tm_out[k] = tm;
+            own_out[k] = z_r[k] * inv_d;
+            dist_out[k] = if s2 <= self.max_d2 { d } else { f64::NAN };
+        }
+    }
+}
+
+/// One row of a quadrant for [`RowScratch::row`]: row `r`, swept in
+/// direction `sx` over columns `c_lo..=c_hi`, its heights `z_r` and those
+/// and the horizons of the row before it (`z_o`, `g_o`), indexed `c + 1`.
+struct RowCells<'a> {
+    r: usize,
+    sx: i8,
+    c_lo: usize,
+    c_hi: usize,
+    z_r: &'a [f64],
+    z_o: &'a [f64],
+    g_o: &'a [f64],
+}
+
+/// What [`Prop::cell`] computes for a row, rearranged so that it runs on
+/// vectors: a row more than [`EXACT_NEAR_CELLS`] + 1 from the eye is, on
+/// the quadrant's side of the eye's column, one stretch where the line of
+/// sight crosses the previous row (`|du| < |dv|`: each vertex depends on
+/// the row before only, computed over all of them at once) and one where
+/// it crosses the previous column (`|du| >= |dv|`: each vertex takes its
+/// neighbour's horizon; all that does not depend on it, the divisions and
+/// square roots, is computed first over the stretch at once, then a short
+/// serial pass carries the horizon outward). The same operations in the
+/// same order as [`Prop::cell`], so the same bits; the one or two columns
+/// within a cell of the eye's go through [`Prop::cell`] itself. On x86-64
+/// with AVX2 (detected at run time) the passes run on 4 lanes.
+struct RowScratch {
+    /// Per column (`c + 1`): `c - eye`, and its images in east and north
+    /// metres (the first terms of [`Prop::cell`]'s `e` and `n`).
+    du: Vec<f64>,
+    ae: Vec<f64>,
+    an: Vec<f64>,
+    /// The stretch along the previous column: the weight of the neighbour
+    /// row's horizon, the largest tan elevation of the last step, the
+    /// vertex's own, and its distance (NaN beyond the maximum distance).
+    w: Vec<f64>,
+    tm: Vec<f64>,
+    own: Vec<f64>,
+    dist: Vec<f64>,
+    /// Visible (1) or not, per column.
+    vis: Vec<u8>,
+    avx2: bool,
+}
+
+impl RowScratch {
+    fn new<H: Heights>(prop: &Prop<H>, pad: usize) -> Self {
+        let eu = prop.eye.0;
+        let du: Vec<f64> = (0..pad).map(|i| i as f64 - 1.0 - eu).collect();
+        let ae = du.iter().map(|&d| prop.a[0][0] * d).collect();
+        let an = du.iter().map(|&d| prop.a[1][0] * d).collect();
+        RowScratch {
+            du,
+            ae,
+            an,
+            w: vec![0.0; pad],
+            tm: vec![0.0; pad],
+            own: vec![0.0; pad],
+            dist: vec![0.0; pad],
+            vis: vec![0; pad],
+            #[cfg(target_arch = "x86_64")]
+            avx2: std::arch::is_x86_feature_detected!("avx2"),
+            #[cfg(not(target_arch = "x86_64"))]
+            avx2: false,
+        }
+    }
+
+    /// Horizons `g_r` and visibility (`self.vis`) of the row's vertices.
+    fn row<H: Heights>(&mut self, prop: &Prop<H>, cells: &RowCells, g_r: &mut [f64]) {
+        #[cfg(target_arch = "x86_64")]
+        if self.avx2 {
+            // SAFETY: AVX2 is present (detected at run time).
+            unsafe { self.row_avx2(prop, cells, g_r) };
+            return;
+        }
+        self.row_any(prop, cells, g_r);
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn row_avx2<H: Heights>(&mut self, prop: &Prop<H>, cells: &RowCells, g_r: &mut [f64]) {
+        self.row_any(prop, cells, g_r);
+    }
+
+    /// The columns of the quadrant's row (as `c + 1`) on its side of the
+    /// eye's: `(inner, rows, cols)`, the ranges within a cell of the eye's
+    /// column (for [`Prop::cell`]), where the line of sight crosses the
+    /// previous row, and where it crosses the previous column (in
+    /// increasing order; the quadrant goes outward).
+    #[inline(always)]
+    fn split(&self, cells: &RowCells, adv: f64) -> [std::ops::Range<usize>; 3] {
+        let (lo, hi) = (cells.c_lo + 1, cells.c_hi + 2);
+        let du = &self.du;
+        // first index at or after `from` (stepping by one) where `p` holds;
+        // `p` is monotone over [lo, hi)
+        let first = |p: &dyn Fn(f64) -> bool| lo + du[lo..hi].partition_point(|&d| !p(d));
+        if cells.sx > 0 {
+            let a = first(&|d| d > 0.0);
+            let b = first(&|d| d >= adv);
+            [lo..a, a..b.max(a), b.max(a)..hi]
+        } else {
+            // du decreasing outward: here increasing with the index
+            let a = first(&|d| d >= 0.0);
+            let b = first(&|d| d > -adv);
+            [a..hi, b.min(a)..a, lo..b.min(a)]
+        }
+    }
+
+    #[inline(always)]
+    fn row_any<H: Heights>(&mut self, prop: &Prop<H>, cells: &RowCells, g_r: &mut [f64]) {
+        let (z_r, z_o, g_o) = (cells.z_r, cells.z_o, cells.g_o);
+        let r = cells.r;
+        let dv = r as f64 - prop.eye.1;
+        let adv = dv.abs();
+        let [inner, rows, cols] = self.split(cells, adv);
+        // within a cell of the eye's column: as any other cell
+        for i in inner {
+            self.vis[i] = prop.cell(i - 1, r, z_r, z_o, g_r, g_o) as u8;
+        }
+        let (a01, a11) = (prop.a[0][1] * dv, prop.a[1][1] * dv);
+        let (th, max_d2) = (prop.target_height, prop.max_d2);
+        // the neighbour towards the eye along the row, and whether the
+        // stretch's vertices lie across a diagonal (du * dv < 0)
+        let (off, anti) = if cells.sx > 0 {
+            (-1isize, dv < 0.0)
+        } else {
+            (1, dv > 0.0)
+        };
+        let ic = |i: usize| i.wrapping_add_signed(off);
+        // crossing the previous row: all at once
+        let rp = RowPass {
+            a01,
+            a11,
+            adv,
+            th,
+            max_d2,
+        };
+        if !rows.is_empty() {
+            let (a, n) = (rows.start, rows.len());
+            let ca = ic(a);
+            let args = (
+                &self.du[a..a + n],
+                &self.ae[a..a + n],
+                &self.an[a..a + n],
+                &z_r[a..a + n],
+                &z_r[ca..ca + n],
+                &z_o[a..a + n],
+                &z_o[ca..ca + n],
+                &g_o[a..a + n],
+                &g_o[ca..ca + n],
+            );
+            let (g, vis) = (&mut g_r[a..a + n], &mut self.vis[a..a + n]);
+            if anti {
+                rp.rows::<true>(args, g, vis);
+            } else {
+                rp.rows::<false>(args, g, vis);
+            }
+        }
+        // crossing the previous column: what does not depend on the
+        // neighbour's horizon, all at once
+        if !cols.is_empty() {
+            let (a, n) = (cols.start, cols.len());
+            let ca = ic(a);
+            let args = (
+                &self.du[a..a + n],
+                &self.ae[a..a + n],
+                &self.an[a..a + n],
+                &z_r[a..a + n],
+                &z_r[ca..ca + n],
+                &z_o[a..a + n],
+                &z_o[ca..ca + n],
+            );
+            let outs = (
+                &mut self.w[a..a + n],
+                &mut self.tm[a..a + n],
+                &mut self.own[a..a + n],
+                &mut self.dist[a..a + n],
+            );
+            if anti {
+                rp.cols::<true>(args, outs);
+            } else {
+                rp.cols::<false>(args, outs);
+            }
+        }
+        // ... then the horizon carried outward
+        if cols.is_empty() {
+            return;
+        }
+        let mut prev = if cells.sx > 0 {
+            g_r[cols.start - 1]
+        } else {
+            g_r[cols.end]
+        };
+        let mut step = |i: usize| {
+            let w = self.w[i];
+            let mut h = prev * (1.0 - w) + g_o[ic(i)] * w;
+            let tm = self.tm[i];
+            h = if tm > h { tm } else { h };
+            let own = self.own[i];
+            let g = if own > h { own } else { h };
+            g_r[i] = g;
+            self.vis[i] = (z_r[i] + th + 1e-3 >= h * self.dist[i]) as u8;
+            prev = g;
+        };
+        if cells.sx > 0 {
+            cols.for_each(&mut step);
+        } else {
+            cols.rev().for_each(&mut step);
+        }
+    }
+
+    /// Mark the visible vertices of the row (`self.vis`) on the grid.
+    fn mark<H: Heights>(&self, prop: &Prop<H>, cells: &RowCells, grid: &OutGrid) {
+        let eu = prop.eye.0;
+        for i in cells.c_lo + 1..cells.c_hi + 2 {
+            if self.vis[i] != 0 {
+                let c = i - 1;
+                if (c as f64 >= eu) == (cells.sx > 0) {
+                    grid.set(c, cells.r);
+                }
+            }
         }
     }
 }
@@ -1410,8 +1770,37 @@ fn on_grid(
     }
 }
 
-/// Write `vs` as a single-band Byte GeoTIFF with the DEM's georeferencing.
+/// Creation options of [`write_viewshed_tiff`]: tiles of 256 x 256 cells
+/// compressed with PackBits (baseline TIFF: every TIFF reader decodes it),
+/// on all cores. A viewshed is long runs of 0 and 255: 8192^2 cells (64 MB
+/// as gdal_viewshed writes them, striped and uncompressed) take about
+/// 1 MB, so writing, flushing to disk and reading back cost little beside
+/// the run-length coding, and PackBits codes and decodes runs several
+/// times faster than DEFLATE, whose files are smaller still (see
+/// docs/benchmarks.md, "Viewshed against gdal_viewshed").
+pub const VIEWSHED_TIFF_OPTIONS: &[&str] = &[
+    "TILED=YES",
+    "BLOCKXSIZE=256",
+    "BLOCKYSIZE=256",
+    "COMPRESS=PACKBITS",
+    "NUM_THREADS=ALL_CPUS",
+];
+
+/// Write `vs` as a single-band Byte GeoTIFF with the DEM's georeferencing
+/// ([`VIEWSHED_TIFF_OPTIONS`]), atomically and verified (written in
+/// memory, then to a file beside `path`, flushed, read back block by block
+/// and compared, renamed over `path`).
 pub fn write_viewshed_tiff(vs: &Viewshed, path: &Path) -> Result<(), RenderError> {
+    write_viewshed_tiff_with(vs, path, VIEWSHED_TIFF_OPTIONS)
+}
+
+/// [`write_viewshed_tiff`] with other GeoTIFF creation options (`[]`:
+/// striped and uncompressed, as gdal_viewshed writes by default).
+pub fn write_viewshed_tiff_with(
+    vs: &Viewshed,
+    path: &Path,
+    options: &[&str],
+) -> Result<(), RenderError> {
     write_atomically(
         path,
         |tmp| {
@@ -1421,8 +1810,11 @@ pub fn write_viewshed_tiff(vs: &Viewshed, path: &Path) -> Result<(), RenderError
             };
             crate::raster::atomic_file::through_memory(tmp, None, |tmp| {
                 let driver = gdal::DriverManager::get_driver_by_name("GTiff").map_err(werr)?;
+                let opts = gdal::raster::RasterCreationOptions::from_iter(options.iter().copied());
                 let mut ds = driver
-                    .create_with_band_type::<u8, _>(tmp, vs.width, vs.height, 1)
+                    .create_with_band_type_with_options::<u8, _>(
+                        tmp, vs.width, vs.height, 1, &opts,
+                    )
                     .map_err(werr)?;
                 ds.set_geo_transform(&vs.geotransform.0).map_err(werr)?;
                 let srs = vs.crs.gdal_definition();
@@ -1432,9 +1824,8 @@ pub fn write_viewshed_tiff(vs: &Viewshed, path: &Path) -> Result<(), RenderError
                     }
                 }
                 let mut band = ds.rasterband(1).map_err(werr)?;
-                let mut buf = gdal::raster::Buffer::new((vs.width, vs.height), vs.data.clone());
-                band.write((0, 0), (vs.width, vs.height), &mut buf)
-                    .map_err(werr)?;
+                write_blocks(&mut band, vs).map_err(werr)?;
+                drop(band);
                 ds.flush_cache().map_err(werr)?;
                 ds.close().map_err(werr)?;
                 Ok::<(), RenderError>(())
@@ -1444,6 +1835,82 @@ pub fn write_viewshed_tiff(vs: &Viewshed, path: &Path) -> Result<(), RenderError
                 message,
             })
         },
-        |tmp| crate::raster::atomic_file::verify_band(tmp, vs.width, vs.height, &vs.data),
+        |tmp| verify_blocks(tmp, vs),
     )
+}
+
+/// The block of `vs` at block `(bx, by)` of `size` cells into `buf`
+/// (`size.0 * size.1` long, rows of the block past the raster left 0).
+fn block_of(vs: &Viewshed, (bx, by): (usize, usize), size: (usize, usize), buf: &mut [u8]) {
+    buf.fill(0);
+    let (c0, r0) = (bx * size.0, by * size.1);
+    let w = size.0.min(vs.width.saturating_sub(c0));
+    for r in 0..size.1.min(vs.height.saturating_sub(r0)) {
+        let src = (r0 + r) * vs.width + c0;
+        buf[r * size.0..r * size.0 + w].copy_from_slice(&vs.data[src..src + w]);
+    }
+}
+
+/// Write `vs` into `band` block by block (no copy of the whole raster:
+/// one block at a time goes to the driver, which compresses it).
+fn write_blocks(band: &mut gdal::raster::RasterBand, vs: &Viewshed) -> gdal::errors::Result<()> {
+    let size = band.block_size();
+    let size = (size.0.max(1), size.1.max(1));
+    let mut buf = gdal::raster::Buffer::new(size, vec![0u8; size.0 * size.1]);
+    for by in 0..vs.height.div_ceil(size.1) {
+        for bx in 0..vs.width.div_ceil(size.0) {
+            block_of(vs, (bx, by), size, buf.data_mut());
+            band.write_block((bx, by), &mut buf)?;
+        }
+    }
+    Ok(())
+}
+
+/// Does the GeoTIFF at `path` hold `vs` (its size and every cell)? Read
+/// block by block, the rows of blocks split between the cores (each with
+/// its own handle on the file): no second copy of the raster in memory.
+fn verify_blocks(path: &Path, vs: &Viewshed) -> Result<(), String> {
+    use crate::raster::atomic_file::one_line;
+    let open = || {
+        gdal::Dataset::open(path)
+            .map_err(|e| format!("GDAL cannot open it: {}", one_line(&e.to_string())))
+    };
+    let ds = open()?;
+    if ds.raster_size() != (vs.width, vs.height) {
+        return Err(format!(
+            "its size is {:?}, not {} x {}",
+            ds.raster_size(),
+            vs.width,
+            vs.height
+        ));
+    }
+    let size = ds.rasterband(1).map_err(|e| e.to_string())?.block_size();
+    let size = (size.0.max(1), size.1.max(1));
+    drop(ds);
+    let rows = vs.height.div_ceil(size.1);
+    let parts = rayon::current_num_threads().clamp(1, rows.max(1));
+    (0..parts).into_par_iter().try_for_each(|part| {
+        let ds = open()?;
+        let band = ds.rasterband(1).map_err(|e| e.to_string())?;
+        let mut want = vec![0u8; size.0 * size.1];
+        for by in (part * rows / parts)..((part + 1) * rows / parts) {
+            for bx in 0..vs.width.div_ceil(size.0) {
+                let got = band
+                    .read_block::<u8>((bx, by))
+                    .map_err(|e| format!("GDAL cannot read it: {}", one_line(&e.to_string())))?;
+                block_of(vs, (bx, by), size, &mut want);
+                // (the rows and columns past the raster are not compared)
+                let (c0, r0) = (bx * size.0, by * size.1);
+                let w = size.0.min(vs.width - c0);
+                let h = size.1.min(vs.height - r0);
+                let got = got.data();
+                if got.len() < size.0 * size.1
+                    || (0..h).any(|r| got[r * size.0..r * size.0 + w] != want[r * size.0..r * size.0 + w])
+                {
+                    return Err("its values differ from those written".to_string());
+                }
+            }
+        }
+        Ok(())
+    })
 }
