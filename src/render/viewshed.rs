@@ -334,7 +334,6 @@ impl Heights for LocalTerrain {
 
 /// How the apparent height of a DEM cell is computed from its height, as
 /// [`LocalTerrain`] computes it (the same expression, so the same bits).
-#[derive(Clone, Copy)]
 struct Apparent {
     /// The window's first column and row in the DEM, and its width.
     c0: usize,
@@ -346,11 +345,20 @@ struct Apparent {
     eye_alt: f64,
     /// Squared distance beyond which vertices are nodata.
     max_d2: f64,
+    /// Per window column, the first terms of east and north (`p[0][0] *
+    /// dx` and `p[1][0] * dx`).
+    pe: Vec<f64>,
+    pn: Vec<f64>,
 }
 
 impl Apparent {
     fn new(frame: &LocalFrame, (c0, r0, nx): (usize, usize, usize), max_d: f64) -> Self {
+        let (p, (ex, _)) = (frame.p, frame.eye_pixel);
+        let dx0 = c0 as f64 + 0.5 - ex;
+        let dx = |c: usize| dx0 + c as f64;
         Apparent {
+            pe: (0..nx).map(|c| p[0][0] * dx(c)).collect(),
+            pn: (0..nx).map(|c| p[1][0] * dx(c)).collect(),
             c0,
             r0,
             nx,
@@ -371,19 +379,39 @@ impl Apparent {
 
     /// Apparent heights of window vertices `c_lo..` of DEM row `src_r`
     /// from their DEM heights `src` into `out` (as long as `src`).
-    #[inline]
     fn convert(&self, src_r: usize, c_lo: usize, src: &[f32], out: &mut [f64]) {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: AVX2 is present (detected at run time).
+            unsafe { self.convert_avx2(src_r, c_lo, src, out) };
+            return;
+        }
+        self.convert_any(src_r, c_lo, src, out);
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn convert_avx2(&self, src_r: usize, c_lo: usize, src: &[f32], out: &mut [f64]) {
+        self.convert_any(src_r, c_lo, src, out);
+    }
+
+    #[inline(always)]
+    fn convert_any(&self, src_r: usize, c_lo: usize, src: &[f32], out: &mut [f64]) {
         // the expression of LocalTerrain's build, term for term
-        let (p, (ex, ey)) = (self.p, self.eye_pixel);
+        // (the terms in dx from the tables, the same products)
+        let (p, (_, ey)) = (self.p, self.eye_pixel);
         let dy = src_r as f64 + 0.5 - ey;
         let (e0, n0) = (p[0][1] * dy, p[1][1] * dy);
-        let dx0 = self.c0 as f64 + 0.5 - ex;
         let (eye_alt, coef, max_d2) = (self.eye_alt, self.coef, self.max_d2);
-        for (k, (o, &h)) in out.iter_mut().zip(src).enumerate() {
-            let dx = dx0 + (c_lo + k) as f64;
-            let e = p[0][0] * dx + e0;
-            let n = p[1][0] * dx + n0;
-            let d2 = e * e + n * n;
+        let n = src.len().min(out.len());
+        let (pe, pn) = (&self.pe[c_lo..c_lo + n], &self.pn[c_lo..c_lo + n]);
+        let (src, out) = (&src[..n], &mut out[..n]);
+        for k in 0..n {
+            let h = src[k];
+            let o = &mut out[k];
+            let e = pe[k] + e0;
+            let nn = pn[k] + n0;
+            let d2 = e * e + nn * nn;
             let v = (h as f64 - eye_alt - coef * d2) as f32;
             *o = if d2 > max_d2 { f64::NAN } else { v as f64 };
         }
@@ -760,7 +788,7 @@ impl Quadrant {
                 };
                 rows.row(sweep, &cells, &mut g_cur);
                 if own_r {
-                    rows.mark(sweep, &cells, grid);
+                    rows.mark(&cells, grid);
                 }
                 std::mem::swap(&mut g_cur, &mut g_prev);
                 std::mem::swap(&mut z_cur, &mut z_prev);
@@ -1272,16 +1300,16 @@ impl RowScratch {
         }
     }
 
-    /// Mark the visible vertices of the row (`self.vis`) on the grid.
-    fn mark<H: Heights>(&self, prop: &Prop<H>, cells: &RowCells, grid: &OutGrid) {
-        let eu = prop.eye.0;
-        for i in cells.c_lo + 1..cells.c_hi + 2 {
-            if self.vis[i] != 0 {
-                let c = i - 1;
-                if (c as f64 >= eu) == (cells.sx > 0) {
-                    grid.set(c, cells.r);
-                }
-            }
+    /// Mark the visible vertices of the row (`self.vis`) that the
+    /// quadrant owns on the grid (those at or right of the eye's column
+    /// for `sx = +1`, those left of it for `sx = -1`).
+    fn mark(&self, cells: &RowCells, grid: &OutGrid) {
+        let (lo, hi) = (cells.c_lo + 1, cells.c_hi + 2);
+        // (du is c - eye: c >= eye is du >= 0)
+        let at = lo + self.du[lo..hi].partition_point(|&d| d < 0.0);
+        let owned = if cells.sx > 0 { at..hi } else { lo..at };
+        if !owned.is_empty() {
+            grid.put_row(owned.start - 1, cells.r, &self.vis[owned]);
         }
     }
 }
@@ -1307,6 +1335,25 @@ impl OutGrid<'_> {
         let (col, row) = (self.col0 + c, self.row0 + r);
         if col < self.width && row < self.height {
             self.out[row * self.width + col].store(255, Ordering::Relaxed);
+        }
+    }
+
+    /// Mark visible the terrain vertices `c_from..` of row `r` whose
+    /// `vis` is 1 (`vis` holds 0 or 1). The caller owns these vertices: no
+    /// other thread writes or reads them while the grid lives.
+    fn put_row(&self, c_from: usize, r: usize, vis: &[u8]) {
+        let (col, row) = (self.col0 + c_from, self.row0 + r);
+        if col >= self.width || row >= self.height {
+            return;
+        }
+        let n = vis.len().min(self.width - col);
+        let cells = &self.out[row * self.width + col..][..n];
+        // SAFETY: AtomicU8 has the layout of u8 and its cells may be
+        // written through a shared reference; these cells are this
+        // caller's alone (see above), so the plain writes race with nothing.
+        let out = unsafe { std::slice::from_raw_parts_mut(cells.as_ptr() as *mut u8, n) };
+        for (o, &v) in out.iter_mut().zip(&vis[..n]) {
+            *o |= v.wrapping_neg();
         }
     }
 }
