@@ -773,35 +773,57 @@ impl Quadrant {
         }
         let mut rows = RowScratch::new(sweep, pad);
         let near = EXACT_NEAR_CELLS + 1.0;
-        for &r in &self.rows[axis.len()..] {
+        // rows away from the eye in vector passes, two at a time
+        let far = |r: usize| sweep.vector_rows && (r as f64 - ev).abs() > near;
+        let (mut g_next, mut z_next) = (blank_g.clone(), blank_z.clone());
+        let rest = &self.rows[axis.len()..];
+        let mut j = 0;
+        while j < rest.len() {
+            let r = rest[j];
             fill(r, c_lo, c_hi, &mut z_cur)?;
             let own_r = owns_row(r);
-            if sweep.vector_rows && (r as f64 - ev).abs() > near {
-                let cells = RowCells {
-                    r,
-                    sx: self.sx,
-                    c_lo,
-                    c_hi,
-                    z_r: &z_cur,
-                    z_o: &z_prev,
-                    g_o: &g_prev,
-                };
-                rows.row(sweep, &cells, &mut g_cur);
+            let cells = |r, z_r, z_o| RowCells {
+                r,
+                sx: self.sx,
+                c_lo,
+                c_hi,
+                z_r,
+                z_o,
+            };
+            if far(r) && j + 1 < rest.len() {
+                let r2 = rest[j + 1];
+                fill(r2, c_lo, c_hi, &mut z_next)?;
+                let one = cells(r, &z_cur, &z_prev);
+                let two = cells(r2, &z_next, &z_cur);
+                rows.rows2(sweep, (&one, &two), &g_prev, &mut g_cur, &mut g_next);
                 if own_r {
-                    rows.mark(&cells, grid);
+                    rows.mark(0, &one, grid);
                 }
-                std::mem::swap(&mut g_cur, &mut g_prev);
-                std::mem::swap(&mut z_cur, &mut z_prev);
+                if owns_row(r2) {
+                    rows.mark(1, &two, grid);
+                }
+                std::mem::swap(&mut g_next, &mut g_prev);
+                std::mem::swap(&mut z_next, &mut z_prev);
+                j += 2;
                 continue;
             }
-            for &c in &self.cols {
-                let vis = sweep.cell(c, r, &z_cur, &z_prev, &mut g_cur, &g_prev);
-                if vis && own_r && owns_col(c) {
-                    grid.set(c, r);
+            if far(r) {
+                let one = cells(r, &z_cur, &z_prev);
+                rows.row(sweep, &one, &g_prev, &mut g_cur);
+                if own_r {
+                    rows.mark(0, &one, grid);
+                }
+            } else {
+                for &c in &self.cols {
+                    let vis = sweep.cell(c, r, &z_cur, &z_prev, &mut g_cur, &g_prev);
+                    if vis && own_r && owns_col(c) {
+                        grid.set(c, r);
+                    }
                 }
             }
             std::mem::swap(&mut g_cur, &mut g_prev);
             std::mem::swap(&mut z_cur, &mut z_prev);
+            j += 1;
         }
         Ok(())
     }
@@ -1094,9 +1116,9 @@ impl RowPass {
     }
 }
 
-/// One row of a quadrant for [`RowScratch::row`]: row `r`, swept in
-/// direction `sx` over columns `c_lo..=c_hi`, its heights `z_r` and those
-/// and the horizons of the row before it (`z_o`, `g_o`), indexed `c + 1`.
+/// One row of a quadrant for [`RowScratch`]: row `r`, swept in direction
+/// `sx` over columns `c_lo..=c_hi`, its heights `z_r` and those of the row
+/// before it `z_o` (towards the eye), indexed `c + 1`.
 struct RowCells<'a> {
     r: usize,
     sx: i8,
@@ -1104,7 +1126,49 @@ struct RowCells<'a> {
     c_hi: usize,
     z_r: &'a [f64],
     z_o: &'a [f64],
-    g_o: &'a [f64],
+}
+
+/// What [`RowScratch`] keeps of one row between its passes, per column
+/// (`c + 1`) where the line of sight crosses the previous column: the
+/// weight `w` of the neighbour row's horizon, the largest tan elevation of
+/// the last step `tm`, the vertex's own, and its distance (NaN beyond the
+/// maximum distance); and, for every column, whether it is visible (1).
+struct Lane {
+    w: Vec<f64>,
+    tm: Vec<f64>,
+    own: Vec<f64>,
+    dist: Vec<f64>,
+    vis: Vec<u8>,
+}
+
+impl Lane {
+    fn new(pad: usize) -> Self {
+        Lane {
+            w: vec![0.0; pad],
+            tm: vec![0.0; pad],
+            own: vec![0.0; pad],
+            dist: vec![0.0; pad],
+            vis: vec![0; pad],
+        }
+    }
+
+    /// The horizon carried outward over column `i` (its neighbour towards
+    /// the eye has horizon `prev` in this row and `g_o_c` in the row
+    /// before): the vertex's horizon, and its visibility in `vis`.
+    #[inline(always)]
+    fn carry(&mut self, i: usize, prev: f64, g_o_c: f64, z: f64, th: f64) -> f64 {
+        let w = self.w[i];
+        let mut h = prev * (1.0 - w) + g_o_c * w;
+        let tm = self.tm[i];
+        h = if tm > h { tm } else { h };
+        let own = self.own[i];
+        self.vis[i] = (z + th + 1e-3 >= h * self.dist[i]) as u8;
+        if own > h {
+            own
+        } else {
+            h
+        }
+    }
 }
 
 /// What [`Prop::cell`] computes for a row, rearranged so that it runs on
@@ -1115,25 +1179,20 @@ struct RowCells<'a> {
 /// it crosses the previous column (`|du| >= |dv|`: each vertex takes its
 /// neighbour's horizon; all that does not depend on it, the divisions and
 /// square roots, is computed first over the stretch at once, then a short
-/// serial pass carries the horizon outward). The same operations in the
-/// same order as [`Prop::cell`], so the same bits; the one or two columns
-/// within a cell of the eye's go through [`Prop::cell`] itself. On x86-64
-/// with AVX2 (detected at run time) the passes run on 4 lanes.
+/// serial pass carries the horizon outward, two rows at a time, the outer
+/// one a column behind, so that the two carries overlap). The same
+/// operations in the same order as [`Prop::cell`], so the same bits; the
+/// one or two columns within a cell of the eye's go through [`Prop::cell`]
+/// itself. On x86-64 with AVX2 (detected at run time) the passes run on 4
+/// lanes.
 struct RowScratch {
     /// Per column (`c + 1`): `c - eye`, and its images in east and north
     /// metres (the first terms of [`Prop::cell`]'s `e` and `n`).
     du: Vec<f64>,
     ae: Vec<f64>,
     an: Vec<f64>,
-    /// The stretch along the previous column: the weight of the neighbour
-    /// row's horizon, the largest tan elevation of the last step, the
-    /// vertex's own, and its distance (NaN beyond the maximum distance).
-    w: Vec<f64>,
-    tm: Vec<f64>,
-    own: Vec<f64>,
-    dist: Vec<f64>,
-    /// Visible (1) or not, per column.
-    vis: Vec<u8>,
+    /// The row being done, and the one after it.
+    lanes: [Lane; 2],
     avx2: bool,
 }
 
@@ -1147,30 +1206,126 @@ impl RowScratch {
             du,
             ae,
             an,
-            w: vec![0.0; pad],
-            tm: vec![0.0; pad],
-            own: vec![0.0; pad],
-            dist: vec![0.0; pad],
-            vis: vec![0; pad],
+            lanes: [Lane::new(pad), Lane::new(pad)],
             avx2: prop.avx2,
         }
     }
 
-    /// Horizons `g_r` and visibility (`self.vis`) of the row's vertices.
-    fn row<H: Heights>(&mut self, prop: &Prop<H>, cells: &RowCells, g_r: &mut [f64]) {
+    /// Horizons `g_r` and visibility (`lanes[0].vis`) of the row's
+    /// vertices, from the horizons `g_o` of the row before.
+    fn row<H: Heights>(&mut self, prop: &Prop<H>, cells: &RowCells, g_o: &[f64], g_r: &mut [f64]) {
         #[cfg(target_arch = "x86_64")]
         if self.avx2 {
             // SAFETY: AVX2 is present (detected at run time).
-            unsafe { self.row_avx2(prop, cells, g_r) };
+            unsafe { self.row_avx2(prop, cells, g_o, g_r) };
             return;
         }
-        self.row_any(prop, cells, g_r);
+        self.row_any(prop, cells, g_o, g_r);
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    unsafe fn row_avx2<H: Heights>(&mut self, prop: &Prop<H>, cells: &RowCells, g_r: &mut [f64]) {
-        self.row_any(prop, cells, g_r);
+    unsafe fn row_avx2<H: Heights>(
+        &mut self,
+        prop: &Prop<H>,
+        cells: &RowCells,
+        g_o: &[f64],
+        g_r: &mut [f64],
+    ) {
+        self.row_any(prop, cells, g_o, g_r);
+    }
+
+    #[inline(always)]
+    fn row_any<H: Heights>(&mut self, prop: &Prop<H>, cells: &RowCells, g_o: &[f64], g_r: &mut [f64]) {
+        let cols = self.prep(0, prop, cells, g_o, g_r);
+        self.carry_one(prop, cells, g_o, g_r, cols);
+    }
+
+    /// [`RowScratch::row`] for two rows, `one` and `two` the next outward
+    /// (`lanes[0].vis` and `lanes[1].vis`): `g_o` the horizons of the row
+    /// before `one`, `g_1` and `g_2` theirs.
+    fn rows2<H: Heights>(
+        &mut self,
+        prop: &Prop<H>,
+        (one, two): (&RowCells, &RowCells),
+        g_o: &[f64],
+        g_1: &mut [f64],
+        g_2: &mut [f64],
+    ) {
+        #[cfg(target_arch = "x86_64")]
+        if self.avx2 {
+            // SAFETY: AVX2 is present (detected at run time).
+            unsafe { self.rows2_avx2(prop, (one, two), g_o, g_1, g_2) };
+            return;
+        }
+        self.rows2_any(prop, (one, two), g_o, g_1, g_2);
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn rows2_avx2<H: Heights>(
+        &mut self,
+        prop: &Prop<H>,
+        rows: (&RowCells, &RowCells),
+        g_o: &[f64],
+        g_1: &mut [f64],
+        g_2: &mut [f64],
+    ) {
+        self.rows2_any(prop, rows, g_o, g_1, g_2);
+    }
+
+    #[inline(always)]
+    fn rows2_any<H: Heights>(
+        &mut self,
+        prop: &Prop<H>,
+        (one, two): (&RowCells, &RowCells),
+        g_o: &[f64],
+        g_1: &mut [f64],
+        g_2: &mut [f64],
+    ) {
+        let cols1 = self.prep(0, prop, one, g_o, g_1);
+        let adv2 = (two.r as f64 - prop.eye.1).abs();
+        let [_, _, cols2] = self.split(two, adv2);
+        // the first row's carry up to where the second's starts (the
+        // second's stretch across rows reads its horizons up to there)
+        let (head, shared) = if one.sx > 0 {
+            let at = cols2.start.max(cols1.start);
+            (cols1.start..at, at..cols1.end)
+        } else {
+            let at = cols2.end.min(cols1.end);
+            (at..cols1.end, cols1.start..at)
+        };
+        self.carry_one(prop, one, g_o, g_1, head);
+        let cols2 = self.prep(1, prop, two, g_1, g_2);
+        debug_assert!(shared.is_empty() || cols2 == shared);
+        if shared.is_empty() {
+            self.carry_one_lane(1, prop, two, g_1, g_2, cols2);
+            return;
+        }
+        // both carries over the shared columns, the second row reading
+        // the first's horizon at the column before (not yet overwritten)
+        let th = prop.target_height;
+        let (z1, z2) = (one.z_r, two.z_r);
+        let [l1, l2] = &mut self.lanes;
+        if one.sx > 0 {
+            let (mut p1, mut p2) = (g_1[shared.start - 1], g_2[shared.start - 1]);
+            for i in shared {
+                let q1 = p1;
+                p1 = l1.carry(i, p1, g_o[i - 1], z1[i], th);
+                g_1[i] = p1;
+                p2 = l2.carry(i, p2, q1, z2[i], th);
+                g_2[i] = p2;
+            }
+        } else {
+            let (mut p1, mut p2) = (g_1[shared.end], g_2[shared.end]);
+            for i in shared.rev() {
+                let q1 = p1;
+                p1 = l1.carry(i, p1, g_o[i + 1], z1[i], th);
+                g_1[i] = p1;
+                p2 = l2.carry(i, p2, q1, z2[i], th);
+                g_2[i] = p2;
+            }
+        }
     }
 
     /// The columns of the quadrant's row (as `c + 1`) on its side of the
@@ -1182,8 +1337,7 @@ impl RowScratch {
     fn split(&self, cells: &RowCells, adv: f64) -> [std::ops::Range<usize>; 3] {
         let (lo, hi) = (cells.c_lo + 1, cells.c_hi + 2);
         let du = &self.du;
-        // first index at or after `from` (stepping by one) where `p` holds;
-        // `p` is monotone over [lo, hi)
+        // the first index where `p` holds (`p` is monotone over [lo, hi))
         let first = |p: &dyn Fn(f64) -> bool| lo + du[lo..hi].partition_point(|&d| !p(d));
         if cells.sx > 0 {
             let a = first(&|d| d > 0.0);
@@ -1197,16 +1351,28 @@ impl RowScratch {
         }
     }
 
+    /// The row's vertices within a cell of the eye's column and across
+    /// the previous row (horizons into `g_r`, visibility into the lane),
+    /// and what those across the previous column need without their
+    /// neighbour's horizon; returns the columns of the latter.
     #[inline(always)]
-    fn row_any<H: Heights>(&mut self, prop: &Prop<H>, cells: &RowCells, g_r: &mut [f64]) {
-        let (z_r, z_o, g_o) = (cells.z_r, cells.z_o, cells.g_o);
+    fn prep<H: Heights>(
+        &mut self,
+        lane: usize,
+        prop: &Prop<H>,
+        cells: &RowCells,
+        g_o: &[f64],
+        g_r: &mut [f64],
+    ) -> std::ops::Range<usize> {
+        let (z_r, z_o) = (cells.z_r, cells.z_o);
         let r = cells.r;
         let dv = r as f64 - prop.eye.1;
         let adv = dv.abs();
         let [inner, rows, cols] = self.split(cells, adv);
+        let lane = &mut self.lanes[lane];
         // within a cell of the eye's column: as any other cell
         for i in inner {
-            self.vis[i] = prop.cell(i - 1, r, z_r, z_o, g_r, g_o) as u8;
+            lane.vis[i] = prop.cell(i - 1, r, z_r, z_o, g_r, g_o) as u8;
         }
         let (a01, a11) = (prop.a[0][1] * dv, prop.a[1][1] * dv);
         let (th, max_d2) = (prop.target_height, prop.max_d2);
@@ -1218,7 +1384,6 @@ impl RowScratch {
             (1, dv > 0.0)
         };
         let ic = |i: usize| i.wrapping_add_signed(off);
-        // crossing the previous row: all at once
         let rp = RowPass {
             a01,
             a11,
@@ -1226,6 +1391,7 @@ impl RowScratch {
             th,
             max_d2,
         };
+        // crossing the previous row: all at once
         if !rows.is_empty() {
             let (a, n) = (rows.start, rows.len());
             let ca = ic(a);
@@ -1240,7 +1406,7 @@ impl RowScratch {
                 &g_o[a..a + n],
                 &g_o[ca..ca + n],
             );
-            let (g, vis) = (&mut g_r[a..a + n], &mut self.vis[a..a + n]);
+            let (g, vis) = (&mut g_r[a..a + n], &mut lane.vis[a..a + n]);
             if anti {
                 rp.rows::<true>(args, g, vis);
             } else {
@@ -1262,10 +1428,10 @@ impl RowScratch {
                 &z_o[ca..ca + n],
             );
             let outs = (
-                &mut self.w[a..a + n],
-                &mut self.tm[a..a + n],
-                &mut self.own[a..a + n],
-                &mut self.dist[a..a + n],
+                &mut lane.w[a..a + n],
+                &mut lane.tm[a..a + n],
+                &mut lane.own[a..a + n],
+                &mut lane.dist[a..a + n],
             );
             if anti {
                 rp.cols::<true>(args, outs);
@@ -1273,43 +1439,63 @@ impl RowScratch {
                 rp.cols::<false>(args, outs);
             }
         }
-        // ... then the horizon carried outward
+        cols
+    }
+
+    /// The horizon of lane 0's row carried outward over `cols` (a part of
+    /// its stretch across the previous column, from its inner end).
+    #[inline(always)]
+    fn carry_one<H: Heights>(
+        &mut self,
+        prop: &Prop<H>,
+        cells: &RowCells,
+        g_o: &[f64],
+        g_r: &mut [f64],
+        cols: std::ops::Range<usize>,
+    ) {
+        self.carry_one_lane(0, prop, cells, g_o, g_r, cols);
+    }
+
+    #[inline(always)]
+    fn carry_one_lane<H: Heights>(
+        &mut self,
+        lane: usize,
+        prop: &Prop<H>,
+        cells: &RowCells,
+        g_o: &[f64],
+        g_r: &mut [f64],
+        cols: std::ops::Range<usize>,
+    ) {
         if cols.is_empty() {
             return;
         }
-        let mut prev = if cells.sx > 0 {
-            g_r[cols.start - 1]
-        } else {
-            g_r[cols.end]
-        };
-        let mut step = |i: usize| {
-            let w = self.w[i];
-            let mut h = prev * (1.0 - w) + g_o[ic(i)] * w;
-            let tm = self.tm[i];
-            h = if tm > h { tm } else { h };
-            let own = self.own[i];
-            let g = if own > h { own } else { h };
-            g_r[i] = g;
-            self.vis[i] = (z_r[i] + th + 1e-3 >= h * self.dist[i]) as u8;
-            prev = g;
-        };
+        let (th, z_r) = (prop.target_height, cells.z_r);
+        let lane = &mut self.lanes[lane];
         if cells.sx > 0 {
-            cols.for_each(&mut step);
+            let mut prev = g_r[cols.start - 1];
+            for i in cols {
+                prev = lane.carry(i, prev, g_o[i - 1], z_r[i], th);
+                g_r[i] = prev;
+            }
         } else {
-            cols.rev().for_each(&mut step);
+            let mut prev = g_r[cols.end];
+            for i in cols.rev() {
+                prev = lane.carry(i, prev, g_o[i + 1], z_r[i], th);
+                g_r[i] = prev;
+            }
         }
     }
 
-    /// Mark the visible vertices of the row (`self.vis`) that the
-    /// quadrant owns on the grid (those at or right of the eye's column
-    /// for `sx = +1`, those left of it for `sx = -1`).
-    fn mark(&self, cells: &RowCells, grid: &OutGrid) {
+    /// Mark the visible vertices of lane `lane`'s row that the quadrant
+    /// owns on the grid (those at or right of the eye's column for `sx =
+    /// +1`, those left of it for `sx = -1`).
+    fn mark(&self, lane: usize, cells: &RowCells, grid: &OutGrid) {
         let (lo, hi) = (cells.c_lo + 1, cells.c_hi + 2);
         // (du is c - eye: c >= eye is du >= 0)
         let at = lo + self.du[lo..hi].partition_point(|&d| d < 0.0);
         let owned = if cells.sx > 0 { at..hi } else { lo..at };
         if !owned.is_empty() {
-            grid.put_row(owned.start - 1, cells.r, &self.vis[owned]);
+            grid.put_row(owned.start - 1, cells.r, &self.lanes[lane].vis[owned]);
         }
     }
 }
