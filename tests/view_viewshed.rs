@@ -291,11 +291,26 @@ fn viewshed_from_file_is_the_whole_read() {
         (fixture("zion_srtm_utm12n.tif"), 30, 480, Some(5_000.0)),
         (fixture("arenal_aster30m_epsg4326.tif"), 120, 100, None),
         (fixture("nz_1km_nan_nodata.tif"), 600, 800, None),
-        (fixture("texas_srtm90m_tiled_int16.tif"), 180, 180, Some(8_000.0)),
+        (
+            fixture("texas_srtm90m_tiled_int16.tif"),
+            180,
+            180,
+            Some(8_000.0),
+        ),
     ];
     if have_tool("gdal_translate") {
         for (co, name) in [
-            (&["-co", "TILED=YES", "-co", "BLOCKXSIZE=16", "-co", "BLOCKYSIZE=16"][..], "t16.tif"),
+            (
+                &[
+                    "-co",
+                    "TILED=YES",
+                    "-co",
+                    "BLOCKXSIZE=16",
+                    "-co",
+                    "BLOCKYSIZE=16",
+                ][..],
+                "t16.tif",
+            ),
             (&["-co", "BLOCKYSIZE=1"][..], "s1.tif"),
         ] {
             let p = dir.path().join(name);
@@ -327,7 +342,12 @@ fn viewshed_from_file_is_the_whole_read() {
         let want = viewshed_from_dem(&whole, &frame, max_d, 0.0);
         let got = viewshed_from_file(&dem, &near, max_d, 0.0).unwrap();
         assert!(want.visible_count() > 0);
-        assert_eq!(got.data, want.data, "{} from ({col}, {row})", path.display());
+        assert_eq!(
+            got.data,
+            want.data,
+            "{} from ({col}, {row})",
+            path.display()
+        );
         assert_eq!(got.geotransform.0, whole.geotransform.0);
     }
 }
@@ -344,7 +364,15 @@ fn viewshed_from_a_corrupt_file_is_an_error() {
     let dir = tempfile::tempdir().unwrap();
     let p = dir.path().join("t.tif");
     let st = std::process::Command::new("gdal_translate")
-        .args(["-q", "-co", "TILED=YES", "-co", "BLOCKXSIZE=16", "-co", "BLOCKYSIZE=16"])
+        .args([
+            "-q",
+            "-co",
+            "TILED=YES",
+            "-co",
+            "BLOCKXSIZE=16",
+            "-co",
+            "BLOCKYSIZE=16",
+        ])
         .args(["-co", "COMPRESS=DEFLATE"])
         .arg(fixture("zion_srtm_utm12n.tif"))
         .arg(&p)

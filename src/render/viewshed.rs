@@ -497,12 +497,7 @@ impl<'a> FileHeights<'a> {
         };
         let (cl, ch) = span(eye.0, ap.end(dem.width, 0, ap.nx.saturating_sub(1)));
         let (rl, rh) = span(eye.1, dem.height.saturating_sub(ap.r0).min(ny));
-        let win = Window::new(
-            (ap.c0 + cl) as i64,
-            (ap.r0 + rl) as i64,
-            ch - cl,
-            rh - rl,
-        );
+        let win = Window::new((ap.c0 + cl) as i64, (ap.r0 + rl) as i64, ch - cl, rh - rl);
         let map = if win.width > 0 && win.height > 0 {
             dem.read_height_map(win)?
         } else {
@@ -580,8 +575,12 @@ impl Heights for FileHeights<'_> {
             return f64::NAN;
         }
         let mut one = [f64::NAN];
-        self.ap
-            .convert(self.ap.r0 + r, c, &map.data[dr * map.width + dc..][..1], &mut one);
+        self.ap.convert(
+            self.ap.r0 + r,
+            c,
+            &map.data[dr * map.width + dc..][..1],
+            &mut one,
+        );
         one[0]
     }
 }
@@ -720,7 +719,8 @@ impl Quadrant {
         let nx = sweep.nx;
         let (eu, ev) = sweep.eye;
         let mut band = Band::default();
-        let mut fill = |r, c_lo, c_hi, buf: &mut [f64]| sweep.heights.row(r, c_lo, c_hi, buf, &mut band);
+        let mut fill =
+            |r, c_lo, c_hi, buf: &mut [f64]| sweep.heights.row(r, c_lo, c_hi, buf, &mut band);
         let pad = nx + 2;
         let (Some(&c_first), Some(&c_last)) = (self.cols.first(), self.cols.last()) else {
             return Ok(());
@@ -1043,7 +1043,13 @@ impl RowPass {
         let (du, ae, an, z_r, z_r_c, z_o, z_o_c, g_o, g_o_c) = args;
         let n = g_r.len();
         let (du, ae, an, z_r, z_r_c) = (&du[..n], &ae[..n], &an[..n], &z_r[..n], &z_r_c[..n]);
-        let (z_o, z_o_c, g_o, g_o_c, vis) = (&z_o[..n], &z_o_c[..n], &g_o[..n], &g_o_c[..n], &mut vis[..n]);
+        let (z_o, z_o_c, g_o, g_o_c, vis) = (
+            &z_o[..n],
+            &z_o_c[..n],
+            &g_o[..n],
+            &g_o_c[..n],
+            &mut vis[..n],
+        );
         let (adv, am1) = (self.adv, self.adv - 1.0);
         for k in 0..n {
             let adu = du[k].abs();
@@ -1106,7 +1112,7 @@ impl RowPass {
                 let zx = zq0 * (1.0 - s) + z_o[k] * s;
                 let t = zx * kk / (bm1 + s);
                 // the larger, a NaN (a hole) counting for nothing
-                tm = if t > tm || tm != tm { t } else { tm };
+                tm = if t > tm || tm.is_nan() { t } else { tm };
             }
             w_out[k] = w;
             tm_out[k] = tm;
@@ -1236,7 +1242,13 @@ impl RowScratch {
     }
 
     #[inline(always)]
-    fn row_any<H: Heights>(&mut self, prop: &Prop<H>, cells: &RowCells, g_o: &[f64], g_r: &mut [f64]) {
+    fn row_any<H: Heights>(
+        &mut self,
+        prop: &Prop<H>,
+        cells: &RowCells,
+        g_o: &[f64],
+        g_r: &mut [f64],
+    ) {
         let cols = self.prep(0, prop, cells, g_o, g_r);
         self.carry_one(prop, cells, g_o, g_r, cols);
     }
@@ -2051,9 +2063,7 @@ pub fn write_viewshed_tiff_with(
                 let driver = gdal::DriverManager::get_driver_by_name("GTiff").map_err(werr)?;
                 let opts = gdal::raster::RasterCreationOptions::from_iter(options.iter().copied());
                 let mut ds = driver
-                    .create_with_band_type_with_options::<u8, _>(
-                        tmp, vs.width, vs.height, 1, &opts,
-                    )
+                    .create_with_band_type_with_options::<u8, _>(tmp, vs.width, vs.height, 1, &opts)
                     .map_err(werr)?;
                 ds.set_geo_transform(&vs.geotransform.0).map_err(werr)?;
                 let srs = vs.crs.gdal_definition();
@@ -2062,9 +2072,7 @@ pub fn write_viewshed_tiff_with(
                         ds.set_spatial_ref(&sr).map_err(werr)?;
                     }
                 }
-                let mut band = ds.rasterband(1).map_err(werr)?;
-                write_blocks(&mut band, vs).map_err(werr)?;
-                drop(band);
+                write_blocks(&mut ds.rasterband(1).map_err(werr)?, vs).map_err(werr)?;
                 ds.flush_cache().map_err(werr)?;
                 ds.close().map_err(werr)?;
                 Ok::<(), RenderError>(())
@@ -2144,7 +2152,9 @@ fn verify_blocks(path: &Path, vs: &Viewshed) -> Result<(), String> {
                 let h = size.1.min(vs.height - r0);
                 let got = got.data();
                 if got.len() < size.0 * size.1
-                    || (0..h).any(|r| got[r * size.0..r * size.0 + w] != want[r * size.0..r * size.0 + w])
+                    || (0..h).any(|r| {
+                        got[r * size.0..r * size.0 + w] != want[r * size.0..r * size.0 + w]
+                    })
                 {
                     return Err("its values differ from those written".to_string());
                 }
