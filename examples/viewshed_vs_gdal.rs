@@ -5,7 +5,9 @@
 //! several runs alternating between them: ours covers opening the DEM,
 //! resolving the viewpoint and computing the viewshed while the DEM is read
 //! in bands of rows (`viewshed_from_file`, in-process), and, in its own
-//! column, also writing it as a GeoTIFF; "read whole + sweep" is the
+//! columns, also writing it as a GeoTIFF (`write_viewshed_tiff`: PackBits
+//! tiles; and, "as GDAL", striped and uncompressed as gdal_viewshed
+//! writes); "read whole + sweep" is the
 //! previous way (the DEM read whole, then `viewshed_from_dem`; checked to
 //! give the same bytes); GDAL's is the `gdal_viewshed` process (read,
 //! compute, write). It also times the
@@ -24,7 +26,7 @@
 use demsketch::raster::{read_height_map, Dem};
 use demsketch::render::{
     eye_frame, viewshed_exact, viewshed_from_dem, viewshed_from_file, write_viewshed_tiff,
-    LocalTerrain,
+    write_viewshed_tiff_with, LocalTerrain,
 };
 use demsketch::view::{Georef, Viewpoint};
 use std::path::{Path, PathBuf};
@@ -106,7 +108,7 @@ fn run(case: &Case, tmp: &Path, runs: usize) -> anyhow::Result<()> {
     };
     // alternate: read whole, ours, ours + write, GDAL; medians
     let (mut t_ours, mut t_write, mut t_gdal) = (Vec::new(), Vec::new(), Vec::new());
-    let mut t_whole = Vec::new();
+    let (mut t_whole, mut t_raw) = (Vec::new(), Vec::new());
     let mut ours = None;
     for _ in 0..runs {
         let t = Instant::now();
@@ -125,6 +127,12 @@ fn run(case: &Case, tmp: &Path, runs: usize) -> anyhow::Result<()> {
         let vs = ours_once()?;
         write_viewshed_tiff(&vs, &ours_tif)?;
         t_write.push(t.elapsed().as_secs_f64());
+        drop(vs);
+        // the same, written as gdal_viewshed writes (striped, uncompressed)
+        let t = Instant::now();
+        let vs = ours_once()?;
+        write_viewshed_tiff_with(&vs, &ours_tif, &[])?;
+        t_raw.push(t.elapsed().as_secs_f64());
         ours = Some(vs);
         let t = Instant::now();
         gdal_once()?;
@@ -132,7 +140,7 @@ fn run(case: &Case, tmp: &Path, runs: usize) -> anyhow::Result<()> {
     }
     let ours = ours.expect("runs > 0");
     let (ours_s, write_s, gdal_s) = (median(t_ours), median(t_write), median(t_gdal));
-    let whole_s = median(t_whole);
+    let (whole_s, raw_s) = (median(t_whole), median(t_raw));
     let cells = map.width * map.height;
     let exact = if cells <= 20_000_000 {
         let (e, s) = best_of(1, || -> anyhow::Result<_> {
@@ -178,7 +186,7 @@ fn run(case: &Case, tmp: &Path, runs: usize) -> anyhow::Result<()> {
         None => ("-".into(), "-".into()),
     };
     println!(
-        "| {} | {} x {} | cell ({}, {}), {} m | {:.2} % | {} | {:.1} ms | {:.1} ms | {:.1} ms | {} | {:.1} ms | {:.2} | {:.2} |",
+        "| {} | {} x {} | cell ({}, {}), {} m | {:.2} % | {} | {:.1} ms | {:.1} ms | {:.1} ms | {:.1} ms | {} | {:.1} ms | {:.2} | {:.2} | {:.2} |",
         case.name,
         map.width,
         map.height,
@@ -190,10 +198,12 @@ fn run(case: &Case, tmp: &Path, runs: usize) -> anyhow::Result<()> {
         whole_s * 1e3,
         ours_s * 1e3,
         write_s * 1e3,
+        raw_s * 1e3,
         exact_ms,
         gdal_s * 1e3,
         ours_s / gdal_s,
-        write_s / gdal_s
+        write_s / gdal_s,
+        raw_s / gdal_s
     );
     Ok(())
 }
@@ -260,9 +270,9 @@ fn main() -> anyhow::Result<()> {
         case("zion 8192^2 (resampled)", big8k, 4096, 1640, 1.7),
     ];
     println!(
-        "| DEM | cells | observer | agreement with GDAL | agreement with exact | read whole + sweep | demsketch | demsketch + write | exact | gdal_viewshed | demsketch / GDAL | + write / GDAL |"
+        "| DEM | cells | observer | agreement with GDAL | agreement with exact | read whole + sweep | demsketch | + write | + write as GDAL | exact | gdal_viewshed | demsketch / GDAL | + write / GDAL | + write as GDAL / GDAL |"
     );
-    println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     for c in cases.iter().filter(|c| wanted(&c.name)) {
         run(c, tmp.path(), runs)?;
     }

@@ -9,7 +9,9 @@
 //!
 //! Three ways to compute it:
 //! - [`viewshed`] (and [`viewshed_from_dem`], the same answer without
-//!   building a [`LocalTerrain`]), the default: horizon propagation. The
+//!   building a [`LocalTerrain`], and [`viewshed_from_file`], the same
+//!   again with the DEM read from its file in bands of rows as the sweep
+//!   reaches them, never whole), the default: horizon propagation. The
 //!   grid is cut into four quadrants around the eye, swept in parallel,
 //!   each row by row outward from the eye and each row outward from the
 //!   eye's column (as gdal_viewshed sweeps). Every vertex keeps its horizon,
@@ -22,7 +24,9 @@
 //!   constant; cells within [`EXACT_NEAR_CELLS`] of the eye are decided by
 //!   an exact walk over the triangulated surface. It agrees with exact
 //!   lines of sight on all but cells next to a horizon (99.3 to 99.99 % on
-//!   the fixtures' viewpoints, see `tests/view_viewshed.rs`).
+//!   the fixtures' viewpoints, see `tests/view_viewshed.rs`). Rows away
+//!   from the eye run in vector passes ([`RowScratch`]), which give the
+//!   same bits as the cell-by-cell rule.
 //! - [`viewshed_rays`], the previous default: a radial sweep in the manner
 //!   of Franklin and Ray's R2 (one exact ray per border vertex, each owning
 //!   the vertices nearest it; about as accurate, several times slower).
@@ -213,7 +217,9 @@ pub fn viewshed_from_dem(
 /// DEM is never in memory as a whole, and each band is swept while its
 /// blocks are still in cache. The same answer as [`viewshed_from_dem`] on
 /// the DEM read whole, bit for bit; `frame` is on `dem`'s grid (see
-/// [`eye_frame`]). Fails when a band cannot be read.
+/// [`eye_frame`]). Open `dem` with [`Dem::without_block_cache`]: the bands
+/// are read once, and a cache would keep their blocks. Fails when a band
+/// cannot be read.
 ///
 /// ```no_run
 /// # use demsketch::render::{eye_frame, viewshed_from_file};
