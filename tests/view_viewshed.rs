@@ -289,6 +289,10 @@ fn viewshed_from_file_is_the_whole_read() {
     let mut cases: Vec<(std::path::PathBuf, usize, usize, Option<f64>)> = vec![
         (fixture("zion_srtm_utm12n.tif"), 210, 103, None),
         (fixture("zion_srtm_utm12n.tif"), 30, 480, Some(5_000.0)),
+        // small windows, eyes on the edges
+        (fixture("zion_srtm_utm12n.tif"), 210, 103, Some(10.0)),
+        (fixture("zion_srtm_utm12n.tif"), 12, 0, Some(20.0)),
+        (fixture("zion_srtm_utm12n.tif"), 0, 485, None),
         (fixture("arenal_aster30m_epsg4326.tif"), 120, 100, None),
         (fixture("nz_1km_nan_nodata.tif"), 600, 800, None),
         (
@@ -341,7 +345,7 @@ fn viewshed_from_file_is_the_whole_read() {
         assert_eq!(near.eye_pixel, frame.eye_pixel, "{}", path.display());
         let want = viewshed_from_dem(&whole, &frame, max_d, 0.0);
         let got = viewshed_from_file(&dem, &near, max_d, 0.0).unwrap();
-        assert!(want.visible_count() > 0);
+        assert!(want.visible_count() > 0, "{}", path.display());
         assert_eq!(
             got.data,
             want.data,

@@ -242,6 +242,8 @@ pub fn viewshed_from_file(
     let nx = c1.saturating_sub(c0).max(1);
     let ny = r1.saturating_sub(r0).max(1);
     if nx < 2 || ny < 2 {
+        // (only a DEM under 2 cells wide or high: the window is grown by
+        // 2 cells around the eye)
         let map = dem.read_height_map(dem.full_window())?;
         return Ok(viewshed_from_dem(&map, frame, max_distance, target_height));
     }
