@@ -280,7 +280,8 @@ fn sweep_decides_every_cell() {
 /// the eye ([`eye_frame`]) is the one found on the whole DEM: on striped and
 /// tiled files (Int16, Float32 with NaN holes), copies re-tiled so that the
 /// bands and blocks cut the eye's rows and columns (16 x 16 tiles, one row
-/// per strip), from the whole DEM and within a maximum distance.
+/// per strip) or in one strip (read whole), from the whole DEM and within
+/// a maximum distance, eyes on the edges included.
 #[test]
 fn viewshed_from_file_is_the_whole_read() {
     use demsketch::raster::{read_height_map, Dem};
@@ -329,6 +330,17 @@ fn viewshed_from_file_is_the_whole_read() {
             cases.push((p.clone(), 210, 103, None));
             cases.push((p, 400, 20, Some(3_000.0)));
         }
+        // a file in one strip of more rows than a band takes: read whole
+        let p = dir.path().join("one_strip.tif");
+        let st = std::process::Command::new("gdal_translate")
+            .args(["-q", "-outsize", "400%", "400%", "-r", "cubic"])
+            .args(["-co", "BLOCKYSIZE=2060"])
+            .arg(fixture("zion_srtm_utm12n.tif"))
+            .arg(&p)
+            .status()
+            .unwrap();
+        assert!(st.success());
+        cases.push((p, 842, 414, None));
     }
     for (path, col, row, max_d) in cases {
         let whole = read_height_map(&path).unwrap();

@@ -213,9 +213,9 @@ pub fn viewshed_from_dem(
 
 /// [`viewshed_from_dem`] over a DEM read from its file as the sweep goes:
 /// each quadrant reads bands of whole blocks of rows outward from the eye
-/// into a buffer of its own (as gdal_viewshed reads lines), so that the
-/// DEM is never in memory as a whole, and each band is swept while its
-/// blocks are still in cache. The same answer as [`viewshed_from_dem`] on
+/// into a buffer of its own that it reuses (as gdal_viewshed reads lines),
+/// so that the DEM is never in memory as a whole (on 8192^2 cells, a few
+/// MB instead of a 256 MB copy and its page faults). The same answer as [`viewshed_from_dem`] on
 /// the DEM read whole, bit for bit; `frame` is on `dem`'s grid (see
 /// [`eye_frame`]). Open `dem` with [`Dem::without_block_cache`]: the bands
 /// are read once, and a cache would keep their blocks. Fails when a band
@@ -247,10 +247,17 @@ pub fn viewshed_from_file(
         let map = dem.read_height_map(dem.full_window())?;
         return Ok(viewshed_from_dem(&map, frame, max_distance, target_height));
     }
+    let band_rows = FileHeights::band_rows(dem);
+    if band_rows > MAX_BAND_ROWS {
+        // blocks of more rows than that (a file in one strip): each band
+        // would hold much of the DEM, once per quadrant; read it once
+        let map = dem.read_height_map(dem.full_window())?;
+        return Ok(viewshed_from_dem(&map, frame, max_distance, target_height));
+    }
     let ap = Apparent::new(frame, (c0, r0, nx), max_d);
     let (ex, ey) = frame.eye_pixel;
     let eye = (ex - 0.5 - c0 as f64, ey - 0.5 - r0 as f64);
-    let heights = FileHeights::new(dem, ap, ny, eye)?;
+    let heights = FileHeights::new(dem, ap, band_rows, ny, eye)?;
     let prop = Prop::new(&heights, frame, (c0, r0, nx, ny), max_d, target_height);
     prop.run(dem.width, dem.height, &dem.geotransform, &dem.crs)
 }
@@ -482,12 +489,18 @@ struct FileHeights<'a> {
     near: (usize, usize, HeightMap),
 }
 
+/// The most rows a band of [`FileHeights`] may have: a DEM whose blocks
+/// have more (one strip for the whole file, say) is read whole instead.
+const MAX_BAND_ROWS: usize = 1024;
+
 /// Window vertices on each side of the eye that [`FileHeights`] keeps for
 /// the exact walk near the eye (which reaches [`EXACT_NEAR_CELLS`] + 2).
 const NEAR_MARGIN: usize = 8;
 
 impl<'a> FileHeights<'a> {
-    fn new(dem: &'a Dem, ap: Apparent, ny: usize, eye: (f64, f64)) -> Result<Self, RenderError> {
+    /// Rows per band on `dem`: at least 64, a multiple of the blocks'
+    /// height (of a single GeoTIFF; 64 for other DEMs).
+    fn band_rows(dem: &Dem) -> usize {
         let block = match dem.tiles.as_slice() {
             [t] => match &t.source {
                 crate::raster::TileSource::Tiff(tiff) => tiff.layout.block_height as usize,
@@ -496,7 +509,16 @@ impl<'a> FileHeights<'a> {
             _ => 64,
         }
         .max(1);
-        let band_rows = block * 64usize.div_ceil(block);
+        block * 64usize.div_ceil(block)
+    }
+
+    fn new(
+        dem: &'a Dem,
+        ap: Apparent,
+        band_rows: usize,
+        ny: usize,
+        eye: (f64, f64),
+    ) -> Result<Self, RenderError> {
         let span = |e: f64, n: usize| {
             let e = floor(e).max(0.0) as usize;
             let lo = e.saturating_sub(NEAR_MARGIN).min(n.saturating_sub(1));
