@@ -280,7 +280,8 @@ fn sweep_decides_every_cell() {
 /// the eye ([`eye_frame`]) is the one found on the whole DEM: on striped and
 /// tiled files (Int16, Float32 with NaN holes), copies re-tiled so that the
 /// bands and blocks cut the eye's rows and columns (16 x 16 tiles, one row
-/// per strip) or in one strip (read whole), from the whole DEM and within
+/// per strip) or in one strip (read whole), a directory of tiles of
+/// different block heights, from the whole DEM and within
 /// a maximum distance, eyes on the edges included.
 #[test]
 fn viewshed_from_file_is_the_whole_read() {
@@ -341,6 +342,30 @@ fn viewshed_from_file_is_the_whole_read() {
             .unwrap();
         assert!(st.success());
         cases.push((p, 842, 414, None));
+        // a directory of tiles of different block heights, cut away from
+        // the bands' rows
+        let tiles = dir.path().join("tiles");
+        std::fs::create_dir(&tiles).unwrap();
+        for (i, (c, r, w, h, block)) in [
+            (0, 0, 200, 170, "BLOCKYSIZE=7"),
+            (200, 0, 222, 170, "BLOCKYSIZE=100"),
+            (0, 170, 422, 345, "BLOCKYSIZE=32"),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            let st = std::process::Command::new("gdal_translate")
+                .args(["-q", "-srcwin"])
+                .args([c, r, w, h].map(|v: i32| v.to_string()))
+                .args(["-co", block])
+                .arg(fixture("zion_srtm_utm12n.tif"))
+                .arg(tiles.join(format!("t{i}.tif")))
+                .status()
+                .unwrap();
+            assert!(st.success());
+        }
+        cases.push((tiles.clone(), 210, 103, None));
+        cases.push((tiles, 150, 180, Some(4_000.0)));
     }
     for (path, col, row, max_d) in cases {
         let whole = read_height_map(&path).unwrap();

@@ -498,17 +498,21 @@ const MAX_BAND_ROWS: usize = 1024;
 const NEAR_MARGIN: usize = 8;
 
 impl<'a> FileHeights<'a> {
-    /// Rows per band on `dem`: at least 64, a multiple of the blocks'
-    /// height (of a single GeoTIFF; 64 for other DEMs).
+    /// Rows per band on `dem`: at least 64, a multiple of the height of
+    /// its GeoTIFF blocks (the tallest, when its tiles differ: a block of a
+    /// tile whose rows do not start on a band's then spans two bands, and
+    /// is decoded twice, not once per band it would otherwise cross).
     fn band_rows(dem: &Dem) -> usize {
-        let block = match dem.tiles.as_slice() {
-            [t] => match &t.source {
-                crate::raster::TileSource::Tiff(tiff) => tiff.layout.block_height as usize,
-                crate::raster::TileSource::Gdal(_) => 64,
-            },
-            _ => 64,
-        }
-        .max(1);
+        let block = dem
+            .tiles
+            .iter()
+            .filter_map(|t| match &t.source {
+                crate::raster::TileSource::Tiff(tiff) => Some(tiff.layout.block_height as usize),
+                crate::raster::TileSource::Gdal(_) => None,
+            })
+            .max()
+            .unwrap_or(64)
+            .max(1);
         block * 64usize.div_ceil(block)
     }
 
