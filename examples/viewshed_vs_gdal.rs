@@ -2,22 +2,32 @@
 //! run, on the same DEM, observer and curvature coefficient (0.85714, i.e.
 //! refraction k = 1/7). For each case prints the share of valid cells on
 //! which the two agree and the wall-clock time of each, the median of
-//! several runs alternating between the two: ours covers reading the DEM,
-//! resolving the viewpoint and computing the viewshed (`viewshed_from_dem`,
-//! in-process), and, in its own column, also writing it as a GeoTIFF; GDAL's
-//! is the `gdal_viewshed` process (read, compute, write). It also times the
+//! several runs alternating between them: ours covers opening the DEM,
+//! resolving the viewpoint and computing the viewshed while the DEM is read
+//! in bands of rows (`viewshed_from_file`, in-process), and, in its own
+//! columns, also writing it as a GeoTIFF (`write_viewshed_tiff`: PackBits
+//! tiles; and, "as GDAL", striped and uncompressed as gdal_viewshed
+//! writes); "read whole + sweep" is the
+//! previous way (the DEM read whole, then `viewshed_from_dem`; checked to
+//! give the same bytes); GDAL's is the `gdal_viewshed` process (read,
+//! compute, write). It also times the
 //! exact reference (one cast per cell, `viewshed_exact`, once; skipped
 //! above 20 M cells) and gives our agreement with it.
 //!
-//!     cargo run --release --example viewshed_vs_gdal [-- RUNS]
+//!     cargo run --release --example viewshed_vs_gdal [-- RUNS [WORD...]]
+//!
+//! (with WORDs, only the cases whose name contains one, e.g. `5 4096 8192`)
 //!
 //! The cases are the three fixtures of `tests/view_viewshed.rs` (Zion UTM,
 //! Arenal in EPSG:4326, Vinschgau) and, for timings on larger grids, Zion
 //! resampled with `gdal_translate -outsize` to 1688 x 2060 (4x), 4096 x 4096
 //! and 8192 x 8192 cells.
 
-use demsketch::raster::read_height_map;
-use demsketch::render::{viewshed_exact, viewshed_from_dem, write_viewshed_tiff, LocalTerrain};
+use demsketch::raster::{read_height_map, Dem};
+use demsketch::render::{
+    eye_frame, viewshed_exact, viewshed_from_dem, viewshed_from_file, write_viewshed_tiff,
+    write_viewshed_tiff_with, LocalTerrain,
+};
 use demsketch::view::{Georef, Viewpoint};
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -60,7 +70,8 @@ fn run(case: &Case, tmp: &Path, runs: usize) -> anyhow::Result<()> {
         .pixel_to_crs(case.col as f64 + 0.5, case.row as f64 + 0.5);
     let georef = Georef::new(&map, &case.name)?;
     let (lon, lat) = georef.crs_to_lonlat(x, y)?;
-    let ours_once = || -> anyhow::Result<_> {
+    // the previous way: the DEM read whole, then swept
+    let whole_once = || -> anyhow::Result<_> {
         let map = read_height_map(&case.path)?;
         let georef = Georef::new(&map, &case.name)?;
         let frame = georef.local_frame(
@@ -69,6 +80,18 @@ fn run(case: &Case, tmp: &Path, runs: usize) -> anyhow::Result<()> {
             1.0 / 7.0,
         )?;
         Ok(viewshed_from_dem(&map, &frame, None, 0.0))
+    };
+    // streamed: bands of rows read as the sweep reaches them
+    let ours_once = || -> anyhow::Result<_> {
+        let dem = Dem::open(&case.path)?.without_block_cache();
+        let georef = Georef::for_crs(&dem.crs, &case.name)?;
+        let frame = eye_frame(
+            &dem,
+            &georef,
+            &Viewpoint::above_surface(lon, lat, case.eye),
+            1.0 / 7.0,
+        )?;
+        Ok(viewshed_from_file(&dem, &frame, None, 0.0)?)
     };
     let out = tmp.join(format!("{}.gdal.tif", case.name));
     let ours_tif = tmp.join(format!("{}.ours.tif", case.name));
@@ -83,10 +106,19 @@ fn run(case: &Case, tmp: &Path, runs: usize) -> anyhow::Result<()> {
         anyhow::ensure!(st.success(), "gdal_viewshed failed on {}", case.name);
         Ok(())
     };
-    // alternate: ours, ours + write, GDAL; medians
+    // alternate: read whole, ours, ours + write, GDAL; medians
     let (mut t_ours, mut t_write, mut t_gdal) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut t_whole, mut t_raw) = (Vec::new(), Vec::new());
     let mut ours = None;
     for _ in 0..runs {
+        let t = Instant::now();
+        let whole = whole_once()?;
+        t_whole.push(t.elapsed().as_secs_f64());
+        if let Some(prev) = &ours {
+            let prev: &demsketch::render::Viewshed = prev;
+            anyhow::ensure!(prev.data == whole.data, "streamed and whole differ");
+        }
+        drop(whole);
         let t = Instant::now();
         let vs = ours_once()?;
         t_ours.push(t.elapsed().as_secs_f64());
@@ -95,6 +127,12 @@ fn run(case: &Case, tmp: &Path, runs: usize) -> anyhow::Result<()> {
         let vs = ours_once()?;
         write_viewshed_tiff(&vs, &ours_tif)?;
         t_write.push(t.elapsed().as_secs_f64());
+        drop(vs);
+        // the same, written as gdal_viewshed writes (striped, uncompressed)
+        let t = Instant::now();
+        let vs = ours_once()?;
+        write_viewshed_tiff_with(&vs, &ours_tif, &[])?;
+        t_raw.push(t.elapsed().as_secs_f64());
         ours = Some(vs);
         let t = Instant::now();
         gdal_once()?;
@@ -102,6 +140,7 @@ fn run(case: &Case, tmp: &Path, runs: usize) -> anyhow::Result<()> {
     }
     let ours = ours.expect("runs > 0");
     let (ours_s, write_s, gdal_s) = (median(t_ours), median(t_write), median(t_gdal));
+    let (whole_s, raw_s) = (median(t_whole), median(t_raw));
     let cells = map.width * map.height;
     let exact = if cells <= 20_000_000 {
         let (e, s) = best_of(1, || -> anyhow::Result<_> {
@@ -147,7 +186,7 @@ fn run(case: &Case, tmp: &Path, runs: usize) -> anyhow::Result<()> {
         None => ("-".into(), "-".into()),
     };
     println!(
-        "| {} | {} x {} | cell ({}, {}), {} m | {:.2} % | {} | {:.1} ms | {:.1} ms | {} | {:.1} ms | {:.2} | {:.2} |",
+        "| {} | {} x {} | cell ({}, {}), {} m | {:.2} % | {} | {:.1} ms | {:.1} ms | {:.1} ms | {:.1} ms | {} | {:.1} ms | {:.2} | {:.2} | {:.2} |",
         case.name,
         map.width,
         map.height,
@@ -156,12 +195,15 @@ fn run(case: &Case, tmp: &Path, runs: usize) -> anyhow::Result<()> {
         case.eye,
         100.0 * agree as f64 / total as f64,
         vs_exact,
+        whole_s * 1e3,
         ours_s * 1e3,
         write_s * 1e3,
+        raw_s * 1e3,
         exact_ms,
         gdal_s * 1e3,
         ours_s / gdal_s,
-        write_s / gdal_s
+        write_s / gdal_s,
+        raw_s / gdal_s
     );
     Ok(())
 }
@@ -172,10 +214,16 @@ fn main() -> anyhow::Result<()> {
         None => 5,
     };
     anyhow::ensure!(runs > 0, "RUNS must be at least 1");
+    // optional: only the cases whose name contains one of these words
+    let only: Vec<String> = std::env::args().skip(2).collect();
+    let wanted = |name: &str| only.is_empty() || only.iter().any(|w| name.contains(w.as_str()));
     let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures");
     let tmp = tempfile::tempdir()?;
     let resampled = |name: &str, w: &str, h: &str| -> anyhow::Result<PathBuf> {
         let p = tmp.path().join(name);
+        if !wanted(name) {
+            return Ok(p);
+        }
         let st = Command::new("gdal_translate")
             .args(["-q", "-outsize", w, h, "-r", "cubic"])
             .args(["-co", "TILED=YES"])
@@ -222,10 +270,10 @@ fn main() -> anyhow::Result<()> {
         case("zion 8192^2 (resampled)", big8k, 4096, 1640, 1.7),
     ];
     println!(
-        "| DEM | cells | observer | agreement with GDAL | agreement with exact | demsketch | demsketch + write | exact | gdal_viewshed | demsketch / GDAL | + write / GDAL |"
+        "| DEM | cells | observer | agreement with GDAL | agreement with exact | read whole + sweep | demsketch | + write | + write as GDAL | exact | gdal_viewshed | demsketch / GDAL | + write / GDAL | + write as GDAL / GDAL |"
     );
-    println!("|---|---|---|---|---|---|---|---|---|---|---|");
-    for c in &cases {
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    for c in cases.iter().filter(|c| wanted(&c.name)) {
         run(c, tmp.path(), runs)?;
     }
     Ok(())

@@ -273,3 +273,166 @@ fn sweep_decides_every_cell() {
         }
     }
 }
+
+/// The viewshed streamed from the file ([`viewshed_from_file`]: bands of
+/// rows read as the sweep reaches them) gives the bytes of the DEM read
+/// whole ([`viewshed_from_dem`]), and the frame found from the cells around
+/// the eye ([`eye_frame`]) is the one found on the whole DEM: on striped and
+/// tiled files (Int16, Float32 with NaN holes), copies re-tiled so that the
+/// bands and blocks cut the eye's rows and columns (16 x 16 tiles, one row
+/// per strip) or in one strip (read whole), a directory of tiles of
+/// different block heights, from the whole DEM and within
+/// a maximum distance, eyes on the edges included.
+#[test]
+fn viewshed_from_file_is_the_whole_read() {
+    use demsketch::raster::{read_height_map, Dem};
+    use demsketch::render::{eye_frame, viewshed_from_file};
+    let dir = tempfile::tempdir().unwrap();
+    let mut cases: Vec<(std::path::PathBuf, usize, usize, Option<f64>)> = vec![
+        (fixture("zion_srtm_utm12n.tif"), 210, 103, None),
+        (fixture("zion_srtm_utm12n.tif"), 30, 480, Some(5_000.0)),
+        // small windows, eyes on the edges
+        (fixture("zion_srtm_utm12n.tif"), 210, 103, Some(10.0)),
+        (fixture("zion_srtm_utm12n.tif"), 12, 0, Some(20.0)),
+        (fixture("zion_srtm_utm12n.tif"), 0, 485, None),
+        (fixture("arenal_aster30m_epsg4326.tif"), 120, 100, None),
+        (fixture("nz_1km_nan_nodata.tif"), 600, 800, None),
+        (
+            fixture("texas_srtm90m_tiled_int16.tif"),
+            180,
+            180,
+            Some(8_000.0),
+        ),
+    ];
+    if have_tool("gdal_translate") {
+        for (co, name) in [
+            (
+                &[
+                    "-co",
+                    "TILED=YES",
+                    "-co",
+                    "BLOCKXSIZE=16",
+                    "-co",
+                    "BLOCKYSIZE=16",
+                ][..],
+                "t16.tif",
+            ),
+            (&["-co", "BLOCKYSIZE=1"][..], "s1.tif"),
+        ] {
+            let p = dir.path().join(name);
+            let st = std::process::Command::new("gdal_translate")
+                .arg("-q")
+                .args(co)
+                .arg(fixture("zion_srtm_utm12n.tif"))
+                .arg(&p)
+                .status()
+                .unwrap();
+            assert!(st.success());
+            cases.push((p.clone(), 210, 103, None));
+            cases.push((p, 400, 20, Some(3_000.0)));
+        }
+        // a file in one strip of more rows than a band takes: read whole
+        let p = dir.path().join("one_strip.tif");
+        let st = std::process::Command::new("gdal_translate")
+            .args(["-q", "-outsize", "400%", "400%", "-r", "cubic"])
+            .args(["-co", "BLOCKYSIZE=2060"])
+            .arg(fixture("zion_srtm_utm12n.tif"))
+            .arg(&p)
+            .status()
+            .unwrap();
+        assert!(st.success());
+        cases.push((p, 842, 414, None));
+        // a directory of tiles of different block heights, cut away from
+        // the bands' rows
+        let tiles = dir.path().join("tiles");
+        std::fs::create_dir(&tiles).unwrap();
+        for (i, (c, r, w, h, block)) in [
+            (0, 0, 200, 170, "BLOCKYSIZE=7"),
+            (200, 0, 222, 170, "BLOCKYSIZE=100"),
+            (0, 170, 422, 345, "BLOCKYSIZE=32"),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            let st = std::process::Command::new("gdal_translate")
+                .args(["-q", "-srcwin"])
+                .args([c, r, w, h].map(|v: i32| v.to_string()))
+                .args(["-co", block])
+                .arg(fixture("zion_srtm_utm12n.tif"))
+                .arg(tiles.join(format!("t{i}.tif")))
+                .status()
+                .unwrap();
+            assert!(st.success());
+        }
+        cases.push((tiles.clone(), 210, 103, None));
+        cases.push((tiles, 150, 180, Some(4_000.0)));
+    }
+    for (path, col, row, max_d) in cases {
+        let whole = read_height_map(&path).unwrap();
+        let dem = Dem::open(&path).unwrap().without_block_cache();
+        let (x, y) = whole
+            .geotransform
+            .pixel_to_crs(col as f64 + 0.5, row as f64 + 0.5);
+        let georef = Georef::new(&whole, "dem").unwrap();
+        let (lon, lat) = georef.crs_to_lonlat(x, y).unwrap();
+        let vp = Viewpoint::above_surface(lon, lat, 1.7);
+        let frame = georef.local_frame(&vp, &whole, 1.0 / 7.0).unwrap();
+        let near = eye_frame(&dem, &georef, &vp, 1.0 / 7.0).unwrap();
+        assert_eq!(near.eye_alt, frame.eye_alt, "{}", path.display());
+        assert_eq!(near.eye_pixel, frame.eye_pixel, "{}", path.display());
+        let want = viewshed_from_dem(&whole, &frame, max_d, 0.0);
+        let got = viewshed_from_file(&dem, &near, max_d, 0.0).unwrap();
+        assert!(want.visible_count() > 0, "{}", path.display());
+        assert_eq!(
+            got.data,
+            want.data,
+            "{} from ({col}, {row})",
+            path.display()
+        );
+        assert_eq!(got.geotransform.0, whole.geotransform.0);
+    }
+}
+
+/// A file that cannot be read while the viewshed streams it is an error,
+/// not a panic: a tiled, compressed GeoTIFF whose far tiles are garbage.
+#[test]
+fn viewshed_from_a_corrupt_file_is_an_error() {
+    use demsketch::raster::Dem;
+    use demsketch::render::{eye_frame, viewshed_from_file};
+    if !have_tool("gdal_translate") {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("t.tif");
+    let st = std::process::Command::new("gdal_translate")
+        .args([
+            "-q",
+            "-co",
+            "TILED=YES",
+            "-co",
+            "BLOCKXSIZE=16",
+            "-co",
+            "BLOCKYSIZE=16",
+        ])
+        .args(["-co", "COMPRESS=DEFLATE"])
+        .arg(fixture("zion_srtm_utm12n.tif"))
+        .arg(&p)
+        .status()
+        .unwrap();
+    assert!(st.success());
+    // the tiles of the last rows (the header and the eye's rows are first)
+    let mut bytes = std::fs::read(&p).unwrap();
+    let n = bytes.len();
+    for b in &mut bytes[n * 7 / 10..n * 95 / 100] {
+        *b = 0xab;
+    }
+    std::fs::write(&p, &bytes).unwrap();
+    let dem = Dem::open(&p).unwrap().without_block_cache();
+    let georef = Georef::for_crs(&dem.crs, "t").unwrap();
+    let (x, y) = dem.geotransform.pixel_to_crs(210.5, 103.5);
+    let (lon, lat) = georef.crs_to_lonlat(x, y).unwrap();
+    let vp = Viewpoint::above_surface(lon, lat, 1.7);
+    let frame = eye_frame(&dem, &georef, &vp, 1.0 / 7.0).unwrap();
+    let r = viewshed_from_file(&dem, &frame, None, 0.0);
+    assert!(r.is_err(), "a corrupt file read without error");
+}

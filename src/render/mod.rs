@@ -38,7 +38,8 @@ pub use terrain::{LocalTerrain, RayHit};
 pub use triangle_raster::PATCH_TOLERANCE_PX;
 pub use vertex_heights::VertexHeights;
 pub use viewshed::{
-    viewshed, viewshed_exact, viewshed_from_dem, viewshed_rays, write_viewshed_tiff, Viewshed,
+    eye_frame, viewshed, viewshed_exact, viewshed_from_dem, viewshed_from_file, viewshed_rays,
+    write_viewshed_tiff, write_viewshed_tiff_with, Viewshed, VIEWSHED_TIFF_OPTIONS,
 };
 
 /// Errors of rendering and writing views. One line naming the file and the problem.

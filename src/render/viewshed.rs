@@ -9,7 +9,9 @@
 //!
 //! Three ways to compute it:
 //! - [`viewshed`] (and [`viewshed_from_dem`], the same answer without
-//!   building a [`LocalTerrain`]), the default: horizon propagation. The
+//!   building a [`LocalTerrain`], and [`viewshed_from_file`], the same
+//!   again with the DEM read from its file in bands of rows as the sweep
+//!   reaches them, never whole), the default: horizon propagation. The
 //!   grid is cut into four quadrants around the eye, swept in parallel,
 //!   each row by row outward from the eye and each row outward from the
 //!   eye's column (as gdal_viewshed sweeps). Every vertex keeps its horizon,
@@ -22,7 +24,9 @@
 //!   constant; cells within [`EXACT_NEAR_CELLS`] of the eye are decided by
 //!   an exact walk over the triangulated surface. It agrees with exact
 //!   lines of sight on all but cells next to a horizon (99.3 to 99.99 % on
-//!   the fixtures' viewpoints, see `tests/view_viewshed.rs`).
+//!   the fixtures' viewpoints, see `tests/view_viewshed.rs`). Rows away
+//!   from the eye run in vector passes ([`RowScratch`]), which give the
+//!   same bits as the cell-by-cell rule.
 //! - [`viewshed_rays`], the previous default: a radial sweep in the manner
 //!   of Franklin and Ray's R2 (one exact ray per border vertex, each owning
 //!   the vertices nearest it; about as accurate, several times slower).
@@ -32,8 +36,8 @@
 use super::atomic::write_atomically;
 use super::terrain::LocalTerrain;
 use super::RenderError;
-use crate::raster::{Crs, GeoTransform, HeightMap};
-use crate::view::LocalFrame;
+use crate::raster::{Crs, Dem, GeoTransform, HeightMap, Window};
+use crate::view::{Georef, LocalFrame, Viewpoint};
 use rayon::prelude::*;
 use std::path::Path;
 use std::sync::atomic::{AtomicU8, Ordering};
@@ -166,7 +170,7 @@ pub fn viewshed(terrain: &LocalTerrain, dem: &HeightMap, target_height: f64) -> 
         terrain.max_distance,
         target_height,
     );
-    prop.run(dem)
+    infallible(prop.run(dem.width, dem.height, &dem.geotransform, &dem.crs))
 }
 
 /// [`viewshed`] straight from the DEM: the same answer as
@@ -201,45 +205,152 @@ pub fn viewshed_from_dem(
     }
     let heights = DemHeights {
         dem,
-        c0,
-        r0,
-        nx,
-        p: frame.p,
-        eye_pixel: frame.eye_pixel,
-        coef: frame.curvature.coefficient(),
-        eye_alt: frame.eye_alt,
-        max_d2: max_d * max_d * 1.0001 + 1.0,
+        ap: Apparent::new(frame, (c0, r0, nx), max_d),
     };
-    Prop::new(&heights, frame, (c0, r0, nx, ny), max_d, target_height).run(dem)
+    let prop = Prop::new(&heights, frame, (c0, r0, nx, ny), max_d, target_height);
+    infallible(prop.run(dem.width, dem.height, &dem.geotransform, &dem.crs))
+}
+
+/// [`viewshed_from_dem`] over a DEM read from its file as the sweep goes:
+/// each quadrant reads bands of whole blocks of rows outward from the eye
+/// into a buffer of its own that it reuses (as gdal_viewshed reads lines),
+/// so that the DEM is never in memory as a whole (on 8192^2 cells, a few
+/// MB instead of a 256 MB copy and its page faults). The same answer as [`viewshed_from_dem`] on
+/// the DEM read whole, bit for bit; `frame` is on `dem`'s grid (see
+/// [`eye_frame`]). Open `dem` with [`Dem::without_block_cache`]: the bands
+/// are read once, and a cache would keep their blocks. Fails when a band
+/// cannot be read.
+///
+/// ```no_run
+/// # use demsketch::render::{eye_frame, viewshed_from_file};
+/// # fn f(dem: &demsketch::raster::Dem, georef: &demsketch::view::Georef,
+/// #      vp: &demsketch::view::Viewpoint) -> Result<(), demsketch::render::RenderError> {
+/// let frame = eye_frame(dem, georef, vp, 1.0 / 7.0)?;
+/// let vs = viewshed_from_file(dem, &frame, None, 0.0)?;
+/// # Ok(())
+/// # }
+/// ```
+pub fn viewshed_from_file(
+    dem: &Dem,
+    frame: &LocalFrame,
+    max_distance: Option<f64>,
+    target_height: f64,
+) -> Result<Viewshed, RenderError> {
+    let max_d = max_distance.filter(|d| *d > 0.0).unwrap_or(f64::INFINITY);
+    let (c0, r0, c1, r1) =
+        LocalTerrain::extent_in((dem.width, dem.height), frame, max_distance, None);
+    let nx = c1.saturating_sub(c0).max(1);
+    let ny = r1.saturating_sub(r0).max(1);
+    if nx < 2 || ny < 2 {
+        // (only a DEM under 2 cells wide or high: the window is grown by
+        // 2 cells around the eye)
+        let map = dem.read_height_map(dem.full_window())?;
+        return Ok(viewshed_from_dem(&map, frame, max_distance, target_height));
+    }
+    let band_rows = FileHeights::band_rows(dem);
+    if band_rows > MAX_BAND_ROWS {
+        // blocks of more rows than that (a file in one strip): each band
+        // would hold much of the DEM, once per quadrant; read it once
+        let map = dem.read_height_map(dem.full_window())?;
+        return Ok(viewshed_from_dem(&map, frame, max_distance, target_height));
+    }
+    let ap = Apparent::new(frame, (c0, r0, nx), max_d);
+    let (ex, ey) = frame.eye_pixel;
+    let eye = (ex - 0.5 - c0 as f64, ey - 0.5 - r0 as f64);
+    let heights = FileHeights::new(dem, ap, band_rows, ny, eye)?;
+    let prop = Prop::new(&heights, frame, (c0, r0, nx, ny), max_d, target_height);
+    prop.run(dem.width, dem.height, &dem.geotransform, &dem.crs)
+}
+
+/// The local frame of viewpoint `vp` on `dem`'s whole grid, reading only
+/// the cells around it (for [`viewshed_from_file`]): the frame
+/// [`Georef::local_frame`] gives on the DEM read whole.
+pub fn eye_frame(
+    dem: &Dem,
+    georef: &Georef,
+    vp: &Viewpoint,
+    refraction_k: f64,
+) -> Result<LocalFrame, RenderError> {
+    let size = (dem.width, dem.height);
+    let gt = dem.geotransform;
+    // where the eye is needs no heights: found first with any ground
+    let probe = georef.local_frame_on(vp, &gt, size, &|_, _| Some(0.0), refraction_k)?;
+    let (px, py) = probe.eye_pixel;
+    let c = (floor(px) as i64 - 2).max(0);
+    let r = (floor(py) as i64 - 2).max(0);
+    let win = Window::new(c, r, 5, 5)
+        .intersect(&dem.full_window())
+        .unwrap_or_else(|| Window::new(0, 0, 0, 0));
+    let near = dem.read_height_map(win)?;
+    let ground = |x: f64, y: f64| near.bilinear(x - win.col as f64, y - win.row as f64);
+    Ok(georef.local_frame_on(vp, &gt, size, &ground, refraction_k)?)
+}
+
+/// The value of a result that cannot fail.
+fn infallible<T>(r: Result<T, std::convert::Infallible>) -> T {
+    match r {
+        Ok(v) => v,
+        Err(e) => match e {},
+    }
 }
 
 /// Where [`Prop`] takes the apparent heights (relative to the eye,
 /// curvature and refraction subtracted) of the terrain's vertices from.
 trait Heights: Sync {
+    /// What reading a row may fail with ([`std::convert::Infallible`] for
+    /// heights in memory).
+    type Error: Send;
     /// Vertices `c_lo..=c_hi` of row `r` into `buf[c + 1]` (NaN: nodata).
-    fn row(&self, r: usize, c_lo: usize, c_hi: usize, buf: &mut [f64]);
-    /// Vertex `(c, r)`, NaN for nodata.
+    /// `band` is the calling sweep's own buffer of rows read ahead (used by
+    /// heights read from a file).
+    fn row(
+        &self,
+        r: usize,
+        c_lo: usize,
+        c_hi: usize,
+        buf: &mut [f64],
+        band: &mut Band,
+    ) -> Result<(), Self::Error>;
+    /// Vertex `(c, r)`, NaN for nodata (only asked for vertices within a
+    /// few cells of the eye).
     fn at(&self, c: usize, r: usize) -> f64;
 }
 
+/// Rows of DEM heights read ahead by one quadrant's sweep: DEM rows
+/// `rows.0..rows.1`, columns `cols.0..cols.1`, row-major, NaN for nodata.
+#[derive(Default)]
+struct Band {
+    rows: (usize, usize),
+    cols: (usize, usize),
+    data: Vec<f32>,
+}
+
 impl Heights for LocalTerrain {
-    fn row(&self, r: usize, c_lo: usize, c_hi: usize, buf: &mut [f64]) {
+    type Error = std::convert::Infallible;
+    fn row(
+        &self,
+        r: usize,
+        c_lo: usize,
+        c_hi: usize,
+        buf: &mut [f64],
+        _: &mut Band,
+    ) -> Result<(), Self::Error> {
         let row = self.z.row(r);
         let src = &row[c_lo..=c_hi];
         for (o, &v) in buf[c_lo + 1..=c_hi + 1].iter_mut().zip(src) {
             *o = v as f64;
         }
+        Ok(())
     }
     fn at(&self, c: usize, r: usize) -> f64 {
         self.z.at(r * self.nx + c) as f64
     }
 }
 
-/// The apparent heights of a window of a DEM, computed as
-/// [`LocalTerrain`] computes them (the same expression, so the same bits).
-struct DemHeights<'a> {
-    dem: &'a HeightMap,
-    /// The window: first column and row, and width.
+/// How the apparent height of a DEM cell is computed from its height, as
+/// [`LocalTerrain`] computes it (the same expression, so the same bits).
+struct Apparent {
+    /// The window's first column and row in the DEM, and its width.
     c0: usize,
     r0: usize,
     nx: usize,
@@ -249,48 +360,261 @@ struct DemHeights<'a> {
     eye_alt: f64,
     /// Squared distance beyond which vertices are nodata.
     max_d2: f64,
+    /// Per window column, the first terms of east and north (`p[0][0] *
+    /// dx` and `p[1][0] * dx`).
+    pe: Vec<f64>,
+    pn: Vec<f64>,
 }
 
-impl DemHeights<'_> {
-    /// Vertices `c_lo..=c_hi` of row `r` into `out` (as long).
-    fn fill(&self, r: usize, c_lo: usize, c_hi: usize, out: &mut [f64]) {
-        let src_r = self.r0 + r;
-        let dem = self.dem;
-        out.fill(f64::NAN);
-        if src_r >= dem.height {
+impl Apparent {
+    fn new(frame: &LocalFrame, (c0, r0, nx): (usize, usize, usize), max_d: f64) -> Self {
+        let (p, (ex, _)) = (frame.p, frame.eye_pixel);
+        let dx0 = c0 as f64 + 0.5 - ex;
+        let dx = |c: usize| dx0 + c as f64;
+        Apparent {
+            pe: (0..nx).map(|c| p[0][0] * dx(c)).collect(),
+            pn: (0..nx).map(|c| p[1][0] * dx(c)).collect(),
+            c0,
+            r0,
+            nx,
+            p: frame.p,
+            eye_pixel: frame.eye_pixel,
+            coef: frame.curvature.coefficient(),
+            eye_alt: frame.eye_alt,
+            max_d2: max_d * max_d * 1.0001 + 1.0,
+        }
+    }
+
+    /// The columns of the window's row that lie on a DEM `dem_width`
+    /// cells wide, of those asked for (`c_lo..=c_hi`): `c_lo..end`.
+    fn end(&self, dem_width: usize, c_lo: usize, c_hi: usize) -> usize {
+        let inside = dem_width.saturating_sub(self.c0).min(self.nx);
+        (c_hi + 1).min(inside).max(c_lo)
+    }
+
+    /// Apparent heights of window vertices `c_lo..` of DEM row `src_r`
+    /// from their DEM heights `src` into `out` (as long as `src`).
+    fn convert(&self, src_r: usize, c_lo: usize, src: &[f32], out: &mut [f64]) {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: AVX2 is present (detected at run time).
+            unsafe { self.convert_avx2(src_r, c_lo, src, out) };
             return;
         }
+        self.convert_any(src_r, c_lo, src, out);
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn convert_avx2(&self, src_r: usize, c_lo: usize, src: &[f32], out: &mut [f64]) {
+        self.convert_any(src_r, c_lo, src, out);
+    }
+
+    #[inline(always)]
+    fn convert_any(&self, src_r: usize, c_lo: usize, src: &[f32], out: &mut [f64]) {
         // the expression of LocalTerrain's build, term for term
-        let (p, (ex, ey)) = (self.p, self.eye_pixel);
+        // (the terms in dx from the tables, the same products)
+        let (p, (_, ey)) = (self.p, self.eye_pixel);
         let dy = src_r as f64 + 0.5 - ey;
         let (e0, n0) = (p[0][1] * dy, p[1][1] * dy);
-        let dx0 = self.c0 as f64 + 0.5 - ex;
-        let inside = dem.width.saturating_sub(self.c0).min(self.nx);
-        let end = (c_hi + 1).min(inside);
-        if c_lo >= end {
-            return;
-        }
-        let base = src_r * dem.width + self.c0;
-        let src = &dem.data[base + c_lo..base + end];
         let (eye_alt, coef, max_d2) = (self.eye_alt, self.coef, self.max_d2);
-        for (k, (o, &h)) in out.iter_mut().zip(src).enumerate() {
-            let dx = dx0 + (c_lo + k) as f64;
-            let e = p[0][0] * dx + e0;
-            let n = p[1][0] * dx + n0;
-            let d2 = e * e + n * n;
+        let n = src.len().min(out.len());
+        let (pe, pn) = (&self.pe[c_lo..c_lo + n], &self.pn[c_lo..c_lo + n]);
+        let (src, out) = (&src[..n], &mut out[..n]);
+        for k in 0..n {
+            let h = src[k];
+            let o = &mut out[k];
+            let e = pe[k] + e0;
+            let nn = pn[k] + n0;
+            let d2 = e * e + nn * nn;
             let v = (h as f64 - eye_alt - coef * d2) as f32;
             *o = if d2 > max_d2 { f64::NAN } else { v as f64 };
         }
     }
 }
 
+/// The apparent heights of a window of a DEM in memory.
+struct DemHeights<'a> {
+    dem: &'a HeightMap,
+    ap: Apparent,
+}
+
+impl DemHeights<'_> {
+    /// Vertices `c_lo..=c_hi` of row `r` into `out` (as long).
+    fn fill(&self, r: usize, c_lo: usize, c_hi: usize, out: &mut [f64]) {
+        let src_r = self.ap.r0 + r;
+        let dem = self.dem;
+        out.fill(f64::NAN);
+        if src_r >= dem.height {
+            return;
+        }
+        let end = self.ap.end(dem.width, c_lo, c_hi);
+        let base = src_r * dem.width + self.ap.c0;
+        let src = &dem.data[base + c_lo..base + end];
+        self.ap.convert(src_r, c_lo, src, out);
+    }
+}
+
 impl Heights for DemHeights<'_> {
-    fn row(&self, r: usize, c_lo: usize, c_hi: usize, buf: &mut [f64]) {
+    type Error = std::convert::Infallible;
+    fn row(
+        &self,
+        r: usize,
+        c_lo: usize,
+        c_hi: usize,
+        buf: &mut [f64],
+        _: &mut Band,
+    ) -> Result<(), Self::Error> {
         self.fill(r, c_lo, c_hi, &mut buf[c_lo + 1..=c_hi + 1]);
+        Ok(())
     }
     fn at(&self, c: usize, r: usize) -> f64 {
         let mut one = [f64::NAN];
         self.fill(r, c, c, &mut one);
+        one[0]
+    }
+}
+
+/// The apparent heights of a window of a DEM read from its file in bands
+/// of rows as each quadrant's sweep reaches them (whole blocks of the file,
+/// so that no block is decoded twice by one quadrant), into a buffer the
+/// quadrant reuses: the DEM is never in memory as a whole.
+struct FileHeights<'a> {
+    dem: &'a Dem,
+    ap: Apparent,
+    /// Rows per band (a multiple of the file's block height).
+    band_rows: usize,
+    /// The vertices around the eye ([`Heights::at`]): window vertex
+    /// `(near.0, near.1)` is the map's first cell.
+    near: (usize, usize, HeightMap),
+}
+
+/// The most rows a band of [`FileHeights`] may have: a DEM whose blocks
+/// have more (one strip for the whole file, say) is read whole instead.
+const MAX_BAND_ROWS: usize = 1024;
+
+/// Window vertices on each side of the eye that [`FileHeights`] keeps for
+/// the exact walk near the eye (which reaches [`EXACT_NEAR_CELLS`] + 2).
+const NEAR_MARGIN: usize = 8;
+
+impl<'a> FileHeights<'a> {
+    /// Rows per band on `dem`: at least 64, a multiple of the height of
+    /// its GeoTIFF blocks (the tallest, when its tiles differ: a block of a
+    /// tile whose rows do not start on a band's then spans two bands, and
+    /// is decoded twice, not once per band it would otherwise cross).
+    fn band_rows(dem: &Dem) -> usize {
+        let block = dem
+            .tiles
+            .iter()
+            .filter_map(|t| match &t.source {
+                crate::raster::TileSource::Tiff(tiff) => Some(tiff.layout.block_height as usize),
+                crate::raster::TileSource::Gdal(_) => None,
+            })
+            .max()
+            .unwrap_or(64)
+            .max(1);
+        block * 64usize.div_ceil(block)
+    }
+
+    fn new(
+        dem: &'a Dem,
+        ap: Apparent,
+        band_rows: usize,
+        ny: usize,
+        eye: (f64, f64),
+    ) -> Result<Self, RenderError> {
+        let span = |e: f64, n: usize| {
+            let e = floor(e).max(0.0) as usize;
+            let lo = e.saturating_sub(NEAR_MARGIN).min(n.saturating_sub(1));
+            let hi = (e + NEAR_MARGIN + 1).min(n);
+            (lo, hi.max(lo))
+        };
+        let (cl, ch) = span(eye.0, ap.end(dem.width, 0, ap.nx.saturating_sub(1)));
+        let (rl, rh) = span(eye.1, dem.height.saturating_sub(ap.r0).min(ny));
+        let win = Window::new((ap.c0 + cl) as i64, (ap.r0 + rl) as i64, ch - cl, rh - rl);
+        let map = if win.width > 0 && win.height > 0 {
+            dem.read_height_map(win)?
+        } else {
+            HeightMap {
+                width: 0,
+                height: 0,
+                data: Vec::new(),
+                geotransform: dem.geotransform,
+                crs: dem.crs.clone(),
+            }
+        };
+        Ok(FileHeights {
+            dem,
+            ap,
+            band_rows,
+            near: (cl, rl, map),
+        })
+    }
+}
+
+impl Heights for FileHeights<'_> {
+    type Error = RenderError;
+    fn row(
+        &self,
+        r: usize,
+        c_lo: usize,
+        c_hi: usize,
+        buf: &mut [f64],
+        band: &mut Band,
+    ) -> Result<(), RenderError> {
+        let out = &mut buf[c_lo + 1..=c_hi + 1];
+        out.fill(f64::NAN);
+        let src_r = self.ap.r0 + r;
+        let dem = self.dem;
+        if src_r >= dem.height {
+            return Ok(());
+        }
+        let end = self.ap.end(dem.width, c_lo, c_hi);
+        if end == c_lo {
+            return Ok(());
+        }
+        let cols = (self.ap.c0 + c_lo, self.ap.c0 + end);
+        if !(band.rows.0 <= src_r
+            && src_r < band.rows.1
+            && band.cols.0 <= cols.0
+            && cols.1 <= band.cols.1)
+        {
+            let lo = src_r / self.band_rows * self.band_rows;
+            let hi = (lo + self.band_rows).min(dem.height);
+            let win = Window::new(cols.0 as i64, lo as i64, cols.1 - cols.0, hi - lo);
+            // (the previous band's buffer goes first, so that the
+            // allocator hands its pages to the next)
+            band.data = Vec::new();
+            band.data = dem.read_height_map(win)?.data;
+            band.rows = (lo, hi);
+            band.cols = cols;
+        }
+        let w = band.cols.1 - band.cols.0;
+        let at = (src_r - band.rows.0) * w + (cols.0 - band.cols.0);
+        let src = &band.data[at..at + (cols.1 - cols.0)];
+        self.ap.convert(src_r, c_lo, src, out);
+        Ok(())
+    }
+    fn at(&self, c: usize, r: usize) -> f64 {
+        let (cl, rl, map) = &self.near;
+        let (Some(dc), Some(dr)) = (c.checked_sub(*cl), r.checked_sub(*rl)) else {
+            debug_assert!(false, "vertex ({c}, {r}) is not near the eye");
+            return f64::NAN;
+        };
+        if dc >= map.width || dr >= map.height {
+            debug_assert!(
+                c >= self.ap.nx || self.ap.r0 + r >= self.dem.height,
+                "vertex ({c}, {r}) is not near the eye"
+            );
+            return f64::NAN;
+        }
+        let mut one = [f64::NAN];
+        self.ap.convert(
+            self.ap.r0 + r,
+            c,
+            &map.data[dr * map.width + dc..][..1],
+            &mut one,
+        );
         one[0]
     }
 }
@@ -309,6 +633,10 @@ struct Prop<'a, H: Heights> {
     a: [[f64; 2]; 2],
     max_d2: f64,
     target_height: f64,
+    /// Rows away from the eye in vector passes ([`RowScratch`]; else
+    /// cell by cell, as the tests compare), with AVX2 where detected.
+    vector_rows: bool,
+    avx2: bool,
 }
 
 impl<'a, H: Heights> Prop<'a, H> {
@@ -336,12 +664,23 @@ impl<'a, H: Heights> Prop<'a, H> {
             a: [[e1 - e0, e2 - e0], [n1 - n0, n2 - n0]],
             max_d2: max_distance * max_distance,
             target_height,
+            vector_rows: true,
+            #[cfg(target_arch = "x86_64")]
+            avx2: std::arch::is_x86_feature_detected!("avx2"),
+            #[cfg(not(target_arch = "x86_64"))]
+            avx2: false,
         }
     }
 
-    /// The viewshed on `dem`'s grid, the four quadrants in parallel.
-    fn run(&self, dem: &HeightMap) -> Viewshed {
-        let (width, height) = (dem.width, dem.height);
+    /// The viewshed on the DEM's grid (`width` x `height` cells, with
+    /// that georeferencing), the four quadrants in parallel.
+    fn run(
+        &self,
+        width: usize,
+        height: usize,
+        geotransform: &GeoTransform,
+        crs: &Crs,
+    ) -> Result<Viewshed, H::Error> {
         let mut data = vec![0u8; width * height];
         {
             // SAFETY: AtomicU8 has the size, alignment and bit validity of
@@ -357,17 +696,17 @@ impl<'a, H: Heights> Prop<'a, H> {
             };
             [(1i8, 1i8), (1, -1), (-1, 1), (-1, -1)]
                 .into_par_iter()
-                .for_each(|(sx, sy)| {
-                    Quadrant::new(self.eye, (self.nx, self.ny), sx, sy).propagate(self, &grid);
-                });
+                .try_for_each(|(sx, sy)| {
+                    Quadrant::new(self.eye, (self.nx, self.ny), sx, sy).propagate(self, &grid)
+                })?;
         }
-        Viewshed {
+        Ok(Viewshed {
             width,
             height,
             data,
-            geotransform: dem.geotransform,
-            crs: dem.crs.clone(),
-        }
+            geotransform: *geotransform,
+            crs: crs.clone(),
+        })
     }
 }
 
@@ -410,16 +749,18 @@ impl Quadrant {
     }
 
     /// Sweep the quadrant, marking the visible cells it owns.
-    fn propagate<H: Heights>(&self, sweep: &Prop<H>, grid: &OutGrid) {
+    fn propagate<H: Heights>(&self, sweep: &Prop<H>, grid: &OutGrid) -> Result<(), H::Error> {
         let nx = sweep.nx;
         let (eu, ev) = sweep.eye;
-        let fill = |r, c_lo, c_hi, buf: &mut [f64]| sweep.heights.row(r, c_lo, c_hi, buf);
+        let mut band = Band::default();
+        let mut fill =
+            |r, c_lo, c_hi, buf: &mut [f64]| sweep.heights.row(r, c_lo, c_hi, buf, &mut band);
         let pad = nx + 2;
         let (Some(&c_first), Some(&c_last)) = (self.cols.first(), self.cols.last()) else {
-            return;
+            return Ok(());
         };
         if self.rows.is_empty() {
-            return;
+            return Ok(());
         }
         let (c_lo, c_hi) = (c_first.min(c_last), c_first.max(c_last));
         let blank_z = vec![f64::NAN; pad];
@@ -441,9 +782,9 @@ impl Quadrant {
             // row a (and b, the other axis row, when there are two)
             let (mut g_a, mut g_b) = (blank_g.clone(), blank_g.clone());
             let (mut z_a, mut z_b) = (blank_z.clone(), blank_z.clone());
-            fill(axis[0], c_lo, c_hi, &mut z_a);
+            fill(axis[0], c_lo, c_hi, &mut z_a)?;
             if axis.len() > 1 {
-                fill(axis[1], c_lo, c_hi, &mut z_b);
+                fill(axis[1], c_lo, c_hi, &mut z_b)?;
             }
             for &c in &self.cols {
                 let vis = sweep.cell(c, axis[0], &z_a, &z_b, &mut g_a, &g_b);
@@ -464,18 +805,61 @@ impl Quadrant {
                 (g_prev, z_prev) = (g_a, z_a);
             }
         }
-        for &r in &self.rows[axis.len()..] {
-            fill(r, c_lo, c_hi, &mut z_cur);
+        let mut rows = RowScratch::new(sweep, pad);
+        let near = EXACT_NEAR_CELLS + 1.0;
+        // rows away from the eye in vector passes, two at a time
+        let far = |r: usize| sweep.vector_rows && (r as f64 - ev).abs() > near;
+        let (mut g_next, mut z_next) = (blank_g.clone(), blank_z.clone());
+        let rest = &self.rows[axis.len()..];
+        let mut j = 0;
+        while j < rest.len() {
+            let r = rest[j];
+            fill(r, c_lo, c_hi, &mut z_cur)?;
             let own_r = owns_row(r);
-            for &c in &self.cols {
-                let vis = sweep.cell(c, r, &z_cur, &z_prev, &mut g_cur, &g_prev);
-                if vis && own_r && owns_col(c) {
-                    grid.set(c, r);
+            let cells = |r, z_r, z_o| RowCells {
+                r,
+                sx: self.sx,
+                c_lo,
+                c_hi,
+                z_r,
+                z_o,
+            };
+            if far(r) && j + 1 < rest.len() {
+                let r2 = rest[j + 1];
+                fill(r2, c_lo, c_hi, &mut z_next)?;
+                let one = cells(r, &z_cur, &z_prev);
+                let two = cells(r2, &z_next, &z_cur);
+                rows.rows2(sweep, (&one, &two), &g_prev, &mut g_cur, &mut g_next);
+                if own_r {
+                    rows.mark(0, &one, grid);
+                }
+                if owns_row(r2) {
+                    rows.mark(1, &two, grid);
+                }
+                std::mem::swap(&mut g_next, &mut g_prev);
+                std::mem::swap(&mut z_next, &mut z_prev);
+                j += 2;
+                continue;
+            }
+            if far(r) {
+                let one = cells(r, &z_cur, &z_prev);
+                rows.row(sweep, &one, &g_prev, &mut g_cur);
+                if own_r {
+                    rows.mark(0, &one, grid);
+                }
+            } else {
+                for &c in &self.cols {
+                    let vis = sweep.cell(c, r, &z_cur, &z_prev, &mut g_cur, &g_prev);
+                    if vis && own_r && owns_col(c) {
+                        grid.set(c, r);
+                    }
                 }
             }
             std::mem::swap(&mut g_cur, &mut g_prev);
             std::mem::swap(&mut z_cur, &mut z_prev);
+            j += 1;
         }
+        Ok(())
     }
 }
 
@@ -649,6 +1033,519 @@ impl<H: Heights> Prop<'_, H> {
     }
 }
 
+/// The constants of one row's vector passes ([`RowScratch`]).
+struct RowPass {
+    /// `dv` times the second column of the metric matrix.
+    a01: f64,
+    a11: f64,
+    /// `|dv|`, the target height and the squared maximum distance.
+    adv: f64,
+    th: f64,
+    max_d2: f64,
+}
+
+/// Per column of a stretch: `du`, its east and north images, then
+/// heights of the row (`z_r`) and of the row before (`z_o`) and horizons
+/// of the row before (`g_o`), each at the column and at its neighbour
+/// towards the eye.
+type RowArgs<'a> = (
+    &'a [f64],
+    &'a [f64],
+    &'a [f64],
+    &'a [f64],
+    &'a [f64],
+    &'a [f64],
+    &'a [f64],
+    &'a [f64],
+    &'a [f64],
+);
+type ColArgs<'a> = (
+    &'a [f64],
+    &'a [f64],
+    &'a [f64],
+    &'a [f64],
+    &'a [f64],
+    &'a [f64],
+    &'a [f64],
+);
+
+impl RowPass {
+    /// [`Prop::cell`] over a stretch where the line of sight crosses the
+    /// previous row (`ANTI`: the vertices lie across a cell diagonal).
+    #[inline(always)]
+    fn rows<const ANTI: bool>(&self, args: RowArgs, g_r: &mut [f64], vis: &mut [u8]) {
+        let (du, ae, an, z_r, z_r_c, z_o, z_o_c, g_o, g_o_c) = args;
+        let n = g_r.len();
+        let (du, ae, an, z_r, z_r_c) = (&du[..n], &ae[..n], &an[..n], &z_r[..n], &z_r_c[..n]);
+        let (z_o, z_o_c, g_o, g_o_c, vis) = (
+            &z_o[..n],
+            &z_o_c[..n],
+            &g_o[..n],
+            &g_o_c[..n],
+            &mut vis[..n],
+        );
+        let (adv, am1) = (self.adv, self.adv - 1.0);
+        for k in 0..n {
+            let adu = du[k].abs();
+            let e = ae[k] + self.a01;
+            let nn = an[k] + self.a11;
+            let s2 = e * e + nn * nn;
+            let d = s2.sqrt();
+            let inv_d = 1.0 / d;
+            let w = adu / adv;
+            let (zq0, zq1) = (z_o[k], z_o_c[k]);
+            let mut h = g_o[k] * (1.0 - w) + g_o_c[k] * w;
+            let kk = adv * inv_d;
+            let zc = zq0 * (1.0 - w) + zq1 * w;
+            let t = zc * kk / am1;
+            h = if t > h { t } else { h };
+            if ANTI {
+                let s = w / (1.0 + w);
+                let zx = zq0 * (1.0 - s) + z_r_c[k] * s;
+                let t = zx * kk / (am1 + s);
+                h = if t > h { t } else { h };
+            }
+            let z = z_r[k];
+            let own = z * inv_d;
+            g_r[k] = if own > h { own } else { h };
+            vis[k] = (z + self.th + 1e-3 >= h * d && s2 <= self.max_d2) as u8;
+        }
+    }
+
+    /// What [`Prop::cell`] computes without the neighbour's horizon over a
+    /// stretch where the line of sight crosses the previous column: the
+    /// weight `w`, the largest tan elevation of the last step `tm`, the
+    /// vertex's own and its distance (NaN beyond the maximum distance).
+    #[inline(always)]
+    fn cols<const ANTI: bool>(
+        &self,
+        args: ColArgs,
+        (w_out, tm_out, own_out, dist_out): (&mut [f64], &mut [f64], &mut [f64], &mut [f64]),
+    ) {
+        let (du, ae, an, z_r, z_r_c, z_o, z_o_c) = args;
+        let n = w_out.len();
+        let (du, ae, an, z_r, z_r_c) = (&du[..n], &ae[..n], &an[..n], &z_r[..n], &z_r_c[..n]);
+        let (z_o, z_o_c) = (&z_o[..n], &z_o_c[..n]);
+        let (tm_out, own_out, dist_out) = (&mut tm_out[..n], &mut own_out[..n], &mut dist_out[..n]);
+        let adv = self.adv;
+        for k in 0..n {
+            let adu = du[k].abs();
+            let e = ae[k] + self.a01;
+            let nn = an[k] + self.a11;
+            let s2 = e * e + nn * nn;
+            let d = s2.sqrt();
+            let inv_d = 1.0 / d;
+            let w = adv / adu;
+            let (zq0, zq1) = (z_r_c[k], z_o_c[k]);
+            let kk = adu * inv_d;
+            let zc = zq0 * (1.0 - w) + zq1 * w;
+            let bm1 = adu - 1.0;
+            let mut tm = zc * kk / bm1;
+            if ANTI {
+                let s = w / (1.0 + w);
+                let zx = zq0 * (1.0 - s) + z_o[k] * s;
+                let t = zx * kk / (bm1 + s);
+                // the larger, a NaN (a hole) counting for nothing
+                tm = if t > tm || tm.is_nan() { t } else { tm };
+            }
+            w_out[k] = w;
+            tm_out[k] = tm;
+            own_out[k] = z_r[k] * inv_d;
+            dist_out[k] = if s2 <= self.max_d2 { d } else { f64::NAN };
+        }
+    }
+}
+
+/// One row of a quadrant for [`RowScratch`]: row `r`, swept in direction
+/// `sx` over columns `c_lo..=c_hi`, its heights `z_r` and those of the row
+/// before it `z_o` (towards the eye), indexed `c + 1`.
+struct RowCells<'a> {
+    r: usize,
+    sx: i8,
+    c_lo: usize,
+    c_hi: usize,
+    z_r: &'a [f64],
+    z_o: &'a [f64],
+}
+
+/// What [`RowScratch`] keeps of one row between its passes, per column
+/// (`c + 1`) where the line of sight crosses the previous column: the
+/// weight `w` of the neighbour row's horizon, the largest tan elevation of
+/// the last step `tm`, the vertex's own, and its distance (NaN beyond the
+/// maximum distance); and, for every column, whether it is visible (1).
+struct Lane {
+    w: Vec<f64>,
+    tm: Vec<f64>,
+    own: Vec<f64>,
+    dist: Vec<f64>,
+    vis: Vec<u8>,
+}
+
+impl Lane {
+    fn new(pad: usize) -> Self {
+        Lane {
+            w: vec![0.0; pad],
+            tm: vec![0.0; pad],
+            own: vec![0.0; pad],
+            dist: vec![0.0; pad],
+            vis: vec![0; pad],
+        }
+    }
+
+    /// The horizon carried outward over column `i` (its neighbour towards
+    /// the eye has horizon `prev` in this row and `g_o_c` in the row
+    /// before): the vertex's horizon, and its visibility in `vis`.
+    #[inline(always)]
+    fn carry(&mut self, i: usize, prev: f64, g_o_c: f64, z: f64, th: f64) -> f64 {
+        let w = self.w[i];
+        let mut h = prev * (1.0 - w) + g_o_c * w;
+        let tm = self.tm[i];
+        h = if tm > h { tm } else { h };
+        let own = self.own[i];
+        self.vis[i] = (z + th + 1e-3 >= h * self.dist[i]) as u8;
+        if own > h {
+            own
+        } else {
+            h
+        }
+    }
+}
+
+/// What [`Prop::cell`] computes for a row, rearranged so that it runs on
+/// vectors: a row more than [`EXACT_NEAR_CELLS`] + 1 from the eye is, on
+/// the quadrant's side of the eye's column, one stretch where the line of
+/// sight crosses the previous row (`|du| < |dv|`: each vertex depends on
+/// the row before only, computed over all of them at once) and one where
+/// it crosses the previous column (`|du| >= |dv|`: each vertex takes its
+/// neighbour's horizon; all that does not depend on it, the divisions and
+/// square roots, is computed first over the stretch at once, then a short
+/// serial pass carries the horizon outward, two rows at a time, the outer
+/// one a column behind, so that the two carries overlap). The same
+/// operations in the same order as [`Prop::cell`], so the same bits; the
+/// one or two columns within a cell of the eye's go through [`Prop::cell`]
+/// itself. On x86-64 with AVX2 (detected at run time) the passes run on 4
+/// lanes.
+struct RowScratch {
+    /// Per column (`c + 1`): `c - eye`, and its images in east and north
+    /// metres (the first terms of [`Prop::cell`]'s `e` and `n`).
+    du: Vec<f64>,
+    ae: Vec<f64>,
+    an: Vec<f64>,
+    /// The row being done, and the one after it.
+    lanes: [Lane; 2],
+    avx2: bool,
+}
+
+impl RowScratch {
+    fn new<H: Heights>(prop: &Prop<H>, pad: usize) -> Self {
+        let eu = prop.eye.0;
+        let du: Vec<f64> = (0..pad).map(|i| i as f64 - 1.0 - eu).collect();
+        let ae = du.iter().map(|&d| prop.a[0][0] * d).collect();
+        let an = du.iter().map(|&d| prop.a[1][0] * d).collect();
+        RowScratch {
+            du,
+            ae,
+            an,
+            lanes: [Lane::new(pad), Lane::new(pad)],
+            avx2: prop.avx2,
+        }
+    }
+
+    /// Horizons `g_r` and visibility (`lanes[0].vis`) of the row's
+    /// vertices, from the horizons `g_o` of the row before.
+    fn row<H: Heights>(&mut self, prop: &Prop<H>, cells: &RowCells, g_o: &[f64], g_r: &mut [f64]) {
+        #[cfg(target_arch = "x86_64")]
+        if self.avx2 {
+            // SAFETY: AVX2 is present (detected at run time).
+            unsafe { self.row_avx2(prop, cells, g_o, g_r) };
+            return;
+        }
+        self.row_any(prop, cells, g_o, g_r);
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn row_avx2<H: Heights>(
+        &mut self,
+        prop: &Prop<H>,
+        cells: &RowCells,
+        g_o: &[f64],
+        g_r: &mut [f64],
+    ) {
+        self.row_any(prop, cells, g_o, g_r);
+    }
+
+    #[inline(always)]
+    fn row_any<H: Heights>(
+        &mut self,
+        prop: &Prop<H>,
+        cells: &RowCells,
+        g_o: &[f64],
+        g_r: &mut [f64],
+    ) {
+        let cols = self.prep(0, prop, cells, g_o, g_r);
+        self.carry_one(prop, cells, g_o, g_r, cols);
+    }
+
+    /// [`RowScratch::row`] for two rows, `one` and `two` the next outward
+    /// (`lanes[0].vis` and `lanes[1].vis`): `g_o` the horizons of the row
+    /// before `one`, `g_1` and `g_2` theirs.
+    fn rows2<H: Heights>(
+        &mut self,
+        prop: &Prop<H>,
+        (one, two): (&RowCells, &RowCells),
+        g_o: &[f64],
+        g_1: &mut [f64],
+        g_2: &mut [f64],
+    ) {
+        #[cfg(target_arch = "x86_64")]
+        if self.avx2 {
+            // SAFETY: AVX2 is present (detected at run time).
+            unsafe { self.rows2_avx2(prop, (one, two), g_o, g_1, g_2) };
+            return;
+        }
+        self.rows2_any(prop, (one, two), g_o, g_1, g_2);
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn rows2_avx2<H: Heights>(
+        &mut self,
+        prop: &Prop<H>,
+        rows: (&RowCells, &RowCells),
+        g_o: &[f64],
+        g_1: &mut [f64],
+        g_2: &mut [f64],
+    ) {
+        self.rows2_any(prop, rows, g_o, g_1, g_2);
+    }
+
+    #[inline(always)]
+    fn rows2_any<H: Heights>(
+        &mut self,
+        prop: &Prop<H>,
+        (one, two): (&RowCells, &RowCells),
+        g_o: &[f64],
+        g_1: &mut [f64],
+        g_2: &mut [f64],
+    ) {
+        let cols1 = self.prep(0, prop, one, g_o, g_1);
+        let adv2 = (two.r as f64 - prop.eye.1).abs();
+        let [_, _, cols2] = self.split(two, adv2);
+        // the first row's carry up to where the second's starts (the
+        // second's stretch across rows reads its horizons up to there)
+        let (head, shared) = if one.sx > 0 {
+            let at = cols2.start.max(cols1.start);
+            (cols1.start..at, at..cols1.end)
+        } else {
+            let at = cols2.end.min(cols1.end);
+            (at..cols1.end, cols1.start..at)
+        };
+        self.carry_one(prop, one, g_o, g_1, head);
+        let cols2 = self.prep(1, prop, two, g_1, g_2);
+        debug_assert!(shared.is_empty() || cols2 == shared);
+        if shared.is_empty() {
+            self.carry_one_lane(1, prop, two, g_1, g_2, cols2);
+            return;
+        }
+        // both carries over the shared columns, the second row reading
+        // the first's horizon at the column before (not yet overwritten)
+        let th = prop.target_height;
+        let (z1, z2) = (one.z_r, two.z_r);
+        let [l1, l2] = &mut self.lanes;
+        if one.sx > 0 {
+            let (mut p1, mut p2) = (g_1[shared.start - 1], g_2[shared.start - 1]);
+            for i in shared {
+                let q1 = p1;
+                p1 = l1.carry(i, p1, g_o[i - 1], z1[i], th);
+                g_1[i] = p1;
+                p2 = l2.carry(i, p2, q1, z2[i], th);
+                g_2[i] = p2;
+            }
+        } else {
+            let (mut p1, mut p2) = (g_1[shared.end], g_2[shared.end]);
+            for i in shared.rev() {
+                let q1 = p1;
+                p1 = l1.carry(i, p1, g_o[i + 1], z1[i], th);
+                g_1[i] = p1;
+                p2 = l2.carry(i, p2, q1, z2[i], th);
+                g_2[i] = p2;
+            }
+        }
+    }
+
+    /// The columns of the quadrant's row (as `c + 1`) on its side of the
+    /// eye's: `(inner, rows, cols)`, the ranges within a cell of the eye's
+    /// column (for [`Prop::cell`]), where the line of sight crosses the
+    /// previous row, and where it crosses the previous column (in
+    /// increasing order; the quadrant goes outward).
+    #[inline(always)]
+    fn split(&self, cells: &RowCells, adv: f64) -> [std::ops::Range<usize>; 3] {
+        let (lo, hi) = (cells.c_lo + 1, cells.c_hi + 2);
+        let du = &self.du;
+        // the first index where `p` holds (`p` is monotone over [lo, hi))
+        let first = |p: &dyn Fn(f64) -> bool| lo + du[lo..hi].partition_point(|&d| !p(d));
+        if cells.sx > 0 {
+            let a = first(&|d| d > 0.0);
+            let b = first(&|d| d >= adv);
+            [lo..a, a..b.max(a), b.max(a)..hi]
+        } else {
+            // du decreasing outward: here increasing with the index
+            let a = first(&|d| d >= 0.0);
+            let b = first(&|d| d > -adv);
+            [a..hi, b.min(a)..a, lo..b.min(a)]
+        }
+    }
+
+    /// The row's vertices within a cell of the eye's column and across
+    /// the previous row (horizons into `g_r`, visibility into the lane),
+    /// and what those across the previous column need without their
+    /// neighbour's horizon; returns the columns of the latter.
+    #[inline(always)]
+    fn prep<H: Heights>(
+        &mut self,
+        lane: usize,
+        prop: &Prop<H>,
+        cells: &RowCells,
+        g_o: &[f64],
+        g_r: &mut [f64],
+    ) -> std::ops::Range<usize> {
+        let (z_r, z_o) = (cells.z_r, cells.z_o);
+        let r = cells.r;
+        let dv = r as f64 - prop.eye.1;
+        let adv = dv.abs();
+        let [inner, rows, cols] = self.split(cells, adv);
+        let lane = &mut self.lanes[lane];
+        // within a cell of the eye's column: as any other cell
+        for i in inner {
+            lane.vis[i] = prop.cell(i - 1, r, z_r, z_o, g_r, g_o) as u8;
+        }
+        let (a01, a11) = (prop.a[0][1] * dv, prop.a[1][1] * dv);
+        let (th, max_d2) = (prop.target_height, prop.max_d2);
+        // the neighbour towards the eye along the row, and whether the
+        // stretch's vertices lie across a diagonal (du * dv < 0)
+        let (off, anti) = if cells.sx > 0 {
+            (-1isize, dv < 0.0)
+        } else {
+            (1, dv > 0.0)
+        };
+        let ic = |i: usize| i.wrapping_add_signed(off);
+        let rp = RowPass {
+            a01,
+            a11,
+            adv,
+            th,
+            max_d2,
+        };
+        // crossing the previous row: all at once
+        if !rows.is_empty() {
+            let (a, n) = (rows.start, rows.len());
+            let ca = ic(a);
+            let args = (
+                &self.du[a..a + n],
+                &self.ae[a..a + n],
+                &self.an[a..a + n],
+                &z_r[a..a + n],
+                &z_r[ca..ca + n],
+                &z_o[a..a + n],
+                &z_o[ca..ca + n],
+                &g_o[a..a + n],
+                &g_o[ca..ca + n],
+            );
+            let (g, vis) = (&mut g_r[a..a + n], &mut lane.vis[a..a + n]);
+            if anti {
+                rp.rows::<true>(args, g, vis);
+            } else {
+                rp.rows::<false>(args, g, vis);
+            }
+        }
+        // crossing the previous column: what does not depend on the
+        // neighbour's horizon, all at once
+        if !cols.is_empty() {
+            let (a, n) = (cols.start, cols.len());
+            let ca = ic(a);
+            let args = (
+                &self.du[a..a + n],
+                &self.ae[a..a + n],
+                &self.an[a..a + n],
+                &z_r[a..a + n],
+                &z_r[ca..ca + n],
+                &z_o[a..a + n],
+                &z_o[ca..ca + n],
+            );
+            let outs = (
+                &mut lane.w[a..a + n],
+                &mut lane.tm[a..a + n],
+                &mut lane.own[a..a + n],
+                &mut lane.dist[a..a + n],
+            );
+            if anti {
+                rp.cols::<true>(args, outs);
+            } else {
+                rp.cols::<false>(args, outs);
+            }
+        }
+        cols
+    }
+
+    /// The horizon of lane 0's row carried outward over `cols` (a part of
+    /// its stretch across the previous column, from its inner end).
+    #[inline(always)]
+    fn carry_one<H: Heights>(
+        &mut self,
+        prop: &Prop<H>,
+        cells: &RowCells,
+        g_o: &[f64],
+        g_r: &mut [f64],
+        cols: std::ops::Range<usize>,
+    ) {
+        self.carry_one_lane(0, prop, cells, g_o, g_r, cols);
+    }
+
+    #[inline(always)]
+    fn carry_one_lane<H: Heights>(
+        &mut self,
+        lane: usize,
+        prop: &Prop<H>,
+        cells: &RowCells,
+        g_o: &[f64],
+        g_r: &mut [f64],
+        cols: std::ops::Range<usize>,
+    ) {
+        if cols.is_empty() {
+            return;
+        }
+        let (th, z_r) = (prop.target_height, cells.z_r);
+        let lane = &mut self.lanes[lane];
+        if cells.sx > 0 {
+            let mut prev = g_r[cols.start - 1];
+            for i in cols {
+                prev = lane.carry(i, prev, g_o[i - 1], z_r[i], th);
+                g_r[i] = prev;
+            }
+        } else {
+            let mut prev = g_r[cols.end];
+            for i in cols.rev() {
+                prev = lane.carry(i, prev, g_o[i + 1], z_r[i], th);
+                g_r[i] = prev;
+            }
+        }
+    }
+
+    /// Mark the visible vertices of lane `lane`'s row that the quadrant
+    /// owns on the grid (those at or right of the eye's column for `sx =
+    /// +1`, those left of it for `sx = -1`).
+    fn mark(&self, lane: usize, cells: &RowCells, grid: &OutGrid) {
+        let (lo, hi) = (cells.c_lo + 1, cells.c_hi + 2);
+        // (du is c - eye: c >= eye is du >= 0)
+        let at = lo + self.du[lo..hi].partition_point(|&d| d < 0.0);
+        let owned = if cells.sx > 0 { at..hi } else { lo..at };
+        if !owned.is_empty() {
+            grid.put_row(owned.start - 1, cells.r, &self.lanes[lane].vis[owned]);
+        }
+    }
+}
+
 /// Rays per bundle of [`viewshed_rays`] (neighbours in azimuth).
 const RAY_BUNDLE: usize = 32;
 /// Grid lines each ray of a bundle advances before the next ray's turn.
@@ -670,6 +1567,25 @@ impl OutGrid<'_> {
         let (col, row) = (self.col0 + c, self.row0 + r);
         if col < self.width && row < self.height {
             self.out[row * self.width + col].store(255, Ordering::Relaxed);
+        }
+    }
+
+    /// Mark visible the terrain vertices `c_from..` of row `r` whose
+    /// `vis` is 1 (`vis` holds 0 or 1). The caller owns these vertices: no
+    /// other thread writes or reads them while the grid lives.
+    fn put_row(&self, c_from: usize, r: usize, vis: &[u8]) {
+        let (col, row) = (self.col0 + c_from, self.row0 + r);
+        if col >= self.width || row >= self.height {
+            return;
+        }
+        let n = vis.len().min(self.width - col);
+        let cells = &self.out[row * self.width + col..][..n];
+        // SAFETY: AtomicU8 has the layout of u8 and its cells may be
+        // written through a shared reference; these cells are this
+        // caller's alone (see above), so the plain writes race with nothing.
+        let out = unsafe { std::slice::from_raw_parts_mut(cells.as_ptr() as *mut u8, n) };
+        for (o, &v) in out.iter_mut().zip(&vis[..n]) {
+            *o |= v.wrapping_neg();
         }
     }
 }
@@ -1139,8 +2055,37 @@ fn on_grid(
     }
 }
 
-/// Write `vs` as a single-band Byte GeoTIFF with the DEM's georeferencing.
+/// Creation options of [`write_viewshed_tiff`]: tiles of 256 x 256 cells
+/// compressed with PackBits (baseline TIFF: every TIFF reader decodes it),
+/// on all cores. A viewshed is long runs of 0 and 255: 8192^2 cells (64 MB
+/// as gdal_viewshed writes them, striped and uncompressed) take about
+/// 1 MB, so writing, flushing to disk and reading back cost little beside
+/// the run-length coding, and PackBits codes and decodes runs several
+/// times faster than DEFLATE, whose files are smaller still (see
+/// docs/benchmarks.md, "Viewshed against gdal_viewshed").
+pub const VIEWSHED_TIFF_OPTIONS: &[&str] = &[
+    "TILED=YES",
+    "BLOCKXSIZE=256",
+    "BLOCKYSIZE=256",
+    "COMPRESS=PACKBITS",
+    "NUM_THREADS=ALL_CPUS",
+];
+
+/// Write `vs` as a single-band Byte GeoTIFF with the DEM's georeferencing
+/// ([`VIEWSHED_TIFF_OPTIONS`]), atomically and verified (written in
+/// memory, then to a file beside `path`, flushed, read back block by block
+/// and compared, renamed over `path`).
 pub fn write_viewshed_tiff(vs: &Viewshed, path: &Path) -> Result<(), RenderError> {
+    write_viewshed_tiff_with(vs, path, VIEWSHED_TIFF_OPTIONS)
+}
+
+/// [`write_viewshed_tiff`] with other GeoTIFF creation options (`[]`:
+/// striped and uncompressed, as gdal_viewshed writes by default).
+pub fn write_viewshed_tiff_with(
+    vs: &Viewshed,
+    path: &Path,
+    options: &[&str],
+) -> Result<(), RenderError> {
     write_atomically(
         path,
         |tmp| {
@@ -1150,8 +2095,9 @@ pub fn write_viewshed_tiff(vs: &Viewshed, path: &Path) -> Result<(), RenderError
             };
             crate::raster::atomic_file::through_memory(tmp, None, |tmp| {
                 let driver = gdal::DriverManager::get_driver_by_name("GTiff").map_err(werr)?;
+                let opts = gdal::raster::RasterCreationOptions::from_iter(options.iter().copied());
                 let mut ds = driver
-                    .create_with_band_type::<u8, _>(tmp, vs.width, vs.height, 1)
+                    .create_with_band_type_with_options::<u8, _>(tmp, vs.width, vs.height, 1, &opts)
                     .map_err(werr)?;
                 ds.set_geo_transform(&vs.geotransform.0).map_err(werr)?;
                 let srs = vs.crs.gdal_definition();
@@ -1160,10 +2106,7 @@ pub fn write_viewshed_tiff(vs: &Viewshed, path: &Path) -> Result<(), RenderError
                         ds.set_spatial_ref(&sr).map_err(werr)?;
                     }
                 }
-                let mut band = ds.rasterband(1).map_err(werr)?;
-                let mut buf = gdal::raster::Buffer::new((vs.width, vs.height), vs.data.clone());
-                band.write((0, 0), (vs.width, vs.height), &mut buf)
-                    .map_err(werr)?;
+                write_blocks(&mut ds.rasterband(1).map_err(werr)?, vs).map_err(werr)?;
                 ds.flush_cache().map_err(werr)?;
                 ds.close().map_err(werr)?;
                 Ok::<(), RenderError>(())
@@ -1173,6 +2116,146 @@ pub fn write_viewshed_tiff(vs: &Viewshed, path: &Path) -> Result<(), RenderError
                 message,
             })
         },
-        |tmp| crate::raster::atomic_file::verify_band(tmp, vs.width, vs.height, &vs.data),
+        |tmp| verify_blocks(tmp, vs),
     )
+}
+
+/// The block of `vs` at block `(bx, by)` of `size` cells into `buf`
+/// (`size.0 * size.1` long, rows of the block past the raster left 0).
+fn block_of(vs: &Viewshed, (bx, by): (usize, usize), size: (usize, usize), buf: &mut [u8]) {
+    buf.fill(0);
+    let (c0, r0) = (bx * size.0, by * size.1);
+    let w = size.0.min(vs.width.saturating_sub(c0));
+    for r in 0..size.1.min(vs.height.saturating_sub(r0)) {
+        let src = (r0 + r) * vs.width + c0;
+        buf[r * size.0..r * size.0 + w].copy_from_slice(&vs.data[src..src + w]);
+    }
+}
+
+/// Write `vs` into `band` block by block (no copy of the whole raster:
+/// one block at a time goes to the driver, which compresses it).
+fn write_blocks(band: &mut gdal::raster::RasterBand, vs: &Viewshed) -> gdal::errors::Result<()> {
+    let size = band.block_size();
+    let size = (size.0.max(1), size.1.max(1));
+    let mut buf = gdal::raster::Buffer::new(size, vec![0u8; size.0 * size.1]);
+    for by in 0..vs.height.div_ceil(size.1) {
+        for bx in 0..vs.width.div_ceil(size.0) {
+            block_of(vs, (bx, by), size, buf.data_mut());
+            band.write_block((bx, by), &mut buf)?;
+        }
+    }
+    Ok(())
+}
+
+/// Does the GeoTIFF at `path` hold `vs` (its size and every cell)? Read
+/// block by block, the rows of blocks split between the cores (each with
+/// its own handle on the file): no second copy of the raster in memory.
+fn verify_blocks(path: &Path, vs: &Viewshed) -> Result<(), String> {
+    use crate::raster::atomic_file::one_line;
+    let open = || {
+        gdal::Dataset::open(path)
+            .map_err(|e| format!("GDAL cannot open it: {}", one_line(&e.to_string())))
+    };
+    let ds = open()?;
+    if ds.raster_size() != (vs.width, vs.height) {
+        return Err(format!(
+            "its size is {:?}, not {} x {}",
+            ds.raster_size(),
+            vs.width,
+            vs.height
+        ));
+    }
+    let size = ds.rasterband(1).map_err(|e| e.to_string())?.block_size();
+    let size = (size.0.max(1), size.1.max(1));
+    drop(ds);
+    let rows = vs.height.div_ceil(size.1);
+    let parts = rayon::current_num_threads().clamp(1, rows.max(1));
+    (0..parts).into_par_iter().try_for_each(|part| {
+        let ds = open()?;
+        let band = ds.rasterband(1).map_err(|e| e.to_string())?;
+        let mut want = vec![0u8; size.0 * size.1];
+        for by in (part * rows / parts)..((part + 1) * rows / parts) {
+            for bx in 0..vs.width.div_ceil(size.0) {
+                let got = band
+                    .read_block::<u8>((bx, by))
+                    .map_err(|e| format!("GDAL cannot read it: {}", one_line(&e.to_string())))?;
+                block_of(vs, (bx, by), size, &mut want);
+                // (the rows and columns past the raster are not compared)
+                let (c0, r0) = (bx * size.0, by * size.1);
+                let w = size.0.min(vs.width - c0);
+                let h = size.1.min(vs.height - r0);
+                let got = got.data();
+                if got.len() < size.0 * size.1
+                    || (0..h).any(|r| {
+                        got[r * size.0..r * size.0 + w] != want[r * size.0..r * size.0 + w]
+                    })
+                {
+                    return Err("its values differ from those written".to_string());
+                }
+            }
+        }
+        Ok(())
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::raster::read_height_map;
+
+    /// A fixture and the frame from 1.7 m above the centre of cell
+    /// `(col, row)`, refraction k = 1/7.
+    fn frame_at(name: &str, col: usize, row: usize) -> (HeightMap, LocalFrame) {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("fixtures")
+            .join(name);
+        let dem = read_height_map(&path).unwrap();
+        let (x, y) = dem
+            .geotransform
+            .pixel_to_crs(col as f64 + 0.5, row as f64 + 0.5);
+        let georef = Georef::new(&dem, name).unwrap();
+        let (lon, lat) = georef.crs_to_lonlat(x, y).unwrap();
+        let vp = Viewpoint::above_surface(lon, lat, 1.7);
+        let frame = georef.local_frame(&vp, &dem, 1.0 / 7.0).unwrap();
+        (dem, frame)
+    }
+
+    /// The vector passes over rows (with and without AVX2) give the bytes
+    /// of the cell-by-cell propagation, on real DEMs (projected and
+    /// geographic, with holes, within a maximum distance or not) and
+    /// targets on the ground and above it.
+    #[test]
+    fn vector_rows_give_the_bits_of_cell_by_cell() {
+        for (name, col, row, max_d) in [
+            ("zion_srtm_utm12n.tif", 210, 103, None),
+            ("zion_srtm_utm12n.tif", 30, 480, Some(9_000.0)),
+            ("zion_srtm90m_epsg4326.tif", 230, 230, None),
+            ("arenal_aster30m_epsg4326.tif", 120, 100, None),
+            ("vinschgau_250m_utm32n.tif", 101, 110, Some(20_000.0)),
+            ("nz_1km_nan_nodata.tif", 600, 800, None),
+            ("texas_srtm90m_tiled_int16.tif", 180, 180, None),
+        ] {
+            let (dem, frame) = frame_at(name, col, row);
+            let md = max_d.unwrap_or(f64::INFINITY);
+            let (c0, r0, c1, r1) =
+                LocalTerrain::extent_in((dem.width, dem.height), &frame, max_d, None);
+            let (nx, ny) = (c1 - c0, r1 - r0);
+            let heights = DemHeights {
+                dem: &dem,
+                ap: Apparent::new(&frame, (c0, r0, nx), md),
+            };
+            for target in [0.0, 10.0] {
+                let run = |vector: bool, avx2: bool| {
+                    let mut prop = Prop::new(&heights, &frame, (c0, r0, nx, ny), md, target);
+                    prop.vector_rows = vector;
+                    prop.avx2 &= avx2;
+                    infallible(prop.run(dem.width, dem.height, &dem.geotransform, &dem.crs))
+                };
+                let cells = run(false, false);
+                assert!(cells.visible_count() > 0, "{name}");
+                assert_eq!(run(true, true).data, cells.data, "{name}, {target} m");
+                assert_eq!(run(true, false).data, cells.data, "{name}, {target} m");
+            }
+        }
+    }
 }
