@@ -18,8 +18,8 @@ use demsketch::raster::output_format::{output_driver, write_raster, RasterSpec};
 use demsketch::raster::path_check::{self, dem_inputs, Input, Output};
 use demsketch::raster::Dem;
 use demsketch::render::{
-    depth_for_file, draw_polyline, shade, viewshed, viewshed_exact, visible_polylines, write_png,
-    DepthBuffer, LocalTerrain, Scene, ShadeOptions, DEPTH_NODATA,
+    depth_for_file, draw_polyline, eye_frame, shade, viewshed_exact, viewshed_from_file,
+    visible_polylines, write_png, DepthBuffer, Scene, ShadeOptions, DEPTH_NODATA,
 };
 use demsketch::view::{Camera, EyeHeight, Viewpoint};
 use serde::Deserialize;
@@ -371,51 +371,26 @@ pub fn run(args: ViewArgs) -> anyhow::Result<()> {
     // Each cell is read once: decoded blocks are not cached.
     let dem = Dem::open(&args.dem)?.without_block_cache();
     check_view_outputs(&args, &dem)?;
-    // The viewshed covers every cell within the distance; a picture and
-    // its features need only what the camera's horizontal field of view
-    // takes in, and without a viewshed only that is read. The picture,
-    // the silhouettes and the ridges come from the terrain of that wedge
-    // either way (the ridges detected over it, as an edit detects them for
-    // its views), so that --viewshed changes none of them.
-    let scene = if args.viewshed.is_some() {
-        Scene::open(
-            &dem,
-            &view.viewpoint,
-            args.camera.max_distance,
-            args.camera.refraction,
-        )?
-    } else {
-        Scene::open_wedge(
-            &dem,
-            &view.viewpoint,
-            args.camera.max_distance,
-            args.camera.refraction,
-            &view.camera,
-        )?
-    };
+    // A picture and its features need only what the camera's horizontal
+    // field of view takes in, and only that is read: the picture, the
+    // silhouettes and the ridges come from the terrain of that wedge (the
+    // ridges detected over it, as an edit detects them for its views). The
+    // viewshed, which covers every cell within the distance, is swept
+    // apart, reading the DEM in bands outward from the eye
+    // ([`viewshed_from_file`]), so that --viewshed changes none of them.
+    let scene = Scene::open_wedge(
+        &dem,
+        &view.viewpoint,
+        args.camera.max_distance,
+        args.camera.refraction,
+        &view.camera,
+    )?;
     let max_d = args
         .camera
         .max_distance
         .filter(|d| d.is_finite() && *d > 0.0);
-    let wedge_terrain;
-    let terrain = if args.viewshed.is_some() {
-        // The same terrain as `Scene::open_wedge` builds (tested).
-        wedge_terrain = LocalTerrain::in_view(&scene.window, &scene.frame, max_d, &view.camera);
-        &wedge_terrain
-    } else {
-        &scene.terrain
-    };
-    // The cells the terrain covers (all of the window without a viewshed).
-    let seen = if (terrain.nx, terrain.ny) == (scene.window.width, scene.window.height) {
-        None
-    } else {
-        Some(
-            scene
-                .window
-                .crop(terrain.col0, terrain.row0, terrain.nx, terrain.ny),
-        )
-    };
-    let seen = seen.as_ref().unwrap_or(&scene.window);
+    let terrain = &scene.terrain;
+    let seen = &scene.window;
     super::timing("load", t_all.elapsed().as_secs_f64());
     let t = Instant::now();
     let depth = DepthBuffer::render(terrain, &view.camera);
@@ -510,10 +485,27 @@ pub fn run(args: ViewArgs) -> anyhow::Result<()> {
             }
         }
         if let Some(target) = &args.viewshed {
+            // On the window a view reads within the distance (the DEM
+            // around the eye), like the exact reference.
+            let window = Scene::window_of(
+                &dem,
+                &scene.georef,
+                view.viewpoint.lon,
+                view.viewpoint.lat,
+                max_d,
+            )?;
             let vs = if args.viewshed_exact {
-                viewshed_exact(&scene.terrain, &scene.window, args.target_height)
+                let full = Scene::open(
+                    &dem,
+                    &view.viewpoint,
+                    args.camera.max_distance,
+                    args.camera.refraction,
+                )?;
+                viewshed_exact(&full.terrain, &full.window, args.target_height)
             } else {
-                viewshed(&scene.terrain, &scene.window, args.target_height)
+                let frame =
+                    eye_frame(&dem, &scene.georef, &view.viewpoint, args.camera.refraction)?;
+                viewshed_from_file(&dem, &frame, max_d, args.target_height)?.crop(window)
             };
             let p = staged.stage(target).map_err(anyhow::Error::msg)?;
             let spec = RasterSpec {

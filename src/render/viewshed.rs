@@ -54,6 +54,28 @@ pub struct Viewshed {
 }
 
 impl Viewshed {
+    /// The part of this viewshed over `window` of its grid (clipped to
+    /// the grid), with its geotransform: for instance the window a view
+    /// reads ([`crate::render::Scene::window_of`]) out of a viewshed of the
+    /// whole DEM.
+    pub fn crop(&self, window: crate::raster::Window) -> Viewshed {
+        let c0 = window.col.clamp(0, self.width as i64) as usize;
+        let r0 = window.row.clamp(0, self.height as i64) as usize;
+        let c1 = (window.col + window.width as i64).clamp(c0 as i64, self.width as i64) as usize;
+        let r1 = (window.row + window.height as i64).clamp(r0 as i64, self.height as i64) as usize;
+        let mut data = Vec::with_capacity((c1 - c0) * (r1 - r0));
+        for r in r0..r1 {
+            data.extend_from_slice(&self.data[r * self.width + c0..r * self.width + c1]);
+        }
+        Viewshed {
+            width: c1 - c0,
+            height: r1 - r0,
+            data,
+            geotransform: self.geotransform.offset(c0 as f64, r0 as f64),
+            crs: self.crs.clone(),
+        }
+    }
+
     /// Share of valid cells (`mask` true) that are visible.
     pub fn visible_count(&self) -> usize {
         self.data.iter().filter(|&&v| v == 255).count()
@@ -1580,12 +1602,12 @@ impl OutGrid<'_> {
         }
         let n = vis.len().min(self.width - col);
         let cells = &self.out[row * self.width + col..][..n];
-        // SAFETY: AtomicU8 has the layout of u8 and its cells may be
-        // written through a shared reference; these cells are this
-        // caller's alone (see above), so the plain writes race with nothing.
-        let out = unsafe { std::slice::from_raw_parts_mut(cells.as_ptr() as *mut u8, n) };
-        for (o, &v) in out.iter_mut().zip(&vis[..n]) {
-            *o |= v.wrapping_neg();
+        // Relaxed stores: these cells are this caller's alone (see above);
+        // on the targets we build for they are plain byte stores.
+        for (o, &v) in cells.iter().zip(&vis[..n]) {
+            if v != 0 {
+                o.store(255, Ordering::Relaxed);
+            }
         }
     }
 }
