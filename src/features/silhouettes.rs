@@ -491,317 +491,6 @@ fn walk_to_contour(
     }
 }
 
-/// Most cells [`walk_on_patches`] follows.
-const MAX_PATCH_WALK: usize = 256;
-
-/// Points of the column plane's curve [`walk_on_patches`] takes per cell
-/// before refining a highest one.
-const CURVE_SAMPLES: usize = 8;
-
-/// [`walk_to_contour`] on the cells' bilinear patches, which the view
-/// shows, instead of their two triangles: where the triangles can put a
-/// boundary farther than [`WALK_TOLERANCE_PX`] from the patches'. The
-/// column plane cuts a patch in a conic (its signed distance to the plane
-/// is bilinear in the cell's coordinates, so for each x there is one y),
-/// which meets the cell's edges where the triangles' polyline does (the
-/// two surfaces agree on the edges). It is followed cell by cell, edge to
-/// edge, through [`CURVE_SAMPLES`] points a cell; where the points stop
-/// rising, the highest point of the conic around them is found by golden
-/// section: the grazing ray there is the boundary the bisection of
-/// [`refine_bracket`] with exact casts converges to. Saddles (the plane
-/// crossing all four edges), corners hit exactly and other degenerate
-/// cases are left to that bisection (`Inconclusive`).
-fn walk_on_patches(
-    terrain: &LocalTerrain,
-    db: &DepthBuffer,
-    x: usize,
-    y: usize,
-    min_jump: f64,
-) -> Walk {
-    let cam = &db.camera;
-    let k = y * db.width + x;
-    let (tri0, t_a) = (db.triangle[k], db.depth[k] as f64);
-    let (w, h, f) = (cam.width as f64, cam.height as f64, cam.focal_px);
-    let px = x as f64 + 0.5;
-    let u = px - w / 2.0;
-    let (fw, rt, up) = (cam.forward, cam.right, cam.up);
-    let a = [
-        f * fw[0] + u * rt[0],
-        f * fw[1] + u * rt[1],
-        f * fw[2] + u * rt[2],
-    ];
-    let nrm = cross(a, up);
-    let row_of = |p: [f64; 3]| -> Option<f64> {
-        let z = dot(p, fw);
-        (z > 0.0).then(|| h / 2.0 - f * dot(p, up) / z)
-    };
-    let Some(q0) = ray_point(cam, px, y as f64 + 0.5, t_a) else {
-        return Walk::Inconclusive;
-    };
-    let far_y = y as f64 - 0.5;
-    let t_b = db.depth[(y - 1) * db.width + x] as f64;
-    let (mut best_y, mut best, mut best_tri, mut best_d) = (y as f64 + 0.5, q0, tri0, t_a);
-    let mut found: Vec<(f64, [f64; 3], u32)> = Vec::new();
-    let (cx, cy) = (terrain.cells_x(), terrain.ny.saturating_sub(1));
-    if cx == 0 || cy == 0 || tri0 == crate::render::SKY {
-        return Walk::Inconclusive;
-    }
-    let cell = (tri0 / 2) as usize;
-    let (mut c, mut r) = (cell % cx, cell / cx);
-    if r >= cy {
-        return Walk::Inconclusive;
-    }
-    // Where the walk starts in the cell: the point shown (cell
-    // coordinates), or the edge it entered by.
-    let mut start: Option<[f64; 3]> = Some(q0);
-    let mut entry_edge = 0usize;
-    let mut walked = false;
-    // whether the last point lay at or below the contour's ray
-    let mut walked_below = false;
-    'cells: for _ in 0..MAX_PATCH_WALK {
-        let mut pv = [[0.0; 3]; 4];
-        for (i, (dc, dr)) in [(0, 0), (1, 0), (0, 1), (1, 1)].into_iter().enumerate() {
-            match terrain.vertex_local(c + dc, r + dr) {
-                Some(p) => pv[i] = p,
-                None if walked => {
-                    found.push((best_y, best, best_tri));
-                    return Walk::Contours(found);
-                }
-                None => return Walk::Inconclusive,
-            }
-        }
-        let [p00, p10, p01, p11] = pv;
-        let s = [dot(nrm, p00), dot(nrm, p10), dot(nrm, p01), dot(nrm, p11)];
-        // Edges: 0 y = 0, 1 x = 1, 2 y = 1, 3 x = 0 (corner indices and
-        // the corner the edge's parameter starts at).
-        const EDGES: [(usize, usize, [f64; 2], [f64; 2]); 4] = [
-            (0, 1, [0.0, 0.0], [1.0, 0.0]),
-            (1, 3, [1.0, 0.0], [0.0, 1.0]),
-            (2, 3, [0.0, 1.0], [1.0, 0.0]),
-            (0, 2, [0.0, 0.0], [0.0, 1.0]),
-        ];
-        let mut cross_at: [Option<[f64; 2]>; 4] = [None; 4];
-        let mut n_cross = 0;
-        for (e, &(i, j, o, dir)) in EDGES.iter().enumerate() {
-            if (s[i] >= 0.0) == (s[j] >= 0.0) {
-                continue;
-            }
-            let t = s[i] / (s[i] - s[j]);
-            cross_at[e] = Some([o[0] + t * dir[0], o[1] + t * dir[1]]);
-            n_cross += 1;
-        }
-        if n_cross != 2 {
-            return Walk::Inconclusive;
-        }
-        let lerp = |xy: [f64; 2]| -> [f64; 3] {
-            let (x, y) = (xy[0], xy[1]);
-            let mut q = [0.0; 3];
-            for (k, v) in q.iter_mut().enumerate() {
-                *v = (1.0 - y) * ((1.0 - x) * p00[k] + x * p10[k])
-                    + y * ((1.0 - x) * p01[k] + x * p11[k]);
-            }
-            q
-        };
-        let (back_edge, exit_edge) = match start {
-            // at the start, the crossing farther out along the plane
-            Some(_) => {
-                let mut it = (0..4).filter(|&e| cross_at[e].is_some());
-                let (Some(e0), Some(e1)) = (it.next(), it.next()) else {
-                    return Walk::Inconclusive;
-                };
-                let (Some(x0), Some(x1)) = (cross_at[e0], cross_at[e1]) else {
-                    return Walk::Inconclusive;
-                };
-                if dot(lerp(x1), a) > dot(lerp(x0), a) {
-                    (e0, e1)
-                } else {
-                    (e1, e0)
-                }
-            }
-            None => {
-                let Some(exit) = (0..4).find(|&e| e != entry_edge && cross_at[e].is_some()) else {
-                    return Walk::Inconclusive;
-                };
-                (entry_edge, exit)
-            }
-        };
-        let (Some(back), Some(to)) = (cross_at[back_edge], cross_at[exit_edge]) else {
-            return Walk::Inconclusive;
-        };
-        // The conic s(x, y) = 0 as y(x), or x(y) where it runs steeper.
-        let (sx, sy, sxy) = (s[1] - s[0], s[2] - s[0], s[0] - s[1] - s[2] + s[3]);
-        let by_x = (to[0] - back[0]).abs() >= (to[1] - back[1]).abs();
-        let axis = usize::from(!by_x);
-        let p_to = to[axis];
-        let p_from = match start {
-            // the point shown, on the stretch between the crossings
-            Some(q) => {
-                let (vx, vy) = terrain.en_to_v(q[0], q[1]);
-                let v = [vx - c as f64, vy - r as f64][axis];
-                let (lo, hi) = (back[axis].min(p_to), back[axis].max(p_to));
-                v.clamp(lo, hi)
-            }
-            None => back[axis],
-        };
-        let point_at = |t: f64| -> Option<[f64; 2]> {
-            let xy = if by_x {
-                let den = sy + sxy * t;
-                [t, -(s[0] + sx * t) / den]
-            } else {
-                let den = sx + sxy * t;
-                [-(s[0] + sy * t) / den, t]
-            };
-            let ok = xy.iter().all(|v| (-1e-9..=1.0 + 1e-9).contains(v));
-            ok.then(|| [xy[0].clamp(0.0, 1.0), xy[1].clamp(0.0, 1.0)])
-        };
-        let eval = |t: f64, exact: Option<[f64; 2]>| -> Option<(f64, [f64; 2], [f64; 3])> {
-            let xy = match exact {
-                Some(xy) => xy,
-                None => point_at(t)?,
-            };
-            let q = lerp(xy);
-            Some((row_of(q)?, xy, q))
-        };
-        let mut pts = [(0.0, [0.0; 2], [0.0; 3]); CURVE_SAMPLES + 1];
-        let mut ts = [0.0; CURVE_SAMPLES + 1];
-        for (i, (pt, tv)) in pts.iter_mut().zip(ts.iter_mut()).enumerate() {
-            let t = p_from + (p_to - p_from) * i as f64 / CURVE_SAMPLES as f64;
-            let exact = (i == CURVE_SAMPLES).then_some(to);
-            let Some(e) = eval(t, exact) else {
-                return Walk::Inconclusive;
-            };
-            (*pt, *tv) = (e, t);
-        }
-        // The highest point between samples that stop rising.
-        for i in 1..CURVE_SAMPLES {
-            if pts[i].0 < pts[i - 1].0 && pts[i].0 <= pts[i + 1].0 {
-                let (mut lo, mut hi) = (ts[i - 1], ts[i + 1]);
-                const G: f64 = 0.618_033_988_749_894_9;
-                let mut m1 = hi - G * (hi - lo);
-                let mut m2 = lo + G * (hi - lo);
-                let (Some(mut f1), Some(mut f2)) = (eval(m1, None), eval(m2, None)) else {
-                    continue;
-                };
-                for _ in 0..48 {
-                    if f1.0 <= f2.0 {
-                        (hi, m2, f2) = (m2, m1, f1);
-                        m1 = hi - G * (hi - lo);
-                        match eval(m1, None) {
-                            Some(v) => f1 = v,
-                            None => break,
-                        }
-                    } else {
-                        (lo, m1, f1) = (m1, m2, f2);
-                        m2 = lo + G * (hi - lo);
-                        match eval(m2, None) {
-                            Some(v) => f2 = v,
-                            None => break,
-                        }
-                    }
-                }
-                let (bt, bestf) = if f1.0 <= f2.0 { (m1, f1) } else { (m2, f2) };
-                if bestf.0 < pts[i].0 {
-                    (pts[i], ts[i]) = (bestf, bt);
-                }
-            }
-        }
-        walked = true;
-        let cell_id = 2 * (r * cx + c);
-        for i in 1..=CURVE_SAMPLES {
-            let (yx, xy, xp) = pts[i];
-            let dx = dot(xp, xp).sqrt();
-            let tri = (cell_id + usize::from(xy[0] - xy[1] < 0.0)) as u32;
-            // Back above the contour's ray between two points: where it
-            // crosses the ray, farther than `min_jump` behind the contour,
-            // the ray meets farther terrain (what the bisection finds
-            // between points the walk would step over).
-            if yx < best_y && pts[i - 1].0 >= best_y && walked_below {
-                let (mut lo, mut hi) = (ts[i - 1], ts[i]);
-                let mut at = None;
-                for _ in 0..60 {
-                    let mid = 0.5 * (lo + hi);
-                    let Some(v) = eval(mid, None) else { break };
-                    if v.0 >= best_y {
-                        lo = mid;
-                    } else {
-                        hi = mid;
-                        at = Some(v);
-                    }
-                }
-                let dc = match at.or_else(|| eval(hi, None)) {
-                    Some(v) => dot(v.2, v.2).sqrt(),
-                    None => dx,
-                };
-                if dc > best_d * (1.0 + min_jump) {
-                    found.push((best_y, best, best_tri));
-                    let d = cam.unproject([px, best_y]);
-                    let from = dot(pts[i - 1].2, pts[i - 1].2).sqrt();
-                    let Some(hit) = terrain.cast_segment(d, from, t_b) else {
-                        return Walk::Contours(found);
-                    };
-                    let q = [d[0] * hit.t, d[1] * hit.t, d[2] * hit.t];
-                    (best, best_tri, best_d) = (q, hit.triangle, hit.t);
-                    let cell = (hit.triangle / 2) as usize;
-                    (c, r) = (cell % cx, cell / cx);
-                    start = Some(q);
-                    walked_below = false;
-                    continue 'cells;
-                }
-            }
-            walked_below = yx >= best_y;
-            if yx < best_y {
-                if yx <= far_y {
-                    return if found.is_empty() {
-                        Walk::Crease
-                    } else {
-                        Walk::Contours(found)
-                    };
-                }
-                (best_y, best, best_tri, best_d) = (yx, xp, tri, dx);
-            } else if dx > best_d * (1.0 + min_jump) {
-                found.push((best_y, best, best_tri));
-                // As in [`walk_to_contour`]: farther terrain above this
-                // contour's ray before the far pixel's hit.
-                let d = cam.unproject([px, best_y]);
-                let Some(hit) = terrain.cast_segment(d, dx, t_b) else {
-                    return Walk::Contours(found);
-                };
-                let q = [d[0] * hit.t, d[1] * hit.t, d[2] * hit.t];
-                (best, best_tri, best_d) = (q, hit.triangle, hit.t);
-                let cell = (hit.triangle / 2) as usize;
-                (c, r) = (cell % cx, cell / cx);
-                start = Some(q);
-                walked_below = false;
-                continue 'cells;
-            }
-        }
-        // Across the exit edge.
-        let next = match exit_edge {
-            0 => (r > 0).then(|| (c, r - 1, 2)),
-            1 => (c + 1 < cx).then_some((c + 1, r, 3)),
-            2 => (r + 1 < cy).then_some((c, r + 1, 0)),
-            _ => (c > 0).then(|| (c - 1, r, 1)),
-        };
-        let Some((nc, nr, ne)) = next else {
-            found.push((best_y, best, best_tri));
-            return Walk::Contours(found);
-        };
-        (c, r, entry_edge) = (nc, nr, ne);
-        start = None;
-    }
-    if found.is_empty() {
-        Walk::Inconclusive
-    } else {
-        Walk::Contours(found)
-    }
-}
-
-// TEMPORARY comparison switch
-fn bisect_only() -> bool {
-    static B: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-    *B.get_or_init(|| std::env::var_os("DEMSKETCH_BISECT_ONLY").is_some())
-}
-
 /// The point at distance `t` along the ray through pixel coordinates `(px, py)`.
 fn ray_point(cam: &crate::view::Camera, px: f64, py: f64, t: f64) -> Option<[f64; 3]> {
     if !t.is_finite() {
@@ -818,6 +507,8 @@ struct Side {
     y: f64,
     t: f64,
     tri: u32,
+    /// Whether `t` is an exact cast's first hit (not the rasteriser's depth).
+    exact: bool,
 }
 
 /// Bisect between the centres of rows `y` (near) and `y - 1` (far) of column
@@ -842,10 +533,8 @@ fn refine(
         <= WALK_TOLERANCE_PX * db.depth[k] as f64;
     let walk = if planar {
         walk_to_contour(terrain, db, x, y, p.min_jump)
-    } else if bisect_only() {
-        Walk::Inconclusive
     } else {
-        walk_on_patches(terrain, db, x, y, p.min_jump)
+        Walk::Inconclusive
     };
     match walk {
         Walk::Crease => return,
@@ -881,6 +570,7 @@ fn refine(
         y: y as f64 + 0.5,
         t: db.depth[y * w + x] as f64,
         tri: db.triangle[y * w + x],
+        exact: false,
     };
     let fb = db.depth[(y - 1) * w + x];
     let far = Side {
@@ -891,6 +581,7 @@ fn refine(
             f64::INFINITY
         },
         tri: db.triangle[(y - 1) * w + x],
+        exact: false,
     };
     refine_bracket(terrain, db, p, x, near, far, 2, out);
 }
@@ -920,12 +611,13 @@ fn refine_bracket(
         }
         let ym = 0.5 * (a.y + b.y);
         let d = cam.unproject([px, ym]);
-        match cast_between(terrain, d, &a, &b) {
+        match cast_between(terrain, cam, px, d, &a, &b) {
             Some(hit) if nearer_in_log(a.t, hit.t, b.t) => {
                 a = Side {
                     y: ym,
                     t: hit.t,
                     tri: hit.triangle,
+                    exact: true,
                 };
             }
             Some(hit) => {
@@ -933,6 +625,7 @@ fn refine_bracket(
                     y: ym,
                     t: hit.t,
                     tri: hit.triangle,
+                    exact: true,
                 }
             }
             None => {
@@ -940,6 +633,7 @@ fn refine_bracket(
                     y: ym,
                     t: f64::INFINITY,
                     tri: u32::MAX,
+                    exact: true,
                 }
             }
         }
@@ -985,6 +679,8 @@ const CELL_WALK: usize = 8;
 
 fn cast_between(
     terrain: &LocalTerrain,
+    cam: &crate::view::Camera,
+    px: f64,
     d: [f64; 3],
     a: &Side,
     b: &Side,
@@ -995,7 +691,46 @@ fn cast_between(
             return Some(hit);
         }
     }
-    terrain.cast_segment(d, t0, f64::INFINITY)
+    terrain.cast_segment(d, traversal_start(terrain, cam, px, d, a, t0), f64::INFINITY)
+}
+
+/// Where the traversal of [`cast_between`] may start without changing its
+/// answer, at or after `t0`: the entry of the cell the ray crosses at the
+/// least distance its hit can lie at. The column's plane holds both rays
+/// and `d` passes above the near side's ray, which meets nothing before
+/// its hit `A`; so `d` meets nothing before it has gone as far along the
+/// plane's outward axis as `A`, i.e. before `dot(A, axis)`, where grazing
+/// rays (the cast's costly part) run closest to the terrain. The cell's
+/// entry is the traversal's own (the exit of the cell before it), so that
+/// the hit, computed from there, is the very one a start at `t0` gives
+/// (bit for bit). Only after an exact hit: the rasteriser's depth of the
+/// bracket's first near side is no bound.
+fn traversal_start(
+    terrain: &LocalTerrain,
+    cam: &crate::view::Camera,
+    px: f64,
+    d: [f64; 3],
+    a: &Side,
+    t0: f64,
+) -> f64 {
+    if !a.exact || !a.t.is_finite() {
+        return t0;
+    }
+    let f = cam.focal_px;
+    let u = px - cam.width as f64 / 2.0;
+    let (fw, rt) = (cam.forward, cam.right);
+    let axis = [
+        f * fw[0] + u * rt[0],
+        f * fw[1] + u * rt[1],
+        f * fw[2] + u * rt[2],
+    ];
+    let da = cam.unproject([px, a.y]);
+    let along = dot(da, axis) / dot(axis, axis).sqrt();
+    let t_least = a.t * along * (1.0 - 1e-9);
+    match terrain.cell_entry(d, t_least) {
+        Some(e) if e > t0 && e <= t_least => e,
+        _ => t0,
+    }
 }
 
 /// `(t / ta).ln() < (tb / t).ln()`: is `t` nearer to `ta` than to `tb` on

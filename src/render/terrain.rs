@@ -534,12 +534,25 @@ impl LocalTerrain {
         // the cells around whose four vertices lie in the grid
         let (c_lo, c_hi) = (c.saturating_sub(1), (c + 1).min(nx - 2));
         let (r_lo, r_hi) = (r.saturating_sub(1), (r + 1).min(ny - 2));
+        if c_hi < c_lo || r_hi < r_lo {
+            return 0.0;
+        }
+        // The (at most) 4 x 4 vertices, read once each (a row of a patched
+        // terrain would be a copy).
+        let mut v = [[0f32; 4]; 4];
+        for (j, vr) in v.iter_mut().enumerate().take(r_hi + 2 - r_lo) {
+            let k = (r_lo + j) * nx + c_lo;
+            for (i, vv) in vr.iter_mut().enumerate().take(c_hi + 2 - c_lo) {
+                *vv = self.z.at(k + i);
+            }
+        }
         let mut twist = 0.0f64;
         for rr in r_lo..=r_hi {
-            let (row0, row1) = (self.z.row(rr), self.z.row(rr + 1));
+            let (row0, row1) = (&v[rr - r_lo], &v[rr + 1 - r_lo]);
             for cc in c_lo..=c_hi {
-                let (a, b) = (row0[cc], row0[cc + 1]);
-                let (e, d) = (row1[cc], row1[cc + 1]);
+                let i = cc - c_lo;
+                let (a, b) = (row0[i], row0[i + 1]);
+                let (e, d) = (row1[i], row1[i + 1]);
                 if a.is_nan() || b.is_nan() || e.is_nan() || d.is_nan() {
                     continue;
                 }
@@ -682,6 +695,51 @@ impl LocalTerrain {
             None => self.coarse_index(),
         };
         self.traverse_with(index, d, t_start, t_limit)
+    }
+
+    /// The distance at which the ray from the eye along unit direction `d`
+    /// enters the cell it crosses at distance `t`, as the traversal of
+    /// [`LocalTerrain::cast_segment`] computes it (the exit of the cell
+    /// before, along the axis crossed last): a start there gives that
+    /// traversal's answer bit for bit. `None` where the cell is at the
+    /// grid's edge the ray enters by, the point is off the grid, or a
+    /// component of the ray is zero.
+    pub fn cell_entry(&self, d: [f64; 3], t: f64) -> Option<f64> {
+        if self.nx < 2 || self.ny < 2 || !t.is_finite() {
+            return None;
+        }
+        let m = self.en_to_v;
+        let gx = m[0][0] * d[0] + m[0][1] * d[1];
+        let gy = m[1][0] * d[0] + m[1][1] * d[1];
+        let (ox, oy) = self.eye_v;
+        let (wx, wy) = ((self.nx - 1) as f64, (self.ny - 1) as f64);
+        let mut entry = f64::NEG_INFINITY;
+        for (o, g, w) in [(ox, gx, wx), (oy, gy, wy)] {
+            if g == 0.0 {
+                return None;
+            }
+            let p = o + g * t;
+            if !(p > 0.0 && p < w) {
+                return None;
+            }
+            let a = RayAxis::new(o, g, w);
+            let n = w as usize;
+            let c = floor_index(p).min(n - 1);
+            // the exit of the cell before, as `axis_block` computes it
+            let e = if g > 0.0 {
+                if c == 0 {
+                    return None;
+                }
+                ((index_f64(c) * 1.0).min(a.w) - a.o) * a.inv_g
+            } else {
+                if c + 1 >= n {
+                    return None;
+                }
+                (index_f64(c + 1) * 1.0 - a.o) * a.inv_g
+            };
+            entry = entry.max(e);
+        }
+        (entry <= t).then_some(entry)
     }
 
     /// Build the full cast index now (it is otherwise built by the first
