@@ -686,12 +686,23 @@ fn cast_between(
     b: &Side,
 ) -> Option<crate::render::RayHit> {
     let t0 = 0.9 * a.t;
+    let mut walked_to = None;
     if a.tri != crate::render::SKY && b.t.is_finite() {
-        if let Some(hit) = terrain.cast_from_cell(d, a.tri, t0, a.t, CELL_WALK) {
-            return Some(hit);
+        match terrain.cast_from_cell_walk(d, a.tri, t0, a.t, CELL_WALK) {
+            Ok(hit) => return Some(hit),
+            Err(stop) => walked_to = stop,
         }
     }
-    terrain.cast_segment(d, traversal_start(terrain, cam, px, d, a, t0), f64::INFINITY)
+    let mut start = traversal_start(terrain, cam, px, d, a, t0);
+    // The cells the walk found clear need no second look: the traversal
+    // starts at the first one it did not test (at its entry, as the
+    // traversal computes it, so that the hit is the same bit for bit).
+    if let Some(e) = walked_to.and_then(|(c, r)| terrain.cell_entry_at(d, c, r)) {
+        if e > start {
+            start = e;
+        }
+    }
+    terrain.cast_segment(d, start, f64::INFINITY)
 }
 
 /// Where the traversal of [`cast_between`] may start without changing its
