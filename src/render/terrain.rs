@@ -1074,10 +1074,18 @@ impl LocalTerrain {
             // On to the cell beyond the edge the ray leaves by (both at a
             // corner).
             if exit_x <= exit_y {
-                c = if gx > 0.0 { c + 1 } else { c.checked_sub(1).ok_or(None)? };
+                c = if gx > 0.0 {
+                    c + 1
+                } else {
+                    c.checked_sub(1).ok_or(None)?
+                };
             }
             if exit_y <= exit_x {
-                r = if gy > 0.0 { r + 1 } else { r.checked_sub(1).ok_or(None)? };
+                r = if gy > 0.0 {
+                    r + 1
+                } else {
+                    r.checked_sub(1).ok_or(None)?
+                };
             }
             if c + 1 >= self.nx || r + 1 >= self.ny {
                 return Err(None);
