@@ -626,3 +626,61 @@ fn assert_same_terrain(got: &LocalTerrain, want: &LocalTerrain, cam: &Camera, wh
     );
     assert_eq!(da.triangle, db.triangle, "{what}: triangles");
 }
+
+/// The silhouettes' bisection starts its traversals at the entry of a cell
+/// the ray crosses before its hit (`LocalTerrain::cell_entry`) instead of
+/// well short of it: the hit is the same, bit for bit, from any such cell,
+/// with the full cast index and with the coarse one, and from the first
+/// cell that a walk of `cast_from_cell_walk` which met nothing did not test.
+#[test]
+fn a_traversal_from_a_cell_entry_finds_the_same_hit_bit_for_bit() {
+    let mut rng = Lcg(23);
+    let noise: Vec<f64> = (0..64 * 64).map(|_| rng.next() * 40.0).collect();
+    let mut dem = synthetic(64, 64, 25.0, |x, y| {
+        100.0 + 30.0 * ((x / 200.0).sin() + (y / 150.0).cos())
+    });
+    for (v, n) in dem.data.iter_mut().zip(&noise) {
+        *v += *n as f32;
+    }
+    let (ex, ey) = dem.geotransform.pixel_to_crs(20.3, 22.7);
+    let ground = dem.bilinear(20.3, 22.7).unwrap();
+    let frame = LocalFrame::planar(&dem, (ex, ey), ground + 2.0, Curvature::default());
+    let coarse = LocalTerrain::new(&dem, &frame, None);
+    let full = LocalTerrain::new(&dem, &frame, None);
+    full.build_cast_index();
+    let (mut checked, mut resumed) = (0, 0);
+    for _ in 0..400 {
+        let az = rng.next() * std::f64::consts::TAU;
+        let el = (rng.next() - 0.7) * 0.3;
+        let d = [az.sin() * el.cos(), az.cos() * el.cos(), el.sin()];
+        for terrain in [&coarse, &full] {
+            let Some(hit) = terrain.cast_segment(d, 0.0, f64::INFINITY) else {
+                continue;
+            };
+            for k in 1..=8 {
+                let t = hit.t * k as f64 / 8.0;
+                let Some(e) = terrain.cell_entry(d, t) else {
+                    continue;
+                };
+                assert!(e <= t, "entry {e} after {t}");
+                let from = terrain.cast_segment(d, e, f64::INFINITY);
+                assert_eq!(from, Some(hit), "from the cell entered at {e} (of {t})");
+                checked += 1;
+                // A cell walk from there that meets nothing in two cells:
+                // the traversal from the first cell it did not test.
+                let (vx, vy) = terrain.en_to_v(d[0] * t, d[1] * t);
+                let (c, r) = (vx.floor() as usize, vy.floor() as usize);
+                let id = (2 * (r * terrain.cells_x() + c)) as u32;
+                if let Err(Some((nc, nr))) = terrain.cast_from_cell_walk(d, id, e, t, 2) {
+                    if let Some(e2) = terrain.cell_entry_at(d, nc, nr) {
+                        let from = terrain.cast_segment(d, e2, f64::INFINITY);
+                        assert_eq!(from, Some(hit), "after a walk, from {e2}");
+                        resumed += 1;
+                    }
+                }
+            }
+        }
+    }
+    assert!(checked > 500, "{checked} starts checked");
+    assert!(resumed > 100, "{resumed} starts after a cell walk checked");
+}

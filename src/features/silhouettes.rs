@@ -507,6 +507,8 @@ struct Side {
     y: f64,
     t: f64,
     tri: u32,
+    /// Whether `t` is an exact cast's first hit (not the rasteriser's depth).
+    exact: bool,
 }
 
 /// Bisect between the centres of rows `y` (near) and `y - 1` (far) of column
@@ -568,6 +570,7 @@ fn refine(
         y: y as f64 + 0.5,
         t: db.depth[y * w + x] as f64,
         tri: db.triangle[y * w + x],
+        exact: false,
     };
     let fb = db.depth[(y - 1) * w + x];
     let far = Side {
@@ -578,6 +581,7 @@ fn refine(
             f64::INFINITY
         },
         tri: db.triangle[(y - 1) * w + x],
+        exact: false,
     };
     refine_bracket(terrain, db, p, x, near, far, 2, out);
 }
@@ -607,12 +611,13 @@ fn refine_bracket(
         }
         let ym = 0.5 * (a.y + b.y);
         let d = cam.unproject([px, ym]);
-        match cast_between(terrain, d, &a, &b) {
+        match cast_between(terrain, cam, px, d, &a, &b) {
             Some(hit) if nearer_in_log(a.t, hit.t, b.t) => {
                 a = Side {
                     y: ym,
                     t: hit.t,
                     tri: hit.triangle,
+                    exact: true,
                 };
             }
             Some(hit) => {
@@ -620,6 +625,7 @@ fn refine_bracket(
                     y: ym,
                     t: hit.t,
                     tri: hit.triangle,
+                    exact: true,
                 }
             }
             None => {
@@ -627,6 +633,7 @@ fn refine_bracket(
                     y: ym,
                     t: f64::INFINITY,
                     tri: u32::MAX,
+                    exact: true,
                 }
             }
         }
@@ -672,17 +679,69 @@ const CELL_WALK: usize = 8;
 
 fn cast_between(
     terrain: &LocalTerrain,
+    cam: &crate::view::Camera,
+    px: f64,
     d: [f64; 3],
     a: &Side,
     b: &Side,
 ) -> Option<crate::render::RayHit> {
     let t0 = 0.9 * a.t;
+    let mut walked_to = None;
     if a.tri != crate::render::SKY && b.t.is_finite() {
-        if let Some(hit) = terrain.cast_from_cell(d, a.tri, t0, a.t, CELL_WALK) {
-            return Some(hit);
+        match terrain.cast_from_cell_walk(d, a.tri, t0, a.t, CELL_WALK) {
+            Ok(hit) => return Some(hit),
+            Err(stop) => walked_to = stop,
         }
     }
-    terrain.cast_segment(d, t0, f64::INFINITY)
+    let mut start = traversal_start(terrain, cam, px, d, a, t0);
+    // The cells the walk found clear need no second look: the traversal
+    // starts at the first one it did not test (at its entry, as the
+    // traversal computes it, so that the hit is the same bit for bit).
+    if let Some(e) = walked_to.and_then(|(c, r)| terrain.cell_entry_at(d, c, r)) {
+        if e > start {
+            start = e;
+        }
+    }
+    terrain.cast_segment(d, start, f64::INFINITY)
+}
+
+/// Where the traversal of [`cast_between`] may start without changing its
+/// answer, at or after `t0`: the entry of the cell the ray crosses at the
+/// least distance its hit can lie at. The column's plane holds both rays
+/// and `d` passes above the near side's ray, which meets nothing before
+/// its hit `A`; so `d` meets nothing before it has gone as far along the
+/// plane's outward axis as `A`, i.e. before `dot(A, axis)`, where grazing
+/// rays (the cast's costly part) run closest to the terrain. The cell's
+/// entry is the traversal's own (the exit of the cell before it), so that
+/// the hit, computed from there, is the very one a start at `t0` gives
+/// (bit for bit). Only after an exact hit: the rasteriser's depth of the
+/// bracket's first near side is no bound.
+fn traversal_start(
+    terrain: &LocalTerrain,
+    cam: &crate::view::Camera,
+    px: f64,
+    d: [f64; 3],
+    a: &Side,
+    t0: f64,
+) -> f64 {
+    if !a.exact || !a.t.is_finite() {
+        return t0;
+    }
+    let f = cam.focal_px;
+    let u = px - cam.width as f64 / 2.0;
+    let (fw, rt) = (cam.forward, cam.right);
+    let axis = [
+        f * fw[0] + u * rt[0],
+        f * fw[1] + u * rt[1],
+        f * fw[2] + u * rt[2],
+    ];
+    let da = cam.unproject([px, a.y]);
+    let along = dot(da, axis) / dot(axis, axis).sqrt();
+    let t_least = a.t * along * (1.0 - 1e-9);
+    match terrain.cell_entry(d, t_least) {
+        Some(e) if e > t0 && e <= t_least => e,
+        _ => t0,
+    }
 }
 
 /// `(t / ta).ln() < (tb / t).ln()`: is `t` nearer to `ta` than to `tb` on

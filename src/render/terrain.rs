@@ -534,12 +534,25 @@ impl LocalTerrain {
         // the cells around whose four vertices lie in the grid
         let (c_lo, c_hi) = (c.saturating_sub(1), (c + 1).min(nx - 2));
         let (r_lo, r_hi) = (r.saturating_sub(1), (r + 1).min(ny - 2));
+        if c_hi < c_lo || r_hi < r_lo {
+            return 0.0;
+        }
+        // The (at most) 4 x 4 vertices, read once each (a row of a patched
+        // terrain would be a copy).
+        let mut v = [[0f32; 4]; 4];
+        for (j, vr) in v.iter_mut().enumerate().take(r_hi + 2 - r_lo) {
+            let k = (r_lo + j) * nx + c_lo;
+            for (i, vv) in vr.iter_mut().enumerate().take(c_hi + 2 - c_lo) {
+                *vv = self.z.at(k + i);
+            }
+        }
         let mut twist = 0.0f64;
         for rr in r_lo..=r_hi {
-            let (row0, row1) = (self.z.row(rr), self.z.row(rr + 1));
+            let (row0, row1) = (&v[rr - r_lo], &v[rr + 1 - r_lo]);
             for cc in c_lo..=c_hi {
-                let (a, b) = (row0[cc], row0[cc + 1]);
-                let (e, d) = (row1[cc], row1[cc + 1]);
+                let i = cc - c_lo;
+                let (a, b) = (row0[i], row0[i + 1]);
+                let (e, d) = (row1[i], row1[i + 1]);
                 if a.is_nan() || b.is_nan() || e.is_nan() || d.is_nan() {
                     continue;
                 }
@@ -682,6 +695,72 @@ impl LocalTerrain {
             None => self.coarse_index(),
         };
         self.traverse_with(index, d, t_start, t_limit)
+    }
+
+    /// The distance at which the ray from the eye along unit direction `d`
+    /// enters the cell it crosses at distance `t`, as the traversal of
+    /// [`LocalTerrain::cast_segment`] computes it (the exit of the cell
+    /// before, along the axis crossed last): a start there gives that
+    /// traversal's answer bit for bit. `None` where the cell is at the
+    /// grid's edge the ray enters by, the point is off the grid, or a
+    /// component of the ray is zero.
+    pub fn cell_entry(&self, d: [f64; 3], t: f64) -> Option<f64> {
+        if self.nx < 2 || self.ny < 2 || !t.is_finite() {
+            return None;
+        }
+        let m = self.en_to_v;
+        let gx = m[0][0] * d[0] + m[0][1] * d[1];
+        let gy = m[1][0] * d[0] + m[1][1] * d[1];
+        let (ox, oy) = self.eye_v;
+        let (wx, wy) = ((self.nx - 1) as f64, (self.ny - 1) as f64);
+        let (px, py) = (ox + gx * t, oy + gy * t);
+        if !(px > 0.0 && px < wx && py > 0.0 && py < wy) {
+            return None;
+        }
+        let c = floor_index(px).min(self.nx - 2);
+        let r = floor_index(py).min(self.ny - 2);
+        let entry = self.cell_entry_at(d, c, r)?;
+        (entry <= t).then_some(entry)
+    }
+
+    /// The distance at which the ray from the eye along unit direction `d`
+    /// enters cell `(c, r)`, as the traversal of
+    /// [`LocalTerrain::cast_segment`] computes it (the exit of the cell
+    /// before it along each axis; the later of the two). `None` where the
+    /// cell is at the grid's edge the ray enters by or a component of the
+    /// ray is zero.
+    pub fn cell_entry_at(&self, d: [f64; 3], c: usize, r: usize) -> Option<f64> {
+        if self.nx < 2 || self.ny < 2 || c + 1 >= self.nx || r + 1 >= self.ny {
+            return None;
+        }
+        let m = self.en_to_v;
+        let gx = m[0][0] * d[0] + m[0][1] * d[1];
+        let gy = m[1][0] * d[0] + m[1][1] * d[1];
+        let (ox, oy) = self.eye_v;
+        let (wx, wy) = ((self.nx - 1) as f64, (self.ny - 1) as f64);
+        let mut entry = f64::NEG_INFINITY;
+        for (o, g, w, i) in [(ox, gx, wx, c), (oy, gy, wy, r)] {
+            if g == 0.0 {
+                return None;
+            }
+            let a = RayAxis::new(o, g, w);
+            let n = w as usize;
+            // the exit of the cell before, as `axis_block` computes it
+            // (its block size, a power of two, multiplies exactly)
+            let e = if g > 0.0 {
+                if i == 0 {
+                    return None;
+                }
+                (index_f64(i).min(a.w) - a.o) * a.inv_g
+            } else {
+                if i + 1 >= n {
+                    return None;
+                }
+                (index_f64(i + 1) - a.o) * a.inv_g
+            };
+            entry = entry.max(e);
+        }
+        Some(entry)
     }
 
     /// Build the full cast index now (it is otherwise built by the first
@@ -902,14 +981,42 @@ impl LocalTerrain {
         latest_entry: f64,
         max_cells: usize,
     ) -> Option<RayHit> {
+        self.cast_from_cell_walk(d, id, t_start, latest_entry, max_cells)
+            .ok()
+    }
+
+    /// [`LocalTerrain::cast_from_cell`], telling where a walk that met no
+    /// terrain in its `max_cells` cells stopped: `Err(Some(cell))`, the
+    /// first cell it did not test (a traversal may start at that cell's
+    /// entry, [`LocalTerrain::cell_entry_at`]); `Err(None)` for the other
+    /// refusals.
+    pub fn cast_from_cell_walk(
+        &self,
+        d: [f64; 3],
+        id: u32,
+        t_start: f64,
+        latest_entry: f64,
+        max_cells: usize,
+    ) -> Result<RayHit, Option<(usize, usize)>> {
+        self.walk_cells(d, id, t_start, latest_entry, max_cells)
+    }
+
+    fn walk_cells(
+        &self,
+        d: [f64; 3],
+        id: u32,
+        t_start: f64,
+        latest_entry: f64,
+        max_cells: usize,
+    ) -> Result<RayHit, Option<(usize, usize)>> {
         let cx = self.cells_x();
         if cx == 0 || self.ny < 2 {
-            return None;
+            return Err(None);
         }
         let cell = (id / 2) as usize;
         let (mut c, mut r) = (cell % cx, cell / cx);
         if c + 1 >= self.nx || r + 1 >= self.ny {
-            return None;
+            return Err(None);
         }
         let m = self.en_to_v;
         let gx = m[0][0] * d[0] + m[0][1] * d[1];
@@ -932,7 +1039,7 @@ impl LocalTerrain {
             ] {
                 if g == 0.0 {
                     if !(0.0..=1.0).contains(&o) {
-                        return None;
+                        return Err(None);
                     }
                 } else {
                     let (a, b) = (-o / g, (1.0 - o) / g);
@@ -942,42 +1049,51 @@ impl LocalTerrain {
                 }
             }
             if !(tb > ta) || (k == 0 && ta > latest_entry) {
-                return None;
+                return Err(None);
             }
-            let corners = self.corners(c, r)?;
+            let corners = self.corners(c, r).ok_or(None)?;
             // Above the whole cell: no crossing in it (and, at the first
             // cell, not under the patch where it enters).
             if !ray_clears(&corners, d[2], ta, tb) {
-                let patch = BilinearPatch::new(corners)?;
+                let patch = BilinearPatch::new(corners).ok_or(None)?;
                 let ray = (ox - index_f64(c), oy - index_f64(r), gx, gy, d[2]);
                 if k == 0 && patch.clearance(ray, ta)[2] <= 0.0 {
-                    return None;
+                    return Err(None);
                 }
                 if let Some(t) = patch.first_crossing(ray, ta, tb) {
                     let half = u32::from((ray.0 + gx * t) - (ray.1 + gy * t) < 0.0);
-                    return Some(RayHit {
+                    return Ok(RayHit {
                         t,
                         triangle: (r * cx + c) as u32 * 2 + half,
                     });
                 }
             }
             if tb >= t_max {
-                return None;
+                return Err(None);
             }
             // On to the cell beyond the edge the ray leaves by (both at a
             // corner).
             if exit_x <= exit_y {
-                c = if gx > 0.0 { c + 1 } else { c.checked_sub(1)? };
+                c = if gx > 0.0 {
+                    c + 1
+                } else {
+                    c.checked_sub(1).ok_or(None)?
+                };
             }
             if exit_y <= exit_x {
-                r = if gy > 0.0 { r + 1 } else { r.checked_sub(1)? };
+                r = if gy > 0.0 {
+                    r + 1
+                } else {
+                    r.checked_sub(1).ok_or(None)?
+                };
             }
             if c + 1 >= self.nx || r + 1 >= self.ny {
-                return None;
+                return Err(None);
             }
             t_lo = tb;
         }
-        None
+        // none of `max_cells` cells met: (c, r) is the next one
+        Err(Some((c, r)))
     }
 
     /// Distance along unit ray `d` from the eye to the bilinear patch of the
