@@ -697,6 +697,16 @@ impl LocalTerrain {
         self.traverse_with(index, d, t_start, t_limit)
     }
 
+    /// The horizontal part of direction `d` (east, north, up) in vertex
+    /// units of the grid (columns, rows per metre along the ray).
+    fn grid_direction(&self, d: [f64; 3]) -> (f64, f64) {
+        let m = self.en_to_v;
+        (
+            m[0][0] * d[0] + m[0][1] * d[1],
+            m[1][0] * d[0] + m[1][1] * d[1],
+        )
+    }
+
     /// The distance at which the ray from the eye along unit direction `d`
     /// enters the cell it crosses at distance `t`, as the traversal of
     /// [`LocalTerrain::cast_segment`] computes it (the exit of the cell
@@ -708,9 +718,7 @@ impl LocalTerrain {
         if self.nx < 2 || self.ny < 2 || !t.is_finite() {
             return None;
         }
-        let m = self.en_to_v;
-        let gx = m[0][0] * d[0] + m[0][1] * d[1];
-        let gy = m[1][0] * d[0] + m[1][1] * d[1];
+        let (gx, gy) = self.grid_direction(d);
         let (ox, oy) = self.eye_v;
         let (wx, wy) = ((self.nx - 1) as f64, (self.ny - 1) as f64);
         let (px, py) = (ox + gx * t, oy + gy * t);
@@ -733,9 +741,7 @@ impl LocalTerrain {
         if self.nx < 2 || self.ny < 2 || c + 1 >= self.nx || r + 1 >= self.ny {
             return None;
         }
-        let m = self.en_to_v;
-        let gx = m[0][0] * d[0] + m[0][1] * d[1];
-        let gy = m[1][0] * d[0] + m[1][1] * d[1];
+        let (gx, gy) = self.grid_direction(d);
         let (ox, oy) = self.eye_v;
         let (wx, wy) = ((self.nx - 1) as f64, (self.ny - 1) as f64);
         let mut entry = f64::NEG_INFINITY;
@@ -806,9 +812,7 @@ impl LocalTerrain {
         t_start: f64,
         t_limit: f64,
     ) -> Option<RayHit> {
-        let m = self.en_to_v;
-        let gx = m[0][0] * d[0] + m[0][1] * d[1];
-        let gy = m[1][0] * d[0] + m[1][1] * d[1];
+        let (gx, gy) = self.grid_direction(d);
         let dz = d[2];
         let (ox, oy) = self.eye_v;
         if self.nx < 2 || self.ny < 2 || !self.zmax.is_finite() {
@@ -1018,9 +1022,7 @@ impl LocalTerrain {
         if c + 1 >= self.nx || r + 1 >= self.ny {
             return Err(None);
         }
-        let m = self.en_to_v;
-        let gx = m[0][0] * d[0] + m[0][1] * d[1];
-        let gy = m[1][0] * d[0] + m[1][1] * d[1];
+        let (gx, gy) = self.grid_direction(d);
         let (ox, oy) = self.eye_v;
         let dh = (d[0] * d[0] + d[1] * d[1]).sqrt();
         let t_max = if self.max_distance.is_finite() && dh > 0.0 {
@@ -1108,9 +1110,7 @@ impl LocalTerrain {
             return None;
         }
         let patch = self.patch(c, r)?;
-        let m = self.en_to_v;
-        let gx = m[0][0] * d[0] + m[0][1] * d[1];
-        let gy = m[1][0] * d[0] + m[1][1] * d[1];
+        let (gx, gy) = self.grid_direction(d);
         let (bx, by) = (self.eye_v.0 - c as f64, self.eye_v.1 - r as f64);
         // The ray's stretch over the cell.
         let (mut ta, mut tb) = (0.0f64, f64::INFINITY);
