@@ -1002,17 +1002,6 @@ impl LocalTerrain {
         latest_entry: f64,
         max_cells: usize,
     ) -> Result<RayHit, Option<(usize, usize)>> {
-        self.walk_cells(d, id, t_start, latest_entry, max_cells)
-    }
-
-    fn walk_cells(
-        &self,
-        d: [f64; 3],
-        id: u32,
-        t_start: f64,
-        latest_entry: f64,
-        max_cells: usize,
-    ) -> Result<RayHit, Option<(usize, usize)>> {
         let cx = self.cells_x();
         if cx == 0 || self.ny < 2 {
             return Err(None);
