@@ -25,9 +25,26 @@
 //! stretch of `s` over the columns where it hides a stroke, widened by
 //! [`LOWERING_PAD_PX`] on each side: the rest of `s` hides nothing, and
 //! constraining it would only add changes far from the sketch.
+//!
+//! Where a stroke already lies on a silhouette of the unedited view (its
+//! anchored stretches, [`super::on_silhouette`]) the paper's rule does not
+//! apply: what stands above such a stretch was there before and stays.
+//! But the deformation that lifts the stroke's free part lifts the terrain
+//! beside it too, and on real DEMs that new crest often stands a pixel or
+//! three above the anchored part (the flank of a raised peak or of a
+//! filled void along the ridge the stroke follows), so the stroke is no
+//! longer the boundary there and no rule lowers it.
+//! [`find_raised_over_anchored`] finds those crests: silhouette samples
+//! more than [`BELOW_STROKE_PX`] above an anchored column whose pixel the
+//! unedited view showed as sky or as terrain farther away (the edit raised
+//! them, at whatever depth). Only those samples come down, each under the
+//! stroke's sight line by its own need, not the whole silhouette by the
+//! largest (the rest of it is often the landform the stroke asked for).
+//! The refinement rounds try this last.
 
 use super::fit::{is_hidden, HIDDEN_MARGIN};
 use super::rendered_view::{RenderedView, StrokeCurve};
+use crate::features::silhouettes::SilhouetteSample;
 use crate::view::CameraModel;
 use rayon::prelude::*;
 
@@ -118,6 +135,23 @@ fn carries_anchored_stroke(strokes: &[StrokeCurve], pixel: [f64; 2]) -> bool {
     })
 }
 
+/// Did the edit raise `sample` into view? The terrain pixel just under it
+/// showed sky in the unedited view, or terrain farther than the sample by
+/// more than [`HIDDEN_MARGIN`].
+fn raised_by_edit(view: &RenderedView, before: &RenderedView, sample: &SilhouetteSample) -> bool {
+    let [x, y] = sample.pixel;
+    if !(x >= 0.0 && y >= 0.0) {
+        return false;
+    }
+    let i = x.floor() as usize;
+    let j = (y - 0.5).ceil().max(0.0) as usize;
+    if i >= view.camera.width || j >= view.camera.height {
+        return false;
+    }
+    let was = f64::from(before.depth.depth_at(i, j));
+    was > sample.depth * (1.0 + HIDDEN_MARGIN)
+}
+
 /// How near (pixels, vertically) a silhouette sample must lie to an
 /// anchored stretch of a stroke to count as the silhouette it lies on.
 pub const ANCHORED_NEAR_PX: f64 = 3.0;
@@ -182,4 +216,85 @@ fn stroke_hits(view: &RenderedView, g: &StrokeCurve) -> StrokeHits {
         }
     }
     StrokeHits { samples, fallback }
+}
+
+/// Crests the edit raised over the anchored stretches of `strokes`
+/// (`raised_over_anchored`), as protrusions: one per run of adjacent
+/// columns on one silhouette, each point lowered by its own need. The
+/// refinement rounds try these last, from their best terrain.
+pub fn find_raised_over_anchored(
+    view: &RenderedView,
+    before: &RenderedView,
+    strokes: &[StrokeCurve],
+) -> Vec<Protrusion> {
+    let runs: Vec<Vec<Vec<([f64; 3], f64)>>> = strokes
+        .par_iter()
+        .map(|g| raised_over_anchored(view, before, g))
+        .collect();
+    runs.into_iter()
+        .flatten()
+        .map(|run| Protrusion {
+            curve: usize::MAX,
+            h: run.iter().fold(0.0f64, |a, p| a.max(p.1)),
+            hidden_columns: run.len(),
+            lowered: run.iter().map(|(p, h)| [p[0], p[1], p[2] - h]).collect(),
+        })
+        .collect()
+}
+
+/// Anchored columns lie on a silhouette of the unedited terrain, and what
+/// stood above them then stays; but a crest the edit itself raised above
+/// such a column, more than the fit's pixel over the stroke (the flank of
+/// a landform lifted beside an anchored stretch, at whatever depth), puts
+/// the stroke under it. Those samples, and only those (the rest of their
+/// silhouette is often the very landform the free part of the stroke
+/// asked for), come down each under the stroke's sight line: (CRS point,
+/// lowering), in runs of adjacent columns on one silhouette (each run one
+/// curve constraint: a gap must not be bridged by a line through the
+/// terrain between).
+fn raised_over_anchored(
+    view: &RenderedView,
+    before: &RenderedView,
+    g: &StrokeCurve,
+) -> Vec<Vec<([f64; 3], f64)>> {
+    let debug = std::env::var_os("DEMSKETCH_DEBUG").is_some();
+    let mut found: Vec<(u32, usize, [f64; 3], f64)> = Vec::new();
+    for (i, y, _) in g.columns(view.camera.width) {
+        let x = i as f64 + 0.5;
+        if !g.is_anchored(x) {
+            continue;
+        }
+        let ray = view.camera.unproject([x, y + BELOW_STROKE_PX]);
+        let rh = ray[0].hypot(ray[1]);
+        if rh <= 0.0 {
+            continue;
+        }
+        for &(c, s) in &view.by_column[i] {
+            let sample = &view.silhouettes.curves[c as usize].samples[s as usize];
+            if sample.pixel[1] >= y - BELOW_STROKE_PX || !raised_by_edit(view, before, sample) {
+                continue;
+            }
+            let p = sample.local;
+            let h = p[2] - ray[2] * p[0].hypot(p[1]) / rh;
+            if h.is_finite() && h > 0.0 {
+                if debug {
+                    eprintln!(
+                        "raised over anchored: {} x {x:.1} stroke y {y:.1} sample y {:.1} depth {:.0} stroke depth {:.0} h {h:.1}",
+                        g.id, sample.pixel[1], sample.depth, g.depth_at(x).unwrap_or(f64::NAN)
+                    );
+                }
+                found.push((c, i, sample.world, h));
+            }
+        }
+    }
+    found.sort_by_key(|f| (f.0, f.1));
+    let mut out: Vec<Vec<([f64; 3], f64)>> = Vec::new();
+    for (k, &(c, i, p, h)) in found.iter().enumerate() {
+        let continues = k > 0 && found[k - 1].0 == c && found[k - 1].1 + 1 == i;
+        match out.last_mut() {
+            Some(run) if continues => run.push((p, h)),
+            _ => out.push(vec![(p, h)]),
+        }
+    }
+    out
 }

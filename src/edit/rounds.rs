@@ -7,8 +7,13 @@
 //! along strokes that do not fit yet on the strokes' sight surfaces
 //! ([`super::contour`]), collects the new constraints of all views and
 //! solves once. It stops when no view asks for more, or when a round stops
-//! helping; the best terrain so far is kept. Lone spikes of the change
-//! field are flattened at the end ([`super::spikes`]).
+//! helping; the best terrain so far is kept. When they stop short of a
+//! full fit, one more try starts from the best round: the crests the edit
+//! raised over the strokes' anchored stretches are lowered
+//! ([`super::lowering::find_raised_over_anchored`]) and the rounds go on;
+//! what that try brings is kept only when every stroke then fits at least
+//! `min_fit`. Lone spikes of the change field are flattened at the end
+//! ([`super::spikes`]).
 
 use std::collections::{BTreeMap, HashSet};
 
@@ -16,7 +21,7 @@ use rayon::prelude::*;
 
 use super::contour::contour_constraints;
 use super::fit::fitted_fraction;
-use super::lowering::find_protruding;
+use super::lowering::{find_protruding, find_raised_over_anchored, Protrusion};
 use super::pipeline::{render_edited, Edit, Placed, Solver, ViewState};
 use super::rendered_view::{RenderedView, StrokeCurve};
 use super::spikes::flatten_spikes;
@@ -84,6 +89,13 @@ pub(super) fn refine(
     // that going back to it renders nothing again), and the renders of the
     // latest round when it is not the best.
     let mut best: Option<(f64, Deformation, Vec<RenderedView>)> = None;
+    // The constraints that made the best round's terrain (the curve list
+    // only grows: its length then), for the last try below.
+    let mut best_made_by = (constraints.len(), cells.clone());
+    let mut raised_tried = false;
+    // The best round before that try: (score, terrain).
+    let mut before_raised: Option<(f64, Deformation)> = None;
+    let perfect = curves.iter().map(Vec::len).sum::<usize>() as f64;
     let mut last: Option<(f64, Vec<RenderedView>)>;
     let mut stalled = 0;
     loop {
@@ -103,6 +115,26 @@ pub(super) fn refine(
                 let stop = score < *b - 1e-9 || stalled >= STALLED_ROUNDS;
                 last = Some((score, renders));
                 if stop {
+                    if let Some(next) = lower_raised_crests(
+                        &mut raised_tried,
+                        views,
+                        curves,
+                        best.as_ref(),
+                        perfect,
+                    ) {
+                        before_raised = best.as_ref().map(|b| (b.0, b.1.clone()));
+                        deformation = retry_from_best(
+                            solver,
+                            &mut constraints,
+                            &mut cells,
+                            &best_made_by,
+                            next,
+                            &mut lowered,
+                            &mut iterations,
+                        )?;
+                        stalled = 0;
+                        continue;
+                    }
                     break;
                 }
             }
@@ -110,6 +142,7 @@ pub(super) fn refine(
                 stalled = 0;
                 last = None;
                 best = Some((score, deformation.clone(), renders));
+                best_made_by = (constraints.len(), cells.clone());
             }
         }
         let rendered = match (&last, &best) {
@@ -152,6 +185,22 @@ pub(super) fn refine(
             }
         }
         if !changed {
+            if let Some(next) =
+                lower_raised_crests(&mut raised_tried, views, curves, best.as_ref(), perfect)
+            {
+                before_raised = best.as_ref().map(|b| (b.0, b.1.clone()));
+                deformation = retry_from_best(
+                    solver,
+                    &mut constraints,
+                    &mut cells,
+                    &best_made_by,
+                    next,
+                    &mut lowered,
+                    &mut iterations,
+                )?;
+                stalled = 0;
+                continue;
+            }
             break;
         }
         edit.pb.set_message(format!(
@@ -170,7 +219,7 @@ pub(super) fn refine(
         deformation = solver.solve(&constraints, &cell_list)?;
     }
     // The best round's terrain and renders, if a later one did worse.
-    let best_score = best.as_ref().map_or(0.0, |b| b.0);
+    let mut best_score = best.as_ref().map_or(0.0, |b| b.0);
     let mut rendered = match (last, best) {
         (Some((score, r)), Some((b, d, best_r))) => {
             if score < b - 1e-9 {
@@ -183,6 +232,18 @@ pub(super) fn refine(
         (None, Some((_, _, r))) | (Some((_, r)), None) => r,
         (None, None) => unreachable!("the loop renders at least once"),
     };
+    // The lowered crests are kept only when they complete the edit: every
+    // stroke fitted at least `min_fit`. Short of that, the rounds' terrain
+    // before the try stands (a partial gain there moved terrain that a
+    // second edit of the output would move again).
+    if let Some((score_before, d)) = before_raised {
+        if best_score > score_before + 1e-9 && worst_stroke_fit(curves, &rendered) < opts.min_fit
+        {
+            deformation = d;
+            rendered = render_all(&deformation)?;
+            best_score = score_before;
+        }
+    }
     // Do no harm: when the edit fits the strokes no better than the
     // terrain as it is (the strokes already lie where its silhouettes are,
     // to within what this edit can reach), nothing is changed.
@@ -191,7 +252,6 @@ pub(super) fn refine(
         .zip(views)
         .map(|(cs, v)| view_fit(cs, &v.before))
         .sum();
-    let perfect = curves.iter().map(Vec::len).sum::<usize>() as f64;
     let kept_unedited = unedited >= best_score - 1e-9 && best_score < perfect - 1e-9;
     if kept_unedited {
         deformation = unchanged(deformation);
@@ -211,6 +271,78 @@ pub(super) fn refine(
         lowering_constraints: constraints.len() - user_constraints,
         kept_unedited,
     })
+}
+
+/// The last try of the rounds, once they stop short of a perfect fit:
+/// the crests the edit raised over the strokes' anchored stretches in the
+/// best round's renders ([`find_raised_over_anchored`]), per view. `None`
+/// when tried already, when the best round fits every stroke, or when
+/// there are none. Tried once, from the best round, after the paper's
+/// lowering and the contour rounds have done what they can: where they
+/// reach a full fit it never runs, and a try that does not raise the fit
+/// is dropped like any other round.
+fn lower_raised_crests(
+    tried: &mut bool,
+    views: &[ViewState],
+    curves: &[Vec<StrokeCurve>],
+    best: Option<&(f64, Deformation, Vec<RenderedView>)>,
+    perfect: f64,
+) -> Option<Vec<Vec<Protrusion>>> {
+    let (score, _, renders) = best?;
+    if *tried || *score >= perfect - 1e-9 {
+        return None;
+    }
+    *tried = true;
+    let per_view: Vec<Vec<Protrusion>> = views
+        .iter()
+        .zip(renders)
+        .zip(curves)
+        .map(|((v, after), cs)| find_raised_over_anchored(after, &v.before, cs))
+        .collect();
+    per_view.iter().any(|p| !p.is_empty()).then_some(per_view)
+}
+
+/// Solve again from the constraints that made the best round's terrain
+/// (`made_by`: the curve list's length then and the contour cells), plus
+/// the lowered crests of `next`, counted per view.
+fn retry_from_best(
+    solver: &Solver,
+    constraints: &mut Vec<CurveConstraint>,
+    cells: &mut BTreeMap<(i64, i64), f64>,
+    made_by: &(usize, BTreeMap<(i64, i64), f64>),
+    next: Vec<Vec<Protrusion>>,
+    lowered: &mut [usize],
+    iterations: &mut [usize],
+) -> Result<Deformation, EditError> {
+    constraints.truncate(made_by.0);
+    cells.clone_from(&made_by.1);
+    for (k, protrusions) in next.into_iter().enumerate() {
+        if protrusions.is_empty() {
+            continue;
+        }
+        lowered[k] += protrusions.len();
+        iterations[k] += 1;
+        constraints.extend(
+            protrusions
+                .into_iter()
+                .filter(|p| !p.lowered.is_empty())
+                .map(|p| CurveConstraint { points: p.lowered }),
+        );
+    }
+    let cell_list: Vec<CellConstraint> = cells
+        .iter()
+        .map(|(&(col, row), &height)| CellConstraint { col, row, height })
+        .collect();
+    solver.solve(constraints, &cell_list)
+}
+
+/// The lowest fitted fraction of any stroke of any view.
+fn worst_stroke_fit(curves: &[Vec<StrokeCurve>], rendered: &[RenderedView]) -> f64 {
+    curves
+        .iter()
+        .zip(rendered)
+        .flat_map(|(cs, view)| cs.iter().map(move |c| fitted_fraction(c, view)))
+        .fold(f64::INFINITY, f64::min)
 }
 
 /// `d` with no displacement anywhere (nodata stays NaN).
