@@ -3,7 +3,7 @@
 judge's fit of each landform's silhouette, DEM by DEM and stroke by stroke.
 
     /usr/bin/python3 tools/fidelity/landform_real.py [--md TABLE.md] [--json OUT.json]
-        [--only DEM_SUBSTRING] [--keep DIR]
+        [--only DEM_SUBSTRING] [--styles S,...] [--keep DIR] [--pictures DIR]
 
 For each fixture a viewpoint and heading are chosen automatically (the
 first candidate cell, scanned in a fixed order, from which the judge sees
@@ -145,7 +145,17 @@ def choose_view(dem):
     return best
 
 
-def run_case(dem_path, dem, view, style, D, tmp):
+def save_pictures(dem, out, pts, view, prefix):
+    """The judge's renders of the DEM before and after (PREFIX_before.png,
+    PREFIX_after.png), the stroke drawn in yellow."""
+    score, lon, lat, heading, depth = view
+    alt = dem.height_ll(lon, lat) + 1.7
+    for name, d in (("before", dem), ("after", judge.Dem(out))):
+        r = judge.render(d, lon, lat, alt, heading, HFOV, W, H)
+        judge.save_picture(r, f"{prefix}_{name}.png", strokes=[pts])
+
+
+def run_case(dem_path, dem, view, style, D, tmp, pictures=None):
     score, lon, lat, heading, depth = view
     rows, near_top = ground_rows(depth, D)
     ok = np.isfinite(rows)
@@ -199,6 +209,9 @@ def run_case(dem_path, dem, view, style, D, tmp):
     res.update(json.loads(fo.stdout))
     res.update(resolvable(dem, depth, pts, D))
     res.update(misses(dem, depth, pts, res.pop("dev_by_column", {})))
+    if pictures:
+        save_pictures(dem, out, pts, view,
+                      os.path.join(pictures, f"{os.path.basename(dem_path)[:-4]}_{style}_{int(D)}"))
     res["status"] = "ok" if res["silhouette_share"] >= 0.95 else (
         f"stroke over terrain in {100 * (1 - res['silhouette_share']):.0f}% of its columns")
     if res["cells_across"] < 6:
@@ -290,6 +303,7 @@ def main():
     ap.add_argument("--only")
     ap.add_argument("--styles")
     ap.add_argument("--keep")
+    ap.add_argument("--pictures", help="save the judge's before/after renders of each case here")
     ap.add_argument("--from-json", help="write --md from an earlier --json run")
     a = ap.parse_args()
     rows = []
@@ -309,7 +323,7 @@ def main():
                 if a.keep:
                     tmp = os.path.join(a.keep, f"{name[:-4]}_{style}_{int(D)}")
                     os.makedirs(tmp, exist_ok=True)
-                res = run_case(path, dem, view, style, D, tmp)
+                res = run_case(path, dem, view, style, D, tmp, a.pictures)
                 res.update({"dem": name, "style": style, "distance_m": D,
                             "held_out": name not in TUNED})
                 rows.append(res)
