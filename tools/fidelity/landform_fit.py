@@ -1,13 +1,15 @@
 #!/usr/bin/python3
 """The judge's fit of a landform's silhouette (issue 14 item 5).
 
-    /usr/bin/python3 tools/fidelity/landform_fit.py DEM_BEFORE DEM_AFTER SKETCH VIEW STROKE
+    /usr/bin/python3 tools/fidelity/landform_fit.py DEM_BEFORE DEM_AFTER SKETCH VIEW STROKE [--columns]
 
 Renders DEM_BEFORE and DEM_AFTER with the independent judge (judge.py) from
 view VIEW of the sketch file SKETCH and prints, as one JSON line, the
 judge's fit (judge.fit: share of the stroke's columns with a boundary within
 1 px) of stroke STROKE on both: the landform `demsketch correct --sketch`
-built from that stroke should be fitted on the after-DEM. The eye is the
+built from that stroke should be fitted on the after-DEM. With --columns,
+also the deviation (px) of each of the stroke's columns on the after-DEM
+(dev_by_column; null where the judge sees no boundary in the column). The eye is the
 sketch's alt_m, else the before-DEM's bilinear ground + eye_height_m (1.7 m
 by default), the same absolute eye for both renders.
 """
@@ -20,6 +22,8 @@ import judge  # noqa: E402
 
 
 def main(argv):
+    columns = "--columns" in argv
+    argv = [a for a in argv if a != "--columns"]
     if len(argv) != 6:
         print(__doc__.strip().splitlines()[2].strip(), file=sys.stderr)
         return 2
@@ -49,6 +53,9 @@ def main(argv):
             finite = [d for d in dev.values() if d == d and d != float("inf")]
             out["median_dev_px"] = sorted(finite)[len(finite) // 2] if finite else None
             out["columns"] = len(dev)
+            if columns:
+                out["dev_by_column"] = {str(c): (d if d == d and d != float("inf") else None)
+                                        for c, d in sorted(dev.items())}
     print(json.dumps(out))
     return 0
 

@@ -3,7 +3,7 @@
 judge's fit of each landform's silhouette, DEM by DEM and stroke by stroke.
 
     /usr/bin/python3 tools/fidelity/landform_real.py [--md TABLE.md] [--json OUT.json]
-        [--only DEM_SUBSTRING] [--keep DIR]
+        [--only DEM_SUBSTRING] [--styles S,...] [--keep DIR] [--pictures DIR]
 
 For each fixture a viewpoint and heading are chosen automatically (the
 first candidate cell, scanned in a fixed order, from which the judge sees
@@ -145,7 +145,17 @@ def choose_view(dem):
     return best
 
 
-def run_case(dem_path, dem, view, style, D, tmp):
+def save_pictures(dem, out, pts, view, prefix):
+    """The judge's renders of the DEM before and after (PREFIX_before.png,
+    PREFIX_after.png), the stroke drawn in yellow."""
+    score, lon, lat, heading, depth = view
+    alt = dem.height_ll(lon, lat) + 1.7
+    for name, d in (("before", dem), ("after", judge.Dem(out))):
+        r = judge.render(d, lon, lat, alt, heading, HFOV, W, H)
+        judge.save_picture(r, f"{prefix}_{name}.png", strokes=[pts])
+
+
+def run_case(dem_path, dem, view, style, D, tmp, pictures=None):
     score, lon, lat, heading, depth = view
     rows, near_top = ground_rows(depth, D)
     ok = np.isfinite(rows)
@@ -189,19 +199,64 @@ def run_case(dem_path, dem, view, style, D, tmp):
     with open(rep) as f:
         lf = json.load(f)["corrections"][0]
     res["peak_m"] = lf.get("landform", {}).get("peak_m")
+    res["energy_ratio"] = (lf.get("noise") or {}).get("detail_energy_ratio")
     res["curve_error_m"] = lf.get("max_curve_error_m", lf.get("landform", {}).get("max_curve_error_m"))
     fo = subprocess.run(["/usr/bin/python3", os.path.join(ROOT, "tools/fidelity/landform_fit.py"),
-                         dem_path, out, sk, "v", "s"], capture_output=True, text=True)
+                         dem_path, out, sk, "v", "s", "--columns"], capture_output=True, text=True)
     if fo.returncode != 0:
         res["status"] = "judge failed: " + fo.stderr.strip()[-200:]
         return res
     res.update(json.loads(fo.stdout))
     res.update(resolvable(dem, depth, pts, D))
+    res.update(misses(dem, depth, pts, res.pop("dev_by_column", {})))
+    if pictures:
+        save_pictures(dem, out, pts, view,
+                      os.path.join(pictures, f"{os.path.basename(dem_path)[:-4]}_{style}_{int(D)}"))
     res["status"] = "ok" if res["silhouette_share"] >= 0.95 else (
         f"stroke over terrain in {100 * (1 - res['silhouette_share']):.0f}% of its columns")
     if res["cells_across"] < 6:
         res["status"] += f"; sub-cell: {res['cells_across']:.1f} cells across"
     return res
+
+
+def terrain_above_ok(dem, depth, pts):
+    """Per stroke column: True where the before render shows sky, or
+    terrain at least 5% and a cell farther than the ground the stroke's
+    ends stand on, just above the stroke."""
+    cols = judge.stroke_columns(pts, W)
+    ends = [depth[min(H - 1, int(q[1])), min(W - 1, int(q[0]))] for q in (pts[0], pts[-1])]
+    d_end = max([e for e in ends if math.isfinite(e)] or [math.inf])
+    out = {}
+    for c, ys in cols.items():
+        y = int(math.floor(min(ys))) - 1
+        d = depth[y, c] if 0 <= y < H else math.inf
+        out[c] = bool(d >= max(1.05 * d_end, d_end + dem.cell_m))
+    return out
+
+
+def misses(dem, depth, pts, dev_by_column):
+    """Where the judge missed the stroke (deviation over 1 px): in columns
+    where the before render shows nearer terrain just above the stroke
+    (terrain_above_ok false: no boundary there unless the ground behind is
+    dug), within one DEM cell's width in the image of either end (where
+    the stroke's corner with the ground falls between cell centres), or
+    elsewhere."""
+    ok = terrain_above_ok(dem, depth, pts)
+    f = (W / 2.0) / math.tan(math.radians(HFOV) / 2.0)
+    ends = [depth[min(H - 1, int(q[1])), min(W - 1, int(q[0]))] for q in (pts[0], pts[-1])]
+    cell_px = [f * dem.cell_m / e if math.isfinite(e) and e > 0 else 0.0 for e in ends]
+    n = {"miss_terrain_above": 0, "miss_end_cell": 0, "miss_interior": 0}
+    for key, d in dev_by_column.items():
+        c = int(key)
+        if d is not None and d <= 1.0:
+            continue
+        if not ok.get(c, True):
+            n["miss_terrain_above"] += 1
+        elif c + 0.5 - pts[0][0] <= cell_px[0] or pts[-1][0] - (c + 0.5) <= cell_px[1]:
+            n["miss_end_cell"] += 1
+        else:
+            n["miss_interior"] += 1
+    return n
 
 
 def resolvable(dem, depth, pts, D):
@@ -224,6 +279,23 @@ def resolvable(dem, depth, pts, D):
     return {"silhouette_share": good / max(1, len(cols)), "cells_across": across}
 
 
+def miss_cell(r):
+    """The table's missed-columns cell: counts by place, of the stroke's
+    columns."""
+    if "miss_interior" not in r:
+        return ""
+    return (f"{r['miss_terrain_above']} / {r['miss_end_cell']} / {r['miss_interior']} "
+            f"of {r.get('columns', '?')}")
+
+
+def energy_cell(r):
+    """The stroke's wavelet energy ratio (the report's
+    noise.detail_energy_ratio: detail bands' energy over the smoothest
+    level's), as the table shows it."""
+    e = r.get("energy_ratio")
+    return "" if e is None else f"{e:.2e}"
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--md")
@@ -231,6 +303,7 @@ def main():
     ap.add_argument("--only")
     ap.add_argument("--styles")
     ap.add_argument("--keep")
+    ap.add_argument("--pictures", help="save the judge's before/after renders of each case here")
     ap.add_argument("--from-json", help="write --md from an earlier --json run")
     a = ap.parse_args()
     rows = []
@@ -250,7 +323,7 @@ def main():
                 if a.keep:
                     tmp = os.path.join(a.keep, f"{name[:-4]}_{style}_{int(D)}")
                     os.makedirs(tmp, exist_ok=True)
-                res = run_case(path, dem, view, style, D, tmp)
+                res = run_case(path, dem, view, style, D, tmp, a.pictures)
                 res.update({"dem": name, "style": style, "distance_m": D,
                             "held_out": name not in TUNED})
                 rows.append(res)
@@ -264,8 +337,9 @@ def main():
         normal = [r["fit_after"] for r in measured if r["status"] == "ok"]
         with open(a.md, "w") as f:
             f.write("| DEM | held out | stroke | distance | view (lon, lat, heading) | bump px | "
-                    "fit before | fit after | median dev px | silhouette share | cells across | status |\n")
-            f.write("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n")
+                    "fit before | fit after | median dev px | silhouette share | cells across | "
+                    "missed columns: terrain above / end cell / interior | wavelet energy ratio | status |\n")
+            f.write("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n")
             for r in rows:
                 ll = r.get("lonlat", ["", ""])
                 f.write(f"| {r['dem'][:-4]} | {'yes' if r['held_out'] else 'no (tuned)'} | {r['style']} | "
@@ -273,7 +347,7 @@ def main():
                         f"{r.get('bump_px', '')} | {r.get('fit_before', float('nan')):.2f} | "
                         f"{r.get('fit_after', float('nan')):.3f} | {r.get('median_dev_px') or float('nan'):.2f} | "
                         f"{r.get('silhouette_share', float('nan')):.2f} | "
-                        f"{r.get('cells_across', float('nan')):.1f} | {r['status']} |\n")
+                        f"{r.get('cells_across', float('nan')):.1f} | {miss_cell(r)} | {energy_cell(r)} | {r['status']} |\n")
             if fits:
                 f.write(f"\n{sum(x >= 0.95 for x in fits)} of {len(fits)} measured landforms fitted "
                         f">= 0.95 (min {min(fits):.2f}, median {sorted(fits)[len(fits) // 2]:.2f}); "
