@@ -109,78 +109,60 @@ pub(super) fn refine(
                 contour_rounds
             );
         }
-        match &best {
+        let stopped = match &best {
             Some((b, _, _)) if score <= *b + 1e-9 => {
                 stalled += 1;
                 let stop = score < *b - 1e-9 || stalled >= STALLED_ROUNDS;
                 last = Some((score, renders));
-                if stop {
-                    if let Some(next) = lower_raised_crests(
-                        &mut raised_tried,
-                        views,
-                        curves,
-                        best.as_ref(),
-                        perfect,
-                    ) {
-                        before_raised = best.as_ref().map(|b| (b.0, b.1.clone()));
-                        deformation = retry_from_best(
-                            solver,
-                            &mut constraints,
-                            &mut cells,
-                            &best_made_by,
-                            next,
-                            &mut lowered,
-                            &mut iterations,
-                        )?;
-                        stalled = 0;
-                        continue;
-                    }
-                    break;
-                }
+                stop
             }
             _ => {
                 stalled = 0;
                 last = None;
                 best = Some((score, deformation.clone(), renders));
                 best_made_by = (constraints.len(), cells.clone());
+                false
             }
-        }
+        };
         let rendered = match (&last, &best) {
             (Some((_, r)), _) | (None, Some((_, _, r))) => r,
             (None, None) => unreachable!("a round's renders are kept"),
         };
         let mut changed = false;
-        for (k, (v, after)) in views.iter().zip(rendered).enumerate() {
-            if iterations[k] < opts.max_lowering_iterations {
-                let protruding = find_protruding(after, &curves[k]);
-                if !protruding.is_empty() {
-                    for p in &protruding {
-                        if !p.lowered.is_empty() {
-                            constraints.push(CurveConstraint {
-                                points: p.lowered.clone(),
-                            });
+        // A stopped round adds nothing: the last try below, or the end.
+        if !stopped {
+            for (k, (v, after)) in views.iter().zip(rendered).enumerate() {
+                if iterations[k] < opts.max_lowering_iterations {
+                    let protruding = find_protruding(after, &curves[k]);
+                    if !protruding.is_empty() {
+                        for p in &protruding {
+                            if !p.lowered.is_empty() {
+                                constraints.push(CurveConstraint {
+                                    points: p.lowered.clone(),
+                                });
+                            }
                         }
+                        lowered[k] += protruding.len();
+                        iterations[k] += 1;
+                        changed = true;
                     }
-                    lowered[k] += protruding.len();
-                    iterations[k] += 1;
-                    changed = true;
                 }
-            }
-            if contour_rounds[k] < opts.max_contour_iterations {
-                let mut moved = false;
-                let mut round: BTreeMap<(i64, i64), f64> = BTreeMap::new();
-                let known = |col: i64, row: i64| cells.contains_key(&(col, row));
-                for c in contour_constraints(after, &curves[k], v.window_offset, &known) {
-                    let h = round.entry((c.col, c.row)).or_insert(c.height);
-                    *h = h.min(c.height);
-                }
-                for (&(col, row), &height) in &round {
-                    let old = cells.insert((col, row), height);
-                    moved |= old.is_none_or(|h| (h - height).abs() > CELL_CHANGE_M);
-                }
-                if moved {
-                    contour_rounds[k] += 1;
-                    changed = true;
+                if contour_rounds[k] < opts.max_contour_iterations {
+                    let mut moved = false;
+                    let mut round: BTreeMap<(i64, i64), f64> = BTreeMap::new();
+                    let known = |col: i64, row: i64| cells.contains_key(&(col, row));
+                    for c in contour_constraints(after, &curves[k], v.window_offset, &known) {
+                        let h = round.entry((c.col, c.row)).or_insert(c.height);
+                        *h = h.min(c.height);
+                    }
+                    for (&(col, row), &height) in &round {
+                        let old = cells.insert((col, row), height);
+                        moved |= old.is_none_or(|h| (h - height).abs() > CELL_CHANGE_M);
+                    }
+                    if moved {
+                        contour_rounds[k] += 1;
+                        changed = true;
+                    }
                 }
             }
         }
@@ -237,8 +219,7 @@ pub(super) fn refine(
     // before the try stands (a partial gain there moved terrain that a
     // second edit of the output would move again).
     if let Some((score_before, d)) = before_raised {
-        if best_score > score_before + 1e-9 && worst_stroke_fit(curves, &rendered) < opts.min_fit
-        {
+        if best_score > score_before + 1e-9 && worst_stroke_fit(curves, &rendered) < opts.min_fit {
             deformation = d;
             rendered = render_all(&deformation)?;
             best_score = score_before;
