@@ -515,7 +515,7 @@ impl LocalTerrain {
         if c >= self.nx || r >= self.ny {
             return None;
         }
-        let v = self.z.at(r * self.nx + c);
+        let v = self.z.at_cr(c, r);
         (!v.is_nan()).then_some(v as f64)
     }
 
@@ -541,9 +541,8 @@ impl LocalTerrain {
         // terrain would be a copy).
         let mut v = [[0f32; 4]; 4];
         for (j, vr) in v.iter_mut().enumerate().take(r_hi + 2 - r_lo) {
-            let k = (r_lo + j) * nx + c_lo;
             for (i, vv) in vr.iter_mut().enumerate().take(c_hi + 2 - c_lo) {
-                *vv = self.z.at(k + i);
+                *vv = self.z.at_cr(c_lo + i, r_lo + j);
             }
         }
         let mut twist = 0.0f64;
@@ -960,8 +959,7 @@ impl LocalTerrain {
     /// next to nodata (where [`LocalTerrain::patch`] is `None`).
     #[inline]
     fn corners(&self, c: usize, r: usize) -> Option<[f64; 4]> {
-        let (i, nx) = (r * self.nx + c, self.nx);
-        let h = [i, i + 1, i + nx, i + nx + 1].map(|k| self.z.at(k) as f64);
+        let h = self.z.quad(c, r).map(f64::from);
         (!h.iter().any(|v| v.is_nan())).then_some(h)
     }
 

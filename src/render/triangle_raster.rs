@@ -629,7 +629,7 @@ impl Raster<'_> {
         let f = self.camera.focal_px;
         for r in r0..=r1 {
             for c in c0..=c1 {
-                let z = t.z.at(r * t.nx + c);
+                let z = t.z.at_cr(c, r);
                 let v = &mut verts[(r - r0) * vw + (c - c0)];
                 if z.is_nan() {
                     v.state = 1;
@@ -652,13 +652,7 @@ impl Raster<'_> {
                     continue;
                 }
                 let id = 2 * (r as u32 * cells_x + c as u32);
-                let k0 = r * t.nx + c;
-                let z = [
-                    t.z.at(k0),
-                    t.z.at(k0 + 1),
-                    t.z.at(k0 + t.nx),
-                    t.z.at(k0 + t.nx + 1),
-                ];
+                let z = t.z.quad(c, r);
                 let n = subdivisions([a, bq, cq, d], z, f);
                 if n > 1 {
                     self.draw_patch(m, (c, r), n, id, ytop, cols, sub);
@@ -686,14 +680,7 @@ impl Raster<'_> {
         sub: &mut Vec<PVertex>,
     ) {
         let t = self.terrain;
-        let k = r * t.nx + c;
-        let [h00, h10, h01, h11] = [
-            t.z.at(k),
-            t.z.at(k + 1),
-            t.z.at(k + t.nx),
-            t.z.at(k + t.nx + 1),
-        ]
-        .map(f64::from);
+        let [h00, h10, h01, h11] = t.z.quad(c, r).map(f64::from);
         let (w, h) = (self.camera.width as f64, self.camera.height as f64);
         let f = self.camera.focal_px;
         let vn = n + 1;

@@ -29,6 +29,20 @@ struct Patch {
     data: Vec<f32>,
 }
 
+impl Patch {
+    /// Whether vertex `(c, r)` lies in the patch.
+    #[inline]
+    fn holds(&self, c: usize, r: usize) -> bool {
+        c >= self.c0 && c < self.c0 + self.w && r >= self.r0 && r < self.r0 + self.h
+    }
+
+    /// Whether any corner of cell `(c, r)` lies in the patch.
+    #[inline]
+    fn touches_quad(&self, c: usize, r: usize) -> bool {
+        c + 1 >= self.c0 && c < self.c0 + self.w && r + 1 >= self.r0 && r < self.r0 + self.h
+    }
+}
+
 impl VertexHeights {
     /// Heights `z` of a grid `nx` across, with no patch.
     pub(crate) fn new(z: Vec<f32>, nx: usize) -> Self {
@@ -53,6 +67,44 @@ impl VertexHeights {
     #[inline]
     pub fn at(&self, k: usize) -> f32 {
         *self.at_ref(k)
+    }
+
+    /// The height of vertex `(c, r)` (`c < nx`): [`VertexHeights::at`]
+    /// without the division that turns a linear index back into a column
+    /// and a row, for callers that hold them (the renderer, the casts).
+    #[inline]
+    pub fn at_cr(&self, c: usize, r: usize) -> f32 {
+        if let Some(p) = &self.patch {
+            if p.holds(c, r) {
+                return p.data[(r - p.r0) * p.w + (c - p.c0)];
+            }
+        }
+        self.base[r * self.nx + c]
+    }
+
+    /// The heights `[z(c, r), z(c + 1, r), z(c, r + 1), z(c + 1, r + 1)]`
+    /// of the corners of cell `(c, r)` (`c + 1 < nx`): one test of the
+    /// patch for the four where they all lie on one side of its border.
+    #[inline]
+    pub fn quad(&self, c: usize, r: usize) -> [f32; 4] {
+        let from = |data: &[f32], k: usize, stride: usize| {
+            [data[k], data[k + 1], data[k + stride], data[k + stride + 1]]
+        };
+        match &self.patch {
+            Some(p) if p.touches_quad(c, r) => {
+                if p.holds(c, r) && p.holds(c + 1, r + 1) {
+                    from(&p.data, (r - p.r0) * p.w + (c - p.c0), p.w)
+                } else {
+                    [
+                        self.at_cr(c, r),
+                        self.at_cr(c + 1, r),
+                        self.at_cr(c, r + 1),
+                        self.at_cr(c + 1, r + 1),
+                    ]
+                }
+            }
+            _ => from(&self.base, r * self.nx + c, self.nx),
+        }
     }
 
     #[inline]
