@@ -27,6 +27,7 @@ pub(crate) use outputs::StagedDir;
 pub mod pipeline;
 pub mod rendered_view;
 pub mod renders;
+mod rerender;
 pub mod report;
 mod rounds;
 pub mod spikes;

@@ -504,6 +504,29 @@ impl LocalTerrain {
         (self.zmin, self.zmax)
     }
 
+    /// Where this terrain's vertices differ from `earlier`'s, both patched
+    /// from one terrain ([`LocalTerrain::with_heights`]: the same grid and
+    /// frame) and with the same height range (which bounds every cast):
+    /// `Some(None)` when none differs (to the bit), `Some(Some((c0, r0,
+    /// c1, r1)))` the box of those that do (vertex indices, end
+    /// exclusive), `None` when the two cannot be compared so.
+    pub fn changed_since(
+        &self,
+        earlier: &LocalTerrain,
+    ) -> Option<Option<(usize, usize, usize, usize)>> {
+        let same_grid = (self.col0, self.row0, self.nx, self.ny)
+            == (earlier.col0, earlier.row0, earlier.nx, earlier.ny)
+            && self.eye_v == earlier.eye_v
+            && self.en_to_v == earlier.en_to_v
+            && self.max_distance.to_bits() == earlier.max_distance.to_bits();
+        let same_range = self.zmin.to_bits() == earlier.zmin.to_bits()
+            && self.zmax.to_bits() == earlier.zmax.to_bits();
+        if !(same_grid && same_range) {
+            return None;
+        }
+        self.z.changed_box(&earlier.z)
+    }
+
     /// Number of cells across (`nx - 1`).
     pub fn cells_x(&self) -> usize {
         self.nx.saturating_sub(1)

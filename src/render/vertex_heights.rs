@@ -191,6 +191,42 @@ impl VertexHeights {
         }
     }
 
+    /// Where these heights and `other` differ, when both are patched from
+    /// one base grid (the same shared grid, not merely equal heights):
+    /// `Some(None)` where they are the same to the bit, `Some(Some((c0,
+    /// r0, c1, r1)))` the box of the vertices that differ (end exclusive);
+    /// `None` for heights of different grids.
+    pub(crate) fn changed_box(
+        &self,
+        other: &VertexHeights,
+    ) -> Option<Option<(usize, usize, usize, usize)>> {
+        if !Arc::ptr_eq(&self.base, &other.base) || self.nx != other.nx {
+            return None;
+        }
+        // Only the patches' rectangles can differ.
+        let rects = [&self.patch, &other.patch].map(|p| {
+            p.as_ref()
+                .map(|p| (p.c0, p.r0, p.c0 + p.w, p.r0 + p.h))
+        });
+        let (c0, r0, c1, r1) = match rects {
+            [None, None] => return Some(None),
+            [Some(a), None] | [None, Some(a)] => a,
+            [Some(a), Some(b)] => (a.0.min(b.0), a.1.min(b.1), a.2.max(b.2), a.3.max(b.3)),
+        };
+        let mut changed: Option<(usize, usize, usize, usize)> = None;
+        for r in r0..r1 {
+            for c in c0..c1 {
+                if self.at_cr(c, r).to_bits() != other.at_cr(c, r).to_bits() {
+                    changed = Some(match changed {
+                        None => (c, r, c + 1, r + 1),
+                        Some((a0, b0, a1, b1)) => (a0.min(c), b0.min(r), a1.max(c + 1), b1.max(r + 1)),
+                    });
+                }
+            }
+        }
+        Some(changed)
+    }
+
     /// The base grid when no other terrain shares it (for recycling).
     pub(crate) fn take_unshared(&mut self) -> Option<Vec<f32>> {
         let base = std::mem::take(&mut self.base);
