@@ -36,10 +36,19 @@ impl Patch {
         c >= self.c0 && c < self.c0 + self.w && r >= self.r0 && r < self.r0 + self.h
     }
 
-    /// Whether any corner of cell `(c, r)` lies in the patch.
+    /// Whether any corner of cell `(c, r)` lies in the patch (`c + 1 -
+    /// c0` within `0..=w`, wrapping below `c0`; rows alike).
     #[inline]
     fn touches_quad(&self, c: usize, r: usize) -> bool {
-        c + 1 >= self.c0 && c < self.c0 + self.w && r + 1 >= self.r0 && r < self.r0 + self.h
+        (c + 1).wrapping_sub(self.c0) <= self.w && (r + 1).wrapping_sub(self.r0) <= self.h
+    }
+
+    /// Whether all four corners of cell `(c, r)` lie in the patch (`c -
+    /// c0` within `0..w - 1`, wrapping below `c0`; rows alike).
+    #[inline]
+    fn holds_quad(&self, c: usize, r: usize) -> bool {
+        c.wrapping_sub(self.c0) < self.w.wrapping_sub(1)
+            && r.wrapping_sub(self.r0) < self.h.wrapping_sub(1)
     }
 }
 
@@ -92,7 +101,7 @@ impl VertexHeights {
         };
         match &self.patch {
             Some(p) if p.touches_quad(c, r) => {
-                if p.holds(c, r) && p.holds(c + 1, r + 1) {
+                if p.holds_quad(c, r) {
                     from(&p.data, (r - p.r0) * p.w + (c - p.c0), p.w)
                 } else {
                     [
