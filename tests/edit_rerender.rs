@@ -24,9 +24,18 @@ fn region(cam: &Camera) -> StrokeRegion {
 
 /// The two renders are the same to the bit.
 fn assert_same_render(got: &RenderedView, want: &RenderedView, what: &str) {
-    let bits = |v: &RenderedView| v.depth.depth.iter().map(|d| d.to_bits()).collect::<Vec<_>>();
+    let bits = |v: &RenderedView| {
+        v.depth
+            .depth
+            .iter()
+            .map(|d| d.to_bits())
+            .collect::<Vec<_>>()
+    };
     assert!(bits(got) == bits(want), "{what}: depths");
-    assert!(got.depth.triangle == want.depth.triangle, "{what}: triangles");
+    assert!(
+        got.depth.triangle == want.depth.triangle,
+        "{what}: triangles"
+    );
     assert_eq!(
         format!("{:?}", got.silhouettes),
         format!("{:?}", want.silhouettes),
@@ -80,7 +89,10 @@ fn a_re_render_after_a_change_is_the_fresh_render() {
     let mut reached = 0;
     for c in curves.iter().take(8) {
         let s = &c.samples[c.samples.len() / 2];
-        let at = (base.col0 + s.cell[0] as usize, base.row0 + s.cell[1] as usize);
+        let at = (
+            base.col0 + s.cell[0] as usize,
+            base.row0 + s.cell[1] as usize,
+        );
         let t2 = base.with_heights(rect, &one_at(at));
         let want = fresh(&t2).unwrap();
         let got = RenderedView::rerender_terrain_region(t2, &cam, &region, &r1).unwrap();

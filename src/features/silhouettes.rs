@@ -249,9 +249,8 @@ pub fn extract_silhouettes_reusing(
             "silhouette min_jump and link_depth must be > 0 and max_link_dy >= 1".into(),
         ));
     }
-    let reuse = reuse.filter(|(earlier, _)| {
-        earlier.samples.len() == w && earlier.confined.len() == w
-    });
+    let reuse =
+        reuse.filter(|(earlier, _)| earlier.samples.len() == w && earlier.confined.len() == w);
     let kept = |x: usize| -> Option<(Vec<SilhouetteSample>, bool)> {
         let (earlier, keep) = reuse?;
         (earlier.confined[x] && keep(x)).then(|| (earlier.samples[x].clone(), true))

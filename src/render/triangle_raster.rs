@@ -197,7 +197,10 @@ pub(crate) fn rasterise_into(
 
 /// A render's strips kept from an earlier one: its depths and triangles,
 /// and which strips (pixel columns `x0..=x1`) to take from them.
-type KeptStrips<'a> = ((&'a [f32], &'a [u32]), &'a (dyn Fn(usize, usize) -> bool + Sync));
+type KeptStrips<'a> = (
+    (&'a [f32], &'a [u32]),
+    &'a (dyn Fn(usize, usize) -> bool + Sync),
+);
 
 /// [`rasterise_into`], each strip either rendered or, where `kept` says
 /// so, copied from the earlier render.

@@ -213,10 +213,8 @@ impl VertexHeights {
             return None;
         }
         // Only the patches' rectangles can differ.
-        let rects = [&self.patch, &other.patch].map(|p| {
-            p.as_ref()
-                .map(|p| (p.c0, p.r0, p.c0 + p.w, p.r0 + p.h))
-        });
+        let rects = [&self.patch, &other.patch]
+            .map(|p| p.as_ref().map(|p| (p.c0, p.r0, p.c0 + p.w, p.r0 + p.h)));
         let (c0, r0, c1, r1) = match rects {
             [None, None] => return Some(None),
             [Some(a), None] | [None, Some(a)] => a,
@@ -228,7 +226,9 @@ impl VertexHeights {
                 if self.at_cr(c, r).to_bits() != other.at_cr(c, r).to_bits() {
                     changed = Some(match changed {
                         None => (c, r, c + 1, r + 1),
-                        Some((a0, b0, a1, b1)) => (a0.min(c), b0.min(r), a1.max(c + 1), b1.max(r + 1)),
+                        Some((a0, b0, a1, b1)) => {
+                            (a0.min(c), b0.min(r), a1.max(c + 1), b1.max(r + 1))
+                        }
                     });
                 }
             }
