@@ -26,7 +26,13 @@
 //!   rows of the column plane, and the column's depths and triangles are
 //!   those of the earlier render, the column's samples are the earlier
 //!   ones ([`crate::features::extract_silhouettes_reusing`]); the curves
-//!   are linked again from all columns.
+//!   are linked again from all columns. The casts' max pyramid changes
+//!   over whole blocks around the changed cells, so a kept column's ray
+//!   may descend a block it skipped before: its hit is the same, as a
+//!   traversal's hit does not depend on the level it crosses a block at
+//!   (the premise of the casts' later starts in `features::silhouettes`),
+//!   but for a crossing shorter than the traversal's epsilon at a block's
+//!   last cell; the fidelity suite and `tests/edit_rerender.rs` check it.
 //!
 //! Anything out of the ordinary (another camera or region, terrains not
 //! patched from one, a change of the height range, a change the geometry
