@@ -104,21 +104,26 @@ pub fn contour_constraints(
     view: &RenderedView,
     strokes: &[StrokeCurve],
     window_offset: (i64, i64),
-    constrained: &dyn Fn(i64, i64) -> bool,
+    constrained: &(dyn Fn(i64, i64) -> bool + Sync),
 ) -> Vec<CellConstraint> {
-    let mut out = Vec::new();
     let unfitted: Vec<&StrokeCurve> = strokes
         .iter()
         .filter(|s| !s.depths.is_empty() && !unfitted_columns(s, view).is_empty())
         .collect();
     if unfitted.is_empty() {
-        return out;
+        return Vec::new();
     }
     let near = ProjectedVertices::new(view, &unfitted);
-    for s in unfitted {
-        stroke_constraints(view, s, &near, window_offset, constrained, &mut out);
-    }
-    out
+    // The strokes side by side, their constraints in the strokes' order.
+    let per_stroke: Vec<Vec<CellConstraint>> = unfitted
+        .par_iter()
+        .map(|s| {
+            let mut out = Vec::new();
+            stroke_constraints(view, s, &near, window_offset, constrained, &mut out);
+            out
+        })
+        .collect();
+    per_stroke.concat()
 }
 
 /// The vertices within the depth neighbourhood of any of the strokes, with
@@ -209,7 +214,7 @@ fn stroke_constraints(
     s: &StrokeCurve,
     near: &ProjectedVertices,
     window_offset: (i64, i64),
-    constrained: &dyn Fn(i64, i64) -> bool,
+    constrained: &(dyn Fn(i64, i64) -> bool + Sync),
     out: &mut Vec<CellConstraint>,
 ) {
     let t = &view.terrain;

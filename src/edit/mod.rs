@@ -28,6 +28,7 @@ pub mod pipeline;
 pub mod rendered_view;
 pub mod renders;
 pub mod report;
+mod rerender;
 mod rounds;
 pub mod spikes;
 pub mod stretch_placement;

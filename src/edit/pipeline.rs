@@ -1724,10 +1724,23 @@ pub(super) fn render_edited(
     d: &Deformation,
     region: Option<&StrokeRegion>,
 ) -> Result<RenderedView, EditError> {
+    render_edited_after(v, d, region, None)
+}
+
+/// [`render_edited`], taking from `earlier` (an earlier render of the
+/// same region of the view) what the terrain's change since cannot reach
+/// ([`RenderedView::rerender_terrain_region`]): the same render, for less.
+pub(super) fn render_edited_after(
+    v: &ViewState,
+    d: &Deformation,
+    region: Option<&StrokeRegion>,
+    earlier: Option<&RenderedView>,
+) -> Result<RenderedView, EditError> {
     let terrain = edited_terrain(&v.before.terrain, v.window_offset, d);
-    match region {
-        Some(r) => RenderedView::render_terrain_region(terrain, &v.camera, r),
-        None => RenderedView::from_terrain(terrain, &v.camera),
+    match (region, earlier) {
+        (Some(r), Some(e)) => RenderedView::rerender_terrain_region(terrain, &v.camera, r, e),
+        (Some(r), None) => RenderedView::render_terrain_region(terrain, &v.camera, r),
+        (None, _) => RenderedView::from_terrain(terrain, &v.camera),
     }
     .map_err(|e| EditError::Internal(format!("view \"{}\": features: {e}", v.spec.name)))
 }

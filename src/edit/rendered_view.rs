@@ -5,7 +5,7 @@
 //! fit measures and the lowering loop compare against.
 
 use crate::features::{
-    extract_silhouettes, extract_silhouettes_where, FeatureError, SilhouetteParams, Silhouettes,
+    extract_silhouettes_reusing, ColumnSamples, FeatureError, SilhouetteParams, Silhouettes,
 };
 use crate::raster::HeightMap;
 use crate::render::{pick, DepthBuffer, LocalTerrain, TerrainHit, SKY};
@@ -36,7 +36,7 @@ pub const REGION_NEAR_ROWS: f32 = 3.0;
 /// curve; the nearer terrain over a hidden stroke. So the depth buffer is
 /// rendered only down to a little under the strokes, and silhouettes are
 /// refined only where they can be one of these.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct StrokeRegion {
     /// Per image column, the last row rendered (-1: none).
     pub last_row: Vec<i32>,
@@ -137,6 +137,12 @@ pub struct RenderedView {
     /// For each image column, the row of the topmost terrain pixel (the
     /// skyline lies on its upper edge), `None` when the column is all sky.
     pub skyline_row: Vec<Option<usize>>,
+    /// The silhouette samples column by column, as extracted (a later
+    /// render of the view after a small change takes the columns the
+    /// change cannot reach from here: [`super::rerender`]).
+    pub columns: ColumnSamples,
+    /// The region rendered (`None`: the whole view).
+    pub region: Option<StrokeRegion>,
 }
 
 impl RenderedView {
@@ -202,39 +208,31 @@ impl RenderedView {
         depth: DepthBuffer,
         region: Option<&StrokeRegion>,
     ) -> Result<RenderedView, FeatureError> {
-        let camera = depth.camera;
+        Self::from_depth_reusing(terrain, depth, region, None)
+    }
+
+    /// [`RenderedView::from_depth`], with the silhouette columns `x` for
+    /// which `keep(x)` holds taken from `earlier`'s (see
+    /// [`extract_silhouettes_reusing`]).
+    pub(super) fn from_depth_reusing(
+        terrain: LocalTerrain,
+        depth: DepthBuffer,
+        region: Option<&StrokeRegion>,
+        reuse: Option<(&RenderedView, &(dyn Fn(usize) -> bool + Sync))>,
+    ) -> Result<RenderedView, FeatureError> {
         let params = SilhouetteParams::default();
-        let silhouettes = match region {
-            Some(r) => extract_silhouettes_where(&terrain, &depth, &params, &|x, y, near| {
-                r.wants(x, y, near)
-            })?,
-            None => extract_silhouettes(&terrain, &depth, &params)?,
+        let all = |_: usize, _: usize, _: f32| true;
+        let wants = |x: usize, y: usize, near: f32| region.is_none_or(|r| r.wants(x, y, near));
+        let wanted: &(dyn Fn(usize, usize, f32) -> bool + Sync) = match region {
+            Some(_) => &wants,
+            None => &all,
         };
-        let w = camera.width;
-        let mut by_column = vec![Vec::new(); w];
-        for (ci, c) in silhouettes.curves.iter().enumerate() {
-            for (si, s) in c.samples.iter().enumerate() {
-                let x = s.pixel[0].floor();
-                if x >= 0.0 && (x as usize) < w {
-                    by_column[x as usize].push((ci as u32, si as u32));
-                }
-            }
-        }
-        // Row by row (the buffer is row-major) until every column has met
-        // the terrain.
-        let mut skyline_row = vec![None; w];
-        let mut open = w;
-        for (j, row) in depth.triangle.chunks_exact(w.max(1)).enumerate() {
-            if open == 0 {
-                break;
-            }
-            for (s, &t) in skyline_row.iter_mut().zip(row) {
-                if s.is_none() && t != SKY {
-                    *s = Some(j);
-                    open -= 1;
-                }
-            }
-        }
+        let reuse = reuse.map(|(earlier, keep)| (&earlier.columns, keep));
+        let (silhouettes, columns) =
+            extract_silhouettes_reusing(&terrain, &depth, &params, wanted, reuse)?;
+        let camera = depth.camera;
+        let by_column = samples_by_column(&silhouettes, camera.width);
+        let skyline_row = skyline_rows(&depth);
         Ok(RenderedView {
             terrain,
             camera,
@@ -242,6 +240,8 @@ impl RenderedView {
             silhouettes,
             by_column,
             skyline_row,
+            columns,
+            region: region.cloned(),
         })
     }
 
@@ -315,6 +315,42 @@ impl RenderedView {
         }
         None
     }
+}
+
+/// For each of the `w` image columns, the `(curve, sample)` indices of the
+/// silhouette samples in it.
+fn samples_by_column(silhouettes: &Silhouettes, w: usize) -> Vec<Vec<(u32, u32)>> {
+    let mut by_column = vec![Vec::new(); w];
+    for (ci, c) in silhouettes.curves.iter().enumerate() {
+        for (si, s) in c.samples.iter().enumerate() {
+            let x = s.pixel[0].floor();
+            if x >= 0.0 && (x as usize) < w {
+                by_column[x as usize].push((ci as u32, si as u32));
+            }
+        }
+    }
+    by_column
+}
+
+/// For each image column, the row of its topmost terrain pixel (`None`:
+/// all sky), found row by row (the buffer is row-major) until every
+/// column has met the terrain.
+fn skyline_rows(depth: &DepthBuffer) -> Vec<Option<usize>> {
+    let w = depth.camera.width;
+    let mut skyline_row = vec![None; w];
+    let mut open = w;
+    for (j, row) in depth.triangle.chunks_exact(w.max(1)).enumerate() {
+        if open == 0 {
+            break;
+        }
+        for (s, &t) in skyline_row.iter_mut().zip(row) {
+            if s.is_none() && t != SKY {
+                *s = Some(j);
+                open -= 1;
+            }
+        }
+    }
+    skyline_row
 }
 
 /// A stroke as drawn (x-monotone, prepared) with the depth of its placed

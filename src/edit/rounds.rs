@@ -22,7 +22,7 @@ use rayon::prelude::*;
 use super::contour::contour_constraints;
 use super::fit::fitted_fraction;
 use super::lowering::{find_protruding, find_raised_over_anchored, Protrusion};
-use super::pipeline::{render_edited, Edit, Placed, Solver, ViewState};
+use super::pipeline::{render_edited_after, Edit, Placed, Solver, ViewState};
 use super::rendered_view::{RenderedView, StrokeCurve};
 use super::spikes::flatten_spikes;
 use super::EditError;
@@ -71,11 +71,19 @@ pub(super) fn refine(
     let opts = edit.opts;
     let curves = &placed.demands.strokes;
     let regions = &placed.regions;
-    let render_all = |deformation: &Deformation| -> Result<Vec<RenderedView>, EditError> {
+    // Each view's region on `deformation`'s terrain, taking from the
+    // views' `earlier` renders what the change since cannot reach (most of
+    // the image after a round that changed little).
+    let render_all = |deformation: &Deformation,
+                      earlier: Option<&[RenderedView]>|
+     -> Result<Vec<RenderedView>, EditError> {
         views
             .iter()
             .zip(regions)
-            .map(|(v, r)| render_edited(v, deformation, Some(r)))
+            .enumerate()
+            .map(|(k, (v, r))| {
+                render_edited_after(v, deformation, Some(r), earlier.and_then(|e| e.get(k)))
+            })
             .collect()
     };
     edit.pb.set_message("lowering protruding silhouettes");
@@ -96,10 +104,15 @@ pub(super) fn refine(
     // The best round before that try: (score, terrain).
     let mut before_raised: Option<(f64, Deformation)> = None;
     let perfect = curves.iter().map(Vec::len).sum::<usize>() as f64;
-    let mut last: Option<(f64, Vec<RenderedView>)>;
+    let mut last: Option<(f64, Vec<RenderedView>)> = None;
     let mut stalled = 0;
     loop {
-        let renders = render_all(&deformation)?;
+        // The latest round's renders: the best's unless it did worse.
+        let latest = match (&last, &best) {
+            (Some((_, r)), _) | (None, Some((_, _, r))) => Some(&r[..]),
+            (None, None) => None,
+        };
+        let renders = render_all(&deformation, latest)?;
         let score = fit_score(curves, &renders);
         if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
             eprintln!(
@@ -221,7 +234,7 @@ pub(super) fn refine(
     if let Some((score_before, d)) = before_raised {
         if best_score > score_before + 1e-9 && worst_stroke_fit(curves, &rendered) < opts.min_fit {
             deformation = d;
-            rendered = render_all(&deformation)?;
+            rendered = render_all(&deformation, Some(&rendered))?;
             best_score = score_before;
         }
     }
@@ -236,12 +249,12 @@ pub(super) fn refine(
     let kept_unedited = unedited >= best_score - 1e-9 && best_score < perfect - 1e-9;
     if kept_unedited {
         deformation = unchanged(deformation);
-        rendered = render_all(&deformation)?;
+        rendered = render_all(&deformation, Some(&rendered))?;
     }
     // No spikes: a lone apex (or pit) of the change field gets a
     // neighbour behind it within half a cell.
     if flatten_final_spikes(views, &mut deformation, &placed.demands.fixed) > 0 {
-        rendered = render_all(&deformation)?;
+        rendered = render_all(&deformation, Some(&rendered))?;
     }
     Ok(Rounds {
         deformation,

@@ -17,8 +17,9 @@ mod spanning_forest;
 
 pub use ridges::{detect_ridges, RidgeLine, RidgeNetwork, RidgeNode, RidgeParams};
 pub use silhouettes::{
-    extract_silhouettes, extract_silhouettes_where, CurveEnd, Silhouette, SilhouetteParams,
-    SilhouetteSample, Silhouettes, TJunction,
+    extract_silhouettes, extract_silhouettes_reusing, extract_silhouettes_where, reach_rows,
+    ColumnSamples, CurveEnd, Silhouette, SilhouetteParams, SilhouetteSample, Silhouettes,
+    TJunction,
 };
 
 /// Errors of feature extraction and export.

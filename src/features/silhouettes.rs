@@ -200,6 +200,43 @@ pub fn extract_silhouettes_where(
     params: &SilhouetteParams,
     wanted: &(dyn Fn(usize, usize, f32) -> bool + Sync),
 ) -> Result<Silhouettes, FeatureError> {
+    extract_silhouettes_reusing(terrain, depth, params, wanted, None).map(|(s, _)| s)
+}
+
+/// The samples of an extraction column by column, before they are linked
+/// into curves, kept so that an extraction of the same view on a terrain
+/// changed out of some columns' reach can take those columns as they are
+/// ([`extract_silhouettes_reusing`]).
+#[derive(Debug, Clone, Default)]
+pub struct ColumnSamples {
+    /// Per image column, its samples (sorted by row).
+    pub samples: Vec<Vec<SilhouetteSample>>,
+    /// Per image column: every ray its refinement followed, and every
+    /// point its walks along the terrain went through, lies within the
+    /// rows of [`reach_rows`] (so the cells it read lie under those rows).
+    pub confined: Vec<bool>,
+}
+
+/// The image rows (a range of row coordinates, beyond the image on both
+/// sides) within which a column's refinement reads the terrain when its
+/// [`ColumnSamples::confined`] flag is set: `[-height, 2 height]`.
+pub fn reach_rows(height: usize) -> (f64, f64) {
+    (-(height as f64), 2.0 * height as f64)
+}
+
+/// [`extract_silhouettes_where`], also returning the samples column by
+/// column. With `reuse = Some((earlier, keep))`, the columns `x` for
+/// which `keep(x)` holds are taken from `earlier` instead of being
+/// refined: the caller vouches that the extraction would find them again
+/// (the same depth buffer column, the same `wanted`, a terrain unchanged
+/// where the column's refinement reads it; see [`ColumnSamples`]).
+pub fn extract_silhouettes_reusing(
+    terrain: &LocalTerrain,
+    depth: &DepthBuffer,
+    params: &SilhouetteParams,
+    wanted: &(dyn Fn(usize, usize, f32) -> bool + Sync),
+    reuse: Option<(&ColumnSamples, &(dyn Fn(usize) -> bool + Sync))>,
+) -> Result<(Silhouettes, ColumnSamples), FeatureError> {
     let (w, h) = (depth.width, depth.height);
     if depth.depth.len() != w * h || depth.triangle.len() != w * h {
         return Err(FeatureError::InvalidInput(format!(
@@ -212,31 +249,50 @@ pub fn extract_silhouettes_where(
             "silhouette min_jump and link_depth must be > 0 and max_link_dy >= 1".into(),
         ));
     }
+    let reuse =
+        reuse.filter(|(earlier, _)| earlier.samples.len() == w && earlier.confined.len() == w);
+    let kept = |x: usize| -> Option<(Vec<SilhouetteSample>, bool)> {
+        let (earlier, keep) = reuse?;
+        (earlier.confined[x] && keep(x)).then(|| (earlier.samples[x].clone(), true))
+    };
     // Columns in groups: one pass over the group's rows (contiguous in the
     // row-major buffer) makes each column's depths contiguous.
-    let columns: Vec<Vec<SilhouetteSample>> = (0..w.div_ceil(COLUMN_GROUP))
+    let columns: Vec<(Vec<SilhouetteSample>, bool)> = (0..w.div_ceil(COLUMN_GROUP))
         .into_par_iter()
         .flat_map_iter(|g| {
             let x0 = g * COLUMN_GROUP;
             let x1 = (x0 + COLUMN_GROUP).min(w);
-            let cols = column_depths(depth, x0, x1);
-            (x0..x1)
-                .map(|x| {
-                    column_samples(
-                        terrain,
-                        depth,
-                        params,
-                        x,
-                        &cols[(x - x0) * h..][..h],
-                        wanted,
-                    )
+            let taken: Vec<Option<(Vec<SilhouetteSample>, bool)>> = (x0..x1).map(kept).collect();
+            let cols = if taken.iter().all(Option::is_some) {
+                Vec::new()
+            } else {
+                column_depths(depth, x0, x1)
+            };
+            taken
+                .into_iter()
+                .zip(x0..x1)
+                .map(|(taken, x)| {
+                    taken.unwrap_or_else(|| {
+                        column_samples(
+                            terrain,
+                            depth,
+                            params,
+                            x,
+                            &cols[(x - x0) * h..][..h],
+                            wanted,
+                        )
+                    })
                 })
                 .collect::<Vec<_>>()
         })
         .collect();
-    let (curves, where_) = link(depth, params, &columns);
+    let (samples, confined): (Vec<_>, Vec<_>) = columns.into_iter().unzip();
+    let (curves, where_) = link(depth, params, &samples);
     let junctions = find_junctions(&curves, &where_, params);
-    Ok(Silhouettes { curves, junctions })
+    Ok((
+        Silhouettes { curves, junctions },
+        ColumnSamples { samples, confined },
+    ))
 }
 
 /// Image columns handled together by one task.
@@ -271,7 +327,8 @@ fn column_depths(db: &DepthBuffer, x0: usize, x1: usize) -> Vec<(f32, f32)> {
     out
 }
 
-/// Candidates and refined samples of one image column.
+/// Candidates and refined samples of one image column, and whether its
+/// refinement stayed within [`reach_rows`] ([`ColumnSamples::confined`]).
 fn column_samples(
     terrain: &LocalTerrain,
     db: &DepthBuffer,
@@ -279,9 +336,10 @@ fn column_samples(
     x: usize,
     col: &[(f32, f32)],
     wanted: &(dyn Fn(usize, usize, f32) -> bool + Sync),
-) -> Vec<SilhouetteSample> {
+) -> (Vec<SilhouetteSample>, bool) {
     let h = db.height;
     let mut out = Vec::new();
+    let mut confined = true;
     for y in 1..h {
         let (near, wp) = col[y];
         if !near.is_finite() {
@@ -312,10 +370,10 @@ fn column_samples(
         if !wanted(x, y, near) {
             continue;
         }
-        refine(terrain, db, p, x, y, &mut out);
+        refine(terrain, db, p, (x, y), &mut out, &mut confined);
     }
     out.sort_by(|a, b| a.pixel[1].total_cmp(&b.pixel[1]));
-    out
+    (out, confined)
 }
 
 /// Outcome of following the near surface along a column's plane.
@@ -348,13 +406,16 @@ const MAX_WALK: usize = 512;
 /// (stacked ridges, T-junctions): the contour's ray is cast on from there
 /// (skipping the empty space below it with the cast index) and the walk
 /// resumes where it meets the terrain.
+/// Clears `confined` when a point of the walk lies outside [`reach_rows`]
+/// (or behind the camera).
 fn walk_to_contour(
     terrain: &LocalTerrain,
     db: &DepthBuffer,
-    x: usize,
-    y: usize,
+    (x, y): (usize, usize),
     min_jump: f64,
+    confined: &mut bool,
 ) -> Walk {
+    let (reach_lo, reach_hi) = reach_rows(db.height);
     let cam = &db.camera;
     let k = y * db.width + x;
     let (tri0, t_a) = (db.triangle[k], db.depth[k] as f64);
@@ -434,8 +495,12 @@ fn walk_to_contour(
             return Walk::Inconclusive;
         };
         let Some(yx) = row_of(xp) else {
+            *confined = false;
             return Walk::Inconclusive;
         };
+        if !(yx >= reach_lo && yx <= reach_hi) {
+            *confined = false;
+        }
         let dx = dot(xp, xp).sqrt();
         let tri = (2 * (r * cx + c) + half as usize) as u32;
         if yx < best_y {
@@ -515,13 +580,14 @@ struct Side {
 /// `x` towards the largest depth gap; a gap that closes is a crease and gives
 /// nothing. When the bracket holds several boundaries (two silhouettes within
 /// one pixel, as at a T-junction) the remaining sub-brackets are searched too.
+/// `confined` is cleared when a walk leaves [`reach_rows`].
 fn refine(
     terrain: &LocalTerrain,
     db: &DepthBuffer,
     p: &SilhouetteParams,
-    x: usize,
-    y: usize,
+    (x, y): (usize, usize),
     out: &mut Vec<SilhouetteSample>,
+    confined: &mut bool,
 ) {
     let w = db.width;
     // The walk follows the cells' two triangles; where they can put the
@@ -532,7 +598,7 @@ fn refine(
     let planar = 0.25 * terrain.twist_around(db.triangle[k]) * db.camera.focal_px
         <= WALK_TOLERANCE_PX * db.depth[k] as f64;
     let walk = if planar {
-        walk_to_contour(terrain, db, x, y, p.min_jump)
+        walk_to_contour(terrain, db, (x, y), p.min_jump, confined)
     } else {
         Walk::Inconclusive
     };

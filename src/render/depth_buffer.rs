@@ -11,7 +11,7 @@
 //! frame and in the DEM's CRS, with its cell and triangle.
 
 use super::terrain::LocalTerrain;
-use super::triangle_raster::{rasterise, rasterise_into};
+use super::triangle_raster::{box_columns, rasterise, rasterise_into, rasterise_keeping};
 use crate::view::{Camera, CameraModel};
 use rayon::prelude::*;
 
@@ -102,6 +102,38 @@ impl DepthBuffer {
     pub fn render_rows(terrain: &LocalTerrain, camera: &Camera, last_row: &[i32]) -> Self {
         assert_eq!(last_row.len(), camera.width, "one last row per column");
         Self::of(camera, rasterise(terrain, camera, Some(last_row)))
+    }
+
+    /// [`DepthBuffer::render_rows`], taking the strips of pixel columns
+    /// `x0..=x1` for which `keep(x0, x1)` holds from `earlier` (a render of
+    /// the same camera and rows, on a terrain whose changed triangles none
+    /// of those columns can show: [`DepthBuffer::box_columns`]).
+    pub fn render_rows_keeping(
+        terrain: &LocalTerrain,
+        camera: &Camera,
+        last_row: &[i32],
+        earlier: &DepthBuffer,
+        keep: &(dyn Fn(usize, usize) -> bool + Sync),
+    ) -> Self {
+        assert_eq!(last_row.len(), camera.width, "one last row per column");
+        let earlier = (&earlier.depth[..], &earlier.triangle[..]);
+        Self::of(
+            camera,
+            rasterise_keeping(terrain, camera, Some(last_row), earlier, keep),
+        )
+    }
+
+    /// The pixel columns (inclusive range) that may show a point of the box
+    /// of vertices `c` x `r` (inclusive index ranges) of `terrain` times the
+    /// apparent heights `lo..=hi`, with the renderer's margin; `None`: none.
+    pub fn box_columns(
+        terrain: &LocalTerrain,
+        camera: &Camera,
+        c: [usize; 2],
+        r: [usize; 2],
+        heights: (f32, f32),
+    ) -> Option<(usize, usize)> {
+        box_columns(terrain, camera, c, r, heights)
     }
 
     /// Render by casting one exact ray per pixel ([`LocalTerrain::cast`]):

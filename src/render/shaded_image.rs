@@ -241,7 +241,7 @@ impl<'a> Shader<'a> {
         let fx = (vx - c as f64).clamp(0.0, 1.0);
         let fy = (vy - r as f64).clamp(0.0, 1.0);
         let z = &tr.z;
-        let at = |c: usize, r: usize| z.at(r * nx + c) as f64;
+        let at = |c: usize, r: usize| z.at_cr(c, r) as f64;
         // Central differences at the cell's corners (c..=c+1, r..=r+1).
         let grad = |c: usize, r: usize| {
             (

@@ -504,6 +504,29 @@ impl LocalTerrain {
         (self.zmin, self.zmax)
     }
 
+    /// Where this terrain's vertices differ from `earlier`'s, both patched
+    /// from one terrain ([`LocalTerrain::with_heights`]: the same grid and
+    /// frame) and with the same height range (which bounds every cast):
+    /// `Some(None)` when none differs (to the bit), `Some(Some((c0, r0,
+    /// c1, r1)))` the box of those that do (vertex indices, end
+    /// exclusive), `None` when the two cannot be compared so.
+    pub fn changed_since(
+        &self,
+        earlier: &LocalTerrain,
+    ) -> Option<Option<(usize, usize, usize, usize)>> {
+        let same_grid = (self.col0, self.row0, self.nx, self.ny)
+            == (earlier.col0, earlier.row0, earlier.nx, earlier.ny)
+            && self.eye_v == earlier.eye_v
+            && self.en_to_v == earlier.en_to_v
+            && self.max_distance.to_bits() == earlier.max_distance.to_bits();
+        let same_range = self.zmin.to_bits() == earlier.zmin.to_bits()
+            && self.zmax.to_bits() == earlier.zmax.to_bits();
+        if !(same_grid && same_range) {
+            return None;
+        }
+        self.z.changed_box(&earlier.z)
+    }
+
     /// Number of cells across (`nx - 1`).
     pub fn cells_x(&self) -> usize {
         self.nx.saturating_sub(1)
@@ -515,7 +538,7 @@ impl LocalTerrain {
         if c >= self.nx || r >= self.ny {
             return None;
         }
-        let v = self.z.at(r * self.nx + c);
+        let v = self.z.at_cr(c, r);
         (!v.is_nan()).then_some(v as f64)
     }
 
@@ -541,9 +564,8 @@ impl LocalTerrain {
         // terrain would be a copy).
         let mut v = [[0f32; 4]; 4];
         for (j, vr) in v.iter_mut().enumerate().take(r_hi + 2 - r_lo) {
-            let k = (r_lo + j) * nx + c_lo;
             for (i, vv) in vr.iter_mut().enumerate().take(c_hi + 2 - c_lo) {
-                *vv = self.z.at(k + i);
+                *vv = self.z.at_cr(c_lo + i, r_lo + j);
             }
         }
         let mut twist = 0.0f64;
@@ -960,8 +982,7 @@ impl LocalTerrain {
     /// next to nodata (where [`LocalTerrain::patch`] is `None`).
     #[inline]
     fn corners(&self, c: usize, r: usize) -> Option<[f64; 4]> {
-        let (i, nx) = (r * self.nx + c, self.nx);
-        let h = [i, i + 1, i + nx, i + nx + 1].map(|k| self.z.at(k) as f64);
+        let h = self.z.quad(c, r).map(f64::from);
         (!h.iter().any(|v| v.is_nan())).then_some(h)
     }
 

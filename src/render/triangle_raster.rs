@@ -131,6 +131,54 @@ pub(crate) fn rasterise(
     (depth, triangle)
 }
 
+/// [`rasterise`], taking the strips of pixel columns `x0..=x1` for which
+/// `keep(x0, x1)` holds from `earlier` (the depths and triangles of an
+/// earlier render of the same camera and rows, on a terrain whose changed
+/// triangles none of those columns can show: see [`box_columns`]). Each
+/// strip is rendered on its own, with its own culling, so a strip no
+/// changed triangle reaches comes out as it did.
+pub(crate) fn rasterise_keeping(
+    terrain: &LocalTerrain,
+    camera: &Camera,
+    last_row: Option<&[i32]>,
+    earlier: (&[f32], &[u32]),
+    keep: &(dyn Fn(usize, usize) -> bool + Sync),
+) -> (Vec<f32>, Vec<u32>) {
+    let (w, h) = (camera.width, camera.height);
+    if earlier.0.len() != w * h || earlier.1.len() != w * h {
+        return rasterise(terrain, camera, last_row);
+    }
+    let (mut depth, mut triangle) = (
+        crate::buffer_pool::overwritten_f32(w * h),
+        crate::buffer_pool::overwritten_u32(w * h),
+    );
+    rasterise_strips(
+        terrain,
+        camera,
+        last_row,
+        (&mut depth, &mut triangle, true),
+        Some((earlier, keep)),
+    );
+    (depth, triangle)
+}
+
+/// The pixel columns (inclusive range) whose centres may show a point of
+/// the box of the vertices `c` x `r` (index ranges, end inclusive, of the
+/// terrain's vertices) times the apparent heights `lo..=hi`, as the
+/// renderer's block culling projects boxes (with its margin); `None` when
+/// no pixel may show it.
+pub(crate) fn box_columns(
+    terrain: &LocalTerrain,
+    camera: &Camera,
+    c: [usize; 2],
+    r: [usize; 2],
+    (lo, hi): (f32, f32),
+) -> Option<(usize, usize)> {
+    let m = VertexToCamera::new(terrain, camera);
+    let (x0, x1, _) = BoxProjector::new(&m, camera).pixels(c, r, lo, hi)?;
+    Some((x0.max(0) as usize, x1.max(0) as usize))
+}
+
 /// [`rasterise`] into `depth` and `triangle`, resized to the image; with
 /// `reused`, buffers of an earlier view (whatever they hold), which each
 /// strip clears in parallel before drawing: a caller rendering view after
@@ -143,6 +191,25 @@ pub(crate) fn rasterise_into(
     depth: &mut Vec<f32>,
     triangle: &mut Vec<u32>,
     reused: bool,
+) {
+    rasterise_strips(terrain, camera, last_row, (depth, triangle, reused), None);
+}
+
+/// A render's strips kept from an earlier one: its depths and triangles,
+/// and which strips (pixel columns `x0..=x1`) to take from them.
+type KeptStrips<'a> = (
+    (&'a [f32], &'a [u32]),
+    &'a (dyn Fn(usize, usize) -> bool + Sync),
+);
+
+/// [`rasterise_into`], each strip either rendered or, where `kept` says
+/// so, copied from the earlier render.
+fn rasterise_strips(
+    terrain: &LocalTerrain,
+    camera: &Camera,
+    last_row: Option<&[i32]>,
+    (depth, triangle, reused): (&mut Vec<f32>, &mut Vec<u32>, bool),
+    kept: Option<KeptStrips>,
 ) {
     let (w, h) = (camera.width, camera.height);
     debug_assert!(last_row.is_none_or(|l| l.len() == w));
@@ -181,10 +248,28 @@ pub(crate) fn rasterise_into(
     StripColumns::split(depth, triangle, w, STRIP)
         .into_par_iter()
         .for_each(|mut cols| {
+            if let Some((earlier, keep)) = kept {
+                if keep(cols.x0(), cols.x0() + cols.width() - 1) {
+                    copy_strip(earlier, w, &mut cols);
+                    return;
+                }
+            }
             clear(&mut cols);
             render_strip(terrain, camera, &m, &blocks, &mut cols, last_row);
             parameters_to_distances(camera, &mut cols);
         });
+}
+
+/// The strip's columns of an earlier render's `(depths, triangles)` (of
+/// an image `w` wide), copied into it.
+fn copy_strip((depth, triangle): (&[f32], &[u32]), w: usize, cols: &mut StripColumns) {
+    let (x0, sw) = (cols.x0(), cols.width());
+    for j in 0..cols.rows() {
+        let k = j * w + x0;
+        let (t, id) = cols.row_mut(j);
+        t.copy_from_slice(&depth[k..k + sw]);
+        id.copy_from_slice(&triangle[k..k + sw]);
+    }
 }
 
 /// Turn the ray parameters of a strip (distance over `|d|`, with the
@@ -629,7 +714,7 @@ impl Raster<'_> {
         let f = self.camera.focal_px;
         for r in r0..=r1 {
             for c in c0..=c1 {
-                let z = t.z.at(r * t.nx + c);
+                let z = t.z.at_cr(c, r);
                 let v = &mut verts[(r - r0) * vw + (c - c0)];
                 if z.is_nan() {
                     v.state = 1;
@@ -652,13 +737,7 @@ impl Raster<'_> {
                     continue;
                 }
                 let id = 2 * (r as u32 * cells_x + c as u32);
-                let k0 = r * t.nx + c;
-                let z = [
-                    t.z.at(k0),
-                    t.z.at(k0 + 1),
-                    t.z.at(k0 + t.nx),
-                    t.z.at(k0 + t.nx + 1),
-                ];
+                let z = t.z.quad(c, r);
                 let n = subdivisions([a, bq, cq, d], z, f);
                 if n > 1 {
                     self.draw_patch(m, (c, r), n, id, ytop, cols, sub);
@@ -686,14 +765,7 @@ impl Raster<'_> {
         sub: &mut Vec<PVertex>,
     ) {
         let t = self.terrain;
-        let k = r * t.nx + c;
-        let [h00, h10, h01, h11] = [
-            t.z.at(k),
-            t.z.at(k + 1),
-            t.z.at(k + t.nx),
-            t.z.at(k + t.nx + 1),
-        ]
-        .map(f64::from);
+        let [h00, h10, h01, h11] = t.z.quad(c, r).map(f64::from);
         let (w, h) = (self.camera.width as f64, self.camera.height as f64);
         let f = self.camera.focal_px;
         let vn = n + 1;

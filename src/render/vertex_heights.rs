@@ -29,6 +29,29 @@ struct Patch {
     data: Vec<f32>,
 }
 
+impl Patch {
+    /// Whether vertex `(c, r)` lies in the patch.
+    #[inline]
+    fn holds(&self, c: usize, r: usize) -> bool {
+        c >= self.c0 && c < self.c0 + self.w && r >= self.r0 && r < self.r0 + self.h
+    }
+
+    /// Whether any corner of cell `(c, r)` lies in the patch (`c + 1 -
+    /// c0` within `0..=w`, wrapping below `c0`; rows alike).
+    #[inline]
+    fn touches_quad(&self, c: usize, r: usize) -> bool {
+        (c + 1).wrapping_sub(self.c0) <= self.w && (r + 1).wrapping_sub(self.r0) <= self.h
+    }
+
+    /// Whether all four corners of cell `(c, r)` lie in the patch (`c -
+    /// c0` within `0..w - 1`, wrapping below `c0`; rows alike).
+    #[inline]
+    fn holds_quad(&self, c: usize, r: usize) -> bool {
+        c.wrapping_sub(self.c0) < self.w.wrapping_sub(1)
+            && r.wrapping_sub(self.r0) < self.h.wrapping_sub(1)
+    }
+}
+
 impl VertexHeights {
     /// Heights `z` of a grid `nx` across, with no patch.
     pub(crate) fn new(z: Vec<f32>, nx: usize) -> Self {
@@ -53,6 +76,44 @@ impl VertexHeights {
     #[inline]
     pub fn at(&self, k: usize) -> f32 {
         *self.at_ref(k)
+    }
+
+    /// The height of vertex `(c, r)` (`c < nx`): [`VertexHeights::at`]
+    /// without the division that turns a linear index back into a column
+    /// and a row, for callers that hold them (the renderer, the casts).
+    #[inline]
+    pub fn at_cr(&self, c: usize, r: usize) -> f32 {
+        if let Some(p) = &self.patch {
+            if p.holds(c, r) {
+                return p.data[(r - p.r0) * p.w + (c - p.c0)];
+            }
+        }
+        self.base[r * self.nx + c]
+    }
+
+    /// The heights `[z(c, r), z(c + 1, r), z(c, r + 1), z(c + 1, r + 1)]`
+    /// of the corners of cell `(c, r)` (`c + 1 < nx`): one test of the
+    /// patch for the four where they all lie on one side of its border.
+    #[inline]
+    pub fn quad(&self, c: usize, r: usize) -> [f32; 4] {
+        let from = |data: &[f32], k: usize, stride: usize| {
+            [data[k], data[k + 1], data[k + stride], data[k + stride + 1]]
+        };
+        match &self.patch {
+            Some(p) if p.touches_quad(c, r) => {
+                if p.holds_quad(c, r) {
+                    from(&p.data, (r - p.r0) * p.w + (c - p.c0), p.w)
+                } else {
+                    [
+                        self.at_cr(c, r),
+                        self.at_cr(c + 1, r),
+                        self.at_cr(c, r + 1),
+                        self.at_cr(c + 1, r + 1),
+                    ]
+                }
+            }
+            _ => from(&self.base, r * self.nx + c, self.nx),
+        }
     }
 
     #[inline]
@@ -137,6 +198,42 @@ impl VertexHeights {
             }),
             nx,
         }
+    }
+
+    /// Where these heights and `other` differ, when both are patched from
+    /// one base grid (the same shared grid, not merely equal heights):
+    /// `Some(None)` where they are the same to the bit, `Some(Some((c0,
+    /// r0, c1, r1)))` the box of the vertices that differ (end exclusive);
+    /// `None` for heights of different grids.
+    pub(crate) fn changed_box(
+        &self,
+        other: &VertexHeights,
+    ) -> Option<Option<(usize, usize, usize, usize)>> {
+        if !Arc::ptr_eq(&self.base, &other.base) || self.nx != other.nx {
+            return None;
+        }
+        // Only the patches' rectangles can differ.
+        let rects = [&self.patch, &other.patch]
+            .map(|p| p.as_ref().map(|p| (p.c0, p.r0, p.c0 + p.w, p.r0 + p.h)));
+        let (c0, r0, c1, r1) = match rects {
+            [None, None] => return Some(None),
+            [Some(a), None] | [None, Some(a)] => a,
+            [Some(a), Some(b)] => (a.0.min(b.0), a.1.min(b.1), a.2.max(b.2), a.3.max(b.3)),
+        };
+        let mut changed: Option<(usize, usize, usize, usize)> = None;
+        for r in r0..r1 {
+            for c in c0..c1 {
+                if self.at_cr(c, r).to_bits() != other.at_cr(c, r).to_bits() {
+                    changed = Some(match changed {
+                        None => (c, r, c + 1, r + 1),
+                        Some((a0, b0, a1, b1)) => {
+                            (a0.min(c), b0.min(r), a1.max(c + 1), b1.max(r + 1))
+                        }
+                    });
+                }
+            }
+        }
+        Some(changed)
     }
 
     /// The base grid when no other terrain shares it (for recycling).

@@ -365,7 +365,7 @@ impl Heights for LocalTerrain {
         Ok(())
     }
     fn at(&self, c: usize, r: usize) -> f64 {
-        self.z.at(r * self.nx + c) as f64
+        self.z.at_cr(c, r) as f64
     }
 }
 

@@ -1,0 +1,124 @@
+//! An edit round's re-render that takes from the round before what the
+//! terrain's change cannot reach (`RenderedView::rerender_terrain_region`)
+//! gives the render a fresh one gives, to the bit: depths, triangles and
+//! silhouettes, for a change of one vertex, of none, and of many.
+
+mod common;
+
+use common::fixture;
+use demsketch::edit::rendered_view::{RenderedView, StrokeRegion};
+use demsketch::raster::Dem;
+use demsketch::render::{LocalTerrain, Scene};
+use demsketch::view::{Camera, Georef, Viewpoint};
+
+/// The region of a view down to two thirds of its height, silhouettes
+/// wanted at any depth.
+fn region(cam: &Camera) -> StrokeRegion {
+    let (w, h) = (cam.width, cam.height);
+    StrokeRegion {
+        last_row: vec![(2 * h / 3) as i32; w],
+        depth_limit: vec![f32::INFINITY; w],
+        stroke_rows: vec![Vec::new(); w],
+    }
+}
+
+/// The two renders are the same to the bit.
+fn assert_same_render(got: &RenderedView, want: &RenderedView, what: &str) {
+    let bits = |v: &RenderedView| {
+        v.depth
+            .depth
+            .iter()
+            .map(|d| d.to_bits())
+            .collect::<Vec<_>>()
+    };
+    assert!(bits(got) == bits(want), "{what}: depths");
+    assert!(
+        got.depth.triangle == want.depth.triangle,
+        "{what}: triangles"
+    );
+    assert_eq!(
+        format!("{:?}", got.silhouettes),
+        format!("{:?}", want.silhouettes),
+        "{what}: silhouettes"
+    );
+    assert_eq!(got.skyline_row, want.skyline_row, "{what}: skyline");
+    assert_eq!(got.by_column, want.by_column, "{what}: samples by column");
+}
+
+#[test]
+fn a_re_render_after_a_change_is_the_fresh_render() {
+    let dem = Dem::open(&fixture("zion_srtm_utm12n.tif")).unwrap();
+    let (x, y) = dem.geotransform.pixel_to_crs(210.5, 103.5);
+    let georef = Georef::for_crs(&dem.crs, "zion").unwrap();
+    let (lon, lat) = georef.crs_to_lonlat(x, y).unwrap();
+    let vp = Viewpoint::above_surface(lon, lat, 1.7);
+    let cam = Camera::new(480, 240, 200.0, -1.0, 0.0, 60.0).unwrap();
+    let scene = Scene::open_wedge(&dem, &vp, Some(20_000.0), 1.0 / 7.0, &cam).unwrap();
+    let (w, h) = (scene.window.width, scene.window.height);
+    // The view before the edit, as the edit renders it (index and ranges
+    // built, which the patched terrains patch).
+    let before = RenderedView::from_terrain(scene.terrain.clone(), &cam).unwrap();
+    let base: &LocalTerrain = &before.terrain;
+    let region = region(&cam);
+    // A round's terrain: the whole window raised a little.
+    let rect = (0, 0, w, h);
+    let raise = |k: f32| {
+        let map = &scene.window;
+        move |c: usize, r: usize| -> Option<f32> {
+            let v = map.get(c, r)?;
+            Some(v + k * ((c + 3 * r) % 11) as f32)
+        }
+    };
+    let first = raise(3.0);
+    let t1 = base.with_heights(rect, &first);
+    let r1 = RenderedView::render_terrain_region(t1, &cam, &region).unwrap();
+    let fresh = |t: &LocalTerrain| RenderedView::render_terrain_region(t.clone(), &cam, &region);
+
+    // One vertex changed since: where silhouettes of the view lie (the
+    // longest ones', at their middle), so that some strips render and
+    // some columns refine again, the others taken as they were.
+    let one_at = |at: (usize, usize)| {
+        let first = &first;
+        move |c: usize, r: usize| -> Option<f32> {
+            let v = first(c, r)?;
+            Some(if (c, r) == at { v + 0.7 } else { v })
+        }
+    };
+    let mut curves: Vec<_> = before.silhouettes.curves.iter().collect();
+    curves.sort_by_key(|c| std::cmp::Reverse(c.samples.len()));
+    let mut reached = 0;
+    for c in curves.iter().take(8) {
+        let s = &c.samples[c.samples.len() / 2];
+        let at = (
+            base.col0 + s.cell[0] as usize,
+            base.row0 + s.cell[1] as usize,
+        );
+        let t2 = base.with_heights(rect, &one_at(at));
+        let want = fresh(&t2).unwrap();
+        let got = RenderedView::rerender_terrain_region(t2, &cam, &region, &r1).unwrap();
+        assert_same_render(&got, &want, &format!("one vertex at {at:?}"));
+        reached += usize::from(got.depth.triangle != r1.depth.triangle);
+    }
+    assert!(reached > 0, "no change reached the depth buffer");
+
+    // Nothing changed since.
+    let t3 = base.with_heights(rect, &first);
+    let want = fresh(&t3).unwrap();
+    let got = RenderedView::rerender_terrain_region(t3, &cam, &region, &r1).unwrap();
+    assert_same_render(&got, &want, "no change");
+
+    // Everything in the rectangle changed since.
+    let second = raise(-2.0);
+    let t4 = base.with_heights(rect, &second);
+    let want = fresh(&t4).unwrap();
+    let got = RenderedView::rerender_terrain_region(t4, &cam, &region, &r1).unwrap();
+    assert_same_render(&got, &want, "the whole rectangle");
+
+    // Another region: rendered afresh.
+    let mut other = region.clone();
+    other.last_row[0] -= 1;
+    let t5 = base.with_heights(rect, &one_at((rect.0 + 1, rect.1 + 1)));
+    let want = RenderedView::render_terrain_region(t5.clone(), &cam, &other).unwrap();
+    let got = RenderedView::rerender_terrain_region(t5, &cam, &other, &r1).unwrap();
+    assert_same_render(&got, &want, "another region");
+}
