@@ -13,6 +13,7 @@
 
 mod atomic;
 mod depth_buffer;
+mod far_layers;
 mod horizon;
 mod locate;
 mod overlay;
@@ -25,6 +26,7 @@ mod vertex_heights;
 mod viewshed;
 
 pub use depth_buffer::{pick, DepthBuffer, TerrainHit, SKY};
+pub use far_layers::FarRing;
 pub use locate::{locate, project_point, Located};
 pub use overlay::visible_polylines;
 pub use scene::Scene;

@@ -144,6 +144,51 @@ pub(crate) fn rasterise_into(
     triangle: &mut Vec<u32>,
     reused: bool,
 ) {
+    rasterise_own_into(terrain, camera, last_row, depth, triangle, reused);
+    for layer in &terrain.far {
+        draw_far_layer(&layer.terrain, layer.id0, camera, last_row, depth, triangle);
+    }
+}
+
+/// Draw a far layer of a terrain ([`super::far_layers`]) into `depth` and
+/// `triangle` (the terrain's, already drawn): rendered alone, then kept
+/// where it is nearer, its ids moved to `id0` on. The pixels a layer does
+/// not draw (NaN outside `last_row`, sky) keep what they show.
+fn draw_far_layer(
+    layer: &LocalTerrain,
+    id0: u32,
+    camera: &Camera,
+    last_row: Option<&[i32]>,
+    depth: &mut [f32],
+    triangle: &mut [u32],
+) {
+    let (far_depth, far_tri) = rasterise(layer, camera, last_row);
+    let w = camera.width.max(1);
+    depth
+        .par_chunks_mut(w)
+        .zip(triangle.par_chunks_mut(w))
+        .zip(far_depth.par_chunks(w).zip(far_tri.par_chunks(w)))
+        .for_each(|((d, t), (fd, ft))| {
+            for i in 0..d.len() {
+                if fd[i] < d[i] {
+                    d[i] = fd[i];
+                    t[i] = ft[i] + id0;
+                }
+            }
+        });
+    crate::buffer_pool::recycle_f32(far_depth);
+    crate::buffer_pool::recycle_u32(far_tri);
+}
+
+/// [`rasterise_into`] for the terrain's own grid (not its far layers).
+fn rasterise_own_into(
+    terrain: &LocalTerrain,
+    camera: &Camera,
+    last_row: Option<&[i32]>,
+    depth: &mut Vec<f32>,
+    triangle: &mut Vec<u32>,
+    reused: bool,
+) {
     let (w, h) = (camera.width, camera.height);
     debug_assert!(last_row.is_none_or(|l| l.len() == w));
     let mut reused = reused;

@@ -1,0 +1,173 @@
+//! The far layers of a level-of-detail terrain: coarser [`LocalTerrain`]s
+//! (rings around the eye, each on a grid `k` times coarser than the DEM's)
+//! that a terrain carries beyond its own reach. A long view's terrain is
+//! then exact near the eye, where the strokes, the deformation and the
+//! observer are, and coarse only where a coarse cell still spans at most a
+//! pixel ([`super::level_of_detail`] plans the rings and reads them).
+//!
+//! The layers are one surface with the terrain for everything that looks
+//! at it: the rasteriser draws them into the same depth buffer (the nearer
+//! hit wins, as between the triangles of one terrain), the casts return
+//! the nearest hit over the terrain and its layers, and the triangle ids of
+//! a layer follow the terrain's (`id0` on), so that a pixel's id says which
+//! layer it shows and every per-triangle question (vertices, normals, the
+//! patch distance) is answered by that layer. The cell of a layer's
+//! triangle is given in the DEM grid the terrain was built from (the
+//! coarse cell's centre). Layers are never patched by an edit's
+//! re-renders: they lie beyond the deformations (which the planner keeps
+//! well inside the exact terrain).
+
+use std::sync::Arc;
+
+use super::terrain::{LocalTerrain, RayHit};
+use super::SKY;
+
+/// One far layer of a terrain.
+#[derive(Debug, Clone)]
+pub(crate) struct FarLayer {
+    pub(crate) terrain: Arc<LocalTerrain>,
+    /// Triangle ids of this layer are `id0 + ` its own ids.
+    pub(crate) id0: u32,
+    /// No point of the layer lies nearer than this (metres, horizontal):
+    /// its inner radius less its overlap with the layer inside it.
+    pub(crate) reach_m: f64,
+    /// Cells of the DEM per cell of the layer (along each axis).
+    pub(crate) k: usize,
+    /// Where the layer's grid starts, in cells of the grid the terrain was
+    /// built from (may be negative: a layer reaches beyond the terrain).
+    pub(crate) origin: (i64, i64),
+}
+
+/// A far layer before it joins a terrain ([`LocalTerrain::with_far_layers`]).
+pub struct FarRing {
+    /// The layer, built by [`LocalTerrain::ring_over`] on the coarse grid.
+    pub terrain: LocalTerrain,
+    /// Its inner radius, metres (its vertices nearer are nodata).
+    pub inner_m: f64,
+    /// Cells of the DEM per cell of the layer.
+    pub k: usize,
+    /// Its grid's origin in cells of the grid the terrain was built from.
+    pub origin: (i64, i64),
+}
+
+/// Which cast a layer answers (the one asked of the terrain).
+#[derive(Clone, Copy)]
+pub(crate) enum CastKind {
+    /// [`LocalTerrain::cast`].
+    Full,
+    /// [`LocalTerrain::cast_within`].
+    Within,
+    /// [`LocalTerrain::cast_segment`].
+    Segment,
+}
+
+impl LocalTerrain {
+    /// This terrain with `rings` as its far layers (innermost first), their
+    /// triangle ids after this terrain's. A ring whose ids would not fit is
+    /// left out, with those beyond it.
+    pub fn with_far_layers(mut self, rings: Vec<FarRing>) -> Self {
+        let mut next = 2 * (self.cells_x() as u64) * (self.ny.saturating_sub(1) as u64);
+        for ring in rings {
+            let t = ring.terrain;
+            let ids = 2 * (t.cells_x() as u64) * (t.ny.saturating_sub(1) as u64);
+            if next + ids >= u64::from(SKY) {
+                break;
+            }
+            // (the layer's frame is on its coarse grid)
+            let coarse_cell = cell_size_m(&t);
+            // The nearest a vertex can be is the inner radius; a triangle
+            // reaches a cell's diagonal nearer.
+            let reach_m = (ring.inner_m - 2.0 * std::f64::consts::SQRT_2 * coarse_cell).max(0.0);
+            self.far.push(FarLayer {
+                terrain: Arc::new(t),
+                id0: next as u32,
+                reach_m,
+                k: ring.k,
+                origin: ring.origin,
+            });
+            next += ids;
+        }
+        self
+    }
+
+    /// The far layers' coarseness (cells of the DEM per layer cell) and
+    /// vertex counts, innermost first: for reports.
+    pub fn far_layer_sizes(&self) -> Vec<(usize, usize)> {
+        self.far
+            .iter()
+            .map(|l| (l.k, l.terrain.nx * l.terrain.ny))
+            .collect()
+    }
+
+    /// Whether triangle `id` belongs to a far layer (not to this terrain's
+    /// own grid: its cell is not one of [`LocalTerrain::vertex_local`]'s).
+    pub fn is_far_triangle(&self, id: u32) -> bool {
+        id != SKY && self.far_of(id).is_some()
+    }
+
+    /// The far layer of triangle `id` and the id within it.
+    pub(crate) fn far_of(&self, id: u32) -> Option<(&FarLayer, u32)> {
+        let first = self.far.first()?;
+        if id < first.id0 || id == SKY {
+            return None;
+        }
+        self.far
+            .iter()
+            .rev()
+            .find(|l| id >= l.id0)
+            .map(|l| (l, id - l.id0))
+    }
+
+    /// The nearer of `hit` (on this terrain) and the far layers' first hit
+    /// of the segment `[t_start, t_limit]` of unit ray `d`, cast as `kind`.
+    /// A layer is asked only when the segment reaches it.
+    pub(crate) fn with_far_hit(
+        &self,
+        hit: Option<RayHit>,
+        d: [f64; 3],
+        t_start: f64,
+        t_limit: f64,
+        kind: CastKind,
+    ) -> Option<RayHit> {
+        if self.far.is_empty() {
+            return hit;
+        }
+        let dh = d[0].hypot(d[1]);
+        let mut best = hit;
+        for l in &self.far {
+            let limit = best.map_or(t_limit, |h| h.t.min(t_limit));
+            if !(dh * limit >= l.reach_m) || !(limit > t_start) {
+                continue;
+            }
+            let t = &l.terrain;
+            let h = match kind {
+                CastKind::Full => t.cast(d, limit),
+                CastKind::Within => t.cast_within(d, limit),
+                CastKind::Segment => t.cast_segment(d, t_start, limit),
+            };
+            if let Some(h) = h.filter(|h| best.is_none_or(|b| h.t < b.t)) {
+                best = Some(RayHit {
+                    t: h.t,
+                    triangle: h.triangle + l.id0,
+                });
+            }
+        }
+        best
+    }
+
+    /// The cell of the DEM grid the terrain was built from under far
+    /// triangle `id` of layer `l` (the centre of its coarse cell, clamped
+    /// to the grid's first row and column), and its half.
+    pub(crate) fn far_triangle_cell(l: &FarLayer, id: u32) -> (usize, usize, u8) {
+        let (c, r, half) = l.terrain.triangle_cell(id);
+        let k = l.k as i64;
+        let full = |o: i64, v: usize| (o + v as i64 * k + k / 2).max(0) as usize;
+        (full(l.origin.0, c), full(l.origin.1, r), half)
+    }
+}
+
+/// Mean size of a terrain's cell in metres.
+fn cell_size_m(t: &LocalTerrain) -> f64 {
+    let p = t.frame.p;
+    (p[0][0].hypot(p[1][0]) * p[0][1].hypot(p[1][1])).sqrt()
+}
