@@ -544,7 +544,7 @@ struct Loaded {
 /// Stage 1, `load`: reads the sketch and opens the DEM, prepares every
 /// view's strokes, and sets up each view on the DEM: its viewpoint
 /// resolved, its camera built, and the DEM read where the camera can see
-/// within the maximum view distance ([`Scene::open_wedge`]: the box of its
+/// within the maximum view distance ([`Scene::open_wedge_lod`]: the box of its
 /// horizontal wedge, not the whole square around the eye), plus the cells
 /// around the eye its fixed ground can take ([`EyeGround`]). Refuses a viewpoint
 /// whose absolute altitude is not above the ground. Everything later
@@ -571,7 +571,7 @@ fn load_views(edit: &Edit, dem: Dem, sketch_path: &Path) -> Result<Loaded, EditE
             source,
         };
         let camera = v.pinhole().map_err(|e| view_err(e.into()))?;
-        let scene = Scene::open_wedge(&dem, &vp, edit.max_d, edit.opts.refraction, &camera)
+        let scene = Scene::open_wedge_lod(&dem, &vp, edit.max_d, edit.opts.refraction, &camera)
             .map_err(view_err)?;
         if let EyeHeightSpec::Absolute(a) = v.viewpoint.height() {
             if a <= scene.frame.ground {
@@ -613,12 +613,13 @@ pub const EDIT_BYTES_PER_CELL: u64 = 48;
 /// The size limits of the stages after the load, checked before reading
 /// any height (issue 15: the deformation's window limit used to be hit only
 /// at a re-solve, after seconds of work and gigabytes): the windows every
-/// view reads ([`Scene::wedge_window`]), their union (where the ridges are
+/// view reads ([`Scene::wedge_cells`]: its window and its far rings), their union (where the ridges are
 /// detected: at most 2^30 cells) and the memory the edit will take over
 /// them ([`EDIT_BYTES_PER_CELL`] per cell) against the memory budget
 /// ([`crate::raster::geotiff::memory_budget`]).
 fn check_view_sizes(edit: &Edit, dem: &Dem, sketch: &SketchFile) -> Result<(), EditError> {
     let mut windows = Vec::new();
+    let mut ring_cells = 0u64;
     for v in &sketch.views {
         let view_err = |source| EditError::View {
             sketch: edit.sketch_name.clone(),
@@ -626,9 +627,11 @@ fn check_view_sizes(edit: &Edit, dem: &Dem, sketch: &SketchFile) -> Result<(), E
             source,
         };
         let camera = v.pinhole().map_err(|e| view_err(e.into()))?;
-        let w = Scene::wedge_window(dem, &v.eye(), edit.max_d, edit.opts.refraction, &camera)
-            .map_err(view_err)?;
+        let (w, rings) =
+            Scene::wedge_cells(dem, &v.eye(), edit.max_d, edit.opts.refraction, &camera)
+                .map_err(view_err)?;
         windows.push(w);
+        ring_cells = ring_cells.saturating_add(rings);
     }
     let Some(first) = windows.first() else {
         return Ok(());
@@ -641,7 +644,8 @@ fn check_view_sizes(edit: &Edit, dem: &Dem, sketch: &SketchFile) -> Result<(), E
         r1 = r1.max(w.row_end());
     }
     let union = ((c1 - c0) as u64).saturating_mul((r1 - r0) as u64);
-    let cells: u64 = windows.iter().map(|w| w.len() as u64).sum();
+    // (a far ring's cell costs a terrain's, not a window's: counted as one)
+    let cells: u64 = windows.iter().map(|w| w.len() as u64).sum::<u64>() + ring_cells;
     let bytes = cells.saturating_mul(EDIT_BYTES_PER_CELL);
     let budget = crate::raster::geotiff::memory_budget();
     let distance = match edit.max_d {

@@ -15,6 +15,7 @@ mod atomic;
 mod depth_buffer;
 mod far_layers;
 mod horizon;
+mod level_of_detail;
 mod locate;
 mod overlay;
 mod scene;
@@ -27,6 +28,7 @@ mod viewshed;
 
 pub use depth_buffer::{pick, DepthBuffer, TerrainHit, SKY};
 pub use far_layers::FarRing;
+pub use level_of_detail::{LodPlan, LOD_MIN_NEAR_M};
 pub use locate::{locate, project_point, Located};
 pub use overlay::visible_polylines;
 pub use scene::Scene;

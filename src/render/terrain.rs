@@ -1358,17 +1358,11 @@ fn extent(
     (c0, r0, c1, r1)
 }
 
-#[allow(clippy::type_complexity)]
-/// The pixel box `(c0, r0, c1, r1)` (end exclusive, clipped to `dem`) of
-/// the horizontal wedge `camera` sees from `frame`'s eye out to `max_d`
-/// (the far corner of `dem` when infinite), or `None` when the azimuths of
-/// its pixel rays span more than a half-turn or a ray is nearly vertical.
-fn view_wedge_box(
-    (width, height): (usize, usize),
-    frame: &LocalFrame,
-    max_d: f64,
-    camera: &crate::view::Camera,
-) -> Option<(usize, usize, usize, usize)> {
+/// The horizontal wedge of `camera`'s pixel rays: the centre ray's azimuth
+/// (radians clockwise from north) and the least and greatest azimuths of
+/// the rays relative to it (with a degree's margin); `None` when they span
+/// more than a half-turn or a ray is nearly vertical.
+pub(crate) fn wedge_azimuths(camera: &crate::view::Camera) -> Option<(f64, f64, f64)> {
     use crate::view::CameraModel;
     use std::f64::consts::{PI, TAU};
     // Azimuths of the rays around the image border (the rays through a
@@ -1403,6 +1397,21 @@ fn view_wedge_box(
     if hi - lo > PI {
         return None;
     }
+    Some((a_centre, lo, hi))
+}
+
+#[allow(clippy::type_complexity)]
+/// The pixel box `(c0, r0, c1, r1)` (end exclusive, clipped to `dem`) of
+/// the horizontal wedge `camera` sees from `frame`'s eye out to `max_d`
+/// (the far corner of `dem` when infinite), or `None` when the azimuths of
+/// its pixel rays span more than a half-turn or a ray is nearly vertical.
+fn view_wedge_box(
+    (width, height): (usize, usize),
+    frame: &LocalFrame,
+    max_d: f64,
+    camera: &crate::view::Camera,
+) -> Option<(usize, usize, usize, usize)> {
+    let (a_centre, lo, hi) = wedge_azimuths(camera)?;
     // Radius: the maximum distance, or the farthest corner of the DEM.
     let p = frame.p;
     let to_en = |px: f64, py: f64| {
