@@ -52,7 +52,7 @@ use crate::deform::{
 };
 use crate::features::{detect_ridges, RidgeNetwork, RidgeParams};
 use crate::raster::{Dem, Destination, HeightMap, Window, WriteOptions};
-use crate::render::Scene;
+use crate::render::{FarLayers, Scene};
 use crate::sketch::{
     match_sketch, EyeHeightSpec, PointSource, SceneProjection, SceneView, SketchFile, SketchMatch,
     SketchOptions, Stroke, ViewFeatureOptions, ViewInput, ViewSpec,
@@ -263,6 +263,7 @@ pub fn run(
         &edit,
         Dem::open(dem_path)?.with_block_cache_budget(EDIT_BLOCK_CACHE_BYTES),
         sketch_path,
+        &[],
     )?;
     timings.load = secs(t);
 
@@ -275,7 +276,10 @@ pub fn run(
     )?;
     if needs_second_pass(&sketch, &outcome) {
         let t = Instant::now();
-        outcome = second_pass(&edit, &dem, sketch_path, outcome)?;
+        // The far rings of a long view lie beyond both passes' changes:
+        // the second takes the first's (when they serve, see `load_views`).
+        let far: Vec<FarLayers> = views.iter().map(|v| v.before.terrain.far_layers()).collect();
+        outcome = second_pass(&edit, &dem, sketch_path, outcome, &far)?;
         timings.lowering += secs(t);
     }
     let sources = Sources {
@@ -379,19 +383,20 @@ fn second_pass(
     dem: &Dem,
     sketch_path: &Path,
     first: Outcome,
+    far: &[FarLayers],
 ) -> Result<Outcome, EditError> {
     edit.pb
         .set_message("second pass over the strokes left unfitted");
     let d1 = &quantized(dem, &first.deformation);
     let run_second = || -> Result<Outcome, EditError> {
-        let overlay = Dem::open(&dem.path)?.with_overlay(d1.window, d1.edited().data);
+        let overlay = dem.reopened()?.with_overlay(d1.window, d1.edited().data);
         let Loaded {
             sketch,
             dem: dem2,
             notes,
             prepared,
             scenes,
-        } = load_views(edit, overlay, sketch_path)?;
+        } = load_views(edit, overlay, sketch_path, far)?;
         let dem_name = dem.path.display().to_string();
         let mut scratch = Timings::default();
         let (_, second) = edit_pass(
@@ -548,8 +553,15 @@ struct Loaded {
 /// horizontal wedge, not the whole square around the eye), plus the cells
 /// around the eye its fixed ground can take ([`EyeGround`]). Refuses a viewpoint
 /// whose absolute altitude is not above the ground. Everything later
-/// stages read comes from here; nothing is rendered yet.
-fn load_views(edit: &Edit, dem: Dem, sketch_path: &Path) -> Result<Loaded, EditError> {
+/// stages read comes from here; nothing is rendered yet. `far`: per view,
+/// the far rings of an earlier pass, taken where they serve (the same eye,
+/// no changed cell within their reach) instead of being read again.
+fn load_views(
+    edit: &Edit,
+    dem: Dem,
+    sketch_path: &Path,
+    far: &[FarLayers],
+) -> Result<Loaded, EditError> {
     let sketch_name = &edit.sketch_name;
     edit.pb.set_message("loading DEM and sketch");
     let mut sketch = SketchFile::from_path(sketch_path)?;
@@ -563,7 +575,7 @@ fn load_views(edit: &Edit, dem: Dem, sketch_path: &Path) -> Result<Loaded, EditE
     }
     check_view_sizes(edit, &dem, &sketch)?;
     let mut scenes = Vec::new();
-    for v in &sketch.views {
+    for (i, v) in sketch.views.iter().enumerate() {
         let vp = v.eye();
         let view_err = |source| EditError::View {
             sketch: sketch_name.clone(),
@@ -571,8 +583,15 @@ fn load_views(edit: &Edit, dem: Dem, sketch_path: &Path) -> Result<Loaded, EditE
             source,
         };
         let camera = v.pinhole().map_err(|e| view_err(e.into()))?;
-        let scene = Scene::open_wedge_lod(&dem, &vp, edit.max_d, edit.opts.refraction, &camera)
-            .map_err(view_err)?;
+        let scene = Scene::open_wedge_lod(
+            &dem,
+            &vp,
+            edit.max_d,
+            edit.opts.refraction,
+            &camera,
+            far.get(i),
+        )
+        .map_err(view_err)?;
         if let EyeHeightSpec::Absolute(a) = v.viewpoint.height() {
             if a <= scene.frame.ground {
                 return Err(EditError::Unusable {

@@ -672,6 +672,57 @@ impl Dem {
         self
     }
 
+    /// The same DEM opened again, without reading it again: native tiles
+    /// share their bytes (and mapping) with this one, GDAL tiles are
+    /// opened anew; no overlay, and an empty block cache of this one's
+    /// budget. For a second look at the DEM through an overlay
+    /// ([`Dem::with_overlay`]) at the cost of the tile list, not of opening
+    /// every tile (and mapping its header) again.
+    pub fn reopened(&self) -> Result<Dem, RasterError> {
+        let tiles = self
+            .tiles
+            .iter()
+            .map(|t| -> Result<Tile, RasterError> {
+                let source = match &t.source {
+                    TileSource::Tiff(g) => TileSource::Tiff(g.clone()),
+                    TileSource::Gdal(_) => {
+                        let ds = gdal::Dataset::open(&t.path)
+                            .map_err(|e| RasterError::gdal(&t.path, e))?;
+                        TileSource::Gdal(Mutex::new(ds))
+                    }
+                };
+                Ok(Tile {
+                    path: t.path.clone(),
+                    source,
+                    extent: t.extent,
+                    sample_type: t.sample_type,
+                    nodata: t.nodata,
+                    geotransform: t.geotransform,
+                    vertical: t.vertical.clone(),
+                })
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(Dem {
+            path: self.path.clone(),
+            kind: self.kind,
+            tiles,
+            width: self.width,
+            height: self.height,
+            geotransform: self.geotransform,
+            crs: self.crs.clone(),
+            nodata: self.nodata,
+            sample_type: self.sample_type,
+            vertical: self.vertical.clone(),
+            cache: BlockCache::new(self.cache.budget()),
+            overlay: None,
+        })
+    }
+
+    /// The window of [`Dem::with_overlay`]'s heights, if any.
+    pub fn overlay_window(&self) -> Option<Window> {
+        self.overlay.as_ref().map(|(w, _)| *w)
+    }
+
     /// Read a window as a [`HeightMap`] (f32, NaN = nodata).
     pub fn read_height_map(&self, win: Window) -> Result<HeightMap, RasterError> {
         // NaN marks the invalid cells: no mask is made.

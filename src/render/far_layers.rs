@@ -38,6 +38,67 @@ pub(crate) struct FarLayer {
     pub(crate) origin: (i64, i64),
 }
 
+/// The far layers of a terrain, as they are (shared): for a later view of
+/// the same eye on the same DEM to take them instead of reading them again
+/// ([`crate::render::Scene::open_wedge_lod`]).
+#[derive(Debug, Clone, Default)]
+pub struct FarLayers(pub(crate) Vec<FarLayer>);
+
+impl FarLayers {
+    /// Whether there is none.
+    pub fn is_empty(&self) -> bool {
+        self.0.is_empty()
+    }
+
+    /// Do these layers serve a view from `frame` (the same eye, the same
+    /// refraction) with rings of coarseness `ks`, on a DEM whose heights
+    /// differ from those they were read from only within `changed` (a
+    /// window of the DEM, `frame_abs` on the DEM's grid)? Only when no
+    /// layer reaches a changed cell: they are then what reading them again
+    /// would give, bit for bit.
+    pub(crate) fn serve(
+        &self,
+        frame: &crate::view::LocalFrame,
+        frame_abs: &crate::view::LocalFrame,
+        ks: &[usize],
+        changed: Option<crate::raster::Window>,
+    ) -> bool {
+        let same_eye = |f: &crate::view::LocalFrame| {
+            f.eye_alt.to_bits() == frame.eye_alt.to_bits()
+                && f.eye_crs.0.to_bits() == frame.eye_crs.0.to_bits()
+                && f.eye_crs.1.to_bits() == frame.eye_crs.1.to_bits()
+                && f.curvature == frame.curvature
+        };
+        if self.0.len() != ks.len()
+            || self.0.iter().zip(ks).any(|(l, &k)| l.k != k || !same_eye(&l.terrain.frame))
+        {
+            return false;
+        }
+        let Some(w) = changed else {
+            return true;
+        };
+        // The changed window's farthest corner, against the nearest any
+        // layer reads (a coarse cell nearer than its vertex's reach).
+        let (x0, y0, x1, y1) = (
+            w.col as f64,
+            w.row as f64,
+            w.col_end() as f64,
+            w.row_end() as f64,
+        );
+        let farthest = [(x0, y0), (x1, y0), (x0, y1), (x1, y1)]
+            .iter()
+            .map(|&(x, y)| {
+                let (e, n) = frame_abs.pixel_to_en(x, y);
+                e.hypot(n)
+            })
+            .fold(0.0, f64::max);
+        self.0.iter().all(|l| {
+            let coarse_m = cell_size_m(&l.terrain);
+            farthest < l.reach_m - 2.0 * coarse_m
+        })
+    }
+}
+
 /// A far layer before it joins a terrain ([`LocalTerrain::with_far_layers`]).
 pub struct FarRing {
     /// The layer, built by [`LocalTerrain::ring_over`] on the coarse grid.
@@ -88,6 +149,29 @@ impl LocalTerrain {
             next += ids;
         }
         self
+    }
+
+    /// This terrain with `layers` (another terrain's, [`LocalTerrain::far_layers`])
+    /// as its far layers, their ids moved to follow this terrain's.
+    pub fn with_shared_far_layers(mut self, layers: &FarLayers) -> Self {
+        let mut next = 2 * (self.cells_x() as u64) * (self.ny.saturating_sub(1) as u64);
+        for l in &layers.0 {
+            let t = &l.terrain;
+            let ids = 2 * (t.cells_x() as u64) * (t.ny.saturating_sub(1) as u64);
+            if next + ids >= u64::from(SKY) {
+                break;
+            }
+            let mut l = l.clone();
+            l.id0 = next as u32;
+            self.far.push(l);
+            next += ids;
+        }
+        self
+    }
+
+    /// This terrain's far layers, shared.
+    pub fn far_layers(&self) -> FarLayers {
+        FarLayers(self.far.clone())
     }
 
     /// The far layers' coarseness (cells of the DEM per layer cell) and

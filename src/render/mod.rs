@@ -27,7 +27,7 @@ mod vertex_heights;
 mod viewshed;
 
 pub use depth_buffer::{pick, DepthBuffer, TerrainHit, SKY};
-pub use far_layers::FarRing;
+pub use far_layers::{FarLayers, FarRing};
 pub use level_of_detail::{LodPlan, LOD_MIN_NEAR_M};
 pub use locate::{locate, project_point, Located};
 pub use overlay::visible_polylines;

@@ -6,6 +6,7 @@
 
 use super::{LocalTerrain, RenderError};
 use crate::raster::{Dem, HeightMap, Window};
+use super::far_layers::FarLayers;
 use super::level_of_detail::LodPlan;
 use crate::view::{Georef, LocalFrame, ViewError, Viewpoint};
 
@@ -123,12 +124,19 @@ impl Scene {
     /// terrain's own grid, stop at the plan's exact reach, and the rings
     /// beyond, read coarser, are the terrain's far layers. A view within
     /// the exact reach is [`Scene::open_wedge`]'s, bit for bit.
+    ///
+    /// `reuse`: the far layers of an earlier scene of this view (an edit's
+    /// second pass reads the DEM through the first's result), taken instead
+    /// of reading the rings again where they serve
+    /// ([`FarLayers::serve`]: the same eye, and no changed cell of the
+    /// DEM's overlay within their reach).
     pub fn open_wedge_lod(
         dem: &Dem,
         vp: &Viewpoint,
         max_distance: Option<f64>,
         k: f64,
         camera: &crate::view::Camera,
+        reuse: Option<&FarLayers>,
     ) -> Result<Scene, RenderError> {
         let max_d = max_distance.filter(|d| d.is_finite() && *d > 0.0);
         let probe = Self::wedge_plan(dem, vp, max_d, k, camera)?.probe;
@@ -155,8 +163,14 @@ impl Scene {
             frame.eye_pixel.0 + win.col as f64,
             frame.eye_pixel.1 + win.row as f64,
         );
-        let rings = lod.build_rings(dem, &frame_abs, camera, (win.col, win.row))?;
-        let terrain = LocalTerrain::over(&window, &frame, Some(lod.near_m)).with_far_layers(rings);
+        let near = LocalTerrain::over(&window, &frame, Some(lod.near_m));
+        let ks: Vec<usize> = lod.rings.iter().map(|r| r.0).collect();
+        let terrain = match reuse.filter(|r| r.serve(&frame, &frame_abs, &ks, dem.overlay_window())) {
+            Some(layers) => near.with_shared_far_layers(layers),
+            None => {
+                near.with_far_layers(lod.build_rings(dem, &frame_abs, camera, (win.col, win.row))?)
+            }
+        };
         Ok(Scene {
             window,
             window_offset: (win.col, win.row),

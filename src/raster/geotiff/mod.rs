@@ -58,8 +58,9 @@ pub struct Encoding {
     pub predictor: u16,
 }
 
-/// An open GeoTIFF: parsed metadata and the bytes of the file.
-#[derive(Debug)]
+/// An open GeoTIFF: parsed metadata and the bytes of the file (a clone
+/// shares them).
+#[derive(Debug, Clone)]
 pub struct GeoTiff {
     pub path: PathBuf,
     bytes: Arc<Bytes>,
