@@ -36,6 +36,43 @@ pub(crate) struct FarLayer {
     /// Where the layer's grid starts, in cells of the grid the terrain was
     /// built from (may be negative: a layer reaches beyond the terrain).
     pub(crate) origin: (i64, i64),
+    /// The layer's last whole render, kept for the next render with the
+    /// same camera (an edit re-renders one view round after round; the
+    /// layer never changes): shared by the clones of the layer.
+    pub(crate) drawn: Arc<std::sync::Mutex<Option<LayerRender>>>,
+}
+
+/// A far layer's render: the camera and, per pixel, depth and the
+/// layer's own triangle id (sky: infinite depth and [`SKY`]).
+#[derive(Debug)]
+pub(crate) struct LayerRender {
+    pub(crate) camera: crate::view::Camera,
+    pub(crate) depth: Vec<f32>,
+    pub(crate) triangle: Vec<u32>,
+}
+
+impl FarLayer {
+    /// The layer's whole render with `camera`: the kept one when it was
+    /// made with the same camera, else made by `render` and kept.
+    pub(crate) fn render_with(
+        &self,
+        camera: &crate::view::Camera,
+        render: impl FnOnce(&LocalTerrain) -> (Vec<f32>, Vec<u32>),
+    ) -> Arc<std::sync::Mutex<Option<LayerRender>>> {
+        let mut kept = self
+            .drawn
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        if kept.as_ref().is_none_or(|r| r.camera != *camera) {
+            let (depth, triangle) = render(&self.terrain);
+            *kept = Some(LayerRender {
+                camera: *camera,
+                depth,
+                triangle,
+            });
+        }
+        Arc::clone(&self.drawn)
+    }
 }
 
 /// The far layers of a terrain, as they are (shared): for a later view of
@@ -145,6 +182,7 @@ impl LocalTerrain {
                 reach_m,
                 k: ring.k,
                 origin: ring.origin,
+                drawn: Arc::default(),
             });
             next += ids;
         }

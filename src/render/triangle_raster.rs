@@ -146,28 +146,33 @@ pub(crate) fn rasterise_into(
 ) {
     rasterise_own_into(terrain, camera, last_row, depth, triangle, reused);
     for layer in &terrain.far {
-        draw_far_layer(&layer.terrain, layer.id0, camera, last_row, depth, triangle);
+        draw_far_layer(layer, camera, depth, triangle);
     }
 }
 
 /// Draw a far layer of a terrain ([`super::far_layers`]) into `depth` and
-/// `triangle` (the terrain's, already drawn): rendered alone, then kept
-/// where it is nearer, its ids moved to `id0` on. The pixels a layer does
-/// not draw (NaN outside `last_row`, sky) keep what they show.
+/// `triangle` (the terrain's, already drawn): the layer's whole render
+/// (kept by the layer for the next render with this camera), taken where
+/// it is nearer, its ids moved to the layer's. The pixels not drawn here
+/// (NaN outside `last_row`) and those the layer does not reach keep what
+/// they show: a render of some rows gets the whole render's values in
+/// them, as for the terrain's own triangles.
 fn draw_far_layer(
-    layer: &LocalTerrain,
-    id0: u32,
+    layer: &super::far_layers::FarLayer,
     camera: &Camera,
-    last_row: Option<&[i32]>,
     depth: &mut [f32],
     triangle: &mut [u32],
 ) {
-    let (far_depth, far_tri) = rasterise(layer, camera, last_row);
-    let w = camera.width.max(1);
+    let kept = layer.render_with(camera, |t| rasterise(t, camera, None));
+    let kept = kept.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+    let Some(r) = kept.as_ref() else {
+        return;
+    };
+    let (id0, w) = (layer.id0, camera.width.max(1));
     depth
         .par_chunks_mut(w)
         .zip(triangle.par_chunks_mut(w))
-        .zip(far_depth.par_chunks(w).zip(far_tri.par_chunks(w)))
+        .zip(r.depth.par_chunks(w).zip(r.triangle.par_chunks(w)))
         .for_each(|((d, t), (fd, ft))| {
             for i in 0..d.len() {
                 if fd[i] < d[i] {
@@ -176,8 +181,6 @@ fn draw_far_layer(
                 }
             }
         });
-    crate::buffer_pool::recycle_f32(far_depth);
-    crate::buffer_pool::recycle_u32(far_tri);
 }
 
 /// [`rasterise_into`] for the terrain's own grid (not its far layers).
