@@ -16,8 +16,8 @@ use rayon::prelude::*;
 use super::{Dem, HeightMap, RasterError, Window};
 
 /// Edge in DEM cells of the chunks read at once (a multiple of every
-/// power-of-two coarseness up to it; 512 is two 256-cell TIFF blocks).
-pub const CHUNK: usize = 512;
+/// power-of-two coarseness up to it; a common TIFF block).
+pub const CHUNK: usize = 256;
 
 impl Dem {
     /// The heights of coarse window `cwin` (cells of the grid `k` times

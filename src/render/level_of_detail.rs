@@ -39,7 +39,7 @@ use crate::view::{Camera, LocalFrame};
 pub const LOD_MIN_NEAR_M: f64 = 20_000.0;
 
 /// Coarsest ring: cells of the DEM per ring cell (a chunk is one cell).
-const MAX_K: usize = 512;
+const MAX_K: usize = 256;
 
 /// The rings of a view: the exact terrain's reach and the rings beyond.
 #[derive(Debug, Clone, PartialEq)]
