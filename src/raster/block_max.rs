@@ -27,8 +27,8 @@ impl Dem {
     /// off the DEM), on the coarse grid. The DEM is read in chunks of
     /// [`CHUNK`] cells (aligned to the DEM's origin); a chunk for which
     /// `wanted` (its window in DEM cells) is false is not read and its
-    /// coarse cells are NaN. Reads through [`Dem::read_height_map`] (an
-    /// overlay is seen).
+    /// coarse cells are NaN. Reads through [`Dem::read_height_map_once`]
+    /// (an overlay is seen; no block is kept in the cache).
     pub fn read_block_max(
         &self,
         cwin: Window,
@@ -100,7 +100,7 @@ impl Dem {
                 coarse.height * k,
             );
             if let Some(read) = full.intersect(&self.full_window()).filter(|f| wanted(*f)) {
-                let cells = self.read_height_map(read)?;
+                let cells = self.read_height_map_once(read)?;
                 reduce_max(&cells, read, full, k, (c, c1), w, out);
             }
             c = c1;
