@@ -150,3 +150,71 @@ fn far_layers_are_shared_by_a_second_scene() {
     assert!(a.depth.iter().zip(&b.depth).all(|(p, q)| p.to_bits() == q.to_bits()));
     assert_eq!(a.triangle, b.triangle);
 }
+
+/// Rings read from the tiles' overviews, where those hold the maxima of
+/// the cells they cover (as `tools/make_edit_scale_tiles.py --overviews`
+/// writes them), are the rings of block maxima read at full resolution:
+/// the same render, to the bit.
+#[test]
+fn rings_from_overviews_of_maxima_are_the_block_maxima() {
+    if !have_tool("python3") {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let (plain, with_ov) = (dir.path().join("plain.tif"), dir.path().join("ov.tif"));
+    let script = r#"
+import sys
+import numpy as np
+from osgeo import gdal
+gdal.UseExceptions()
+src = gdal.Open(sys.argv[1])
+a = src.GetRasterBand(1).ReadAsArray().astype(np.float32)
+a[a == 65535] = np.nan
+drv = gdal.GetDriverByName("GTiff")
+for path, ov in ((sys.argv[2], False), (sys.argv[3], True)):
+    ds = drv.Create(path, a.shape[1], a.shape[0], 1, gdal.GDT_Float32,
+                    ["TILED=YES", "COMPRESS=DEFLATE", "PREDICTOR=3"])
+    ds.SetGeoTransform(src.GetGeoTransform())
+    ds.SetProjection(src.GetProjection())
+    ds.GetRasterBand(1).SetNoDataValue(float("nan"))
+    ds.GetRasterBand(1).WriteArray(a)
+    if ov:
+        ds.BuildOverviews("NEAREST", [2, 4])
+        for i, f in enumerate([2, 4]):
+            h, w = -(-a.shape[0] // f), -(-a.shape[1] // f)
+            p = np.full((h * f, w * f), np.nan, np.float32)
+            p[: a.shape[0], : a.shape[1]] = a
+            with np.errstate(all="ignore"):
+                import warnings
+                warnings.simplefilter("ignore")
+                m = np.nanmax(p.reshape(h, f, w, f), axis=(1, 3))
+            ds.GetRasterBand(1).GetOverview(i).WriteArray(m)
+    ds = None
+"#;
+    let out = std::process::Command::new("/usr/bin/python3")
+        .args(["-c", script])
+        .arg(fixture("zion_srtm_utm12n.tif"))
+        .arg(&plain)
+        .arg(&with_ov)
+        .output()
+        .unwrap();
+    if !out.status.success() {
+        eprintln!("skipped: {}", String::from_utf8_lossy(&out.stderr));
+        return;
+    }
+    let (_, vp, cam) = setup();
+    let max_d = Some(40_000.0);
+    let a = Dem::open(&plain).unwrap();
+    let b = Dem::open(&with_ov).unwrap();
+    assert!(a.overview_layer(2).is_none());
+    assert!(b.overview_layer(2).is_some() && b.overview_layer(4).is_some());
+    let sa = Scene::open_wedge_lod(&a, &vp, max_d, 1.0 / 7.0, &cam, None).unwrap();
+    let sb = Scene::open_wedge_lod(&b, &vp, max_d, 1.0 / 7.0, &cam, None).unwrap();
+    assert_eq!(sa.terrain.far_layer_sizes(), sb.terrain.far_layer_sizes());
+    let (da, db) = (
+        DepthBuffer::render(&sa.terrain, &cam),
+        DepthBuffer::render(&sb.terrain, &cam),
+    );
+    assert!(da.depth.iter().zip(&db.depth).all(|(p, q)| p.to_bits() == q.to_bits()));
+    assert_eq!(da.triangle, db.triangle);
+}

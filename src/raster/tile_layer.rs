@@ -724,6 +724,61 @@ impl Dem {
         })
     }
 
+    /// This DEM `k` times coarser, read from its tiles' overviews: every
+    /// tile native, with an overview exactly `k` times coarser, and placed
+    /// on the layer grid at a multiple of `k` (its overview's cells then lie
+    /// on the coarse grid). `None` otherwise, or with an overlay (the
+    /// overviews do not see it). Its cache of decoded blocks is empty and
+    /// bounded by nothing kept (its cells are read once).
+    pub fn overview_layer(&self, k: usize) -> Option<Dem> {
+        let k32 = u32::try_from(k).ok()?;
+        if k < 2 || self.overlay.is_some() || self.tiles.is_empty() {
+            return None;
+        }
+        let ki = k as i64;
+        let mut tiles = Vec::with_capacity(self.tiles.len());
+        for t in &self.tiles {
+            let TileSource::Tiff(g) = &t.source else {
+                return None;
+            };
+            if t.extent.col % ki != 0 || t.extent.row % ki != 0 {
+                return None;
+            }
+            let ov = g.overview(k32)?;
+            let extent = Window::new(
+                t.extent.col / ki,
+                t.extent.row / ki,
+                ov.width as usize,
+                ov.height as usize,
+            );
+            tiles.push(Tile {
+                path: t.path.clone(),
+                geotransform: ov.geotransform,
+                source: TileSource::Tiff(ov),
+                extent,
+                sample_type: t.sample_type,
+                nodata: t.nodata,
+                vertical: t.vertical.clone(),
+            });
+        }
+        let g = self.geotransform.0;
+        let kf = k as f64;
+        Some(Dem {
+            path: self.path.clone(),
+            kind: self.kind,
+            tiles,
+            width: self.width.div_ceil(k),
+            height: self.height.div_ceil(k),
+            geotransform: GeoTransform([g[0], g[1] * kf, g[2] * kf, g[3], g[4] * kf, g[5] * kf]),
+            crs: self.crs.clone(),
+            nodata: self.nodata,
+            sample_type: self.sample_type,
+            vertical: self.vertical.clone(),
+            cache: Arc::new(BlockCache::new(0)),
+            overlay: None,
+        })
+    }
+
     /// The window of [`Dem::with_overlay`]'s heights, if any.
     pub fn overlay_window(&self) -> Option<Window> {
         self.overlay.as_ref().map(|(w, _)| *w)

@@ -39,7 +39,7 @@ pub(crate) struct FarLayer {
     /// The layer's last whole render, kept for the next render with the
     /// same camera (an edit re-renders one view round after round; the
     /// layer never changes): shared by the clones of the layer.
-    pub(crate) drawn: Arc<std::sync::Mutex<Option<LayerRender>>>,
+    pub(crate) drawn: Arc<std::sync::Mutex<Option<Arc<LayerRender>>>>,
 }
 
 /// A far layer's render: the camera and, per pixel, depth and the
@@ -53,25 +53,31 @@ pub(crate) struct LayerRender {
 
 impl FarLayer {
     /// The layer's whole render with `camera`: the kept one when it was
-    /// made with the same camera, else made by `render` and kept.
+    /// made with the same camera, else made by `render` and kept. The lock
+    /// is not held while rendering (a render is parallel: a worker waiting
+    /// in it may take up another render of this layer).
     pub(crate) fn render_with(
         &self,
         camera: &crate::view::Camera,
         render: impl FnOnce(&LocalTerrain) -> (Vec<f32>, Vec<u32>),
-    ) -> Arc<std::sync::Mutex<Option<LayerRender>>> {
-        let mut kept = self
-            .drawn
-            .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner);
-        if kept.as_ref().is_none_or(|r| r.camera != *camera) {
-            let (depth, triangle) = render(&self.terrain);
-            *kept = Some(LayerRender {
-                camera: *camera,
-                depth,
-                triangle,
-            });
+    ) -> Arc<LayerRender> {
+        let lock = || {
+            self.drawn
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner)
+        };
+        let kept = lock().as_ref().filter(|r| r.camera == *camera).cloned();
+        if let Some(r) = kept {
+            return r;
         }
-        Arc::clone(&self.drawn)
+        let (depth, triangle) = render(&self.terrain);
+        let r = Arc::new(LayerRender {
+            camera: *camera,
+            depth,
+            triangle,
+        });
+        *lock() = Some(Arc::clone(&r));
+        r
     }
 }
 

@@ -22,11 +22,16 @@
 //! relief within one coarse cell, which spans at most a pixel.
 //!
 //! What is read: for each ring, the box of the camera's wedge on the
-//! coarse grid, in chunks of [`crate::raster::BLOCK_MAX_CHUNK`] DEM cells;
-//! a chunk wholly inside the ring's inner radius, beyond its outer one, or
-//! outside the wedge is not read. Without overviews every chunk the wedge
-//! crosses is still decoded at full resolution: the reading, not the
-//! terrain, is then the cost of a long view.
+//! coarse grid, in chunks of [`crate::raster::BLOCK_MAX_CHUNK`] cells; a
+//! chunk wholly inside the ring's inner radius, beyond its outer one, or
+//! outside the wedge is not read. Where every tile has an overview exactly
+//! `k` times coarser ([`crate::raster::Dem::overview_layer`]), the ring is
+//! read from the overviews: its cells are then what they hold (GDAL's
+//! `AVERAGE` overviews lower a far ridge by up to its relief within a
+//! coarse cell, under a pixel there; `MAX`-like overviews would not).
+//! Without overviews every chunk the wedge crosses is decoded at full
+//! resolution: the reading, not the terrain, is then the cost of a long
+//! view.
 
 use super::far_layers::FarRing;
 use super::terrain::wedge_azimuths;
@@ -125,7 +130,21 @@ impl LodPlan {
                 wedge,
                 margin: 2.0 * coarse_m,
             };
-            let map = dem.read_block_max(cwin, k, &|w| area.wants(w))?;
+            // From the tiles' overviews where they have them (the coarse
+            // cells then are what the overviews hold), else block maxima.
+            let overviews = dem.overview_layer(k);
+            let map = match &overviews {
+                Some(ov) => ov.read_block_max(cwin, 1, &|w| area.wants(finer(w, k)))?,
+                None => dem.read_block_max(cwin, k, &|w| area.wants(w))?,
+            };
+            if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
+                eprintln!(
+                    "level of detail: ring k {k} from {inner:.0} to {outer:.0} m, {} x {} cells, {}",
+                    cwin.width,
+                    cwin.height,
+                    if overviews.is_some() { "from overviews" } else { "block maxima" }
+                );
+            }
             let frame_c = coarse_frame(frame_abs, k, (cwin.col, cwin.row));
             let terrain = LocalTerrain::ring_over(&map, &frame_c, inner_v, outer);
             out.push(FarRing {
@@ -154,6 +173,12 @@ fn coarse_frame(frame_abs: &LocalFrame, k: usize, (c0, r0): (i64, i64)) -> Local
         [frame_abs.p[1][0] * kf, frame_abs.p[1][1] * kf],
     ];
     f
+}
+
+/// Window `w` of the grid `k` times coarser, in cells of the DEM.
+fn finer(w: Window, k: usize) -> Window {
+    let ki = k as i64;
+    Window::new(w.col * ki, w.row * ki, w.width * k, w.height * k)
 }
 
 /// The box (coarse cells) of the camera's wedge out to `outer` metres on

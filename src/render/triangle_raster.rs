@@ -163,11 +163,7 @@ fn draw_far_layer(
     depth: &mut [f32],
     triangle: &mut [u32],
 ) {
-    let kept = layer.render_with(camera, |t| rasterise(t, camera, None));
-    let kept = kept.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
-    let Some(r) = kept.as_ref() else {
-        return;
-    };
+    let r = layer.render_with(camera, |t| rasterise(t, camera, None));
     let (id0, w) = (layer.id0, camera.width.max(1));
     depth
         .par_chunks_mut(w)

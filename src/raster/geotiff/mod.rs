@@ -4,9 +4,11 @@
 //! `tiff::Decoder` over the shared bytes. Georeferencing follows GDAL:
 //! ModelTiepoint + ModelPixelScale or ModelTransformation, PixelIsPoint
 //! shifted by half a pixel, `GDAL_NODATA` and `GDAL_METADATA` kept.
-//! Reduced-resolution IFDs (overviews) and masks are recognised and skipped.
+//! Reduced-resolution IFDs (overviews) are listed, and opened on demand
+//! ([`GeoTiff::overview`]); masks are recognised and skipped.
 
 mod block_decode;
+mod overview;
 pub mod fuzz;
 mod geokeys;
 mod limits;
@@ -82,6 +84,8 @@ pub struct GeoTiff {
     pub vertical: Vertical,
     /// Sizes of the reduced-resolution images (overviews).
     pub overviews: Vec<(u32, u32)>,
+    /// Their images' indices in the file (for [`GeoTiff::overview`]).
+    overview_ifds: Vec<usize>,
     codec: BlockCodec,
     offsets: Vec<u64>,
     counts: Vec<u64>,
@@ -200,6 +204,7 @@ impl GeoTiff {
         // the DEM; reduced-resolution images are its overviews.
         let mut ifd_index = None;
         let mut overviews = Vec::new();
+        let mut overview_ifds = Vec::new();
         let mut index = 0usize;
         loop {
             let subfile = dec
@@ -212,6 +217,7 @@ impl GeoTiff {
                 if reduced {
                     let dims = dec.dimensions().map_err(|e| tiff_err(path, e))?;
                     overviews.push(dims);
+                    overview_ifds.push(index);
                 } else if ifd_index.is_none() {
                     ifd_index = Some(index);
                 }
@@ -232,7 +238,9 @@ impl GeoTiff {
         })?;
         dec.seek_to_image(ifd_index)
             .map_err(|e| tiff_err(path, e))?;
-        Self::describe(path, bytes.clone(), dec, ifd_index, overviews, budget)
+        let mut tiff = Self::describe(path, bytes.clone(), dec, ifd_index, overviews, budget)?;
+        tiff.overview_ifds = overview_ifds;
+        Ok(tiff)
     }
 
     fn describe(
@@ -600,6 +608,7 @@ impl GeoTiff {
             gdal_metadata,
             vertical,
             overviews,
+            overview_ifds: Vec::new(),
             codec,
             offsets: offsets[..expected].to_vec(),
             counts: counts[..expected].to_vec(),
