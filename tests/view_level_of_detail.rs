@@ -206,8 +206,9 @@ for path, ov in ((sys.argv[2], False), (sys.argv[3], True)):
     let max_d = Some(40_000.0);
     let a = Dem::open(&plain).unwrap();
     let b = Dem::open(&with_ov).unwrap();
-    assert!(a.overview_layer(2).is_none());
-    assert!(b.overview_layer(2).is_some() && b.overview_layer(4).is_some());
+    let all = b.full_window();
+    assert!(a.overview_layer(2, all).is_none());
+    assert!(b.overview_layer(2, all).is_some() && b.overview_layer(4, all).is_some());
     let sa = Scene::open_wedge_lod(&a, &vp, max_d, 1.0 / 7.0, &cam, None).unwrap();
     let sb = Scene::open_wedge_lod(&b, &vp, max_d, 1.0 / 7.0, &cam, None).unwrap();
     assert_eq!(sa.terrain.far_layer_sizes(), sb.terrain.far_layer_sizes());

@@ -730,14 +730,18 @@ impl Dem {
     /// on the coarse grid). `None` otherwise, or with an overlay (the
     /// overviews do not see it). Its cache of decoded blocks is empty and
     /// bounded by nothing kept (its cells are read once).
-    pub fn overview_layer(&self, k: usize) -> Option<Dem> {
+    ///
+    /// Only the tiles that touch `within` (DEM cells) are opened so, and
+    /// are in it: the coarse DEM is nodata elsewhere (a ring reads the box
+    /// of a wedge out of thousands of tiles).
+    pub fn overview_layer(&self, k: usize, within: Window) -> Option<Dem> {
         let k32 = u32::try_from(k).ok()?;
         if k < 2 || self.overlay.is_some() || self.tiles.is_empty() {
             return None;
         }
         let ki = k as i64;
-        let mut tiles = Vec::with_capacity(self.tiles.len());
-        for t in &self.tiles {
+        let mut tiles = Vec::new();
+        for t in self.tiles.iter().filter(|t| t.extent.intersect(&within).is_some()) {
             let TileSource::Tiff(g) = &t.source else {
                 return None;
             };

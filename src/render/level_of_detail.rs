@@ -132,7 +132,7 @@ impl LodPlan {
             };
             // From the tiles' overviews where they have them (the coarse
             // cells then are what the overviews hold), else block maxima.
-            let overviews = dem.overview_layer(k);
+            let overviews = dem.overview_layer(k, finer(cwin, k));
             let map = match &overviews {
                 Some(ov) => ov.read_block_max(cwin, 1, &|w| area.wants(finer(w, k)))?,
                 None => dem.read_block_max(cwin, k, &|w| area.wants(w))?,
