@@ -37,7 +37,10 @@ fn the_plan_doubles_the_cells_ring_by_ring() {
     let mut at = plan.near_m;
     for &(k, inner, outer) in &plan.rings {
         assert_eq!(inner, at);
-        assert!(k as f64 * cell * cam.focal_px <= inner * (1.0 + 1e-9), "ring {k} at {inner}");
+        assert!(
+            k as f64 * cell * cam.focal_px <= inner * (1.0 + 1e-9),
+            "ring {k} at {inner}"
+        );
         assert!(outer > inner);
         at = outer;
     }
@@ -56,9 +59,17 @@ fn a_view_within_the_exact_reach_is_unchanged() {
     let b = Scene::open_wedge_lod(&dem, &vp, Some(15_000.0), 1.0 / 7.0, &cam, None).unwrap();
     assert_eq!(a.window_offset, b.window_offset);
     assert_eq!((a.terrain.nx, a.terrain.ny), (b.terrain.nx, b.terrain.ny));
-    assert!(a.terrain.z.iter().zip(&b.terrain.z).all(|(p, q)| p.to_bits() == q.to_bits()));
+    assert!(a
+        .terrain
+        .z
+        .iter()
+        .zip(&b.terrain.z)
+        .all(|(p, q)| p.to_bits() == q.to_bits()));
     assert!(b.terrain.far_layer_sizes().is_empty());
-    let (da, db) = (DepthBuffer::render(&a.terrain, &cam), DepthBuffer::render(&b.terrain, &cam));
+    let (da, db) = (
+        DepthBuffer::render(&a.terrain, &cam),
+        DepthBuffer::render(&b.terrain, &cam),
+    );
     assert_eq!(da.triangle, db.triangle);
 }
 
@@ -109,8 +120,14 @@ fn the_rings_draw_the_far_terrain_of_the_exact_view() {
         }
     }
     assert!(near > 1000 && far > 200, "near {near}, far {far}");
-    assert!(far_agree as f64 >= 0.99 * far as f64, "far terrain {far_agree} of {far}");
-    assert!(far_close as f64 >= 0.9 * far as f64, "far depths {far_close} of {far}");
+    assert!(
+        far_agree as f64 >= 0.99 * far as f64,
+        "far terrain {far_agree} of {far}"
+    );
+    assert!(
+        far_close as f64 >= 0.9 * far as f64,
+        "far depths {far_close} of {far}"
+    );
     // The skyline: the block maxima never lower it (by more than the
     // patch tolerance's pixel).
     for x in 0..cam.width {
@@ -129,7 +146,10 @@ fn the_rings_draw_the_far_terrain_of_the_exact_view() {
     assert!(lod.terrain.triangle_vertices(hit.triangle).is_some());
     assert!((hit.distance - dl.depth[k] as f64).abs() < 0.02 * hit.distance);
     let (c, r, _) = lod.terrain.triangle_cell(hit.triangle);
-    let (c, r) = (c as i64 + lod.window_offset.0, r as i64 + lod.window_offset.1);
+    let (c, r) = (
+        c as i64 + lod.window_offset.0,
+        r as i64 + lod.window_offset.1,
+    );
     assert!(c >= 0 && r >= 0 && (c as usize) < dem.width && (r as usize) < dem.height);
 }
 
@@ -141,13 +161,16 @@ fn far_layers_are_shared_by_a_second_scene() {
     let max_d = Some(40_000.0);
     let first = Scene::open_wedge_lod(&dem, &vp, max_d, 1.0 / 7.0, &cam, None).unwrap();
     let layers = first.terrain.far_layers();
-    let second =
-        Scene::open_wedge_lod(&dem, &vp, max_d, 1.0 / 7.0, &cam, Some(&layers)).unwrap();
+    let second = Scene::open_wedge_lod(&dem, &vp, max_d, 1.0 / 7.0, &cam, Some(&layers)).unwrap();
     let (a, b) = (
         DepthBuffer::render(&first.terrain, &cam),
         DepthBuffer::render(&second.terrain, &cam),
     );
-    assert!(a.depth.iter().zip(&b.depth).all(|(p, q)| p.to_bits() == q.to_bits()));
+    assert!(a
+        .depth
+        .iter()
+        .zip(&b.depth)
+        .all(|(p, q)| p.to_bits() == q.to_bits()));
     assert_eq!(a.triangle, b.triangle);
 }
 
@@ -216,6 +239,10 @@ for path, ov in ((sys.argv[2], False), (sys.argv[3], True)):
         DepthBuffer::render(&sa.terrain, &cam),
         DepthBuffer::render(&sb.terrain, &cam),
     );
-    assert!(da.depth.iter().zip(&db.depth).all(|(p, q)| p.to_bits() == q.to_bits()));
+    assert!(da
+        .depth
+        .iter()
+        .zip(&db.depth)
+        .all(|(p, q)| p.to_bits() == q.to_bits()));
     assert_eq!(da.triangle, db.triangle);
 }

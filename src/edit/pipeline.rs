@@ -278,7 +278,10 @@ pub fn run(
         let t = Instant::now();
         // The far rings of a long view lie beyond both passes' changes:
         // the second takes the first's (when they serve, see `load_views`).
-        let far: Vec<FarLayers> = views.iter().map(|v| v.before.terrain.far_layers()).collect();
+        let far: Vec<FarLayers> = views
+            .iter()
+            .map(|v| v.before.terrain.far_layers())
+            .collect();
         outcome = second_pass(&edit, &dem, sketch_path, outcome, &far)?;
         timings.lowering += secs(t);
     }

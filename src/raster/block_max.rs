@@ -56,7 +56,10 @@ impl Dem {
                 .map(|(r0, r1, band)| self.band_max(cwin, k, cc, (r0, r1), band, wanted))
                 .collect::<Result<Vec<()>, RasterError>>()?;
         }
-        let g = self.geotransform.offset((cwin.col * k as i64) as f64, (cwin.row * k as i64) as f64).0;
+        let g = self
+            .geotransform
+            .offset((cwin.col * k as i64) as f64, (cwin.row * k as i64) as f64)
+            .0;
         let kf = k as f64;
         Ok(HeightMap {
             width: w,
@@ -169,6 +172,9 @@ mod tests {
     #[test]
     fn bands_follow_the_chunk_grid() {
         let w = Window::new(0, 5, 10, 20);
-        assert_eq!(band_rows(w, 8, 0), vec![(0, 3), (3, 11), (11, 19), (19, 20)]);
+        assert_eq!(
+            band_rows(w, 8, 0),
+            vec![(0, 3), (3, 11), (11, 19), (19, 20)]
+        );
     }
 }

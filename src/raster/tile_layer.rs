@@ -741,7 +741,11 @@ impl Dem {
         }
         let ki = k as i64;
         let mut tiles = Vec::new();
-        for t in self.tiles.iter().filter(|t| t.extent.intersect(&within).is_some()) {
+        for t in self
+            .tiles
+            .iter()
+            .filter(|t| t.extent.intersect(&within).is_some())
+        {
             let TileSource::Tiff(g) = &t.source else {
                 return None;
             };

@@ -113,7 +113,11 @@ impl FarLayers {
                 && f.curvature == frame.curvature
         };
         if self.0.len() != ks.len()
-            || self.0.iter().zip(ks).any(|(l, &k)| l.k != k || !same_eye(&l.terrain.frame))
+            || self
+                .0
+                .iter()
+                .zip(ks)
+                .any(|(l, &k)| l.k != k || !same_eye(&l.terrain.frame))
         {
             return false;
         }

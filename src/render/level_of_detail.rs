@@ -151,7 +151,10 @@ impl LodPlan {
                 terrain,
                 inner_m: inner_v,
                 k,
-                origin: (cwin.col * k as i64 - origin.0, cwin.row * k as i64 - origin.1),
+                origin: (
+                    cwin.col * k as i64 - origin.0,
+                    cwin.row * k as i64 - origin.1,
+                ),
             });
         }
         Ok(out)
@@ -216,7 +219,8 @@ impl ReadArea<'_> {
     fn wants(&self, w: Window) -> bool {
         let (x0, y0) = (w.col as f64, w.row as f64);
         let (x1, y1) = (w.col_end() as f64, w.row_end() as f64);
-        let corners = [(x0, y0), (x1, y0), (x1, y1), (x0, y1)].map(|(x, y)| self.frame.pixel_to_en(x, y));
+        let corners =
+            [(x0, y0), (x1, y0), (x1, y1), (x0, y1)].map(|(x, y)| self.frame.pixel_to_en(x, y));
         // (the window is convex: inside the disc when its corners are)
         if corners.iter().all(|&(e, n)| e.hypot(n) < self.inner) {
             return false;

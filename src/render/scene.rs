@@ -4,10 +4,10 @@
 //! visibility use. This is the one entry point the command line (and the
 //! edit pipeline) needs to go from "DEM + lon/lat" to something to render.
 
-use super::{LocalTerrain, RenderError};
-use crate::raster::{Dem, HeightMap, Window};
 use super::far_layers::FarLayers;
 use super::level_of_detail::LodPlan;
+use super::{LocalTerrain, RenderError};
+use crate::raster::{Dem, HeightMap, Window};
 use crate::view::{Georef, LocalFrame, ViewError, Viewpoint};
 
 /// What [`Scene::open_wedge`] reads, found before reading.
@@ -165,11 +165,15 @@ impl Scene {
         );
         let near = LocalTerrain::over(&window, &frame, Some(lod.near_m));
         let ks: Vec<usize> = lod.rings.iter().map(|r| r.0).collect();
-        let terrain = match reuse.filter(|r| r.serve(&frame, &frame_abs, &ks, dem.overlay_window())) {
+        let terrain = match reuse.filter(|r| r.serve(&frame, &frame_abs, &ks, dem.overlay_window()))
+        {
             Some(layers) => near.with_shared_far_layers(layers),
-            None => {
-                near.with_far_layers(lod.build_rings(dem, &frame_abs, camera, (win.col, win.row))?)
-            }
+            None => near.with_far_layers(lod.build_rings(
+                dem,
+                &frame_abs,
+                camera,
+                (win.col, win.row),
+            )?),
         };
         Ok(Scene {
             window,

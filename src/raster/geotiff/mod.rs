@@ -8,10 +8,10 @@
 //! ([`GeoTiff::overview`]); masks are recognised and skipped.
 
 mod block_decode;
-mod overview;
 pub mod fuzz;
 mod geokeys;
 mod limits;
+mod overview;
 
 pub use limits::{decoder_limits, max_decompressed, memory_budget};
 

@@ -24,17 +24,24 @@ impl GeoTiff {
         let at = self.overviews.iter().position(|&d| d == want)?;
         let index = *self.overview_ifds.get(at)?;
         let bytes = &self.bytes[..];
-        let mut dec = Decoder::new(Cursor::new(bytes))
-            .ok()?
-            .with_limits(limits::decoder_limits_within(
-                bytes.len() as u64,
-                limits::memory_budget(),
-            ));
+        let mut dec =
+            Decoder::new(Cursor::new(bytes))
+                .ok()?
+                .with_limits(limits::decoder_limits_within(
+                    bytes.len() as u64,
+                    limits::memory_budget(),
+                ));
         dec.seek_to_image(index).ok()?;
         // Its own compression and predictor (GDAL may encode overviews
         // otherwise), among those the decoder reads.
-        let compression = dec.find_tag_unsigned::<u16>(Tag::Compression).ok()?.unwrap_or(1);
-        let predictor = dec.find_tag_unsigned::<u16>(Tag::Predictor).ok()?.unwrap_or(1);
+        let compression = dec
+            .find_tag_unsigned::<u16>(Tag::Compression)
+            .ok()?
+            .unwrap_or(1);
+        let predictor = dec
+            .find_tag_unsigned::<u16>(Tag::Predictor)
+            .ok()?
+            .unwrap_or(1);
         let float = !self.sample_type.is_integer();
         if !matches!(compression, 1 | 5 | 8 | 32946 | 32773 | 50000)
             || !matches!((predictor, float), (1, _) | (2, _) | (3, true))
