@@ -268,7 +268,9 @@ impl LocalTerrain {
         let mut best = hit;
         for l in &self.far {
             let limit = best.map_or(t_limit, |h| h.t.min(t_limit));
-            if !(dh * limit >= l.reach_m) || !(limit > t_start) {
+            // (false for NaN too)
+            let reaches = dh * limit >= l.reach_m && limit > t_start;
+            if !reaches {
                 continue;
             }
             let t = &l.terrain;
