@@ -35,6 +35,10 @@ const TAG_GDAL_NODATA: u16 = 42113;
 /// Files up to this size are read into memory at open rather than mapped.
 const SMALL_FILE: u64 = 64 << 10;
 
+/// Bytes read before a file's size is asked for (see
+/// [`GeoTiff::open_with_budget`]).
+const FIRST_READ: usize = 8 << 10;
+
 /// How a TIFF's pixels are cut into blocks.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct BlockLayout {
@@ -152,20 +156,32 @@ impl GeoTiff {
         // A small file is read: mapping it, faulting its pages in and
         // unmapping it (a TLB shoot-down on every core) cost several times
         // reading a few pages, and a directory of small tiles opens
-        // thousands. The first read says which it is (no stat).
+        // thousands. The first read says which it is (no stat) for files
+        // of a page or two; a larger one is measured before more is read
+        // (reading 64 KB of every large tile only to map it copied 64 MB
+        // per open of a directory of 1,024 tiles).
         thread_local! {
             static HEAD: std::cell::RefCell<Vec<u8>> = const { std::cell::RefCell::new(Vec::new()) };
         }
         let small = HEAD.with(|head| -> std::io::Result<Option<Vec<u8>>> {
             let mut head = head.borrow_mut();
             head.resize(SMALL_FILE as usize + 1, 0);
+            let mut want = FIRST_READ.min(head.len());
             let mut got = 0;
-            while got < head.len() {
-                match file.read(&mut head[got..]) {
+            while got < want {
+                match file.read(&mut head[got..want]) {
                     Ok(0) => break,
                     Ok(n) => got += n,
                     Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
                     Err(e) => return Err(e),
+                }
+                if got == want && want < head.len() {
+                    // More than the first read: small enough to read whole?
+                    let len = file.metadata()?.len();
+                    if len > SMALL_FILE {
+                        return Ok(None);
+                    }
+                    want = head.len();
                 }
             }
             Ok((got <= SMALL_FILE as usize).then(|| head[..got].to_vec()))
