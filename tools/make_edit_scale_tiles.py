@@ -7,7 +7,14 @@ predictor), and the same set's central 3 x 3 tiles as the small set: the
 same cells, the same CRS coordinates, so one viewpoint and one sketch serve
 both. The fixture itself (not a mirror) lies under the eye.
 
-    /usr/bin/python3 tools/make_edit_scale_tiles.py FIXTURE OUTDIR
+With --overviews every tile also gets internal overviews 2, 4, 8 and 16
+times coarser whose cells are the maxima of the cells they cover (GDAL 3.6
+has no MAX resampling for overviews: they are made NEAREST, then written
+with the maxima), the same cells the level of detail's block maxima
+compute (src/raster/block_max.rs), so that a view reads the same rings from
+either.
+
+    /usr/bin/python3 tools/make_edit_scale_tiles.py FIXTURE OUTDIR [--overviews]
 """
 import os
 import sys
@@ -17,6 +24,8 @@ from osgeo import gdal
 
 gdal.UseExceptions()
 fixture, out = sys.argv[1], sys.argv[2]
+overviews = "--overviews" in sys.argv[3:]
+LEVELS = [2, 4, 8, 16]
 CELL, TILE, N, SMALL = 15.0, 1024, 32, 3
 big, small = os.path.join(out, "t32"), os.path.join(out, "t3")
 if os.path.exists(os.path.join(out, "done")):
@@ -61,6 +70,12 @@ for tr in range(N):
         ds.SetGeoTransform((x0 + tc * TILE * CELL, CELL, 0, y0 - tr * TILE * CELL, 0, -CELL))
         ds.SetProjection(srs)
         ds.GetRasterBand(1).WriteArray(a)
+        if overviews:
+            ds.BuildOverviews("NEAREST", LEVELS)
+            band = ds.GetRasterBand(1)
+            for i, f in enumerate(LEVELS):
+                m = a.reshape(TILE // f, f, TILE // f, f).max(axis=(1, 3))
+                band.GetOverview(i).WriteArray(m)
         ds = None
         lo, hi = N // 2 - 1, N // 2 - 1 + SMALL
         if lo <= tr < hi and lo <= tc < hi:

@@ -52,7 +52,7 @@ use crate::deform::{
 };
 use crate::features::{detect_ridges, RidgeNetwork, RidgeParams};
 use crate::raster::{Dem, Destination, HeightMap, Window, WriteOptions};
-use crate::render::Scene;
+use crate::render::{FarLayers, Scene};
 use crate::sketch::{
     match_sketch, EyeHeightSpec, PointSource, SceneProjection, SceneView, SketchFile, SketchMatch,
     SketchOptions, Stroke, ViewFeatureOptions, ViewInput, ViewSpec,
@@ -263,6 +263,7 @@ pub fn run(
         &edit,
         Dem::open(dem_path)?.with_block_cache_budget(EDIT_BLOCK_CACHE_BYTES),
         sketch_path,
+        &[],
     )?;
     timings.load = secs(t);
 
@@ -275,7 +276,13 @@ pub fn run(
     )?;
     if needs_second_pass(&sketch, &outcome) {
         let t = Instant::now();
-        outcome = second_pass(&edit, &dem, sketch_path, outcome)?;
+        // The far rings of a long view lie beyond both passes' changes:
+        // the second takes the first's (when they serve, see `load_views`).
+        let far: Vec<FarLayers> = views
+            .iter()
+            .map(|v| v.before.terrain.far_layers())
+            .collect();
+        outcome = second_pass(&edit, &dem, sketch_path, outcome, &far)?;
         timings.lowering += secs(t);
     }
     let sources = Sources {
@@ -379,19 +386,20 @@ fn second_pass(
     dem: &Dem,
     sketch_path: &Path,
     first: Outcome,
+    far: &[FarLayers],
 ) -> Result<Outcome, EditError> {
     edit.pb
         .set_message("second pass over the strokes left unfitted");
     let d1 = &quantized(dem, &first.deformation);
     let run_second = || -> Result<Outcome, EditError> {
-        let overlay = Dem::open(&dem.path)?.with_overlay(d1.window, d1.edited().data);
+        let overlay = dem.reopened()?.with_overlay(d1.window, d1.edited().data);
         let Loaded {
             sketch,
             dem: dem2,
             notes,
             prepared,
             scenes,
-        } = load_views(edit, overlay, sketch_path)?;
+        } = load_views(edit, overlay, sketch_path, far)?;
         let dem_name = dem.path.display().to_string();
         let mut scratch = Timings::default();
         let (_, second) = edit_pass(
@@ -544,12 +552,19 @@ struct Loaded {
 /// Stage 1, `load`: reads the sketch and opens the DEM, prepares every
 /// view's strokes, and sets up each view on the DEM: its viewpoint
 /// resolved, its camera built, and the DEM read where the camera can see
-/// within the maximum view distance ([`Scene::open_wedge`]: the box of its
+/// within the maximum view distance ([`Scene::open_wedge_lod`]: the box of its
 /// horizontal wedge, not the whole square around the eye), plus the cells
 /// around the eye its fixed ground can take ([`EyeGround`]). Refuses a viewpoint
 /// whose absolute altitude is not above the ground. Everything later
-/// stages read comes from here; nothing is rendered yet.
-fn load_views(edit: &Edit, dem: Dem, sketch_path: &Path) -> Result<Loaded, EditError> {
+/// stages read comes from here; nothing is rendered yet. `far`: per view,
+/// the far rings of an earlier pass, taken where they serve (the same eye,
+/// no changed cell within their reach) instead of being read again.
+fn load_views(
+    edit: &Edit,
+    dem: Dem,
+    sketch_path: &Path,
+    far: &[FarLayers],
+) -> Result<Loaded, EditError> {
     let sketch_name = &edit.sketch_name;
     edit.pb.set_message("loading DEM and sketch");
     let mut sketch = SketchFile::from_path(sketch_path)?;
@@ -563,7 +578,7 @@ fn load_views(edit: &Edit, dem: Dem, sketch_path: &Path) -> Result<Loaded, EditE
     }
     check_view_sizes(edit, &dem, &sketch)?;
     let mut scenes = Vec::new();
-    for v in &sketch.views {
+    for (i, v) in sketch.views.iter().enumerate() {
         let vp = v.eye();
         let view_err = |source| EditError::View {
             sketch: sketch_name.clone(),
@@ -571,8 +586,15 @@ fn load_views(edit: &Edit, dem: Dem, sketch_path: &Path) -> Result<Loaded, EditE
             source,
         };
         let camera = v.pinhole().map_err(|e| view_err(e.into()))?;
-        let scene = Scene::open_wedge(&dem, &vp, edit.max_d, edit.opts.refraction, &camera)
-            .map_err(view_err)?;
+        let scene = Scene::open_wedge_lod(
+            &dem,
+            &vp,
+            edit.max_d,
+            edit.opts.refraction,
+            &camera,
+            far.get(i),
+        )
+        .map_err(view_err)?;
         if let EyeHeightSpec::Absolute(a) = v.viewpoint.height() {
             if a <= scene.frame.ground {
                 return Err(EditError::Unusable {
@@ -613,12 +635,13 @@ pub const EDIT_BYTES_PER_CELL: u64 = 48;
 /// The size limits of the stages after the load, checked before reading
 /// any height (issue 15: the deformation's window limit used to be hit only
 /// at a re-solve, after seconds of work and gigabytes): the windows every
-/// view reads ([`Scene::wedge_window`]), their union (where the ridges are
+/// view reads ([`Scene::wedge_cells`]: its window and its far rings), their union (where the ridges are
 /// detected: at most 2^30 cells) and the memory the edit will take over
 /// them ([`EDIT_BYTES_PER_CELL`] per cell) against the memory budget
 /// ([`crate::raster::geotiff::memory_budget`]).
 fn check_view_sizes(edit: &Edit, dem: &Dem, sketch: &SketchFile) -> Result<(), EditError> {
     let mut windows = Vec::new();
+    let mut ring_cells = 0u64;
     for v in &sketch.views {
         let view_err = |source| EditError::View {
             sketch: edit.sketch_name.clone(),
@@ -626,9 +649,11 @@ fn check_view_sizes(edit: &Edit, dem: &Dem, sketch: &SketchFile) -> Result<(), E
             source,
         };
         let camera = v.pinhole().map_err(|e| view_err(e.into()))?;
-        let w = Scene::wedge_window(dem, &v.eye(), edit.max_d, edit.opts.refraction, &camera)
-            .map_err(view_err)?;
+        let (w, rings) =
+            Scene::wedge_cells(dem, &v.eye(), edit.max_d, edit.opts.refraction, &camera)
+                .map_err(view_err)?;
         windows.push(w);
+        ring_cells = ring_cells.saturating_add(rings);
     }
     let Some(first) = windows.first() else {
         return Ok(());
@@ -641,7 +666,8 @@ fn check_view_sizes(edit: &Edit, dem: &Dem, sketch: &SketchFile) -> Result<(), E
         r1 = r1.max(w.row_end());
     }
     let union = ((c1 - c0) as u64).saturating_mul((r1 - r0) as u64);
-    let cells: u64 = windows.iter().map(|w| w.len() as u64).sum();
+    // (a far ring's cell costs a terrain's, not a window's: counted as one)
+    let cells: u64 = windows.iter().map(|w| w.len() as u64).sum::<u64>() + ring_cells;
     let bytes = cells.saturating_mul(EDIT_BYTES_PER_CELL);
     let budget = crate::raster::geotiff::memory_budget();
     let distance = match edit.max_d {

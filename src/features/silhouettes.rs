@@ -443,7 +443,8 @@ fn walk_to_contour(
     let (mut best_y, mut best, mut best_tri, mut best_d) = (y as f64 + 0.5, q0, tri0, t_a);
     let mut found: Vec<(f64, [f64; 3], u32)> = Vec::new();
     let (cx, cy) = (terrain.cells_x(), terrain.ny.saturating_sub(1));
-    if cx == 0 || tri0 == crate::render::SKY {
+    // (a far layer's cells are not this grid's: the bisection decides)
+    if cx == 0 || tri0 == crate::render::SKY || terrain.is_far_triangle(tri0) {
         return Walk::Inconclusive;
     }
     let cell = (tri0 / 2) as usize;

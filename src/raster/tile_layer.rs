@@ -102,7 +102,8 @@ pub struct Dem {
     pub sample_type: SampleType,
     /// The first tile's vertical description (unit, datum, scale, offset).
     pub vertical: Vertical,
-    cache: BlockCache,
+    /// Decoded blocks (shared with the DEMs [`Dem::reopened`] from this one).
+    cache: Arc<BlockCache>,
     /// Heights that [`Dem::read_height_map`] returns instead of the stored
     /// ones over a window ([`Dem::with_overlay`]).
     overlay: Option<(Window, std::sync::Arc<Vec<f32>>)>,
@@ -385,7 +386,7 @@ impl Dem {
             tiles,
             width,
             height,
-            cache: BlockCache::new(cache_budget),
+            cache: Arc::new(BlockCache::new(cache_budget)),
             overlay: None,
         })
     }
@@ -394,7 +395,7 @@ impl Dem {
     /// are read once (`view`): the blocks of a large window are not kept
     /// beside it (they would double what the read holds, in fresh pages).
     pub fn without_block_cache(mut self) -> Dem {
-        self.cache = BlockCache::new(0);
+        self.cache = Arc::new(BlockCache::new(0));
         self
     }
 
@@ -405,7 +406,7 @@ impl Dem {
     /// window's blocks are not all kept beside it.
     pub fn with_block_cache_budget(mut self, bytes: usize) -> Dem {
         if bytes < self.cache.budget() {
-            self.cache = BlockCache::new(bytes);
+            self.cache = Arc::new(BlockCache::new(bytes));
         }
         self
     }
@@ -442,13 +443,13 @@ impl Dem {
     /// tiles. Cells outside every tile, and nodata cells, are invalid (their
     /// value is NaN).
     pub fn read_window<T: Sample>(&self, win: Window) -> Result<WindowData<T>, RasterError> {
-        self.read(win, true, true)
+        self.read(win, true, true, true)
     }
 
     /// Read a window of stored values (before scale, offset and unit), as
     /// [`Dem::read_window`] otherwise does.
     pub fn read_window_raw<T: Sample>(&self, win: Window) -> Result<WindowData<T>, RasterError> {
-        self.read(win, false, true)
+        self.read(win, false, true, true)
     }
 
     /// Read a window, in metres when `metres`, else as stored. Nodata is
@@ -456,12 +457,15 @@ impl Dem {
     /// GDAL does (a Float32 file's nodata of -3.4e38 is the f32 nearest to
     /// it); the conversion to metres is done in f64, before rounding to `T`.
     /// Without `mask` the validity mask is left empty (a height map marks
-    /// invalid cells NaN and needs none).
+    /// invalid cells NaN and needs none). Without `cached` the blocks
+    /// decoded are not kept (cached ones are still used): for cells read
+    /// once, which would only push out the blocks worth keeping.
     fn read<T: Sample>(
         &self,
         win: Window,
         metres: bool,
         mask: bool,
+        cached: bool,
     ) -> Result<WindowData<T>, RasterError> {
         let n = win.len();
         let bytes = (n as u64).saturating_mul(std::mem::size_of::<T>() as u64 + 1);
@@ -504,7 +508,7 @@ impl Dem {
         // is allocated, so that a broken or crafted file costs little.
         if let Some(&(ti, Some(bi))) = jobs.first() {
             if let TileSource::Tiff(tiff) = &self.tiles[ti].source {
-                if self.cache.get((ti, bi)).is_none() {
+                if cached && self.cache.get((ti, bi)).is_none() {
                     let b = Arc::new(tiff.decode_block(bi)?);
                     self.cache.insert((ti, bi), b);
                 }
@@ -533,7 +537,9 @@ impl Dem {
                             Some(b) => b,
                             None => {
                                 let b = Arc::new(tiff.decode_block(bi)?);
-                                self.cache.insert(key, b.clone());
+                                if cached {
+                                    self.cache.insert(key, b.clone());
+                                }
                                 b
                             }
                         };
@@ -672,10 +678,134 @@ impl Dem {
         self
     }
 
+    /// The same DEM opened again, without reading it again: native tiles
+    /// share their bytes (and mapping) with this one, GDAL tiles are
+    /// opened anew; no overlay; the cache of decoded blocks shared (the
+    /// files are the same). For a second look at the DEM through an overlay
+    /// ([`Dem::with_overlay`]) at the cost of the tile list, not of opening
+    /// every tile (and mapping its header) again.
+    pub fn reopened(&self) -> Result<Dem, RasterError> {
+        let tiles = self
+            .tiles
+            .iter()
+            .map(|t| -> Result<Tile, RasterError> {
+                let source = match &t.source {
+                    TileSource::Tiff(g) => TileSource::Tiff(g.clone()),
+                    TileSource::Gdal(_) => {
+                        let ds = gdal::Dataset::open(&t.path)
+                            .map_err(|e| RasterError::gdal(&t.path, e))?;
+                        TileSource::Gdal(Mutex::new(ds))
+                    }
+                };
+                Ok(Tile {
+                    path: t.path.clone(),
+                    source,
+                    extent: t.extent,
+                    sample_type: t.sample_type,
+                    nodata: t.nodata,
+                    geotransform: t.geotransform,
+                    vertical: t.vertical.clone(),
+                })
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(Dem {
+            path: self.path.clone(),
+            kind: self.kind,
+            tiles,
+            width: self.width,
+            height: self.height,
+            geotransform: self.geotransform,
+            crs: self.crs.clone(),
+            nodata: self.nodata,
+            sample_type: self.sample_type,
+            vertical: self.vertical.clone(),
+            cache: Arc::clone(&self.cache),
+            overlay: None,
+        })
+    }
+
+    /// This DEM `k` times coarser, read from its tiles' overviews: every
+    /// tile native, with an overview exactly `k` times coarser, and placed
+    /// on the layer grid at a multiple of `k` (its overview's cells then lie
+    /// on the coarse grid). `None` otherwise, or with an overlay (the
+    /// overviews do not see it). Its cache of decoded blocks is empty and
+    /// bounded by nothing kept (its cells are read once).
+    ///
+    /// Only the tiles that touch `within` (DEM cells) are opened so, and
+    /// are in it: the coarse DEM is nodata elsewhere (a ring reads the box
+    /// of a wedge out of thousands of tiles).
+    pub fn overview_layer(&self, k: usize, within: Window) -> Option<Dem> {
+        let k32 = u32::try_from(k).ok()?;
+        if k < 2 || self.overlay.is_some() || self.tiles.is_empty() {
+            return None;
+        }
+        let ki = k as i64;
+        let mut tiles = Vec::new();
+        for t in self
+            .tiles
+            .iter()
+            .filter(|t| t.extent.intersect(&within).is_some())
+        {
+            let TileSource::Tiff(g) = &t.source else {
+                return None;
+            };
+            if t.extent.col % ki != 0 || t.extent.row % ki != 0 {
+                return None;
+            }
+            let ov = g.overview(k32)?;
+            let extent = Window::new(
+                t.extent.col / ki,
+                t.extent.row / ki,
+                ov.width as usize,
+                ov.height as usize,
+            );
+            tiles.push(Tile {
+                path: t.path.clone(),
+                geotransform: ov.geotransform,
+                source: TileSource::Tiff(ov),
+                extent,
+                sample_type: t.sample_type,
+                nodata: t.nodata,
+                vertical: t.vertical.clone(),
+            });
+        }
+        let g = self.geotransform.0;
+        let kf = k as f64;
+        Some(Dem {
+            path: self.path.clone(),
+            kind: self.kind,
+            tiles,
+            width: self.width.div_ceil(k),
+            height: self.height.div_ceil(k),
+            geotransform: GeoTransform([g[0], g[1] * kf, g[2] * kf, g[3], g[4] * kf, g[5] * kf]),
+            crs: self.crs.clone(),
+            nodata: self.nodata,
+            sample_type: self.sample_type,
+            vertical: self.vertical.clone(),
+            cache: Arc::new(BlockCache::new(0)),
+            overlay: None,
+        })
+    }
+
+    /// The window of [`Dem::with_overlay`]'s heights, if any.
+    pub fn overlay_window(&self) -> Option<Window> {
+        self.overlay.as_ref().map(|(w, _)| *w)
+    }
+
     /// Read a window as a [`HeightMap`] (f32, NaN = nodata).
     pub fn read_height_map(&self, win: Window) -> Result<HeightMap, RasterError> {
+        self.height_map(win, true)
+    }
+
+    /// [`Dem::read_height_map`] keeping no decoded block in the cache: for
+    /// cells read once (the far rings of a long view).
+    pub fn read_height_map_once(&self, win: Window) -> Result<HeightMap, RasterError> {
+        self.height_map(win, false)
+    }
+
+    fn height_map(&self, win: Window, cached: bool) -> Result<HeightMap, RasterError> {
         // NaN marks the invalid cells: no mask is made.
-        let mut w = self.read::<f32>(win, true, false)?;
+        let mut w = self.read::<f32>(win, true, false, cached)?;
         if let Some((ow, heights)) = &self.overlay {
             if let Some(both) = ow.intersect(&win) {
                 for r in both.row..both.row + both.height as i64 {

@@ -13,7 +13,9 @@
 
 mod atomic;
 mod depth_buffer;
+mod far_layers;
 mod horizon;
+mod level_of_detail;
 mod locate;
 mod overlay;
 mod scene;
@@ -25,6 +27,8 @@ mod vertex_heights;
 mod viewshed;
 
 pub use depth_buffer::{pick, DepthBuffer, TerrainHit, SKY};
+pub use far_layers::{FarLayers, FarRing};
+pub use level_of_detail::{LodPlan, LOD_MIN_NEAR_M};
 pub use locate::{locate, project_point, Located};
 pub use overlay::visible_polylines;
 pub use scene::Scene;

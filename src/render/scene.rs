@@ -4,6 +4,8 @@
 //! visibility use. This is the one entry point the command line (and the
 //! edit pipeline) needs to go from "DEM + lon/lat" to something to render.
 
+use super::far_layers::FarLayers;
+use super::level_of_detail::LodPlan;
 use super::{LocalTerrain, RenderError};
 use crate::raster::{Dem, HeightMap, Window};
 use crate::view::{Georef, LocalFrame, ViewError, Viewpoint};
@@ -18,6 +20,9 @@ struct WedgePlan {
     c0: usize,
     r0: usize,
     win: Window,
+    /// The frame on the square's grid, resolved with any ground (for
+    /// planning: its cells and eye, not its heights).
+    probe: LocalFrame,
 }
 
 /// A viewpoint resolved on a DEM, with the terrain around it.
@@ -81,6 +86,7 @@ impl Scene {
             c0,
             r0,
             win,
+            ..
         } = plan;
         let window = dem.read_height_map(win)?;
         // The ground under the eye from the wedge's cells (it holds the eye
@@ -113,12 +119,115 @@ impl Scene {
         Ok(Self::wedge_plan(dem, vp, max_d, k, camera)?.win)
     }
 
+    /// Like [`Scene::open_wedge`], with a level of detail where the view
+    /// reaches far ([`super::level_of_detail`]): the window, and the
+    /// terrain's own grid, stop at the plan's exact reach, and the rings
+    /// beyond, read coarser, are the terrain's far layers. A view within
+    /// the exact reach is [`Scene::open_wedge`]'s, bit for bit.
+    ///
+    /// `reuse`: the far layers of an earlier scene of this view (an edit's
+    /// second pass reads the DEM through the first's result), taken instead
+    /// of reading the rings again where they serve
+    /// ([`FarLayers::serve`]: the same eye, and no changed cell of the
+    /// DEM's overlay within their reach).
+    pub fn open_wedge_lod(
+        dem: &Dem,
+        vp: &Viewpoint,
+        max_distance: Option<f64>,
+        k: f64,
+        camera: &crate::view::Camera,
+        reuse: Option<&FarLayers>,
+    ) -> Result<Scene, RenderError> {
+        let max_d = max_distance.filter(|d| d.is_finite() && *d > 0.0);
+        let probe = Self::wedge_plan(dem, vp, max_d, k, camera)?.probe;
+        let Some(lod) = LodPlan::new(&probe, camera, max_d) else {
+            return Self::open_wedge(dem, vp, max_distance, k, camera);
+        };
+        let plan = Self::wedge_plan_within(dem, vp, max_d, Some(lod.near_m), k, camera)?;
+        let WedgePlan {
+            georef,
+            gt,
+            size,
+            c0,
+            r0,
+            win,
+            ..
+        } = plan;
+        let window = dem.read_height_map(win)?;
+        let ground = |px: f64, py: f64| window.bilinear(px - c0 as f64, py - r0 as f64);
+        let frame = georef
+            .local_frame_on(vp, &gt, size, &ground, k)?
+            .shifted(c0, r0);
+        let mut frame_abs = frame;
+        frame_abs.eye_pixel = (
+            frame.eye_pixel.0 + win.col as f64,
+            frame.eye_pixel.1 + win.row as f64,
+        );
+        let near = LocalTerrain::over(&window, &frame, Some(lod.near_m));
+        let ks: Vec<usize> = lod.rings.iter().map(|r| r.0).collect();
+        let terrain = match reuse.filter(|r| r.serve(&frame, &frame_abs, &ks, dem.overlay_window()))
+        {
+            Some(layers) => near.with_shared_far_layers(layers),
+            None => near.with_far_layers(lod.build_rings(
+                dem,
+                &frame_abs,
+                camera,
+                (win.col, win.row),
+            )?),
+        };
+        Ok(Scene {
+            window,
+            window_offset: (win.col, win.row),
+            georef,
+            frame,
+            terrain,
+        })
+    }
+
+    /// What [`Scene::open_wedge_lod`] reads, found without reading any
+    /// height: the window at the DEM's resolution, and the cells of the
+    /// coarser rings (0 without a level of detail).
+    pub fn wedge_cells(
+        dem: &Dem,
+        vp: &Viewpoint,
+        max_distance: Option<f64>,
+        k: f64,
+        camera: &crate::view::Camera,
+    ) -> Result<(Window, u64), RenderError> {
+        let max_d = max_distance.filter(|d| d.is_finite() && *d > 0.0);
+        let plan = Self::wedge_plan(dem, vp, max_d, k, camera)?;
+        let Some(lod) = LodPlan::new(&plan.probe, camera, max_d) else {
+            return Ok((plan.win, 0));
+        };
+        let near = Self::wedge_plan_within(dem, vp, max_d, Some(lod.near_m), k, camera)?;
+        let square = Self::window_of(dem, &near.georef, vp.lon, vp.lat, max_d)?;
+        let mut frame_abs = near.probe;
+        frame_abs.eye_pixel = (
+            frame_abs.eye_pixel.0 + square.col as f64,
+            frame_abs.eye_pixel.1 + square.row as f64,
+        );
+        Ok((near.win, lod.ring_cells(dem, &frame_abs, camera)))
+    }
+
     /// Where the wedge of `camera` lies: the square around the eye, its
     /// grid, and the wedge's box in it and in the DEM.
     fn wedge_plan(
         dem: &Dem,
         vp: &Viewpoint,
         max_d: Option<f64>,
+        k: f64,
+        camera: &crate::view::Camera,
+    ) -> Result<WedgePlan, RenderError> {
+        Self::wedge_plan_within(dem, vp, max_d, max_d, k, camera)
+    }
+
+    /// [`Scene::wedge_plan`] with the wedge's box cut at `reach` metres
+    /// (the frame still resolved on the square of `max_d`).
+    fn wedge_plan_within(
+        dem: &Dem,
+        vp: &Viewpoint,
+        max_d: Option<f64>,
+        reach: Option<f64>,
         k: f64,
         camera: &crate::view::Camera,
     ) -> Result<WedgePlan, RenderError> {
@@ -133,7 +242,7 @@ impl Scene {
         // Where the eye is and what it sees need no heights: the wedge is
         // found first (with any ground), then only it is read.
         let probe = georef.local_frame_on(vp, &gt, size, &|_, _| Some(0.0), k)?;
-        let (c0, r0, c1, r1) = LocalTerrain::extent_in(size, &probe, max_d, Some(camera));
+        let (c0, r0, c1, r1) = LocalTerrain::extent_in(size, &probe, reach, Some(camera));
         let win = Window::new(
             square.col + c0 as i64,
             square.row + r0 as i64,
@@ -147,6 +256,7 @@ impl Scene {
             c0,
             r0,
             win,
+            probe,
         })
     }
 

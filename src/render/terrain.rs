@@ -16,6 +16,7 @@
 //! exactly; the rasteriser draws each patch as triangles, finer where the
 //! patch looks large (see `triangle_raster`).
 
+use super::far_layers::{CastKind, FarLayer};
 use super::horizon::{Block, HorizonIndex};
 use super::vertex_heights::VertexHeights;
 use crate::buffer_pool;
@@ -60,6 +61,11 @@ pub struct LocalTerrain {
     horizon: std::sync::OnceLock<Option<HorizonIndex>>,
     ranges: std::sync::OnceLock<BlockRanges>,
     coarse_index: std::sync::OnceLock<CastIndex>,
+    /// Coarser terrains beyond this one's reach (the level of detail of a
+    /// long view, [`super::far_layers`]): rendered into the same depth
+    /// buffer and cast against beside it, their triangle ids after this
+    /// one's. Empty for a terrain at one resolution.
+    pub(crate) far: Vec<FarLayer>,
 }
 
 /// Edge in cells of the blocks of [`BlockRanges`].
@@ -121,7 +127,14 @@ impl LocalTerrain {
     /// [`LocalTerrain::in_view`] on the whole grid.
     pub fn over(dem: &HeightMap, frame: &LocalFrame, max_distance: Option<f64>) -> Self {
         let max_d = max_distance.filter(|d| *d > 0.0).unwrap_or(f64::INFINITY);
-        Self::build_over(dem, frame, max_d, (0, 0, dem.width, dem.height))
+        Self::build_over(dem, frame, max_d, (0, 0, dem.width, dem.height), 0.0)
+    }
+
+    /// [`LocalTerrain::over`] keeping only the vertices between `min_d`
+    /// and `max_d` metres from the eye (the others nodata): one ring of a
+    /// level-of-detail terrain ([`super::far_layers`]).
+    pub(crate) fn ring_over(dem: &HeightMap, frame: &LocalFrame, min_d: f64, max_d: f64) -> Self {
+        Self::build_over(dem, frame, max_d, (0, 0, dem.width, dem.height), min_d)
     }
 
     /// The cells `(c0, r0, c1, r1)` (end exclusive) of a grid of `size`
@@ -146,15 +159,20 @@ impl LocalTerrain {
     ) -> Self {
         let max_d = max_distance.filter(|d| *d > 0.0).unwrap_or(f64::INFINITY);
         let cells = extent((dem.width, dem.height), frame, max_d, camera);
-        Self::build_over(dem, frame, max_d, cells)
+        Self::build_over(dem, frame, max_d, cells, 0.0)
     }
 
+    /// The terrain of cells `(c0, r0, c1, r1)` of `dem`: vertices farther
+    /// than `max_d` or nearer than `min_d` (0: none) are nodata.
     fn build_over(
         dem: &HeightMap,
         frame: &LocalFrame,
         max_d: f64,
         (c0, r0, c1, r1): (usize, usize, usize, usize),
+        min_d: f64,
     ) -> Self {
+        // (0 for a whole terrain: no squared distance is under it)
+        let min_d2 = min_d * min_d;
         let p = frame.p;
         let pinv = inverse_2x2(p);
         let (ex, ey) = frame.eye_pixel;
@@ -186,7 +204,11 @@ impl LocalTerrain {
                 let d2 = e * e + n * n;
                 // NaN heights stay NaN
                 let v = (h as f64 - eye_alt - coef * d2) as f32;
-                *out = if d2 > max_d2 { f32::NAN } else { v };
+                *out = if d2 > max_d2 || d2 < min_d2 {
+                    f32::NAN
+                } else {
+                    v
+                };
             }
             row[inside..].fill(f32::NAN);
         });
@@ -221,6 +243,7 @@ impl LocalTerrain {
             horizon: std::sync::OnceLock::new(),
             ranges: std::sync::OnceLock::new(),
             coarse_index: std::sync::OnceLock::new(),
+            far: Vec::new(),
         }
     }
 
@@ -325,6 +348,9 @@ impl LocalTerrain {
             horizon: std::sync::OnceLock::new(),
             ranges: ranges_lock,
             coarse_index: std::sync::OnceLock::new(),
+            // The far layers lie beyond the deformations (they are not
+            // patched): shared.
+            far: self.far.clone(),
         }
     }
 
@@ -547,6 +573,9 @@ impl LocalTerrain {
     /// planar triangles depart from a cell's bilinear patch by up to a
     /// quarter of its twist.
     pub fn twist_around(&self, id: u32) -> f64 {
+        if let Some((l, id)) = self.far_of(id) {
+            return l.terrain.twist_around(id);
+        }
         let (nx, ny) = (self.nx, self.ny);
         if nx < 2 || ny < 2 {
             return 0.0;
@@ -612,6 +641,9 @@ impl LocalTerrain {
 
     /// The three local vertices of triangle `id`, `None` when it is a hole.
     pub fn triangle_vertices(&self, id: u32) -> Option<[[f64; 3]; 3]> {
+        if let Some((l, id)) = self.far_of(id) {
+            return l.terrain.triangle_vertices(id);
+        }
         let cx = self.cells_x().max(1);
         let cell = (id / 2) as usize;
         let (c, r) = (cell % cx, cell / cx);
@@ -627,6 +659,9 @@ impl LocalTerrain {
     /// Cell `(col, row)` of the source DEM (pixel space of the `HeightMap`
     /// the terrain was built from) of triangle `id`, and which half (0 or 1).
     pub fn triangle_cell(&self, id: u32) -> (usize, usize, u8) {
+        if let Some((l, id)) = self.far_of(id) {
+            return Self::far_triangle_cell(l, id);
+        }
         let cx = self.cells_x().max(1);
         let cell = (id / 2) as usize;
         (self.col0 + cell % cx, self.row0 + cell / cx, (id % 2) as u8)
@@ -638,6 +673,9 @@ impl LocalTerrain {
     /// gradient, without the facets of the triangles). Falls back to the
     /// triangle's own normal next to nodata.
     pub fn shading_normal(&self, p: [f64; 3], id: u32) -> Option<[f64; 3]> {
+        if let Some((l, id)) = self.far_of(id) {
+            return l.terrain.shading_normal(p, id);
+        }
         let cx = self.cells_x().max(1);
         let cell = (id / 2) as usize;
         let (c, r) = (cell % cx, cell / cx);
@@ -677,6 +715,9 @@ impl LocalTerrain {
 
     /// Upward unit normal of triangle `id` in the local frame.
     pub fn triangle_normal(&self, id: u32) -> Option<[f64; 3]> {
+        if let Some((l, id)) = self.far_of(id) {
+            return l.terrain.triangle_normal(id);
+        }
         let [a, b, c] = self.triangle_vertices(id)?;
         let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
         let v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
@@ -696,10 +737,12 @@ impl LocalTerrain {
     /// index when it exists but does not build it (building it costs more
     /// than a few hundred casts of bounded length gain from it).
     pub fn cast_within(&self, d: [f64; 3], t_limit: f64) -> Option<RayHit> {
-        if self.horizon.get().is_some() {
-            return self.cast(d, t_limit);
-        }
-        self.traverse(d, 0.0, t_limit)
+        let hit = if self.horizon.get().is_some() {
+            self.cast_own(d, t_limit)
+        } else {
+            self.traverse(d, 0.0, t_limit)
+        };
+        self.with_far_hit(hit, d, 0.0, t_limit, CastKind::Within)
     }
 
     /// The first intersection with the terrain of the segment
@@ -716,7 +759,8 @@ impl LocalTerrain {
             Some(full) => full,
             None => self.coarse_index(),
         };
-        self.traverse_with(index, d, t_start, t_limit)
+        let hit = self.traverse_with(index, d, t_start, t_limit);
+        self.with_far_hit(hit, d, t_start, t_limit, CastKind::Segment)
     }
 
     /// The horizontal part of direction `d` (east, north, up) in vertex
@@ -802,6 +846,12 @@ impl LocalTerrain {
     /// `d` (local frame) with the triangulated terrain, within distance
     /// `t_limit` and the maximum view distance. `None`: the ray escapes (sky).
     pub fn cast(&self, d: [f64; 3], t_limit: f64) -> Option<RayHit> {
+        let hit = self.cast_own(d, t_limit);
+        self.with_far_hit(hit, d, 0.0, t_limit, CastKind::Full)
+    }
+
+    /// [`LocalTerrain::cast`] on this terrain's own grid (no far layer).
+    fn cast_own(&self, d: [f64; 3], t_limit: f64) -> Option<RayHit> {
         let dh = (d[0] * d[0] + d[1] * d[1]).sqrt();
         let Some(hz) = self.horizon().filter(|_| dh > 1e-9) else {
             return self.traverse(d, 0.0, t_limit);
@@ -1023,6 +1073,27 @@ impl LocalTerrain {
         latest_entry: f64,
         max_cells: usize,
     ) -> Result<RayHit, Option<(usize, usize)>> {
+        if self.is_far_triangle(id) {
+            // (a far layer's cells are not walked: the caller casts)
+            return Err(None);
+        }
+        let hit = self.walk_cells(d, id, t_start, latest_entry, max_cells)?;
+        match self.with_far_hit(Some(hit), d, t_start, hit.t, CastKind::Segment) {
+            Some(h) => Ok(h),
+            None => Ok(hit),
+        }
+    }
+
+    /// The walk of [`LocalTerrain::cast_from_cell_walk`] over this
+    /// terrain's own cells.
+    fn walk_cells(
+        &self,
+        d: [f64; 3],
+        id: u32,
+        t_start: f64,
+        latest_entry: f64,
+        max_cells: usize,
+    ) -> Result<RayHit, Option<(usize, usize)>> {
         let cx = self.cells_x();
         if cx == 0 || self.ny < 2 {
             return Err(None);
@@ -1113,6 +1184,9 @@ impl LocalTerrain {
     /// nearest `t_near` (the rasteriser's depth, which follows the patch to
     /// a fraction of a pixel). `None` when the ray misses the patch.
     pub fn patch_distance(&self, d: [f64; 3], id: u32, t_near: f64) -> Option<f64> {
+        if let Some((l, id)) = self.far_of(id) {
+            return l.terrain.patch_distance(d, id, t_near);
+        }
         let cx = self.cells_x().max(1);
         let cell = (id / 2) as usize;
         let (c, r) = (cell % cx, cell / cx);
@@ -1305,17 +1379,11 @@ fn extent(
     (c0, r0, c1, r1)
 }
 
-#[allow(clippy::type_complexity)]
-/// The pixel box `(c0, r0, c1, r1)` (end exclusive, clipped to `dem`) of
-/// the horizontal wedge `camera` sees from `frame`'s eye out to `max_d`
-/// (the far corner of `dem` when infinite), or `None` when the azimuths of
-/// its pixel rays span more than a half-turn or a ray is nearly vertical.
-fn view_wedge_box(
-    (width, height): (usize, usize),
-    frame: &LocalFrame,
-    max_d: f64,
-    camera: &crate::view::Camera,
-) -> Option<(usize, usize, usize, usize)> {
+/// The horizontal wedge of `camera`'s pixel rays: the centre ray's azimuth
+/// (radians clockwise from north) and the least and greatest azimuths of
+/// the rays relative to it (with a degree's margin); `None` when they span
+/// more than a half-turn or a ray is nearly vertical.
+pub(crate) fn wedge_azimuths(camera: &crate::view::Camera) -> Option<(f64, f64, f64)> {
     use crate::view::CameraModel;
     use std::f64::consts::{PI, TAU};
     // Azimuths of the rays around the image border (the rays through a
@@ -1350,6 +1418,21 @@ fn view_wedge_box(
     if hi - lo > PI {
         return None;
     }
+    Some((a_centre, lo, hi))
+}
+
+#[allow(clippy::type_complexity)]
+/// The pixel box `(c0, r0, c1, r1)` (end exclusive, clipped to `dem`) of
+/// the horizontal wedge `camera` sees from `frame`'s eye out to `max_d`
+/// (the far corner of `dem` when infinite), or `None` when the azimuths of
+/// its pixel rays span more than a half-turn or a ray is nearly vertical.
+fn view_wedge_box(
+    (width, height): (usize, usize),
+    frame: &LocalFrame,
+    max_d: f64,
+    camera: &crate::view::Camera,
+) -> Option<(usize, usize, usize, usize)> {
+    let (a_centre, lo, hi) = wedge_azimuths(camera)?;
     // Radius: the maximum distance, or the farthest corner of the DEM.
     let p = frame.p;
     let to_en = |px: f64, py: f64| {

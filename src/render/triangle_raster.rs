@@ -159,6 +159,9 @@ pub(crate) fn rasterise_keeping(
         (&mut depth, &mut triangle, true),
         Some((earlier, keep)),
     );
+    // Kept strips hold the far layers already; drawing them again changes
+    // nothing there (a pixel takes a layer's hit only when it is nearer).
+    draw_far_layers(terrain, camera, &mut depth, &mut triangle);
     (depth, triangle)
 }
 
@@ -193,6 +196,49 @@ pub(crate) fn rasterise_into(
     reused: bool,
 ) {
     rasterise_strips(terrain, camera, last_row, (depth, triangle, reused), None);
+    draw_far_layers(terrain, camera, depth, triangle);
+}
+
+/// Each far layer of `terrain` ([`super::far_layers`]) drawn into a render
+/// of its own grid.
+fn draw_far_layers(
+    terrain: &LocalTerrain,
+    camera: &Camera,
+    depth: &mut [f32],
+    triangle: &mut [u32],
+) {
+    for layer in &terrain.far {
+        draw_far_layer(layer, camera, depth, triangle);
+    }
+}
+
+/// Draw a far layer of a terrain ([`super::far_layers`]) into `depth` and
+/// `triangle` (the terrain's, already drawn): the layer's whole render
+/// (kept by the layer for the next render with this camera), taken where
+/// it is nearer, its ids moved to the layer's. The pixels not drawn here
+/// (NaN outside `last_row`) and those the layer does not reach keep what
+/// they show: a render of some rows gets the whole render's values in
+/// them, as for the terrain's own triangles.
+fn draw_far_layer(
+    layer: &super::far_layers::FarLayer,
+    camera: &Camera,
+    depth: &mut [f32],
+    triangle: &mut [u32],
+) {
+    let r = layer.render_with(camera, |t| rasterise(t, camera, None));
+    let (id0, w) = (layer.id0, camera.width.max(1));
+    depth
+        .par_chunks_mut(w)
+        .zip(triangle.par_chunks_mut(w))
+        .zip(r.depth.par_chunks(w).zip(r.triangle.par_chunks(w)))
+        .for_each(|((d, t), (fd, ft))| {
+            for i in 0..d.len() {
+                if fd[i] < d[i] {
+                    d[i] = fd[i];
+                    t[i] = ft[i] + id0;
+                }
+            }
+        });
 }
 
 /// A render's strips kept from an earlier one: its depths and triangles,

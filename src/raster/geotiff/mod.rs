@@ -4,12 +4,14 @@
 //! `tiff::Decoder` over the shared bytes. Georeferencing follows GDAL:
 //! ModelTiepoint + ModelPixelScale or ModelTransformation, PixelIsPoint
 //! shifted by half a pixel, `GDAL_NODATA` and `GDAL_METADATA` kept.
-//! Reduced-resolution IFDs (overviews) and masks are recognised and skipped.
+//! Reduced-resolution IFDs (overviews) are listed, and opened on demand
+//! ([`GeoTiff::overview`]); masks are recognised and skipped.
 
 mod block_decode;
 pub mod fuzz;
 mod geokeys;
 mod limits;
+mod overview;
 
 pub use limits::{decoder_limits, max_decompressed, memory_budget};
 
@@ -32,6 +34,10 @@ const TAG_GDAL_NODATA: u16 = 42113;
 
 /// Files up to this size are read into memory at open rather than mapped.
 const SMALL_FILE: u64 = 64 << 10;
+
+/// Bytes read before a file's size is asked for (see
+/// [`GeoTiff::open_with_budget`]).
+const FIRST_READ: usize = 8 << 10;
 
 /// How a TIFF's pixels are cut into blocks.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -58,8 +64,9 @@ pub struct Encoding {
     pub predictor: u16,
 }
 
-/// An open GeoTIFF: parsed metadata and the bytes of the file.
-#[derive(Debug)]
+/// An open GeoTIFF: parsed metadata and the bytes of the file (a clone
+/// shares them).
+#[derive(Debug, Clone)]
 pub struct GeoTiff {
     pub path: PathBuf,
     bytes: Arc<Bytes>,
@@ -81,6 +88,8 @@ pub struct GeoTiff {
     pub vertical: Vertical,
     /// Sizes of the reduced-resolution images (overviews).
     pub overviews: Vec<(u32, u32)>,
+    /// Their images' indices in the file (for [`GeoTiff::overview`]).
+    overview_ifds: Vec<usize>,
     codec: BlockCodec,
     offsets: Vec<u64>,
     counts: Vec<u64>,
@@ -147,20 +156,32 @@ impl GeoTiff {
         // A small file is read: mapping it, faulting its pages in and
         // unmapping it (a TLB shoot-down on every core) cost several times
         // reading a few pages, and a directory of small tiles opens
-        // thousands. The first read says which it is (no stat).
+        // thousands. The first read says which it is (no stat) for files
+        // of a page or two; a larger one is measured before more is read
+        // (reading 64 KB of every large tile only to map it copied 64 MB
+        // per open of a directory of 1,024 tiles).
         thread_local! {
             static HEAD: std::cell::RefCell<Vec<u8>> = const { std::cell::RefCell::new(Vec::new()) };
         }
         let small = HEAD.with(|head| -> std::io::Result<Option<Vec<u8>>> {
             let mut head = head.borrow_mut();
             head.resize(SMALL_FILE as usize + 1, 0);
+            let mut want = FIRST_READ.min(head.len());
             let mut got = 0;
-            while got < head.len() {
-                match file.read(&mut head[got..]) {
+            while got < want {
+                match file.read(&mut head[got..want]) {
                     Ok(0) => break,
                     Ok(n) => got += n,
                     Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
                     Err(e) => return Err(e),
+                }
+                if got == want && want < head.len() {
+                    // More than the first read: small enough to read whole?
+                    let len = file.metadata()?.len();
+                    if len > SMALL_FILE {
+                        return Ok(None);
+                    }
+                    want = head.len();
                 }
             }
             Ok((got <= SMALL_FILE as usize).then(|| head[..got].to_vec()))
@@ -199,6 +220,7 @@ impl GeoTiff {
         // the DEM; reduced-resolution images are its overviews.
         let mut ifd_index = None;
         let mut overviews = Vec::new();
+        let mut overview_ifds = Vec::new();
         let mut index = 0usize;
         loop {
             let subfile = dec
@@ -211,6 +233,7 @@ impl GeoTiff {
                 if reduced {
                     let dims = dec.dimensions().map_err(|e| tiff_err(path, e))?;
                     overviews.push(dims);
+                    overview_ifds.push(index);
                 } else if ifd_index.is_none() {
                     ifd_index = Some(index);
                 }
@@ -231,7 +254,9 @@ impl GeoTiff {
         })?;
         dec.seek_to_image(ifd_index)
             .map_err(|e| tiff_err(path, e))?;
-        Self::describe(path, bytes.clone(), dec, ifd_index, overviews, budget)
+        let mut tiff = Self::describe(path, bytes.clone(), dec, ifd_index, overviews, budget)?;
+        tiff.overview_ifds = overview_ifds;
+        Ok(tiff)
     }
 
     fn describe(
@@ -599,6 +624,7 @@ impl GeoTiff {
             gdal_metadata,
             vertical,
             overviews,
+            overview_ifds: Vec::new(),
             codec,
             offsets: offsets[..expected].to_vec(),
             counts: counts[..expected].to_vec(),

@@ -1,0 +1,180 @@
+//! Reading a DEM at a coarser resolution: each cell of a grid `k` times
+//! coarser (aligned to the DEM's origin) holds the highest valid height of
+//! the `k x k` cells it covers. For the far rings of a level-of-detail
+//! terrain ([`crate::render::Scene::open_wedge`]): the maximum, not the
+//! mean, so that a coarse surface's vertices are never below a cell they
+//! stand for (a far ridge is not lowered below the sky line it draws).
+//!
+//! The window is read in chunks of [`CHUNK`] x [`CHUNK`] cells, one band
+//! of chunks per task, each reduced at once: the full-resolution heights
+//! never exist for more than a chunk per thread. A chunk the caller does
+//! not want (outside the camera's wedge, inside the exact terrain) is not
+//! read at all.
+
+use rayon::prelude::*;
+
+use super::{Dem, HeightMap, RasterError, Window};
+
+/// Edge in DEM cells of the chunks read at once (a multiple of every
+/// power-of-two coarseness up to it; a common TIFF block).
+pub const CHUNK: usize = 256;
+
+impl Dem {
+    /// The heights of coarse window `cwin` (cells of the grid `k` times
+    /// coarser than the DEM's, cell `(c, r)` covering DEM cells `c k ..
+    /// (c + 1) k` and `r k .. (r + 1) k`): the highest valid height of each
+    /// coarse cell's DEM cells (NaN where none is valid, or the cell lies
+    /// off the DEM), on the coarse grid. The DEM is read in chunks of
+    /// [`CHUNK`] cells (aligned to the DEM's origin); a chunk for which
+    /// `wanted` (its window in DEM cells) is false is not read and its
+    /// coarse cells are NaN. Reads through [`Dem::read_height_map_once`]
+    /// (an overlay is seen; no block is kept in the cache).
+    pub fn read_block_max(
+        &self,
+        cwin: Window,
+        k: usize,
+        wanted: &(dyn Fn(Window) -> bool + Sync),
+    ) -> Result<HeightMap, RasterError> {
+        let k = k.max(1);
+        // coarse cells per chunk edge (a chunk a whole number of coarse cells)
+        let cc = (CHUNK / k).max(1);
+        let (w, h) = (cwin.width, cwin.height);
+        let mut data = vec![f32::NAN; w * h];
+        if w > 0 && h > 0 {
+            // Bands of coarse rows aligned to the chunk grid.
+            let first_band = cwin.row.div_euclid(cc as i64);
+            let bands = band_rows(cwin, cc, first_band);
+            let mut slices = Vec::with_capacity(bands.len());
+            let mut rest = &mut data[..];
+            for &(r0, r1) in &bands {
+                let (band, tail) = rest.split_at_mut((r1 - r0) * w);
+                slices.push((r0, r1, band));
+                rest = tail;
+            }
+            slices
+                .into_par_iter()
+                .map(|(r0, r1, band)| self.band_max(cwin, k, cc, (r0, r1), band, wanted))
+                .collect::<Result<Vec<()>, RasterError>>()?;
+        }
+        let g = self
+            .geotransform
+            .offset((cwin.col * k as i64) as f64, (cwin.row * k as i64) as f64)
+            .0;
+        let kf = k as f64;
+        Ok(HeightMap {
+            width: w,
+            height: h,
+            data,
+            geotransform: super::GeoTransform([
+                g[0],
+                g[1] * kf,
+                g[2] * kf,
+                g[3],
+                g[4] * kf,
+                g[5] * kf,
+            ]),
+            crs: self.crs.clone(),
+        })
+    }
+
+    /// One band of [`Dem::read_block_max`]: coarse rows `r0..r1` of
+    /// `cwin` (relative to it) into `out`, chunk by chunk.
+    fn band_max(
+        &self,
+        cwin: Window,
+        k: usize,
+        cc: usize,
+        (r0, r1): (usize, usize),
+        out: &mut [f32],
+        wanted: &(dyn Fn(Window) -> bool + Sync),
+    ) -> Result<(), RasterError> {
+        let w = cwin.width;
+        let mut c = 0usize;
+        while c < w {
+            // the chunk column holding coarse column c, clipped to cwin
+            let abs = cwin.col + c as i64;
+            let next = (abs.div_euclid(cc as i64) + 1) * cc as i64;
+            let c1 = ((next - cwin.col) as usize).min(w);
+            let coarse = Window::new(abs, cwin.row + r0 as i64, c1 - c, r1 - r0);
+            let full = Window::new(
+                coarse.col * k as i64,
+                coarse.row * k as i64,
+                coarse.width * k,
+                coarse.height * k,
+            );
+            if let Some(read) = full.intersect(&self.full_window()).filter(|f| wanted(*f)) {
+                let cells = self.read_height_map_once(read)?;
+                reduce_max(&cells, read, full, k, (c, c1), w, out);
+            }
+            c = c1;
+        }
+        Ok(())
+    }
+}
+
+/// The bands of coarse rows of `cwin` (relative to it, end exclusive) cut
+/// at the chunk grid's rows (every `cc` coarse rows from the origin).
+fn band_rows(cwin: Window, cc: usize, first_band: i64) -> Vec<(usize, usize)> {
+    let mut out = Vec::new();
+    let mut r = 0usize;
+    let mut band = first_band;
+    while r < cwin.height {
+        let end = ((band + 1) * cc as i64 - cwin.row) as usize;
+        let r1 = end.min(cwin.height);
+        out.push((r, r1));
+        r = r1;
+        band += 1;
+    }
+    out
+}
+
+/// The highest valid height of each `k x k` block of `cells` (DEM window
+/// `read`, within the chunk's full extent `full`), into the coarse columns
+/// `c0..c1` of `out` (a band of rows `w` coarse cells wide, starting at the
+/// chunk's first coarse row).
+fn reduce_max(
+    cells: &HeightMap,
+    read: Window,
+    full: Window,
+    k: usize,
+    (c0, c1): (usize, usize),
+    w: usize,
+    out: &mut [f32],
+) {
+    let rows = out.len() / w.max(1);
+    for cr in 0..rows {
+        let row = &mut out[cr * w + c0..cr * w + c1];
+        for (i, o) in row.iter_mut().enumerate() {
+            let mut m = f32::NAN;
+            // the block's cells within what was read
+            let bc0 = full.col + (i * k) as i64;
+            let br0 = full.row + (cr * k) as i64;
+            let x0 = (bc0.max(read.col) - read.col) as usize;
+            let x1 = ((bc0 + k as i64).min(read.col_end()) - read.col).max(0) as usize;
+            let y0 = (br0.max(read.row) - read.row) as usize;
+            let y1 = ((br0 + k as i64).min(read.row_end()) - read.row).max(0) as usize;
+            for y in y0..y1 {
+                let src = &cells.data[y * read.width..(y + 1) * read.width];
+                for &v in &src[x0.min(x1)..x1] {
+                    // f32::max skips NaN
+                    m = m.max(v);
+                }
+            }
+            *o = m;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bands_follow_the_chunk_grid() {
+        let w = Window::new(0, 5, 10, 20);
+        assert_eq!(
+            band_rows(w, 8, 0),
+            vec![(0, 3), (3, 11), (11, 19), (19, 20)]
+        );
+    }
+}

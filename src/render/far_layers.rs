@@ -1,0 +1,307 @@
+//! The far layers of a level-of-detail terrain: coarser [`LocalTerrain`]s
+//! (rings around the eye, each on a grid `k` times coarser than the DEM's)
+//! that a terrain carries beyond its own reach. A long view's terrain is
+//! then exact near the eye, where the strokes, the deformation and the
+//! observer are, and coarse only where a coarse cell still spans at most a
+//! pixel ([`super::level_of_detail`] plans the rings and reads them).
+//!
+//! The layers are one surface with the terrain for everything that looks
+//! at it: the rasteriser draws them into the same depth buffer (the nearer
+//! hit wins, as between the triangles of one terrain), the casts return
+//! the nearest hit over the terrain and its layers, and the triangle ids of
+//! a layer follow the terrain's (`id0` on), so that a pixel's id says which
+//! layer it shows and every per-triangle question (vertices, normals, the
+//! patch distance) is answered by that layer. The cell of a layer's
+//! triangle is given in the DEM grid the terrain was built from (the
+//! coarse cell's centre). Layers are never patched by an edit's
+//! re-renders: they lie beyond the deformations (which the planner keeps
+//! well inside the exact terrain).
+
+use std::sync::Arc;
+
+use super::terrain::{LocalTerrain, RayHit};
+use super::SKY;
+
+/// One far layer of a terrain.
+#[derive(Debug, Clone)]
+pub(crate) struct FarLayer {
+    pub(crate) terrain: Arc<LocalTerrain>,
+    /// Triangle ids of this layer are `id0 + ` its own ids.
+    pub(crate) id0: u32,
+    /// No point of the layer lies nearer than this (metres, horizontal):
+    /// its inner radius less its overlap with the layer inside it.
+    pub(crate) reach_m: f64,
+    /// Cells of the DEM per cell of the layer (along each axis).
+    pub(crate) k: usize,
+    /// Where the layer's grid starts, in cells of the grid the terrain was
+    /// built from (may be negative: a layer reaches beyond the terrain).
+    pub(crate) origin: (i64, i64),
+    /// The layer's last whole render, kept for the next render with the
+    /// same camera (an edit re-renders one view round after round; the
+    /// layer never changes): shared by the clones of the layer.
+    pub(crate) drawn: Arc<std::sync::Mutex<Option<Arc<LayerRender>>>>,
+}
+
+/// A far layer's render: the camera and, per pixel, depth and the
+/// layer's own triangle id (sky: infinite depth and [`SKY`]).
+#[derive(Debug)]
+pub(crate) struct LayerRender {
+    pub(crate) camera: crate::view::Camera,
+    pub(crate) depth: Vec<f32>,
+    pub(crate) triangle: Vec<u32>,
+}
+
+impl FarLayer {
+    /// The layer's whole render with `camera`: the kept one when it was
+    /// made with the same camera, else made by `render` and kept. The lock
+    /// is not held while rendering (a render is parallel: a worker waiting
+    /// in it may take up another render of this layer).
+    pub(crate) fn render_with(
+        &self,
+        camera: &crate::view::Camera,
+        render: impl FnOnce(&LocalTerrain) -> (Vec<f32>, Vec<u32>),
+    ) -> Arc<LayerRender> {
+        let lock = || {
+            self.drawn
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner)
+        };
+        let kept = lock().as_ref().filter(|r| r.camera == *camera).cloned();
+        if let Some(r) = kept {
+            return r;
+        }
+        let (depth, triangle) = render(&self.terrain);
+        let r = Arc::new(LayerRender {
+            camera: *camera,
+            depth,
+            triangle,
+        });
+        *lock() = Some(Arc::clone(&r));
+        r
+    }
+}
+
+/// The far layers of a terrain, as they are (shared): for a later view of
+/// the same eye on the same DEM to take them instead of reading them again
+/// ([`crate::render::Scene::open_wedge_lod`]).
+#[derive(Debug, Clone, Default)]
+pub struct FarLayers(pub(crate) Vec<FarLayer>);
+
+impl FarLayers {
+    /// Whether there is none.
+    pub fn is_empty(&self) -> bool {
+        self.0.is_empty()
+    }
+
+    /// Do these layers serve a view from `frame` (the same eye, the same
+    /// refraction) with rings of coarseness `ks`, on a DEM whose heights
+    /// differ from those they were read from only within `changed` (a
+    /// window of the DEM, `frame_abs` on the DEM's grid)? Only when no
+    /// layer reaches a changed cell: they are then what reading them again
+    /// would give, bit for bit.
+    pub(crate) fn serve(
+        &self,
+        frame: &crate::view::LocalFrame,
+        frame_abs: &crate::view::LocalFrame,
+        ks: &[usize],
+        changed: Option<crate::raster::Window>,
+    ) -> bool {
+        let same_eye = |f: &crate::view::LocalFrame| {
+            f.eye_alt.to_bits() == frame.eye_alt.to_bits()
+                && f.eye_crs.0.to_bits() == frame.eye_crs.0.to_bits()
+                && f.eye_crs.1.to_bits() == frame.eye_crs.1.to_bits()
+                && f.curvature == frame.curvature
+        };
+        if self.0.len() != ks.len()
+            || self
+                .0
+                .iter()
+                .zip(ks)
+                .any(|(l, &k)| l.k != k || !same_eye(&l.terrain.frame))
+        {
+            return false;
+        }
+        let Some(w) = changed else {
+            return true;
+        };
+        // The changed window's farthest corner, against the nearest any
+        // layer reads (a coarse cell nearer than its vertex's reach).
+        let (x0, y0, x1, y1) = (
+            w.col as f64,
+            w.row as f64,
+            w.col_end() as f64,
+            w.row_end() as f64,
+        );
+        let farthest = [(x0, y0), (x1, y0), (x0, y1), (x1, y1)]
+            .iter()
+            .map(|&(x, y)| {
+                let (e, n) = frame_abs.pixel_to_en(x, y);
+                e.hypot(n)
+            })
+            .fold(0.0, f64::max);
+        self.0.iter().all(|l| {
+            let coarse_m = cell_size_m(&l.terrain);
+            farthest < l.reach_m - 2.0 * coarse_m
+        })
+    }
+}
+
+/// A far layer before it joins a terrain ([`LocalTerrain::with_far_layers`]).
+pub struct FarRing {
+    /// The layer, built by [`LocalTerrain::ring_over`] on the coarse grid.
+    pub terrain: LocalTerrain,
+    /// Its inner radius, metres (its vertices nearer are nodata).
+    pub inner_m: f64,
+    /// Cells of the DEM per cell of the layer.
+    pub k: usize,
+    /// Its grid's origin in cells of the grid the terrain was built from.
+    pub origin: (i64, i64),
+}
+
+/// Which cast a layer answers (the one asked of the terrain).
+#[derive(Clone, Copy)]
+pub(crate) enum CastKind {
+    /// [`LocalTerrain::cast`].
+    Full,
+    /// [`LocalTerrain::cast_within`].
+    Within,
+    /// [`LocalTerrain::cast_segment`].
+    Segment,
+}
+
+impl LocalTerrain {
+    /// This terrain with `rings` as its far layers (innermost first), their
+    /// triangle ids after this terrain's. A ring whose ids would not fit is
+    /// left out, with those beyond it.
+    pub fn with_far_layers(mut self, rings: Vec<FarRing>) -> Self {
+        let mut next = 2 * (self.cells_x() as u64) * (self.ny.saturating_sub(1) as u64);
+        for ring in rings {
+            let t = ring.terrain;
+            let ids = 2 * (t.cells_x() as u64) * (t.ny.saturating_sub(1) as u64);
+            if next + ids >= u64::from(SKY) {
+                break;
+            }
+            // (the layer's frame is on its coarse grid)
+            let coarse_cell = cell_size_m(&t);
+            // The nearest a vertex can be is the inner radius; a triangle
+            // reaches a cell's diagonal nearer.
+            let reach_m = (ring.inner_m - 2.0 * std::f64::consts::SQRT_2 * coarse_cell).max(0.0);
+            self.far.push(FarLayer {
+                terrain: Arc::new(t),
+                id0: next as u32,
+                reach_m,
+                k: ring.k,
+                origin: ring.origin,
+                drawn: Arc::default(),
+            });
+            next += ids;
+        }
+        self
+    }
+
+    /// This terrain with `layers` (another terrain's, [`LocalTerrain::far_layers`])
+    /// as its far layers, their ids moved to follow this terrain's.
+    pub fn with_shared_far_layers(mut self, layers: &FarLayers) -> Self {
+        let mut next = 2 * (self.cells_x() as u64) * (self.ny.saturating_sub(1) as u64);
+        for l in &layers.0 {
+            let t = &l.terrain;
+            let ids = 2 * (t.cells_x() as u64) * (t.ny.saturating_sub(1) as u64);
+            if next + ids >= u64::from(SKY) {
+                break;
+            }
+            let mut l = l.clone();
+            l.id0 = next as u32;
+            self.far.push(l);
+            next += ids;
+        }
+        self
+    }
+
+    /// This terrain's far layers, shared.
+    pub fn far_layers(&self) -> FarLayers {
+        FarLayers(self.far.clone())
+    }
+
+    /// The far layers' coarseness (cells of the DEM per layer cell) and
+    /// vertex counts, innermost first: for reports.
+    pub fn far_layer_sizes(&self) -> Vec<(usize, usize)> {
+        self.far
+            .iter()
+            .map(|l| (l.k, l.terrain.nx * l.terrain.ny))
+            .collect()
+    }
+
+    /// Whether triangle `id` belongs to a far layer (not to this terrain's
+    /// own grid: its cell is not one of [`LocalTerrain::vertex_local`]'s).
+    pub fn is_far_triangle(&self, id: u32) -> bool {
+        id != SKY && self.far_of(id).is_some()
+    }
+
+    /// The far layer of triangle `id` and the id within it.
+    pub(crate) fn far_of(&self, id: u32) -> Option<(&FarLayer, u32)> {
+        let first = self.far.first()?;
+        if id < first.id0 || id == SKY {
+            return None;
+        }
+        self.far
+            .iter()
+            .rev()
+            .find(|l| id >= l.id0)
+            .map(|l| (l, id - l.id0))
+    }
+
+    /// The nearer of `hit` (on this terrain) and the far layers' first hit
+    /// of the segment `[t_start, t_limit]` of unit ray `d`, cast as `kind`.
+    /// A layer is asked only when the segment reaches it.
+    pub(crate) fn with_far_hit(
+        &self,
+        hit: Option<RayHit>,
+        d: [f64; 3],
+        t_start: f64,
+        t_limit: f64,
+        kind: CastKind,
+    ) -> Option<RayHit> {
+        if self.far.is_empty() {
+            return hit;
+        }
+        let dh = d[0].hypot(d[1]);
+        let mut best = hit;
+        for l in &self.far {
+            let limit = best.map_or(t_limit, |h| h.t.min(t_limit));
+            // (false for NaN too)
+            let reaches = dh * limit >= l.reach_m && limit > t_start;
+            if !reaches {
+                continue;
+            }
+            let t = &l.terrain;
+            let h = match kind {
+                CastKind::Full => t.cast(d, limit),
+                CastKind::Within => t.cast_within(d, limit),
+                CastKind::Segment => t.cast_segment(d, t_start, limit),
+            };
+            if let Some(h) = h.filter(|h| best.is_none_or(|b| h.t < b.t)) {
+                best = Some(RayHit {
+                    t: h.t,
+                    triangle: h.triangle + l.id0,
+                });
+            }
+        }
+        best
+    }
+
+    /// The cell of the DEM grid the terrain was built from under far
+    /// triangle `id` of layer `l` (the centre of its coarse cell, clamped
+    /// to the grid's first row and column), and its half.
+    pub(crate) fn far_triangle_cell(l: &FarLayer, id: u32) -> (usize, usize, u8) {
+        let (c, r, half) = l.terrain.triangle_cell(id);
+        let k = l.k as i64;
+        let full = |o: i64, v: usize| (o + v as i64 * k + k / 2).max(0) as usize;
+        (full(l.origin.0, c), full(l.origin.1, r), half)
+    }
+}
+
+/// Mean size of a terrain's cell in metres.
+fn cell_size_m(t: &LocalTerrain) -> f64 {
+    let p = t.frame.p;
+    (p[0][0].hypot(p[1][0]) * p[0][1].hypot(p[1][1])).sqrt()
+}
