@@ -12,7 +12,7 @@
 //! raised over the strokes' anchored stretches are lowered
 //! ([`super::lowering::find_raised_over_anchored`]) and the rounds go on;
 //! what that try brings is kept only when every stroke then fits at least
-//! `min_fit`. Lone spikes of the change field are flattened at the end
+//! `min_fit` and the fit rose by at least [`RAISED_TRY_MIN_GAIN`]. Lone spikes of the change field are flattened at the end
 //! ([`super::spikes`]).
 
 use std::collections::{BTreeMap, HashSet};
@@ -227,12 +227,19 @@ pub(super) fn refine(
         (None, Some((_, _, r))) | (Some((_, r)), None) => r,
         (None, None) => unreachable!("the loop renders at least once"),
     };
-    // The lowered crests are kept only when they complete the edit: every
-    // stroke fitted at least `min_fit`. Short of that, the rounds' terrain
-    // before the try stands (a partial gain there moved terrain that a
-    // second edit of the output would move again).
+    // The lowered crests are kept only when they complete the edit (every
+    // stroke fitted at least `min_fit`) and are worth their change (the
+    // fit rose by at least `RAISED_TRY_MIN_GAIN`). Short of that, the
+    // rounds' terrain before the try stands: a partial gain there moved
+    // terrain that a second edit of the output would move again, and a
+    // gain of a column or two does not justify lowering a crest by tens of
+    // metres.
     if let Some((score_before, d)) = before_raised {
-        if best_score > score_before + 1e-9 && worst_stroke_fit(curves, &rendered) < opts.min_fit {
+        // (the rounds keep a later round that only equals the best, so
+        // the terrain may be the try's even when the score did not rise)
+        let worth = best_score >= score_before + RAISED_TRY_MIN_GAIN
+            && worst_stroke_fit(curves, &rendered) >= opts.min_fit;
+        if !worth {
             deformation = d;
             rendered = render_all(&deformation, Some(&rendered))?;
             best_score = score_before;
@@ -369,6 +376,10 @@ fn flatten_final_spikes(
     };
     flatten_spikes(deformation, &eyes, &held)
 }
+
+/// The least rise of the summed fit ([`fit_score`]: a share of one
+/// stroke's columns) for which the lowered raised crests are kept.
+pub const RAISED_TRY_MIN_GAIN: f64 = 0.01;
 
 /// The rounds stop at the first one that does not improve the strokes'
 /// fit (the best terrain so far is kept).
