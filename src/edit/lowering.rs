@@ -135,6 +135,22 @@ fn carries_anchored_stroke(strokes: &[StrokeCurve], pixel: [f64; 2]) -> bool {
     })
 }
 
+/// How far a point (local frame) lies above the line of sight through
+/// image point `(x, y + BELOW_STROKE_PX)`, in metres at the point's
+/// horizontal distance: what lowering it under that line takes (negative
+/// infinity for a vertical ray).
+fn above_sight_line(view: &RenderedView, x: f64, y: f64) -> impl Fn([f64; 3]) -> f64 {
+    let ray = view.camera.unproject([x, y + BELOW_STROKE_PX]);
+    let rh = ray[0].hypot(ray[1]);
+    move |p: [f64; 3]| {
+        if rh > 0.0 {
+            p[2] - ray[2] * p[0].hypot(p[1]) / rh
+        } else {
+            f64::NEG_INFINITY
+        }
+    }
+}
+
 /// Did the edit raise `sample` into view? The terrain pixel just under it
 /// showed sky in the unedited view, or terrain farther than the sample by
 /// more than [`HIDDEN_MARGIN`].
@@ -173,15 +189,7 @@ fn stroke_hits(view: &RenderedView, g: &StrokeCurve) -> StrokeHits {
     // nothing hid: what is above them stays.
     for (i, y, d) in g.free_columns(view.camera.width) {
         let x = i as f64 + 0.5;
-        let ray = view.camera.unproject([x, y + BELOW_STROKE_PX]);
-        let rh = ray[0].hypot(ray[1]);
-        let above_ray = |p: [f64; 3]| {
-            if rh > 0.0 {
-                p[2] - ray[2] * p[0].hypot(p[1]) / rh
-            } else {
-                f64::NEG_INFINITY
-            }
-        };
+        let above_ray = above_sight_line(view, x, y);
         let mut found = false;
         for &(c, s) in &view.by_column[i] {
             let sample = &view.silhouettes.curves[c as usize].samples[s as usize];
@@ -264,18 +272,13 @@ fn raised_over_anchored(
         if !g.is_anchored(x) {
             continue;
         }
-        let ray = view.camera.unproject([x, y + BELOW_STROKE_PX]);
-        let rh = ray[0].hypot(ray[1]);
-        if rh <= 0.0 {
-            continue;
-        }
+        let above_ray = above_sight_line(view, x, y);
         for &(c, s) in &view.by_column[i] {
             let sample = &view.silhouettes.curves[c as usize].samples[s as usize];
             if sample.pixel[1] >= y - BELOW_STROKE_PX || !raised_by_edit(view, before, sample) {
                 continue;
             }
-            let p = sample.local;
-            let h = p[2] - ray[2] * p[0].hypot(p[1]) / rh;
+            let h = above_ray(sample.local);
             if h.is_finite() && h > 0.0 {
                 if debug {
                     eprintln!(
