@@ -530,10 +530,17 @@ def test_photo_trace(binary, shots, tmp):
         rw = d.execute_script("return arguments[0].getBoundingClientRect().width", canvas)
         px_per_deg = rw / 35.0
         dx, dy = round(-3 * px_per_deg), round(1 * px_per_deg)
+        # The pointer moves on the screen, as a mouse does: offsets from
+        # where it is, not from the canvas, which may move under a drag
+        # while the page lays out (a render arriving); the app follows the
+        # pointer's screen movement.
         a = ActionChains(d, duration=20)
         a.move_to_element(canvas).click_and_hold()
+        at = (0, 0)
         for k in range(1, 11):
-            a.move_to_element_with_offset(canvas, round(dx * k / 10), round(dy * k / 10))
+            to = (round(dx * k / 10), round(dy * k / 10))
+            a.move_by_offset(to[0] - at[0], to[1] - at[1])
+            at = to
         a.release().perform()
         cam = d.execute_script("return app.sketch.views[0].camera")
         assert abs(cam["heading_deg"] - 203) < 0.6 and abs(cam["pitch_deg"] - 0) < 0.6, cam
