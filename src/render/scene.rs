@@ -79,23 +79,7 @@ impl Scene {
     ) -> Result<Scene, RenderError> {
         let max_d = max_distance.filter(|d| d.is_finite() && *d > 0.0);
         let plan = Self::wedge_plan(dem, vp, max_d, k, camera)?;
-        let WedgePlan {
-            georef,
-            gt,
-            size,
-            c0,
-            r0,
-            win,
-            ..
-        } = plan;
-        let window = dem.read_height_map(win)?;
-        // The ground under the eye from the wedge's cells (it holds the eye
-        // and the cells around it), at the square's pixel moved by whole
-        // cells: the same bilinear weights.
-        let ground = |px: f64, py: f64| window.bilinear(px - c0 as f64, py - r0 as f64);
-        let frame = georef
-            .local_frame_on(vp, &gt, size, &ground, k)?
-            .shifted(c0, r0);
+        let (window, frame, georef, win) = Self::read_wedge(dem, vp, k, plan)?;
         let terrain = LocalTerrain::over(&window, &frame, max_d);
         Ok(Scene {
             window,
@@ -144,20 +128,7 @@ impl Scene {
             return Self::open_wedge(dem, vp, max_distance, k, camera);
         };
         let plan = Self::wedge_plan_within(dem, vp, max_d, Some(lod.near_m), k, camera)?;
-        let WedgePlan {
-            georef,
-            gt,
-            size,
-            c0,
-            r0,
-            win,
-            ..
-        } = plan;
-        let window = dem.read_height_map(win)?;
-        let ground = |px: f64, py: f64| window.bilinear(px - c0 as f64, py - r0 as f64);
-        let frame = georef
-            .local_frame_on(vp, &gt, size, &ground, k)?
-            .shifted(c0, r0);
+        let (window, frame, georef, win) = Self::read_wedge(dem, vp, k, plan)?;
         let mut frame_abs = frame;
         frame_abs.eye_pixel = (
             frame.eye_pixel.0 + win.col as f64,
@@ -182,6 +153,34 @@ impl Scene {
             frame,
             terrain,
         })
+    }
+
+    /// Read a wedge's box and resolve the eye on it: the heights, the
+    /// frame (on the box's grid), the georeference and the box in the DEM.
+    fn read_wedge(
+        dem: &Dem,
+        vp: &Viewpoint,
+        k: f64,
+        plan: WedgePlan,
+    ) -> Result<(HeightMap, LocalFrame, Georef, Window), RenderError> {
+        let WedgePlan {
+            georef,
+            gt,
+            size,
+            c0,
+            r0,
+            win,
+            ..
+        } = plan;
+        let window = dem.read_height_map(win)?;
+        // The ground under the eye from the wedge's cells (it holds the eye
+        // and the cells around it), at the square's pixel moved by whole
+        // cells: the same bilinear weights.
+        let ground = |px: f64, py: f64| window.bilinear(px - c0 as f64, py - r0 as f64);
+        let frame = georef
+            .local_frame_on(vp, &gt, size, &ground, k)?
+            .shifted(c0, r0);
+        Ok((window, frame, georef, win))
     }
 
     /// What [`Scene::open_wedge_lod`] reads, found without reading any
