@@ -6,6 +6,11 @@ bash tools/setup.sh
 export GDAL_PAM_ENABLED=NO
 # A clean build gains nothing from incremental state, and it costs disk.
 export CARGO_INCREMENTAL="${CARGO_INCREMENTAL:-0}"
+# No merge left half done: conflict markers in any tracked file fail the run.
+if git rev-parse --git-dir >/dev/null 2>&1 && git grep -n -E '^(<<<<<<< |>>>>>>> )' -- . ; then
+    echo "tools/test.sh: merge conflict markers in the tracked files above" >&2
+    exit 1
+fi
 echo "disk free before the build: $(df -h --output=avail . | tail -1)"
 cargo test --locked --no-fail-fast 2>&1
 # The independent fidelity evaluation (tools/fidelity, a second renderer), CI subset.
