@@ -227,25 +227,27 @@ fn stroke_hits(view: &RenderedView, g: &StrokeCurve) -> StrokeHits {
 }
 
 /// Crests the edit raised over the anchored stretches of `strokes`
-/// (`raised_over_anchored`), as protrusions: one per run of adjacent
-/// columns on one silhouette, each point lowered by its own need. The
-/// refinement rounds try these last, from their best terrain.
+/// (`raised_over_anchored`), per stroke, as protrusions: one per run of
+/// adjacent columns on one silhouette, each point lowered by its own need
+/// (`hidden_columns`: the run's length). The refinement rounds try these
+/// last, from their best terrain.
 pub fn find_raised_over_anchored(
     view: &RenderedView,
     before: &RenderedView,
     strokes: &[StrokeCurve],
-) -> Vec<Protrusion> {
-    let runs: Vec<Vec<Vec<([f64; 3], f64)>>> = strokes
+) -> Vec<Vec<Protrusion>> {
+    strokes
         .par_iter()
-        .map(|g| raised_over_anchored(view, before, g))
-        .collect();
-    runs.into_iter()
-        .flatten()
-        .map(|run| Protrusion {
-            curve: usize::MAX,
-            h: run.iter().fold(0.0f64, |a, p| a.max(p.1)),
-            hidden_columns: run.len(),
-            lowered: run.iter().map(|(p, h)| [p[0], p[1], p[2] - h]).collect(),
+        .map(|g| {
+            raised_over_anchored(view, before, g)
+                .into_iter()
+                .map(|run| Protrusion {
+                    curve: usize::MAX,
+                    h: run.iter().fold(0.0f64, |a, p| a.max(p.1)),
+                    hidden_columns: run.len(),
+                    lowered: run.iter().map(|(p, h)| [p[0], p[1], p[2] - h]).collect(),
+                })
+                .collect()
         })
         .collect()
 }

@@ -12,8 +12,9 @@
 //! raised over the strokes' anchored stretches are lowered
 //! ([`super::lowering::find_raised_over_anchored`]) and the rounds go on;
 //! what that try brings is kept only when every stroke then fits at least
-//! `min_fit` and the fit rose by at least [`RAISED_TRY_MIN_GAIN`]. Lone spikes of the change field are flattened at the end
-//! ([`super::spikes`]).
+//! `min_fit` and the fit rose by at least [`RAISED_TRY_MIN_GAIN`], so it
+//! is made only when it could get there ([`can_complete`]). Lone spikes of
+//! the change field are flattened at the end ([`super::spikes`]).
 
 use std::collections::{BTreeMap, HashSet};
 
@@ -180,21 +181,34 @@ pub(super) fn refine(
             }
         }
         if !changed {
-            if let Some(next) =
-                lower_raised_crests(&mut raised_tried, views, curves, best.as_ref(), perfect)
-            {
-                before_raised = best.as_ref().map(|b| (b.0, b.1.clone()));
-                deformation = retry_from_best(
-                    solver,
-                    &mut constraints,
-                    &mut cells,
-                    &best_made_by,
-                    next,
-                    &mut lowered,
-                    &mut iterations,
-                )?;
-                stalled = 0;
-                continue;
+            match lower_raised_crests(
+                &mut raised_tried,
+                views,
+                curves,
+                best.as_ref(),
+                perfect,
+                opts.min_fit,
+            ) {
+                RaisedTry::Lower(next) => {
+                    before_raised = best.as_ref().map(|b| (b.0, b.1.clone()));
+                    deformation = retry_from_best(
+                        solver,
+                        &mut constraints,
+                        &mut cells,
+                        &best_made_by,
+                        next,
+                        &mut lowered,
+                        &mut iterations,
+                    )?;
+                    stalled = 0;
+                    continue;
+                }
+                // The try would be dropped: the edit ends where a dropped
+                // try leaves it, on the best round's terrain.
+                RaisedTry::CannotComplete => {
+                    before_raised = best.as_ref().map(|b| (b.0, b.1.clone()));
+                }
+                RaisedTry::Nothing => {}
             }
             break;
         }
@@ -274,33 +288,90 @@ pub(super) fn refine(
     })
 }
 
+/// What the last try of the rounds does ([`lower_raised_crests`]).
+enum RaisedTry {
+    /// Lower these crests, per view, and go on from the best round.
+    Lower(Vec<Vec<Protrusion>>),
+    /// There are crests, but lowering them cannot bring every stroke to
+    /// `min_fit` ([`can_complete`]): the try would be dropped, so it is
+    /// not made, and the edit ends where a dropped try leaves it.
+    CannotComplete,
+    /// No try: made already, the best round fits every stroke, or the
+    /// edit raised no crest over an anchored stretch.
+    Nothing,
+}
+
 /// The last try of the rounds, once they stop short of a perfect fit:
 /// the crests the edit raised over the strokes' anchored stretches in the
-/// best round's renders ([`find_raised_over_anchored`]), per view. `None`
-/// when tried already, when the best round fits every stroke, or when
-/// there are none. Tried once, from the best round, after the paper's
-/// lowering and the contour rounds have done what they can: where they
-/// reach a full fit it never runs, and a try that does not raise the fit
-/// is dropped like any other round.
+/// best round's renders ([`find_raised_over_anchored`]), per view. What
+/// the try brings is kept only when every stroke then fits `min_fit`, so
+/// a try that cannot get there ([`can_complete`]) is not made: it would
+/// only cost its solve and renders. Tried once, from the best round, after
+/// the paper's lowering and the contour rounds have done what they can:
+/// where they reach a full fit it never runs, and a try that does not
+/// raise the fit is dropped like any other round.
 fn lower_raised_crests(
     tried: &mut bool,
     views: &[ViewState],
     curves: &[Vec<StrokeCurve>],
     best: Option<&(f64, Deformation, Vec<RenderedView>)>,
     perfect: f64,
-) -> Option<Vec<Vec<Protrusion>>> {
-    let (score, _, renders) = best?;
+    min_fit: f64,
+) -> RaisedTry {
+    let Some((score, _, renders)) = best else {
+        return RaisedTry::Nothing;
+    };
     if *tried || *score >= perfect - 1e-9 {
-        return None;
+        return RaisedTry::Nothing;
     }
     *tried = true;
-    let per_view: Vec<Vec<Protrusion>> = views
+    let per_stroke: Vec<Vec<Vec<Protrusion>>> = views
         .iter()
         .zip(renders)
         .zip(curves)
         .map(|((v, after), cs)| find_raised_over_anchored(after, &v.before, cs))
         .collect();
-    per_view.iter().any(|p| !p.is_empty()).then_some(per_view)
+    if per_stroke.iter().flatten().all(Vec::is_empty) {
+        return RaisedTry::Nothing;
+    }
+    if !can_complete(curves, renders, &per_stroke, min_fit) {
+        return RaisedTry::CannotComplete;
+    }
+    RaisedTry::Lower(
+        per_stroke
+            .into_iter()
+            .map(|strokes| strokes.into_iter().flatten().collect())
+            .collect(),
+    )
+}
+
+/// Whether lowering the raised crests `raised` (per view, per stroke)
+/// could bring every stroke to `min_fit`: a stroke's columns fitted now
+/// plus those the try lowers a crest over (counted per run, so a column
+/// under two crests counts twice: an upper bound) must reach `min_fit`
+/// of its columns. The lowering moves terrain only near the crests, so a
+/// stroke short of that bound stays short and the try would be dropped.
+fn can_complete(
+    curves: &[Vec<StrokeCurve>],
+    renders: &[RenderedView],
+    raised: &[Vec<Vec<Protrusion>>],
+    min_fit: f64,
+) -> bool {
+    curves
+        .iter()
+        .zip(renders)
+        .zip(raised)
+        .all(|((cs, view), per_stroke)| {
+            cs.iter().zip(per_stroke).all(|(c, runs)| {
+                let columns = c.columns(view.camera.width).len();
+                if columns == 0 {
+                    return false;
+                }
+                let fitted = fitted_fraction(c, view) * columns as f64;
+                let lowered: usize = runs.iter().map(|p| p.hidden_columns).sum();
+                (fitted + lowered as f64) / columns as f64 >= min_fit - 1e-9
+            })
+        })
 }
 
 /// Solve again from the constraints that made the best round's terrain
