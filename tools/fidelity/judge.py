@@ -212,6 +212,33 @@ class Render:
     """
 
 
+# Near the eye a quarter cell is far too coarse a step: on a 1 km DEM the
+# first sample would lie 250 m out, and the terrain nearer than that, which
+# can rise above the line of sight and hide everything behind it, would
+# never be seen (on the NZ 1 km DEM such traced "boundaries" lay 2 to 6 px
+# under the true silhouette of the foreground). Samples are spaced by
+# NEAR_STEP_FRACTION of their distance from NEAR_FIRST_M out until that
+# reaches the quarter cell, then by the quarter cell.
+NEAR_STEP_FRACTION = 0.01
+NEAR_FIRST_M = 0.5
+
+
+def sample_distances(dmax, step):
+    """Distances (m) of the samples along each column's ray, out to dmax:
+    geometric near the eye (each NEAR_STEP_FRACTION of its distance), then
+    every `step`."""
+    first = min(step, NEAR_FIRST_M)
+    switch = step / NEAR_STEP_FRACTION  # where the geometric step reaches `step`
+    near = []
+    if first < step and switch > first:
+        n = int(math.ceil(math.log(min(switch, dmax) / first) / math.log1p(NEAR_STEP_FRACTION)))
+        near = first * (1.0 + NEAR_STEP_FRACTION) ** np.arange(n)
+        near = near[near < min(switch, dmax)]
+    start = near[-1] if len(near) else 0.0
+    far = start + (np.arange(int(max(0.0, dmax - start) / step)) + 1) * step
+    return np.concatenate([np.asarray(near, float), far])
+
+
 def render(dem, lon, lat, alt, heading_deg, hfov_deg, width, height, h=None,
            max_dist=50000.0, k=K_REFRACTION, step=None, pitch_deg=0.0, roll_deg=0.0,
            keep_samples=False):
@@ -233,8 +260,8 @@ def render(dem, lon, lat, alt, heading_deg, hfov_deg, width, height, h=None,
         dy = (clat - lat) * math.pi / 180 * R
         far = max(far, math.hypot(dx, dy))
     dmax = min(max_dist, far * 1.02 + 2 * dem.cell_m)
-    ns = int(dmax / step)
-    s = (np.arange(ns) + 1) * step
+    s = sample_distances(dmax, step)
+    ns = len(s)
     # geodesic nodes
     node_dn = max(step * 8, min(500.0, dmax / 16))
     nn = int(math.ceil(dmax / node_dn)) + 2
@@ -289,7 +316,7 @@ def render(dem, lon, lat, alt, heading_deg, hfov_deg, width, height, h=None,
         rows_ = cc[:, None]
         pxs = px[rows_, i0s] * (1 - ws) + px[rows_, i1s] * ws
         pys = py[rows_, i0s] * (1 - ws) + py[rows_, i1s] * ws
-        ss = (kf + 1) * step
+        ss = s[i0s] * (1 - ws) + s[i1s] * ws
         zz = dem.bilinear_px(pxs, pys, h)
         aa = np.where(np.isfinite(zz), (zz - (1.0 - k) * ss ** 2 / (2.0 * R) - alt) / ss, -np.inf)
         a_crest = np.maximum(a_crest, aa.max(axis=1))
@@ -307,10 +334,11 @@ def render(dem, lon, lat, alt, heading_deg, hfov_deg, width, height, h=None,
     sc, sk = cc[sel], kk[sel]
     r.sky_row[sc] = b_row[sel]
     r.sky_depth[sc] = b_front[sel]
-    look = max(4, int(round(3 * dem.cell_m / step)))  # three cells of real terrain behind the crest
+    # three cells of real terrain behind the crest (at least 4 samples)
     robust = np.zeros(len(sk), bool)
     for n, (c0, k0) in enumerate(zip(sc, sk)):
-        if k0 + look < ns and valid[c0, k0 + 1:k0 + look + 1].all():
+        k1 = max(k0 + 4, int(np.searchsorted(s, s[k0] + 3 * dem.cell_m, side="right")) - 1)
+        if k1 < ns and valid[c0, k0 + 1:k1 + 1].all():
             robust[n] = True
     r.sky_robust[sc] = robust
     r.sky_k = np.full(W, -1)
