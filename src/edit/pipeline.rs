@@ -1074,7 +1074,9 @@ fn measure_strokes(
             .enumerate()
             .map(|(j, ((c, sm), issue))| {
                 let (fit, visible) = measure(c, after);
-                let (status, reason) = stroke_outcome(&fit, visible, *issue, edit.opts.min_fit);
+                let cells = free_cells_across(c, after);
+                let (status, reason) =
+                    stroke_outcome(&fit, visible, *issue, cells, edit.opts.min_fit);
                 let (lo, hi) = c.depths.iter().fold((f64::INFINITY, 0.0f64), |(a, b), d| {
                     (a.min(d.1), b.max(d.1))
                 });
@@ -1193,11 +1195,39 @@ fn depth_notes(views: &[ViewState], curves: &[Vec<StrokeCurve>]) -> Vec<String> 
     out
 }
 
-/// A stroke's status and, when it is not fitted, why.
+/// Under this many DEM cells across, a stroke's free stretch is finer
+/// than the DEM can draw at the depth it was placed: a bilinear cell shows
+/// at most one bend of a silhouette.
+const SUB_CELL_STRETCH_CELLS: f64 = 2.0;
+
+/// How many DEM cells the free (not anchored) stretch of `c` spans at the
+/// median depth it was placed, in `view`: `(cells, depth)`; `None` when
+/// the stroke has no free stretch.
+fn free_cells_across(c: &StrokeCurve, view: &RenderedView) -> Option<(f64, f64)> {
+    let free: Vec<(f64, f64)> = c
+        .depths
+        .iter()
+        .zip(&c.anchored)
+        .filter(|(_, &a)| !a)
+        .map(|(&d, _)| d)
+        .filter(|d| d.0.is_finite() && d.1.is_finite() && d.1 > 0.0)
+        .collect();
+    let (first, last) = (free.first()?, free.last()?);
+    let mut depths: Vec<f64> = free.iter().map(|d| d.1).collect();
+    depths.sort_by(f64::total_cmp);
+    let depth = depths[depths.len() / 2];
+    let px = view.cell_px(depth);
+    (px.is_finite() && px > 0.0).then(|| ((last.0 - first.0).abs() / px, depth))
+}
+
+/// A stroke's status and, when it is not fitted, why. `cells`: how many
+/// DEM cells its free stretch spans at the depth it was placed
+/// ([`free_cells_across`]).
 fn stroke_outcome(
     fit: &super::fit::StrokeFit,
     visible: f64,
     issue: Option<&'static str>,
+    cells: Option<(f64, f64)>,
     min_fit: f64,
 ) -> (StrokeStatus, Option<String>) {
     let f = fit.fitted_fraction;
@@ -1215,7 +1245,13 @@ fn stroke_outcome(
         None if visible < min_fit.min(1.0) => {
             format!("hidden by nearer terrain (visible {visible:.2}); {below}")
         }
-        None => below,
+        None => match cells {
+            Some((n, depth)) if n < SUB_CELL_STRETCH_CELLS => format!(
+                "its free stretch spans {n:.1} DEM cells at the depth it was placed ({depth:.0} m): \
+                 finer than the DEM can draw there; {below}"
+            ),
+            _ => below,
+        },
     };
     (status, Some(reason))
 }
@@ -1804,7 +1840,33 @@ pub(crate) fn edited_terrain(
 
 #[cfg(test)]
 mod tests {
-    use super::free_stretches;
+    use super::{free_stretches, stroke_outcome};
+    use crate::edit::fit::StrokeFit;
+
+    #[test]
+    fn an_unfitted_stroke_placed_finer_than_a_cell_says_so() {
+        let fit = StrokeFit {
+            fitted_fraction: 0.41,
+            mean_px: 1.1,
+            max_px: 2.1,
+            columns: 27,
+        };
+        let (_, reason) = stroke_outcome(&fit, 1.0, None, Some((0.3, 497.0)), 0.9);
+        let reason = reason.unwrap_or_default();
+        assert!(
+            reason.starts_with("its free stretch spans 0.3 DEM cells"),
+            "{reason}"
+        );
+        assert!(reason.ends_with("fit 0.41 below --min-fit 0.9"), "{reason}");
+        // Two cells and more: the fit alone.
+        let (_, reason) = stroke_outcome(&fit, 1.0, None, Some((3.0, 497.0)), 0.9);
+        assert_eq!(reason.as_deref(), Some("fit 0.41 below --min-fit 0.9"));
+        // Hidden comes first.
+        let (_, reason) = stroke_outcome(&fit, 0.5, None, Some((0.3, 497.0)), 0.9);
+        assert!(reason
+            .unwrap_or_default()
+            .starts_with("hidden by nearer terrain"));
+    }
 
     fn pts(n: usize) -> Vec<[f64; 3]> {
         (0..n).map(|i| [i as f64, 0.0, 10.0]).collect()
