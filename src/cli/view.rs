@@ -223,8 +223,25 @@ pub struct ViewArgs {
     /// pixel polylines), T-junctions and the ridge lines of the part of the
     /// DEM the camera's horizontal field of view takes in, in lon/lat/z;
     /// each feature's id is the feature_id an edit's report gives it.
+    /// Beyond the full-resolution reach (see --full-resolution) the far
+    /// silhouettes and the skyline are traced on the coarser terrain (their
+    /// points within a coarse cell, at most a pixel across, of the DEM's
+    /// highest cell there) and ridge lines are listed only within the
+    /// reach, as an edit detects them: the part of the DEM an edit can move.
     #[arg(long)]
     pub features: Option<PathBuf>,
+    /// Read and draw the whole view at the DEM's resolution. By default a
+    /// view that reaches farther than max(20 km, the distance at which 2
+    /// DEM cells span a pixel) is exact only out to there, and drawn
+    /// beyond from rings of block maxima 2, 4, 8 ... times coarser (each
+    /// coarse cell the highest of the cells it covers, and at most a pixel
+    /// across; read from the tiles' overviews when every tile has them),
+    /// as an edit's views are: far ridges keep their skyline, never lower,
+    /// for a fraction of the time on a large DEM. With this flag the far
+    /// terrain is exact too and ridge lines are listed over the whole
+    /// wedge, for the time and memory of reading it all.
+    #[arg(long)]
+    pub full_resolution: bool,
     /// Format of --depth and --viewshed, a GDAL driver name as
     /// gdal_translate's -of (written -of or --of) [default: from each
     /// file's extension; GeoTIFF without one].
@@ -361,6 +378,35 @@ fn check_view_outputs(args: &ViewArgs, dem: &Dem) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The scene of the view: the camera's wedge, exact out to the
+/// full-resolution reach and in coarser rings beyond
+/// ([`Scene::open_view_lod`]), or exact throughout with
+/// `--full-resolution` ([`Scene::open_wedge`]).
+fn open_scene(args: &ViewArgs, dem: &Dem, view: &ResolvedView) -> anyhow::Result<Scene> {
+    let (vp, max_d, k) = (
+        &view.viewpoint,
+        args.camera.max_distance,
+        args.camera.refraction,
+    );
+    let scene = if args.full_resolution {
+        Scene::open_wedge(dem, vp, max_d, k, &view.camera)?
+    } else {
+        Scene::open_view_lod(dem, vp, max_d, k, &view.camera)?
+    };
+    let rings = scene.terrain.far_layer_sizes();
+    if super::verbose() && !rings.is_empty() {
+        let ks: Vec<String> = rings.iter().map(|(k, _)| k.to_string()).collect();
+        eprintln!(
+            "demsketch: exact out to {:.0} m ({} x {} cells), rings {} times coarser beyond",
+            scene.terrain.max_distance,
+            scene.window.width,
+            scene.window.height,
+            ks.join(", ")
+        );
+    }
+    Ok(scene)
+}
+
 pub fn run(args: ViewArgs) -> anyhow::Result<()> {
     let t_all = Instant::now();
     check_outputs(&args)?;
@@ -374,17 +420,12 @@ pub fn run(args: ViewArgs) -> anyhow::Result<()> {
     // A picture and its features need only what the camera's horizontal
     // field of view takes in, and only that is read: the picture, the
     // silhouettes and the ridges come from the terrain of that wedge (the
-    // ridges detected over it, as an edit detects them for its views). The
+    // ridges detected over its exact part, as an edit detects them for its
+    // views; coarser rings beyond the full-resolution reach). The
     // viewshed, which covers every cell within the distance, is swept
     // apart, reading the DEM in bands outward from the eye
     // ([`viewshed_from_file`]), so that --viewshed changes none of them.
-    let scene = Scene::open_wedge(
-        &dem,
-        &view.viewpoint,
-        args.camera.max_distance,
-        args.camera.refraction,
-        &view.camera,
-    )?;
+    let scene = open_scene(&args, &dem, &view)?;
     let max_d = args
         .camera
         .max_distance
