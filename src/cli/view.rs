@@ -227,7 +227,8 @@ pub struct ViewArgs {
     /// silhouettes and the skyline are traced on the coarser terrain (their
     /// points within a coarse cell, at most a pixel across, of the DEM's
     /// highest cell there) and ridge lines are listed only within the
-    /// reach, as an edit detects them: the part of the DEM an edit can move.
+    /// reach, as an edit detects them: the part of the DEM an edit can move
+    /// (the collection's "full_resolution_reach_m" says how far that is).
     #[arg(long)]
     pub features: Option<PathBuf>,
     /// Read and draw the whole view at the DEM's resolution. By default a
@@ -566,12 +567,20 @@ pub fn run(args: ViewArgs) -> anyhow::Result<()> {
         }
         if let Some(target) = &args.features {
             let to_ll = to_lonlat_with_georef(&scene.georef);
-            let fc = feature_collection_of_view(
+            let mut fc = feature_collection_of_view(
                 silhouettes.as_ref(),
                 ridges.as_ref(),
                 view.view_index,
                 &to_ll,
             )?;
+            // Where the view reaches beyond the full-resolution terrain,
+            // how far that goes (a foreign member of the collection): the
+            // ridges stop there, and the silhouettes whose depth_min is
+            // beyond it are traced on the coarser rings.
+            if !terrain.far_layer_sizes().is_empty() {
+                fc["full_resolution_reach_m"] =
+                    serde_json::Value::from(terrain.max_distance.round());
+            }
             let p = staged.stage(target).map_err(anyhow::Error::msg)?;
             write_geojson(&p, &fc)?;
         }
