@@ -268,9 +268,11 @@ fn edit(
     opts.allow_partial = allow_partial;
     opts.dry_run = dry_run;
     let result = py.detach(|| -> Result<_, String> {
-        let _lock = demsketch::edit::guard::prepare(&dem, &sketch, &opts, timeout, &mut note)
-            .map_err(|e| e.to_string())?;
-        Ok(demsketch::edit::run(&dem, &sketch, &opts))
+        // The DEM the guard opened is the one the edit runs on (opened once).
+        let (_lock, opened) =
+            demsketch::edit::guard::prepare_open(&dem, &sketch, &opts, timeout, &mut note)
+                .map_err(|e| e.to_string())?;
+        Ok(demsketch::edit::run_opened(opened, &dem, &sketch, &opts))
     });
     match result.map_err(err)? {
         Ok(r) => serde_json::to_string(&r).map_err(err),
