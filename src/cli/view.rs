@@ -435,9 +435,6 @@ pub fn run(args: ViewArgs) -> anyhow::Result<()> {
     let seen = &scene.window;
     super::timing("load", t_all.elapsed().as_secs_f64());
     let t = Instant::now();
-    let depth = DepthBuffer::render(terrain, &view.camera);
-    super::timing("render", t.elapsed().as_secs_f64());
-    let t = Instant::now();
     let overlays: Vec<Overlay> = if args.overlay.is_empty() {
         if view.strokes.is_empty() {
             Vec::new()
@@ -451,14 +448,27 @@ pub fn run(args: ViewArgs) -> anyhow::Result<()> {
     let need_sil =
         args.features.is_some() || want(Overlay::Silhouettes) || want(Overlay::Junctions);
     let need_ridges = args.features.is_some() || want(Overlay::Ridges);
-    let silhouettes: Option<Silhouettes> = need_sil
-        .then(|| extract_silhouettes(terrain, &depth, &SilhouetteParams::default()))
-        .transpose()?;
-    let ridges: Option<RidgeNetwork> = need_ridges
-        .then(|| detect_ridges(seen, &RidgeParams::default()))
-        .transpose()?;
-
-    super::timing("features", t.elapsed().as_secs_f64());
+    // The ridges need only the heights read: they are detected while the
+    // view is rendered and its silhouettes extracted (each stage has
+    // serial parts that leave a core idle).
+    let (ridges, (depth, silhouettes)) = rayon::join(
+        || {
+            need_ridges
+                .then(|| detect_ridges(seen, &RidgeParams::default()))
+                .transpose()
+        },
+        || {
+            let depth = DepthBuffer::render(terrain, &view.camera);
+            super::timing("render", t.elapsed().as_secs_f64());
+            let silhouettes = need_sil
+                .then(|| extract_silhouettes(terrain, &depth, &SilhouetteParams::default()))
+                .transpose();
+            (depth, silhouettes)
+        },
+    );
+    let silhouettes: Option<Silhouettes> = silhouettes?;
+    let ridges: Option<RidgeNetwork> = ridges?;
+    super::timing("render and features", t.elapsed().as_secs_f64());
     let t = Instant::now();
     let (w, h) = (view.camera.width, view.camera.height);
     // Sun behind the viewer's right shoulder, so the slopes facing the
