@@ -246,3 +246,61 @@ for path, ov in ((sys.argv[2], False), (sys.argv[3], True)):
         .all(|(p, q)| p.to_bits() == q.to_bits()));
     assert_eq!(da.triangle, db.triangle);
 }
+
+/// `demsketch view`'s scene (`Scene::open_view_lod`): without a maximum
+/// distance the rings reach the farthest cell of the wedge; the near pixels
+/// show the exact view's cells at its depths, no column's skyline is lower;
+/// a camera whose exact reach takes in the whole wedge gets the exact
+/// scene, to the bit.
+#[test]
+fn a_view_without_a_distance_reads_the_far_wedge_coarser() {
+    let (dem, vp, cam) = setup();
+    let exact = Scene::open_wedge(&dem, &vp, None, 1.0 / 7.0, &cam).unwrap();
+    let lod = Scene::open_view_lod(&dem, &vp, None, 1.0 / 7.0, &cam).unwrap();
+    assert!(!lod.terrain.far_layer_sizes().is_empty());
+    assert!(lod.window.width * lod.window.height < exact.window.width * exact.window.height);
+    let (de, dl) = (
+        DepthBuffer::render(&exact.terrain, &cam),
+        DepthBuffer::render(&lod.terrain, &cam),
+    );
+    let off = (
+        lod.window_offset.0 - exact.window_offset.0,
+        lod.window_offset.1 - exact.window_offset.1,
+    );
+    let mut near = 0;
+    for k in 0..de.depth.len() {
+        let a = de.depth[k];
+        if a.is_finite() && a < 18_000.0 {
+            near += 1;
+            let ca = exact.terrain.triangle_cell(de.triangle[k]);
+            let cb = lod.terrain.triangle_cell(dl.triangle[k]);
+            assert_eq!(
+                (ca.0 as i64, ca.1 as i64),
+                (cb.0 as i64 + off.0, cb.1 as i64 + off.1),
+                "pixel {k}: cell"
+            );
+            assert!((a - dl.depth[k]).abs() <= 1e-4 * a, "pixel {k}");
+        }
+    }
+    assert!(near > 1000, "near {near}");
+    for x in 0..cam.width {
+        let top = |d: &DepthBuffer| (0..cam.height).find(|&y| d.triangle[y * cam.width + x] != SKY);
+        if let (Some(e), Some(l)) = (top(&de), top(&dl)) {
+            assert!(l <= e + 1, "column {x}: skyline at row {l}, exact {e}");
+        }
+    }
+    // Pixels narrow enough that 2 cells span one only beyond the DEM: no
+    // ring, the exact scene.
+    let wide = Camera::new(1600, 900, 0.0, -2.0, 0.0, 60.0).unwrap();
+    let a = Scene::open_wedge(&dem, &vp, None, 1.0 / 7.0, &wide).unwrap();
+    let b = Scene::open_view_lod(&dem, &vp, None, 1.0 / 7.0, &wide).unwrap();
+    assert!(b.terrain.far_layer_sizes().is_empty());
+    assert_eq!(a.window_offset, b.window_offset);
+    assert_eq!((a.terrain.nx, a.terrain.ny), (b.terrain.nx, b.terrain.ny));
+    assert!(a
+        .terrain
+        .z
+        .iter()
+        .zip(&b.terrain.z)
+        .all(|(p, q)| p.to_bits() == q.to_bits()));
+}

@@ -56,7 +56,7 @@ for i in $(seq "$runs"); do
       for bin in old new; do
         b=$old
         [ $bin = new ] && b=$new
-        /usr/bin/time -o "$dir/out/time" -f "%e %M" "$b" edit "$dir/$set" --sketch "$dir/sketch.json" \
+        /usr/bin/time -o "$dir/out/time" -f "%e %M %U %S" "$b" edit "$dir/$set" --sketch "$dir/sketch.json" \
           --max-distance $d --dry-run --out "$dir/out/$set" --report "$dir/out/r_${bin}_${set}_$d.json" -q || true
         echo "$bin $set $d $(cat "$dir/out/time")" >>"$log"
       done
@@ -90,17 +90,20 @@ echo "load after: $(cut -d' ' -f1-3 /proc/loadavg)"
 import statistics, sys
 rows = [l.split() for l in open(sys.argv[1]) if l.strip()]
 med = {}
-for bin_, s, d, t, kb in rows:
-    med.setdefault((bin_, s, d), []).append((float(t), int(kb)))
-print("| tile set | --max-distance | old wall s | new wall s | old peak RSS MB | new peak RSS MB |")
-print("|---|---|---|---|---|---|")
+for bin_, s, d, t, kb, user, system in rows:
+    # wall s, peak RSS KB, CPU s (user + system: steadier than the wall
+    # time on a machine shared with other work)
+    med.setdefault((bin_, s, d), []).append((float(t), int(kb), float(user) + float(system)))
+print("| tile set | --max-distance | old wall s | new wall s | old CPU s | new CPU s | old peak RSS MB | new peak RSS MB |")
+print("|---|---|---|---|---|---|---|---|")
 for d in ("15000", "50000", "100000"):
     for s in ("t3", "t32"):
         o, n = med[("old", s, d)], med[("new", s, d)]
         f = lambda v, k: statistics.median(x[k] for x in v)
-        print(f"| {'3 x 3' if s == 't3' else '32 x 32'} | {int(d)//1000} km | {f(o,0):.2f} | {f(n,0):.2f} | {f(o,1)/1024:.0f} | {f(n,1)/1024:.0f} |")
+        print(f"| {'3 x 3' if s == 't3' else '32 x 32'} | {int(d)//1000} km | {f(o,0):.2f} | {f(n,0):.2f} | {f(o,2):.2f} | {f(n,2):.2f} | {f(o,1)/1024:.0f} | {f(n,1)/1024:.0f} |")
 for b in ("old", "new"):
     ts = [statistics.median(x[0] for x in v) for k, v in med.items() if k[0] == b]
+    cs = [statistics.median(x[2] for x in v) for k, v in med.items() if k[0] == b]
     ms = [statistics.median(x[1] for x in v) for k, v in med.items() if k[0] == b]
-    print(f"{b}: slowest / fastest case {max(ts)/min(ts):.2f}, peak RSS max {max(ms)/1024:.0f} MB")
+    print(f"{b}: slowest / fastest case {max(ts)/min(ts):.2f} (wall), {max(cs)/min(cs):.2f} (CPU), peak RSS max {max(ms)/1024:.0f} MB")
 PY

@@ -139,10 +139,13 @@ impl PyDem {
     /// The first-person view from (`lon`, `lat`) as `demsketch view DEM
     /// --lon --lat [camera flags] --out view.png` renders it (without
     /// overlays): an RGB uint8 array of shape (height, width, 3); also
-    /// written as a PNG to `out` when given.
+    /// written as a PNG to `out` when given. `full_resolution`: as the
+    /// command's `--full-resolution` (no coarser rings beyond the
+    /// full-resolution reach).
     #[pyo3(signature = (lon, lat, *, heading=0.0, pitch=0.0, roll=0.0, hfov=60.0,
                         width=1600, height=900, eye_height=None, alt=None,
-                        max_distance=None, refraction=1.0 / 7.0, out=None))]
+                        max_distance=None, refraction=1.0 / 7.0, out=None,
+                        full_resolution=false))]
     #[allow(clippy::too_many_arguments)]
     fn view<'py>(
         &self,
@@ -160,6 +163,7 @@ impl PyDem {
         max_distance: Option<f64>,
         refraction: f64,
         out: Option<PathBuf>,
+        full_resolution: bool,
     ) -> PyResult<Bound<'py, PyAny>> {
         if eye_height.is_some() && alt.is_some() {
             return Err(DemsketchError::new_err("give eye_height or alt, not both"));
@@ -176,8 +180,12 @@ impl PyDem {
         };
         let rgb = py
             .detach(|| -> Result<Vec<u8>, String> {
-                let scene = Scene::open_wedge(&self.dem, &vp, max_distance, refraction, &camera)
-                    .map_err(|e| e.to_string())?;
+                let scene = if full_resolution {
+                    Scene::open_wedge(&self.dem, &vp, max_distance, refraction, &camera)
+                } else {
+                    Scene::open_view_lod(&self.dem, &vp, max_distance, refraction, &camera)
+                }
+                .map_err(|e| e.to_string())?;
                 let depth = DepthBuffer::render(&scene.terrain, &camera);
                 // The CLI's sun: behind the viewer's right shoulder.
                 let opts = ShadeOptions {
@@ -260,9 +268,11 @@ fn edit(
     opts.allow_partial = allow_partial;
     opts.dry_run = dry_run;
     let result = py.detach(|| -> Result<_, String> {
-        let _lock = demsketch::edit::guard::prepare(&dem, &sketch, &opts, timeout, &mut note)
-            .map_err(|e| e.to_string())?;
-        Ok(demsketch::edit::run(&dem, &sketch, &opts))
+        // The DEM the guard opened is the one the edit runs on (opened once).
+        let (_lock, opened) =
+            demsketch::edit::guard::prepare_open(&dem, &sketch, &opts, timeout, &mut note)
+                .map_err(|e| e.to_string())?;
+        Ok(demsketch::edit::run_opened(opened, &dem, &sketch, &opts))
     });
     match result.map_err(err)? {
         Ok(r) => serde_json::to_string(&r).map_err(err),

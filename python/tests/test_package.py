@@ -62,6 +62,23 @@ def test_view_equals_the_command(tmp_path):
     np.testing.assert_array_equal(rgb, gdal.Open(str(png)).ReadAsArray().transpose(1, 2, 0))
 
 
+def test_a_long_view_equals_the_command(tmp_path):
+    # 160 px over 90 degrees: the view reaches beyond the full-resolution
+    # reach (20 km) and is drawn from coarser rings there, as the command
+    # draws it; full_resolution=True reads the whole wedge exactly.
+    zion = FIXTURES / "zion_srtm_utm12n.tif"
+    flags = dict(heading=0.0, pitch=-2.0, hfov=90.0, width=160, height=90, eye_height=1500.0)
+    png = tmp_path / "cli.png"
+    cli("view", zion, "--lon", "-112.998", "--lat", "37.15", "--heading", "0", "--pitch", "-2",
+        "--hfov", "90", "--size", "160x90", "--eye-height", "1500", "--out", png)
+    mine = tmp_path / "py.png"
+    demsketch.open(zion).view(-112.998, 37.15, out=mine, **flags)
+    assert mine.read_bytes() == png.read_bytes()
+    full = tmp_path / "full.png"
+    demsketch.open(zion).view(-112.998, 37.15, out=full, full_resolution=True, **flags)
+    assert full.read_bytes() != png.read_bytes()
+
+
 def test_edit_equals_the_command(tmp_path):
     dem = tile_set(tmp_path)
     s = tmp_path / "s.json"

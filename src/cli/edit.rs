@@ -13,7 +13,7 @@
 //! input or each other ([`demsketch::raster::path_check`]).
 
 use anyhow::Context;
-use demsketch::edit::{run as run_edit, EditError, EditOptions};
+use demsketch::edit::{run_opened, EditError, EditOptions};
 use demsketch::raster::Destination;
 use std::io::IsTerminal;
 use std::path::PathBuf;
@@ -213,14 +213,15 @@ pub fn run(args: EditArgs) -> anyhow::Result<()> {
     opts.dry_run = args.dry_run;
     // The lock, recovery of a killed edit and the output checks
     // ([`demsketch::edit::guard`]), each note one line on stderr.
-    let _lock = demsketch::edit::guard::prepare(
+    // The DEM the guard opened is the one the edit runs on (opened once).
+    let (_lock, dem) = demsketch::edit::guard::prepare_open(
         &args.dem,
         &args.sketch,
         &opts,
         Duration::from_secs_f64(args.lock_timeout),
         &mut |m| eprintln!("demsketch: {m}"),
     )?;
-    let report = match run_edit(&args.dem, &args.sketch, &opts) {
+    let report = match run_opened(dem, &args.dem, &args.sketch, &opts) {
         Ok(r) => r,
         Err(e @ EditError::BelowMinFit { .. }) => {
             if let (true, EditError::BelowMinFit { report, .. }) = (args.json, &e) {

@@ -223,8 +223,26 @@ pub struct ViewArgs {
     /// pixel polylines), T-junctions and the ridge lines of the part of the
     /// DEM the camera's horizontal field of view takes in, in lon/lat/z;
     /// each feature's id is the feature_id an edit's report gives it.
+    /// Beyond the full-resolution reach (see --full-resolution) the far
+    /// silhouettes and the skyline are traced on the coarser terrain (their
+    /// points within a coarse cell, at most a pixel across, of the DEM's
+    /// highest cell there) and ridge lines are listed only within the
+    /// reach, as an edit detects them: the part of the DEM an edit can move
+    /// (the collection's "full_resolution_reach_m" says how far that is).
     #[arg(long)]
     pub features: Option<PathBuf>,
+    /// Read and draw the whole view at the DEM's resolution. By default a
+    /// view that reaches farther than max(20 km, the distance at which 2
+    /// DEM cells span a pixel) is exact only out to there, and drawn
+    /// beyond from rings of block maxima 2, 4, 8 ... times coarser (each
+    /// coarse cell the highest of the cells it covers, and at most a pixel
+    /// across; read from the tiles' overviews when every tile has them),
+    /// as an edit's views are: far ridges keep their skyline, never lower,
+    /// for a fraction of the time on a large DEM. With this flag the far
+    /// terrain is exact too and ridge lines are listed over the whole
+    /// wedge, for the time and memory of reading it all.
+    #[arg(long)]
+    pub full_resolution: bool,
     /// Format of --depth and --viewshed, a GDAL driver name as
     /// gdal_translate's -of (written -of or --of) [default: from each
     /// file's extension; GeoTIFF without one].
@@ -361,6 +379,35 @@ fn check_view_outputs(args: &ViewArgs, dem: &Dem) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The scene of the view: the camera's wedge, exact out to the
+/// full-resolution reach and in coarser rings beyond
+/// ([`Scene::open_view_lod`]), or exact throughout with
+/// `--full-resolution` ([`Scene::open_wedge`]).
+fn open_scene(args: &ViewArgs, dem: &Dem, view: &ResolvedView) -> anyhow::Result<Scene> {
+    let (vp, max_d, k) = (
+        &view.viewpoint,
+        args.camera.max_distance,
+        args.camera.refraction,
+    );
+    let scene = if args.full_resolution {
+        Scene::open_wedge(dem, vp, max_d, k, &view.camera)?
+    } else {
+        Scene::open_view_lod(dem, vp, max_d, k, &view.camera)?
+    };
+    let rings = scene.terrain.far_layer_sizes();
+    if super::verbose() && !rings.is_empty() {
+        let ks: Vec<String> = rings.iter().map(|(k, _)| k.to_string()).collect();
+        eprintln!(
+            "demsketch: exact out to {:.0} m ({} x {} cells), rings {} times coarser beyond",
+            scene.terrain.max_distance,
+            scene.window.width,
+            scene.window.height,
+            ks.join(", ")
+        );
+    }
+    Ok(scene)
+}
+
 pub fn run(args: ViewArgs) -> anyhow::Result<()> {
     let t_all = Instant::now();
     check_outputs(&args)?;
@@ -374,17 +421,12 @@ pub fn run(args: ViewArgs) -> anyhow::Result<()> {
     // A picture and its features need only what the camera's horizontal
     // field of view takes in, and only that is read: the picture, the
     // silhouettes and the ridges come from the terrain of that wedge (the
-    // ridges detected over it, as an edit detects them for its views). The
+    // ridges detected over its exact part, as an edit detects them for its
+    // views; coarser rings beyond the full-resolution reach). The
     // viewshed, which covers every cell within the distance, is swept
     // apart, reading the DEM in bands outward from the eye
     // ([`viewshed_from_file`]), so that --viewshed changes none of them.
-    let scene = Scene::open_wedge(
-        &dem,
-        &view.viewpoint,
-        args.camera.max_distance,
-        args.camera.refraction,
-        &view.camera,
-    )?;
+    let scene = open_scene(&args, &dem, &view)?;
     let max_d = args
         .camera
         .max_distance
@@ -392,9 +434,6 @@ pub fn run(args: ViewArgs) -> anyhow::Result<()> {
     let terrain = &scene.terrain;
     let seen = &scene.window;
     super::timing("load", t_all.elapsed().as_secs_f64());
-    let t = Instant::now();
-    let depth = DepthBuffer::render(terrain, &view.camera);
-    super::timing("render", t.elapsed().as_secs_f64());
     let t = Instant::now();
     let overlays: Vec<Overlay> = if args.overlay.is_empty() {
         if view.strokes.is_empty() {
@@ -409,14 +448,27 @@ pub fn run(args: ViewArgs) -> anyhow::Result<()> {
     let need_sil =
         args.features.is_some() || want(Overlay::Silhouettes) || want(Overlay::Junctions);
     let need_ridges = args.features.is_some() || want(Overlay::Ridges);
-    let silhouettes: Option<Silhouettes> = need_sil
-        .then(|| extract_silhouettes(terrain, &depth, &SilhouetteParams::default()))
-        .transpose()?;
-    let ridges: Option<RidgeNetwork> = need_ridges
-        .then(|| detect_ridges(seen, &RidgeParams::default()))
-        .transpose()?;
-
-    super::timing("features", t.elapsed().as_secs_f64());
+    // The ridges need only the heights read: they are detected while the
+    // view is rendered and its silhouettes extracted (each stage has
+    // serial parts that leave a core idle).
+    let (ridges, (depth, silhouettes)) = rayon::join(
+        || {
+            need_ridges
+                .then(|| detect_ridges(seen, &RidgeParams::default()))
+                .transpose()
+        },
+        || {
+            let depth = DepthBuffer::render(terrain, &view.camera);
+            super::timing("render", t.elapsed().as_secs_f64());
+            let silhouettes = need_sil
+                .then(|| extract_silhouettes(terrain, &depth, &SilhouetteParams::default()))
+                .transpose();
+            (depth, silhouettes)
+        },
+    );
+    let silhouettes: Option<Silhouettes> = silhouettes?;
+    let ridges: Option<RidgeNetwork> = ridges?;
+    super::timing("render and features", t.elapsed().as_secs_f64());
     let t = Instant::now();
     let (w, h) = (view.camera.width, view.camera.height);
     // Sun behind the viewer's right shoulder, so the slopes facing the
@@ -525,12 +577,20 @@ pub fn run(args: ViewArgs) -> anyhow::Result<()> {
         }
         if let Some(target) = &args.features {
             let to_ll = to_lonlat_with_georef(&scene.georef);
-            let fc = feature_collection_of_view(
+            let mut fc = feature_collection_of_view(
                 silhouettes.as_ref(),
                 ridges.as_ref(),
                 view.view_index,
                 &to_ll,
             )?;
+            // Where the view reaches beyond the full-resolution terrain,
+            // how far that goes (a foreign member of the collection): the
+            // ridges stop there, and the silhouettes whose depth_min is
+            // beyond it are traced on the coarser rings.
+            if !terrain.far_layer_sizes().is_empty() {
+                fc["full_resolution_reach_m"] =
+                    serde_json::Value::from(terrain.max_distance.round());
+            }
             let p = staged.stage(target).map_err(anyhow::Error::msg)?;
             write_geojson(&p, &fc)?;
         }

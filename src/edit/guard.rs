@@ -26,6 +26,19 @@ pub fn prepare(
     timeout: Duration,
     note: &mut dyn FnMut(&str),
 ) -> Result<Option<EditLock>, RasterError> {
+    prepare_open(dem, sketch, opts, timeout, note).map(|(lock, _)| lock)
+}
+
+/// [`prepare`], handing back the DEM it opened (after any recovery) with
+/// the lock: for [`super::run_opened`], so that an edit opens the DEM once
+/// (on a directory of 1,024 tiles an open reads every tile's header).
+pub fn prepare_open(
+    dem: &Path,
+    sketch: &Path,
+    opts: &EditOptions,
+    timeout: Duration,
+    note: &mut dyn FnMut(&str),
+) -> Result<(Option<EditLock>, Dem), RasterError> {
     // A DEM that is not a file or directory on disk (missing, or a GDAL
     // virtual path such as /vsizip/) has no directory to lock: its own
     // error, or no lock (it cannot be rewritten in place).
@@ -70,5 +83,5 @@ pub fn prepare(
         }
     }
     check_outputs(&inputs, &outputs)?;
-    Ok(lock)
+    Ok((lock, layer))
 }

@@ -34,7 +34,7 @@ pub mod spikes;
 pub mod stretch_placement;
 
 pub use outputs::picture_stem;
-pub use pipeline::{run, EditOptions, DEFAULT_MIN_FIT};
+pub use pipeline::{run, run_opened, EditOptions, DEFAULT_MIN_FIT};
 pub use report::{EditReport, MatchingReport, StrokeStatus};
 
 /// Errors of an edit. One line naming the file and the problem.

@@ -235,12 +235,25 @@ pub fn run(
     sketch_path: &Path,
     opts: &EditOptions,
 ) -> Result<EditReport, EditError> {
+    // (the outputs' directories before the DEM, as always)
+    check_output_paths(opts)?;
+    run_opened(Dem::open(dem_path)?, dem_path, sketch_path, opts)
+}
+
+/// [`run`] on `dem`, the DEM at `dem_path` opened already (by
+/// [`super::guard::prepare_open`]): not opened a second time.
+pub fn run_opened(
+    dem: Dem,
+    dem_path: &Path,
+    sketch_path: &Path,
+    opts: &EditOptions,
+) -> Result<EditReport, EditError> {
     // On a worker thread of rayon's pool: the many parallel loops of an
     // edit (a few hundred, most of them short: the multigrid levels, the
     // silhouette columns) then split work between the workers directly
     // instead of each waking the pool from outside and waiting for it.
     if rayon::current_thread_index().is_none() {
-        return rayon::join(|| run(dem_path, sketch_path, opts), || ()).0;
+        return rayon::join(|| run_opened(dem, dem_path, sketch_path, opts), || ()).0;
     }
     let t_all = Instant::now();
     let edit = Edit {
@@ -261,7 +274,7 @@ pub fn run(
         scenes,
     } = load_views(
         &edit,
-        Dem::open(dem_path)?.with_block_cache_budget(EDIT_BLOCK_CACHE_BYTES),
+        dem.with_block_cache_budget(EDIT_BLOCK_CACHE_BYTES),
         sketch_path,
         &[],
     )?;

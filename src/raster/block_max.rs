@@ -131,7 +131,9 @@ fn band_rows(cwin: Window, cc: usize, first_band: i64) -> Vec<(usize, usize)> {
 /// The highest valid height of each `k x k` block of `cells` (DEM window
 /// `read`, within the chunk's full extent `full`), into the coarse columns
 /// `c0..c1` of `out` (a band of rows `w` coarse cells wide, starting at the
-/// chunk's first coarse row).
+/// chunk's first coarse row). Each coarse row is reduced down the columns
+/// first (whole rows at a time, which vectorises), then across each
+/// block's columns: the same maximum as cell by cell.
 fn reduce_max(
     cells: &HeightMap,
     read: Window,
@@ -142,25 +144,28 @@ fn reduce_max(
     out: &mut [f32],
 ) {
     let rows = out.len() / w.max(1);
+    let mut column_max = vec![f32::NAN; read.width];
     for cr in 0..rows {
+        // the block row's cells within what was read
+        let br0 = full.row + (cr * k) as i64;
+        let y0 = (br0.max(read.row) - read.row) as usize;
+        let y1 = ((br0 + k as i64).min(read.row_end()) - read.row).max(0) as usize;
+        column_max.fill(f32::NAN);
+        for y in y0..y1 {
+            let src = &cells.data[y * read.width..(y + 1) * read.width];
+            for (m, &v) in column_max.iter_mut().zip(src) {
+                // f32::max skips NaN
+                *m = m.max(v);
+            }
+        }
         let row = &mut out[cr * w + c0..cr * w + c1];
         for (i, o) in row.iter_mut().enumerate() {
-            let mut m = f32::NAN;
-            // the block's cells within what was read
             let bc0 = full.col + (i * k) as i64;
-            let br0 = full.row + (cr * k) as i64;
             let x0 = (bc0.max(read.col) - read.col) as usize;
             let x1 = ((bc0 + k as i64).min(read.col_end()) - read.col).max(0) as usize;
-            let y0 = (br0.max(read.row) - read.row) as usize;
-            let y1 = ((br0 + k as i64).min(read.row_end()) - read.row).max(0) as usize;
-            for y in y0..y1 {
-                let src = &cells.data[y * read.width..(y + 1) * read.width];
-                for &v in &src[x0.min(x1)..x1] {
-                    // f32::max skips NaN
-                    m = m.max(v);
-                }
-            }
-            *o = m;
+            *o = column_max[x0.min(x1)..x1]
+                .iter()
+                .fold(f32::NAN, |m, &v| m.max(v));
         }
     }
 }
@@ -176,5 +181,43 @@ mod tests {
             band_rows(w, 8, 0),
             vec![(0, 3), (3, 11), (11, 19), (19, 20)]
         );
+    }
+
+    /// The block maxima are those of the cells, block by block, NaN
+    /// skipped, a block of no valid cell NaN, a read window clipped at the
+    /// chunk's edges.
+    #[test]
+    fn block_maxima_are_the_cells_maxima() {
+        let read = Window::new(1, 2, 7, 5);
+        let full = Window::new(0, 0, 8, 8);
+        let k = 4;
+        let mut data: Vec<f32> = (0..read.len()).map(|i| ((i * 37) % 11) as f32).collect();
+        data[3] = f32::NAN;
+        let cells = HeightMap {
+            width: read.width,
+            height: read.height,
+            data,
+            geotransform: crate::raster::GeoTransform([0.0, 1.0, 0.0, 0.0, 0.0, -1.0]),
+            crs: crate::raster::Crs {
+                epsg: None,
+                wkt: String::new(),
+                proj: None,
+                geographic: false,
+            },
+        };
+        let mut out = vec![0.0f32; 4];
+        reduce_max(&cells, read, full, k, (0, 2), 2, &mut out);
+        for (o, (bc, br)) in out.iter().zip([(0, 0), (1, 0), (0, 1), (1, 1)]) {
+            let mut m = f32::NAN;
+            for y in 0..read.height {
+                for x in 0..read.width {
+                    let (c, r) = (read.col as usize + x, read.row as usize + y);
+                    if c / k == bc && r / k == br {
+                        m = m.max(cells.data[y * read.width + x]);
+                    }
+                }
+            }
+            assert_eq!(o.to_bits(), m.to_bits(), "block ({bc}, {br})");
+        }
     }
 }

@@ -231,6 +231,19 @@ impl LocalTerrain {
             .collect()
     }
 
+    /// The height range of the terrain and its far layers together (the
+    /// terrain's own, [`LocalTerrain::height_range`], without any): what a
+    /// picture's colour ramp spans.
+    pub fn height_range_with_far(&self) -> (f64, f64) {
+        self.far
+            .iter()
+            .map(|l| l.terrain.height_range())
+            .filter(|(lo, hi)| lo <= hi)
+            .fold(self.height_range(), |(a, b), (lo, hi)| {
+                (a.min(lo), b.max(hi))
+            })
+    }
+
     /// Whether triangle `id` belongs to a far layer (not to this terrain's
     /// own grid: its cell is not one of [`LocalTerrain::vertex_local`]'s).
     pub fn is_far_triangle(&self, id: u32) -> bool {

@@ -124,9 +124,47 @@ impl Scene {
     ) -> Result<Scene, RenderError> {
         let max_d = max_distance.filter(|d| d.is_finite() && *d > 0.0);
         let probe = Self::wedge_plan(dem, vp, max_d, k, camera)?.probe;
-        let Some(lod) = LodPlan::new(&probe, camera, max_d) else {
-            return Self::open_wedge(dem, vp, max_distance, k, camera);
-        };
+        match LodPlan::new(&probe, camera, max_d) {
+            Some(lod) => Self::open_planned_lod(dem, vp, max_d, k, camera, &lod, reuse),
+            None => Self::open_wedge(dem, vp, max_distance, k, camera),
+        }
+    }
+
+    /// Like [`Scene::open_wedge_lod`] for a picture (`demsketch view`):
+    /// without a maximum distance the whole DEM is in view, and the rings
+    /// reach the farthest cell of the camera's wedge (its box's farthest
+    /// corner). A view whose wedge lies within the exact reach is
+    /// [`Scene::open_wedge`]'s, bit for bit, as is every view with
+    /// `max_distance` within it.
+    pub fn open_view_lod(
+        dem: &Dem,
+        vp: &Viewpoint,
+        max_distance: Option<f64>,
+        k: f64,
+        camera: &crate::view::Camera,
+    ) -> Result<Scene, RenderError> {
+        let max_d = max_distance.filter(|d| d.is_finite() && *d > 0.0);
+        let plan = Self::wedge_plan(dem, vp, max_d, k, camera)?;
+        let reach = max_d.unwrap_or_else(|| farthest_corner_m(&plan));
+        match LodPlan::new(&plan.probe, camera, Some(reach)) {
+            Some(lod) => Self::open_planned_lod(dem, vp, max_d, k, camera, &lod, None),
+            None => Self::open_wedge(dem, vp, max_distance, k, camera),
+        }
+    }
+
+    /// The scene of a level-of-detail plan: the wedge's box read at the
+    /// DEM's resolution out to the plan's exact reach (on the square of
+    /// `max_d` around the eye, the whole DEM for `None`), the rings beyond
+    /// as the terrain's far layers (`reuse`'s where they serve).
+    fn open_planned_lod(
+        dem: &Dem,
+        vp: &Viewpoint,
+        max_d: Option<f64>,
+        k: f64,
+        camera: &crate::view::Camera,
+        lod: &LodPlan,
+        reuse: Option<&FarLayers>,
+    ) -> Result<Scene, RenderError> {
         let plan = Self::wedge_plan_within(dem, vp, max_d, Some(lod.near_m), k, camera)?;
         let (window, frame, georef, win) = Self::read_wedge(dem, vp, k, plan)?;
         let mut frame_abs = frame;
@@ -344,4 +382,18 @@ impl Scene {
             terrain,
         })
     }
+}
+
+/// The distance, metres, from the eye to the farthest corner of a wedge's
+/// box (on the square's grid, where the probe frame is resolved).
+fn farthest_corner_m(plan: &WedgePlan) -> f64 {
+    let (c0, r0) = (plan.c0 as f64, plan.r0 as f64);
+    let (c1, r1) = (c0 + plan.win.width as f64, r0 + plan.win.height as f64);
+    [(c0, r0), (c1, r0), (c0, r1), (c1, r1)]
+        .iter()
+        .map(|&(x, y)| {
+            let (e, n) = plan.probe.pixel_to_en(x, y);
+            e.hypot(n)
+        })
+        .fold(0.0, f64::max)
 }

@@ -126,8 +126,9 @@ impl<'a> Shader<'a> {
             opts.sun_azimuth_deg.to_radians(),
             opts.sun_altitude_deg.to_radians(),
         );
-        // Height range of the visible terrain for the colour ramp.
-        let (hmin, hmax) = terrain.height_range();
+        // Height range of the visible terrain for the colour ramp (its far
+        // layers included).
+        let (hmin, hmax) = terrain.height_range_with_far();
         let frame = terrain.frame;
         let v0 = terrain.en_to_v(0.0, 0.0);
         let (ve, vn) = (terrain.en_to_v(1.0, 0.0), terrain.en_to_v(0.0, 1.0));

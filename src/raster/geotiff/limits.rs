@@ -26,20 +26,41 @@ pub fn memory_budget() -> u64 {
 /// cgroup limit and the address-space limit left after what is mapped now.
 /// 8 GiB when none can be read.
 fn usable_memory() -> u64 {
+    let fixed = machine_limits();
     let mut m: Option<u64> = None;
     let mut take = |v: Option<u64>| {
         if let Some(v) = v {
             m = Some(m.map_or(v, |x: u64| x.min(v)));
         }
     };
-    take(meminfo_kb("MemTotal:").map(|k| k * 1024));
+    take(fixed.mem_total);
+    take(fixed.cgroup_max);
     take(
-        std::fs::read_to_string("/sys/fs/cgroup/memory.max")
+        fixed
+            .address_space
+            .map(|lim| lim.saturating_sub(vm_size().unwrap_or(0))),
+    );
+    m.unwrap_or(8 << 30)
+}
+
+/// What bounds this process's memory and does not change while it runs,
+/// read once (the budget is asked for every window and block read: three
+/// files of /proc and /sys each time were a few percent of a view's CPU).
+struct MachineLimits {
+    mem_total: Option<u64>,
+    cgroup_max: Option<u64>,
+    address_space: Option<u64>,
+}
+
+fn machine_limits() -> &'static MachineLimits {
+    static LIMITS: std::sync::OnceLock<MachineLimits> = std::sync::OnceLock::new();
+    LIMITS.get_or_init(|| MachineLimits {
+        mem_total: meminfo_kb("MemTotal:").map(|k| k * 1024),
+        cgroup_max: std::fs::read_to_string("/sys/fs/cgroup/memory.max")
             .ok()
             .and_then(|s| s.trim().parse::<u64>().ok()),
-    );
-    take(address_space_limit().map(|lim| lim.saturating_sub(vm_size().unwrap_or(0))));
-    m.unwrap_or(8 << 30)
+        address_space: address_space_limit(),
+    })
 }
 
 fn meminfo_kb(key: &str) -> Option<u64> {
