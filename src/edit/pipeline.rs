@@ -465,6 +465,7 @@ fn quantized(dem: &Dem, d: &Deformation) -> Deformation {
             *m = (stored - h as f64) as f32;
         }
     }
+    q.stats.recount(&q.displacement);
     q
 }
 
@@ -1488,6 +1489,16 @@ pub(super) struct Solver<'a> {
 }
 
 impl Solver<'_> {
+    /// `d` as the write will store it ([`quantized`]) when the DEM's
+    /// sample type is an integer one; `None` on a floating-point DEM,
+    /// which stores the heights as solved.
+    pub(super) fn as_written(&self, d: &Deformation) -> Option<Deformation> {
+        self.dem
+            .sample_type
+            .is_integer()
+            .then(|| quantized(self.dem, d))
+    }
+
     /// Deform the DEM through `curves` with the cells `cells` (then the
     /// fixed ones) held; no curve: no deformation at all.
     pub(super) fn solve(
