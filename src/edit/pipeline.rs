@@ -24,8 +24,10 @@
 //! Stages 2 to 5 are one pass (`edit_pass`). When the first pass changed
 //! the terrain and left a stroke short of a full fit, a second runs on the
 //! terrain the first made (`second_pass`: the DEM read through an overlay
-//! of it, nothing written) and the two deformations are written as one
-//! (`compose`), so that editing the output again changes nothing.
+//! of it, as the write stores it, nothing written) and the deformations
+//! are written as one (`compose`); while a pass is kept and leaves a
+//! stroke unfitted, another follows, up to [`MAX_PASSES`], so that editing
+//! the output again changes nothing.
 //!
 //! 6. `write` (`super::outputs::write_outputs`): affected tiles written
 //!    back atomically, then the pictures and the report.
@@ -45,6 +47,7 @@ use super::report::{
     ViewReport,
 };
 use super::rounds::{refine, Rounds};
+use super::spikes::find_spikes;
 use super::stretch_placement::{place_free_stretches, StretchPlacement};
 use super::EditError;
 use crate::deform::{
@@ -287,16 +290,22 @@ pub fn run_opened(
         (scenes, prepared, notes),
         &mut timings,
     )?;
-    if needs_second_pass(&sketch, &outcome) {
+    let mut pass = 1;
+    while pass < MAX_PASSES && needs_second_pass(&sketch, &outcome) {
         let t = Instant::now();
-        // The far rings of a long view lie beyond both passes' changes:
-        // the second takes the first's (when they serve, see `load_views`).
+        // The far rings of a long view lie beyond every pass's changes:
+        // the later passes take the first's (when they serve, see `load_views`).
         let far: Vec<FarLayers> = views
             .iter()
             .map(|v| v.before.terrain.far_layers())
             .collect();
-        outcome = second_pass(&edit, &dem, sketch_path, outcome, &far)?;
+        pass += 1;
+        let changed;
+        (outcome, changed) = second_pass(&edit, &dem, sketch_path, outcome, &far, pass)?;
         timings.lowering += secs(t);
+        if !changed {
+            break;
+        }
     }
     let sources = Sources {
         dem_path,
@@ -393,16 +402,23 @@ fn needs_second_pass(sketch: &SketchFile, first: &Outcome) -> bool {
 /// result is the first pass's deformation plus the second's, reported with
 /// the first pass's matches and placements (the landform the strokes
 /// asked for) and the final fit; it is kept only when it fits the strokes
-/// at least as well as the first pass alone.
+/// at least as well as the first pass alone and the sum of the two changes
+/// has no more spikes ([`find_spikes`]) than the first alone. `pass` numbers
+/// it (2 for the second; `first` is then everything the passes before
+/// made). Returns the outcome and whether this pass was kept: when it was,
+/// the run makes another pass ([`MAX_PASSES`] in all at most), so that
+/// the edit stops only where a pass, as a re-edit of its output would,
+/// changes nothing.
 fn second_pass(
     edit: &Edit,
     dem: &Dem,
     sketch_path: &Path,
     first: Outcome,
     far: &[FarLayers],
-) -> Result<Outcome, EditError> {
+    pass: usize,
+) -> Result<(Outcome, bool), EditError> {
     edit.pb
-        .set_message("second pass over the strokes left unfitted");
+        .set_message(format!("pass {pass} over the strokes left unfitted"));
     let d1 = &quantized(dem, &first.deformation);
     let run_second = || -> Result<Outcome, EditError> {
         let overlay = dem.reopened()?.with_overlay(d1.window, d1.edited().data);
@@ -429,8 +445,8 @@ fn second_pass(
         Ok(o) => o,
         Err(e) => {
             let mut out = first;
-            out.notes.push(format!("no second pass: {e}"));
-            return Ok(out);
+            out.notes.push(format!("no {} pass: {e}", ordinal(pass)));
+            return Ok((out, false));
         }
     };
     let score = |o: &Outcome| -> f64 {
@@ -441,9 +457,14 @@ fn second_pass(
             .sum()
     };
     if score(&second) < score(&first) - 1e-9 || second.deformation.stats.changed_cells == 0 {
-        return Ok(first);
+        return Ok((first, false));
     }
     let total = compose(dem, d1, &second.deformation)?;
+    // Each pass's change is free of spikes, but their sum need not be
+    // (issue 11, item 5): a pass that adds one is dropped.
+    if find_spikes(&total).len() > find_spikes(d1).len() {
+        return Ok((first, false));
+    }
     let mut out = first;
     let (f1, f2) = (score(&out), score(&second));
     for (v1, v2) in out.views.iter_mut().zip(second.views) {
@@ -459,10 +480,27 @@ fn second_pass(
     }
     out.lowering_constraints += second.lowering_constraints;
     out.notes.push(format!(
-        "a second pass over the strokes the first left unfitted, on the terrain it made, took their summed fit from {f1:.3} to {f2:.3}"
+        "a {} pass over the strokes the {} left unfitted, on the terrain it made, took their summed fit from {f1:.3} to {f2:.3}",
+        ordinal(pass),
+        if pass == 2 { "first" } else { "passes before" }
     ));
     out.deformation = total;
-    Ok(out)
+    Ok((out, true))
+}
+
+/// The most passes of one edit: the first and the later ones over the
+/// strokes the passes before left unfitted ([`second_pass`]).
+pub const MAX_PASSES: usize = 4;
+
+/// "second", "third", ...: the name of pass `n` in the report's notes.
+fn ordinal(n: usize) -> String {
+    match n {
+        1 => "first".to_string(),
+        2 => "second".to_string(),
+        3 => "third".to_string(),
+        4 => "fourth".to_string(),
+        n => format!("{n}th"),
+    }
 }
 
 /// `d` with each changed cell's displacement made what the write stores:
@@ -478,6 +516,7 @@ fn quantized(dem: &Dem, d: &Deformation) -> Deformation {
             *m = (stored - h as f64) as f32;
         }
     }
+    q.stats.recount(&q.displacement);
     q
 }
 
@@ -1537,6 +1576,16 @@ pub(super) struct Solver<'a> {
 }
 
 impl Solver<'_> {
+    /// `d` as the write will store it ([`quantized`]) when the DEM's
+    /// sample type is an integer one; `None` on a floating-point DEM,
+    /// which stores the heights as solved.
+    pub(super) fn as_written(&self, d: &Deformation) -> Option<Deformation> {
+        self.dem
+            .sample_type
+            .is_integer()
+            .then(|| quantized(self.dem, d))
+    }
+
     /// Deform the DEM through `curves` with the cells `cells` (then the
     /// fixed ones) held; no curve: no deformation at all.
     pub(super) fn solve(

@@ -259,6 +259,14 @@ pub(super) fn refine(
             best_score = score_before;
         }
     }
+    // From here on, the terrain is the one the write stores: on an integer
+    // DEM the heights rounded to whole units. The test below and the
+    // report measure the file a re-edit of the output will read.
+    if let Some(q) = solver.as_written(&deformation) {
+        deformation = q;
+        rendered = render_all(&deformation, Some(&rendered))?;
+        best_score = fit_score(curves, &rendered);
+    }
     // Do no harm: when the edit fits the strokes no better than the
     // terrain as it is (the strokes already lie where its silhouettes are,
     // to within what this edit can reach), nothing is changed.
@@ -268,6 +276,9 @@ pub(super) fn refine(
         .map(|(cs, v)| view_fit(cs, &v.before))
         .sum();
     let kept_unedited = unedited >= best_score - 1e-9 && best_score < perfect - 1e-9;
+    if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
+        eprintln!("rounds: unedited fit {unedited:.3}, best {best_score:.3}, kept unedited {kept_unedited}");
+    }
     if kept_unedited {
         deformation = unchanged(deformation);
         rendered = render_all(&deformation, Some(&rendered))?;
@@ -275,6 +286,9 @@ pub(super) fn refine(
     // No spikes: a lone apex (or pit) of the change field gets a
     // neighbour behind it within half a cell.
     if flatten_final_spikes(views, &mut deformation, &placed.demands.fixed) > 0 {
+        if let Some(q) = solver.as_written(&deformation) {
+            deformation = q;
+        }
         rendered = render_all(&deformation, Some(&rendered))?;
     }
     Ok(Rounds {
