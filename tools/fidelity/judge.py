@@ -234,8 +234,11 @@ def sample_distances(dmax, step):
         n = int(math.ceil(math.log(min(switch, dmax) / first) / math.log1p(NEAR_STEP_FRACTION)))
         near = first * (1.0 + NEAR_STEP_FRACTION) ** np.arange(n)
         near = near[near < min(switch, dmax)]
+    # Beyond, the quarter-cell samples of before, at the same distances
+    # (k * step), so that far boundaries do not move with the change.
     start = near[-1] if len(near) else 0.0
-    far = start + (np.arange(int(max(0.0, dmax - start) / step)) + 1) * step
+    k0 = int(math.floor(start / step)) + 1
+    far = np.arange(k0, int(dmax / step) + 1) * step
     return np.concatenate([np.asarray(near, float), far])
 
 
