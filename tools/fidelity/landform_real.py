@@ -48,15 +48,26 @@ STYLES = {
     "short": (50, 25, "bump"),
     "asym": (140, 45, "asym"),
     "dome": (160, 40, "dome"),
+    # teeth spanning several DEM cells at the landform's distance (what a
+    # person drawing rough terrain at that range means): see cell_teeth
+    "jagged_cells": (120, 40, "bump_teeth"),
+    "long_jagged_cells": (300, 30, "ridge_teeth"),
 }
+ORIGINAL_STYLES = ("smooth", "jagged", "long", "short", "asym", "dome")
+# jagged style -> its smooth counterpart, for the roughness ratios
+JAGGED_PAIRS = {"jagged": "smooth", "jagged_cells": "smooth", "long_jagged_cells": "long"}
+# cell teeth: period in DEM cells at the landform's distance, and the
+# teeth's amplitude as a share of the period (0.25: flanks at 45 degrees)
+TOOTH_PERIOD_CELLS = 4.0
+TOOTH_AMPLITUDE = 0.25
 DISTANCES = [1000.0, 2000.0, 3000.0]
 
 
 def shape(kind, t):
     """Height share at t in [0, 1] (0 at both ends)."""
-    if kind in ("bump", "jag"):
+    if kind in ("bump", "jag", "bump_teeth"):
         return 1.0 - (2 * t - 1) ** 2
-    if kind == "ridge":
+    if kind in ("ridge", "ridge_teeth"):
         return min(1.0, 4 * t, 4 * (1 - t))
     if kind == "dome":
         return math.sqrt(max(0.0, 1.0 - (2 * t - 1) ** 2))
@@ -92,7 +103,27 @@ def ground_rows(depth, D):
     return at, near_top
 
 
-def draw(style, D, rows, near_top, c_mid):
+def cell_px(dem, D):
+    """A DEM cell's width in the image at 1.1 D (where the stroke's ends
+    stand), pixels."""
+    f = (W / 2.0) / math.tan(math.radians(HFOV) / 2.0)
+    return f * dem.cell_m / (1.1 * D)
+
+
+def cell_teeth(xs, sh, dem, D):
+    """Teeth spanning several cells at the landform's distance: a triangle
+    wave of period TOOTH_PERIOD_CELLS cells (at least 12 px, the old
+    jagged stroke's), amplitude TOOTH_AMPLITUDE of the period, tapered in
+    with the shape over its lower half so the feet stay on the ground
+    (image px, positive down)."""
+    period = max(12.0, TOOTH_PERIOD_CELLS * cell_px(dem, D))
+    amp = TOOTH_AMPLITUDE * period
+    u = (xs - xs[0]) / period
+    tri = 1.0 - 4.0 * np.abs(u - np.floor(u) - 0.5)
+    return amp * tri * np.minimum(1.0, sh / 0.5)
+
+
+def draw(style, D, rows, near_top, c_mid, dem):
     span, hpx, kind = STYLES[style]
     c0, c1 = c_mid - span // 2, c_mid + span // 2
     if c0 < 5 or c1 > W - 5 or math.isnan(rows[c0]) or math.isnan(rows[c1]):
@@ -103,15 +134,16 @@ def draw(style, D, rows, near_top, c_mid):
     ts = (xs - c0) / (c1 - c0)
     base = y0 + ts * (y1 - y0)
     sh = np.array([shape(kind, t) for t in ts])
+    teeth = cell_teeth(xs, sh, dem, D) if kind.endswith("_teeth") else np.zeros_like(xs)
     # raise the bump until it clears the nearer terrain by 3 px
     need = hpx
-    for x, b, s in zip(xs, base, sh):
+    for x, b, s, tooth in zip(xs, base, sh, teeth):
         if s > 0.2:
             top = near_top[int(x)] - 3.0
-            if b - hpx * s > top:
-                need = max(need, (b - top) / s)
+            if b + tooth - hpx * s > top:
+                need = max(need, (b + tooth - top) / s)
     hpx = min(need, 150.0)
-    ys = base - hpx * sh
+    ys = base - hpx * sh + teeth
     if kind == "jag":
         for k in range(1, len(ys) - 1):
             ys[k] += 3.0 if (k // 3) % 2 else -3.0
@@ -168,7 +200,7 @@ def run_case(dem_path, dem, view, style, D, tmp, pictures=None):
             break
     else:
         return {"status": "no ground at this distance"}
-    drawn = draw(style, D, rows, near_top, cm)
+    drawn = draw(style, D, rows, near_top, cm, dem)
     if drawn is None:
         return {"status": "no ground at this distance"}
     pts, hpx = drawn
@@ -208,7 +240,10 @@ def run_case(dem_path, dem, view, style, D, tmp, pictures=None):
         return res
     res.update(json.loads(fo.stdout))
     res.update(resolvable(dem, depth, pts, D))
-    res.update(misses(dem, depth, pts, res.pop("dev_by_column", {})))
+    dev = res.pop("dev_by_column", {})
+    res.update(misses(dem, depth, pts, dev))
+    res.update(showable_fit(dem, depth, pts, dev))
+    res["roughness_m"] = roughness(dem, judge.Dem(out))
     if pictures:
         save_pictures(dem, out, pts, view,
                       os.path.join(pictures, f"{os.path.basename(dem_path)[:-4]}_{style}_{int(D)}"))
@@ -232,6 +267,59 @@ def terrain_above_ok(dem, depth, pts):
         d = depth[y, c] if 0 <= y < H else math.inf
         out[c] = bool(d >= max(1.05 * d_end, d_end + dem.cell_m))
     return out
+
+
+def showable_fit(dem, depth, pts, dev_by_column):
+    """The fit over the columns the stroke can show: those where the
+    before render shows sky, or terrain at least 5% and a cell farther
+    than the stroke's ends' ground, just above the stroke
+    (terrain_above_ok). Elsewhere nearer terrain, or ground behind the foot
+    too close for the judge to count a boundary, stands just above the
+    stroke: a landform that does not lower what the user did not draw
+    cannot show a silhouette there. None if no column is showable."""
+    ok = terrain_above_ok(dem, depth, pts)
+    shown = [c for c, good in ok.items() if good]
+    if not shown:
+        return {"fit_showable": None, "showable_columns": 0}
+    hit = sum(1 for c in shown
+              if dev_by_column.get(str(c)) is not None and dev_by_column[str(c)] <= 1.0)
+    return {"fit_showable": hit / len(shown), "showable_columns": len(shown)}
+
+
+def blur(a, sigma):
+    """Gaussian blur of a 2D array (NaN-free), separable, reflecting edges."""
+    r = max(1, int(math.ceil(3 * sigma)))
+    k = np.exp(-0.5 * (np.arange(-r, r + 1) / sigma) ** 2)
+    k /= k.sum()
+    for axis in (0, 1):
+        pad = [(0, 0), (0, 0)]
+        pad[axis] = (r, r)
+        b = np.pad(a, pad, mode="reflect")
+        a = sum(k[i] * np.take(b, range(i, i + a.shape[axis]), axis=axis)
+                for i in range(2 * r + 1))
+    return a
+
+
+ROUGH_SIGMA_CELLS = 1.5
+
+
+def roughness(before, after):
+    """Terrain roughness of a landform, measured on the DEM: the RMS over
+    the cells it changed of its height change minus that change blurred
+    by a Gaussian of ROUGH_SIGMA_CELLS cells (the detail at 1-4 cells, the
+    scales a cell-teeth stroke draws), metres. None if nothing changed."""
+    dz = after.h - before.h
+    changed = np.isfinite(dz) & (dz != 0)
+    if not changed.any():
+        return None
+    ys, xs = np.nonzero(changed)
+    pad = int(4 * ROUGH_SIGMA_CELLS) + 2
+    y0, y1 = max(0, ys.min() - pad), min(dz.shape[0], ys.max() + pad + 1)
+    x0, x1 = max(0, xs.min() - pad), min(dz.shape[1], xs.max() + pad + 1)
+    w = np.nan_to_num(dz[y0:y1, x0:x1])
+    hp = w - blur(w, ROUGH_SIGMA_CELLS)
+    m = changed[y0:y1, x0:x1]
+    return float(np.sqrt(np.mean(hp[m] ** 2)))
 
 
 def misses(dem, depth, pts, dev_by_column):
@@ -332,32 +420,79 @@ def main():
         with open(a.json, "w") as f:
             json.dump(rows, f, indent=1)
     if a.md:
-        measured = [r for r in rows if "fit_after" in r]
-        fits = [r["fit_after"] for r in measured]
-        normal = [r["fit_after"] for r in measured if r["status"] == "ok"]
         with open(a.md, "w") as f:
-            f.write("| DEM | held out | stroke | distance | view (lon, lat, heading) | bump px | "
-                    "fit before | fit after | median dev px | silhouette share | cells across | "
-                    "missed columns: terrain above / end cell / interior | wavelet energy ratio | status |\n")
-            f.write("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n")
-            for r in rows:
-                ll = r.get("lonlat", ["", ""])
-                f.write(f"| {r['dem'][:-4]} | {'yes' if r['held_out'] else 'no (tuned)'} | {r['style']} | "
-                        f"{r['distance_m'] / 1000:.0f} km | {ll[0]}, {ll[1]}, {r.get('heading', '')} | "
-                        f"{r.get('bump_px', '')} | {r.get('fit_before', float('nan')):.2f} | "
-                        f"{r.get('fit_after', float('nan')):.3f} | {r.get('median_dev_px') or float('nan'):.2f} | "
-                        f"{r.get('silhouette_share', float('nan')):.2f} | "
-                        f"{r.get('cells_across', float('nan')):.1f} | {miss_cell(r)} | {energy_cell(r)} | {r['status']} |\n")
-            if fits:
-                f.write(f"\n{sum(x >= 0.95 for x in fits)} of {len(fits)} measured landforms fitted "
-                        f">= 0.95 (min {min(fits):.2f}, median {sorted(fits)[len(fits) // 2]:.2f}); "
-                        f"{len(rows) - len(fits)} not measured.\n")
-                if normal:
-                    f.write(f"Of the {len(normal)} with status ok (the stroke over sky or farther "
-                            f"terrain in >= 95% of its columns): {sum(x >= 0.95 for x in normal)} "
-                            f">= 0.95 (min {min(normal):.2f}, median "
-                            f"{sorted(normal)[len(normal) // 2]:.2f}).\n")
+            write_md(f, rows)
 
+
+def fmt(v, spec, missing=""):
+    """v formatted with spec, or missing when None or NaN."""
+    return missing if v is None or v != v else format(v, spec)
+
+
+def write_md(f, rows):
+    """The table, its summary lines and the jagged/smooth ratios."""
+    measured = [r for r in rows if "fit_after" in r]
+    f.write("| DEM | held out | stroke | distance | view (lon, lat, heading) | bump px | "
+            "fit before | fit after | fit where showable (columns) | median dev px | "
+            "silhouette share | cells across | "
+            "missed columns: terrain above / end cell / interior | wavelet energy ratio | "
+            "roughness m | status |\n")
+    f.write("|" + " --- |" * 16 + "\n")
+    for r in rows:
+        ll = r.get("lonlat", ["", ""])
+        shown = (f"{fmt(r.get('fit_showable'), '.3f', '-')} ({r['showable_columns']})"
+                 if "showable_columns" in r else "")
+        f.write(f"| {r['dem'][:-4]} | {'yes' if r['held_out'] else 'no (tuned)'} | {r['style']} | "
+                f"{r['distance_m'] / 1000:.0f} km | {ll[0]}, {ll[1]}, {r.get('heading', '')} | "
+                f"{r.get('bump_px', '')} | {fmt(r.get('fit_before'), '.2f')} | "
+                f"{fmt(r.get('fit_after'), '.3f')} | {shown} | {fmt(r.get('median_dev_px'), '.2f')} | "
+                f"{fmt(r.get('silhouette_share'), '.2f')} | "
+                f"{fmt(r.get('cells_across'), '.1f')} | {miss_cell(r)} | {energy_cell(r)} | "
+                f"{fmt(r.get('roughness_m'), '.2f')} | {r['status']} |\n")
+    summary(f, measured, rows)
+    jagged_ratios(f, rows)
+
+
+def summary(f, measured, rows):
+    """Counts of landforms fitted >= 0.95, by the old measure (all the
+    stroke's columns) and over the showable columns, all styles and the
+    original six."""
+    for label, sel in (("the original six styles", [r for r in measured
+                                                     if r["style"] in ORIGINAL_STYLES]),
+                       ("all styles", measured)):
+        if not sel:
+            continue
+        fits = [r["fit_after"] for r in sel]
+        shows = [r["fit_showable"] for r in sel if r.get("fit_showable") is not None]
+        ok = [r["fit_after"] for r in sel if r["status"] == "ok"]
+        f.write(f"\n{label}: {sum(x >= 0.95 for x in fits)} of {len(fits)} measured landforms fitted "
+                f">= 0.95 over all the stroke's columns (min {min(fits):.2f}, median "
+                f"{sorted(fits)[len(fits) // 2]:.2f}); over the showable columns "
+                f"{sum(x >= 0.95 for x in shows)} of {len(shows)} (median "
+                f"{sorted(shows)[len(shows) // 2]:.2f}); {len(ok)} with status ok "
+                f"(showable >= 95%): {sum(x >= 0.95 for x in ok)} >= 0.95.\n")
+    f.write(f"{len(rows) - len(measured)} cases not measured (no ground at that distance).\n")
+
+
+def jagged_ratios(f, rows):
+    """Per DEM and distance, each jagged style against its smooth
+    counterpart (JAGGED_PAIRS): both wavelet energy ratios and the
+    roughness ratio on the DEM."""
+    by = {(r["dem"], r["distance_m"], r["style"]): r for r in rows if "fit_after" in r}
+    f.write("\n| DEM | distance | jagged style | cells across | wavelet energy ratio jagged / smooth | "
+            "roughness m jagged / smooth | roughness ratio |\n")
+    f.write("|" + " --- |" * 7 + "\n")
+    for (dem, D, style), r in by.items():
+        if style not in JAGGED_PAIRS:
+            continue
+        s = by.get((dem, D, JAGGED_PAIRS[style]))
+        if s is None:
+            continue
+        rj, rs = r.get("roughness_m"), s.get("roughness_m")
+        ratio = rj / rs if rj is not None and rs else None
+        f.write(f"| {dem[:-4]} | {D / 1000:.0f} km | {style} vs {JAGGED_PAIRS[style]} | "
+                f"{r['cells_across']:.1f} | {energy_cell(r)} / {energy_cell(s)} | "
+                f"{fmt(rj, '.2f')} / {fmt(rs, '.2f')} | {fmt(ratio, '.2f')} |\n")
 
 if __name__ == "__main__":
     main()
