@@ -40,6 +40,8 @@ FIXTURES = [
     "vinschgau_250m_utm32n.tif",
 ]
 TUNED = {"zion_srtm_utm12n.tif"}
+# where the strokes' feet stand (--feet): "hillside" or "crest", see ground_rows
+FEET = "hillside"
 # style: (column span px, bump height px, shape)
 STYLES = {
     "smooth": (120, 40, "bump"),
@@ -76,16 +78,22 @@ def shape(kind, t):
     raise ValueError(kind)
 
 
-def ground_rows(depth, D):
+def ground_rows(depth, D, feet="hillside", cell_m=0.0):
     """Per column: a row (centre) where the judge sees terrain at depth
-    D..1.25 D, inside a run of at least 9 such rows and 4 rows from its ends
-    (not on an occlusion boundary), NaN if none; and the top of the nearer
-    terrain (depth < 0.8 D)."""
+    D..1.25 D, inside a run of at least 9 such rows, NaN if none; and the
+    top of the nearer terrain (depth < 0.8 D). feet "hillside" (the
+    original cases): 4 rows from the run's ends (not on an occlusion
+    boundary), at the depth nearest 1.1 D. feet "crest": the bottom edge
+    of the run's top row (so the end pixel shows the ground in any
+    renderer), where the row above shows sky or terrain at least 5% and a
+    cell farther (a foot on a visible crest, so the stroke can show from
+    its first column), NaN if the run's top is not such a crest."""
     at = np.full(W, np.nan)
     near_top = np.full(W, float(H))
     for c in range(W):
         col = depth[:, c]
         run = []
+        above = math.inf
         for y in range(H - 1, -1, -1):
             d = col[y]
             if d < 0.8 * D:
@@ -93,13 +101,20 @@ def ground_rows(depth, D):
             if D <= d <= 1.25 * D:
                 run.append(y)
             elif run:
+                above = d
                 break
             if math.isinf(d):
                 break
-        if len(run) >= 9:
-            inner = run[4:-4]
-            y = min(inner, key=lambda yy: abs(col[yy] - 1.1 * D))
-            at[c] = y + 0.5
+        if len(run) < 9:
+            continue
+        if feet == "crest":
+            top = col[run[-1]]
+            if above >= max(1.05 * top, top + cell_m):
+                at[c] = run[-1] + 1.0
+            continue
+        inner = run[4:-4]
+        y = min(inner, key=lambda yy: abs(col[yy] - 1.1 * D))
+        at[c] = y + 0.5
     return at, near_top
 
 
@@ -189,7 +204,7 @@ def save_pictures(dem, out, pts, view, prefix):
 
 def run_case(dem_path, dem, view, style, D, tmp, pictures=None):
     score, lon, lat, heading, depth = view
-    rows, near_top = ground_rows(depth, D)
+    rows, near_top = ground_rows(depth, D, FEET, dem.cell_m)
     ok = np.isfinite(rows)
     # the stroke's middle column: the most central one with both ends on ground
     span = STYLES[style][0]
@@ -393,7 +408,11 @@ def main():
     ap.add_argument("--keep")
     ap.add_argument("--pictures", help="save the judge's before/after renders of each case here")
     ap.add_argument("--from-json", help="write --md from an earlier --json run")
+    ap.add_argument("--feet", choices=("hillside", "crest"), default="hillside",
+                    help="where the strokes' feet stand (see ground_rows)")
     a = ap.parse_args()
+    global FEET
+    FEET = a.feet
     rows = []
     if a.from_json:
         with open(a.from_json) as f:
@@ -412,7 +431,7 @@ def main():
                     tmp = os.path.join(a.keep, f"{name[:-4]}_{style}_{int(D)}")
                     os.makedirs(tmp, exist_ok=True)
                 res = run_case(path, dem, view, style, D, tmp, a.pictures)
-                res.update({"dem": name, "style": style, "distance_m": D,
+                res.update({"dem": name, "style": style, "distance_m": D, "feet": FEET,
                             "held_out": name not in TUNED})
                 rows.append(res)
                 print(json.dumps(res), flush=True)
