@@ -258,7 +258,9 @@ def run_case(dem_path, dem, view, style, D, tmp, pictures=None):
     dev = res.pop("dev_by_column", {})
     res.update(misses(dem, depth, pts, dev))
     res.update(showable_fit(dem, depth, pts, dev))
-    res["roughness_m"] = roughness(dem, judge.Dem(out))
+    after = judge.Dem(out)
+    res["roughness_m"] = roughness(dem, after)
+    res["dem_energy_ratio"] = dem_energy_ratio(after, lf.get("landform", {}).get("shadow"))
     if pictures:
         save_pictures(dem, out, pts, view,
                       os.path.join(pictures, f"{os.path.basename(dem_path)[:-4]}_{style}_{int(D)}"))
@@ -335,6 +337,66 @@ def roughness(before, after):
     hp = w - blur(w, ROUGH_SIGMA_CELLS)
     m = changed[y0:y1, x0:x1]
     return float(np.sqrt(np.mean(hp[m] ** 2)))
+
+
+DEM_BAND_STEPS = (1, 2, 4)
+
+
+def atrous(v, step):
+    """One level of the binomial a-trous pyramid, [1, 4, 6, 4, 1] / 16 with
+    taps step apart, the ends extended by point reflection (as
+    src/correct/wavelet_noise.rs smooth does)."""
+    n = len(v)
+    idx = np.arange(n)
+
+    def at(i):
+        i = np.asarray(i)
+        lo = np.clip(-i, 0, n - 1)
+        hi = np.clip(2 * (n - 1) - i, 0, n - 1)
+        return np.where(i < 0, 2 * v[0] - v[lo],
+                        np.where(i >= n, 2 * v[-1] - v[hi], v[np.clip(i, 0, n - 1)]))
+    return (at(idx - 2 * step) + 4 * at(idx - step) + 6 * at(idx) + 4 * at(idx + step)
+            + at(idx + 2 * step)) / 16.0
+
+
+def dem_energy_ratio(after, shadow):
+    """The wavelet energy ratio of the landform's crest measured on the
+    DEM: the after-DEM's bilinear heights along the report's shadow (the
+    silhouette's ground track; the landform passes through the placed
+    silhouette there), every half cell, decomposed by the a-trous pyramid
+    into detail bands of 1, 2 and 4 cells (DEM_BAND_STEPS); their energy
+    over the variance of what is left (the landform's shape). Unlike the
+    report's noise.detail_energy_ratio it is not limited to a sixteenth
+    of the stroke's length. None without a shadow or with under 16
+    samples."""
+    if not shadow or len(shadow.get("coordinates", [])) < 2:
+        return None
+    gt = after.gt
+    px = [((x - gt[0]) / gt[1], (y - gt[3]) / gt[5]) for x, y in shadow["coordinates"]]
+    seg = [math.hypot((b[0] - a[0]) * after.cell_x_m, (b[1] - a[1]) * after.cell_y_m)
+           for a, b in zip(px[:-1], px[1:])]
+    cum = np.concatenate([[0.0], np.cumsum(seg)])
+    ds = 0.5 * after.cell_m
+    ss = np.arange(0.0, cum[-1], ds)
+    if len(ss) < 16:
+        return None
+    xs = np.interp(ss, cum, [p[0] for p in px]) - 0.5
+    ys = np.interp(ss, cum, [p[1] for p in px]) - 0.5
+    x0 = np.clip(np.floor(xs).astype(int), 0, after.nx - 2)
+    y0 = np.clip(np.floor(ys).astype(int), 0, after.ny - 2)
+    fx, fy = xs - x0, ys - y0
+    h = after.h
+    z = ((1 - fx) * (1 - fy) * h[y0, x0] + fx * (1 - fy) * h[y0, x0 + 1]
+         + (1 - fx) * fy * h[y0 + 1, x0] + fx * fy * h[y0 + 1, x0 + 1])
+    if not np.isfinite(z).all():
+        return None
+    level, detail = z, 0.0
+    for step in DEM_BAND_STEPS:
+        nxt = atrous(level, step)
+        detail += float(np.mean((level - nxt) ** 2))
+        level = nxt
+    shape_var = float(np.var(level))
+    return detail / shape_var if shape_var > 0 else None
 
 
 def misses(dem, depth, pts, dev_by_column):
@@ -498,9 +560,10 @@ def jagged_ratios(f, rows):
     counterpart (JAGGED_PAIRS): both wavelet energy ratios and the
     roughness ratio on the DEM."""
     by = {(r["dem"], r["distance_m"], r["style"]): r for r in rows if "fit_after" in r}
-    f.write("\n| DEM | distance | jagged style | cells across | wavelet energy ratio jagged / smooth | "
+    f.write("\n| DEM | distance | jagged style | cells across | wavelet energy ratio (report) jagged / smooth | "
+            "wavelet energy ratio on the DEM jagged / smooth | "
             "roughness m jagged / smooth | roughness ratio |\n")
-    f.write("|" + " --- |" * 7 + "\n")
+    f.write("|" + " --- |" * 8 + "\n")
     for (dem, D, style), r in by.items():
         if style not in JAGGED_PAIRS:
             continue
@@ -511,6 +574,7 @@ def jagged_ratios(f, rows):
         ratio = rj / rs if rj is not None and rs else None
         f.write(f"| {dem[:-4]} | {D / 1000:.0f} km | {style} vs {JAGGED_PAIRS[style]} | "
                 f"{r['cells_across']:.1f} | {energy_cell(r)} / {energy_cell(s)} | "
+                f"{fmt(r.get('dem_energy_ratio'), '.2e')} / {fmt(s.get('dem_energy_ratio'), '.2e')} | "
                 f"{fmt(rj, '.2f')} / {fmt(rs, '.2f')} | {fmt(ratio, '.2f')} |\n")
 
 if __name__ == "__main__":
