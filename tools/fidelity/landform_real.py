@@ -159,6 +159,12 @@ def draw(style, D, rows, near_top, c_mid, dem):
                 need = max(need, (b + tooth - top) / s)
     hpx = min(need, 150.0)
     ys = base - hpx * sh + teeth
+    if FEET == "crest":
+        # the first and last points (half a pixel in from the end columns)
+        # on the foot row: the dome, steep at its feet, starts 4.4 px
+        # above it, on the hillside with hillside feet but in the sky
+        # above a crest
+        ys[0], ys[-1] = base[0], base[-1]
     if kind == "jag":
         for k in range(1, len(ys) - 1):
             ys[k] += 3.0 if (k // 3) % 2 else -3.0
@@ -552,7 +558,10 @@ def summary(f, measured, rows):
                 f"{sum(x >= 0.95 for x in shows)} of {len(shows)} (median "
                 f"{sorted(shows)[len(shows) // 2]:.2f}); {len(ok)} with status ok "
                 f"(showable >= 95%): {sum(x >= 0.95 for x in ok)} >= 0.95.\n")
-    f.write(f"{len(rows) - len(measured)} cases not measured (no ground at that distance).\n")
+    unmeasured = [r for r in rows if "fit_after" not in r]
+    no_ground = sum(r["status"] == "no ground at this distance" for r in unmeasured)
+    f.write(f"{len(unmeasured)} cases not measured: {no_ground} with no ground at that distance "
+            f"in the chosen view, {len(unmeasured) - no_ground} refused by demsketch (status).\n")
 
 
 def jagged_ratios(f, rows):
