@@ -55,7 +55,12 @@
 //! terrain just above it, which a landform that never digs cannot hide),
 //! and the corner where the stroke leaves the ground, which falls between
 //! two cell centres. A chord-safe hold of the cells there was tried and
-//! not kept (`tools/fidelity/experiments/landform_chord_safe_hold.patch`).
+//! not kept (`tools/fidelity/experiments/landform_chord_safe_hold.patch`),
+//! nor was holding the cells beyond a stroke's ends under its rise
+//! extended past them (`landform_foot_lines.patch`: one foot fitted, the
+//! held-out Zion 90 m tests lost). Strokes whose feet stand on a visible
+//! crest (`landform_real.py --feet crest`), showable from their first
+//! column, miss only there and, for sharp peaks, at the peak.
 //!
 //! A `noise_region` (region mode, section 3.3) adds the noise of its
 //! `noise_stroke` (placed the same way, for its scale in metres; it is not
