@@ -15,6 +15,16 @@ the landform can be seen at all). `demsketch correct DEM --features F
 --sketch S` builds the landform (default shadow and boundary) and
 `landform_fit.py`'s measure (judge.fit, 1 px) is taken on the after-DEM.
 The DEM used for tuning is listed in TUNED; the others are held out.
+
+--feet hillside (the original cases) puts the strokes' ends 4 rows inside
+a run of ground; --feet crest on a visible crest (the row above shows sky
+or terrain at least 5% and a cell farther), as a person adds a peak or a
+ridge on a ridge line. Besides the judge's fit over all the stroke's
+columns, each case reports the fit over the columns the stroke can show
+(showable_fit), the landform's roughness on the DEM (roughness) and the
+wavelet energy ratio of its crest measured on the DEM (dem_energy_ratio);
+the Markdown ends with the jagged styles' ratios against their smooth
+counterparts (JAGGED_PAIRS). docs/landform_real.md says what each means.
 """
 import argparse
 import json
