@@ -14,7 +14,8 @@
 //! Polygon (from the report, edited in map view) gives the same terrain; a
 //! noise region roughens its polygon only; bad references fail with one
 //! line naming the feature and write nothing; a 4 x 4 tile set gives the
-//! single-file result within 1e-3 m.
+//! single-file result within 1e-3 m; a stroke ending half a pixel above
+//! a crest stands on it.
 
 mod common;
 mod correct_support;
@@ -769,4 +770,43 @@ fn a_landform_whose_ends_lie_near_weak_depth_steps_is_placed_on_the_ground_its_e
     println!("judge, Arenal 30 m smooth bump at 1 km: {fit}");
     assert!(fit["fit_before"].as_f64().unwrap() < 0.2, "{fit}");
     assert!(fit["fit_after"].as_f64().unwrap() >= 0.85, "{fit}");
+}
+
+/// An arc from image column 220.5 to 420.5, its ends on rows `y0` and
+/// `y1`, rising 60 px between them.
+fn arc(y0: f64, y1: f64) -> Vec<[f64; 2]> {
+    (0..=100)
+        .map(|k| {
+            let x = 220.5 + 2.0 * k as f64;
+            let t = (x - 320.5) / 100.0;
+            [x, y0 + (y1 - y0) * k as f64 / 100.0 - 60.0 * (1.0 - t * t)]
+        })
+        .collect()
+}
+
+/// A stroke ending half a pixel above a crest (here the plain's far edge,
+/// the horizon at rows 203-204 about 4.7 km away) stands on the terrain
+/// just below its end pixels, which show sky (`END_SNAP_PX`; the edit's
+/// end test refuses both ends, next to a boundary), and the judge fits its
+/// landform; one ending 3.5 px above the crest is still refused. Found on
+/// the real fixtures: strokes drawn on a crest's top rows were refused
+/// although the judge sees ground under their ends (docs/landform_real.md).
+#[test]
+fn a_stroke_ending_just_above_a_crest_stands_on_it() {
+    let case = Case::new();
+    let mut sk = sketch();
+    let strokes = sk["views"][0]["strokes"].as_array_mut().unwrap();
+    strokes.push(json!({"id": "crest", "points": arc(202.5, 203.5)}));
+    strokes.push(json!({"id": "above", "points": arc(199.5, 200.5)}));
+    std::fs::write(case.path("sketch.json"), sk.to_string()).unwrap();
+    case.ok("crest", vec![landform("crest", "crest", Value::Null)]);
+    let fit = case.judge("crest", "crest");
+    eprintln!("judge, stroke ending 0.5 px above the horizon: {fit}");
+    assert!(fit["fit_after"].as_f64().unwrap() >= 0.95, "{fit}");
+    expect_failure(
+        &case,
+        true,
+        landform("bad", "above", Value::Null),
+        "neither end stands on terrain",
+    );
 }

@@ -15,6 +15,16 @@ the landform can be seen at all). `demsketch correct DEM --features F
 --sketch S` builds the landform (default shadow and boundary) and
 `landform_fit.py`'s measure (judge.fit, 1 px) is taken on the after-DEM.
 The DEM used for tuning is listed in TUNED; the others are held out.
+
+--feet hillside (the original cases) puts the strokes' ends 4 rows inside
+a run of ground; --feet crest on a visible crest (the row above shows sky
+or terrain at least 5% and a cell farther), as a person adds a peak or a
+ridge on a ridge line. Besides the judge's fit over all the stroke's
+columns, each case reports the fit over the columns the stroke can show
+(showable_fit), the landform's roughness on the DEM (roughness) and the
+wavelet energy ratio of its crest measured on the DEM (dem_energy_ratio);
+the Markdown ends with the jagged styles' ratios against their smooth
+counterparts (JAGGED_PAIRS). docs/landform_real.md says what each means.
 """
 import argparse
 import json
@@ -40,6 +50,8 @@ FIXTURES = [
     "vinschgau_250m_utm32n.tif",
 ]
 TUNED = {"zion_srtm_utm12n.tif"}
+# where the strokes' feet stand (--feet): "hillside" or "crest", see ground_rows
+FEET = "hillside"
 # style: (column span px, bump height px, shape)
 STYLES = {
     "smooth": (120, 40, "bump"),
@@ -48,15 +60,26 @@ STYLES = {
     "short": (50, 25, "bump"),
     "asym": (140, 45, "asym"),
     "dome": (160, 40, "dome"),
+    # teeth spanning several DEM cells at the landform's distance (what a
+    # person drawing rough terrain at that range means): see cell_teeth
+    "jagged_cells": (120, 40, "bump_teeth"),
+    "long_jagged_cells": (300, 30, "ridge_teeth"),
 }
+ORIGINAL_STYLES = ("smooth", "jagged", "long", "short", "asym", "dome")
+# jagged style -> its smooth counterpart, for the roughness ratios
+JAGGED_PAIRS = {"jagged": "smooth", "jagged_cells": "smooth", "long_jagged_cells": "long"}
+# cell teeth: period in DEM cells at the landform's distance, and the
+# teeth's amplitude as a share of the period (0.25: flanks at 45 degrees)
+TOOTH_PERIOD_CELLS = 4.0
+TOOTH_AMPLITUDE = 0.25
 DISTANCES = [1000.0, 2000.0, 3000.0]
 
 
 def shape(kind, t):
     """Height share at t in [0, 1] (0 at both ends)."""
-    if kind in ("bump", "jag"):
+    if kind in ("bump", "jag", "bump_teeth"):
         return 1.0 - (2 * t - 1) ** 2
-    if kind == "ridge":
+    if kind in ("ridge", "ridge_teeth"):
         return min(1.0, 4 * t, 4 * (1 - t))
     if kind == "dome":
         return math.sqrt(max(0.0, 1.0 - (2 * t - 1) ** 2))
@@ -65,16 +88,22 @@ def shape(kind, t):
     raise ValueError(kind)
 
 
-def ground_rows(depth, D):
+def ground_rows(depth, D, feet="hillside", cell_m=0.0):
     """Per column: a row (centre) where the judge sees terrain at depth
-    D..1.25 D, inside a run of at least 9 such rows and 4 rows from its ends
-    (not on an occlusion boundary), NaN if none; and the top of the nearer
-    terrain (depth < 0.8 D)."""
+    D..1.25 D, inside a run of at least 9 such rows, NaN if none; and the
+    top of the nearer terrain (depth < 0.8 D). feet "hillside" (the
+    original cases): 4 rows from the run's ends (not on an occlusion
+    boundary), at the depth nearest 1.1 D. feet "crest": the bottom edge
+    of the run's top row (so the end pixel shows the ground in any
+    renderer), where the row above shows sky or terrain at least 5% and a
+    cell farther (a foot on a visible crest, so the stroke can show from
+    its first column), NaN if the run's top is not such a crest."""
     at = np.full(W, np.nan)
     near_top = np.full(W, float(H))
     for c in range(W):
         col = depth[:, c]
         run = []
+        above = math.inf
         for y in range(H - 1, -1, -1):
             d = col[y]
             if d < 0.8 * D:
@@ -82,17 +111,44 @@ def ground_rows(depth, D):
             if D <= d <= 1.25 * D:
                 run.append(y)
             elif run:
+                above = d
                 break
             if math.isinf(d):
                 break
-        if len(run) >= 9:
-            inner = run[4:-4]
-            y = min(inner, key=lambda yy: abs(col[yy] - 1.1 * D))
-            at[c] = y + 0.5
+        if len(run) < 9:
+            continue
+        if feet == "crest":
+            top = col[run[-1]]
+            if above >= max(1.05 * top, top + cell_m):
+                at[c] = run[-1] + 1.0
+            continue
+        inner = run[4:-4]
+        y = min(inner, key=lambda yy: abs(col[yy] - 1.1 * D))
+        at[c] = y + 0.5
     return at, near_top
 
 
-def draw(style, D, rows, near_top, c_mid):
+def cell_px(dem, D):
+    """A DEM cell's width in the image at 1.1 D (where the stroke's ends
+    stand), pixels."""
+    f = (W / 2.0) / math.tan(math.radians(HFOV) / 2.0)
+    return f * dem.cell_m / (1.1 * D)
+
+
+def cell_teeth(xs, sh, dem, D):
+    """Teeth spanning several cells at the landform's distance: a triangle
+    wave of period TOOTH_PERIOD_CELLS cells (at least 12 px, the old
+    jagged stroke's), amplitude TOOTH_AMPLITUDE of the period, tapered in
+    with the shape over its lower half so the feet stay on the ground
+    (image px, positive down)."""
+    period = max(12.0, TOOTH_PERIOD_CELLS * cell_px(dem, D))
+    amp = TOOTH_AMPLITUDE * period
+    u = (xs - xs[0]) / period
+    tri = 1.0 - 4.0 * np.abs(u - np.floor(u) - 0.5)
+    return amp * tri * np.minimum(1.0, sh / 0.5)
+
+
+def draw(style, D, rows, near_top, c_mid, dem):
     span, hpx, kind = STYLES[style]
     c0, c1 = c_mid - span // 2, c_mid + span // 2
     if c0 < 5 or c1 > W - 5 or math.isnan(rows[c0]) or math.isnan(rows[c1]):
@@ -103,15 +159,22 @@ def draw(style, D, rows, near_top, c_mid):
     ts = (xs - c0) / (c1 - c0)
     base = y0 + ts * (y1 - y0)
     sh = np.array([shape(kind, t) for t in ts])
+    teeth = cell_teeth(xs, sh, dem, D) if kind.endswith("_teeth") else np.zeros_like(xs)
     # raise the bump until it clears the nearer terrain by 3 px
     need = hpx
-    for x, b, s in zip(xs, base, sh):
+    for x, b, s, tooth in zip(xs, base, sh, teeth):
         if s > 0.2:
             top = near_top[int(x)] - 3.0
-            if b - hpx * s > top:
-                need = max(need, (b - top) / s)
+            if b + tooth - hpx * s > top:
+                need = max(need, (b + tooth - top) / s)
     hpx = min(need, 150.0)
-    ys = base - hpx * sh
+    ys = base - hpx * sh + teeth
+    if FEET == "crest":
+        # the first and last points (half a pixel in from the end columns)
+        # on the foot row: the dome, steep at its feet, starts 4.4 px
+        # above it, on the hillside with hillside feet but in the sky
+        # above a crest
+        ys[0], ys[-1] = base[0], base[-1]
     if kind == "jag":
         for k in range(1, len(ys) - 1):
             ys[k] += 3.0 if (k // 3) % 2 else -3.0
@@ -157,7 +220,7 @@ def save_pictures(dem, out, pts, view, prefix):
 
 def run_case(dem_path, dem, view, style, D, tmp, pictures=None):
     score, lon, lat, heading, depth = view
-    rows, near_top = ground_rows(depth, D)
+    rows, near_top = ground_rows(depth, D, FEET, dem.cell_m)
     ok = np.isfinite(rows)
     # the stroke's middle column: the most central one with both ends on ground
     span = STYLES[style][0]
@@ -168,7 +231,7 @@ def run_case(dem_path, dem, view, style, D, tmp, pictures=None):
             break
     else:
         return {"status": "no ground at this distance"}
-    drawn = draw(style, D, rows, near_top, cm)
+    drawn = draw(style, D, rows, near_top, cm, dem)
     if drawn is None:
         return {"status": "no ground at this distance"}
     pts, hpx = drawn
@@ -208,7 +271,12 @@ def run_case(dem_path, dem, view, style, D, tmp, pictures=None):
         return res
     res.update(json.loads(fo.stdout))
     res.update(resolvable(dem, depth, pts, D))
-    res.update(misses(dem, depth, pts, res.pop("dev_by_column", {})))
+    dev = res.pop("dev_by_column", {})
+    res.update(misses(dem, depth, pts, dev))
+    res.update(showable_fit(dem, depth, pts, dev))
+    after = judge.Dem(out)
+    res["roughness_m"] = roughness(dem, after)
+    res["dem_energy_ratio"] = dem_energy_ratio(after, lf.get("landform", {}).get("shadow"))
     if pictures:
         save_pictures(dem, out, pts, view,
                       os.path.join(pictures, f"{os.path.basename(dem_path)[:-4]}_{style}_{int(D)}"))
@@ -232,6 +300,119 @@ def terrain_above_ok(dem, depth, pts):
         d = depth[y, c] if 0 <= y < H else math.inf
         out[c] = bool(d >= max(1.05 * d_end, d_end + dem.cell_m))
     return out
+
+
+def showable_fit(dem, depth, pts, dev_by_column):
+    """The fit over the columns the stroke can show: those where the
+    before render shows sky, or terrain at least 5% and a cell farther
+    than the stroke's ends' ground, just above the stroke
+    (terrain_above_ok). Elsewhere nearer terrain, or ground behind the foot
+    too close for the judge to count a boundary, stands just above the
+    stroke: a landform that does not lower what the user did not draw
+    cannot show a silhouette there. None if no column is showable."""
+    ok = terrain_above_ok(dem, depth, pts)
+    shown = [c for c, good in ok.items() if good]
+    if not shown:
+        return {"fit_showable": None, "showable_columns": 0}
+    hit = sum(1 for c in shown
+              if dev_by_column.get(str(c)) is not None and dev_by_column[str(c)] <= 1.0)
+    return {"fit_showable": hit / len(shown), "showable_columns": len(shown)}
+
+
+def blur(a, sigma):
+    """Gaussian blur of a 2D array (NaN-free), separable, reflecting edges."""
+    r = max(1, int(math.ceil(3 * sigma)))
+    k = np.exp(-0.5 * (np.arange(-r, r + 1) / sigma) ** 2)
+    k /= k.sum()
+    for axis in (0, 1):
+        pad = [(0, 0), (0, 0)]
+        pad[axis] = (r, r)
+        b = np.pad(a, pad, mode="reflect")
+        a = sum(k[i] * np.take(b, range(i, i + a.shape[axis]), axis=axis)
+                for i in range(2 * r + 1))
+    return a
+
+
+ROUGH_SIGMA_CELLS = 1.5
+
+
+def roughness(before, after):
+    """Terrain roughness of a landform, measured on the DEM: the RMS over
+    the cells it changed of its height change minus that change blurred
+    by a Gaussian of ROUGH_SIGMA_CELLS cells (the detail at 1-4 cells, the
+    scales a cell-teeth stroke draws), metres. None if nothing changed."""
+    dz = after.h - before.h
+    changed = np.isfinite(dz) & (dz != 0)
+    if not changed.any():
+        return None
+    ys, xs = np.nonzero(changed)
+    pad = int(4 * ROUGH_SIGMA_CELLS) + 2
+    y0, y1 = max(0, ys.min() - pad), min(dz.shape[0], ys.max() + pad + 1)
+    x0, x1 = max(0, xs.min() - pad), min(dz.shape[1], xs.max() + pad + 1)
+    w = np.nan_to_num(dz[y0:y1, x0:x1])
+    hp = w - blur(w, ROUGH_SIGMA_CELLS)
+    m = changed[y0:y1, x0:x1]
+    return float(np.sqrt(np.mean(hp[m] ** 2)))
+
+
+DEM_BAND_STEPS = (1, 2, 4)
+
+
+def atrous(v, step):
+    """One level of the binomial a-trous pyramid, [1, 4, 6, 4, 1] / 16 with
+    taps step apart, the ends extended by point reflection (as
+    src/correct/wavelet_noise.rs smooth does)."""
+    n = len(v)
+    idx = np.arange(n)
+
+    def at(i):
+        i = np.asarray(i)
+        lo = np.clip(-i, 0, n - 1)
+        hi = np.clip(2 * (n - 1) - i, 0, n - 1)
+        return np.where(i < 0, 2 * v[0] - v[lo],
+                        np.where(i >= n, 2 * v[-1] - v[hi], v[np.clip(i, 0, n - 1)]))
+    return (at(idx - 2 * step) + 4 * at(idx - step) + 6 * at(idx) + 4 * at(idx + step)
+            + at(idx + 2 * step)) / 16.0
+
+
+def dem_energy_ratio(after, shadow):
+    """The wavelet energy ratio of the landform's crest measured on the
+    DEM: the after-DEM's bilinear heights along the report's shadow (the
+    silhouette's ground track; the landform passes through the placed
+    silhouette there), every half cell, decomposed by the a-trous pyramid
+    into detail bands of 1, 2 and 4 cells (DEM_BAND_STEPS); their energy
+    over the variance of what is left (the landform's shape). Unlike the
+    report's noise.detail_energy_ratio it is not limited to a sixteenth
+    of the stroke's length. None without a shadow or with under 16
+    samples."""
+    if not shadow or len(shadow.get("coordinates", [])) < 2:
+        return None
+    gt = after.gt
+    px = [((x - gt[0]) / gt[1], (y - gt[3]) / gt[5]) for x, y in shadow["coordinates"]]
+    seg = [math.hypot((b[0] - a[0]) * after.cell_x_m, (b[1] - a[1]) * after.cell_y_m)
+           for a, b in zip(px[:-1], px[1:])]
+    cum = np.concatenate([[0.0], np.cumsum(seg)])
+    ds = 0.5 * after.cell_m
+    ss = np.arange(0.0, cum[-1], ds)
+    if len(ss) < 16:
+        return None
+    xs = np.interp(ss, cum, [p[0] for p in px]) - 0.5
+    ys = np.interp(ss, cum, [p[1] for p in px]) - 0.5
+    x0 = np.clip(np.floor(xs).astype(int), 0, after.nx - 2)
+    y0 = np.clip(np.floor(ys).astype(int), 0, after.ny - 2)
+    fx, fy = xs - x0, ys - y0
+    h = after.h
+    z = ((1 - fx) * (1 - fy) * h[y0, x0] + fx * (1 - fy) * h[y0, x0 + 1]
+         + (1 - fx) * fy * h[y0 + 1, x0] + fx * fy * h[y0 + 1, x0 + 1])
+    if not np.isfinite(z).all():
+        return None
+    level, detail = z, 0.0
+    for step in DEM_BAND_STEPS:
+        nxt = atrous(level, step)
+        detail += float(np.mean((level - nxt) ** 2))
+        level = nxt
+    shape_var = float(np.var(level))
+    return detail / shape_var if shape_var > 0 else None
 
 
 def misses(dem, depth, pts, dev_by_column):
@@ -305,7 +486,11 @@ def main():
     ap.add_argument("--keep")
     ap.add_argument("--pictures", help="save the judge's before/after renders of each case here")
     ap.add_argument("--from-json", help="write --md from an earlier --json run")
+    ap.add_argument("--feet", choices=("hillside", "crest"), default="hillside",
+                    help="where the strokes' feet stand (see ground_rows)")
     a = ap.parse_args()
+    global FEET
+    FEET = a.feet
     rows = []
     if a.from_json:
         with open(a.from_json) as f:
@@ -324,7 +509,7 @@ def main():
                     tmp = os.path.join(a.keep, f"{name[:-4]}_{style}_{int(D)}")
                     os.makedirs(tmp, exist_ok=True)
                 res = run_case(path, dem, view, style, D, tmp, a.pictures)
-                res.update({"dem": name, "style": style, "distance_m": D,
+                res.update({"dem": name, "style": style, "distance_m": D, "feet": FEET,
                             "held_out": name not in TUNED})
                 rows.append(res)
                 print(json.dumps(res), flush=True)
@@ -332,32 +517,84 @@ def main():
         with open(a.json, "w") as f:
             json.dump(rows, f, indent=1)
     if a.md:
-        measured = [r for r in rows if "fit_after" in r]
-        fits = [r["fit_after"] for r in measured]
-        normal = [r["fit_after"] for r in measured if r["status"] == "ok"]
         with open(a.md, "w") as f:
-            f.write("| DEM | held out | stroke | distance | view (lon, lat, heading) | bump px | "
-                    "fit before | fit after | median dev px | silhouette share | cells across | "
-                    "missed columns: terrain above / end cell / interior | wavelet energy ratio | status |\n")
-            f.write("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n")
-            for r in rows:
-                ll = r.get("lonlat", ["", ""])
-                f.write(f"| {r['dem'][:-4]} | {'yes' if r['held_out'] else 'no (tuned)'} | {r['style']} | "
-                        f"{r['distance_m'] / 1000:.0f} km | {ll[0]}, {ll[1]}, {r.get('heading', '')} | "
-                        f"{r.get('bump_px', '')} | {r.get('fit_before', float('nan')):.2f} | "
-                        f"{r.get('fit_after', float('nan')):.3f} | {r.get('median_dev_px') or float('nan'):.2f} | "
-                        f"{r.get('silhouette_share', float('nan')):.2f} | "
-                        f"{r.get('cells_across', float('nan')):.1f} | {miss_cell(r)} | {energy_cell(r)} | {r['status']} |\n")
-            if fits:
-                f.write(f"\n{sum(x >= 0.95 for x in fits)} of {len(fits)} measured landforms fitted "
-                        f">= 0.95 (min {min(fits):.2f}, median {sorted(fits)[len(fits) // 2]:.2f}); "
-                        f"{len(rows) - len(fits)} not measured.\n")
-                if normal:
-                    f.write(f"Of the {len(normal)} with status ok (the stroke over sky or farther "
-                            f"terrain in >= 95% of its columns): {sum(x >= 0.95 for x in normal)} "
-                            f">= 0.95 (min {min(normal):.2f}, median "
-                            f"{sorted(normal)[len(normal) // 2]:.2f}).\n")
+            write_md(f, rows)
 
+
+def fmt(v, spec, missing=""):
+    """v formatted with spec, or missing when None or NaN."""
+    return missing if v is None or v != v else format(v, spec)
+
+
+def write_md(f, rows):
+    """The table, its summary lines and the jagged/smooth ratios."""
+    measured = [r for r in rows if "fit_after" in r]
+    f.write("| DEM | held out | stroke | distance | view (lon, lat, heading) | bump px | "
+            "fit before | fit after | fit where showable (columns) | median dev px | "
+            "silhouette share | cells across | "
+            "missed columns: terrain above / end cell / interior | wavelet energy ratio | "
+            "roughness m | status |\n")
+    f.write("|" + " --- |" * 16 + "\n")
+    for r in rows:
+        ll = r.get("lonlat", ["", ""])
+        shown = (f"{fmt(r.get('fit_showable'), '.3f', '-')} ({r['showable_columns']})"
+                 if "showable_columns" in r else "")
+        f.write(f"| {r['dem'][:-4]} | {'yes' if r['held_out'] else 'no (tuned)'} | {r['style']} | "
+                f"{r['distance_m'] / 1000:.0f} km | {ll[0]}, {ll[1]}, {r.get('heading', '')} | "
+                f"{r.get('bump_px', '')} | {fmt(r.get('fit_before'), '.2f')} | "
+                f"{fmt(r.get('fit_after'), '.3f')} | {shown} | {fmt(r.get('median_dev_px'), '.2f')} | "
+                f"{fmt(r.get('silhouette_share'), '.2f')} | "
+                f"{fmt(r.get('cells_across'), '.1f')} | {miss_cell(r)} | {energy_cell(r)} | "
+                f"{fmt(r.get('roughness_m'), '.2f')} | {r['status']} |\n")
+    summary(f, measured, rows)
+    jagged_ratios(f, rows)
+
+
+def summary(f, measured, rows):
+    """Counts of landforms fitted >= 0.95, by the old measure (all the
+    stroke's columns) and over the showable columns, all styles and the
+    original six."""
+    for label, sel in (("the original six styles", [r for r in measured
+                                                     if r["style"] in ORIGINAL_STYLES]),
+                       ("all styles", measured)):
+        if not sel:
+            continue
+        fits = [r["fit_after"] for r in sel]
+        shows = [r["fit_showable"] for r in sel if r.get("fit_showable") is not None]
+        ok = [r["fit_after"] for r in sel if r["status"] == "ok"]
+        f.write(f"\n{label}: {sum(x >= 0.95 for x in fits)} of {len(fits)} measured landforms fitted "
+                f">= 0.95 over all the stroke's columns (min {min(fits):.2f}, median "
+                f"{sorted(fits)[len(fits) // 2]:.2f}); over the showable columns "
+                f"{sum(x >= 0.95 for x in shows)} of {len(shows)} (median "
+                f"{sorted(shows)[len(shows) // 2]:.2f}); {len(ok)} with status ok "
+                f"(showable >= 95%): {sum(x >= 0.95 for x in ok)} >= 0.95.\n")
+    unmeasured = [r for r in rows if "fit_after" not in r]
+    no_ground = sum(r["status"] == "no ground at this distance" for r in unmeasured)
+    f.write(f"{len(unmeasured)} cases not measured: {no_ground} with no ground at that distance "
+            f"in the chosen view, {len(unmeasured) - no_ground} refused by demsketch (status).\n")
+
+
+def jagged_ratios(f, rows):
+    """Per DEM and distance, each jagged style against its smooth
+    counterpart (JAGGED_PAIRS): both wavelet energy ratios and the
+    roughness ratio on the DEM."""
+    by = {(r["dem"], r["distance_m"], r["style"]): r for r in rows if "fit_after" in r}
+    f.write("\n| DEM | distance | jagged style | cells across | wavelet energy ratio (report) jagged / smooth | "
+            "wavelet energy ratio on the DEM jagged / smooth | "
+            "roughness m jagged / smooth | roughness ratio |\n")
+    f.write("|" + " --- |" * 8 + "\n")
+    for (dem, D, style), r in by.items():
+        if style not in JAGGED_PAIRS:
+            continue
+        s = by.get((dem, D, JAGGED_PAIRS[style]))
+        if s is None:
+            continue
+        rj, rs = r.get("roughness_m"), s.get("roughness_m")
+        ratio = rj / rs if rj is not None and rs else None
+        f.write(f"| {dem[:-4]} | {D / 1000:.0f} km | {style} vs {JAGGED_PAIRS[style]} | "
+                f"{r['cells_across']:.1f} | {energy_cell(r)} / {energy_cell(s)} | "
+                f"{fmt(r.get('dem_energy_ratio'), '.2e')} / {fmt(s.get('dem_energy_ratio'), '.2e')} | "
+                f"{fmt(rj, '.2f')} / {fmt(rs, '.2f')} | {fmt(ratio, '.2f')} |\n")
 
 if __name__ == "__main__":
     main()
