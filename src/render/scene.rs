@@ -122,12 +122,7 @@ impl Scene {
         camera: &crate::view::Camera,
         reuse: Option<&FarLayers>,
     ) -> Result<Scene, RenderError> {
-        let max_d = max_distance.filter(|d| d.is_finite() && *d > 0.0);
-        let probe = Self::wedge_plan(dem, vp, max_d, k, camera)?.probe;
-        match LodPlan::new(&probe, camera, max_d) {
-            Some(lod) => Self::open_planned_lod(dem, vp, max_d, k, camera, &lod, reuse),
-            None => Self::open_wedge(dem, vp, max_distance, k, camera),
-        }
+        Self::open_lod(dem, vp, max_distance, k, camera, reuse, |_| None)
     }
 
     /// Like [`Scene::open_wedge_lod`] for a picture (`demsketch view`):
@@ -143,11 +138,28 @@ impl Scene {
         k: f64,
         camera: &crate::view::Camera,
     ) -> Result<Scene, RenderError> {
+        Self::open_lod(dem, vp, max_distance, k, camera, None, |plan| {
+            Some(farthest_corner_m(plan))
+        })
+    }
+
+    /// [`Scene::open_wedge_lod`] and [`Scene::open_view_lod`]: the rings
+    /// reach `max_distance`, or without one `unbounded_reach` of the
+    /// wedge's plan (`None`: no rings).
+    fn open_lod(
+        dem: &Dem,
+        vp: &Viewpoint,
+        max_distance: Option<f64>,
+        k: f64,
+        camera: &crate::view::Camera,
+        reuse: Option<&FarLayers>,
+        unbounded_reach: impl Fn(&WedgePlan) -> Option<f64>,
+    ) -> Result<Scene, RenderError> {
         let max_d = max_distance.filter(|d| d.is_finite() && *d > 0.0);
         let plan = Self::wedge_plan(dem, vp, max_d, k, camera)?;
-        let reach = max_d.unwrap_or_else(|| farthest_corner_m(&plan));
-        match LodPlan::new(&plan.probe, camera, Some(reach)) {
-            Some(lod) => Self::open_planned_lod(dem, vp, max_d, k, camera, &lod, None),
+        let reach = max_d.or_else(|| unbounded_reach(&plan));
+        match LodPlan::new(&plan.probe, camera, reach) {
+            Some(lod) => Self::open_planned_lod(dem, vp, max_d, k, camera, &lod, reuse),
             None => Self::open_wedge(dem, vp, max_distance, k, camera),
         }
     }
