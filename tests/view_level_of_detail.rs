@@ -162,16 +162,21 @@ fn far_layers_are_shared_by_a_second_scene() {
     let first = Scene::open_wedge_lod(&dem, &vp, max_d, 1.0 / 7.0, &cam, None).unwrap();
     let layers = first.terrain.far_layers();
     let second = Scene::open_wedge_lod(&dem, &vp, max_d, 1.0 / 7.0, &cam, Some(&layers)).unwrap();
-    let (a, b) = (
-        DepthBuffer::render(&first.terrain, &cam),
-        DepthBuffer::render(&second.terrain, &cam),
+    assert_same_render(&first, &second, &cam);
+}
+
+/// `a` and `b` render the same depths and triangles from `cam`, to the bit.
+fn assert_same_render(a: &Scene, b: &Scene, cam: &Camera) {
+    let (da, db) = (
+        DepthBuffer::render(&a.terrain, cam),
+        DepthBuffer::render(&b.terrain, cam),
     );
-    assert!(a
+    assert!(da
         .depth
         .iter()
-        .zip(&b.depth)
+        .zip(&db.depth)
         .all(|(p, q)| p.to_bits() == q.to_bits()));
-    assert_eq!(a.triangle, b.triangle);
+    assert_eq!(da.triangle, db.triangle);
 }
 
 /// Rings read from the tiles' overviews, where those hold the maxima of
@@ -235,16 +240,7 @@ for path, ov in ((sys.argv[2], False), (sys.argv[3], True)):
     let sa = Scene::open_wedge_lod(&a, &vp, max_d, 1.0 / 7.0, &cam, None).unwrap();
     let sb = Scene::open_wedge_lod(&b, &vp, max_d, 1.0 / 7.0, &cam, None).unwrap();
     assert_eq!(sa.terrain.far_layer_sizes(), sb.terrain.far_layer_sizes());
-    let (da, db) = (
-        DepthBuffer::render(&sa.terrain, &cam),
-        DepthBuffer::render(&sb.terrain, &cam),
-    );
-    assert!(da
-        .depth
-        .iter()
-        .zip(&db.depth)
-        .all(|(p, q)| p.to_bits() == q.to_bits()));
-    assert_eq!(da.triangle, db.triangle);
+    assert_same_render(&sa, &sb, &cam);
 }
 
 /// `demsketch view`'s scene (`Scene::open_view_lod`): without a maximum
