@@ -57,14 +57,7 @@ fn a_view_within_the_exact_reach_is_unchanged() {
     let (dem, vp, cam) = setup();
     let a = Scene::open_wedge(&dem, &vp, Some(15_000.0), 1.0 / 7.0, &cam).unwrap();
     let b = Scene::open_wedge_lod(&dem, &vp, Some(15_000.0), 1.0 / 7.0, &cam, None).unwrap();
-    assert_eq!(a.window_offset, b.window_offset);
-    assert_eq!((a.terrain.nx, a.terrain.ny), (b.terrain.nx, b.terrain.ny));
-    assert!(a
-        .terrain
-        .z
-        .iter()
-        .zip(&b.terrain.z)
-        .all(|(p, q)| p.to_bits() == q.to_bits()));
+    assert_same_terrain(&a, &b);
     assert!(b.terrain.far_layer_sizes().is_empty());
     let (da, db) = (
         DepthBuffer::render(&a.terrain, &cam),
@@ -163,6 +156,18 @@ fn far_layers_are_shared_by_a_second_scene() {
     let layers = first.terrain.far_layers();
     let second = Scene::open_wedge_lod(&dem, &vp, max_d, 1.0 / 7.0, &cam, Some(&layers)).unwrap();
     assert_same_render(&first, &second, &cam);
+}
+
+/// `a` and `b` read the same window into the same terrain, to the bit.
+fn assert_same_terrain(a: &Scene, b: &Scene) {
+    assert_eq!(a.window_offset, b.window_offset);
+    assert_eq!((a.terrain.nx, a.terrain.ny), (b.terrain.nx, b.terrain.ny));
+    assert!(a
+        .terrain
+        .z
+        .iter()
+        .zip(&b.terrain.z)
+        .all(|(p, q)| p.to_bits() == q.to_bits()));
 }
 
 /// `a` and `b` render the same depths and triangles from `cam`, to the bit.
@@ -291,12 +296,5 @@ fn a_view_without_a_distance_reads_the_far_wedge_coarser() {
     let a = Scene::open_wedge(&dem, &vp, None, 1.0 / 7.0, &wide).unwrap();
     let b = Scene::open_view_lod(&dem, &vp, None, 1.0 / 7.0, &wide).unwrap();
     assert!(b.terrain.far_layer_sizes().is_empty());
-    assert_eq!(a.window_offset, b.window_offset);
-    assert_eq!((a.terrain.nx, a.terrain.ny), (b.terrain.nx, b.terrain.ny));
-    assert!(a
-        .terrain
-        .z
-        .iter()
-        .zip(&b.terrain.z)
-        .all(|(p, q)| p.to_bits() == q.to_bits()));
+    assert_same_terrain(&a, &b);
 }

@@ -61,7 +61,7 @@ impl LodPlan {
     /// DEM whose cells `frame` resolves; `None` when the view needs none
     /// (its maximum distance within the exact reach, or not finite).
     pub fn new(frame: &LocalFrame, camera: &Camera, max_d: Option<f64>) -> Option<LodPlan> {
-        let max_d = max_d.filter(|d| d.is_finite() && *d > 0.0)?;
+        let max_d = super::scene::usable_distance(max_d)?;
         let p = frame.p;
         // the longer side of a cell: a coarse cell spans at most a pixel
         // along both
