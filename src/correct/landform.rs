@@ -1155,6 +1155,7 @@ pub fn apply_landform(
     }
     hold(grid, Some(&stencil));
     on_cone(grid, &stencil);
+    ease_landform_spikes(grid, win, &param, &stencil, p.sight.as_ref());
     let (mut changed, mut max_abs) = (0usize, 0f64);
     for r in 0..win.height {
         for c in 0..win.width {
@@ -1174,6 +1175,62 @@ pub fn apply_landform(
         (sum2, count),
         spec,
     ))
+}
+
+/// No spikes in the landform's change (see [`super::spike_easing`]): the
+/// footprint's cells off the silhouette may rise towards a spike up to
+/// their sight bound (they stay hidden under the stroke); the silhouette's
+/// stencil cells give way only where no neighbour can.
+fn ease_landform_spikes(
+    grid: &mut Grid,
+    win: Window,
+    param: &[Option<(f64, f64)>],
+    stencil: &[bool],
+    sight: Option<&Sight>,
+) {
+    let (lc, lr) = (
+        (win.col - grid.window.col) as usize,
+        (win.row - grid.window.row) as usize,
+    );
+    let gw = grid.width();
+    let at = move |i: usize| (i / win.width + lr) * gw + i % win.width + lc;
+    let mut change: Vec<f64> = (0..win.len())
+        .map(|i| grid.values[at(i)] - grid.base.data[at(i)] as f64)
+        .collect();
+    let own: Vec<bool> = param.iter().map(Option::is_some).collect();
+    let movable: Vec<bool> = own.iter().zip(stencil).map(|(&o, &s)| o && !s).collect();
+    let cap: Vec<f64> = (0..win.len())
+        .map(|i| {
+            let bound = sight.map_or(f64::INFINITY, |s| {
+                s.bound(
+                    win.col + (i % win.width) as i64,
+                    win.row + (i / win.width) as i64,
+                )
+            });
+            if bound.is_nan() {
+                // Not projected: not raised.
+                change[i]
+            } else {
+                bound - grid.base.data[at(i)] as f64
+            }
+        })
+        .collect();
+    let mut field = super::spike_easing::ChangeField {
+        width: win.width,
+        height: win.height,
+        change: &mut change,
+        movable: &movable,
+        own: &own,
+        cap: &cap,
+    };
+    if super::spike_easing::ease_spikes(&mut field, grid.cell) == 0 {
+        return;
+    }
+    for (i, &d) in change.iter().enumerate() {
+        if own[i] && !d.is_nan() {
+            grid.values[at(i)] = grid.base.data[at(i)] as f64 + d;
+        }
+    }
 }
 
 /// Applies a noise region (region mode) to `grid`.

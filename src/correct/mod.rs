@@ -28,6 +28,7 @@ pub mod pictures;
 pub mod report;
 pub mod river;
 pub mod sparse_lsq;
+pub mod spike_easing;
 pub mod water;
 pub mod wavelet_noise;
 
