@@ -16,6 +16,7 @@
 //! lowering a neighbour, which can only hide terrain, never show it.
 
 use crate::deform::CellSize;
+use crate::edit::spikes::NEIGHBOURS;
 
 /// The change field being eased: a window of `width` x `height` cells,
 /// row-major. NaN: nodata (neither moved nor compared).
@@ -34,17 +35,6 @@ pub struct ChangeField<'a> {
     /// where none applies).
     pub cap: &'a [f64],
 }
-
-const NEIGHBOURS: [(i64, i64); 8] = [
-    (-1, -1),
-    (0, -1),
-    (1, -1),
-    (-1, 0),
-    (1, 0),
-    (-1, 1),
-    (0, 1),
-    (1, 1),
-];
 
 impl ChangeField<'_> {
     fn neighbours(&self, i: usize) -> impl Iterator<Item = usize> + '_ {
@@ -162,71 +152,50 @@ fn lower_a_neighbour(f: &mut ChangeField, i: usize, target: f64, gap: f64, chang
 mod tests {
     use super::*;
 
-    fn cell() -> CellSize {
-        CellSize { hx: 10.0, hy: 10.0 }
+    const LIMIT: f64 = 5.0;
+
+    /// Eases a 3 x 3 field whose centre has `centre` and every other cell
+    /// 0; returns the changes after.
+    fn eased(centre: f64, movable: [bool; 9], cap: [f64; 9]) -> Vec<f64> {
+        let mut change = vec![0.0; 9];
+        change[4] = centre;
+        let own = [true; 9];
+        let mut f = ChangeField {
+            width: 3,
+            height: 3,
+            change: &mut change,
+            movable: &movable,
+            own: &own,
+            cap: &cap,
+        };
+        ease_spikes(&mut f, CellSize { hx: 10.0, hy: 10.0 });
+        assert!(f.spikes(LIMIT).is_empty(), "{:?}", f.change);
+        change
     }
 
     #[test]
     fn a_spike_is_eased_by_raising_a_neighbour_under_its_cap() {
-        // 3 x 3, the centre 20 m above neighbours at 0 (limit 5 m).
-        let mut change = vec![0.0; 9];
-        change[4] = 20.0;
-        let movable = vec![true; 9];
-        let own = vec![true; 9];
-        let mut cap = vec![0.0; 9];
-        cap[5] = 100.0; // only the east neighbour may rise
-        let mut f = ChangeField {
-            width: 3,
-            height: 3,
-            change: &mut change,
-            movable: &movable,
-            own: &own,
-            cap: &cap,
-        };
-        ease_spikes(&mut f, cell());
-        assert!(f.spikes(5.0).is_empty(), "{:?}", f.change);
-        assert_eq!(f.change[4], 20.0, "the spike itself stays");
-        assert!((f.change[5] - 15.5).abs() < 1e-9, "{:?}", f.change);
+        // The centre 20 m above neighbours at 0 (limit 5 m); only the east
+        // neighbour may rise.
+        let mut cap = [0.0; 9];
+        cap[5] = 100.0;
+        let change = eased(20.0, [true; 9], cap);
+        assert_eq!(change[4], 20.0, "the spike itself stays");
+        assert!((change[5] - 15.5).abs() < 1e-9, "{change:?}");
     }
 
     #[test]
     fn with_no_room_under_the_caps_the_spike_gives_way() {
-        let mut change = vec![0.0; 9];
-        change[4] = 20.0;
-        let movable = vec![true; 9];
-        let own = vec![true; 9];
-        let cap = vec![0.0; 9];
-        let mut f = ChangeField {
-            width: 3,
-            height: 3,
-            change: &mut change,
-            movable: &movable,
-            own: &own,
-            cap: &cap,
-        };
-        ease_spikes(&mut f, cell());
-        assert!(f.spikes(5.0).is_empty(), "{:?}", f.change);
-        assert!((f.change[4] - 4.5).abs() < 1e-9, "{:?}", f.change);
+        let change = eased(20.0, [true; 9], [0.0; 9]);
+        assert!((change[4] - 4.5).abs() < 1e-9, "{change:?}");
     }
 
     #[test]
     fn a_pit_is_eased_by_lowering_a_neighbour() {
-        let mut change = vec![0.0; 9];
-        change[4] = -20.0;
-        let mut movable = vec![false; 9];
+        let mut movable = [false; 9];
         movable[1] = true;
-        let own = vec![true; 9];
-        let cap = vec![f64::INFINITY; 9];
-        let mut f = ChangeField {
-            width: 3,
-            height: 3,
-            change: &mut change,
-            movable: &movable,
-            own: &own,
-            cap: &cap,
-        };
-        ease_spikes(&mut f, cell());
-        assert!(f.spikes(5.0).is_empty(), "{:?}", f.change);
-        assert_eq!(f.change[4], -20.0);
+        let change = eased(-20.0, movable, [f64::INFINITY; 9]);
+        assert_eq!(change[4], -20.0);
+        assert!((change[1] + 15.5).abs() < 1e-9, "{change:?}");
     }
 }

@@ -60,7 +60,8 @@ fn excess(d: &Deformation, c: usize, r: usize) -> Option<(f64, f64)> {
     hi.is_finite().then(|| ((m - hi) as f64, (lo - m) as f64))
 }
 
-const NEIGHBOURS: [(i64, i64); 8] = [
+/// The 8 neighbours of a cell, `(column, row)` offsets.
+pub(crate) const NEIGHBOURS: [(i64, i64); 8] = [
     (-1, -1),
     (0, -1),
     (1, -1),
