@@ -38,6 +38,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import judge  # noqa: E402
+from run import spike_stats  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 BIN = os.environ.get("DEMSKETCH", os.path.join(ROOT, "target/release/demsketch"))
@@ -276,6 +277,7 @@ def run_case(dem_path, dem, view, style, D, tmp, pictures=None):
     res.update(showable_fit(dem, depth, pts, dev))
     after = judge.Dem(out)
     res["roughness_m"] = roughness(dem, after)
+    res["spikes"] = spike_stats(after.h - dem.h, dem.cell_m)[0]
     res["dem_energy_ratio"] = dem_energy_ratio(after, lf.get("landform", {}).get("shadow"))
     if pictures:
         save_pictures(dem, out, pts, view,
@@ -568,6 +570,13 @@ def summary(f, measured, rows):
                 f"{sum(x >= 0.95 for x in shows)} of {len(shows)} (median "
                 f"{sorted(shows)[len(shows) // 2]:.2f}); {len(ok)} with status ok "
                 f"(showable >= 95%): {sum(x >= 0.95 for x in ok)} >= 0.95.\n")
+    spiked = [r for r in measured if r.get("spikes")]
+    if any("spikes" in r for r in measured):
+        f.write(f"\nSpikes (a cell's change more than half a cell above or below all 8 "
+                f"neighbours'): {sum(r['spikes'] for r in spiked)} cells in {len(spiked)} of "
+                f"{len(measured)} landforms"
+                + "".join(f"; {r['dem'][:-4]} {r['style']} {r['distance_m'] / 1000:.0f} km"
+                          for r in spiked) + ".\n")
     unmeasured = [r for r in rows if "fit_after" not in r]
     no_ground = sum(r["status"] == "no ground at this distance" for r in unmeasured)
     f.write(f"{len(unmeasured)} cases not measured: {no_ground} with no ground at that distance "
