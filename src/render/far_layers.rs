@@ -43,41 +43,112 @@ pub(crate) struct FarLayer {
 }
 
 /// A far layer's render: the camera and, per pixel, depth and the
-/// layer's own triangle id (sky: infinite depth and [`SKY`]).
+/// layer's own triangle id (sky: infinite depth and [`SKY`]); with
+/// `last_row`, only the rows `0..=last_row[x]` of each column `x` (the
+/// others NaN and [`SKY`]: nearer terrain hides them).
 #[derive(Debug)]
 pub(crate) struct LayerRender {
     pub(crate) camera: crate::view::Camera,
+    pub(crate) last_row: Option<Vec<i32>>,
     pub(crate) depth: Vec<f32>,
     pub(crate) triangle: Vec<u32>,
 }
 
+impl LayerRender {
+    /// Does this render hold every row of `needed` (rows `0..=needed[x]`
+    /// of each column `x`)?
+    fn holds(&self, needed: &[i32]) -> bool {
+        match &self.last_row {
+            None => true,
+            Some(rows) => {
+                rows.len() == needed.len() && needed.iter().zip(rows).all(|(n, r)| n <= r)
+            }
+        }
+    }
+}
+
 impl FarLayer {
-    /// The layer's whole render with `camera`: the kept one when it was
-    /// made with the same camera, else made by `render` and kept. The lock
-    /// is not held while rendering (a render is parallel: a worker waiting
-    /// in it may take up another render of this layer).
+    /// The layer's render with `camera`, holding at least the rows
+    /// `0..=needed[x]` of each column `x` (the others may be left out: see
+    /// [`LayerRender`]): the kept one when it was made with the same camera
+    /// and holds them, else made by `render` (given the rows to draw,
+    /// `None` for all) and kept. A new render draws the rows of the kept
+    /// one too (same camera), so that the renders of an edit's rounds,
+    /// whose nearer terrain opens a little more sky here and there, settle
+    /// after a few. The lock is not held while rendering (a render is
+    /// parallel: a worker waiting in it may take up another render of this
+    /// layer).
     pub(crate) fn render_with(
         &self,
         camera: &crate::view::Camera,
-        render: impl FnOnce(&LocalTerrain) -> (Vec<f32>, Vec<u32>),
+        needed: &[i32],
+        render: impl FnOnce(&LocalTerrain, Option<&[i32]>) -> (Vec<f32>, Vec<u32>),
     ) -> Arc<LayerRender> {
         let lock = || {
             self.drawn
                 .lock()
                 .unwrap_or_else(std::sync::PoisonError::into_inner)
         };
-        let kept = lock().as_ref().filter(|r| r.camera == *camera).cloned();
-        if let Some(r) = kept {
-            return r;
+        let same = lock().as_ref().filter(|r| r.camera == *camera).cloned();
+        if let Some(r) = same.as_ref().filter(|r| r.holds(needed)) {
+            return Arc::clone(r);
         }
-        let (depth, triangle) = render(&self.terrain);
+        let mut rows = needed.to_vec();
+        if let Some(Some(old)) = same.as_ref().map(|r| r.last_row.as_ref()) {
+            for (n, &o) in rows.iter_mut().zip(old) {
+                *n = (*n).max(o);
+            }
+        }
+        let h = camera.height as i32;
+        let last_row = if rows.len() == camera.width && rows.iter().any(|&r| r < h - 1) {
+            Some(rows)
+        } else {
+            None
+        };
+        let (depth, triangle) = render(&self.terrain, last_row.as_deref());
         let r = Arc::new(LayerRender {
             camera: *camera,
+            last_row,
             depth,
             triangle,
         });
         *lock() = Some(Arc::clone(&r));
         r
+    }
+
+    /// The rows of each column of an image that this layer can show, given
+    /// `depth` (the image's depths so far, `width` pixels a row): per
+    /// column `x`, the last row above the pixels, from the bottom up, that
+    /// are already nearer than any point of the layer or NaN (not drawn:
+    /// a NaN pixel keeps its NaN whatever the layer holds). There the
+    /// nearer hit wins whatever the layer holds, so a render of the layer
+    /// without those rows gives the same image. `-1`: no row.
+    pub(crate) fn rows_shown(&self, depth: &[f32], width: usize) -> Vec<i32> {
+        let w = width.max(1);
+        let h = depth.len() / w;
+        // (a margin of 0.1 % for the rounding of the depths in f32)
+        let bound = (self.reach_m * 0.999) as f32;
+        let mut last = vec![h as i32 - 1; w];
+        let mut open = vec![true; w];
+        let mut left = w;
+        for j in (0..h).rev() {
+            if left == 0 {
+                break;
+            }
+            let row = &depth[j * w..(j + 1) * w];
+            for x in 0..w {
+                if open[x] {
+                    let d = row[x];
+                    if d.is_nan() || d < bound {
+                        last[x] = j as i32 - 1;
+                    } else {
+                        open[x] = false;
+                        left -= 1;
+                    }
+                }
+            }
+        }
+        last
     }
 }
 
