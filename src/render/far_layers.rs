@@ -389,3 +389,98 @@ fn cell_size_m(t: &LocalTerrain) -> f64 {
     let p = t.frame.p;
     (p[0][0].hypot(p[1][0]) * p[0][1].hypot(p[1][1])).sqrt()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::raster::Dem;
+    use crate::render::triangle_raster::rasterise;
+    use crate::render::{DepthBuffer, Scene};
+    use crate::view::{Camera, Georef, Viewpoint};
+
+    /// The render of `terrain` as if each far layer were drawn whole: the
+    /// terrain's own render, then each layer's whole render where nearer.
+    fn whole_layers(terrain: &LocalTerrain, cam: &Camera) -> (Vec<f32>, Vec<u32>) {
+        let mut near = terrain.clone();
+        near.far.clear();
+        let (mut d, mut t) = rasterise(&near, cam, None);
+        for l in &terrain.far {
+            let (fd, ft) = rasterise(&l.terrain, cam, None);
+            for i in 0..d.len() {
+                if fd[i] < d[i] {
+                    d[i] = fd[i];
+                    t[i] = ft[i] + l.id0;
+                }
+            }
+        }
+        (d, t)
+    }
+
+    fn assert_same(db: &DepthBuffer, (d, t): &(Vec<f32>, Vec<u32>)) {
+        assert_eq!(db.triangle, *t);
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&db.depth), bits(d));
+    }
+
+    /// Far layers drawn only where the nearer terrain leaves them rows give
+    /// the image of layers drawn whole, to the bit; a nearer terrain that
+    /// opens more sky (lowered) draws a layer again, with the rows of both.
+    #[test]
+    fn layers_drawn_behind_the_nearer_terrain_give_the_whole_render() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("fixtures")
+            .join("zion_srtm_utm12n.tif");
+        let dem = Dem::open(&path).unwrap();
+        let (x, y) = dem.geotransform.pixel_to_crs(210.5, 440.5);
+        let georef = Georef::for_crs(&dem.crs, "zion").unwrap();
+        let (lon, lat) = georef.crs_to_lonlat(x, y).unwrap();
+        let vp = Viewpoint::above_surface(lon, lat, 1500.0);
+        let cam = Camera::new(160, 90, 0.0, -2.0, 0.0, 90.0).unwrap();
+        let scene =
+            Scene::open_wedge_lod(&dem, &vp, Some(40_000.0), 1.0 / 7.0, &cam, None).unwrap();
+        let terrain = &scene.terrain;
+        assert!(!terrain.far.is_empty());
+        assert_same(
+            &DepthBuffer::render(terrain, &cam),
+            &whole_layers(terrain, &cam),
+        );
+        // The nearer terrain hid rows of a layer: it was drawn in part.
+        let partial = |t: &LocalTerrain| {
+            t.far.iter().any(|l| {
+                l.drawn
+                    .lock()
+                    .unwrap()
+                    .as_ref()
+                    .is_some_and(|r| r.last_row.is_some())
+            })
+        };
+        assert!(partial(terrain));
+        let kept = |t: &LocalTerrain| -> Vec<Option<Arc<LayerRender>>> {
+            t.far
+                .iter()
+                .map(|l| l.drawn.lock().unwrap().clone())
+                .collect()
+        };
+        let before = kept(terrain);
+        // The near terrain 400 m lower: more of the layers shows.
+        let w = scene.window.width;
+        let lowered = terrain.with_heights((0, 0, w, scene.window.height), &|c, r| {
+            Some(scene.window.data[r * w + c] - 400.0)
+        });
+        assert_same(
+            &DepthBuffer::render(&lowered, &cam),
+            &whole_layers(&lowered, &cam),
+        );
+        // (a layer was drawn again: the kept render lacked rows)
+        let after = kept(terrain);
+        assert!(before.iter().zip(&after).any(|(a, b)| match (a, b) {
+            (Some(a), Some(b)) => !Arc::ptr_eq(a, b),
+            _ => true,
+        }));
+        // And the first terrain again, from the layers' kept renders.
+        assert_same(
+            &DepthBuffer::render(terrain, &cam),
+            &whole_layers(terrain, &cam),
+        );
+    }
+}
