@@ -129,23 +129,22 @@ impl FarLayer {
         // (a margin of 0.1 % for the rounding of the depths in f32)
         let bound = (self.reach_m * 0.999) as f32;
         let mut last = vec![h as i32 - 1; w];
-        let mut open = vec![true; w];
-        let mut left = w;
+        // (branch-free over whole rows, which vectorises; rows are taken
+        // from the bottom up while some column is still covered)
+        let mut open = vec![1i32; w];
         for j in (0..h).rev() {
-            if left == 0 {
-                break;
-            }
             let row = &depth[j * w..(j + 1) * w];
-            for x in 0..w {
-                if open[x] {
-                    let d = row[x];
-                    if d.is_nan() || d < bound {
-                        last[x] = j as i32 - 1;
-                    } else {
-                        open[x] = false;
-                        left -= 1;
-                    }
-                }
+            let mut any = 0i32;
+            for ((l, o), &d) in last.iter_mut().zip(open.iter_mut()).zip(row) {
+                // NaN or nearer than the bound: covered
+                let covered = i32::from(!(d >= bound));
+                *o &= covered;
+                // while open, the last row shown is above this one
+                *l -= *o;
+                any |= *o;
+            }
+            if any == 0 {
+                break;
             }
         }
         last
