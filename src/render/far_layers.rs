@@ -7,7 +7,9 @@
 //!
 //! The layers are one surface with the terrain for everything that looks
 //! at it: the rasteriser draws them into the same depth buffer (the nearer
-//! hit wins, as between the triangles of one terrain), the casts return
+//! hit wins, as between the triangles of one terrain; a layer is drawn
+//! only in the rows the image does not already show nearer than any of its
+//! points, which changes no pixel: [`FarLayer::rows_shown`]), the casts return
 //! the nearest hit over the terrain and its layers, and the triangle ids of
 //! a layer follow the terrain's (`id0` on), so that a pixel's id says which
 //! layer it shows and every per-triangle question (vertices, normals, the
@@ -36,9 +38,10 @@ pub(crate) struct FarLayer {
     /// Where the layer's grid starts, in cells of the grid the terrain was
     /// built from (may be negative: a layer reaches beyond the terrain).
     pub(crate) origin: (i64, i64),
-    /// The layer's last whole render, kept for the next render with the
-    /// same camera (an edit re-renders one view round after round; the
-    /// layer never changes): shared by the clones of the layer.
+    /// The layer's last render (of the rows nearer terrain leaves it, see
+    /// [`FarLayer::render_with`]), kept for the next render with the same
+    /// camera (an edit re-renders one view round after round; the layer
+    /// never changes): shared by the clones of the layer.
     pub(crate) drawn: Arc<std::sync::Mutex<Option<Arc<LayerRender>>>>,
 }
 
