@@ -7,7 +7,9 @@
 //!
 //! The layers are one surface with the terrain for everything that looks
 //! at it: the rasteriser draws them into the same depth buffer (the nearer
-//! hit wins, as between the triangles of one terrain), the casts return
+//! hit wins, as between the triangles of one terrain; a layer is drawn
+//! only in the rows the image does not already show nearer than any of its
+//! points, which changes no pixel: [`FarLayer::rows_shown`]), the casts return
 //! the nearest hit over the terrain and its layers, and the triangle ids of
 //! a layer follow the terrain's (`id0` on), so that a pixel's id says which
 //! layer it shows and every per-triangle question (vertices, normals, the
@@ -36,48 +38,119 @@ pub(crate) struct FarLayer {
     /// Where the layer's grid starts, in cells of the grid the terrain was
     /// built from (may be negative: a layer reaches beyond the terrain).
     pub(crate) origin: (i64, i64),
-    /// The layer's last whole render, kept for the next render with the
-    /// same camera (an edit re-renders one view round after round; the
-    /// layer never changes): shared by the clones of the layer.
+    /// The layer's last render (of the rows nearer terrain leaves it, see
+    /// [`FarLayer::render_with`]), kept for the next render with the same
+    /// camera (an edit re-renders one view round after round; the layer
+    /// never changes): shared by the clones of the layer.
     pub(crate) drawn: Arc<std::sync::Mutex<Option<Arc<LayerRender>>>>,
 }
 
 /// A far layer's render: the camera and, per pixel, depth and the
-/// layer's own triangle id (sky: infinite depth and [`SKY`]).
+/// layer's own triangle id (sky: infinite depth and [`SKY`]); with
+/// `last_row`, only the rows `0..=last_row[x]` of each column `x` (the
+/// others NaN and [`SKY`]: nearer terrain hides them).
 #[derive(Debug)]
 pub(crate) struct LayerRender {
     pub(crate) camera: crate::view::Camera,
+    pub(crate) last_row: Option<Vec<i32>>,
     pub(crate) depth: Vec<f32>,
     pub(crate) triangle: Vec<u32>,
 }
 
+impl LayerRender {
+    /// Does this render hold every row of `needed` (rows `0..=needed[x]`
+    /// of each column `x`)?
+    fn holds(&self, needed: &[i32]) -> bool {
+        match &self.last_row {
+            None => true,
+            Some(rows) => {
+                rows.len() == needed.len() && needed.iter().zip(rows).all(|(n, r)| n <= r)
+            }
+        }
+    }
+}
+
 impl FarLayer {
-    /// The layer's whole render with `camera`: the kept one when it was
-    /// made with the same camera, else made by `render` and kept. The lock
-    /// is not held while rendering (a render is parallel: a worker waiting
-    /// in it may take up another render of this layer).
+    /// The layer's render with `camera`, holding at least the rows
+    /// `0..=needed[x]` of each column `x` (the others may be left out: see
+    /// [`LayerRender`]): the kept one when it was made with the same camera
+    /// and holds them, else made by `render` (given the rows to draw,
+    /// `None` for all) and kept. A new render draws the rows of the kept
+    /// one too (same camera), so that the renders of an edit's rounds,
+    /// whose nearer terrain opens a little more sky here and there, settle
+    /// after a few. The lock is not held while rendering (a render is
+    /// parallel: a worker waiting in it may take up another render of this
+    /// layer).
     pub(crate) fn render_with(
         &self,
         camera: &crate::view::Camera,
-        render: impl FnOnce(&LocalTerrain) -> (Vec<f32>, Vec<u32>),
+        needed: &[i32],
+        render: impl FnOnce(&LocalTerrain, Option<&[i32]>) -> (Vec<f32>, Vec<u32>),
     ) -> Arc<LayerRender> {
         let lock = || {
             self.drawn
                 .lock()
                 .unwrap_or_else(std::sync::PoisonError::into_inner)
         };
-        let kept = lock().as_ref().filter(|r| r.camera == *camera).cloned();
-        if let Some(r) = kept {
-            return r;
+        let same = lock().as_ref().filter(|r| r.camera == *camera).cloned();
+        if let Some(r) = same.as_ref().filter(|r| r.holds(needed)) {
+            return Arc::clone(r);
         }
-        let (depth, triangle) = render(&self.terrain);
+        let mut rows = needed.to_vec();
+        if let Some(Some(old)) = same.as_ref().map(|r| r.last_row.as_ref()) {
+            for (n, &o) in rows.iter_mut().zip(old) {
+                *n = (*n).max(o);
+            }
+        }
+        let h = camera.height as i32;
+        let last_row = if rows.len() == camera.width && rows.iter().any(|&r| r < h - 1) {
+            Some(rows)
+        } else {
+            None
+        };
+        let (depth, triangle) = render(&self.terrain, last_row.as_deref());
         let r = Arc::new(LayerRender {
             camera: *camera,
+            last_row,
             depth,
             triangle,
         });
         *lock() = Some(Arc::clone(&r));
         r
+    }
+
+    /// The rows of each column of an image that this layer can show, given
+    /// `depth` (the image's depths so far, `width` pixels a row): per
+    /// column `x`, the last row above the pixels, from the bottom up, that
+    /// are already nearer than any point of the layer or NaN (not drawn:
+    /// a NaN pixel keeps its NaN whatever the layer holds). There the
+    /// nearer hit wins whatever the layer holds, so a render of the layer
+    /// without those rows gives the same image. `-1`: no row.
+    pub(crate) fn rows_shown(&self, depth: &[f32], width: usize) -> Vec<i32> {
+        let w = width.max(1);
+        let h = depth.len() / w;
+        // (a margin of 0.1 % for the rounding of the depths in f32)
+        let bound = (self.reach_m * 0.999) as f32;
+        let mut last = vec![h as i32 - 1; w];
+        // (branch-free over whole rows, which vectorises; rows are taken
+        // from the bottom up while some column is still covered)
+        let mut open = vec![1i32; w];
+        for j in (0..h).rev() {
+            let row = &depth[j * w..(j + 1) * w];
+            let mut any = 0i32;
+            for ((l, o), &d) in last.iter_mut().zip(open.iter_mut()).zip(row) {
+                // NaN or nearer than the bound: covered
+                let covered = i32::from(!(d >= bound));
+                *o &= covered;
+                // while open, the last row shown is above this one
+                *l -= *o;
+                any |= *o;
+            }
+            if any == 0 {
+                break;
+            }
+        }
+        last
     }
 }
 
@@ -317,4 +390,99 @@ impl LocalTerrain {
 fn cell_size_m(t: &LocalTerrain) -> f64 {
     let p = t.frame.p;
     (p[0][0].hypot(p[1][0]) * p[0][1].hypot(p[1][1])).sqrt()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::raster::Dem;
+    use crate::render::triangle_raster::rasterise;
+    use crate::render::{DepthBuffer, Scene};
+    use crate::view::{Camera, Georef, Viewpoint};
+
+    /// The render of `terrain` as if each far layer were drawn whole: the
+    /// terrain's own render, then each layer's whole render where nearer.
+    fn whole_layers(terrain: &LocalTerrain, cam: &Camera) -> (Vec<f32>, Vec<u32>) {
+        let mut near = terrain.clone();
+        near.far.clear();
+        let (mut d, mut t) = rasterise(&near, cam, None);
+        for l in &terrain.far {
+            let (fd, ft) = rasterise(&l.terrain, cam, None);
+            for i in 0..d.len() {
+                if fd[i] < d[i] {
+                    d[i] = fd[i];
+                    t[i] = ft[i] + l.id0;
+                }
+            }
+        }
+        (d, t)
+    }
+
+    fn assert_same(db: &DepthBuffer, (d, t): &(Vec<f32>, Vec<u32>)) {
+        assert_eq!(db.triangle, *t);
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&db.depth), bits(d));
+    }
+
+    /// Far layers drawn only where the nearer terrain leaves them rows give
+    /// the image of layers drawn whole, to the bit; a nearer terrain that
+    /// opens more sky (lowered) draws a layer again, with the rows of both.
+    #[test]
+    fn layers_drawn_behind_the_nearer_terrain_give_the_whole_render() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("fixtures")
+            .join("zion_srtm_utm12n.tif");
+        let dem = Dem::open(&path).unwrap();
+        let (x, y) = dem.geotransform.pixel_to_crs(210.5, 440.5);
+        let georef = Georef::for_crs(&dem.crs, "zion").unwrap();
+        let (lon, lat) = georef.crs_to_lonlat(x, y).unwrap();
+        let vp = Viewpoint::above_surface(lon, lat, 1500.0);
+        let cam = Camera::new(160, 90, 0.0, -2.0, 0.0, 90.0).unwrap();
+        let scene =
+            Scene::open_wedge_lod(&dem, &vp, Some(40_000.0), 1.0 / 7.0, &cam, None).unwrap();
+        let terrain = &scene.terrain;
+        assert!(!terrain.far.is_empty());
+        assert_same(
+            &DepthBuffer::render(terrain, &cam),
+            &whole_layers(terrain, &cam),
+        );
+        // The nearer terrain hid rows of a layer: it was drawn in part.
+        let partial = |t: &LocalTerrain| {
+            t.far.iter().any(|l| {
+                l.drawn
+                    .lock()
+                    .unwrap()
+                    .as_ref()
+                    .is_some_and(|r| r.last_row.is_some())
+            })
+        };
+        assert!(partial(terrain));
+        let kept = |t: &LocalTerrain| -> Vec<Option<Arc<LayerRender>>> {
+            t.far
+                .iter()
+                .map(|l| l.drawn.lock().unwrap().clone())
+                .collect()
+        };
+        let before = kept(terrain);
+        // The near terrain 400 m lower: more of the layers shows.
+        let w = scene.window.width;
+        let lowered = terrain.with_heights((0, 0, w, scene.window.height), &|c, r| {
+            Some(scene.window.data[r * w + c] - 400.0)
+        });
+        assert_same(
+            &DepthBuffer::render(&lowered, &cam),
+            &whole_layers(&lowered, &cam),
+        );
+        // (a layer was drawn again: the kept render lacked rows)
+        let after = kept(terrain);
+        assert!(before.iter().zip(&after).any(|(a, b)| match (a, b) {
+            (Some(a), Some(b)) => !Arc::ptr_eq(a, b),
+            _ => true,
+        }));
+        // And the first terrain again, from the layers' kept renders.
+        assert_same(
+            &DepthBuffer::render(terrain, &cam),
+            &whole_layers(terrain, &cam),
+        );
+    }
 }

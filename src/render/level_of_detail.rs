@@ -132,6 +132,7 @@ impl LodPlan {
             };
             // From the tiles' overviews where they have them (the coarse
             // cells then are what the overviews hold), else block maxima.
+            let started = std::time::Instant::now();
             let overviews = dem.overview_layer(k, finer(cwin, k));
             let map = match &overviews {
                 Some(ov) => ov.read_block_max(cwin, 1, &|w| area.wants(finer(w, k)))?,
@@ -146,7 +147,14 @@ impl LodPlan {
                 );
             }
             let frame_c = coarse_frame(frame_abs, k, (cwin.col, cwin.row));
+            let read_s = started.elapsed().as_secs_f64();
             let terrain = LocalTerrain::ring_over(&map, &frame_c, inner_v, outer);
+            if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
+                eprintln!(
+                    "level of detail: ring k {k} read in {read_s:.3} s, built in {:.3} s",
+                    started.elapsed().as_secs_f64() - read_s
+                );
+            }
             out.push(FarRing {
                 terrain,
                 inner_m: inner_v,

@@ -213,9 +213,16 @@ fn draw_far_layers(
 }
 
 /// Draw a far layer of a terrain ([`super::far_layers`]) into `depth` and
-/// `triangle` (the terrain's, already drawn): the layer's whole render
-/// (kept by the layer for the next render with this camera), taken where
-/// it is nearer, its ids moved to the layer's. The pixels not drawn here
+/// `triangle` (the terrain's, already drawn, and the layers inside this
+/// one): the layer's render (kept by the layer for the next render with
+/// this camera), taken where it is nearer, its ids moved to the layer's.
+/// The layer is rendered only in the rows the image does not already show
+/// nearer than any of its points ([`super::far_layers::FarLayer::rows_shown`]):
+/// the nearer hit wins there whatever the layer holds, so the image is the
+/// one a whole render of the layer gives, and the far terrain behind the
+/// nearer ridges is culled by the layer's own culling instead of drawn
+/// (a ring's inner hole otherwise leaves its bottom rows open, and with
+/// them every triangle in view). The pixels not drawn here
 /// (NaN outside `last_row`) and those the layer does not reach keep what
 /// they show: a render of some rows gets the whole render's values in
 /// them, as for the terrain's own triangles.
@@ -225,7 +232,10 @@ fn draw_far_layer(
     depth: &mut [f32],
     triangle: &mut [u32],
 ) {
-    let r = layer.render_with(camera, |t| rasterise(t, camera, None));
+    // Only the rows the image so far does not already show nearer (the
+    // layer's own culling then skips what lies behind the nearer ridges).
+    let needed = layer.rows_shown(depth, camera.width);
+    let r = layer.render_with(camera, &needed, |t, rows| rasterise(t, camera, rows));
     let (id0, w) = (layer.id0, camera.width.max(1));
     depth
         .par_chunks_mut(w)
