@@ -52,6 +52,13 @@ impl Patch {
     }
 }
 
+/// The heights at `k`, `k + 1`, `k + stride` and `k + stride + 1` of
+/// `data`: a cell's four corners in a row-major grid `stride` across.
+#[inline]
+fn quad_from(data: &[f32], k: usize, stride: usize) -> [f32; 4] {
+    [data[k], data[k + 1], data[k + stride], data[k + stride + 1]]
+}
+
 impl VertexHeights {
     /// Heights `z` of a grid `nx` across, with no patch.
     pub(crate) fn new(z: Vec<f32>, nx: usize) -> Self {
@@ -96,23 +103,26 @@ impl VertexHeights {
     /// patch for the four where they all lie on one side of its border.
     #[inline]
     pub fn quad(&self, c: usize, r: usize) -> [f32; 4] {
-        let from = |data: &[f32], k: usize, stride: usize| {
-            [data[k], data[k + 1], data[k + stride], data[k + stride + 1]]
-        };
         match &self.patch {
-            Some(p) if p.touches_quad(c, r) => {
-                if p.holds_quad(c, r) {
-                    from(&p.data, (r - p.r0) * p.w + (c - p.c0), p.w)
-                } else {
-                    [
-                        self.at_cr(c, r),
-                        self.at_cr(c + 1, r),
-                        self.at_cr(c, r + 1),
-                        self.at_cr(c + 1, r + 1),
-                    ]
-                }
-            }
-            _ => from(&self.base, r * self.nx + c, self.nx),
+            Some(p) if p.touches_quad(c, r) => self.quad_patched(p, c, r),
+            _ => quad_from(&self.base, r * self.nx + c, self.nx),
+        }
+    }
+
+    /// [`VertexHeights::quad`] of a cell with a corner in the patch `p`:
+    /// out of line, so that the common case, the base's four heights, is
+    /// a few instructions wherever it is inlined.
+    #[inline(never)]
+    fn quad_patched(&self, p: &Patch, c: usize, r: usize) -> [f32; 4] {
+        if p.holds_quad(c, r) {
+            quad_from(&p.data, (r - p.r0) * p.w + (c - p.c0), p.w)
+        } else {
+            [
+                self.at_cr(c, r),
+                self.at_cr(c + 1, r),
+                self.at_cr(c, r + 1),
+                self.at_cr(c + 1, r + 1),
+            ]
         }
     }
 
