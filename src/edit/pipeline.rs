@@ -363,7 +363,14 @@ fn edit_pass<'s>(
     // (map-view corrections would change the terrain after the rounds:
     // such a pass is never dropped early)
     let discard_unchanged = later && sketch.corrections.is_none();
-    let Some(mut rounds) = refine(edit, &views, &solver, &placed, deformation, discard_unchanged)?
+    let Some(mut rounds) = refine(
+        edit,
+        &views,
+        &solver,
+        &placed,
+        deformation,
+        discard_unchanged,
+    )?
     else {
         return Ok((views, None));
     };
