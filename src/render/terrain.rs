@@ -943,7 +943,7 @@ impl LocalTerrain {
             ) else {
                 break;
             };
-            let te = tx.min(ty).min(t1).max(tp);
+            let te = fmax(fmin(fmin(tx, ty), t1), tp);
             let ray_min = dz * if dz < 0.0 { te } else { t };
             if ray_min > mip[level][by * mw + bx] as f64 {
                 t = te;
@@ -973,7 +973,7 @@ impl LocalTerrain {
                 ) else {
                     return None;
                 };
-                let tc = cx_exit.min(cy_exit).min(te).max(tq);
+                let tc = fmax(fmin(fmin(cx_exit, cy_exit), te), tq);
                 if let Some(hit) = self.cell_hit(c, r, t, tc, ray) {
                     return Some(hit);
                 }
@@ -1126,9 +1126,9 @@ impl LocalTerrain {
                     }
                 } else {
                     let (a, b) = (-o / g, (1.0 - o) / g);
-                    ta = ta.max(a.min(b));
-                    *exit = a.max(b);
-                    tb = tb.min(*exit);
+                    ta = fmax(ta, fmin(a, b));
+                    *exit = fmax(a, b);
+                    tb = fmin(tb, *exit);
                 }
             }
             if !(tb > ta) || (k == 0 && ta > latest_entry) {
@@ -1302,7 +1302,7 @@ const CLEAR_MARGIN: f64 = 1e-6;
 /// for a fraction of its cost.
 #[inline]
 fn ray_clears(corners: &[f64; 4], dz: f64, ta: f64, tb: f64) -> bool {
-    let hi = corners[0].max(corners[1]).max(corners[2]).max(corners[3]);
+    let hi = fmax(fmax(corners[0], corners[1]), fmax(corners[2], corners[3]));
     let lowest = dz * if dz < 0.0 { tb } else { ta };
     lowest > hi + CLEAR_MARGIN * (1.0 + hi.abs())
 }
@@ -1670,6 +1670,31 @@ fn pow2(e: i32) -> f64 {
     f64::from_bits(((1023 + e) as u64) << 52)
 }
 
+/// The lesser of `a` and `b`, compared as written (one `minsd`): for the
+/// casts' inner loops, whose values are never NaN (there, `f64::min`
+/// would give the same, with a NaN check each time). On a tie the result
+/// is `b`, the same number (the loops' ties are never zeros of opposite
+/// signs, where the two could differ: they are distances past a positive
+/// start, or heights compared with a margin).
+#[inline]
+fn fmin(a: f64, b: f64) -> f64 {
+    if a < b {
+        a
+    } else {
+        b
+    }
+}
+
+/// The greater of `a` and `b`, as [`fmin`]; a NaN `a` gives `b`.
+#[inline]
+fn fmax(a: f64, b: f64) -> f64 {
+    if a > b {
+        a
+    } else {
+        b
+    }
+}
+
 /// A grid index as `f64`, the value `i as f64` gives (indices are far below
 /// 2^53), by the signed conversion, a single instruction on x86-64.
 #[inline]
@@ -1677,12 +1702,13 @@ fn index_f64(i: usize) -> f64 {
     i as i64 as f64
 }
 
-/// `v.max(0.0) as usize` (NaN and negative values give 0), by the signed
+/// `v.max(0.0) as usize` (NaN and negative values give 0: `fmax` gives 0
+/// for a NaN `v`, as `max` does), by the signed
 /// conversion: the two agree for every value below 2^63, and the callers
 /// clamp the index to the grid, far below it.
 #[inline]
 fn floor_index(v: f64) -> usize {
-    v.max(0.0) as i64 as usize
+    fmax(v, 0.0) as i64 as usize
 }
 
 /// One axis of a ray's horizontal track in vertex coordinates: `o + g t`,
@@ -1717,7 +1743,7 @@ impl RayAxis {
 fn axis_block(a: &RayAxis, p: f64, s: f64, inv_s: f64, n: usize, tp: f64) -> Option<(usize, f64)> {
     let exit = |b: usize| {
         if a.g > 0.0 {
-            ((index_f64(b + 1) * s).min(a.w) - a.o) * a.inv_g
+            (fmin(index_f64(b + 1) * s, a.w) - a.o) * a.inv_g
         } else if a.g < 0.0 {
             (index_f64(b) * s - a.o) * a.inv_g
         } else {
