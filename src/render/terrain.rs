@@ -1265,11 +1265,13 @@ impl BilinearPatch {
         }
         let span = tb - ta;
         let roots = quadratic_roots(qa, qb, qc);
-        let first = roots
-            .into_iter()
-            .flatten()
-            .filter(|&s| s > 0.0 && s <= span)
-            .fold(f64::INFINITY, f64::min);
+        // The least root in (0, span] (compared as written: the roots kept
+        // are positive numbers, where that is `f64::min`).
+        let kept = |s: Option<f64>| match s {
+            Some(s) if s > 0.0 && s <= span => s,
+            _ => f64::INFINITY,
+        };
+        let first = fmin(kept(roots[0]), kept(roots[1]));
         if first.is_finite() {
             return Some(ta + first);
         }

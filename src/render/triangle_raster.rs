@@ -964,10 +964,12 @@ impl Raster<'_> {
             for (&(a, b, k), by) in edges.iter().zip(&mut by) {
                 *by = b * y;
                 let c = *by + k;
+                // (`-c / a` is a number here, never NaN: a finite margin
+                // bounds it; its zeros' signs do not matter below)
                 if a > 0.0 {
-                    xl = xl.max(-c / a);
+                    xl = fmax(xl, -c / a);
                 } else if a < 0.0 {
-                    xh = xh.min(-c / a);
+                    xh = fmin(xh, -c / a);
                 } else if c < 0.0 {
                     // a = 0: the test is c >= 0 exactly
                     xh = f64::NEG_INFINITY;
