@@ -591,12 +591,7 @@ impl LocalTerrain {
         }
         // The (at most) 4 x 4 vertices, read once each (a row of a patched
         // terrain would be a copy).
-        let mut v = [[0f32; 4]; 4];
-        for (j, vr) in v.iter_mut().enumerate().take(r_hi + 2 - r_lo) {
-            for (i, vv) in vr.iter_mut().enumerate().take(c_hi + 2 - c_lo) {
-                *vv = self.z.at_cr(c_lo + i, r_lo + j);
-            }
-        }
+        let v = self.z.rect4(c_lo, r_lo, c_hi + 2 - c_lo, r_hi + 2 - r_lo);
         let mut twist = 0.0f64;
         for rr in r_lo..=r_hi {
             let (row0, row1) = (&v[rr - r_lo], &v[rr + 1 - r_lo]);
@@ -608,7 +603,8 @@ impl LocalTerrain {
                     continue;
                 }
                 let (a, b, e, d) = (a as f64, b as f64, e as f64, d as f64);
-                twist = twist.max((a + d - b - e).abs());
+                // (a number, never NaN: `fmax` is `max` here)
+                twist = fmax(twist, (a + d - b - e).abs());
             }
         }
         twist

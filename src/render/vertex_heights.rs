@@ -126,6 +126,37 @@ impl VertexHeights {
         }
     }
 
+    /// The heights of the vertices `c0..c0 + w` x `r0..r0 + h` (within
+    /// the grid, `w` and `h` at most 4), as [`VertexHeights::at_cr`] gives
+    /// them, at `[row - r0][column - c0]` (the rest zero): rows read as
+    /// slices where the rectangle lies wholly outside or inside the patch.
+    #[inline]
+    pub fn rect4(&self, c0: usize, r0: usize, w: usize, h: usize) -> [[f32; 4]; 4] {
+        let (w, h) = (w.min(4), h.min(4));
+        let mut v = [[0f32; 4]; 4];
+        let (data, k, stride) = match &self.patch {
+            Some(p) if c0 < p.c0 + p.w && p.c0 < c0 + w && r0 < p.r0 + p.h && p.r0 < r0 + h => {
+                let inside =
+                    c0 >= p.c0 && c0 + w <= p.c0 + p.w && r0 >= p.r0 && r0 + h <= p.r0 + p.h;
+                if !inside {
+                    for (j, row) in v.iter_mut().enumerate().take(h) {
+                        for (i, z) in row.iter_mut().enumerate().take(w) {
+                            *z = self.at_cr(c0 + i, r0 + j);
+                        }
+                    }
+                    return v;
+                }
+                (&p.data[..], (r0 - p.r0) * p.w + (c0 - p.c0), p.w)
+            }
+            _ => (&self.base[..], r0 * self.nx + c0, self.nx),
+        };
+        for (j, row) in v.iter_mut().enumerate().take(h) {
+            let k = k + j * stride;
+            row[..w].copy_from_slice(&data[k..k + w]);
+        }
+        v
+    }
+
     #[inline]
     fn at_ref(&self, k: usize) -> &f32 {
         if let Some(p) = &self.patch {
