@@ -1701,12 +1701,17 @@ fn index_f64(i: usize) -> f64 {
 }
 
 /// `v.max(0.0) as usize` (NaN and negative values give 0: `fmax` gives 0
-/// for a NaN `v`, as `max` does), by the signed
-/// conversion: the two agree for every value below 2^63, and the callers
-/// clamp the index to the grid, far below it.
+/// for a NaN `v`, as `max` does), by the signed conversion: the two agree
+/// for every value below 2^53, and the callers clamp the index to the
+/// grid (or compare it with one), far below it, so that above (where
+/// this gives 2^53) the outcome is theirs too.
 #[inline]
 fn floor_index(v: f64) -> usize {
-    fmax(v, 0.0) as i64 as usize
+    let x = fmin(fmax(v, 0.0), 9_007_199_254_740_992.0);
+    // SAFETY: `x` is a number within `0..=2^53`, where the conversion is
+    // defined (it truncates, as `as` does); the unchecked one is a single
+    // instruction, without `as`'s saturation.
+    (unsafe { x.to_int_unchecked::<i64>() }) as usize
 }
 
 /// One axis of a ray's horizontal track in vertex coordinates: `o + g t`,

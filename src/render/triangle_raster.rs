@@ -1141,13 +1141,18 @@ fn span_margin(edges: &[(f64, f64, f64); 3], px1: i32, py1: i32) -> f64 {
 
 /// `floor` to i32 without a libm call or a branch, saturating far outside
 /// the image (truncation is floor for the shifted value, kept
-/// non-negative; `as` saturates above; NaN gives `-SHIFT`).
+/// non-negative and at most `i32::MAX`, where `as` would saturate; NaN
+/// gives `-SHIFT`).
 #[inline]
 fn floor_i32(v: f64) -> i32 {
     const SHIFT: f64 = 4_194_304.0;
     let t = v + SHIFT;
-    // one `maxsd`
-    (if t > 0.0 { t } else { 0.0 }) as i32 - SHIFT as i32
+    // one `maxsd` (NaN gives 0), one `minsd`
+    let t = fmin(if t > 0.0 { t } else { 0.0 }, i32::MAX as f64);
+    // SAFETY: `t` is a number within `0..=i32::MAX` (both exact in f64),
+    // where the conversion is defined (it truncates, as `as` does); the
+    // unchecked one is a single instruction, without `as`'s saturation.
+    (unsafe { t.to_int_unchecked::<i32>() }) - SHIFT as i32
 }
 
 /// `ceil` to i32, as [`floor_i32`].

@@ -104,26 +104,28 @@ impl VertexHeights {
     #[inline]
     pub fn quad(&self, c: usize, r: usize) -> [f32; 4] {
         match &self.patch {
-            Some(p) if p.touches_quad(c, r) => self.quad_patched(p, c, r),
+            Some(p) if p.touches_quad(c, r) => {
+                if p.holds_quad(c, r) {
+                    quad_from(&p.data, (r - p.r0) * p.w + (c - p.c0), p.w)
+                } else {
+                    self.quad_straddling(c, r)
+                }
+            }
             _ => quad_from(&self.base, r * self.nx + c, self.nx),
         }
     }
 
-    /// [`VertexHeights::quad`] of a cell with a corner in the patch `p`:
-    /// out of line, so that the common case, the base's four heights, is
-    /// a few instructions wherever it is inlined.
+    /// [`VertexHeights::quad`] of a cell across the patch's border: out of
+    /// line, so that the common cases (all four corners in the base, or
+    /// all in the patch) are a few instructions wherever they are inlined.
     #[inline(never)]
-    fn quad_patched(&self, p: &Patch, c: usize, r: usize) -> [f32; 4] {
-        if p.holds_quad(c, r) {
-            quad_from(&p.data, (r - p.r0) * p.w + (c - p.c0), p.w)
-        } else {
-            [
-                self.at_cr(c, r),
-                self.at_cr(c + 1, r),
-                self.at_cr(c, r + 1),
-                self.at_cr(c + 1, r + 1),
-            ]
-        }
+    fn quad_straddling(&self, c: usize, r: usize) -> [f32; 4] {
+        [
+            self.at_cr(c, r),
+            self.at_cr(c + 1, r),
+            self.at_cr(c, r + 1),
+            self.at_cr(c + 1, r + 1),
+        ]
     }
 
     /// The heights of the vertices `c0..c0 + w` x `r0..r0 + h` (within
