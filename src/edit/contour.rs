@@ -166,7 +166,9 @@ impl ProjectedVertices {
                 })
             })
             .collect();
-        vertices.sort_by(|a, b| a.4[0].total_cmp(&b.4[0]));
+        // (the order among equal x does not matter: `over_columns` takes
+        // ranges of x and sorts them by vertex; unstable is the cheaper)
+        vertices.sort_unstable_by(|a, b| a.4[0].total_cmp(&b.4[0]));
         ProjectedVertices { vertices }
     }
 
@@ -176,7 +178,8 @@ impl ProjectedVertices {
         let a = v.partition_point(|q| q.4[0] < x0);
         let b = v.partition_point(|q| q.4[0] <= x1);
         let mut out = v[a..b.max(a)].to_vec();
-        out.sort_by_key(|q| (q.1, q.0));
+        // (each vertex once: the keys are distinct)
+        out.sort_unstable_by_key(|q| (q.1, q.0));
         out
     }
 }

@@ -284,12 +284,18 @@ pub fn run_opened(
     timings.load = secs(t);
 
     let dem_name = dem_path.display().to_string();
-    let (views, mut outcome) = edit_pass(
+    let (views, outcome) = edit_pass(
         &edit,
         (&sketch, &dem, &dem_name),
         (scenes, prepared, notes),
         &mut timings,
+        false,
     )?;
+    let Some(mut outcome) = outcome else {
+        return Err(EditError::Internal(
+            "the first pass was dropped as a later one".into(),
+        ));
+    };
     let mut pass = 1;
     while pass < MAX_PASSES && needs_second_pass(&sketch, &outcome) {
         let t = Instant::now();
@@ -319,12 +325,16 @@ pub fn run_opened(
 /// Stages 2 to 5 on the loaded views: features, matching, deformation,
 /// lowering and contour rounds (with the sketch's map-view corrections),
 /// and the strokes measured on the result. `timings` gets their times.
+/// `later`: a pass after the first, which the run drops when it changes no
+/// cell ([`second_pass`]); such a pass stops as soon as that is known and
+/// gives no outcome (`None`; the first pass always gives one).
 fn edit_pass<'s>(
     edit: &Edit,
     (sketch, dem, dem_name): (&'s SketchFile, &Dem, &str),
     (scenes, prepared, mut notes): (Vec<ViewScene>, Vec<Vec<Stroke>>, Vec<String>),
     timings: &mut Timings,
-) -> Result<(Vec<ViewState<'s>>, Outcome), EditError> {
+    later: bool,
+) -> Result<(Vec<ViewState<'s>>, Option<Outcome>), EditError> {
     let t = Instant::now();
     let extracted = render_and_extract(edit, sketch, dem, scenes, prepared)?;
     let views = extracted.views;
@@ -350,7 +360,20 @@ fn edit_pass<'s>(
     timings.deformation = secs(t);
 
     let t = Instant::now();
-    let mut rounds = refine(edit, &views, &solver, &placed, deformation)?;
+    // (map-view corrections would change the terrain after the rounds:
+    // such a pass is never dropped early)
+    let discard_unchanged = later && sketch.corrections.is_none();
+    let Some(mut rounds) = refine(
+        edit,
+        &views,
+        &solver,
+        &placed,
+        deformation,
+        discard_unchanged,
+    )?
+    else {
+        return Ok((views, None));
+    };
     if rounds.kept_unedited {
         notes.push(
             "nothing changed by the strokes: no deformation fitted them better than the terrain as it is (each stroke's fit below is on the unedited terrain)"
@@ -375,7 +398,7 @@ fn edit_pass<'s>(
         deformation: rounds.deformation,
         corrections,
     };
-    Ok((views, outcome))
+    Ok((views, Some(outcome)))
 }
 
 /// A second pass is made when the first changed the terrain but left a
@@ -420,7 +443,7 @@ fn second_pass(
     edit.pb
         .set_message(format!("pass {pass} over the strokes left unfitted"));
     let d1 = &quantized(dem, &first.deformation);
-    let run_second = || -> Result<Outcome, EditError> {
+    let run_second = || -> Result<Option<Outcome>, EditError> {
         let overlay = dem.reopened()?.with_overlay(d1.window, d1.edited().data);
         let Loaded {
             sketch,
@@ -436,13 +459,17 @@ fn second_pass(
             (&sketch, &dem2, &dem_name),
             (scenes, prepared, notes),
             &mut scratch,
+            true,
         )?;
         Ok(second)
     };
     // The first pass stands on its own: a second that cannot run (a stroke
     // end no longer on terrain, say) leaves it as it is.
     let second = match run_second() {
-        Ok(o) => o,
+        Ok(Some(o)) => o,
+        // A pass that changes no cell is dropped (below) whatever it
+        // measured: it stopped as soon as that was known.
+        Ok(None) => return Ok((first, false)),
         Err(e) => {
             let mut out = first;
             out.notes.push(format!("no {} pass: {e}", ordinal(pass)));

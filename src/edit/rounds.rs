@@ -62,13 +62,19 @@ pub(super) struct Rounds {
 /// Every solve goes through `solver`, with the user's curve constraints of
 /// `placed` plus the lowering curves and the contour cells gathered so far;
 /// the result feeds the fit measurement and the write.
+///
+/// With `discard_unchanged` (a later pass, whose outcome the run drops
+/// when it changes no cell: `second_pass` in the pipeline), the rounds
+/// return `None` as soon as the terrain they end on is known to change
+/// no cell, before rendering it again: nothing after that would be used.
 pub(super) fn refine(
     edit: &Edit,
     views: &[ViewState],
     solver: &Solver,
     placed: &Placed,
     mut deformation: Deformation,
-) -> Result<Rounds, EditError> {
+    discard_unchanged: bool,
+) -> Result<Option<Rounds>, EditError> {
     let opts = edit.opts;
     let curves = &placed.demands.strokes;
     let regions = &placed.regions;
@@ -254,17 +260,34 @@ pub(super) fn refine(
         let worth = best_score >= score_before + RAISED_TRY_MIN_GAIN
             && worst_stroke_fit(curves, &rendered) >= opts.min_fit;
         if !worth {
+            // (`rendered` is `deformation`'s render: when that is the
+            // best round's terrain already, rendering it again gives the
+            // same views)
+            if !same_terrain(&deformation, &d) {
+                rendered = render_all(&d, Some(&rendered))?;
+            }
             deformation = d;
-            rendered = render_all(&deformation, Some(&rendered))?;
             best_score = score_before;
+        }
+    }
+    // A terrain that changes no cell (as the write stores it) stays so
+    // to the end: the unedited terrain is kept, or its spikes (none)
+    // flattened. A later pass that ends there is dropped whatever it
+    // measures, so it stops here.
+    if discard_unchanged {
+        let written = solver.as_written(&deformation);
+        if changes_nothing(written.as_ref().unwrap_or(&deformation)) {
+            return Ok(None);
         }
     }
     // From here on, the terrain is the one the write stores: on an integer
     // DEM the heights rounded to whole units. The test below and the
     // report measure the file a re-edit of the output will read.
     if let Some(q) = solver.as_written(&deformation) {
+        if !same_terrain(&deformation, &q) {
+            rendered = render_all(&q, Some(&rendered))?;
+        }
         deformation = q;
-        rendered = render_all(&deformation, Some(&rendered))?;
         best_score = fit_score(curves, &rendered);
     }
     // Do no harm: when the edit fits the strokes no better than the
@@ -280,8 +303,11 @@ pub(super) fn refine(
         eprintln!("rounds: unedited fit {unedited:.3}, best {best_score:.3}, kept unedited {kept_unedited}");
     }
     if kept_unedited {
-        deformation = unchanged(deformation);
-        rendered = render_all(&deformation, Some(&rendered))?;
+        let before = unchanged(deformation.clone());
+        if !same_terrain(&deformation, &before) {
+            rendered = render_all(&before, Some(&rendered))?;
+        }
+        deformation = before;
     }
     // No spikes: a lone apex (or pit) of the change field gets a
     // neighbour behind it within half a cell.
@@ -291,7 +317,7 @@ pub(super) fn refine(
         }
         rendered = render_all(&deformation, Some(&rendered))?;
     }
-    Ok(Rounds {
+    Ok(Some(Rounds {
         deformation,
         rendered,
         lowering_iterations: iterations,
@@ -299,7 +325,27 @@ pub(super) fn refine(
         contour_iterations: contour_rounds,
         lowering_constraints: constraints.len() - user_constraints,
         kept_unedited,
-    })
+    }))
+}
+
+/// Whether `a` and `b` give every view the same terrain: the same window,
+/// base heights and displacements, to the bit (a view's terrain is the
+/// base plus the displacement where that is finite and not zero).
+fn same_terrain(a: &Deformation, b: &Deformation) -> bool {
+    let bits = |x: &[f32], y: &[f32]| {
+        x.len() == y.len() && x.iter().zip(y).all(|(p, q)| p.to_bits() == q.to_bits())
+    };
+    a.window == b.window
+        && bits(&a.base.data, &b.base.data)
+        && bits(&a.displacement, &b.displacement)
+}
+
+/// Whether `d` changes no cell: every displacement zero (or nodata), and
+/// counted so ([`crate::deform::DeformStats::changed_cells`]). Such a
+/// deformation has no spikes to flatten and stays unchanged to the end of
+/// the rounds.
+fn changes_nothing(d: &Deformation) -> bool {
+    d.stats.changed_cells == 0 && d.displacement.iter().all(|m| *m == 0.0 || m.is_nan())
 }
 
 /// What the last try of the rounds does ([`lower_raised_crests`]).

@@ -591,12 +591,7 @@ impl LocalTerrain {
         }
         // The (at most) 4 x 4 vertices, read once each (a row of a patched
         // terrain would be a copy).
-        let mut v = [[0f32; 4]; 4];
-        for (j, vr) in v.iter_mut().enumerate().take(r_hi + 2 - r_lo) {
-            for (i, vv) in vr.iter_mut().enumerate().take(c_hi + 2 - c_lo) {
-                *vv = self.z.at_cr(c_lo + i, r_lo + j);
-            }
-        }
+        let v = self.z.rect4(c_lo, r_lo, c_hi + 2 - c_lo, r_hi + 2 - r_lo);
         let mut twist = 0.0f64;
         for rr in r_lo..=r_hi {
             let (row0, row1) = (&v[rr - r_lo], &v[rr + 1 - r_lo]);
@@ -608,7 +603,8 @@ impl LocalTerrain {
                     continue;
                 }
                 let (a, b, e, d) = (a as f64, b as f64, e as f64, d as f64);
-                twist = twist.max((a + d - b - e).abs());
+                // (a number, never NaN: `fmax` is `max` here)
+                twist = fmax(twist, (a + d - b - e).abs());
             }
         }
         twist
@@ -943,7 +939,7 @@ impl LocalTerrain {
             ) else {
                 break;
             };
-            let te = tx.min(ty).min(t1).max(tp);
+            let te = fmax(fmin(fmin(tx, ty), t1), tp);
             let ray_min = dz * if dz < 0.0 { te } else { t };
             if ray_min > mip[level][by * mw + bx] as f64 {
                 t = te;
@@ -973,7 +969,7 @@ impl LocalTerrain {
                 ) else {
                     return None;
                 };
-                let tc = cx_exit.min(cy_exit).min(te).max(tq);
+                let tc = fmax(fmin(fmin(cx_exit, cy_exit), te), tq);
                 if let Some(hit) = self.cell_hit(c, r, t, tc, ray) {
                     return Some(hit);
                 }
@@ -1126,9 +1122,9 @@ impl LocalTerrain {
                     }
                 } else {
                     let (a, b) = (-o / g, (1.0 - o) / g);
-                    ta = ta.max(a.min(b));
-                    *exit = a.max(b);
-                    tb = tb.min(*exit);
+                    ta = fmax(ta, fmin(a, b));
+                    *exit = fmax(a, b);
+                    tb = fmin(tb, *exit);
                 }
             }
             if !(tb > ta) || (k == 0 && ta > latest_entry) {
@@ -1265,11 +1261,13 @@ impl BilinearPatch {
         }
         let span = tb - ta;
         let roots = quadratic_roots(qa, qb, qc);
-        let first = roots
-            .into_iter()
-            .flatten()
-            .filter(|&s| s > 0.0 && s <= span)
-            .fold(f64::INFINITY, f64::min);
+        // The least root in (0, span] (compared as written: the roots kept
+        // are positive numbers, where that is `f64::min`).
+        let kept = |s: Option<f64>| match s {
+            Some(s) if s > 0.0 && s <= span => s,
+            _ => f64::INFINITY,
+        };
+        let first = fmin(kept(roots[0]), kept(roots[1]));
         if first.is_finite() {
             return Some(ta + first);
         }
@@ -1302,7 +1300,7 @@ const CLEAR_MARGIN: f64 = 1e-6;
 /// for a fraction of its cost.
 #[inline]
 fn ray_clears(corners: &[f64; 4], dz: f64, ta: f64, tb: f64) -> bool {
-    let hi = corners[0].max(corners[1]).max(corners[2]).max(corners[3]);
+    let hi = fmax(fmax(corners[0], corners[1]), fmax(corners[2], corners[3]));
     let lowest = dz * if dz < 0.0 { tb } else { ta };
     lowest > hi + CLEAR_MARGIN * (1.0 + hi.abs())
 }
@@ -1670,6 +1668,31 @@ fn pow2(e: i32) -> f64 {
     f64::from_bits(((1023 + e) as u64) << 52)
 }
 
+/// The lesser of `a` and `b`, compared as written (one `minsd`): for the
+/// casts' inner loops, whose values are never NaN (there, `f64::min`
+/// would give the same, with a NaN check each time). On a tie the result
+/// is `b`, the same number (the loops' ties are never zeros of opposite
+/// signs, where the two could differ: they are distances past a positive
+/// start, or heights compared with a margin).
+#[inline]
+fn fmin(a: f64, b: f64) -> f64 {
+    if a < b {
+        a
+    } else {
+        b
+    }
+}
+
+/// The greater of `a` and `b`, as [`fmin`]; a NaN `a` gives `b`.
+#[inline]
+fn fmax(a: f64, b: f64) -> f64 {
+    if a > b {
+        a
+    } else {
+        b
+    }
+}
+
 /// A grid index as `f64`, the value `i as f64` gives (indices are far below
 /// 2^53), by the signed conversion, a single instruction on x86-64.
 #[inline]
@@ -1677,12 +1700,18 @@ fn index_f64(i: usize) -> f64 {
     i as i64 as f64
 }
 
-/// `v.max(0.0) as usize` (NaN and negative values give 0), by the signed
-/// conversion: the two agree for every value below 2^63, and the callers
-/// clamp the index to the grid, far below it.
+/// `v.max(0.0) as usize` (NaN and negative values give 0: `fmax` gives 0
+/// for a NaN `v`, as `max` does), by the signed conversion: the two agree
+/// for every value below 2^53, and the callers clamp the index to the
+/// grid (or compare it with one), far below it, so that above (where
+/// this gives 2^53) the outcome is theirs too.
 #[inline]
 fn floor_index(v: f64) -> usize {
-    v.max(0.0) as i64 as usize
+    let x = fmin(fmax(v, 0.0), 9_007_199_254_740_992.0);
+    // SAFETY: `x` is a number within `0..=2^53`, where the conversion is
+    // defined (it truncates, as `as` does); the unchecked one is a single
+    // instruction, without `as`'s saturation.
+    (unsafe { x.to_int_unchecked::<i64>() }) as usize
 }
 
 /// One axis of a ray's horizontal track in vertex coordinates: `o + g t`,
@@ -1717,7 +1746,7 @@ impl RayAxis {
 fn axis_block(a: &RayAxis, p: f64, s: f64, inv_s: f64, n: usize, tp: f64) -> Option<(usize, f64)> {
     let exit = |b: usize| {
         if a.g > 0.0 {
-            ((index_f64(b + 1) * s).min(a.w) - a.o) * a.inv_g
+            (fmin(index_f64(b + 1) * s, a.w) - a.o) * a.inv_g
         } else if a.g < 0.0 {
             (index_f64(b) * s - a.o) * a.inv_g
         } else {

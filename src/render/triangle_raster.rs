@@ -974,10 +974,12 @@ impl Raster<'_> {
             for (&(a, b, k), by) in edges.iter().zip(&mut by) {
                 *by = b * y;
                 let c = *by + k;
+                // (`-c / a` is a number here, never NaN: a finite margin
+                // bounds it; its zeros' signs do not matter below)
                 if a > 0.0 {
-                    xl = xl.max(-c / a);
+                    xl = fmax(xl, -c / a);
                 } else if a < 0.0 {
-                    xh = xh.min(-c / a);
+                    xh = fmin(xh, -c / a);
                 } else if c < 0.0 {
                     // a = 0: the test is c >= 0 exactly
                     xh = f64::NEG_INFINITY;
@@ -1149,13 +1151,18 @@ fn span_margin(edges: &[(f64, f64, f64); 3], px1: i32, py1: i32) -> f64 {
 
 /// `floor` to i32 without a libm call or a branch, saturating far outside
 /// the image (truncation is floor for the shifted value, kept
-/// non-negative; `as` saturates above; NaN gives `-SHIFT`).
+/// non-negative and at most `i32::MAX`, where `as` would saturate; NaN
+/// gives `-SHIFT`).
 #[inline]
 fn floor_i32(v: f64) -> i32 {
     const SHIFT: f64 = 4_194_304.0;
     let t = v + SHIFT;
-    // one `maxsd`
-    (if t > 0.0 { t } else { 0.0 }) as i32 - SHIFT as i32
+    // one `maxsd` (NaN gives 0), one `minsd`
+    let t = fmin(if t > 0.0 { t } else { 0.0 }, i32::MAX as f64);
+    // SAFETY: `t` is a number within `0..=i32::MAX` (both exact in f64),
+    // where the conversion is defined (it truncates, as `as` does); the
+    // unchecked one is a single instruction, without `as`'s saturation.
+    (unsafe { t.to_int_unchecked::<i32>() }) - SHIFT as i32
 }
 
 /// `ceil` to i32, as [`floor_i32`].

@@ -52,6 +52,13 @@ impl Patch {
     }
 }
 
+/// The heights at `k`, `k + 1`, `k + stride` and `k + stride + 1` of
+/// `data`: a cell's four corners in a row-major grid `stride` across.
+#[inline]
+fn quad_from(data: &[f32], k: usize, stride: usize) -> [f32; 4] {
+    [data[k], data[k + 1], data[k + stride], data[k + stride + 1]]
+}
+
 impl VertexHeights {
     /// Heights `z` of a grid `nx` across, with no patch.
     pub(crate) fn new(z: Vec<f32>, nx: usize) -> Self {
@@ -96,24 +103,60 @@ impl VertexHeights {
     /// patch for the four where they all lie on one side of its border.
     #[inline]
     pub fn quad(&self, c: usize, r: usize) -> [f32; 4] {
-        let from = |data: &[f32], k: usize, stride: usize| {
-            [data[k], data[k + 1], data[k + stride], data[k + stride + 1]]
-        };
         match &self.patch {
             Some(p) if p.touches_quad(c, r) => {
                 if p.holds_quad(c, r) {
-                    from(&p.data, (r - p.r0) * p.w + (c - p.c0), p.w)
+                    quad_from(&p.data, (r - p.r0) * p.w + (c - p.c0), p.w)
                 } else {
-                    [
-                        self.at_cr(c, r),
-                        self.at_cr(c + 1, r),
-                        self.at_cr(c, r + 1),
-                        self.at_cr(c + 1, r + 1),
-                    ]
+                    self.quad_straddling(c, r)
                 }
             }
-            _ => from(&self.base, r * self.nx + c, self.nx),
+            _ => quad_from(&self.base, r * self.nx + c, self.nx),
         }
+    }
+
+    /// [`VertexHeights::quad`] of a cell across the patch's border: out of
+    /// line, so that the common cases (all four corners in the base, or
+    /// all in the patch) are a few instructions wherever they are inlined.
+    #[inline(never)]
+    fn quad_straddling(&self, c: usize, r: usize) -> [f32; 4] {
+        [
+            self.at_cr(c, r),
+            self.at_cr(c + 1, r),
+            self.at_cr(c, r + 1),
+            self.at_cr(c + 1, r + 1),
+        ]
+    }
+
+    /// The heights of the vertices `c0..c0 + w` x `r0..r0 + h` (within
+    /// the grid, `w` and `h` at most 4), as [`VertexHeights::at_cr`] gives
+    /// them, at `[row - r0][column - c0]` (the rest zero): rows read as
+    /// slices where the rectangle lies wholly outside or inside the patch.
+    #[inline]
+    pub fn rect4(&self, c0: usize, r0: usize, w: usize, h: usize) -> [[f32; 4]; 4] {
+        let (w, h) = (w.min(4), h.min(4));
+        let mut v = [[0f32; 4]; 4];
+        let (data, k, stride) = match &self.patch {
+            Some(p) if c0 < p.c0 + p.w && p.c0 < c0 + w && r0 < p.r0 + p.h && p.r0 < r0 + h => {
+                let inside =
+                    c0 >= p.c0 && c0 + w <= p.c0 + p.w && r0 >= p.r0 && r0 + h <= p.r0 + p.h;
+                if !inside {
+                    for (j, row) in v.iter_mut().enumerate().take(h) {
+                        for (i, z) in row.iter_mut().enumerate().take(w) {
+                            *z = self.at_cr(c0 + i, r0 + j);
+                        }
+                    }
+                    return v;
+                }
+                (&p.data[..], (r0 - p.r0) * p.w + (c0 - p.c0), p.w)
+            }
+            _ => (&self.base[..], r0 * self.nx + c0, self.nx),
+        };
+        for (j, row) in v.iter_mut().enumerate().take(h) {
+            let k = k + j * stride;
+            row[..w].copy_from_slice(&data[k..k + w]);
+        }
+        v
     }
 
     #[inline]
