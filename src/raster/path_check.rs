@@ -52,6 +52,73 @@ fn same(a: &Path, b: &Path) -> bool {
         || matches!((identity(a), identity(b)), (Some(x), Some(y)) if x == y)
 }
 
+/// A path resolved for the checks: its canonical form ([`canonical`]) and
+/// its file identity ([`identity`]), found once per path.
+struct Resolved {
+    canon: PathBuf,
+    id: Option<(u64, u64)>,
+}
+
+impl Resolved {
+    fn same(&self, other: &Resolved) -> bool {
+        self.canon == other.canon || matches!((self.id, other.id), (Some(x), Some(y)) if x == y)
+    }
+}
+
+/// Resolves paths, canonicalising each parent directory once: a file that
+/// exists and is not a symbolic link is its canonical directory joined
+/// with its name (what `canonicalize` gives, which resolves every
+/// component of the path again, a `readlink` each), and its `lstat` is its
+/// identity. Anything else (a link, a missing file, a path ending in `..`)
+/// is resolved as [`canonical`] and [`identity`] do. On a directory of
+/// 1,024 tiles this is 1,024 `lstat`s and one `realpath` instead of six
+/// `realpath`s and four `stat`s per tile.
+#[derive(Default)]
+struct Resolver {
+    dirs: std::collections::HashMap<PathBuf, Option<PathBuf>>,
+}
+
+impl Resolver {
+    fn resolve(&mut self, p: &Path) -> Resolved {
+        if let Some(r) = self.resolve_in_dir(p) {
+            return r;
+        }
+        Resolved {
+            canon: canonical(p),
+            id: identity(p),
+        }
+    }
+
+    fn resolve_in_dir(&mut self, p: &Path) -> Option<Resolved> {
+        let name = match p.components().next_back() {
+            Some(std::path::Component::Normal(n)) => n,
+            _ => return None,
+        };
+        // (no trailing `/` or `/.`: the name must be the path's last bytes)
+        if !p
+            .as_os_str()
+            .as_encoded_bytes()
+            .ends_with(name.as_encoded_bytes())
+        {
+            return None;
+        }
+        let meta = std::fs::symlink_metadata(p).ok()?;
+        if meta.file_type().is_symlink() {
+            return None;
+        }
+        let parent = super::atomic_file::parent_dir(p);
+        let dir = self
+            .dirs
+            .entry(parent.to_path_buf())
+            .or_insert_with(|| parent.canonicalize().ok())
+            .as_ref()?;
+        Some(Resolved {
+            canon: dir.join(name),
+            id: Some((meta.dev(), meta.ino())),
+        })
+    }
+}
+
 /// Refuse outputs that would overwrite an input or each other, an output
 /// directory that contains an input, and outputs inside an input tile
 /// directory.
@@ -60,37 +127,40 @@ pub fn check_outputs(inputs: &[Input], outputs: &[Output]) -> Result<(), RasterE
         path: o.path.clone(),
         message: format!("{m}; nothing written"),
     };
-    for (i, o) in outputs.iter().enumerate() {
-        let oc = canonical(&o.path);
-        for inp in inputs {
-            if same(&o.path, &inp.path) {
+    let mut resolver = Resolver::default();
+    let ins: Vec<Resolved> = inputs.iter().map(|i| resolver.resolve(&i.path)).collect();
+    let outs: Vec<Resolved> = outputs.iter().map(|o| resolver.resolve(&o.path)).collect();
+    for (i, (o, or)) in outputs.iter().zip(&outs).enumerate() {
+        let oc = &or.canon;
+        for (inp, ir) in inputs.iter().zip(&ins) {
+            if or.same(ir) {
                 return Err(refuse(o, format!("{} names {}", o.flag, inp.what)));
             }
         }
-        for inp in inputs {
-            let ic = canonical(&inp.path);
-            if o.is_dir && ic.starts_with(&oc) {
+        for (inp, ir) in inputs.iter().zip(&ins) {
+            let ic = &ir.canon;
+            if o.is_dir && ic.starts_with(oc) {
                 return Err(refuse(
                     o,
                     format!("{} is a directory that holds {}", o.flag, inp.what),
                 ));
             }
-            if inp.is_dir && o.flag == "--out" && oc.starts_with(&ic) {
+            if inp.is_dir && o.flag == "--out" && oc.starts_with(ic) {
                 return Err(refuse(o, format!("{} lies inside {}", o.flag, inp.what)));
             }
         }
-        for p in &outputs[..i] {
-            if same(&o.path, &p.path) {
+        for (p, pr) in outputs[..i].iter().zip(&outs) {
+            if or.same(pr) {
                 return Err(refuse(
                     o,
                     format!("given to both {} and {}", p.flag, o.flag),
                 ));
             }
-            let pc = canonical(&p.path);
+            let pc = &pr.canon;
             let inside = |dir: &Output, d: &Path, f: &Path| {
                 dir.is_dir && dir.flag == "--out" && f != d && f.starts_with(d)
             };
-            if inside(p, &pc, &oc) || inside(o, &oc, &pc) {
+            if inside(p, pc, oc) || inside(o, oc, pc) {
                 return Err(refuse(o, format!("{} and {} overlap", p.flag, o.flag)));
             }
         }
@@ -164,4 +234,47 @@ pub fn dem_inputs(dem: &super::Dem) -> Vec<Input> {
         });
     }
     v
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_resolver_gives_what_canonical_and_identity_give() {
+        let tmp = tempfile::tempdir().expect("temporary directory");
+        let d = tmp.path();
+        std::fs::create_dir(d.join("sub")).expect("mkdir");
+        std::fs::write(d.join("sub/tile.tif"), b"x").expect("write");
+        std::os::unix::fs::symlink(d.join("sub/tile.tif"), d.join("link.tif")).expect("symlink");
+        std::os::unix::fs::symlink(d.join("sub"), d.join("dirlink")).expect("symlink");
+        std::fs::hard_link(d.join("sub/tile.tif"), d.join("hard.tif")).expect("hard link");
+        let paths = [
+            d.join("sub/tile.tif"),
+            d.join("link.tif"),
+            d.join("dirlink/tile.tif"),
+            d.join("hard.tif"),
+            d.join("sub/../sub/tile.tif"),
+            d.join("sub/./tile.tif"),
+            d.join("sub/tile.tif/"),
+            d.join("sub/missing.tif"),
+            d.join("missing/missing.tif"),
+            d.join("sub"),
+            d.join("sub/."),
+            d.join("sub/.."),
+            PathBuf::from("Cargo.toml"),
+            PathBuf::from("src/../Cargo.toml"),
+        ];
+        let mut r = Resolver::default();
+        for p in &paths {
+            let got = r.resolve(p);
+            assert_eq!(got.canon, canonical(p), "{}", p.display());
+            assert_eq!(got.id, identity(p), "{}", p.display());
+        }
+        for a in &paths {
+            for b in &paths {
+                assert_eq!(r.resolve(a).same(&r.resolve(b)), same(a, b));
+            }
+        }
+    }
 }

@@ -44,6 +44,20 @@ fn reserve(v: &mut Vec<u8>, n: usize) -> Result<(), BlockError> {
         .map_err(|_| BlockError::Decompress(format!("cannot allocate {n} bytes")))
 }
 
+/// A zlib stream `src` that inflates to exactly `expected` bytes, inflated
+/// in one call; `None` for any other stream (longer, shorter or damaged)
+/// or where the buffer cannot be had (the streaming inflate then decides).
+fn inflate_whole(src: &[u8], expected: usize) -> Option<Vec<u8>> {
+    let mut out = Vec::new();
+    out.try_reserve_exact(expected).ok()?;
+    out.resize(expected, 0);
+    let mut d = libdeflater::Decompressor::new();
+    match d.zlib_decompress(src, &mut out) {
+        Ok(n) if n == expected => Some(out),
+        _ => None,
+    }
+}
+
 /// Decompress `src` into exactly `expected` bytes (longer output is cut,
 /// shorter output is an error). Output buffers grow with the data that
 /// actually arrives (starting from a small multiple of the input), so a
@@ -79,6 +93,13 @@ fn decompress(compression: u16, src: &[u8], expected: usize) -> Result<Vec<u8>, 
             }
         }
         8 | 32946 => {
+            // A whole block in one call (libdeflate, about twice as fast as
+            // a streaming inflate) where the stream holds exactly the
+            // block; anything else (a longer or short stream, a damaged
+            // one) streams as below, which cuts or refuses it.
+            if let Some(whole) = inflate_whole(src, expected) {
+                return Ok(whole);
+            }
             let mut d = flate2::Decompress::new(true);
             loop {
                 if out.len() == out.capacity() {
@@ -334,5 +355,47 @@ mod tests {
         let src = [0xFEu8, 0xAA, 0x02, 0x80, 0x00, 0x2A];
         let out = decompress(32773, &src, 6).expect("packbits");
         assert_eq!(out, vec![0xAA, 0xAA, 0xAA, 0x80, 0x00, 0x2A]);
+    }
+
+    /// The one-call inflate gives what the streaming one gives, and leaves
+    /// every stream that does not hold exactly the block to it.
+    #[test]
+    fn deflate_in_one_call_or_streamed_gives_the_same_bytes() {
+        use std::io::Write;
+        let data: Vec<u8> = (0..200_000u32)
+            .map(|i| (i.wrapping_mul(2_654_435_761) >> 13) as u8 & 0x3F)
+            .collect();
+        let mut e = flate2::write::ZlibEncoder::new(Vec::new(), flate2::Compression::default());
+        e.write_all(&data).expect("compress");
+        let z = e.finish().expect("compress");
+        let streamed = |src: &[u8], n: usize| {
+            let mut out = Vec::with_capacity(n);
+            let mut d = flate2::Decompress::new(true);
+            let _ = d.decompress_vec(src, &mut out, flate2::FlushDecompress::Finish);
+            out
+        };
+        // exactly the block
+        assert!(inflate_whole(&z, data.len()).as_deref() == Some(&data[..]));
+        assert_eq!(decompress(8, &z, data.len()).expect("deflate"), data);
+        // a stream longer than the block: cut
+        assert!(inflate_whole(&z, 1000).is_none());
+        assert_eq!(
+            decompress(8, &z, 1000).expect("deflate"),
+            streamed(&z, 1000)
+        );
+        assert_eq!(
+            &decompress(8, &z, 1000).expect("deflate")[..],
+            &data[..1000]
+        );
+        // a stream shorter than the block: an error, as before
+        assert!(inflate_whole(&z, data.len() + 1).is_none());
+        assert!(decompress(8, &z, data.len() + 1).is_err());
+        // a damaged checksum: left to the streaming inflate, which refuses
+        // it (as before)
+        let mut bad = z.clone();
+        let last = bad.len() - 1;
+        bad[last] ^= 0xFF;
+        assert!(inflate_whole(&bad, data.len()).is_none());
+        assert!(decompress(8, &bad, data.len()).is_err());
     }
 }
