@@ -49,6 +49,9 @@
 //!   Silhouette::id`. Silhouettes depend on the view, so their ids are
 //!   unique across the views of a sketch (`view_index` is the view's index
 //!   in the sketch file).
+//! - the skyline of a view as one feature
+//!   ([`skyline_feature`](super::skyline::skyline_feature)): the
+//!   silhouette id of curve [`SKYLINE_CURVE`](super::skyline::SKYLINE_CURVE).
 
 use super::multi_view::ViewInput;
 use super::placement::PlacedPoint;
@@ -499,6 +502,12 @@ impl<'a> SceneView<'a> {
         let mut features = Vec::new();
         if opts.silhouettes {
             features.extend(silhouette_features(view_index, silhouettes, &projection));
+            features.extend(super::skyline::skyline_feature(
+                view_index,
+                silhouettes,
+                &projection,
+                opts.min_depth_m,
+            ));
         }
         if opts.ridges {
             features.extend(ridge_features(ridges, &projection, opts));
