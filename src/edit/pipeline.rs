@@ -319,50 +319,85 @@ pub fn run_opened(
 /// Stages 2 to 5 on the loaded views: features, matching, deformation,
 /// lowering and contour rounds (with the sketch's map-view corrections),
 /// and the strokes measured on the result. `timings` gets their times.
+/// When a stroke matched to a view's skyline is left unfitted, stages 3
+/// to 5 run again without the skylines, and that outcome is kept if it
+/// fits the strokes better (ties keep the skyline's).
 fn edit_pass<'s>(
     edit: &Edit,
     (sketch, dem, dem_name): (&'s SketchFile, &Dem, &str),
-    (scenes, prepared, mut notes): (Vec<ViewScene>, Vec<Vec<Stroke>>, Vec<String>),
+    (scenes, prepared, notes): (Vec<ViewScene>, Vec<Vec<Stroke>>, Vec<String>),
     timings: &mut Timings,
 ) -> Result<(Vec<ViewState<'s>>, Outcome), EditError> {
     let t = Instant::now();
     let extracted = render_and_extract(edit, sketch, dem, scenes, prepared)?;
     let views = extracted.views;
-    let features = scene_features(&views, &extracted.ridges, &sketch.options);
+    let features = scene_features(&views, &extracted.ridges, &sketch.options, true);
     timings.features = secs(t);
+    let found = (&views[..], &extracted.windows[..], &features);
+    let outcome = match_and_fit(edit, (sketch, dem, dem_name), found, notes.clone(), timings)?;
+    if !skyline_left_unfitted(&outcome) {
+        return Ok((views, outcome));
+    }
+    // A skyline match that leaves a stroke unfitted stands against the
+    // match without the skyline (see `sketch::skyline`).
+    let plain = scene_features(&views, &extracted.ridges, &sketch.options, false);
+    let mut scratch = Timings::default();
+    let found = (&views[..], &extracted.windows[..], &plain);
+    let outcome = match match_and_fit(edit, (sketch, dem, dem_name), found, notes, &mut scratch) {
+        Ok(mut other) if fit_score(&other) > fit_score(&outcome) + 1e-9 => {
+            other.notes.push(format!(
+                "a stroke matched to a view's skyline was left unfitted: matched without the skylines, the strokes' summed fit is {:.3} instead of {:.3}",
+                fit_score(&other),
+                fit_score(&outcome)
+            ));
+            other
+        }
+        _ => outcome,
+    };
+    timings.matching += scratch.matching;
+    timings.deformation += scratch.deformation;
+    timings.lowering += scratch.lowering;
+    Ok((views, outcome))
+}
 
+/// Stages 3 to 5 on the rendered `views` and their `features`: matching,
+/// deformation, lowering and contour rounds (with the sketch's map-view
+/// corrections), and the strokes measured on the result.
+fn match_and_fit(
+    edit: &Edit,
+    (sketch, dem, dem_name): (&SketchFile, &Dem, &str),
+    (views, windows, features): (&[ViewState], &[HeightMap], &Features),
+    mut notes: Vec<String>,
+    timings: &mut Timings,
+) -> Result<Outcome, EditError> {
     let t = Instant::now();
     let map_only = sketch.corrections.is_some() && views.iter().all(|v| v.strokes.is_empty());
     let placed = match_strokes(
         edit,
         (&sketch.options, dem),
-        (&views, &extracted.windows, map_only),
-        &features,
+        (views, windows, map_only),
+        features,
         &mut notes,
     )?;
     timings.matching = secs(t);
-    // The views' heights were for the held cells, now placed: the rounds
-    // re-render from the views' terrains (`render_edited`).
-    drop(extracted.windows);
 
     let t = Instant::now();
-    let (solver, deformation) = deform(edit, dem, dem_name, &sketch.options, &views, &placed)?;
+    let (solver, deformation) = deform(edit, dem, dem_name, &sketch.options, views, &placed)?;
     timings.deformation = secs(t);
 
     let t = Instant::now();
-    let mut rounds = refine(edit, &views, &solver, &placed, deformation)?;
+    let mut rounds = refine(edit, views, &solver, &placed, deformation)?;
     if rounds.kept_unedited {
         notes.push(
             "nothing changed by the strokes: no deformation fitted them better than the terrain as it is (each stroke's fit below is on the unedited terrain)"
                 .to_string(),
         );
     }
-    let corrections = apply_corrections(edit, dem, sketch, &views, &placed, &mut rounds)?;
-    let view_reports = measure_strokes(edit, &views, &features, &placed, &rounds);
+    let corrections = apply_corrections(edit, dem, sketch, views, &placed, &mut rounds)?;
+    let view_reports = measure_strokes(edit, views, features, &placed, &rounds);
     timings.lowering = secs(t);
-    drop(features);
 
-    let outcome = Outcome {
+    Ok(Outcome {
         views: view_reports,
         notes,
         curve_constraints: placed.demands.curves.len(),
@@ -374,8 +409,24 @@ fn edit_pass<'s>(
         },
         deformation: rounds.deformation,
         corrections,
-    };
-    Ok((views, outcome))
+    })
+}
+
+/// The strokes' summed fit (the fitted fraction of each stroke).
+fn fit_score(o: &Outcome) -> f64 {
+    o.views
+        .iter()
+        .flat_map(|v| &v.strokes)
+        .map(|s| s.fit.fitted_fraction)
+        .sum()
+}
+
+/// True when a stroke was matched to a view's skyline feature
+/// ([`crate::sketch::skyline`]) and some stroke is short of a full fit.
+fn skyline_left_unfitted(o: &Outcome) -> bool {
+    let strokes = || o.views.iter().flat_map(|v| &v.strokes);
+    strokes().any(|s| s.matched.feature_id.is_some_and(crate::sketch::is_skyline))
+        && strokes().any(|s| s.fit.fitted_fraction < 1.0 - 1e-9)
 }
 
 /// A second pass is made when the first changed the terrain but left a
@@ -449,13 +500,7 @@ fn second_pass(
             return Ok((out, false));
         }
     };
-    let score = |o: &Outcome| -> f64 {
-        o.views
-            .iter()
-            .flat_map(|v| &v.strokes)
-            .map(|s| s.fit.fitted_fraction)
-            .sum()
-    };
+    let score = fit_score;
     if score(&second) < score(&first) - 1e-9 || second.deformation.stats.changed_cells == 0 {
         return Ok((first, false));
     }
@@ -847,6 +892,7 @@ fn scene_features<'v>(
     views: &'v [ViewState],
     ridges: &RidgeNetwork,
     options: &SketchOptions,
+    skyline: bool,
 ) -> Features<'v> {
     // Multi-view sketches are matched in one world frame: the first view's.
     let world = (views.len() > 1).then(|| views[0].frame);
@@ -866,6 +912,7 @@ fn scene_features<'v>(
                 ridges,
                 &ViewFeatureOptions {
                     min_depth_m: v.observer_radius(options.observer_radius_m),
+                    skyline,
                     ..ViewFeatureOptions::default()
                 },
             )
