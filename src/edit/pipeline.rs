@@ -205,6 +205,9 @@ pub(super) struct Edit<'o> {
     /// [`EditOptions::max_distance_m`] when finite and positive.
     pub(super) max_d: Option<f64>,
     pub(super) pb: ProgressBar,
+    /// The views' skylines are candidate features
+    /// ([`crate::sketch::skyline`]); `false` on the run without them.
+    pub(super) skyline: bool,
 }
 
 pub(super) fn secs(t: Instant) -> f64 {
@@ -264,6 +267,7 @@ pub fn run_opened(
         sketch_name: sketch_path.display().to_string(),
         max_d: opts.max_distance_m.filter(|d| d.is_finite() && *d > 0.0),
         pb: progress_bar(opts),
+        skyline: true,
     };
     let mut timings = Timings::default();
     check_output_paths(opts)?;
@@ -284,27 +288,66 @@ pub fn run_opened(
     timings.load = secs(t);
 
     let dem_name = dem_path.display().to_string();
-    let (views, mut outcome) = edit_pass(
+    let (views, outcome) = all_passes(
         &edit,
-        (&sketch, &dem, &dem_name),
+        (&sketch, &dem, &dem_name, sketch_path),
         (scenes, prepared, notes),
         &mut timings,
     )?;
-    let mut pass = 1;
-    while pass < MAX_PASSES && needs_second_pass(&sketch, &outcome) {
-        let t = Instant::now();
-        // The far rings of a long view lie beyond every pass's changes:
-        // the later passes take the first's (when they serve, see `load_views`).
-        let far: Vec<FarLayers> = views
-            .iter()
-            .map(|v| v.before.terrain.far_layers())
-            .collect();
-        pass += 1;
-        let changed;
-        (outcome, changed) = second_pass(&edit, &dem, sketch_path, outcome, &far, pass)?;
-        timings.lowering += secs(t);
-        if !changed {
-            break;
+    if skyline_left_unfitted(&outcome) {
+        // A skyline match that leaves a stroke unfitted stands against
+        // the edit without the skylines (see `sketch::skyline`).
+        let plain = Edit {
+            opts,
+            sketch_name: edit.sketch_name.clone(),
+            max_d: edit.max_d,
+            pb: edit.pb.clone(),
+            skyline: false,
+        };
+        let reloaded = dem.reopened().map_err(EditError::from).and_then(|d| {
+            load_views(
+                &plain,
+                d.with_block_cache_budget(EDIT_BLOCK_CACHE_BYTES),
+                sketch_path,
+                &[],
+            )
+        });
+        if let Ok(Loaded {
+            sketch: sketch2,
+            dem: dem2,
+            notes: notes2,
+            prepared: prepared2,
+            scenes: scenes2,
+        }) = reloaded
+        {
+            let mut scratch = Timings::default();
+            let other = all_passes(
+                &plain,
+                (&sketch2, &dem2, &dem_name, sketch_path),
+                (scenes2, prepared2, notes2),
+                &mut scratch,
+            );
+            if let Ok((views2, mut outcome2)) = other {
+                if fit_score(&outcome2) > fit_score(&outcome) + 1e-9 {
+                    outcome2.notes.push(format!(
+                        "a stroke matched to a view's skyline was left unfitted: matched without the skylines, the strokes' summed fit is {:.3} instead of {:.3}",
+                        fit_score(&outcome2),
+                        fit_score(&outcome)
+                    ));
+                    timings.load += scratch.load;
+                    timings.features += scratch.features;
+                    timings.matching += scratch.matching;
+                    timings.deformation += scratch.deformation;
+                    timings.lowering += scratch.lowering;
+                    let sources = Sources {
+                        dem_path,
+                        sketch_path,
+                        dem: &dem2,
+                        sketch: &sketch2,
+                    };
+                    return write_outputs(plain, &sources, &views2, outcome2, timings, t_all);
+                }
+            }
         }
     }
     let sources = Sources {
@@ -316,88 +359,83 @@ pub fn run_opened(
     write_outputs(edit, &sources, &views, outcome, timings, t_all)
 }
 
+/// The first pass ([`edit_pass`]) and, while one is kept and leaves a
+/// stroke unfitted, the later ones ([`second_pass`]), up to
+/// [`MAX_PASSES`].
+fn all_passes<'s>(
+    edit: &Edit,
+    (sketch, dem, dem_name, sketch_path): (&'s SketchFile, &Dem, &str, &Path),
+    loaded: (Vec<ViewScene>, Vec<Vec<Stroke>>, Vec<String>),
+    timings: &mut Timings,
+) -> Result<(Vec<ViewState<'s>>, Outcome), EditError> {
+    let (views, mut outcome) = edit_pass(edit, (sketch, dem, dem_name), loaded, timings)?;
+    let mut pass = 1;
+    while pass < MAX_PASSES && needs_second_pass(sketch, &outcome) {
+        let t = Instant::now();
+        // The far rings of a long view lie beyond every pass's changes:
+        // the later passes take the first's (when they serve, see `load_views`).
+        let far: Vec<FarLayers> = views
+            .iter()
+            .map(|v| v.before.terrain.far_layers())
+            .collect();
+        pass += 1;
+        let changed;
+        (outcome, changed) = second_pass(edit, dem, sketch_path, outcome, &far, pass)?;
+        timings.lowering += secs(t);
+        if !changed {
+            break;
+        }
+    }
+    Ok((views, outcome))
+}
+
 /// Stages 2 to 5 on the loaded views: features, matching, deformation,
 /// lowering and contour rounds (with the sketch's map-view corrections),
 /// and the strokes measured on the result. `timings` gets their times.
-/// When a stroke matched to a view's skyline is left unfitted, stages 3
-/// to 5 run again without the skylines, and that outcome is kept if it
-/// fits the strokes better (ties keep the skyline's).
 fn edit_pass<'s>(
     edit: &Edit,
     (sketch, dem, dem_name): (&'s SketchFile, &Dem, &str),
-    (scenes, prepared, notes): (Vec<ViewScene>, Vec<Vec<Stroke>>, Vec<String>),
+    (scenes, prepared, mut notes): (Vec<ViewScene>, Vec<Vec<Stroke>>, Vec<String>),
     timings: &mut Timings,
 ) -> Result<(Vec<ViewState<'s>>, Outcome), EditError> {
     let t = Instant::now();
     let extracted = render_and_extract(edit, sketch, dem, scenes, prepared)?;
     let views = extracted.views;
-    let features = scene_features(&views, &extracted.ridges, &sketch.options, true);
+    let features = scene_features(&views, &extracted.ridges, &sketch.options, edit.skyline);
     timings.features = secs(t);
-    let found = (&views[..], &extracted.windows[..], &features);
-    let outcome = match_and_fit(edit, (sketch, dem, dem_name), found, notes.clone(), timings)?;
-    if !skyline_left_unfitted(&outcome) {
-        return Ok((views, outcome));
-    }
-    // A skyline match that leaves a stroke unfitted stands against the
-    // match without the skyline (see `sketch::skyline`).
-    let plain = scene_features(&views, &extracted.ridges, &sketch.options, false);
-    let mut scratch = Timings::default();
-    let found = (&views[..], &extracted.windows[..], &plain);
-    let outcome = match match_and_fit(edit, (sketch, dem, dem_name), found, notes, &mut scratch) {
-        Ok(mut other) if fit_score(&other) > fit_score(&outcome) + 1e-9 => {
-            other.notes.push(format!(
-                "a stroke matched to a view's skyline was left unfitted: matched without the skylines, the strokes' summed fit is {:.3} instead of {:.3}",
-                fit_score(&other),
-                fit_score(&outcome)
-            ));
-            other
-        }
-        _ => outcome,
-    };
-    timings.matching += scratch.matching;
-    timings.deformation += scratch.deformation;
-    timings.lowering += scratch.lowering;
-    Ok((views, outcome))
-}
 
-/// Stages 3 to 5 on the rendered `views` and their `features`: matching,
-/// deformation, lowering and contour rounds (with the sketch's map-view
-/// corrections), and the strokes measured on the result.
-fn match_and_fit(
-    edit: &Edit,
-    (sketch, dem, dem_name): (&SketchFile, &Dem, &str),
-    (views, windows, features): (&[ViewState], &[HeightMap], &Features),
-    mut notes: Vec<String>,
-    timings: &mut Timings,
-) -> Result<Outcome, EditError> {
     let t = Instant::now();
     let map_only = sketch.corrections.is_some() && views.iter().all(|v| v.strokes.is_empty());
     let placed = match_strokes(
         edit,
         (&sketch.options, dem),
-        (views, windows, map_only),
-        features,
+        (&views, &extracted.windows, map_only),
+        &features,
         &mut notes,
     )?;
     timings.matching = secs(t);
+    // The views' heights were for the held cells, now placed: the rounds
+    // re-render from the views' terrains (`render_edited`).
+    drop(extracted.windows);
 
     let t = Instant::now();
-    let (solver, deformation) = deform(edit, dem, dem_name, &sketch.options, views, &placed)?;
+    let (solver, deformation) = deform(edit, dem, dem_name, &sketch.options, &views, &placed)?;
     timings.deformation = secs(t);
 
     let t = Instant::now();
-    let mut rounds = refine(edit, views, &solver, &placed, deformation)?;
+    let mut rounds = refine(edit, &views, &solver, &placed, deformation)?;
     if rounds.kept_unedited {
         notes.push(
             "nothing changed by the strokes: no deformation fitted them better than the terrain as it is (each stroke's fit below is on the unedited terrain)"
                 .to_string(),
         );
     }
-    let corrections = apply_corrections(edit, dem, sketch, views, &placed, &mut rounds)?;
-    let view_reports = measure_strokes(edit, views, features, &placed, &rounds);
+    let corrections = apply_corrections(edit, dem, sketch, &views, &placed, &mut rounds)?;
+    let view_reports = measure_strokes(edit, &views, &features, &placed, &rounds);
     timings.lowering = secs(t);
+    drop(features);
 
-    Ok(Outcome {
+    let outcome = Outcome {
         views: view_reports,
         notes,
         curve_constraints: placed.demands.curves.len(),
@@ -409,7 +447,8 @@ fn match_and_fit(
         },
         deformation: rounds.deformation,
         corrections,
-    })
+    };
+    Ok((views, outcome))
 }
 
 /// The strokes' summed fit (the fitted fraction of each stroke).

@@ -149,3 +149,16 @@ fn carried_to(s: &FeatureSample, pixel: [f64; 2], proj: &dyn ViewProjection) -> 
         world: proj.unproject(pixel, s.depth),
     }
 }
+
+/// Drops the skyline candidates from a stroke's candidates when a single
+/// silhouette piece is a candidate too (it covers at least
+/// `min_coverage` of the stroke): the skyline is there for the strokes no
+/// piece covers.
+pub fn drop_skyline_where_a_piece_covers(cands: &mut Vec<super::candidates::Candidate>) {
+    let piece = cands
+        .iter()
+        .any(|c| c.kind == FeatureKind::Silhouette && !is_skyline(c.feature_id));
+    if piece {
+        cands.retain(|c| !is_skyline(c.feature_id));
+    }
+}
