@@ -392,10 +392,13 @@ fn all_passes<'s>(
 /// Stages 2 to 5 on the loaded views: features, matching, deformation,
 /// lowering and contour rounds (with the sketch's map-view corrections),
 /// and the strokes measured on the result. `timings` gets their times.
+/// When a stroke matched to a view's skyline is left unfitted, stages 3
+/// to 5 run again without the skylines, and that outcome is kept if it
+/// fits the strokes better (ties keep the skyline's).
 fn edit_pass<'s>(
     edit: &Edit,
     (sketch, dem, dem_name): (&'s SketchFile, &Dem, &str),
-    (scenes, prepared, mut notes): (Vec<ViewScene>, Vec<Vec<Stroke>>, Vec<String>),
+    (scenes, prepared, notes): (Vec<ViewScene>, Vec<Vec<Stroke>>, Vec<String>),
     timings: &mut Timings,
 ) -> Result<(Vec<ViewState<'s>>, Outcome), EditError> {
     let t = Instant::now();
@@ -403,39 +406,71 @@ fn edit_pass<'s>(
     let views = extracted.views;
     let features = scene_features(&views, &extracted.ridges, &sketch.options, edit.skyline);
     timings.features = secs(t);
+    let found = (&views[..], &extracted.windows[..], &features);
+    let outcome = match_and_fit(edit, (sketch, dem, dem_name), found, notes.clone(), timings)?;
+    if !(edit.skyline && skyline_left_unfitted(&outcome)) {
+        return Ok((views, outcome));
+    }
+    // A skyline match that leaves a stroke unfitted stands against the
+    // match without the skyline (see `sketch::skyline`).
+    let plain = scene_features(&views, &extracted.ridges, &sketch.options, false);
+    let mut scratch = Timings::default();
+    let found = (&views[..], &extracted.windows[..], &plain);
+    let outcome = match match_and_fit(edit, (sketch, dem, dem_name), found, notes, &mut scratch) {
+        Ok(mut other) if fit_score(&other) > fit_score(&outcome) + 1e-9 => {
+            other.notes.push(format!(
+                "a stroke matched to a view's skyline was left unfitted: matched without the skylines, the strokes' summed fit is {:.3} instead of {:.3}",
+                fit_score(&other),
+                fit_score(&outcome)
+            ));
+            other
+        }
+        _ => outcome,
+    };
+    timings.matching += scratch.matching;
+    timings.deformation += scratch.deformation;
+    timings.lowering += scratch.lowering;
+    Ok((views, outcome))
+}
 
+/// Stages 3 to 5 on the rendered `views` and their `features`: matching,
+/// deformation, lowering and contour rounds (with the sketch's map-view
+/// corrections), and the strokes measured on the result.
+fn match_and_fit(
+    edit: &Edit,
+    (sketch, dem, dem_name): (&SketchFile, &Dem, &str),
+    (views, windows, features): (&[ViewState], &[HeightMap], &Features),
+    mut notes: Vec<String>,
+    timings: &mut Timings,
+) -> Result<Outcome, EditError> {
     let t = Instant::now();
     let map_only = sketch.corrections.is_some() && views.iter().all(|v| v.strokes.is_empty());
     let placed = match_strokes(
         edit,
         (&sketch.options, dem),
-        (&views, &extracted.windows, map_only),
-        &features,
+        (views, windows, map_only),
+        features,
         &mut notes,
     )?;
     timings.matching = secs(t);
-    // The views' heights were for the held cells, now placed: the rounds
-    // re-render from the views' terrains (`render_edited`).
-    drop(extracted.windows);
 
     let t = Instant::now();
-    let (solver, deformation) = deform(edit, dem, dem_name, &sketch.options, &views, &placed)?;
+    let (solver, deformation) = deform(edit, dem, dem_name, &sketch.options, views, &placed)?;
     timings.deformation = secs(t);
 
     let t = Instant::now();
-    let mut rounds = refine(edit, &views, &solver, &placed, deformation)?;
+    let mut rounds = refine(edit, views, &solver, &placed, deformation)?;
     if rounds.kept_unedited {
         notes.push(
             "nothing changed by the strokes: no deformation fitted them better than the terrain as it is (each stroke's fit below is on the unedited terrain)"
                 .to_string(),
         );
     }
-    let corrections = apply_corrections(edit, dem, sketch, &views, &placed, &mut rounds)?;
-    let view_reports = measure_strokes(edit, &views, &features, &placed, &rounds);
+    let corrections = apply_corrections(edit, dem, sketch, views, &placed, &mut rounds)?;
+    let view_reports = measure_strokes(edit, views, features, &placed, &rounds);
     timings.lowering = secs(t);
-    drop(features);
 
-    let outcome = Outcome {
+    Ok(Outcome {
         views: view_reports,
         notes,
         curve_constraints: placed.demands.curves.len(),
@@ -447,8 +482,7 @@ fn edit_pass<'s>(
         },
         deformation: rounds.deformation,
         corrections,
-    };
-    Ok((views, outcome))
+    })
 }
 
 /// The strokes' summed fit (the fitted fraction of each stroke).

@@ -185,9 +185,6 @@ pub fn priority_list(
         .par_iter()
         .filter_map(|f| build_candidate(stroke, f, proj, opts))
         .collect();
-    if std::env::var_os("DEMSKETCH_SKYLINE_ONLY_UNCOVERED").is_some() {
-        super::skyline::drop_skyline_where_a_piece_covers(&mut cands);
-    }
     finish_list(&mut cands, opts);
     let considered = cands.len();
     cands.truncate(opts.max_candidates);

@@ -18,6 +18,16 @@
 //! keeps its own depth up to the middle of the gap
 //! ([`hold_depth_to_joins`]): a stroke point takes the depth of the piece
 //! on its side of the join, never one in between.
+//!
+//! The skyline mixes landforms, and a stroke above it in the image may
+//! outline a nearer one rising over it (a new hill, a raised peak in front
+//! of a far range): the matching costs cannot tell the two apart, the
+//! stroke's fit on the edited terrain can. So where a stroke matched to a
+//! skyline is left unfitted, the edit (`edit::pipeline`) tries the match
+//! without the skylines, and keeps it where it fits the strokes better:
+//! in each pass (`edit_pass`), and for the edit as a whole (its passes
+//! run again without the skylines in `run_opened`), since a pass that
+//! fits less may be completed by the next.
 
 use std::collections::BTreeMap;
 
@@ -147,18 +157,5 @@ fn carried_to(s: &FeatureSample, pixel: [f64; 2], proj: &dyn ViewProjection) -> 
         pixel,
         depth: s.depth,
         world: proj.unproject(pixel, s.depth),
-    }
-}
-
-/// Drops the skyline candidates from a stroke's candidates when a single
-/// silhouette piece is a candidate too (it covers at least
-/// `min_coverage` of the stroke): the skyline is there for the strokes no
-/// piece covers.
-pub fn drop_skyline_where_a_piece_covers(cands: &mut Vec<super::candidates::Candidate>) {
-    let piece = cands
-        .iter()
-        .any(|c| c.kind == FeatureKind::Silhouette && !is_skyline(c.feature_id));
-    if piece {
-        cands.retain(|c| !is_skyline(c.feature_id));
     }
 }
