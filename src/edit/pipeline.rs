@@ -27,7 +27,14 @@
 //! of it, as the write stores it, nothing written) and the deformations
 //! are written as one (`compose`); while a pass is kept and leaves a
 //! stroke unfitted, another follows, up to [`MAX_PASSES`], so that editing
-//! the output again changes nothing.
+//! the output again changes nothing (`all_passes`).
+//!
+//! Each view's skyline is one of the candidate features
+//! ([`crate::sketch::skyline`]). Where a stroke matched to a skyline is
+//! left unfitted, stages 3 to 5 of the pass run again without the
+//! skylines (`match_and_fit`), and so does the whole edit (all its
+//! passes, in `run_opened`); the better summed fit is kept
+//! (`fit_score`), ties keep the skyline.
 //!
 //! 6. `write` (`super::outputs::write_outputs`): affected tiles written
 //!    back atomically, then the pictures and the report.
