@@ -33,8 +33,8 @@
 //! ([`crate::sketch::skyline`]). Where a stroke matched to a skyline is
 //! left unfitted, stages 3 to 5 of the pass run again without the
 //! skylines (`match_and_fit`), and so does the whole edit (all its
-//! passes, in `run_opened`); the better summed fit is kept
-//! (`fit_score`), ties keep the skyline.
+//! passes, in `run_opened`); the better summed fit where the placed
+//! curves are visible is kept (`seen_fit_score`), ties keep the skyline.
 //!
 //! 6. `write` (`super::outputs::write_outputs`): affected tiles written
 //!    back atomically, then the pictures and the report.
@@ -335,11 +335,11 @@ pub fn run_opened(
                 &mut scratch,
             );
             if let Ok((views2, mut outcome2)) = other {
-                if fit_score(&outcome2) > fit_score(&outcome) + 1e-9 {
+                if seen_fit_score(&outcome2) > seen_fit_score(&outcome) + 1e-9 {
                     outcome2.notes.push(format!(
-                        "a stroke matched to a view's skyline was left unfitted: matched without the skylines, the strokes' summed fit is {:.3} instead of {:.3}",
-                        fit_score(&outcome2),
-                        fit_score(&outcome)
+                        "a stroke matched to a view's skyline was left unfitted: matched without the skylines, the strokes' summed fit (where visible) is {:.3} instead of {:.3}",
+                        seen_fit_score(&outcome2),
+                        seen_fit_score(&outcome)
                     ));
                     timings.load += scratch.load;
                     timings.features += scratch.features;
@@ -424,11 +424,11 @@ fn edit_pass<'s>(
     let mut scratch = Timings::default();
     let found = (&views[..], &extracted.windows[..], &plain);
     let outcome = match match_and_fit(edit, (sketch, dem, dem_name), found, notes, &mut scratch) {
-        Ok(mut other) if fit_score(&other) > fit_score(&outcome) + 1e-9 => {
+        Ok(mut other) if seen_fit_score(&other) > seen_fit_score(&outcome) + 1e-9 => {
             other.notes.push(format!(
-                "a stroke matched to a view's skyline was left unfitted: matched without the skylines, the strokes' summed fit is {:.3} instead of {:.3}",
-                fit_score(&other),
-                fit_score(&outcome)
+                "a stroke matched to a view's skyline was left unfitted: matched without the skylines, the strokes' summed fit (where visible) is {:.3} instead of {:.3}",
+                seen_fit_score(&other),
+                seen_fit_score(&outcome)
             ));
             other
         }
@@ -501,12 +501,24 @@ fn fit_score(o: &Outcome) -> f64 {
         .sum()
 }
 
+/// The strokes' summed fit counting only what is seen: per stroke the
+/// smaller of its fitted and its visible fraction (a placed curve hidden
+/// behind nearer terrain fits only where its silhouette happens to).
+fn seen_fit_score(o: &Outcome) -> f64 {
+    o.views
+        .iter()
+        .flat_map(|v| &v.strokes)
+        .map(|s| s.fit.fitted_fraction.min(s.visible_fraction))
+        .sum()
+}
+
 /// True when a stroke was matched to a view's skyline feature
-/// ([`crate::sketch::skyline`]) and some stroke is short of a full fit.
+/// ([`crate::sketch::skyline`]) and some stroke is short of a full fit or
+/// partly hidden.
 fn skyline_left_unfitted(o: &Outcome) -> bool {
     let strokes = || o.views.iter().flat_map(|v| &v.strokes);
     strokes().any(|s| s.matched.feature_id.is_some_and(crate::sketch::is_skyline))
-        && strokes().any(|s| s.fit.fitted_fraction < 1.0 - 1e-9)
+        && strokes().any(|s| s.fit.fitted_fraction.min(s.visible_fraction) < 1.0 - 1e-9)
 }
 
 /// A second pass is made when the first changed the terrain but left a
