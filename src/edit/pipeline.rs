@@ -33,8 +33,9 @@
 //! ([`crate::sketch::skyline`]). Where a stroke matched to a skyline is
 //! left unfitted, stages 3 to 5 of the pass run again without the
 //! skylines (`match_and_fit`), and so does the whole edit (all its
-//! passes, in `run_opened`); the better summed fit where the placed
-//! curves are visible is kept (`seen_fit_score`), ties keep the skyline.
+//! passes, in `run_opened`); the skyline's is kept only where the other
+//! does not fit the strokes better, in all or where its placed curves
+//! are visible (`fits_better`).
 //!
 //! 6. `write` (`super::outputs::write_outputs`): affected tiles written
 //!    back atomically, then the pictures and the report.
@@ -335,7 +336,7 @@ pub fn run_opened(
                 &mut scratch,
             );
             if let Ok((views2, mut outcome2)) = other {
-                if seen_fit_score(&outcome2) > seen_fit_score(&outcome) + 1e-9 {
+                if fits_better(&outcome2, &outcome) {
                     outcome2.notes.push(format!(
                         "a stroke matched to a view's skyline was left unfitted: matched without the skylines, the strokes' summed fit (where visible) is {:.3} instead of {:.3}",
                         seen_fit_score(&outcome2),
@@ -424,7 +425,7 @@ fn edit_pass<'s>(
     let mut scratch = Timings::default();
     let found = (&views[..], &extracted.windows[..], &plain);
     let outcome = match match_and_fit(edit, (sketch, dem, dem_name), found, notes, &mut scratch) {
-        Ok(mut other) if seen_fit_score(&other) > seen_fit_score(&outcome) + 1e-9 => {
+        Ok(mut other) if fits_better(&other, &outcome) => {
             other.notes.push(format!(
                 "a stroke matched to a view's skyline was left unfitted: matched without the skylines, the strokes' summed fit (where visible) is {:.3} instead of {:.3}",
                 seen_fit_score(&other),
@@ -510,6 +511,14 @@ fn seen_fit_score(o: &Outcome) -> f64 {
         .flat_map(|v| &v.strokes)
         .map(|s| s.fit.fitted_fraction.min(s.visible_fraction))
         .sum()
+}
+
+/// True when outcome `a` fits the strokes better than `b` by either
+/// measure: the summed fit ([`fit_score`]) or the summed fit where the
+/// placed curves are visible ([`seen_fit_score`]). The skyline's edit is
+/// kept only where it is at least as good by both.
+fn fits_better(a: &Outcome, b: &Outcome) -> bool {
+    fit_score(a) > fit_score(b) + 1e-9 || seen_fit_score(a) > seen_fit_score(b) + 1e-9
 }
 
 /// True when a stroke was matched to a view's skyline feature
