@@ -337,11 +337,9 @@ pub fn run_opened(
             );
             if let Ok((views2, mut outcome2)) = other {
                 if fits_better(&outcome2, &outcome) {
-                    outcome2.notes.push(format!(
-                        "a stroke matched to a view's skyline was left unfitted: matched without the skylines, the strokes' summed fit (where visible) is {:.3} instead of {:.3}",
-                        seen_fit_score(&outcome2),
-                        seen_fit_score(&outcome)
-                    ));
+                    outcome2
+                        .notes
+                        .push(skyline_dropped_note(&outcome2, &outcome));
                     timings.load += scratch.load;
                     timings.features += scratch.features;
                     timings.matching += scratch.matching;
@@ -426,11 +424,7 @@ fn edit_pass<'s>(
     let found = (&views[..], &extracted.windows[..], &plain);
     let outcome = match match_and_fit(edit, (sketch, dem, dem_name), found, notes, &mut scratch) {
         Ok(mut other) if fits_better(&other, &outcome) => {
-            other.notes.push(format!(
-                "a stroke matched to a view's skyline was left unfitted: matched without the skylines, the strokes' summed fit (where visible) is {:.3} instead of {:.3}",
-                seen_fit_score(&other),
-                seen_fit_score(&outcome)
-            ));
+            other.notes.push(skyline_dropped_note(&other, &outcome));
             other
         }
         _ => outcome,
@@ -519,6 +513,18 @@ fn seen_fit_score(o: &Outcome) -> f64 {
 /// kept only where it is at least as good by both.
 fn fits_better(a: &Outcome, b: &Outcome) -> bool {
     fit_score(a) > fit_score(b) + 1e-9 || seen_fit_score(a) > seen_fit_score(b) + 1e-9
+}
+
+/// The report's note when the edit without the skylines (`plain`) is
+/// kept over the skyline's (`skyline`).
+fn skyline_dropped_note(plain: &Outcome, skyline: &Outcome) -> String {
+    format!(
+        "a stroke matched to a view's skyline was left unfitted: matched without the skylines, the strokes' summed fit is {:.3} ({:.3} where visible) instead of {:.3} ({:.3})",
+        fit_score(plain),
+        seen_fit_score(plain),
+        fit_score(skyline),
+        seen_fit_score(skyline)
+    )
 }
 
 /// True when a stroke was matched to a view's skyline feature
