@@ -23,11 +23,12 @@
 //! outline a nearer one rising over it (a new hill, a raised peak in front
 //! of a far range): the matching costs cannot tell the two apart, the
 //! stroke's fit on the edited terrain can. So where a stroke matched to a
-//! skyline is left unfitted, the edit (`edit::pipeline`) tries the match
-//! without the skylines, and keeps it where it fits the strokes better:
-//! in each pass (`edit_pass`), and for the edit as a whole (its passes
-//! run again without the skylines in `run_opened`), since a pass that
-//! fits less may be completed by the next.
+//! skyline is left unfitted or hidden, the edit (`edit::pipeline`) tries
+//! the match without the skylines, and keeps it where it fits the strokes
+//! better, in all or where their placed curves are visible: in each pass
+//! (`edit_pass`), and for the edit as a whole (its passes run again
+//! without the skylines in `run_opened`), since a pass that fits less may
+//! be completed by the next.
 
 use std::collections::BTreeMap;
 
