@@ -27,7 +27,15 @@
 //! of it, as the write stores it, nothing written) and the deformations
 //! are written as one (`compose`); while a pass is kept and leaves a
 //! stroke unfitted, another follows, up to [`MAX_PASSES`], so that editing
-//! the output again changes nothing.
+//! the output again changes nothing (`all_passes`).
+//!
+//! Each view's skyline is one of the candidate features
+//! ([`crate::sketch::skyline`]). Where a stroke matched to a skyline is
+//! left unfitted, stages 3 to 5 of the pass run again without the
+//! skylines (`match_and_fit`), and so does the whole edit (all its
+//! passes, in `run_opened`); the skyline's is kept only where the other
+//! does not fit the strokes better, in all or where its placed curves
+//! are visible (`fits_better`).
 //!
 //! 6. `write` (`super::outputs::write_outputs`): affected tiles written
 //!    back atomically, then the pictures and the report.
@@ -205,6 +213,9 @@ pub(super) struct Edit<'o> {
     /// [`EditOptions::max_distance_m`] when finite and positive.
     pub(super) max_d: Option<f64>,
     pub(super) pb: ProgressBar,
+    /// The views' skylines are candidate features
+    /// ([`crate::sketch::skyline`]); `false` on the run without them.
+    pub(super) skyline: bool,
 }
 
 pub(super) fn secs(t: Instant) -> f64 {
@@ -264,6 +275,7 @@ pub fn run_opened(
         sketch_name: sketch_path.display().to_string(),
         max_d: opts.max_distance_m.filter(|d| d.is_finite() && *d > 0.0),
         pb: progress_bar(opts),
+        skyline: true,
     };
     let mut timings = Timings::default();
     check_output_paths(opts)?;
@@ -284,33 +296,64 @@ pub fn run_opened(
     timings.load = secs(t);
 
     let dem_name = dem_path.display().to_string();
-    let (views, outcome) = edit_pass(
+    let (views, outcome) = all_passes(
         &edit,
-        (&sketch, &dem, &dem_name),
+        (&sketch, &dem, &dem_name, sketch_path),
         (scenes, prepared, notes),
         &mut timings,
-        false,
     )?;
-    let Some(mut outcome) = outcome else {
-        return Err(EditError::Internal(
-            "the first pass was dropped as a later one".into(),
-        ));
-    };
-    let mut pass = 1;
-    while pass < MAX_PASSES && needs_second_pass(&sketch, &outcome) {
-        let t = Instant::now();
-        // The far rings of a long view lie beyond every pass's changes:
-        // the later passes take the first's (when they serve, see `load_views`).
-        let far: Vec<FarLayers> = views
-            .iter()
-            .map(|v| v.before.terrain.far_layers())
-            .collect();
-        pass += 1;
-        let changed;
-        (outcome, changed) = second_pass(&edit, &dem, sketch_path, outcome, &far, pass)?;
-        timings.lowering += secs(t);
-        if !changed {
-            break;
+    if skyline_left_unfitted(&outcome) {
+        // A skyline match that leaves a stroke unfitted stands against
+        // the edit without the skylines (see `sketch::skyline`).
+        let plain = Edit {
+            opts,
+            sketch_name: edit.sketch_name.clone(),
+            max_d: edit.max_d,
+            pb: edit.pb.clone(),
+            skyline: false,
+        };
+        let reloaded = dem.reopened().map_err(EditError::from).and_then(|d| {
+            load_views(
+                &plain,
+                d.with_block_cache_budget(EDIT_BLOCK_CACHE_BYTES),
+                sketch_path,
+                &[],
+            )
+        });
+        if let Ok(Loaded {
+            sketch: sketch2,
+            dem: dem2,
+            notes: notes2,
+            prepared: prepared2,
+            scenes: scenes2,
+        }) = reloaded
+        {
+            let mut scratch = Timings::default();
+            let other = all_passes(
+                &plain,
+                (&sketch2, &dem2, &dem_name, sketch_path),
+                (scenes2, prepared2, notes2),
+                &mut scratch,
+            );
+            if let Ok((views2, mut outcome2)) = other {
+                if fits_better(&outcome2, &outcome) {
+                    outcome2
+                        .notes
+                        .push(skyline_dropped_note(&outcome2, &outcome));
+                    timings.load += scratch.load;
+                    timings.features += scratch.features;
+                    timings.matching += scratch.matching;
+                    timings.deformation += scratch.deformation;
+                    timings.lowering += scratch.lowering;
+                    let sources = Sources {
+                        dem_path,
+                        sketch_path,
+                        dem: &dem2,
+                        sketch: &sketch2,
+                    };
+                    return write_outputs(plain, &sources, &views2, outcome2, timings, t_all);
+                }
+            }
         }
     }
     let sources = Sources {
@@ -322,57 +365,154 @@ pub fn run_opened(
     write_outputs(edit, &sources, &views, outcome, timings, t_all)
 }
 
+/// The first pass ([`edit_pass`]) and, while one is kept and leaves a
+/// stroke unfitted, the later ones ([`second_pass`]), up to
+/// [`MAX_PASSES`].
+fn all_passes<'s>(
+    edit: &Edit,
+    (sketch, dem, dem_name, sketch_path): (&'s SketchFile, &Dem, &str, &Path),
+    loaded: (Vec<ViewScene>, Vec<Vec<Stroke>>, Vec<String>),
+    timings: &mut Timings,
+) -> Result<(Vec<ViewState<'s>>, Outcome), EditError> {
+    let (views, outcome) = edit_pass(edit, (sketch, dem, dem_name), loaded, timings, false)?;
+    let Some(mut outcome) = outcome else {
+        return Err(EditError::Internal(
+            "the first pass was dropped as a later one".into(),
+        ));
+    };
+    let mut pass = 1;
+    while pass < MAX_PASSES && needs_second_pass(sketch, &outcome) {
+        let t = Instant::now();
+        // The far rings of a long view lie beyond every pass's changes:
+        // the later passes take the first's (when they serve, see `load_views`).
+        let far: Vec<FarLayers> = views
+            .iter()
+            .map(|v| v.before.terrain.far_layers())
+            .collect();
+        pass += 1;
+        let changed;
+        (outcome, changed) = second_pass(edit, dem, sketch_path, outcome, &far, pass)?;
+        timings.lowering += secs(t);
+        if !changed {
+            break;
+        }
+    }
+    Ok((views, outcome))
+}
+
 /// Stages 2 to 5 on the loaded views: features, matching, deformation,
 /// lowering and contour rounds (with the sketch's map-view corrections),
 /// and the strokes measured on the result. `timings` gets their times.
 /// `later`: a pass after the first, which the run drops when it changes no
 /// cell ([`second_pass`]); such a pass stops as soon as that is known and
 /// gives no outcome (`None`; the first pass always gives one).
+/// When a stroke matched to a view's skyline is left unfitted, stages 3
+/// to 5 run again without the skylines, and that outcome is kept if it
+/// fits the strokes better (ties keep the skyline's).
 fn edit_pass<'s>(
     edit: &Edit,
     (sketch, dem, dem_name): (&'s SketchFile, &Dem, &str),
-    (scenes, prepared, mut notes): (Vec<ViewScene>, Vec<Vec<Stroke>>, Vec<String>),
+    (scenes, prepared, notes): (Vec<ViewScene>, Vec<Vec<Stroke>>, Vec<String>),
     timings: &mut Timings,
     later: bool,
 ) -> Result<(Vec<ViewState<'s>>, Option<Outcome>), EditError> {
     let t = Instant::now();
     let extracted = render_and_extract(edit, sketch, dem, scenes, prepared)?;
     let views = extracted.views;
-    let features = scene_features(&views, &extracted.ridges, &sketch.options);
+    let features = scene_features(&views, &extracted.ridges, &sketch.options, edit.skyline);
     timings.features = secs(t);
+    let found = (&views[..], &extracted.windows[..], &features);
+    let Some(outcome) = match_and_fit(
+        edit,
+        (sketch, dem, dem_name),
+        found,
+        notes.clone(),
+        timings,
+        later,
+    )?
+    else {
+        return Ok((views, None));
+    };
+    if !(edit.skyline && skyline_left_unfitted(&outcome)) {
+        return Ok((views, Some(outcome)));
+    }
+    // A skyline match that leaves a stroke unfitted stands against the
+    // match without the skyline (see `sketch::skyline`); the two are
+    // compared whole (never dropped early).
+    let plain = scene_features(&views, &extracted.ridges, &sketch.options, false);
+    let mut scratch = Timings::default();
+    let found = (&views[..], &extracted.windows[..], &plain);
+    let other = match_and_fit(
+        edit,
+        (sketch, dem, dem_name),
+        found,
+        notes,
+        &mut scratch,
+        false,
+    );
+    let outcome = match other {
+        Ok(Some(mut other)) if fits_better(&other, &outcome) => {
+            other.notes.push(skyline_dropped_note(&other, &outcome));
+            other
+        }
+        _ => outcome,
+    };
+    timings.matching += scratch.matching;
+    timings.deformation += scratch.deformation;
+    timings.lowering += scratch.lowering;
+    Ok((views, Some(outcome)))
+}
 
+/// Stages 3 to 5 on the rendered `views` and their `features`: matching,
+/// deformation, lowering and contour rounds (with the sketch's map-view
+/// corrections), and the strokes measured on the result. `later`: a pass
+/// after the first, dropped when it changes no cell ([`second_pass`]): it
+/// stops as soon as that is known and gives `None`, unless a stroke was
+/// matched to a skyline (its outcome may then be compared with the match
+/// without the skylines, see [`edit_pass`]).
+fn match_and_fit(
+    edit: &Edit,
+    (sketch, dem, dem_name): (&SketchFile, &Dem, &str),
+    (views, windows, features): (&[ViewState], &[HeightMap], &Features),
+    mut notes: Vec<String>,
+    timings: &mut Timings,
+    later: bool,
+) -> Result<Option<Outcome>, EditError> {
     let t = Instant::now();
     let map_only = sketch.corrections.is_some() && views.iter().all(|v| v.strokes.is_empty());
     let placed = match_strokes(
         edit,
         (&sketch.options, dem),
-        (&views, &extracted.windows, map_only),
-        &features,
+        (views, windows, map_only),
+        features,
         &mut notes,
     )?;
     timings.matching = secs(t);
-    // The views' heights were for the held cells, now placed: the rounds
-    // re-render from the views' terrains (`render_edited`).
-    drop(extracted.windows);
 
     let t = Instant::now();
-    let (solver, deformation) = deform(edit, dem, dem_name, &sketch.options, &views, &placed)?;
+    let (solver, deformation) = deform(edit, dem, dem_name, &sketch.options, views, &placed)?;
     timings.deformation = secs(t);
 
     let t = Instant::now();
     // (map-view corrections would change the terrain after the rounds:
     // such a pass is never dropped early)
-    let discard_unchanged = later && sketch.corrections.is_none();
+    let on_skyline = placed
+        .matched
+        .views
+        .iter()
+        .flat_map(|m| &m.strokes)
+        .any(|sm| sm.feature_id.is_some_and(crate::sketch::is_skyline));
+    let discard_unchanged = later && sketch.corrections.is_none() && !on_skyline;
     let Some(mut rounds) = refine(
         edit,
-        &views,
+        views,
         &solver,
         &placed,
         deformation,
         discard_unchanged,
     )?
     else {
-        return Ok((views, None));
+        return Ok(None);
     };
     if rounds.kept_unedited {
         notes.push(
@@ -380,12 +520,11 @@ fn edit_pass<'s>(
                 .to_string(),
         );
     }
-    let corrections = apply_corrections(edit, dem, sketch, &views, &placed, &mut rounds)?;
-    let view_reports = measure_strokes(edit, &views, &features, &placed, &rounds);
+    let corrections = apply_corrections(edit, dem, sketch, views, &placed, &mut rounds)?;
+    let view_reports = measure_strokes(edit, views, features, &placed, &rounds);
     timings.lowering = secs(t);
-    drop(features);
 
-    let outcome = Outcome {
+    Ok(Some(Outcome {
         views: view_reports,
         notes,
         curve_constraints: placed.demands.curves.len(),
@@ -397,8 +536,56 @@ fn edit_pass<'s>(
         },
         deformation: rounds.deformation,
         corrections,
-    };
-    Ok((views, Some(outcome)))
+    }))
+}
+
+/// The strokes' summed fit (the fitted fraction of each stroke).
+fn fit_score(o: &Outcome) -> f64 {
+    o.views
+        .iter()
+        .flat_map(|v| &v.strokes)
+        .map(|s| s.fit.fitted_fraction)
+        .sum()
+}
+
+/// The strokes' summed fit counting only what is seen: per stroke the
+/// smaller of its fitted and its visible fraction (a placed curve hidden
+/// behind nearer terrain fits only where its silhouette happens to).
+fn seen_fit_score(o: &Outcome) -> f64 {
+    o.views
+        .iter()
+        .flat_map(|v| &v.strokes)
+        .map(|s| s.fit.fitted_fraction.min(s.visible_fraction))
+        .sum()
+}
+
+/// True when outcome `a` fits the strokes better than `b` by either
+/// measure: the summed fit ([`fit_score`]) or the summed fit where the
+/// placed curves are visible ([`seen_fit_score`]). The skyline's edit is
+/// kept only where it is at least as good by both.
+fn fits_better(a: &Outcome, b: &Outcome) -> bool {
+    fit_score(a) > fit_score(b) + 1e-9 || seen_fit_score(a) > seen_fit_score(b) + 1e-9
+}
+
+/// The report's note when the edit without the skylines (`plain`) is
+/// kept over the skyline's (`skyline`).
+fn skyline_dropped_note(plain: &Outcome, skyline: &Outcome) -> String {
+    format!(
+        "a stroke matched to a view's skyline was left unfitted: matched without the skylines, the strokes' summed fit is {:.3} ({:.3} where visible) instead of {:.3} ({:.3})",
+        fit_score(plain),
+        seen_fit_score(plain),
+        fit_score(skyline),
+        seen_fit_score(skyline)
+    )
+}
+
+/// True when a stroke was matched to a view's skyline feature
+/// ([`crate::sketch::skyline`]) and some stroke is short of a full fit or
+/// partly hidden.
+fn skyline_left_unfitted(o: &Outcome) -> bool {
+    let strokes = || o.views.iter().flat_map(|v| &v.strokes);
+    strokes().any(|s| s.matched.feature_id.is_some_and(crate::sketch::is_skyline))
+        && strokes().any(|s| s.fit.fitted_fraction.min(s.visible_fraction) < 1.0 - 1e-9)
 }
 
 /// A second pass is made when the first changed the terrain but left a
@@ -476,13 +663,7 @@ fn second_pass(
             return Ok((out, false));
         }
     };
-    let score = |o: &Outcome| -> f64 {
-        o.views
-            .iter()
-            .flat_map(|v| &v.strokes)
-            .map(|s| s.fit.fitted_fraction)
-            .sum()
-    };
+    let score = fit_score;
     if score(&second) < score(&first) - 1e-9 || second.deformation.stats.changed_cells == 0 {
         return Ok((first, false));
     }
@@ -874,6 +1055,7 @@ fn scene_features<'v>(
     views: &'v [ViewState],
     ridges: &RidgeNetwork,
     options: &SketchOptions,
+    skyline: bool,
 ) -> Features<'v> {
     // Multi-view sketches are matched in one world frame: the first view's.
     let world = (views.len() > 1).then(|| views[0].frame);
@@ -893,6 +1075,7 @@ fn scene_features<'v>(
                 ridges,
                 &ViewFeatureOptions {
                     min_depth_m: v.observer_radius(options.observer_radius_m),
+                    skyline,
                     ..ViewFeatureOptions::default()
                 },
             )

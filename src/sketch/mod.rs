@@ -11,6 +11,7 @@
 //!   orders strokes from front to back.
 //! - [`projection`]: what matching needs from the renderer and the camera,
 //!   as plain data ([`ViewFeature`]) and a trait ([`ViewProjection`]).
+//! - [`skyline`]: the skyline of a view as one candidate feature.
 //! - [`candidates`]: truncated, extended, altitude-adjusted features with
 //!   the four cost terms; one priority list per stroke.
 //! - [`branch_and_bound`]: the energy minimisation (and the brute-force
@@ -31,6 +32,7 @@ pub mod file;
 pub mod multi_view;
 pub mod placement;
 pub mod projection;
+pub mod skyline;
 pub mod stroke;
 pub mod view_input;
 
@@ -63,6 +65,7 @@ pub use placement::{
 pub use projection::{
     FeatureKind, FeatureSample, HeightFn, SimplePinhole, ViewFeature, ViewProjection,
 };
+pub use skyline::{is_skyline, skyline_feature, SKYLINE_CURVE};
 pub use stroke::{prepare_stroke, resample, Stroke, StrokeError};
 pub use view_input::{
     ridge_features, silhouette_features, terrain_height_local, FeatureSource, SceneProjection,

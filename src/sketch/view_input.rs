@@ -49,6 +49,9 @@
 //!   Silhouette::id`. Silhouettes depend on the view, so their ids are
 //!   unique across the views of a sketch (`view_index` is the view's index
 //!   in the sketch file).
+//! - the skyline of a view as one feature
+//!   ([`skyline_feature`](super::skyline::skyline_feature)): the
+//!   silhouette id of curve [`SKYLINE_CURVE`](super::skyline::SKYLINE_CURVE).
 
 use super::multi_view::ViewInput;
 use super::placement::PlacedPoint;
@@ -273,6 +276,9 @@ pub struct ViewFeatureOptions {
     /// ground, so a stroke placed on a feature within it could never be
     /// fitted (issue 11, item 1). 0 keeps every sample.
     pub min_depth_m: f64,
+    /// Include each view's skyline as one feature
+    /// ([`skyline_feature`](super::skyline::skyline_feature)).
+    pub skyline: bool,
 }
 
 impl Default for ViewFeatureOptions {
@@ -283,6 +289,7 @@ impl Default for ViewFeatureOptions {
             min_ridge_span_px: 2.0,
             image_margin_px: 0.0,
             min_depth_m: 0.0,
+            skyline: true,
         }
     }
 }
@@ -499,6 +506,14 @@ impl<'a> SceneView<'a> {
         let mut features = Vec::new();
         if opts.silhouettes {
             features.extend(silhouette_features(view_index, silhouettes, &projection));
+            if opts.skyline {
+                features.extend(super::skyline::skyline_feature(
+                    view_index,
+                    silhouettes,
+                    &projection,
+                    opts.min_depth_m,
+                ));
+            }
         }
         if opts.ridges {
             features.extend(ridge_features(ridges, &projection, opts));
