@@ -1675,7 +1675,7 @@ fn pow2(e: i32) -> f64 {
 /// signs, where the two could differ: they are distances past a positive
 /// start, or heights compared with a margin).
 #[inline]
-fn fmin(a: f64, b: f64) -> f64 {
+pub(super) fn fmin(a: f64, b: f64) -> f64 {
     if a < b {
         a
     } else {
@@ -1685,7 +1685,7 @@ fn fmin(a: f64, b: f64) -> f64 {
 
 /// The greater of `a` and `b`, as [`fmin`]; a NaN `a` gives `b`.
 #[inline]
-fn fmax(a: f64, b: f64) -> f64 {
+pub(super) fn fmax(a: f64, b: f64) -> f64 {
     if a > b {
         a
     } else {

@@ -39,6 +39,7 @@
 
 use super::depth_buffer::SKY;
 use super::strip_columns::StripColumns;
+use super::terrain::{fmax, fmin};
 use super::terrain::{LocalTerrain, RANGE_BLOCK};
 use crate::view::{cross, dot, Camera};
 use rayon::prelude::*;
@@ -559,26 +560,6 @@ impl<'a> BoxProjector<'a> {
         let y0 = (sy0 + hh - 1.5).ceil().max(0.0);
         let y1 = (sy1 + hh + 0.5).floor().min(self.h - 1.0);
         (x0 <= x1 && y0 <= y1).then_some((x0 as i32, x1 as i32, y0 as i32))
-    }
-}
-
-/// `min` of two numbers that are not NaN (one instruction).
-#[inline]
-fn fmin(a: f64, b: f64) -> f64 {
-    if a < b {
-        a
-    } else {
-        b
-    }
-}
-
-/// `max` of two numbers that are not NaN.
-#[inline]
-fn fmax(a: f64, b: f64) -> f64 {
-    if a > b {
-        a
-    } else {
-        b
     }
 }
 
