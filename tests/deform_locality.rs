@@ -11,7 +11,9 @@ mod deform_support;
 use std::path::Path;
 
 use deform_support::*;
-use demsketch::deform::{deform, plan, CurveConstraint, DeformError, DeformOptions};
+use demsketch::deform::{
+    deform, deform_with_cells, plan, CellConstraint, CurveConstraint, DeformError, DeformOptions,
+};
 use demsketch::raster::{Dem, Destination, Provenance};
 
 const SIZE: usize = 200;
@@ -398,4 +400,64 @@ fn screening_tightens_the_falloff_and_options_are_checked() {
         deform(&dem, &[nan], &DeformOptions::default()).unwrap_err(),
         DeformError::NonFinite { curve: 0, point: 0 }
     ));
+}
+
+#[test]
+fn held_and_lowered_cells_never_widen_the_influence() {
+    // Issue 11 item 4: the cells the edit holds (the observer's ground,
+    // anchored stretches) or lowers act only within the curves' influence
+    // distance; beyond it every cell stays exactly as it is, even where a
+    // held or lowered cell lies in the deformation's window.
+    let tmp = tempfile::tempdir().unwrap();
+    let crop = float_crop_with_hole(tmp.path());
+    let dem = Dem::open(&crop).unwrap();
+    let curve = raised(&dem, &[[60.2, 70.4], [90.7, 85.1]], 50.0, 30);
+    let influence = 900.0;
+    let opts = DeformOptions {
+        influence_m: Some(influence),
+        ..DeformOptions::default()
+    };
+    let d0 = deform(&dem, std::slice::from_ref(&curve), &opts).unwrap();
+    let w = d0.window;
+    let h = dem.read_height_map(w).unwrap();
+    let poly: Vec<[f64; 2]> = curve.points.iter().map(|p| [p[0], p[1]]).collect();
+    let gt = dem.geotransform.0;
+    let dist = |c: usize, r: usize| {
+        distance_to_polyline(centre(&gt, w.col as usize + c, w.row as usize + r), &poly)
+    };
+    // In the window's corners (farther than the influence from the curve):
+    // a block of held cells and a cell lowered by 30 m.
+    let mut cells = Vec::new();
+    for (c, r) in [(0, 0), (1, 0), (0, 1), (1, 1), (w.width - 1, w.height - 1)] {
+        assert!(
+            dist(c, r) > influence,
+            "the corner lies within the influence"
+        );
+        let height = h.data[r * w.width + c] as f64 - if c > 1 { 30.0 } else { 0.0 };
+        cells.push(CellConstraint {
+            col: w.col + c as i64,
+            row: w.row + r as i64,
+            height,
+        });
+    }
+    let d = deform_with_cells(&dem, std::slice::from_ref(&curve), &cells, &opts).unwrap();
+    assert_eq!(d.window, w);
+    for r in 0..w.height {
+        for c in 0..w.width {
+            let m = d.displacement[r * w.width + c];
+            if dist(c, r) > influence + 1e-6 {
+                assert!(
+                    m == 0.0 || m.is_nan(),
+                    "cell ({c}, {r}) beyond the influence moved {m}"
+                );
+            }
+        }
+    }
+    // Within the influence the held cells change nothing here: the same
+    // field as the curve alone.
+    assert!(d
+        .displacement
+        .iter()
+        .zip(&d0.displacement)
+        .all(|(a, b)| a.to_bits() == b.to_bits()));
 }

@@ -198,12 +198,17 @@ pub fn rasterise(base: &HeightMap, curves: &[CurveConstraint], cell: CellSize) -
 /// `cons`, rasterised on `base`, the window `window` of the DEM: each cell
 /// inside the window and not nodata is constrained to `delta = height - H`,
 /// replacing what the curves asked there. When a cell is listed twice the
-/// last entry wins.
+/// last entry wins. Only cells within the curves' influence (`within`,
+/// [`super::locality::influence_mask`] of the curves alone) or on a curve
+/// are taken: a held or lowered cell never extends the region an edit may
+/// change (issue 11 item 4: cells beyond the influence distance of the
+/// curves stay bit-identical).
 pub fn apply_cells(
     cons: &mut ConstraintRaster,
     base: &HeightMap,
     window: crate::raster::Window,
     cells: &[CellConstraint],
+    within: &[bool],
 ) {
     for c in cells {
         let (x, y) = (c.col - window.col, c.row - window.row);
@@ -211,6 +216,9 @@ pub fn apply_cells(
             continue;
         }
         let k = y as usize * cons.width + x as usize;
+        if !within[k] && !cons.constrained[k] {
+            continue;
+        }
         let h = base.data[k];
         let d = c.height - h as f64;
         if h.is_nan() || !d.is_finite() {

@@ -347,8 +347,9 @@ pub fn deform(
 /// [`deform`] with, in addition to the curves, heights prescribed on single
 /// DEM cells ([`CellConstraint`]): such a cell is held at its height,
 /// whatever the curves ask there (see [`constraints::apply_cells`]). The
-/// affected window is planned from the curves alone; cells outside it, or
-/// on nodata, are ignored.
+/// affected window and the influence are the curves' alone; cells beyond
+/// the curves' influence distance, or on nodata, are ignored (they stay
+/// exactly as they are).
 pub fn deform_with_cells(
     dem: &Dem,
     curves: &[CurveConstraint],
@@ -360,13 +361,15 @@ pub fn deform_with_cells(
     let base = dem.read_height_map(plan.window)?;
     let t1 = Instant::now();
     let mut cons = constraints::rasterise(&base, curves, plan.cell);
-    constraints::apply_cells(&mut cons, &base, plan.window, cells);
+    // The influence is the curves' alone: held and lowered cells act only
+    // within it.
+    let inside = locality::influence_mask(&cons, plan.cell, plan.influence_m);
+    constraints::apply_cells(&mut cons, &base, plan.window, cells, &inside);
     if cons.count == 0 {
         return Err(DeformError::NothingConstrained {
             path: dem.path.clone(),
         });
     }
-    let inside = locality::influence_mask(&cons, plan.cell, plan.influence_m);
     let n = plan.window.len();
     let mut fixed = vec![true; n];
     let mut values = vec![0f32; n];
