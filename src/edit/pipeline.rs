@@ -335,16 +335,13 @@ pub fn run_opened(
                 (scenes2, prepared2, notes2),
                 &mut scratch,
             );
+            // The retry's time is the edit's, whichever is kept.
+            timings.add(&scratch);
             if let Ok((views2, mut outcome2)) = other {
                 if fits_better(&outcome2, &outcome) {
                     outcome2
                         .notes
                         .push(skyline_dropped_note(&outcome2, &outcome));
-                    timings.load += scratch.load;
-                    timings.features += scratch.features;
-                    timings.matching += scratch.matching;
-                    timings.deformation += scratch.deformation;
-                    timings.lowering += scratch.lowering;
                     let sources = Sources {
                         dem_path,
                         sketch_path,
@@ -457,9 +454,7 @@ fn edit_pass<'s>(
         }
         _ => outcome,
     };
-    timings.matching += scratch.matching;
-    timings.deformation += scratch.deformation;
-    timings.lowering += scratch.lowering;
+    timings.add(&scratch);
     Ok((views, Some(outcome)))
 }
 

@@ -157,6 +157,19 @@ pub struct Timings {
     pub total: f64,
 }
 
+impl Timings {
+    /// Adds the stage times of `other` (a retry's, say) to these.
+    pub fn add(&mut self, other: &Timings) {
+        self.load += other.load;
+        self.features += other.features;
+        self.matching += other.matching;
+        self.deformation += other.deformation;
+        self.lowering += other.lowering;
+        self.write += other.write;
+        self.total += other.total;
+    }
+}
+
 /// A file written atomically: a staging directory is created beside `path`
 /// up front (which proves the directory is writable; exclusive, with an
 /// unpredictable name, see [`crate::raster::atomic_file`]), and
