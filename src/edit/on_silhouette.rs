@@ -8,7 +8,10 @@
 //! *anchored*: each placed point whose pixel column of the unedited view
 //! has an occlusion boundary within [`ON_SILHOUETTE_PX`] of it takes the
 //! terrain point that forms that boundary (its position and depth), and
-//! becomes a [`PointSource::Silhouette`] point. The pipeline holds the
+//! becomes a [`PointSource::Silhouette`] point. Where a column has several
+//! boundaries that close (a crest grazing a farther skyline), the choice
+//! keeps the stroke on one silhouette from point to point rather than
+//! taking the nearest row each time ([`continuous_choice`]). The pipeline holds the
 //! terrain under anchored points where it is (cell constraints at the input
 //! heights) instead of constraining a curve there, so an edit whose strokes
 //! all lie on existing silhouettes changes nothing, and a stroke that
@@ -48,22 +51,25 @@ struct BoundaryPoint {
     precise: bool,
 }
 
-/// The boundary of `view`'s column under `pixel` nearest to it, if within
-/// `tol` pixels: a silhouette sample, or else the skyline (terrain point
-/// from the depth buffer).
-fn nearest_boundary(view: &RenderedView, pixel: [f64; 2], tol: f64) -> Option<BoundaryPoint> {
+/// Every boundary of `view`'s column under `pixel` within `tol` pixels of
+/// it: the silhouette samples, then the skyline's first terrain row (from
+/// the depth buffer) where it is nearer than every sample or where the
+/// column has none (the walk can lose a stretch of the skyline where it
+/// passes behind a nearer crest). Where several boundaries lie that close
+/// (a crest grazing a farther skyline), the stroke alone does not say
+/// which it follows; [`continuous_choice`] decides.
+fn boundaries_near(view: &RenderedView, pixel: [f64; 2], tol: f64) -> Vec<BoundaryPoint> {
     let w = view.camera.width;
     if !(pixel[0] >= 0.0 && pixel[0].is_finite()) {
-        return None;
+        return Vec::new();
     }
     let i = (pixel[0].floor() as usize).min(w.saturating_sub(1));
-    let mut best: Option<BoundaryPoint> = None;
+    let mut near: Vec<BoundaryPoint> = Vec::new();
     for &(c, s) in &view.by_column[i] {
         let sample = &view.silhouettes.curves[c as usize].samples[s as usize];
         let row = sample.pixel[1];
-        let dy = (row - pixel[1]).abs();
-        if dy <= tol && best.is_none_or(|b| dy < (b.row - pixel[1]).abs()) {
-            best = Some(BoundaryPoint {
+        if (row - pixel[1]).abs() <= tol {
+            near.push(BoundaryPoint {
                 row,
                 local: sample.local,
                 depth: sample.depth,
@@ -71,25 +77,126 @@ fn nearest_boundary(view: &RenderedView, pixel: [f64; 2], tol: f64) -> Option<Bo
             });
         }
     }
-    // The skyline's first terrain row, where it is nearer than every
-    // sample (or where the column has none: the walk can lose a stretch
-    // of the skyline where it passes behind a nearer crest).
     let Some(j) = view.skyline_row[i].filter(|&j| j > 0) else {
-        return best;
+        return near;
     };
     let dy = (j as f64 - pixel[1]).abs();
-    if dy > tol || best.is_some_and(|b| (b.row - pixel[1]).abs() <= dy) {
-        return best;
+    let nearest_sample = near
+        .iter()
+        .map(|b| (b.row - pixel[1]).abs())
+        .fold(f64::INFINITY, f64::min);
+    if dy > tol || nearest_sample <= dy {
+        return near;
     }
-    let Some(hit) = view.depth.hit(&view.terrain, i, j) else {
-        return best;
-    };
-    Some(BoundaryPoint {
-        row: j as f64,
-        local: hit.local,
-        depth: hit.distance,
-        precise: false,
-    })
+    if let Some(hit) = view.depth.hit(&view.terrain, i, j) {
+        near.push(BoundaryPoint {
+            row: j as f64,
+            local: hit.local,
+            depth: hit.distance,
+            precise: false,
+        });
+    }
+    near
+}
+
+/// The boundary of `view`'s column under `pixel` nearest to it, if within
+/// `tol` pixels (the first of equally near ones in [`boundaries_near`]'s
+/// order).
+fn nearest_boundary(view: &RenderedView, pixel: [f64; 2], tol: f64) -> Option<BoundaryPoint> {
+    nearest_of(&boundaries_near(view, pixel, tol), pixel[1])
+}
+
+fn nearest_of(near: &[BoundaryPoint], row: f64) -> Option<BoundaryPoint> {
+    let mut best: Option<BoundaryPoint> = None;
+    for b in near {
+        if best.is_none_or(|a| (b.row - row).abs() < (a.row - row).abs()) {
+            best = Some(*b);
+        }
+    }
+    best
+}
+
+/// Two boundary points belong to one silhouette when their depths differ
+/// by at most [`RUN_DEPTH_STEP`] of the nearer.
+fn same_silhouette(a: &BoundaryPoint, b: &BoundaryPoint) -> bool {
+    (a.depth - b.depth).abs() <= RUN_DEPTH_STEP * a.depth.min(b.depth)
+}
+
+/// What passing from one silhouette to another between neighbouring
+/// stroke points costs the choice of anchors, in pixels of offset: the
+/// on-silhouette tolerance, so that a boundary within the tolerance that
+/// keeps the stroke on one silhouette is always preferred to a slightly
+/// nearer one on another, and a single point is never sent to a farther
+/// landform and back (that costs two steps).
+pub const SILHOUETTE_STEP_PX: f64 = ON_SILHOUETTE_PX;
+
+/// Chooses one boundary per stroke point among those near it (`near[k]`,
+/// empty where none is), over each run of consecutive points that have
+/// one: the choice that minimises the summed row offsets plus
+/// [`SILHOUETTE_STEP_PX`] for every step from one silhouette to another
+/// between neighbours (a Viterbi pass). A person tracing a crest follows
+/// that crest; where it grazes a farther skyline within a pixel, the
+/// nearest boundary alone would flick single points to the far landform,
+/// kilometres behind. With one boundary per point this is the nearest
+/// boundary.
+fn continuous_choice(near: &[Vec<BoundaryPoint>], rows: &[f64]) -> Vec<Option<BoundaryPoint>> {
+    let n = near.len();
+    let mut out: Vec<Option<BoundaryPoint>> = vec![None; n];
+    let mut a = 0;
+    while a < n {
+        if near[a].is_empty() {
+            a += 1;
+            continue;
+        }
+        let mut b = a + 1;
+        while b < n && !near[b].is_empty() {
+            b += 1;
+        }
+        // cost[k][c], back[k][c] over the run a..b
+        let mut cost: Vec<Vec<f64>> = Vec::with_capacity(b - a);
+        let mut back: Vec<Vec<usize>> = Vec::with_capacity(b - a);
+        for k in a..b {
+            let off = |c: &BoundaryPoint| (c.row - rows[k]).abs();
+            if k == a {
+                cost.push(near[k].iter().map(off).collect());
+                back.push(vec![0; near[k].len()]);
+                continue;
+            }
+            let prev = &cost[k - a - 1];
+            let mut row_cost = Vec::with_capacity(near[k].len());
+            let mut row_back = Vec::with_capacity(near[k].len());
+            for c in &near[k] {
+                let mut best = (f64::INFINITY, 0);
+                for (p, pc) in near[k - 1].iter().enumerate() {
+                    let step = if same_silhouette(pc, c) {
+                        0.0
+                    } else {
+                        SILHOUETTE_STEP_PX
+                    };
+                    if prev[p] + step < best.0 {
+                        best = (prev[p] + step, p);
+                    }
+                }
+                row_cost.push(best.0 + off(c));
+                row_back.push(best.1);
+            }
+            cost.push(row_cost);
+            back.push(row_back);
+        }
+        let last = cost.len() - 1;
+        let mut c = 0;
+        for (m, &v) in cost[last].iter().enumerate() {
+            if v < cost[last][c] {
+                c = m;
+            }
+        }
+        for k in (a..b).rev() {
+            out[k] = Some(near[k][c]);
+            c = back[k - a][c];
+        }
+        a = b;
+    }
+    out
 }
 
 /// Runs of anchored points narrower than this (pixels of x) are a stroke
@@ -236,12 +343,13 @@ pub fn anchor_on_silhouettes(
         return 0.0;
     }
     let px = |k: usize| placed.points[k].pixel.unwrap_or([f64::NAN; 2]);
-    let mut hits: Vec<Option<BoundaryPoint>> = on_stroke
-        .iter()
-        .map(|&k| nearest_boundary(before, px(k), ON_SILHOUETTE_PX))
-        .collect();
     let n = on_stroke.len();
     let pixels: Vec<[f64; 2]> = on_stroke.iter().map(|&k| px(k)).collect();
+    let near: Vec<Vec<BoundaryPoint>> = pixels
+        .iter()
+        .map(|&p| boundaries_near(before, p, ON_SILHOUETTE_PX))
+        .collect();
+    let mut hits = continuous_choice(&near, &pixels.iter().map(|p| p[1]).collect::<Vec<_>>());
     let refused = drop_offset_stretches(&mut hits, &pixels);
     drop_short_runs(&mut hits, &pixels.iter().map(|p| p[0]).collect::<Vec<_>>());
     // Short stretches beside anchored points, within the looser tolerance.
@@ -405,5 +513,71 @@ mod tests {
         let refused = drop_offset_stretches(&mut hits, &pixels);
         assert!(refused.iter().all(|r| !r), "{refused:?}");
         assert!(hits.iter().all(|h| h.is_some()));
+    }
+
+    fn at(row: f64, depth: f64) -> BoundaryPoint {
+        BoundaryPoint {
+            row,
+            local: [0.0, depth, 0.0],
+            depth,
+            precise: true,
+        }
+    }
+
+    #[test]
+    fn a_crest_grazing_a_farther_skyline_keeps_its_depth() {
+        // A stroke along a crest 9.6 km away (row 100) that grazes a
+        // skyline 15 km away (row 100.6) at points 3 and 6, where the
+        // stroke happens to lie nearer the skyline.
+        let rows = [100.1, 100.0, 100.2, 100.5, 100.1, 100.0, 100.45, 100.1];
+        let near: Vec<Vec<BoundaryPoint>> = rows
+            .iter()
+            .enumerate()
+            .map(|(k, _)| {
+                let mut v = vec![at(100.0, 9600.0 + k as f64)];
+                if k == 3 || k == 6 {
+                    v.push(at(100.6, 15000.0));
+                }
+                v
+            })
+            .collect();
+        let nearest: Vec<f64> = (0..rows.len())
+            .map(|k| nearest_of(&near[k], rows[k]).map_or(0.0, |b| b.depth))
+            .collect();
+        assert_eq!(
+            nearest[3], 15000.0,
+            "the nearest boundary flicks to the skyline"
+        );
+        let chosen = continuous_choice(&near, &rows);
+        assert!(chosen.iter().all(|b| b.is_some_and(|b| b.depth < 9700.0)));
+    }
+
+    #[test]
+    fn a_stroke_passing_from_one_silhouette_to_another_follows_both() {
+        // Points 0-4 on a near crest only, 5-9 on a far one only, and
+        // both near at the join: the step is taken once, where the offsets
+        // say.
+        let rows = [50.0; 10];
+        let near: Vec<Vec<BoundaryPoint>> = (0..10)
+            .map(|k| match k {
+                0..=3 => vec![at(50.1, 2000.0)],
+                4 => vec![at(50.2, 2000.0), at(50.9, 8000.0)],
+                5 => vec![at(50.8, 2000.0), at(50.1, 8000.0)],
+                _ => vec![at(50.0, 8000.0)],
+            })
+            .collect();
+        let chosen: Vec<f64> = continuous_choice(&near, &rows)
+            .iter()
+            .map(|b| b.map_or(0.0, |b| b.depth))
+            .collect();
+        assert_eq!(
+            chosen,
+            vec![2000.0, 2000.0, 2000.0, 2000.0, 2000.0, 8000.0, 8000.0, 8000.0, 8000.0, 8000.0]
+        );
+        // Points with no boundary near split the runs.
+        let mut gap = near.clone();
+        gap[2].clear();
+        let chosen = continuous_choice(&gap, &rows);
+        assert!(chosen[2].is_none() && chosen[1].is_some() && chosen[3].is_some());
     }
 }
