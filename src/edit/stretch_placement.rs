@@ -21,7 +21,10 @@
 //! whatever far feature happens to lie near the stroke in the image. A
 //! stretch drawn into the landform its two anchors lie on (a ridge cut
 //! along a skyline) is placed on that landform even when a nearer feature
-//! lies just under the stroke.
+//! lies just under the stroke. A whole stroke drawn in the sky just over
+//! its feature, narrower than one DEM cell at that feature's depth, is a
+//! landform behind it that the DEM could not draw there: it goes behind,
+//! to the nearest depth where it spans one cell.
 
 use super::rendered_view::RenderedView;
 use crate::render::SKY;
