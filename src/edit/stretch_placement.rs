@@ -21,7 +21,10 @@
 //! whatever far feature happens to lie near the stroke in the image. A
 //! stretch drawn into the landform its two anchors lie on (a ridge cut
 //! along a skyline) is placed on that landform even when a nearer feature
-//! lies just under the stroke.
+//! lies just under the stroke. A whole stroke drawn in the sky just over
+//! its feature, narrower than one DEM cell at that feature's depth, is a
+//! landform behind it that the DEM could not draw there: it goes behind,
+//! to the nearest depth where it spans one cell.
 
 use super::rendered_view::RenderedView;
 use crate::render::SKY;
@@ -52,6 +55,10 @@ pub struct StretchPlacement {
     pub drawing_plane: usize,
     /// Points with no terrain at either end, left as matched.
     pub unsupported: usize,
+    /// Points of a stretch drawn in the sky over its feature, narrower
+    /// than one DEM cell at the feature's depth: put behind it, at the
+    /// nearest depth where they span one cell ([`drawable_depth_behind`]).
+    pub behind: usize,
 }
 
 /// A terrain point bounding a free stretch, in the world frame, and its
@@ -203,6 +210,29 @@ pub fn place_free_stretches(
     for (a, b, left, right, feature_ok) in runs {
         let count = b - a;
         if feature_ok {
+            let whole = a == 0 && b == n;
+            let behind = whole
+                .then(|| drawable_depth_behind(before, proj, placed, &on[a..b]))
+                .flatten();
+            if let Some(surface) = behind {
+                for &k in &on[a..b] {
+                    let Some(px) = placed.points[k].pixel else {
+                        continue;
+                    };
+                    if let Some(depth) = surface.depth(proj, px) {
+                        placed.points[k] = PlacedPoint {
+                            pixel: Some(px),
+                            world: proj.unproject(px, depth),
+                            depth,
+                            source: PointSource::Fallback,
+                        };
+                    }
+                }
+                out.behind += count;
+                replaced_ends.0 |= a == 0;
+                replaced_ends.1 |= b == n;
+                continue;
+            }
             out.feature += count;
             hold_extension_depth(proj, placed, &on[a..b]);
             continue;
@@ -246,6 +276,72 @@ pub fn place_free_stretches(
         });
     }
     out
+}
+
+/// A free stretch narrower than this many DEM cells at the depth of its
+/// feature is finer than the DEM can draw there (the one-cell rule of
+/// [`super::on_silhouette`], which anchors such stretches between two
+/// anchors on one silhouette).
+pub const DRAWABLE_CELLS: f64 = 1.0;
+
+/// Where a free stretch drawn in the sky just over its feature goes when
+/// the DEM cannot draw it at that feature's depth: it spans fewer than
+/// [`DRAWABLE_CELLS`] cells there, so no change of that landform makes
+/// the stroke's shape (the edit would change nothing and leave it
+/// unfitted). A stretch over a silhouette that the DEM cannot draw there
+/// is a landform behind it showing over it (Tassé et al. section 4: a
+/// stroke that ends on another is occluded by it); it goes on the drawing
+/// plane at the nearest depth where it spans one cell, the least the DEM
+/// can draw. Only for a whole stroke (no part of it on an existing
+/// silhouette: a short free stretch beside an anchored one is a detail of
+/// the landform it leaves, not a landform), not one drawn over terrain (a
+/// cut), nor one whose new depth lies off the DEM. `None`: the stretch
+/// stays.
+fn drawable_depth_behind(
+    before: &RenderedView,
+    proj: &SceneProjection,
+    placed: &StrokeMatch,
+    run: &[usize],
+) -> Option<Surface> {
+    let pixels: Vec<[f64; 2]> = run.iter().filter_map(|&k| placed.points[k].pixel).collect();
+    let (first, last) = (pixels.first()?, pixels.last()?);
+    let wide = (last[0] - first[0]).abs();
+    let mut depths: Vec<f64> = run
+        .iter()
+        .map(|&k| placed.points[k].depth)
+        .filter(|d| d.is_finite() && *d > 0.0)
+        .collect();
+    if depths.is_empty() || !(wide > 0.0) {
+        return None;
+    }
+    depths.sort_by(f64::total_cmp);
+    let depth = depths[depths.len() / 2];
+    let cell = DRAWABLE_CELLS * before.cell_px(depth);
+    if !(cell.is_finite() && wide < cell) {
+        return None;
+    }
+    let in_sky = pixels
+        .iter()
+        .filter(|&&p| terrain_pixel(before, Some(p)).is_none())
+        .count();
+    if (in_sky as f64) < NEAR_COVERAGE * pixels.len() as f64 {
+        return None;
+    }
+    // cell_px falls as 1 / depth: it equals `wide` at this depth.
+    let behind = depth * cell / wide;
+    let mid = pixels[pixels.len() / 2];
+    let world = proj.unproject(mid, behind);
+    let ground = proj.terrain_height(world[0], world[1])?;
+    if !(ground < world[2]) {
+        return None;
+    }
+    Some(Surface::drawing_plane(
+        proj.eye(),
+        Bound {
+            world,
+            depth: behind,
+        },
+    ))
 }
 
 /// Anchors a stroke only passes: when both ends of the stroke are free
