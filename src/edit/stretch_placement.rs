@@ -67,6 +67,10 @@ pub struct StretchPlacement {
 struct Bound {
     world: [f64; 3],
     depth: f64,
+    /// A stroke end that stops on a silhouette (a T-junction): the point
+    /// is on the occluding silhouette, not the stroke's own ground, and
+    /// its depth is a lower bound on the stroke's.
+    junction: bool,
 }
 
 /// A stroke end stands on the terrain when the first terrain under it is
@@ -89,6 +93,40 @@ fn ground_under_end(view: &RenderedView, pixel: [f64; 2]) -> Option<([f64; 3], f
     }
     Some((local, depth))
 }
+
+/// The occluding silhouette a stroke end stops on (Tassé et al. section
+/// 5.2.2: the stroke that ends on another is occluded by it): the topmost
+/// occlusion boundary of the end's column from one pixel above the end
+/// down to [`END_TOUCH_PX`] under it, as a point in the view's own frame
+/// and its depth. The stroke's landform lies behind it.
+fn junction_under_end(view: &RenderedView, pixel: [f64; 2]) -> Option<([f64; 3], f64)> {
+    let w = view.camera.width;
+    if !(pixel[0].is_finite() && pixel[1].is_finite()) || w == 0 {
+        return None;
+    }
+    let i = (pixel[0].floor().max(0.0) as usize).min(w - 1);
+    let within = |row: f64| row >= pixel[1] - JUNCTION_ABOVE_PX && row <= pixel[1] + END_TOUCH_PX;
+    let mut best: Option<(f64, [f64; 3], f64)> = None;
+    for &(c, k) in &view.by_column[i] {
+        let sample = &view.silhouettes.curves[c as usize].samples[k as usize];
+        let row = sample.pixel[1];
+        if within(row) && best.is_none_or(|b| row < b.0) {
+            best = Some((row, sample.local, sample.depth));
+        }
+    }
+    if let Some(j) = view.skyline_row[i].filter(|&j| j > 0 && within(j as f64)) {
+        if best.is_none_or(|b| (j as f64) < b.0) {
+            if let Some(hit) = view.depth.hit(&view.terrain, i, j) {
+                best = Some((j as f64, hit.local, hit.distance));
+            }
+        }
+    }
+    best.map(|(_, local, depth)| (local, depth))
+}
+
+/// A stroke end up to this many pixels under a silhouette still stops on
+/// it (the on-silhouette tolerance).
+pub const JUNCTION_ABOVE_PX: f64 = 1.0;
 
 /// The first terrain point within [`END_TOUCH_PX`] at or below `pixel`
 /// (in the image, then under its lower border), in the view's own frame,
@@ -126,15 +164,25 @@ pub fn place_free_stretches(
             return (p.depth > observer_radius_m).then_some(Bound {
                 world: p.world,
                 depth: p.depth,
+                junction: false,
             });
         }
         if !end {
             return None;
         }
-        let (local, depth) = ground_under_end(before, p.pixel?)?;
+        let px = p.pixel?;
+        let (local, depth, junction) = match ground_under_end(before, px) {
+            Some((local, depth)) => (local, depth, false),
+            None if junctions() => {
+                let (local, depth) = junction_under_end(before, px)?;
+                (local, depth, true)
+            }
+            None => return None,
+        };
         (depth > observer_radius_m).then_some(Bound {
             world: proj.own_to_world(local),
             depth,
+            junction,
         })
     };
     // The free runs and their bounds (the anchors beside them, or the
@@ -166,7 +214,13 @@ pub fn place_free_stretches(
     }
     drop_passed_anchors(placed, &on, &mut spans);
     let mut runs: Vec<(usize, usize, Option<Bound>, Option<Bound>, bool)> = Vec::new();
-    for (a, b, left, right) in spans {
+    for (a, b, left_all, right_all) in spans {
+        // A junction bounds the stretch only from the near side: it
+        // neither contradicts the feature nor names a landform it cuts.
+        let (left, right) = (
+            left_all.filter(|q| !q.junction),
+            right_all.filter(|q| !q.junction),
+        );
         // Stroke ends (not anchors) standing on nearer ground contradict.
         let contradicts = |bound: Option<Bound>, k: usize, is_end: bool| {
             let p = &placed.points[k];
@@ -204,7 +258,7 @@ pub fn place_free_stretches(
                 placed.points[on[b - 1]].depth
             );
         }
-        runs.push((a, b, left, right, feature_ok));
+        runs.push((a, b, left_all, right_all, feature_ok));
     }
     let mut replaced_ends = (false, false);
     for (a, b, left, right, feature_ok) in runs {
@@ -237,7 +291,9 @@ pub fn place_free_stretches(
             hold_extension_depth(proj, placed, &on[a..b]);
             continue;
         }
-        if left.is_none() && right.is_none() {
+        // A stretch bounded by junctions only: nothing says where it stands.
+        let real = |q: Option<Bound>| q.filter(|q| !q.junction);
+        if real(left).is_none() && real(right).is_none() {
             out.unsupported += count;
             continue;
         }
@@ -256,7 +312,7 @@ pub fn place_free_stretches(
                 };
             }
         }
-        if left.is_some() && right.is_some() {
+        if real(left).is_some() && real(right).is_some() {
             out.end_points += count;
         } else {
             out.drawing_plane += count;
@@ -340,6 +396,7 @@ fn drawable_depth_behind(
         Bound {
             world,
             depth: behind,
+            junction: false,
         },
     ))
 }
@@ -562,6 +619,22 @@ impl Surface {
     fn new(proj: &SceneProjection, left: Option<Bound>, right: Option<Bound>) -> Surface {
         let eye = proj.eye();
         let horizontal = |v: [f64; 3]| [v[0], v[1], 0.0];
+        // A junction is a lower bound: with the stroke's own ground at the
+        // other end, the stretch stands on the drawing plane through that
+        // ground when it lies behind the junction (or agrees with it), and
+        // through the junction when the ground is nearer than the
+        // silhouette that occludes the stroke (the occluder is nearer than
+        // what it hides).
+        let (left, right) = match (left, right) {
+            (Some(j), Some(q)) | (Some(q), Some(j)) if j.junction && !q.junction => {
+                let at = if j.depth > q.depth * (1.0 + AGREEMENT) { j } else { q };
+                return Self::drawing_plane(eye, at);
+            }
+            (Some(j), Some(k)) if j.junction && k.junction => {
+                return Self::drawing_plane(eye, if j.depth > k.depth { j } else { k });
+            }
+            other => other,
+        };
         match (left, right) {
             // Ends far apart in depth: the nearer is a silhouette the
             // stroke passes behind (a T-junction), the farther its own
@@ -644,6 +717,7 @@ pub fn place_on_end_surface(
         (depth > observer_radius_m).then_some(Bound {
             world: proj.own_to_world(local),
             depth,
+            junction: false,
         })
     };
     let (left, right) = (bound(*pixels.first()?), bound(*pixels.last()?));
@@ -659,4 +733,10 @@ pub fn place_on_end_surface(
         })
         .collect::<Option<Vec<_>>>()?;
     Some((placed, left.is_some() && right.is_some()))
+}
+
+/// Experiment switch: stroke ends that stop on a silhouette bound their
+/// stretch as junctions (`DS_JUNCTION_BOUND=0` turns it off).
+fn junctions() -> bool {
+    std::env::var("DS_JUNCTION_BOUND").map_or(true, |v| v != "0")
 }
