@@ -21,7 +21,14 @@
 //! whatever far feature happens to lie near the stroke in the image. A
 //! stretch drawn into the landform its two anchors lie on (a ridge cut
 //! along a skyline) is placed on that landform even when a nearer feature
-//! lies just under the stroke. A whole stroke drawn in the sky just over
+//! lies just under the stroke. A stroke end that stops on a silhouette
+//! (within [`END_TOUCH_PX`] above it) is a T-junction (Tassé et al. section
+//! 5.2.2: the outline that ends on another is occluded by it): that
+//! silhouette is not the stroke's ground but a lower bound on its depth, so
+//! the stretch goes through the other end's terrain point when that lies
+//! behind the junction, and through the junction when it lies in front of
+//! it; the junction never contradicts the matched feature, and a stretch
+//! bounded by junctions only keeps its feature's depth. A whole stroke drawn in the sky just over
 //! its feature, narrower than one DEM cell at that feature's depth, is a
 //! landform behind it that the DEM could not draw there: it goes behind,
 //! to the nearest depth where it spans one cell.
@@ -59,10 +66,6 @@ pub struct StretchPlacement {
     /// than one DEM cell at the feature's depth: put behind it, at the
     /// nearest depth where they span one cell ([`drawable_depth_behind`]).
     pub behind: usize,
-    /// Points of an anchored run at a stroke end that meets a nearer
-    /// silhouette than the free stretch beside it (a T-junction): put on
-    /// the drawing plane through that stretch's end ([`junction_end_runs`]).
-    pub junction_end: usize,
 }
 
 /// A terrain point bounding a free stretch, in the world frame, and its
@@ -85,7 +88,8 @@ pub const END_TOUCH_PX: f64 = 3.0;
 /// depth): the first terrain at or below the end pixel, when it is within
 /// [`END_TOUCH_PX`] and not an occlusion boundary. An end that stops on a
 /// nearer silhouette is a T-junction: the stroke goes on behind it, and
-/// that silhouette says nothing about its depth.
+/// that silhouette only bounds its depth from the near side
+/// ([`junction_under_end`]).
 fn ground_under_end(view: &RenderedView, pixel: [f64; 2]) -> Option<([f64; 3], f64)> {
     let (local, depth, row) = terrain_below(view, pixel)?;
     if row - pixel[1] > END_TOUCH_PX {
@@ -177,11 +181,10 @@ pub fn place_free_stretches(
         let px = p.pixel?;
         let (local, depth, junction) = match ground_under_end(before, px) {
             Some((local, depth)) => (local, depth, false),
-            None if junctions() => {
+            None => {
                 let (local, depth) = junction_under_end(before, px)?;
                 (local, depth, true)
             }
-            None => return None,
         };
         (depth > observer_radius_m).then_some(Bound {
             world: proj.own_to_world(local),
@@ -323,12 +326,6 @@ pub fn place_free_stretches(
         }
         replaced_ends.0 |= a == 0;
         replaced_ends.1 |= b == n;
-    }
-    if junction_end_runs_on() {
-        let (count, left, right) = junction_end_runs(before, proj, placed, &on);
-        out.junction_end += count;
-        replaced_ends.0 |= left;
-        replaced_ends.1 |= right;
     }
     // Completion at a re-placed end: that end stands on the terrain.
     if n > 0 && (replaced_ends.0 || replaced_ends.1) {
@@ -629,15 +626,22 @@ impl Surface {
     fn new(proj: &SceneProjection, left: Option<Bound>, right: Option<Bound>) -> Surface {
         let eye = proj.eye();
         let horizontal = |v: [f64; 3]| [v[0], v[1], 0.0];
-        // A junction is a lower bound: with the stroke's own ground at the
-        // other end, the stretch stands on the drawing plane through that
-        // ground when it lies behind the junction (or agrees with it), and
-        // through the junction when the ground is nearer than the
-        // silhouette that occludes the stroke (the occluder is nearer than
-        // what it hides).
+        // A junction is a lower bound: with a terrain point (an anchor or
+        // the ground under the other end) as the other bound, the stretch
+        // stands on the drawing plane through that point when it lies
+        // behind the junction (or agrees with it), and through the
+        // junction when the point is nearer than the silhouette that
+        // occludes the stroke (an occluder is nearer than what it hides;
+        // the nearer point is then itself a silhouette the stroke passes
+        // in front of, as `Surface::new` reads two far-apart ends). With
+        // junctions at both ends: through the farther.
         let (left, right) = match (left, right) {
             (Some(j), Some(q)) | (Some(q), Some(j)) if j.junction && !q.junction => {
-                let at = if j.depth > q.depth * (1.0 + AGREEMENT) { j } else { q };
+                let at = if j.depth > q.depth * (1.0 + AGREEMENT) {
+                    j
+                } else {
+                    q
+                };
                 return Self::drawing_plane(eye, at);
             }
             (Some(j), Some(k)) if j.junction && k.junction => {
@@ -743,155 +747,4 @@ pub fn place_on_end_surface(
         })
         .collect::<Option<Vec<_>>>()?;
     Some((placed, left.is_some() && right.is_some()))
-}
-
-/// Experiment switch: stroke ends that stop on a silhouette bound their
-/// stretch as junctions (`DS_JUNCTION_BOUND=0` turns it off).
-fn junctions() -> bool {
-    std::env::var("DS_JUNCTION_BOUND").map_or(true, |v| v != "0")
-}
-
-/// True when at least [`NEAR_COVERAGE`] of the free stretch's points lie
-/// where the unedited view shows sky or terrain farther than the occluder
-/// at `depth` (by more than [`AGREEMENT`]): the stretch comes down to the
-/// junction from above, over what the occluder does not hide. A stretch
-/// drawn into the occluder's own terrain is a cut of it, not a landform
-/// behind it.
-fn over_the_occluder(before: &RenderedView, stretch: &[&PlacedPoint], depth: f64) -> bool {
-    let w = before.camera.width;
-    let above = stretch
-        .iter()
-        .filter(|p| match terrain_pixel(before, p.pixel) {
-            None => p.pixel.is_some(),
-            Some((i, j)) => before.depth.depth[j * w + i] as f64 > depth * (1.0 + AGREEMENT),
-        })
-        .count();
-    !stretch.is_empty() && above as f64 >= NEAR_COVERAGE * stretch.len() as f64
-}
-
-/// Width (pixels) of the stroke beside a junction over which the
-/// occluding silhouette must go on under it: the anchoring's shortest run.
-pub const JUNCTION_WINDOW_PX: f64 = super::on_silhouette::MIN_RUN_PX;
-
-/// True when the occluding silhouette (a boundary at the run's depth,
-/// within [`AGREEMENT`]) goes on under the free stretch beside the
-/// junction, below its pixels, in at least [`NEAR_COVERAGE`] of the
-/// stretch's points within [`JUNCTION_WINDOW_PX`] of the junction: the
-/// bar of the T, which the occluded outline (its stem) meets and ends on.
-/// A stroke that passes from a farther silhouette onto a nearer one where
-/// that one starts (emerging from behind the farther) has no T there.
-/// `stretch` starts at the junction.
-fn occluder_goes_on_under(before: &RenderedView, stretch: &[&PlacedPoint], depth: f64) -> bool {
-    let Some(start) = stretch.first().and_then(|p| p.pixel) else {
-        return false;
-    };
-    let w = before.camera.width;
-    let near: Vec<[f64; 2]> = stretch
-        .iter()
-        .filter_map(|p| p.pixel)
-        .take_while(|px| (px[0] - start[0]).abs() <= JUNCTION_WINDOW_PX)
-        .collect();
-    let under = near
-        .iter()
-        .filter(|px| {
-            if !(px[0] >= 0.0) {
-                return false;
-            }
-            let i = (px[0].floor() as usize).min(w.saturating_sub(1));
-            before.by_column[i].iter().any(|&(c, k)| {
-                let sample = &before.silhouettes.curves[c as usize].samples[k as usize];
-                sample.pixel[1] > px[1] && (sample.depth - depth).abs() <= AGREEMENT * depth
-            })
-        })
-        .count();
-    !near.is_empty() && under as f64 >= NEAR_COVERAGE * near.len() as f64
-}
-
-/// Experiment switch for [`junction_end_runs`] (`DS_JUNCTION_END=0` turns
-/// it off).
-fn junction_end_runs_on() -> bool {
-    std::env::var("DS_JUNCTION_END").map_or(true, |v| v != "0")
-}
-
-/// An anchored run at a stroke end whose free neighbour was placed behind
-/// it (farther than the run's median depth by more than [`AGREEMENT`]) is
-/// where the stroke's landform meets, from above, a nearer silhouette that
-/// occludes it: a T-junction (Tassé et al. section 5.2.2). The run's pixels
-/// lie on that silhouette in the image, but the outline the person traced
-/// there is the landform's own, coming down to the junction within a pixel
-/// of the occluder; the occluder's depth is only a lower bound on its
-/// depth. The run's points go on the drawing plane through the free
-/// neighbour (Gain et al. 2009: the landform's own end). Returns the
-/// number of points moved and whether the left and right ends moved.
-fn junction_end_runs(
-    before: &RenderedView,
-    proj: &SceneProjection,
-    placed: &mut StrokeMatch,
-    on: &[usize],
-) -> (usize, bool, bool) {
-    let n = on.len();
-    let anchored = |p: &PlacedPoint| p.source == PointSource::Silhouette;
-    let mut moved = (0, false, false);
-    for left_end in [true, false] {
-        let order: Vec<usize> = if left_end {
-            on.to_vec()
-        } else {
-            on.iter().rev().copied().collect()
-        };
-        let run = order
-            .iter()
-            .take_while(|&&k| anchored(&placed.points[k]))
-            .count();
-        if run == 0 || run == n {
-            continue;
-        }
-        let free = placed.points[order[run]];
-        let mut depths: Vec<f64> = order[..run]
-            .iter()
-            .map(|&k| placed.points[k].depth)
-            .collect();
-        depths.sort_by(f64::total_cmp);
-        let anchor = depths[depths.len() / 2];
-        if !(free.depth > anchor * (1.0 + AGREEMENT)) {
-            continue;
-        }
-        let stretch: Vec<&PlacedPoint> = order[run..]
-            .iter()
-            .map(|&k| &placed.points[k])
-            .take_while(|p| !anchored(p))
-            .collect();
-        if !over_the_occluder(before, &stretch, anchor)
-            || !occluder_goes_on_under(before, &stretch, anchor)
-        {
-            continue;
-        }
-        let surface = Surface::drawing_plane(
-            proj.eye(),
-            Bound {
-                world: free.world,
-                depth: free.depth,
-                junction: false,
-            },
-        );
-        for &k in &order[..run] {
-            let Some(px) = placed.points[k].pixel else {
-                continue;
-            };
-            if let Some(depth) = surface.depth(proj, px) {
-                placed.points[k] = PlacedPoint {
-                    pixel: Some(px),
-                    world: proj.unproject(px, depth),
-                    depth,
-                    source: PointSource::Fallback,
-                };
-                moved.0 += 1;
-            }
-        }
-        if left_end {
-            moved.1 = true;
-        } else {
-            moved.2 = true;
-        }
-    }
-    moved
 }

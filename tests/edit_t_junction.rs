@@ -1,0 +1,75 @@
+//! A stroke end that stops on a silhouette (a T-junction, Tassé et al.
+//! section 5.2.2: the outline that ends on another is occluded by it):
+//! that silhouette is not the stroke's ground but a lower bound on its
+//! depth (`edit::stretch_placement`, `junction_under_end`). Before, such an
+//! end gave no bound at all, and the free stretch went on the drawing plane
+//! through the anchor at the other end, a nearer silhouette the stroke
+//! ends on.
+//!
+//! The stroke is the fidelity suite's tuned case "Texas peak raised" (hand
+//! style): a peak raised 3.67-3.86 km from the eye; its left end stops on
+//! a silhouette about 3.6 km away, its right end is anchored on one
+//! 2.48 km away. Before, the free stretch was placed at 2.48-2.59 km
+//! (the judge's depth ratio 0.68); now through the left end's junction.
+
+mod common;
+
+use common::{demsketch, fixture};
+use serde_json::{json, Value};
+
+fn sketch() -> Value {
+    let points = [
+        [272.5, 177.17],
+        [310.44, 175.66],
+        [329.24, 173.81],
+        [350.62, 171.7],
+        [366.72, 170.32],
+        [380.25, 171.43],
+        [417.55, 177.61],
+        [432.51, 179.74],
+    ];
+    json!({
+        "views": [{
+            "name": "fidelity",
+            "viewpoint": {"lon": -97.28851995978872, "lat": 32.71421766452901, "alt_m": 198.585},
+            "camera": {"heading_deg": 290.0955, "pitch_deg": 0.0, "roll_deg": 0.0,
+                       "hfov_deg": 60.0, "width": 640, "height": 360},
+            "strokes": [{"id": "s0", "points": points}]
+        }],
+        "options": {"influence_m": 1500.0}
+    })
+}
+
+#[test]
+fn a_stroke_end_stopping_on_a_silhouette_bounds_its_depth_from_the_near_side() {
+    let tmp = tempfile::tempdir().unwrap();
+    let sk = tmp.path().join("sketch.json");
+    std::fs::write(&sk, serde_json::to_string(&sketch()).unwrap()).unwrap();
+    let (out, rep) = (tmp.path().join("out.tif"), tmp.path().join("report.json"));
+    let dem = fixture("texas_srtm90m_tiled_int16.tif");
+    let o = demsketch(&[
+        "edit",
+        dem.to_str().unwrap(),
+        "--sketch",
+        sk.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--report",
+        rep.to_str().unwrap(),
+        "--max-distance",
+        "50000",
+        "--allow-partial",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let r: Value = serde_json::from_slice(&std::fs::read(&rep).unwrap()).unwrap();
+    let s = &r["views"][0]["strokes"][0];
+    assert!(s["placement"]["drawing_plane"].as_u64().unwrap() > 0, "{s}");
+    let depth = &s["match"]["depth_m"];
+    let hi = depth[1].as_f64().unwrap();
+    // The free stretch, through the left end's junction, reaches the raised
+    // peak's depth; the anchored right end stays on its 2.48 km silhouette
+    // (the report's range counts it).
+    assert!(hi > 3300.0 && hi < 4400.0, "placed up to {hi:.0} m");
+    let fit = s["fit"]["fitted_fraction"].as_f64().unwrap();
+    assert!(fit >= 0.95, "fit {fit}");
+}
