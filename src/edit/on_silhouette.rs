@@ -60,6 +60,11 @@ fn nearest_boundary(view: &RenderedView, pixel: [f64; 2], tol: f64) -> Option<Bo
     let mut best: Option<BoundaryPoint> = None;
     for &(c, s) in &view.by_column[i] {
         let sample = &view.silhouettes.curves[c as usize].samples[s as usize];
+        // (the fit's own notion of a boundary: a point held on a crest the
+        // fit does not count would stay unfitted)
+        if !view.shows_as_boundary(sample) {
+            continue;
+        }
         let row = sample.pixel[1];
         let dy = (row - pixel[1]).abs();
         if dy <= tol && best.is_none_or(|b| dy < (b.row - pixel[1]).abs()) {
