@@ -1675,7 +1675,7 @@ fn place_demands(
 }
 
 /// Anchored cells within this many cells of a free stretch are not held.
-pub const ANCHOR_CLEARANCE_CELLS: i64 = 0;
+pub const ANCHOR_CLEARANCE_CELLS: i64 = 2;
 
 /// The DEM cells (whole-DEM grid, through `v`'s window) within `reach`
 /// cells of the curves' points and of the segments between them.
