@@ -31,16 +31,6 @@ pub const REGION_NEAR_ROWS: f32 = 3.0;
 /// cell): see [`RenderedView::shows_as_boundary`].
 pub const BOUNDARY_MIN_GAP: f64 = 0.05;
 
-fn boundary_min_gap() -> f64 {
-    static GAP: std::sync::OnceLock<f64> = std::sync::OnceLock::new();
-    *GAP.get_or_init(|| {
-        std::env::var("DEMSKETCH_GAP")
-            .ok()
-            .and_then(|v| v.parse().ok())
-            .unwrap_or(BOUNDARY_MIN_GAP)
-    })
-}
-
 /// What the edit's re-renders of a view compute ([`RenderedView::render_region`]).
 ///
 /// Everything the lowering ([`super::lowering`]), the contour fitting
@@ -299,7 +289,7 @@ impl RenderedView {
     /// the eye sees as the outline there.
     pub fn shows_as_boundary(&self, s: &SilhouetteSample) -> bool {
         let gap = s.depth_behind - s.depth;
-        !s.depth_behind.is_finite() || (gap >= boundary_min_gap() * s.depth && gap >= self.cell_m())
+        !s.depth_behind.is_finite() || (gap >= BOUNDARY_MIN_GAP * s.depth && gap >= self.cell_m())
     }
 
     /// The larger side of one DEM cell, metres.
