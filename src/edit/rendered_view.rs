@@ -4,6 +4,7 @@
 //! (silhouette samples and the skyline). Also the placed stroke curves the
 //! fit measures and the lowering loop compare against.
 
+use crate::features::silhouettes::SilhouetteSample;
 use crate::features::{
     extract_silhouettes_reusing, ColumnSamples, FeatureError, SilhouetteParams, Silhouettes,
 };
@@ -24,6 +25,11 @@ pub const REGION_BELOW_PX: f64 = 16.0;
 pub const REGION_DEPTH_MARGIN: f64 = 0.05;
 /// See [`REGION_DEPTH_MARGIN`].
 pub const REGION_NEAR_ROWS: f32 = 3.0;
+
+/// An occlusion boundary counts for the fit only where what is seen beyond
+/// it lies farther by at least this fraction of its depth (and one DEM
+/// cell): see [`RenderedView::shows_as_boundary`].
+pub const BOUNDARY_MIN_GAP: f64 = 0.05;
 
 /// What the edit's re-renders of a view compute ([`RenderedView::render_region`]).
 ///
@@ -248,12 +254,10 @@ impl RenderedView {
     /// Width in pixels of one DEM cell seen from `depth` metres (the larger
     /// of its two sides).
     pub fn cell_px(&self, depth: f64) -> f64 {
-        let p = self.terrain.frame.p;
-        let cell_m = p[0][0].hypot(p[1][0]).max(p[0][1].hypot(p[1][1]));
         if !(depth > 0.0) {
             return f64::INFINITY;
         }
-        cell_m * self.camera.focal_px / depth
+        self.cell_m() * self.camera.focal_px / depth
     }
 
     /// Distance from row `y` of column `i` to its nearest occlusion
@@ -262,6 +266,9 @@ impl RenderedView {
         let mut nearest = f64::INFINITY;
         for &(c, s) in &self.by_column[i] {
             let s = &self.silhouettes.curves[c as usize].samples[s as usize];
+            if !self.shows_as_boundary(s) {
+                continue;
+            }
             nearest = nearest.min((s.pixel[1] - y).abs());
         }
         let mut within = nearest <= tol;
@@ -271,6 +278,24 @@ impl RenderedView {
             within |= d <= tol;
         }
         (nearest, within)
+    }
+
+    /// Whether silhouette sample `s` shows as a boundary a person would
+    /// draw: what lies beyond it is sky, or terrain farther than it by at
+    /// least [`BOUNDARY_MIN_GAP`] of its depth and by at least one DEM cell.
+    /// A crest with the terrain rising again a cell behind it (the flank of
+    /// the old ridge still standing above a lowered crest in front of it)
+    /// is a kink of one slope, not a silhouette: the ridge behind is what
+    /// the eye sees as the outline there.
+    pub fn shows_as_boundary(&self, s: &SilhouetteSample) -> bool {
+        let gap = s.depth_behind - s.depth;
+        !s.depth_behind.is_finite() || (gap >= BOUNDARY_MIN_GAP * s.depth && gap >= self.cell_m())
+    }
+
+    /// The larger side of one DEM cell, metres.
+    pub fn cell_m(&self) -> f64 {
+        let p = self.terrain.frame.p;
+        p[0][0].hypot(p[1][0]).max(p[0][1].hypot(p[1][1]))
     }
 
     /// Image rows of every occlusion boundary in column `i`: silhouette
