@@ -5,7 +5,7 @@
 //! fit measures and the lowering loop compare against.
 
 use crate::features::{
-    extract_silhouettes_reusing, ColumnSamples, FeatureError, SilhouetteParams, Silhouettes,
+    extract_silhouettes_reusing, ColumnSamples, FeatureError, Reuse, SilhouetteParams, Silhouettes,
 };
 use crate::raster::HeightMap;
 use crate::render::{pick, DepthBuffer, LocalTerrain, TerrainHit, SKY};
@@ -194,11 +194,49 @@ impl RenderedView {
         terrain: LocalTerrain,
         camera: &Camera,
     ) -> Result<RenderedView, FeatureError> {
+        Self::from_terrain_after(terrain, camera, None)
+    }
+
+    /// [`RenderedView::from_terrain`], taking from `earlier` (a render of
+    /// a [`StrokeRegion`] of the same view on the same surface: the edit's
+    /// last render of a pass, whose result the next pass starts from)
+    /// the silhouette samples it refined already. A region's render holds
+    /// the whole render's depths and triangles in its rows
+    /// ([`DepthBuffer::render_rows`]; checked here, column by column), and
+    /// on the same surface (to the bit, [`LocalTerrain::same_surface`]) a
+    /// candidate between rows `y - 1` and `y` whose rows `y - 1 ..= y + 1`
+    /// are the same is refined to the same samples
+    /// ([`Reuse::Candidates`]); the others are refined here. Anything else
+    /// (another camera, another surface, a whole render) renders afresh.
+    /// The result is that of [`RenderedView::from_terrain`], to the bit.
+    pub fn from_terrain_after(
+        terrain: LocalTerrain,
+        camera: &Camera,
+        earlier: Option<&RenderedView>,
+    ) -> Result<RenderedView, FeatureError> {
         let (depth, ()) = rayon::join(
             || DepthBuffer::render(&terrain, camera),
             || terrain.build_cast_index(),
         );
-        Self::from_depth(terrain, depth, None)
+        let usable = earlier.and_then(|e| {
+            let region = e.region.as_ref()?;
+            (e.camera == *camera
+                && region.last_row.len() == camera.width
+                && terrain.same_surface(&e.terrain))
+            .then_some((e, region))
+        });
+        let Some((earlier, region)) = usable else {
+            return Self::from_depth(terrain, depth, None);
+        };
+        // Per column, the last row up to which the new render is the
+        // earlier's (-1: none).
+        let same_to = same_rows_per_column(&depth, &earlier.depth, &region.last_row);
+        let take = |x: usize, y: usize, near: f32| {
+            (y as i64) < same_to[x] as i64 && region.wants(x, y, near)
+        };
+        let all = |_: usize, _: usize, _: f32| true;
+        let reuse = Reuse::Candidates(&earlier.columns, &take);
+        Self::with_silhouettes(terrain, depth, None, &all, Some(reuse))
     }
 
     /// Silhouettes (those `region` wants, or all) and boundaries of a
@@ -220,14 +258,27 @@ impl RenderedView {
         region: Option<&StrokeRegion>,
         reuse: Option<(&RenderedView, &(dyn Fn(usize) -> bool + Sync))>,
     ) -> Result<RenderedView, FeatureError> {
-        let params = SilhouetteParams::default();
         let all = |_: usize, _: usize, _: f32| true;
         let wants = |x: usize, y: usize, near: f32| region.is_none_or(|r| r.wants(x, y, near));
         let wanted: &(dyn Fn(usize, usize, f32) -> bool + Sync) = match region {
             Some(_) => &wants,
             None => &all,
         };
-        let reuse = reuse.map(|(earlier, keep)| (&earlier.columns, keep));
+        let reuse = reuse.map(|(earlier, keep)| Reuse::Columns(&earlier.columns, keep));
+        Self::with_silhouettes(terrain, depth, region, wanted, reuse)
+    }
+
+    /// The view of `terrain` and its rendered `depth`, with the
+    /// silhouettes `wanted` (those of `region`, or all), taking from an
+    /// earlier extraction what `reuse` names.
+    fn with_silhouettes(
+        terrain: LocalTerrain,
+        depth: DepthBuffer,
+        region: Option<&StrokeRegion>,
+        wanted: &(dyn Fn(usize, usize, f32) -> bool + Sync),
+        reuse: Option<Reuse>,
+    ) -> Result<RenderedView, FeatureError> {
+        let params = SilhouetteParams::default();
         let (silhouettes, columns) =
             extract_silhouettes_reusing(&terrain, &depth, &params, wanted, reuse)?;
         let camera = depth.camera;
@@ -315,6 +366,34 @@ impl RenderedView {
         }
         None
     }
+}
+
+/// Per column `x` of `a`, the last row `y <= last_row[x]` such that rows
+/// `0..=y` of the column hold the same depths and triangles in `a` and
+/// `b` (to the bit; -1: not even row 0; `b` of the same size).
+fn same_rows_per_column(a: &DepthBuffer, b: &DepthBuffer, last_row: &[i32]) -> Vec<i32> {
+    let (w, h) = (a.width, a.height);
+    if b.width != w || b.height != h || a.depth.len() != b.depth.len() || last_row.len() != w {
+        return vec![-1; w];
+    }
+    let mut same_to = vec![-1i32; w];
+    let mut open: Vec<usize> = (0..w).filter(|&x| last_row[x] >= 0).collect();
+    for j in 0..h {
+        if open.is_empty() {
+            break;
+        }
+        let row = j * w;
+        open.retain(|&x| {
+            let k = row + x;
+            let same =
+                a.depth[k].to_bits() == b.depth[k].to_bits() && a.triangle[k] == b.triangle[k];
+            if same {
+                same_to[x] = j as i32;
+            }
+            same && (j as i32) < last_row[x]
+        });
+    }
+    same_to
 }
 
 /// For each of the `w` image columns, the `(curve, sample)` indices of the
