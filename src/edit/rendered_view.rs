@@ -377,21 +377,25 @@ fn same_rows_per_column(a: &DepthBuffer, b: &DepthBuffer, last_row: &[i32]) -> V
         return vec![-1; w];
     }
     let mut same_to = vec![-1i32; w];
-    let mut open: Vec<usize> = (0..w).filter(|&x| last_row[x] >= 0).collect();
-    for j in 0..h {
-        if open.is_empty() {
-            break;
+    let deepest = last_row
+        .iter()
+        .copied()
+        .max()
+        .unwrap_or(-1)
+        .min(h as i32 - 1);
+    // Row by row, branch-free: a column goes on while its rows match.
+    for j in 0..(deepest + 1).max(0) as usize {
+        let k = j * w;
+        let rows = (&a.depth[k..k + w], &b.depth[k..k + w]);
+        let ids = (&a.triangle[k..k + w], &b.triangle[k..k + w]);
+        let (jj, open) = (j as i32, j as i32 - 1);
+        for x in 0..w {
+            let same = (rows.0[x].to_bits() == rows.1[x].to_bits())
+                & (ids.0[x] == ids.1[x])
+                & (same_to[x] == open)
+                & (jj <= last_row[x]);
+            same_to[x] = if same { jj } else { same_to[x] };
         }
-        let row = j * w;
-        open.retain(|&x| {
-            let k = row + x;
-            let same =
-                a.depth[k].to_bits() == b.depth[k].to_bits() && a.triangle[k] == b.triangle[k];
-            if same {
-                same_to[x] = j as i32;
-            }
-            same && (j as i32) < last_row[x]
-        });
     }
     same_to
 }
