@@ -200,39 +200,48 @@ impl RenderedView {
     /// [`RenderedView::from_terrain`], taking from `earlier` (a render of
     /// a [`StrokeRegion`] of the same view on the same surface: the edit's
     /// last render of a pass, whose result the next pass starts from)
-    /// the silhouette samples it refined already. A region's render holds
-    /// the whole render's depths and triangles in its rows
-    /// ([`DepthBuffer::render_rows`]; checked here, column by column), and
-    /// on the same surface (to the bit, [`LocalTerrain::same_surface`]) a
-    /// candidate between rows `y - 1` and `y` whose rows `y - 1 ..= y + 1`
-    /// are the same is refined to the same samples
-    /// ([`Reuse::Candidates`]); the others are refined here. Anything else
-    /// (another camera, another surface, a whole render) renders afresh.
-    /// The result is that of [`RenderedView::from_terrain`], to the bit.
+    /// what it rendered already. A region's render holds the whole
+    /// render's depths and triangles in its rows
+    /// ([`DepthBuffer::render_rows`]): they are taken, and only the rows
+    /// below are rendered ([`DepthBuffer::render_below`]). On the same
+    /// surface (to the bit, [`LocalTerrain::same_surface`]) a silhouette
+    /// candidate between rows `y - 1` and `y` with rows `y - 1 ..= y + 1`
+    /// in the region, which the region wanted, is refined to the samples
+    /// the region's render holds ([`Reuse::Candidates`]); the others are
+    /// refined here. Anything else (another camera, another surface, a
+    /// whole render) renders afresh. The result is that of
+    /// [`RenderedView::from_terrain`], to the bit.
     pub fn from_terrain_after(
         terrain: LocalTerrain,
         camera: &Camera,
         earlier: Option<&RenderedView>,
     ) -> Result<RenderedView, FeatureError> {
-        let (depth, ()) = rayon::join(
-            || DepthBuffer::render(&terrain, camera),
-            || terrain.build_cast_index(),
-        );
         let usable = earlier.and_then(|e| {
             let region = e.region.as_ref()?;
             (e.camera == *camera
                 && region.last_row.len() == camera.width
+                && e.depth.depth.len() == camera.width * camera.height
                 && terrain.same_surface(&e.terrain))
             .then_some((e, region))
         });
         let Some((earlier, region)) = usable else {
+            let (depth, ()) = rayon::join(
+                || DepthBuffer::render(&terrain, camera),
+                || terrain.build_cast_index(),
+            );
             return Self::from_depth(terrain, depth, None);
         };
-        // Per column, the last row up to which the new render is the
-        // earlier's (-1: none).
-        let same_to = same_rows_per_column(&depth, &earlier.depth, &region.last_row);
+        let last_row = &region.last_row;
+        let first_row: Vec<i32> = last_row
+            .iter()
+            .map(|&r| (r + 1).clamp(0, camera.height as i32))
+            .collect();
+        let (depth, ()) = rayon::join(
+            || DepthBuffer::render_below(&terrain, camera, &first_row, &earlier.depth),
+            || terrain.build_cast_index(),
+        );
         let take = |x: usize, y: usize, near: f32| {
-            (y as i64) < same_to[x] as i64 && region.wants(x, y, near)
+            (y as i64) < last_row[x] as i64 && region.wants(x, y, near)
         };
         let all = |_: usize, _: usize, _: f32| true;
         let reuse = Reuse::Candidates(&earlier.columns, &take);
@@ -366,38 +375,6 @@ impl RenderedView {
         }
         None
     }
-}
-
-/// Per column `x` of `a`, the last row `y <= last_row[x]` such that rows
-/// `0..=y` of the column hold the same depths and triangles in `a` and
-/// `b` (to the bit; -1: not even row 0; `b` of the same size).
-fn same_rows_per_column(a: &DepthBuffer, b: &DepthBuffer, last_row: &[i32]) -> Vec<i32> {
-    let (w, h) = (a.width, a.height);
-    if b.width != w || b.height != h || a.depth.len() != b.depth.len() || last_row.len() != w {
-        return vec![-1; w];
-    }
-    let mut same_to = vec![-1i32; w];
-    let deepest = last_row
-        .iter()
-        .copied()
-        .max()
-        .unwrap_or(-1)
-        .min(h as i32 - 1);
-    // Row by row, branch-free: a column goes on while its rows match.
-    for j in 0..(deepest + 1).max(0) as usize {
-        let k = j * w;
-        let rows = (&a.depth[k..k + w], &b.depth[k..k + w]);
-        let ids = (&a.triangle[k..k + w], &b.triangle[k..k + w]);
-        let (jj, open) = (j as i32, j as i32 - 1);
-        for x in 0..w {
-            let same = (rows.0[x].to_bits() == rows.1[x].to_bits())
-                & (ids.0[x] == ids.1[x])
-                & (same_to[x] == open)
-                & (jj <= last_row[x]);
-            same_to[x] = if same { jj } else { same_to[x] };
-        }
-    }
-    same_to
 }
 
 /// For each of the `w` image columns, the `(curve, sample)` indices of the
