@@ -6,7 +6,7 @@
 
 use crate::features::silhouettes::SilhouetteSample;
 use crate::features::{
-    extract_silhouettes_reusing, ColumnSamples, FeatureError, SilhouetteParams, Silhouettes,
+    extract_silhouettes_reusing, ColumnSamples, FeatureError, Reuse, SilhouetteParams, Silhouettes,
 };
 use crate::raster::HeightMap;
 use crate::render::{pick, DepthBuffer, LocalTerrain, TerrainHit, SKY};
@@ -200,11 +200,58 @@ impl RenderedView {
         terrain: LocalTerrain,
         camera: &Camera,
     ) -> Result<RenderedView, FeatureError> {
+        Self::from_terrain_after(terrain, camera, None)
+    }
+
+    /// [`RenderedView::from_terrain`], taking from `earlier` (a render of
+    /// a [`StrokeRegion`] of the same view on the same surface: the edit's
+    /// last render of a pass, whose result the next pass starts from)
+    /// what it rendered already. A region's render holds the whole
+    /// render's depths and triangles in its rows
+    /// ([`DepthBuffer::render_rows`]): they are taken, and only the rows
+    /// below are rendered ([`DepthBuffer::render_below`]). On the same
+    /// surface (to the bit, [`LocalTerrain::same_surface`]) a silhouette
+    /// candidate between rows `y - 1` and `y` with rows `y - 1 ..= y + 1`
+    /// in the region, which the region wanted, is refined to the samples
+    /// the region's render holds ([`Reuse::Candidates`]); the others are
+    /// refined here. Anything else (another camera, another surface, a
+    /// whole render) renders afresh. The result is that of
+    /// [`RenderedView::from_terrain`], to the bit.
+    pub fn from_terrain_after(
+        terrain: LocalTerrain,
+        camera: &Camera,
+        earlier: Option<&RenderedView>,
+    ) -> Result<RenderedView, FeatureError> {
+        let usable = earlier.and_then(|e| {
+            let region = e.region.as_ref()?;
+            (e.camera == *camera
+                && region.last_row.len() == camera.width
+                && e.depth.depth.len() == camera.width * camera.height
+                && terrain.same_surface(&e.terrain))
+            .then_some((e, region))
+        });
+        let Some((earlier, region)) = usable else {
+            let (depth, ()) = rayon::join(
+                || DepthBuffer::render(&terrain, camera),
+                || terrain.build_cast_index(),
+            );
+            return Self::from_depth(terrain, depth, None);
+        };
+        let last_row = &region.last_row;
+        let first_row: Vec<i32> = last_row
+            .iter()
+            .map(|&r| (r + 1).clamp(0, camera.height as i32))
+            .collect();
         let (depth, ()) = rayon::join(
-            || DepthBuffer::render(&terrain, camera),
+            || DepthBuffer::render_below(&terrain, camera, &first_row, &earlier.depth),
             || terrain.build_cast_index(),
         );
-        Self::from_depth(terrain, depth, None)
+        let take = |x: usize, y: usize, near: f32| {
+            (y as i64) < last_row[x] as i64 && region.wants(x, y, near)
+        };
+        let all = |_: usize, _: usize, _: f32| true;
+        let reuse = Reuse::Candidates(&earlier.columns, &take);
+        Self::with_silhouettes(terrain, depth, None, &all, Some(reuse))
     }
 
     /// Silhouettes (those `region` wants, or all) and boundaries of a
@@ -226,14 +273,27 @@ impl RenderedView {
         region: Option<&StrokeRegion>,
         reuse: Option<(&RenderedView, &(dyn Fn(usize) -> bool + Sync))>,
     ) -> Result<RenderedView, FeatureError> {
-        let params = SilhouetteParams::default();
         let all = |_: usize, _: usize, _: f32| true;
         let wants = |x: usize, y: usize, near: f32| region.is_none_or(|r| r.wants(x, y, near));
         let wanted: &(dyn Fn(usize, usize, f32) -> bool + Sync) = match region {
             Some(_) => &wants,
             None => &all,
         };
-        let reuse = reuse.map(|(earlier, keep)| (&earlier.columns, keep));
+        let reuse = reuse.map(|(earlier, keep)| Reuse::Columns(&earlier.columns, keep));
+        Self::with_silhouettes(terrain, depth, region, wanted, reuse)
+    }
+
+    /// The view of `terrain` and its rendered `depth`, with the
+    /// silhouettes `wanted` (those of `region`, or all), taking from an
+    /// earlier extraction what `reuse` names.
+    fn with_silhouettes(
+        terrain: LocalTerrain,
+        depth: DepthBuffer,
+        region: Option<&StrokeRegion>,
+        wanted: &(dyn Fn(usize, usize, f32) -> bool + Sync),
+        reuse: Option<Reuse>,
+    ) -> Result<RenderedView, FeatureError> {
+        let params = SilhouetteParams::default();
         let (silhouettes, columns) =
             extract_silhouettes_reusing(&terrain, &depth, &params, wanted, reuse)?;
         let camera = depth.camera;
