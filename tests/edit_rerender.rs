@@ -122,3 +122,78 @@ fn a_re_render_after_a_change_is_the_fresh_render() {
     let got = RenderedView::rerender_terrain_region(t5, &cam, &other, &r1).unwrap();
     assert_same_render(&got, &want, "another region");
 }
+
+/// A whole render of a surface that a region render was made on (the
+/// next pass of an edit starts from its last round's terrain) takes that
+/// render's refined candidates (`RenderedView::from_terrain_after`) and is
+/// the fresh whole render, to the bit; on another surface it renders
+/// afresh.
+#[test]
+fn a_whole_render_after_a_region_render_of_its_surface_is_the_fresh_render() {
+    let dem = Dem::open(&fixture("zion_srtm_utm12n.tif")).unwrap();
+    let (x, y) = dem.geotransform.pixel_to_crs(210.5, 103.5);
+    let georef = Georef::for_crs(&dem.crs, "zion").unwrap();
+    let (lon, lat) = georef.crs_to_lonlat(x, y).unwrap();
+    let vp = Viewpoint::above_surface(lon, lat, 1.7);
+    let cam = Camera::new(480, 240, 200.0, -1.0, 0.0, 60.0).unwrap();
+    let max_d = Some(20_000.0);
+    let scene = Scene::open_wedge(&dem, &vp, max_d, 1.0 / 7.0, &cam).unwrap();
+    let (w, h) = (scene.window.width, scene.window.height);
+    let before = RenderedView::from_terrain(scene.terrain.clone(), &cam).unwrap();
+    let base: &LocalTerrain = &before.terrain;
+    // The last round's terrain: the window changed a little (lowered,
+    // the eye staying above the ground), patched over the view's terrain
+    // as the rounds do ...
+    let raised = |c: usize, r: usize| -> Option<f32> {
+        let v = scene.window.get(c, r)?;
+        Some(v - 2.0 * ((c + 3 * r) % 11) as f32)
+    };
+    let patched = base.with_heights((0, 0, w, h), &raised);
+    // ... and the same surface built from the edited grid, as the next
+    // pass builds it.
+    let mut edited = scene.window.clone();
+    for r in 0..h {
+        for c in 0..w {
+            if let Some(v) = raised(c, r) {
+                edited.data[r * w + c] = v;
+            }
+        }
+    }
+    let grid = LocalTerrain::over(&edited, &scene.frame, max_d);
+    assert!(grid.same_surface(&patched), "the two builds differ");
+
+    // Regions as the edit's: rows down to a varying last row, and the
+    // silhouettes near in depth or near a stroke's row (one at any depth,
+    // as in `region` above).
+    let mut strokes = region(&cam);
+    let limit = before.depth.depth.iter().copied().filter(|d| d.is_finite());
+    let far = limit.fold(0.0f32, f32::max);
+    for x in 0..cam.width {
+        strokes.last_row[x] = (cam.height / 2 + (x * 7) % 61) as i32;
+        strokes.depth_limit[x] = if x % 3 == 0 { far / 4.0 } else { 0.0 };
+        strokes.stroke_rows[x] = vec![(cam.height / 3 + x % 17) as f32];
+    }
+    let want = RenderedView::from_terrain(grid.clone(), &cam).unwrap();
+    for (name, r) in [("any depth", region(&cam)), ("strokes", strokes)] {
+        let last = RenderedView::render_terrain_region(patched.clone(), &cam, &r).unwrap();
+        assert!(
+            last.silhouettes.sample_count() > 0,
+            "{name}: the region has silhouettes"
+        );
+        let got = RenderedView::from_terrain_after(grid.clone(), &cam, Some(&last)).unwrap();
+        assert_same_render(&got, &want, name);
+        assert_eq!(got.columns.samples, want.columns.samples, "{name}: columns");
+        assert_eq!(
+            got.columns.candidates, want.columns.candidates,
+            "{name}: candidates"
+        );
+    }
+
+    // Another surface: rendered afresh.
+    let last = RenderedView::render_terrain_region(patched, &cam, &region(&cam)).unwrap();
+    let lowered = base.with_heights((0, 0, w, h), &|c, r| Some(scene.window.get(c, r)? - 5.0));
+    assert!(!lowered.same_surface(&last.terrain));
+    let want = RenderedView::from_terrain(lowered.clone(), &cam).unwrap();
+    let got = RenderedView::from_terrain_after(lowered, &cam, Some(&last)).unwrap();
+    assert_same_render(&got, &want, "another surface");
+}

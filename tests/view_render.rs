@@ -194,6 +194,19 @@ fn assert_raster_equals_casting(terrain: &LocalTerrain, cam: &Camera, what: &str
             }
         }
     }
+    // Rendering only the rows below that part, the part taken as it is,
+    // gives the whole render, every pixel to the bit.
+    let first: Vec<i32> = last.iter().map(|&r| (r + 1).clamp(0, h as i32)).collect();
+    let below = DepthBuffer::render_below(terrain, cam, &first, &part);
+    for k in 0..w * h {
+        assert_eq!(
+            (below.depth[k].to_bits(), below.triangle[k]),
+            (fast.depth[k].to_bits(), fast.triangle[k]),
+            "{what}: render_below differs at pixel {} {}",
+            k % w,
+            k / w
+        );
+    }
 }
 
 #[test]

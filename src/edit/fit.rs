@@ -62,6 +62,19 @@ pub fn measure(stroke: &StrokeCurve, view: &RenderedView) -> (StrokeFit, f64) {
         (0usize, 0usize, 0.0, 0.0f64, 0);
     for &(i, y, d) in &cols {
         let (nearest, within) = view.boundary_near(i, y, FIT_TOLERANCE_PX);
+        // (a crest within the tolerance that does not show as a boundary:
+        // what lies beyond it is too near, see `shows_as_boundary`)
+        if !within && std::env::var_os("DEMSKETCH_DEBUG").is_some() {
+            for &(c, s) in &view.by_column[i] {
+                let s = &view.silhouettes.curves[c as usize].samples[s as usize];
+                if (s.pixel[1] - y).abs() <= FIT_TOLERANCE_PX {
+                    eprintln!(
+                        "fit: column {i} stroke y {y:.1}: crest y {:.1} at {:.0} m, terrain behind at {:.0} m (cell {:.0} m): not a boundary",
+                        s.pixel[1], s.depth, s.depth_behind, view.cell_m()
+                    );
+                }
+            }
+        }
         if nearest.is_finite() {
             measured += 1;
             sum += nearest;

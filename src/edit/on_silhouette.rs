@@ -67,6 +67,11 @@ fn boundaries_near(view: &RenderedView, pixel: [f64; 2], tol: f64) -> Vec<Bounda
     let mut near: Vec<BoundaryPoint> = Vec::new();
     for &(c, s) in &view.by_column[i] {
         let sample = &view.silhouettes.curves[c as usize].samples[s as usize];
+        // (the fit's own notion of a boundary: a point held on a crest the
+        // fit does not count would stay unfitted)
+        if !view.shows_as_boundary(sample) {
+            continue;
+        }
         let row = sample.pixel[1];
         if (row - pixel[1]).abs() <= tol {
             near.push(BoundaryPoint {

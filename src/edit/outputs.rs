@@ -39,6 +39,11 @@ pub(super) struct Outcome {
     pub(super) matching: MatchingReport,
     /// What the sketch's map-view corrections did.
     pub(super) corrections: Vec<crate::correct::FeatureReport>,
+    /// Per view, the rounds' last render (of its stroke region, on the
+    /// final terrain): a later pass's whole render of that terrain takes
+    /// the silhouettes it refined already
+    /// ([`super::rendered_view::RenderedView::from_terrain_after`]).
+    pub(super) renders: Vec<super::rendered_view::RenderedView>,
 }
 
 /// The worst stroke below the minimum fit, which stops the write.
@@ -76,7 +81,9 @@ pub(super) fn write_outputs(
         lowering_constraints,
         matching,
         corrections,
+        renders,
     } = outcome;
+    drop(renders);
     edit.pb.set_message("writing corrected tiles");
     let t = Instant::now();
     let pictures = if opts.renders.is_some() {

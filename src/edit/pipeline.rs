@@ -371,7 +371,14 @@ fn all_passes<'s>(
     loaded: (Vec<ViewScene>, Vec<Vec<Stroke>>, Vec<String>),
     timings: &mut Timings,
 ) -> Result<(Vec<ViewState<'s>>, Outcome), EditError> {
-    let (views, outcome) = edit_pass(edit, (sketch, dem, dem_name), loaded, timings, false)?;
+    let (views, outcome) = edit_pass(
+        edit,
+        (sketch, dem, dem_name),
+        loaded,
+        Vec::new(),
+        timings,
+        false,
+    )?;
     let Some(mut outcome) = outcome else {
         return Err(EditError::Internal(
             "the first pass was dropped as a later one".into(),
@@ -400,6 +407,9 @@ fn all_passes<'s>(
 /// Stages 2 to 5 on the loaded views: features, matching, deformation,
 /// lowering and contour rounds (with the sketch's map-view corrections),
 /// and the strokes measured on the result. `timings` gets their times.
+/// `earlier`: per view, the pass before's last render, which the views'
+/// renders take what they can from ([`render_and_extract`]; none for the
+/// first pass).
 /// `later`: a pass after the first, which the run drops when it changes no
 /// cell ([`second_pass`]); such a pass stops as soon as that is known and
 /// gives no outcome (`None`; the first pass always gives one).
@@ -410,11 +420,12 @@ fn edit_pass<'s>(
     edit: &Edit,
     (sketch, dem, dem_name): (&'s SketchFile, &Dem, &str),
     (scenes, prepared, notes): (Vec<ViewScene>, Vec<Vec<Stroke>>, Vec<String>),
+    earlier: Vec<RenderedView>,
     timings: &mut Timings,
     later: bool,
 ) -> Result<(Vec<ViewState<'s>>, Option<Outcome>), EditError> {
     let t = Instant::now();
-    let extracted = render_and_extract(edit, sketch, dem, scenes, prepared)?;
+    let extracted = render_and_extract(edit, sketch, dem, scenes, prepared, earlier)?;
     let views = extracted.views;
     let features = scene_features(&views, &extracted.ridges, &sketch.options, edit.skyline);
     timings.features = secs(t);
@@ -531,6 +542,7 @@ fn match_and_fit(
         },
         deformation: rounds.deformation,
         corrections,
+        renders: rounds.rendered,
     }))
 }
 
@@ -618,13 +630,16 @@ fn second_pass(
     edit: &Edit,
     dem: &Dem,
     sketch_path: &Path,
-    first: Outcome,
+    mut first: Outcome,
     far: &[FarLayers],
     pass: usize,
 ) -> Result<(Outcome, bool), EditError> {
     edit.pb
         .set_message(format!("pass {pass} over the strokes left unfitted"));
     let d1 = &quantized(dem, &first.deformation);
+    // The pass before's last renders are of the terrain this pass starts
+    // from: its views' renders take what they can from them.
+    let earlier = std::mem::take(&mut first.renders);
     let run_second = || -> Result<Option<Outcome>, EditError> {
         let overlay = dem.reopened()?.with_overlay(d1.window, d1.edited().data);
         let Loaded {
@@ -640,6 +655,7 @@ fn second_pass(
             edit,
             (&sketch, &dem2, &dem_name),
             (scenes, prepared, notes),
+            earlier,
             &mut scratch,
             true,
         )?;
@@ -682,6 +698,7 @@ fn second_pass(
         v1.contour_iterations += v2.contour_iterations;
     }
     out.lowering_constraints += second.lowering_constraints;
+    out.renders = second.renders;
     out.notes.push(format!(
         "a {} pass over the strokes the {} left unfitted, on the terrain it made, took their summed fit from {f1:.3} to {f2:.3}",
         ordinal(pass),
@@ -960,7 +977,10 @@ struct Extracted<'a> {
 /// Stage 2, `features` (first half): renders every view of `sketch` on its
 /// scene before the edit (exact depth buffer and silhouettes) and, side by
 /// side, detects one ridge network over what all views see
-/// ([`ridge_network`]). Pairs each render with its view's window, frame,
+/// ([`ridge_network`]); a view's render takes from `earlier` (the pass
+/// before's last render of it, when there is one) the silhouettes it
+/// refined already ([`RenderedView::from_terrain_after`]: the same
+/// render). Pairs each render with its view's window, frame,
 /// camera and prepared strokes into a [`ViewState`], which every later
 /// stage works on, and refuses strokes drawn in empty sky
 /// ([`check_strokes_touch_terrain`]).
@@ -970,6 +990,7 @@ fn render_and_extract<'a>(
     dem: &Dem,
     scenes: Vec<ViewScene>,
     prepared: Vec<Vec<Stroke>>,
+    earlier: Vec<RenderedView>,
 ) -> Result<Extracted<'a>, EditError> {
     edit.pb
         .set_message("rendering views, silhouettes and ridges");
@@ -999,7 +1020,8 @@ fn render_and_extract<'a>(
         || {
             terrains
                 .into_iter()
-                .map(|(t, c)| RenderedView::from_terrain(t, &c))
+                .enumerate()
+                .map(|(k, (t, c))| RenderedView::from_terrain_after(t, &c, earlier.get(k)))
                 .collect::<Vec<_>>()
         },
     );

@@ -4,8 +4,9 @@
 //! (silhouette samples and the skyline). Also the placed stroke curves the
 //! fit measures and the lowering loop compare against.
 
+use crate::features::silhouettes::SilhouetteSample;
 use crate::features::{
-    extract_silhouettes_reusing, ColumnSamples, FeatureError, SilhouetteParams, Silhouettes,
+    extract_silhouettes_reusing, ColumnSamples, FeatureError, Reuse, SilhouetteParams, Silhouettes,
 };
 use crate::raster::HeightMap;
 use crate::render::{pick, DepthBuffer, LocalTerrain, TerrainHit, SKY};
@@ -24,6 +25,11 @@ pub const REGION_BELOW_PX: f64 = 16.0;
 pub const REGION_DEPTH_MARGIN: f64 = 0.05;
 /// See [`REGION_DEPTH_MARGIN`].
 pub const REGION_NEAR_ROWS: f32 = 3.0;
+
+/// An occlusion boundary counts for the fit only where what is seen beyond
+/// it lies farther by at least this fraction of its depth (and one DEM
+/// cell): see [`RenderedView::shows_as_boundary`].
+pub const BOUNDARY_MIN_GAP: f64 = 0.05;
 
 /// What the edit's re-renders of a view compute ([`RenderedView::render_region`]).
 ///
@@ -194,11 +200,58 @@ impl RenderedView {
         terrain: LocalTerrain,
         camera: &Camera,
     ) -> Result<RenderedView, FeatureError> {
+        Self::from_terrain_after(terrain, camera, None)
+    }
+
+    /// [`RenderedView::from_terrain`], taking from `earlier` (a render of
+    /// a [`StrokeRegion`] of the same view on the same surface: the edit's
+    /// last render of a pass, whose result the next pass starts from)
+    /// what it rendered already. A region's render holds the whole
+    /// render's depths and triangles in its rows
+    /// ([`DepthBuffer::render_rows`]): they are taken, and only the rows
+    /// below are rendered ([`DepthBuffer::render_below`]). On the same
+    /// surface (to the bit, [`LocalTerrain::same_surface`]) a silhouette
+    /// candidate between rows `y - 1` and `y` with rows `y - 1 ..= y + 1`
+    /// in the region, which the region wanted, is refined to the samples
+    /// the region's render holds ([`Reuse::Candidates`]); the others are
+    /// refined here. Anything else (another camera, another surface, a
+    /// whole render) renders afresh. The result is that of
+    /// [`RenderedView::from_terrain`], to the bit.
+    pub fn from_terrain_after(
+        terrain: LocalTerrain,
+        camera: &Camera,
+        earlier: Option<&RenderedView>,
+    ) -> Result<RenderedView, FeatureError> {
+        let usable = earlier.and_then(|e| {
+            let region = e.region.as_ref()?;
+            (e.camera == *camera
+                && region.last_row.len() == camera.width
+                && e.depth.depth.len() == camera.width * camera.height
+                && terrain.same_surface(&e.terrain))
+            .then_some((e, region))
+        });
+        let Some((earlier, region)) = usable else {
+            let (depth, ()) = rayon::join(
+                || DepthBuffer::render(&terrain, camera),
+                || terrain.build_cast_index(),
+            );
+            return Self::from_depth(terrain, depth, None);
+        };
+        let last_row = &region.last_row;
+        let first_row: Vec<i32> = last_row
+            .iter()
+            .map(|&r| (r + 1).clamp(0, camera.height as i32))
+            .collect();
         let (depth, ()) = rayon::join(
-            || DepthBuffer::render(&terrain, camera),
+            || DepthBuffer::render_below(&terrain, camera, &first_row, &earlier.depth),
             || terrain.build_cast_index(),
         );
-        Self::from_depth(terrain, depth, None)
+        let take = |x: usize, y: usize, near: f32| {
+            (y as i64) < last_row[x] as i64 && region.wants(x, y, near)
+        };
+        let all = |_: usize, _: usize, _: f32| true;
+        let reuse = Reuse::Candidates(&earlier.columns, &take);
+        Self::with_silhouettes(terrain, depth, None, &all, Some(reuse))
     }
 
     /// Silhouettes (those `region` wants, or all) and boundaries of a
@@ -220,14 +273,27 @@ impl RenderedView {
         region: Option<&StrokeRegion>,
         reuse: Option<(&RenderedView, &(dyn Fn(usize) -> bool + Sync))>,
     ) -> Result<RenderedView, FeatureError> {
-        let params = SilhouetteParams::default();
         let all = |_: usize, _: usize, _: f32| true;
         let wants = |x: usize, y: usize, near: f32| region.is_none_or(|r| r.wants(x, y, near));
         let wanted: &(dyn Fn(usize, usize, f32) -> bool + Sync) = match region {
             Some(_) => &wants,
             None => &all,
         };
-        let reuse = reuse.map(|(earlier, keep)| (&earlier.columns, keep));
+        let reuse = reuse.map(|(earlier, keep)| Reuse::Columns(&earlier.columns, keep));
+        Self::with_silhouettes(terrain, depth, region, wanted, reuse)
+    }
+
+    /// The view of `terrain` and its rendered `depth`, with the
+    /// silhouettes `wanted` (those of `region`, or all), taking from an
+    /// earlier extraction what `reuse` names.
+    fn with_silhouettes(
+        terrain: LocalTerrain,
+        depth: DepthBuffer,
+        region: Option<&StrokeRegion>,
+        wanted: &(dyn Fn(usize, usize, f32) -> bool + Sync),
+        reuse: Option<Reuse>,
+    ) -> Result<RenderedView, FeatureError> {
+        let params = SilhouetteParams::default();
         let (silhouettes, columns) =
             extract_silhouettes_reusing(&terrain, &depth, &params, wanted, reuse)?;
         let camera = depth.camera;
@@ -248,12 +314,10 @@ impl RenderedView {
     /// Width in pixels of one DEM cell seen from `depth` metres (the larger
     /// of its two sides).
     pub fn cell_px(&self, depth: f64) -> f64 {
-        let p = self.terrain.frame.p;
-        let cell_m = p[0][0].hypot(p[1][0]).max(p[0][1].hypot(p[1][1]));
         if !(depth > 0.0) {
             return f64::INFINITY;
         }
-        cell_m * self.camera.focal_px / depth
+        self.cell_m() * self.camera.focal_px / depth
     }
 
     /// Distance from row `y` of column `i` to its nearest occlusion
@@ -262,6 +326,9 @@ impl RenderedView {
         let mut nearest = f64::INFINITY;
         for &(c, s) in &self.by_column[i] {
             let s = &self.silhouettes.curves[c as usize].samples[s as usize];
+            if !self.shows_as_boundary(s) {
+                continue;
+            }
             nearest = nearest.min((s.pixel[1] - y).abs());
         }
         let mut within = nearest <= tol;
@@ -271,6 +338,24 @@ impl RenderedView {
             within |= d <= tol;
         }
         (nearest, within)
+    }
+
+    /// Whether silhouette sample `s` shows as a boundary a person would
+    /// draw: what lies beyond it is sky, or terrain farther than it by at
+    /// least [`BOUNDARY_MIN_GAP`] of its depth and by at least one DEM cell.
+    /// A crest with the terrain rising again a cell behind it (the flank of
+    /// the old ridge still standing above a lowered crest in front of it)
+    /// is a kink of one slope, not a silhouette: the ridge behind is what
+    /// the eye sees as the outline there.
+    pub fn shows_as_boundary(&self, s: &SilhouetteSample) -> bool {
+        let gap = s.depth_behind - s.depth;
+        !s.depth_behind.is_finite() || (gap >= BOUNDARY_MIN_GAP * s.depth && gap >= self.cell_m())
+    }
+
+    /// The larger side of one DEM cell, metres.
+    pub fn cell_m(&self) -> f64 {
+        let p = self.terrain.frame.p;
+        p[0][0].hypot(p[1][0]).max(p[0][1].hypot(p[1][1]))
     }
 
     /// Image rows of every occlusion boundary in column `i`: silhouette

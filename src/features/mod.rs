@@ -18,7 +18,7 @@ mod spanning_forest;
 pub use ridges::{detect_ridges, RidgeLine, RidgeNetwork, RidgeNode, RidgeParams};
 pub use silhouettes::{
     extract_silhouettes, extract_silhouettes_reusing, extract_silhouettes_where, reach_rows,
-    ColumnSamples, CurveEnd, Silhouette, SilhouetteParams, SilhouetteSample, Silhouettes,
+    ColumnSamples, CurveEnd, Reuse, Silhouette, SilhouetteParams, SilhouetteSample, Silhouettes,
     TJunction,
 };
 

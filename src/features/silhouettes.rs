@@ -211,10 +211,37 @@ pub fn extract_silhouettes_where(
 pub struct ColumnSamples {
     /// Per image column, its samples (sorted by row).
     pub samples: Vec<Vec<SilhouetteSample>>,
+    /// Per image column, beside each sample: the candidate it was refined
+    /// from (the row `y` of the near pixel of the boundary between rows
+    /// `y - 1` and `y`).
+    pub candidates: Vec<Vec<u32>>,
     /// Per image column: every ray its refinement followed, and every
     /// point its walks along the terrain went through, lies within the
     /// rows of [`reach_rows`] (so the cells it read lie under those rows).
     pub confined: Vec<bool>,
+}
+
+/// What an extraction takes from an earlier one of the same view instead
+/// of refining it ([`extract_silhouettes_reusing`]).
+#[derive(Clone, Copy)]
+pub enum Reuse<'a> {
+    /// The whole columns `x` for which the function holds: the caller
+    /// vouches that the extraction would find them again (the same depth
+    /// buffer column, the same `wanted`, a terrain unchanged where the
+    /// column's refinement reads it; see [`ColumnSamples`]).
+    Columns(&'a ColumnSamples, &'a (dyn Fn(usize) -> bool + Sync)),
+    /// The candidates `(x, y, near)` for which the function holds (see
+    /// [`extract_silhouettes_where`]'s `wanted`): the earlier extraction
+    /// refined them on the same terrain (to the bit) from the same depths
+    /// and triangles in rows `y - 1 ..= y + 1` of column `x`, so refining
+    /// them again gives their samples again. A candidate's refinement
+    /// reads nothing else: the terrain, those three pixels (the candidate
+    /// test) and the two it brackets. A column with a candidate taken is
+    /// [`ColumnSamples::confined`] only where the earlier one was.
+    Candidates(
+        &'a ColumnSamples,
+        &'a (dyn Fn(usize, usize, f32) -> bool + Sync),
+    ),
 }
 
 /// The image rows (a range of row coordinates, beyond the image on both
@@ -225,17 +252,15 @@ pub fn reach_rows(height: usize) -> (f64, f64) {
 }
 
 /// [`extract_silhouettes_where`], also returning the samples column by
-/// column. With `reuse = Some((earlier, keep))`, the columns `x` for
-/// which `keep(x)` holds are taken from `earlier` instead of being
-/// refined: the caller vouches that the extraction would find them again
-/// (the same depth buffer column, the same `wanted`, a terrain unchanged
-/// where the column's refinement reads it; see [`ColumnSamples`]).
+/// column. With `reuse`, what it names (whole columns, or single
+/// candidates) is taken from an earlier extraction instead of being
+/// refined (see [`Reuse`]); the result is the same.
 pub fn extract_silhouettes_reusing(
     terrain: &LocalTerrain,
     depth: &DepthBuffer,
     params: &SilhouetteParams,
     wanted: &(dyn Fn(usize, usize, f32) -> bool + Sync),
-    reuse: Option<(&ColumnSamples, &(dyn Fn(usize) -> bool + Sync))>,
+    reuse: Option<Reuse>,
 ) -> Result<(Silhouettes, ColumnSamples), FeatureError> {
     let (w, h) = (depth.width, depth.height);
     if depth.depth.len() != w * h || depth.triangle.len() != w * h {
@@ -249,20 +274,34 @@ pub fn extract_silhouettes_reusing(
             "silhouette min_jump and link_depth must be > 0 and max_link_dy >= 1".into(),
         ));
     }
-    let reuse =
-        reuse.filter(|(earlier, _)| earlier.samples.len() == w && earlier.confined.len() == w);
-    let kept = |x: usize| -> Option<(Vec<SilhouetteSample>, bool)> {
-        let (earlier, keep) = reuse?;
-        (earlier.confined[x] && keep(x)).then(|| (earlier.samples[x].clone(), true))
+    let fits = |e: &ColumnSamples| {
+        e.samples.len() == w && e.candidates.len() == w && e.confined.len() == w
+    };
+    let reuse = reuse.filter(|r| match r {
+        Reuse::Columns(e, _) | Reuse::Candidates(e, _) => fits(e),
+    });
+    let kept = |x: usize| -> Option<Column> {
+        let Some(Reuse::Columns(earlier, keep)) = reuse else {
+            return None;
+        };
+        (earlier.confined[x] && keep(x)).then(|| Column {
+            samples: earlier.samples[x].clone(),
+            candidates: earlier.candidates[x].clone(),
+            confined: true,
+        })
+    };
+    let taking = match reuse {
+        Some(Reuse::Candidates(earlier, take)) => Some((earlier, take)),
+        _ => None,
     };
     // Columns in groups: one pass over the group's rows (contiguous in the
     // row-major buffer) makes each column's depths contiguous.
-    let columns: Vec<(Vec<SilhouetteSample>, bool)> = (0..w.div_ceil(COLUMN_GROUP))
+    let columns: Vec<Column> = (0..w.div_ceil(COLUMN_GROUP))
         .into_par_iter()
         .flat_map_iter(|g| {
             let x0 = g * COLUMN_GROUP;
             let x1 = (x0 + COLUMN_GROUP).min(w);
-            let taken: Vec<Option<(Vec<SilhouetteSample>, bool)>> = (x0..x1).map(kept).collect();
+            let taken: Vec<Option<Column>> = (x0..x1).map(kept).collect();
             let cols = if taken.iter().all(Option::is_some) {
                 Vec::new()
             } else {
@@ -280,19 +319,38 @@ pub fn extract_silhouettes_reusing(
                             x,
                             &cols[(x - x0) * h..][..h],
                             wanted,
+                            taking,
                         )
                     })
                 })
                 .collect::<Vec<_>>()
         })
         .collect();
-    let (samples, confined): (Vec<_>, Vec<_>) = columns.into_iter().unzip();
+    let mut samples = Vec::with_capacity(w);
+    let mut candidates = Vec::with_capacity(w);
+    let mut confined = Vec::with_capacity(w);
+    for c in columns {
+        samples.push(c.samples);
+        candidates.push(c.candidates);
+        confined.push(c.confined);
+    }
     let (curves, where_) = link(depth, params, &samples);
     let junctions = find_junctions(&curves, &where_, params);
     Ok((
         Silhouettes { curves, junctions },
-        ColumnSamples { samples, confined },
+        ColumnSamples {
+            samples,
+            candidates,
+            confined,
+        },
     ))
+}
+
+/// One column's part of [`ColumnSamples`].
+struct Column {
+    samples: Vec<SilhouetteSample>,
+    candidates: Vec<u32>,
+    confined: bool,
 }
 
 /// Image columns handled together by one task.
@@ -327,8 +385,11 @@ fn column_depths(db: &DepthBuffer, x0: usize, x1: usize) -> Vec<(f32, f32)> {
     out
 }
 
-/// Candidates and refined samples of one image column, and whether its
-/// refinement stayed within [`reach_rows`] ([`ColumnSamples::confined`]).
+/// Candidates and refined samples of one image column (those `taking`
+/// names taken from the earlier extraction instead, see
+/// [`Reuse::Candidates`]), and whether its refinement stayed within
+/// [`reach_rows`] ([`ColumnSamples::confined`]).
+#[allow(clippy::too_many_arguments)]
 fn column_samples(
     terrain: &LocalTerrain,
     db: &DepthBuffer,
@@ -336,9 +397,11 @@ fn column_samples(
     x: usize,
     col: &[(f32, f32)],
     wanted: &(dyn Fn(usize, usize, f32) -> bool + Sync),
-) -> (Vec<SilhouetteSample>, bool) {
+    taking: Option<(&ColumnSamples, &(dyn Fn(usize, usize, f32) -> bool + Sync))>,
+) -> Column {
     let h = db.height;
     let mut out = Vec::new();
+    let mut tags: Vec<u32> = Vec::new();
     let mut confined = true;
     for y in 1..h {
         let (near, wp) = col[y];
@@ -370,10 +433,42 @@ fn column_samples(
         if !wanted(x, y, near) {
             continue;
         }
-        refine(terrain, db, p, (x, y), &mut out, &mut confined);
+        match taking.filter(|(_, take)| take(x, y, near)) {
+            Some((earlier, _)) => {
+                let tag = y as u32;
+                for (s, _) in earlier.samples[x]
+                    .iter()
+                    .zip(&earlier.candidates[x])
+                    .filter(|(_, &c)| c == tag)
+                {
+                    out.push(*s);
+                }
+                confined &= earlier.confined[x];
+            }
+            None => refine(terrain, db, p, (x, y), &mut out, &mut confined),
+        }
+        tags.resize(out.len(), y as u32);
     }
-    out.sort_by(|a, b| a.pixel[1].total_cmp(&b.pixel[1]));
-    (out, confined)
+    // Sorted by row as before (a stable sort: the same order), each
+    // sample's candidate beside it. The candidates come in row order and
+    // their samples mostly do too: a sorted column stays as it is.
+    let sorted = out
+        .windows(2)
+        .all(|p| p[0].pixel[1].total_cmp(&p[1].pixel[1]).is_le());
+    if sorted {
+        return Column {
+            samples: out,
+            candidates: tags,
+            confined,
+        };
+    }
+    let mut order: Vec<usize> = (0..out.len()).collect();
+    order.sort_by(|&a, &b| out[a].pixel[1].total_cmp(&out[b].pixel[1]));
+    Column {
+        samples: order.iter().map(|&i| out[i]).collect(),
+        candidates: order.iter().map(|&i| tags[i]).collect(),
+        confined,
+    }
 }
 
 /// Outcome of following the near surface along a column's plane.

@@ -11,7 +11,9 @@
 //! frame and in the DEM's CRS, with its cell and triangle.
 
 use super::terrain::LocalTerrain;
-use super::triangle_raster::{box_columns, rasterise, rasterise_into, rasterise_keeping};
+use super::triangle_raster::{
+    box_columns, rasterise, rasterise_below, rasterise_into, rasterise_keeping,
+};
 use crate::view::{Camera, CameraModel};
 use rayon::prelude::*;
 
@@ -77,6 +79,23 @@ impl DepthBuffer {
         );
         rasterise_into(terrain, camera, None, &mut depth, &mut triangle, true);
         Self::of(camera, (depth, triangle))
+    }
+
+    /// [`DepthBuffer::render`], with rows `0..first_row[x]` of each column
+    /// `x` taken from `earlier`, a render of the same camera and terrain
+    /// holding the whole render's pixels there (as
+    /// [`DepthBuffer::render_rows`] gives them, with `last_row[x] =
+    /// first_row[x] - 1`): the same depths and triangles, for the cost of
+    /// the rows below (the culling skips terrain seen only in the rows
+    /// taken). Terrains with far layers render whole.
+    pub fn render_below(
+        terrain: &LocalTerrain,
+        camera: &Camera,
+        first_row: &[i32],
+        earlier: &DepthBuffer,
+    ) -> Self {
+        let earlier = (&earlier.depth[..], &earlier.triangle[..]);
+        Self::of(camera, rasterise_below(terrain, camera, first_row, earlier))
     }
 
     /// The buffer of `camera` from the rasteriser's depths and triangles.

@@ -553,6 +553,35 @@ impl LocalTerrain {
         self.z.changed_box(&earlier.z)
     }
 
+    /// Whether this terrain is `other`'s surface to the bit, however each
+    /// was built (from a grid, or patched from another terrain): the same
+    /// frame, grid, reach and height range, every vertex height the same,
+    /// and no far layers (which are not compared). Everything a render or
+    /// a cast reads then is the same: the acceleration structures follow
+    /// from the heights.
+    pub fn same_surface(&self, other: &LocalTerrain) -> bool {
+        let same_grid = self.frame == other.frame
+            && (self.col0, self.row0, self.nx, self.ny)
+                == (other.col0, other.row0, other.nx, other.ny)
+            && self.eye_v == other.eye_v
+            && self.en_to_v == other.en_to_v
+            && self.max_distance.to_bits() == other.max_distance.to_bits();
+        let same_range = self.zmin.to_bits() == other.zmin.to_bits()
+            && self.zmax.to_bits() == other.zmax.to_bits();
+        same_grid
+            && same_range
+            && self.far.is_empty()
+            && other.far.is_empty()
+            && self.z.len() == other.z.len()
+            && (0..self.ny).all(|r| {
+                let (a, b) = (self.z.row(r), other.z.row(r));
+                a.len() == b.len()
+                    && a.iter()
+                        .zip(b.iter())
+                        .all(|(p, q)| p.to_bits() == q.to_bits())
+            })
+    }
+
     /// Number of cells across (`nx - 1`).
     pub fn cells_x(&self) -> usize {
         self.nx.saturating_sub(1)

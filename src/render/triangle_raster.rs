@@ -106,6 +106,7 @@ struct BlockBox {
     x0: i32,
     x1: i32,
     y0: i32,
+    y1: i32,
 }
 
 /// Render the depth (distance along the unit pixel-centre ray, infinite for
@@ -159,6 +160,7 @@ pub(crate) fn rasterise_keeping(
         last_row,
         (&mut depth, &mut triangle, true),
         Some((earlier, keep)),
+        None,
     );
     // Kept strips hold the far layers already; drawing them again changes
     // nothing there (a pixel takes a layer's hit only when it is nearer).
@@ -179,7 +181,7 @@ pub(crate) fn box_columns(
     (lo, hi): (f32, f32),
 ) -> Option<(usize, usize)> {
     let m = VertexToCamera::new(terrain, camera);
-    let (x0, x1, _) = BoxProjector::new(&m, camera).pixels(c, r, lo, hi)?;
+    let (x0, x1, _, _) = BoxProjector::new(&m, camera).pixels(c, r, lo, hi)?;
     Some((x0.max(0) as usize, x1.max(0) as usize))
 }
 
@@ -196,8 +198,52 @@ pub(crate) fn rasterise_into(
     triangle: &mut Vec<u32>,
     reused: bool,
 ) {
-    rasterise_strips(terrain, camera, last_row, (depth, triangle, reused), None);
+    rasterise_strips(
+        terrain,
+        camera,
+        last_row,
+        (depth, triangle, reused),
+        None,
+        None,
+    );
     draw_far_layers(terrain, camera, depth, triangle);
+}
+
+/// [`rasterise`] of the whole image, with rows `0..first_row[x]` of each
+/// column `x` taken from `earlier` (a render of the same camera and
+/// terrain whose pixels there are the whole render's, as a render of
+/// rows `0..=first_row[x] - 1` gives them: [`rasterise`] with
+/// `last_row`). The rows from `first_row[x]` down are rendered with the
+/// culling of a whole render plus that of the blocks and cells whose
+/// pixels all lie in the rows taken: every triangle that may show one of
+/// those rows' pixels is drawn in the whole render's order, so they are
+/// the whole render's. Terrains with far layers render whole.
+pub(crate) fn rasterise_below(
+    terrain: &LocalTerrain,
+    camera: &Camera,
+    first_row: &[i32],
+    earlier: (&[f32], &[u32]),
+) -> (Vec<f32>, Vec<u32>) {
+    let (w, h) = (camera.width, camera.height);
+    if earlier.0.len() != w * h || earlier.1.len() != w * h || first_row.len() != w {
+        return rasterise(terrain, camera, None);
+    }
+    if !terrain.far.is_empty() {
+        return rasterise(terrain, camera, None);
+    }
+    let (mut depth, mut triangle) = (
+        crate::buffer_pool::overwritten_f32(w * h),
+        crate::buffer_pool::overwritten_u32(w * h),
+    );
+    rasterise_strips(
+        terrain,
+        camera,
+        None,
+        (&mut depth, &mut triangle, true),
+        None,
+        Some((first_row, earlier)),
+    );
+    (depth, triangle)
 }
 
 /// Each far layer of `terrain` ([`super::far_layers`]) drawn into a render
@@ -267,6 +313,7 @@ fn rasterise_strips(
     last_row: Option<&[i32]>,
     (depth, triangle, reused): (&mut Vec<f32>, &mut Vec<u32>, bool),
     kept: Option<KeptStrips>,
+    below: Option<RowsAbove>,
 ) {
     let (w, h) = (camera.width, camera.height);
     debug_assert!(last_row.is_none_or(|l| l.len() == w));
@@ -312,9 +359,46 @@ fn rasterise_strips(
                 }
             }
             clear(&mut cols);
-            render_strip(terrain, camera, &m, &blocks, &mut cols, last_row);
+            let first = below.map(|(first, _)| first);
+            render_strip(terrain, camera, &m, &blocks, &mut cols, last_row, first);
             parameters_to_distances(camera, &mut cols);
+            if let Some((first, earlier)) = below {
+                copy_rows_above(earlier, first, w, &mut cols);
+            }
         });
+}
+
+/// The rows above a render's first rows: per image column the first row
+/// rendered, and the depths and triangles of the rows above it, taken
+/// from an earlier render ([`rasterise_below`]).
+type RowsAbove<'a> = (&'a [i32], (&'a [f32], &'a [u32]));
+
+/// Rows `0..first[x]` of each of the strip's columns `x` copied from an
+/// earlier render's `(depths, triangles)` (of an image `w` wide).
+fn copy_rows_above(
+    (depth, triangle): (&[f32], &[u32]),
+    first: &[i32],
+    w: usize,
+    cols: &mut StripColumns,
+) {
+    let (x0, sw) = (cols.x0(), cols.width());
+    let first = &first[x0..x0 + sw];
+    let deepest = first
+        .iter()
+        .copied()
+        .max()
+        .unwrap_or(0)
+        .clamp(0, cols.rows() as i32);
+    for j in 0..deepest as usize {
+        let k = j * w + x0;
+        let (t, id) = cols.row_mut(j);
+        for (i, &f) in first.iter().enumerate() {
+            if (j as i32) < f {
+                t[i] = depth[k + i];
+                id[i] = triangle[k + i];
+            }
+        }
+    }
 }
 
 /// The strip's columns of an earlier render's `(depths, triangles)` (of
@@ -403,7 +487,7 @@ fn block_boxes(terrain: &LocalTerrain, camera: &Camera, m: &VertexToCamera) -> B
                         if !(hi >= lo) {
                             continue;
                         }
-                        let Some((x0, x1, y0)) =
+                        let Some((x0, x1, y0, y1)) =
                             projector.pixels(cells(bx, bx + 1, cx), cells(by, by + 1, cy), lo, hi)
                         else {
                             continue;
@@ -416,6 +500,7 @@ fn block_boxes(terrain: &LocalTerrain, camera: &Camera, m: &VertexToCamera) -> B
                             x0,
                             x1,
                             y0,
+                            y1,
                         };
                         out.push((ring as u32, bb));
                     }
@@ -446,6 +531,7 @@ fn block_boxes(terrain: &LocalTerrain, camera: &Camera, m: &VertexToCamera) -> B
             x0: 0,
             x1: -1,
             y0: 0,
+            y1: -1,
         };
         total
     ];
@@ -489,9 +575,16 @@ impl<'a> BoxProjector<'a> {
         }
     }
 
-    /// Inclusive pixel column range and first pixel row that may show box
-    /// `c` x `r` (cell ranges) x `lo..=hi` (heights), `None` for none.
-    fn pixels(&self, c: [usize; 2], r: [usize; 2], lo: f32, hi: f32) -> Option<(i32, i32, i32)> {
+    /// Inclusive pixel column and row ranges (`x0, x1, y0, y1`) that may
+    /// show box `c` x `r` (cell ranges) x `lo..=hi` (heights), `None` for
+    /// none.
+    fn pixels(
+        &self,
+        c: [usize; 2],
+        r: [usize; 2],
+        lo: f32,
+        hi: f32,
+    ) -> Option<(i32, i32, i32, i32)> {
         let m = self.m;
         // corner j + 4 l: column c[j & 1], row r[j >> 1], height [lo, hi][l]
         let mut corners = [[0.0; 3]; 8];
@@ -518,7 +611,7 @@ impl<'a> BoxProjector<'a> {
             / dot(sum, sum).sqrt();
         let near = least / self.ray_stretch;
         if !(near >= MIN_NEAR) {
-            return Some((0, self.w as i32 - 1, 0));
+            return Some((0, self.w as i32 - 1, 0, self.h as i32 - 1));
         }
         let (mut sx0, mut sx1, mut sy0, mut sy1) = (
             f64::INFINITY,
@@ -559,7 +652,7 @@ impl<'a> BoxProjector<'a> {
         let x1 = (sx1 + hw + 0.5).floor().min(self.w - 1.0);
         let y0 = (sy0 + hh - 1.5).ceil().max(0.0);
         let y1 = (sy1 + hh + 0.5).floor().min(self.h - 1.0);
-        (x0 <= x1 && y0 <= y1).then_some((x0 as i32, x1 as i32, y0 as i32))
+        (x0 <= x1 && y0 <= y1).then_some((x0 as i32, x1 as i32, y0 as i32, y1 as i32))
     }
 }
 
@@ -645,7 +738,9 @@ fn subdivisions(v: [&PVertex; 4], z: [f32; 4], f: f64) -> usize {
 
 /// Render the ray parameters (distance / |d|, with the unnormalised ray
 /// `d`) and triangle ids of the strip's columns; with `last_row`, only those
-/// rows (see [`rasterise`]).
+/// rows (see [`rasterise`]); with `first_row`, the blocks and cells all of
+/// whose pixels lie above the first row of their columns are not drawn
+/// (the rows there are taken from elsewhere, see [`rasterise_below`]).
 fn render_strip(
     terrain: &LocalTerrain,
     camera: &Camera,
@@ -653,6 +748,7 @@ fn render_strip(
     blocks: &Blocks,
     cols: &mut StripColumns,
     last_row: Option<&[i32]>,
+    first_row: Option<&[i32]>,
 ) {
     let h = camera.height;
     let (x0, sw) = (cols.x0(), cols.width());
@@ -674,12 +770,14 @@ fn render_strip(
     }
     let mut verts = vec![PVertex::default(); (BLOCK + 1) * (BLOCK + 1)];
     let mut sub = Vec::with_capacity((MAX_SUBDIVISIONS + 1) * (MAX_SUBDIVISIONS + 1));
+    let first = first_row.map(|f| &f[x0..x0 + sw]);
     let ctx = Raster {
         terrain,
         camera,
         x0: x0 as i32,
         x1: (x0 + sw) as i32 - 1,
         h: h as i32,
+        first,
     };
     let rings = blocks.ring_start.len() - 1;
     for ring in 0..rings {
@@ -691,8 +789,16 @@ fn render_strip(
             if bx0 > bx1 {
                 continue;
             }
-            // Hidden when every column of its box is final below its top.
-            if (bx0..=bx1).all(|x| ytop[(x - ctx.x0) as usize] <= b.y0) {
+            // Hidden when every column of its box is final below its top
+            // (or, with first rows, not wanted above its bottom).
+            let hidden = match first {
+                None => (bx0..=bx1).all(|x| ytop[(x - ctx.x0) as usize] <= b.y0),
+                Some(f) => (bx0..=bx1).all(|x| {
+                    let k = (x - ctx.x0) as usize;
+                    ytop[k] <= b.y0 || b.y1 < f[k]
+                }),
+            };
+            if hidden {
                 continue;
             }
             ctx.draw_block(m, b, &mut verts, &mut sub, &ytop, cols);
@@ -728,6 +834,9 @@ struct Raster<'a> {
     x0: i32,
     x1: i32,
     h: i32,
+    /// Per strip column, the first row wanted ([`render_strip`]'s
+    /// `first_row`); `None`: every row.
+    first: Option<&'a [i32]>,
 }
 
 impl Raster<'_> {
@@ -851,10 +960,15 @@ impl Raster<'_> {
         let py0 = v[0].iy[0].min(v[1].iy[0]).min(v[2].iy[0].min(v[3].iy[0]));
         let py1 = v[0].iy[1].max(v[1].iy[1]).max(v[2].iy[1].max(v[3].iy[1]));
         let (py0, py1) = (py0.max(0), py1.min(self.h - 1));
+        let cols = (px0 - self.x0) as usize..=(px1 - self.x0) as usize;
         py0 > py1
-            || ytop[(px0 - self.x0) as usize..=(px1 - self.x0) as usize]
-                .iter()
-                .all(|&t| t <= py0)
+            || match self.first {
+                None => ytop[cols].iter().all(|&t| t <= py0),
+                Some(f) => ytop[cols.clone()]
+                    .iter()
+                    .zip(&f[cols])
+                    .all(|(&t, &f)| t <= py0 || py1 < f),
+            }
     }
 
     #[inline]
