@@ -1,0 +1,249 @@
+//! What the matched strokes ask of the terrain: anchored points held where
+//! they already lie on a silhouette, the free stretches as curve
+//! constraints in the DEM's CRS, the observer's ground held; and the
+//! check that every stroke touches terrain.
+
+use super::*;
+
+/// Refuse a stroke (without `depth_m`) whose end points both lie in empty
+/// sky in the view before the edit, with no terrain close under them
+/// ([`TERRAIN_TOUCH_SHARE`]): nothing says how far it is. Names the
+/// view and the stroke, and whether the terrain lies beyond
+/// `--max-distance` or nowhere on the DEM.
+pub(super) fn check_strokes_touch_terrain(
+    v: &ViewState,
+    dem: &Dem,
+    max_d: Option<f64>,
+    sketch: &str,
+) -> Result<(), EditError> {
+    let depth = &v.before.depth;
+    let (w, h) = (v.camera.width, v.camera.height);
+    let touches = |p: [f64; 2]| -> bool {
+        let i0 = (p[0].floor() as i64).clamp(0, w as i64 - 1);
+        let j0 = (p[1].floor() as i64).clamp(0, h as i64 - 1);
+        let rows = (TERRAIN_TOUCH_SHARE * h as f64)
+            .max(TERRAIN_TOUCH_PX)
+            .ceil() as i64;
+        (i0 - 1..=i0 + 1).any(|i| {
+            (j0 - 1..=j0 + rows)
+                .any(|j| i >= 0 && j >= 0 && depth.depth_at(i as usize, j as usize).is_finite())
+        }) || (j0 + rows >= h as i64
+            // Under the image's lower border: the stroke is cut by the frame.
+            && v.before.terrain_at_or_below(p, rows as f64).is_some())
+    };
+    for s in &v.spec.strokes {
+        if s.depth_m.is_some() {
+            continue;
+        }
+        let (Some(&a), Some(&b)) = (s.points.first(), s.points.last()) else {
+            continue;
+        };
+        if touches(a) || touches(b) {
+            continue;
+        }
+        // Would the DEM go on beyond --max-distance along the end's ray?
+        let beyond = max_d.is_some_and(|d| {
+            [a, b].iter().any(|p| {
+                let r = v.camera.ray(p[0], p[1]);
+                let n = r[0].hypot(r[1]);
+                if n <= 0.0 {
+                    return false;
+                }
+                let (x, y) = v.frame.en_to_crs(r[0] / n * d, r[1] / n * d);
+                dem.geotransform.crs_to_pixel(x, y).is_some_and(|(px, py)| {
+                    px >= 0.0 && py >= 0.0 && px < dem.width as f64 && py < dem.height as f64
+                })
+            })
+        });
+        let problem = match (beyond, max_d) {
+            (true, Some(d)) => format!(
+                "the rays through its end points hit no terrain within --max-distance {d} m (the DEM goes on beyond it): raise --max-distance, or give the stroke's depth_m"
+            ),
+            _ => "drawn in empty sky: the rays through its end points hit no terrain of the DEM; give the stroke's depth_m (distance from the eye, metres) to place it".to_string(),
+        };
+        return Err(EditError::Unusable {
+            sketch: sketch.to_string(),
+            message: format!("view \"{}\" stroke \"{}\": {problem}", v.spec.name, s.id),
+        });
+    }
+    Ok(())
+}
+
+/// Anchors the matched strokes where they already lie on a silhouette and
+/// turns the rest into curve constraints in the DEM's CRS; adds the
+/// observer's ground.
+pub(super) fn place_demands(
+    views: &[ViewState],
+    windows: &[HeightMap],
+    scene_views: &[SceneView],
+    matched: &mut [crate::sketch::ViewMatch],
+    options: &SketchOptions,
+) -> Demands {
+    let mut d = Demands {
+        curves: Vec::new(),
+        fixed: Vec::new(),
+        strokes: Vec::new(),
+        on_silhouette: Vec::new(),
+        placement: Vec::new(),
+    };
+    let mut held = Vec::new();
+    for (((v, w), sv), m) in views
+        .iter()
+        .zip(windows)
+        .zip(scene_views)
+        .zip(matched.iter_mut())
+    {
+        let mut cs = Vec::new();
+        let mut fractions = Vec::new();
+        let mut placements = Vec::new();
+        for (s, sm) in v.strokes.iter().zip(m.strokes.iter_mut()) {
+            fractions.push(anchor_on_silhouettes(&v.before, &sv.projection, sm));
+            placements.push(place_free_stretches(
+                &v.before,
+                &sv.projection,
+                &sv.features,
+                v.observer_radius(options.observer_radius_m),
+                sm,
+            ));
+            if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
+                for p in &sm.points {
+                    if let Some(px) = p.pixel {
+                        eprintln!(
+                            "placed {} x {:.1} y {:.1} depth {:.0} {:?}",
+                            s.id, px[0], px[1], p.depth, p.source
+                        );
+                    }
+                }
+            }
+            let dem_points = sv.projection.placed_to_dem(&sm.points);
+            let anchored: Vec<bool> = sm
+                .points
+                .iter()
+                .map(|p| p.source == PointSource::Silhouette)
+                .collect();
+            let depths: Vec<f64> = sm.points.iter().map(|p| p.depth).collect();
+            d.curves
+                .extend(free_stretches(&dem_points, &depths, &anchored));
+            for (p, _) in dem_points.iter().zip(&anchored).filter(|(_, &a)| a) {
+                held.extend(v.stencil_cells(w, p[0], p[1]));
+            }
+            cs.push(StrokeCurve::new(s, sm));
+        }
+        d.strokes.push(cs);
+        d.on_silhouette.push(fractions);
+        d.placement.push(placements);
+    }
+    // Cells under anchored points are held, except next to a free
+    // stretch: on a coarse DEM one cell spans many pixels of a stroke, and
+    // holding it would keep the free stretch beside it from rising. There
+    // the free stretch's own curve, which starts on the anchor, decides.
+    if let Some(v) = views.first() {
+        let near = cells_near_curves(v, &d.curves, ANCHOR_CLEARANCE_CELLS);
+        d.fixed
+            .extend(held.into_iter().filter(|c| !near.contains(&(c.col, c.row))));
+    }
+    for (v, w) in views.iter().zip(windows) {
+        d.fixed
+            .extend(v.observer_cells(w, options.observer_radius_m));
+    }
+    d
+}
+
+/// Anchored cells within this many cells of a free stretch are not held.
+pub const ANCHOR_CLEARANCE_CELLS: i64 = 2;
+
+/// The DEM cells (whole-DEM grid, through `v`'s window) within `reach`
+/// cells of the curves' points and of the segments between them.
+pub(super) fn cells_near_curves(
+    v: &ViewState,
+    curves: &[CurveConstraint],
+    reach: i64,
+) -> std::collections::HashSet<(i64, i64)> {
+    let gt = &v.eye_ground.grid;
+    let mut near = std::collections::HashSet::new();
+    let mut mark = |x: f64, y: f64| {
+        if let Some((c, r)) = v.cell_of(x, y) {
+            for dr in -reach..=reach + 1 {
+                for dc in -reach..=reach + 1 {
+                    near.insert((c + dc, r + dr));
+                }
+            }
+        }
+    };
+    for curve in curves {
+        for w in curve.points.windows(2) {
+            let (a, b) = (w[0], w[1]);
+            // Half-cell steps along the segment.
+            let steps = gt
+                .crs_to_pixel(a[0], a[1])
+                .zip(gt.crs_to_pixel(b[0], b[1]))
+                .map(|(p, q)| (2.0 * (q.0 - p.0).hypot(q.1 - p.1)).ceil() as usize)
+                .unwrap_or(1)
+                .clamp(1, 10_000);
+            for k in 0..=steps {
+                let t = k as f64 / steps as f64;
+                mark(a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1]));
+            }
+        }
+        if let [p] = curve.points.as_slice() {
+            mark(p[0], p[1]);
+        }
+    }
+    near
+}
+
+/// Neighbouring points of a placed stroke whose depths differ by more than
+/// this fraction are not joined by a curve constraint: the stroke passes
+/// from one landform to another there (a segment between them would be a
+/// wall across the ground in between).
+pub const DEPTH_BREAK: f64 = 0.15;
+
+/// The stretches of a placed stroke (DEM CRS points, with their depths)
+/// between anchored points, each with the anchored point on either side
+/// where its depth continues the stretch, so that the curve meets the
+/// terrain it continues; cut where the depth jumps ([`DEPTH_BREAK`]).
+pub(super) fn free_stretches(
+    points: &[[f64; 3]],
+    depths: &[f64],
+    anchored: &[bool],
+) -> Vec<CurveConstraint> {
+    let finite = |p: &[f64; 3]| p.iter().all(|c| c.is_finite());
+    let joined = |i: usize, j: usize| {
+        let (a, b) = (depths[i], depths[j]);
+        (a - b).abs() <= DEPTH_BREAK * a.min(b)
+    };
+    let mut out = Vec::new();
+    let n = points.len();
+    let mut a = 0;
+    while a < n {
+        if anchored[a] {
+            a += 1;
+            continue;
+        }
+        let mut b = a;
+        while b < n && !anchored[b] {
+            b += 1;
+        }
+        let lo = if a > 0 && joined(a - 1, a) { a - 1 } else { a };
+        let hi = if b < n && joined(b - 1, b) { b } else { b - 1 };
+        let mut piece: Vec<[f64; 3]> = Vec::new();
+        for k in lo..=hi {
+            if k > lo && !joined(k - 1, k) {
+                if piece.len() >= 2 {
+                    out.push(CurveConstraint {
+                        points: std::mem::take(&mut piece),
+                    });
+                }
+                piece.clear();
+            }
+            if finite(&points[k]) {
+                piece.push(points[k]);
+            }
+        }
+        if piece.len() >= 2 {
+            out.push(CurveConstraint { points: piece });
+        }
+        a = b;
+    }
+    out
+}

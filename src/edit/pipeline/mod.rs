@@ -1,0 +1,486 @@
+//! The edit pipeline, stage by stage. [`run`] calls one function per
+//! stage, in order; the timings in the report use the names in
+//! backquotes:
+//!
+//! 1. `load` (`load_views`): open the DEM (tile layer), read and
+//!    validate the sketch, resolve every view's viewpoint (PROJ) and read
+//!    the DEM window within the maximum view distance ([`Scene::open`]).
+//! 2. `features` (`render_and_extract`, `scene_features`): render each
+//!    view (exact depth buffer), extract its silhouettes, and the ridge
+//!    network of the DEM around all views.
+//! 3. `matching` (`match_strokes`): strokes of all views matched jointly
+//!    ([`match_sketch`]), placed in 3D, converted to the DEM's CRS
+//!    (`place_demands`).
+//! 4. `deformation` (`deform`): displacement constraints diffused by
+//!    multigrid, `H' = H + M` on the affected window.
+//! 5. `lowering` (`super::rounds::refine`, `measure_strokes`): each
+//!    view re-rendered on the edited terrain; protruding silhouettes
+//!    lowered by the paper's `h` as new constraints, and the mesh vertices
+//!    that decide the contour along strokes that do not fit yet put on the
+//!    strokes' sight surfaces ([`super::contour`]); re-solve with the
+//!    union, repeat until neither asks for more (or the iteration limits);
+//!    fit and visibility measured on the final terrain.
+//!
+//! Stages 2 to 5 are one pass (`edit_pass`). When the first pass changed
+//! the terrain and left a stroke short of a full fit, a second runs on the
+//! terrain the first made (`second_pass`: the DEM read through an overlay
+//! of it, as the write stores it, nothing written) and the deformations
+//! are written as one (`compose`); while a pass is kept and leaves a
+//! stroke unfitted, another follows, up to [`MAX_PASSES`], so that editing
+//! the output again changes nothing (`all_passes`).
+//!
+//! Each view's skyline is one of the candidate features
+//! ([`crate::sketch::skyline`]). Where a stroke matched to a skyline is
+//! left unfitted, stages 3 to 5 of the pass run again without the
+//! skylines (`match_and_fit`), and so does the whole edit (all its
+//! passes, in `run_opened`); the skyline's is kept only where the other
+//! does not fit the strokes better, in all or where its placed curves
+//! are visible (`fits_better`).
+//!
+//! 6. `write` (`super::outputs::write_outputs`): affected tiles written
+//!    back atomically, then the pictures and the report.
+//!
+//! Each stage has a file of its own: `load` (stages 1 and 2), `stages`
+//! (3 and 4), `demands` (what the strokes ask of the terrain), `measure`
+//! (stage 5's fit and notes), `passes` and `skyline_retry` (the passes,
+//! and the match without the skylines), `observer` (the fixed ground)
+//! and `options`.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use rayon::prelude::*;
+
+use super::fit::measure;
+use super::on_silhouette::anchor_on_silhouettes;
+use super::outputs::{write_outputs, Outcome, Sources};
+use super::rendered_view::{RenderedView, StrokeCurve, StrokeRegion};
+use super::report::{
+    EditReport, FeatureCounts, MatchReport, MatchingReport, StrokeReport, StrokeStatus, Timings,
+    ViewReport,
+};
+use super::rounds::{refine, Rounds};
+use super::spikes::find_spikes;
+use super::stretch_placement::{place_free_stretches, StretchPlacement};
+use super::EditError;
+use crate::deform::{
+    deform_with_cells, CellConstraint, CurveConstraint, DeformError, DeformOptions, Deformation,
+};
+use crate::features::{detect_ridges, RidgeNetwork, RidgeParams};
+use crate::raster::{Dem, Destination, HeightMap, Window, WriteOptions};
+use crate::render::{FarLayers, Scene};
+use crate::sketch::{
+    match_sketch, EyeHeightSpec, PointSource, SceneProjection, SceneView, SketchFile, SketchMatch,
+    SketchOptions, Stroke, ViewFeatureOptions, ViewInput, ViewSpec,
+};
+use crate::view::{Camera, LocalFrame};
+
+mod demands;
+mod load;
+mod measure;
+mod observer;
+mod options;
+mod passes;
+mod skyline_retry;
+mod stages;
+pub use self::demands::*;
+pub use self::load::*;
+use self::measure::*;
+use self::observer::*;
+pub use self::options::*;
+pub use self::passes::*;
+use self::skyline_retry::*;
+use self::stages::*;
+
+/// A view of the sketch set up on the DEM.
+pub(super) struct ViewState<'a> {
+    pub(super) spec: &'a ViewSpec,
+    /// Where the DEM window read for the view (the box of the camera's
+    /// wedge within the view distance, [`Scene::open_wedge`]) lies on the
+    /// DEM grid, and the view's local frame (expressed for that window).
+    /// The window's heights are [`Extracted::windows`], dropped once the
+    /// strokes are placed: everything later renders from the view's
+    /// terrain.
+    pub(super) window_offset: (i64, i64),
+    /// The ground held around the eye ([`ViewState::observer_cells`]),
+    /// where the wedge's box does not cover it (behind the eye).
+    pub(super) eye_ground: EyeGround,
+    pub(super) frame: LocalFrame,
+    pub(super) camera: Camera,
+    pub(super) strokes: Vec<Stroke>,
+    pub(super) before: RenderedView,
+}
+
+/// What every stage of one edit reads: the options, the sketch's name for
+/// messages, the view distance in force and the progress spinner.
+pub(super) struct Edit<'o> {
+    pub(super) opts: &'o EditOptions,
+    pub(super) sketch_name: String,
+    /// [`EditOptions::max_distance_m`] when finite and positive.
+    pub(super) max_d: Option<f64>,
+    pub(super) pb: ProgressBar,
+    /// The views' skylines are candidate features
+    /// ([`crate::sketch::skyline`]); `false` on the run without them.
+    pub(super) skyline: bool,
+}
+
+pub(super) fn secs(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64()
+}
+
+/// The caller's stage bar when it gave one, else progress on stderr: a
+/// spinner with the current stage, hidden when stderr is not a terminal or
+/// progress is off.
+fn progress_bar(opts: &EditOptions) -> ProgressBar {
+    if let Some(pb) = &opts.stage {
+        return pb.clone();
+    }
+    let on = opts.progress;
+    let target = if on {
+        ProgressDrawTarget::stderr()
+    } else {
+        ProgressDrawTarget::hidden()
+    };
+    let pb = ProgressBar::with_draw_target(None, target);
+    if let Ok(style) = ProgressStyle::with_template("{spinner} [{elapsed}] {msg}") {
+        pb.set_style(style);
+    }
+    pb.enable_steady_tick(std::time::Duration::from_millis(120));
+    pb
+}
+
+/// Run one edit: see the module documentation.
+pub fn run(
+    dem_path: &Path,
+    sketch_path: &Path,
+    opts: &EditOptions,
+) -> Result<EditReport, EditError> {
+    // (the outputs' directories before the DEM, as always)
+    check_output_paths(opts)?;
+    run_opened(Dem::open(dem_path)?, dem_path, sketch_path, opts)
+}
+
+/// [`run`] on `dem`, the DEM at `dem_path` opened already (by
+/// [`super::guard::prepare_open`]): not opened a second time.
+pub fn run_opened(
+    dem: Dem,
+    dem_path: &Path,
+    sketch_path: &Path,
+    opts: &EditOptions,
+) -> Result<EditReport, EditError> {
+    // On a worker thread of rayon's pool: the many parallel loops of an
+    // edit (a few hundred, most of them short: the multigrid levels, the
+    // silhouette columns) then split work between the workers directly
+    // instead of each waking the pool from outside and waiting for it.
+    if rayon::current_thread_index().is_none() {
+        return rayon::join(|| run_opened(dem, dem_path, sketch_path, opts), || ()).0;
+    }
+    let t_all = Instant::now();
+    let edit = Edit {
+        opts,
+        sketch_name: sketch_path.display().to_string(),
+        max_d: opts.max_distance_m.filter(|d| d.is_finite() && *d > 0.0),
+        pb: progress_bar(opts),
+        skyline: true,
+    };
+    let mut timings = Timings::default();
+    check_output_paths(opts)?;
+
+    let t = Instant::now();
+    let Loaded {
+        sketch,
+        dem,
+        notes,
+        prepared,
+        scenes,
+    } = load_views(
+        &edit,
+        dem.with_block_cache_budget(EDIT_BLOCK_CACHE_BYTES),
+        sketch_path,
+        &[],
+    )?;
+    timings.load = secs(t);
+
+    let dem_name = dem_path.display().to_string();
+    let (views, outcome) = all_passes(
+        &edit,
+        (&sketch, &dem, &dem_name, sketch_path),
+        (scenes, prepared, notes),
+        &mut timings,
+    )?;
+    if skyline_left_unfitted(&outcome) {
+        // A skyline match that leaves a stroke unfitted stands against
+        // the edit without the skylines (see `sketch::skyline`).
+        let plain = Edit {
+            opts,
+            sketch_name: edit.sketch_name.clone(),
+            max_d: edit.max_d,
+            pb: edit.pb.clone(),
+            skyline: false,
+        };
+        let reloaded = dem.reopened().map_err(EditError::from).and_then(|d| {
+            load_views(
+                &plain,
+                d.with_block_cache_budget(EDIT_BLOCK_CACHE_BYTES),
+                sketch_path,
+                &[],
+            )
+        });
+        if let Ok(Loaded {
+            sketch: sketch2,
+            dem: dem2,
+            notes: notes2,
+            prepared: prepared2,
+            scenes: scenes2,
+        }) = reloaded
+        {
+            let mut scratch = Timings::default();
+            let other = all_passes(
+                &plain,
+                (&sketch2, &dem2, &dem_name, sketch_path),
+                (scenes2, prepared2, notes2),
+                &mut scratch,
+            );
+            // The retry's time is the edit's, whichever is kept.
+            timings.add(&scratch);
+            if let Ok((views2, mut outcome2)) = other {
+                if fits_better(&outcome2, &outcome) {
+                    outcome2
+                        .notes
+                        .push(skyline_dropped_note(&outcome2, &outcome));
+                    let sources = Sources {
+                        dem_path,
+                        sketch_path,
+                        dem: &dem2,
+                        sketch: &sketch2,
+                    };
+                    return write_outputs(plain, &sources, &views2, outcome2, timings, t_all);
+                }
+            }
+        }
+    }
+    let sources = Sources {
+        dem_path,
+        sketch_path,
+        dem: &dem,
+        sketch: &sketch,
+    };
+    write_outputs(edit, &sources, &views, outcome, timings, t_all)
+}
+
+/// The DEM cells around a view's eye that its observer's fixed ground can
+/// take ([`observer_reach`]), within the square of the view distance, with
+/// their offset in the DEM grid.
+pub(super) struct EyeGround {
+    map: HeightMap,
+    offset: (i64, i64),
+    /// The grid of the square of the view distance around the eye (as
+    /// reading it would georeference it) and its offset in the DEM's: CRS
+    /// points are turned into cells on it, as when the view read the whole
+    /// square (the same cells to the last bit, where a point lies on a
+    /// line between cell centres).
+    grid: crate::raster::GeoTransform,
+    grid_offset: (i64, i64),
+}
+
+/// Per view: the DEM around its viewpoint, its camera and the ground
+/// around its eye.
+type ViewScene = (Scene, Camera, EyeGround);
+
+/// The inputs of an edit, read and checked ([`load_views`]).
+struct Loaded {
+    sketch: SketchFile,
+    dem: Dem,
+    /// Notes for the report, so far from preparing the strokes.
+    notes: Vec<String>,
+    /// Per view: its strokes, prepared for matching.
+    prepared: Vec<Vec<Stroke>>,
+    /// Per view: the DEM around its viewpoint, its camera and the ground
+    /// around its eye.
+    scenes: Vec<ViewScene>,
+}
+
+/// The views rendered before the edit, and the ridges around them
+/// ([`render_and_extract`]).
+struct Extracted<'a> {
+    views: Vec<ViewState<'a>>,
+    /// Per view: the heights of its window ([`ViewState::window`]).
+    windows: Vec<HeightMap>,
+    ridges: RidgeNetwork,
+}
+
+/// The terrain features each view offers the strokes ([`scene_features`]).
+struct Features<'v> {
+    /// Per view: its projection and its silhouettes and ridges as seen.
+    scene_views: Vec<SceneView<'v>>,
+    /// Per view: how many of each kind, for the report.
+    counts: Vec<FeatureCounts>,
+}
+
+/// The strokes matched and placed on the terrain ([`match_strokes`]).
+pub(super) struct Placed {
+    /// The joint matching of all views (the stroke points as placed).
+    pub(super) matched: SketchMatch,
+    /// What the placed strokes ask of the terrain.
+    pub(super) demands: Demands,
+    /// Per view, per stroke: why it cannot be fitted whatever the
+    /// deformation does ([`placement_issue`]), if anything.
+    pub(super) issues: Vec<Vec<Option<&'static str>>>,
+    /// Per view: the part of the view the re-renders compute.
+    pub(super) regions: Vec<StrokeRegion>,
+}
+
+/// What the placed strokes ask of the terrain.
+pub(super) struct Demands {
+    /// Curve constraints: the stretches of placed strokes that do not lie
+    /// on a silhouette already ([`super::on_silhouette`]).
+    pub(super) curves: Vec<CurveConstraint>,
+    /// Cells held at their input heights: under anchored stroke points and
+    /// around every viewpoint. Applied after every other constraint, so
+    /// nothing in the edit moves them.
+    pub(super) fixed: Vec<CellConstraint>,
+    /// Per view, per stroke: the placed stroke.
+    pub(super) strokes: Vec<Vec<StrokeCurve>>,
+    /// Per view, per stroke: share of its points on an existing silhouette.
+    pub(super) on_silhouette: Vec<Vec<f64>>,
+    /// Per view, per stroke: how its free stretches were placed.
+    pub(super) placement: Vec<Vec<StretchPlacement>>,
+}
+
+/// The solves of one edit: the DEM, the options, and the cells held fixed
+/// in every solve.
+pub(super) struct Solver<'a> {
+    dem: &'a Dem,
+    dem_name: &'a str,
+    opts: DeformOptions,
+    fixed: &'a [CellConstraint],
+    /// Window of the deformation when nothing needs to move.
+    idle: Window,
+}
+
+/// Render a view on the DEM with the deformation applied: only `region` of
+/// it ([`StrokeRegion`]), or the whole view. The terrain is the view's
+/// terrain before the edit with the deformation's cells patched in
+/// ([`edited_terrain`]): the view's window is neither copied nor
+/// triangulated again.
+pub(super) fn render_edited(
+    v: &ViewState,
+    d: &Deformation,
+    region: Option<&StrokeRegion>,
+) -> Result<RenderedView, EditError> {
+    render_edited_after(v, d, region, None)
+}
+
+/// [`render_edited`], taking from `earlier` (an earlier render of the
+/// same region of the view) what the terrain's change since cannot reach
+/// ([`RenderedView::rerender_terrain_region`]): the same render, for less.
+pub(super) fn render_edited_after(
+    v: &ViewState,
+    d: &Deformation,
+    region: Option<&StrokeRegion>,
+    earlier: Option<&RenderedView>,
+) -> Result<RenderedView, EditError> {
+    let terrain = edited_terrain(&v.before.terrain, v.window_offset, d);
+    match (region, earlier) {
+        (Some(r), Some(e)) => RenderedView::rerender_terrain_region(terrain, &v.camera, r, e),
+        (Some(r), None) => RenderedView::render_terrain_region(terrain, &v.camera, r),
+        (None, _) => RenderedView::from_terrain(terrain, &v.camera),
+    }
+    .map_err(|e| EditError::Internal(format!("view \"{}\": features: {e}", v.spec.name)))
+}
+
+/// `terrain` (built over a window of the DEM at `offset`) with `H + M`
+/// swapped in where the deformation changes a cell: the terrain the same
+/// view would have on the edited DEM, to the bit
+/// ([`LocalTerrain::with_heights`]).
+pub(crate) fn edited_terrain(
+    terrain: &crate::render::LocalTerrain,
+    offset: (i64, i64),
+    d: &Deformation,
+) -> crate::render::LocalTerrain {
+    let w = d.window;
+    // The deformation's window in the terrain's grid, clipped at its origin.
+    let (c0, r0) = ((w.col - offset.0).max(0), (w.row - offset.1).max(0));
+    let (c1, r1) = (
+        (w.col_end() - offset.0).max(0),
+        (w.row_end() - offset.1).max(0),
+    );
+    let height = |c: usize, r: usize| -> Option<f32> {
+        let (x, y) = (c as i64 + offset.0 - w.col, r as i64 + offset.1 - w.row);
+        if x < 0 || y < 0 || x as usize >= w.width || y as usize >= w.height {
+            return None;
+        }
+        let s = y as usize * w.width + x as usize;
+        let (h, m) = (d.base.data[s], d.displacement[s]);
+        (!h.is_nan() && m.is_finite() && m != 0.0).then(|| h + m)
+    };
+    terrain.with_heights(
+        (c0 as usize, r0 as usize, c1 as usize, r1 as usize),
+        &height,
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{free_stretches, stroke_outcome};
+    use crate::edit::fit::StrokeFit;
+
+    #[test]
+    fn an_unfitted_stroke_placed_finer_than_a_cell_says_so() {
+        let fit = StrokeFit {
+            fitted_fraction: 0.41,
+            mean_px: 1.1,
+            max_px: 2.1,
+            columns: 27,
+        };
+        let (_, reason) = stroke_outcome(&fit, 1.0, None, Some((0.3, 497.0)), 0.9);
+        let reason = reason.unwrap_or_default();
+        assert!(
+            reason.starts_with("its free stretch spans 0.3 DEM cells"),
+            "{reason}"
+        );
+        assert!(reason.ends_with("fit 0.41 below --min-fit 0.9"), "{reason}");
+        // Two cells and more: the fit alone.
+        let (_, reason) = stroke_outcome(&fit, 1.0, None, Some((3.0, 497.0)), 0.9);
+        assert_eq!(reason.as_deref(), Some("fit 0.41 below --min-fit 0.9"));
+        // Hidden comes first.
+        let (_, reason) = stroke_outcome(&fit, 0.5, None, Some((0.3, 497.0)), 0.9);
+        assert!(reason
+            .unwrap_or_default()
+            .starts_with("hidden by nearer terrain"));
+    }
+
+    fn pts(n: usize) -> Vec<[f64; 3]> {
+        (0..n).map(|i| [i as f64, 0.0, 10.0]).collect()
+    }
+
+    #[test]
+    fn free_stretches_take_the_anchors_beside_them_where_depth_continues() {
+        let p = pts(6);
+        let depths = [1000.0, 1000.0, 1010.0, 1020.0, 1030.0, 1030.0];
+        let anchored = [true, true, false, false, true, true];
+        let c = free_stretches(&p, &depths, &anchored);
+        assert_eq!(c.len(), 1);
+        assert_eq!(c[0].points, p[1..=4].to_vec());
+    }
+
+    #[test]
+    fn free_stretches_break_where_the_depth_jumps() {
+        let p = pts(6);
+        // An anchor far behind, then a stretch that jumps in depth midway.
+        let depths = [27000.0, 8000.0, 8100.0, 5000.0, 5050.0, 5100.0];
+        let anchored = [true, false, false, false, false, false];
+        let c = free_stretches(&p, &depths, &anchored);
+        let lens: Vec<usize> = c.iter().map(|c| c.points.len()).collect();
+        assert_eq!(lens, vec![2, 3]);
+        assert_eq!(c[0].points[0], p[1], "no segment back to the far anchor");
+    }
+
+    #[test]
+    fn a_stroke_all_on_silhouettes_asks_for_no_curve() {
+        let p = pts(4);
+        let c = free_stretches(&p, &[1.0e3; 4], &[true; 4]);
+        assert!(c.is_empty());
+    }
+}
