@@ -11,7 +11,7 @@
 
 mod common;
 
-use common::{demsketch, fixture};
+use common::{edit_report, fixture, one_stroke_sketch};
 use serde_json::{json, Value};
 
 fn sketch() -> Value {
@@ -26,38 +26,16 @@ fn sketch() -> Value {
         [369.5, 96.572],
         [372.5, 98.779],
     ];
-    json!({
-        "views": [{
-            "name": "fidelity",
-            "viewpoint": {"lon": -113.14580110243843, "lat": 37.2364721722352, "alt_m": 1217.175},
-            "camera": {"heading_deg": 186.2937, "pitch_deg": 0.0, "roll_deg": 0.0,
-                       "hfov_deg": 60.0, "width": 640, "height": 360},
-            "strokes": [{"id": "s0", "points": points}]
-        }],
-        "options": {"influence_m": 1500.0}
-    })
+    one_stroke_sketch(
+        [-113.14580110243843, 37.2364721722352, 1217.175],
+        186.2937,
+        &points,
+    )
 }
 
 #[test]
 fn a_stroke_finer_than_the_dem_over_a_near_silhouette_goes_behind_it() {
-    let tmp = tempfile::tempdir().unwrap();
-    let sk = tmp.path().join("sketch.json");
-    std::fs::write(&sk, serde_json::to_string(&sketch()).unwrap()).unwrap();
-    let (out, rep) = (tmp.path().join("out.tif"), tmp.path().join("report.json"));
-    let dem = fixture("zion_srtm90m_epsg4326.tif");
-    let o = demsketch(&[
-        "edit",
-        dem.to_str().unwrap(),
-        "--sketch",
-        sk.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-        "--report",
-        rep.to_str().unwrap(),
-        "--allow-partial",
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let r: Value = serde_json::from_slice(&std::fs::read(&rep).unwrap()).unwrap();
+    let r = edit_report(&fixture("zion_srtm90m_epsg4326.tif"), &sketch(), &[]);
     let s = &r["views"][0]["strokes"][0];
     // (the stroke is resampled: count the points, not the input's nine)
     assert!(s["placement"]["behind"].as_u64().unwrap() >= 9, "{s}");

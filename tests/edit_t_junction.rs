@@ -14,8 +14,8 @@
 
 mod common;
 
-use common::{demsketch, fixture};
-use serde_json::{json, Value};
+use common::{edit_report, fixture, one_stroke_sketch};
+use serde_json::Value;
 
 fn sketch() -> Value {
     let points = [
@@ -28,40 +28,20 @@ fn sketch() -> Value {
         [417.55, 177.61],
         [432.51, 179.74],
     ];
-    json!({
-        "views": [{
-            "name": "fidelity",
-            "viewpoint": {"lon": -97.28851995978872, "lat": 32.71421766452901, "alt_m": 198.585},
-            "camera": {"heading_deg": 290.0955, "pitch_deg": 0.0, "roll_deg": 0.0,
-                       "hfov_deg": 60.0, "width": 640, "height": 360},
-            "strokes": [{"id": "s0", "points": points}]
-        }],
-        "options": {"influence_m": 1500.0}
-    })
+    one_stroke_sketch(
+        [-97.28851995978872, 32.71421766452901, 198.585],
+        290.0955,
+        &points,
+    )
 }
 
 #[test]
 fn a_stroke_end_stopping_on_a_silhouette_bounds_its_depth_from_the_near_side() {
-    let tmp = tempfile::tempdir().unwrap();
-    let sk = tmp.path().join("sketch.json");
-    std::fs::write(&sk, serde_json::to_string(&sketch()).unwrap()).unwrap();
-    let (out, rep) = (tmp.path().join("out.tif"), tmp.path().join("report.json"));
-    let dem = fixture("texas_srtm90m_tiled_int16.tif");
-    let o = demsketch(&[
-        "edit",
-        dem.to_str().unwrap(),
-        "--sketch",
-        sk.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-        "--report",
-        rep.to_str().unwrap(),
-        "--max-distance",
-        "50000",
-        "--allow-partial",
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let r: Value = serde_json::from_slice(&std::fs::read(&rep).unwrap()).unwrap();
+    let r = edit_report(
+        &fixture("texas_srtm90m_tiled_int16.tif"),
+        &sketch(),
+        &["--max-distance", "50000"],
+    );
     let s = &r["views"][0]["strokes"][0];
     assert!(s["placement"]["drawing_plane"].as_u64().unwrap() > 0, "{s}");
     let depth = &s["match"]["depth_m"];

@@ -87,3 +87,50 @@ pub fn gdal_values(path: &Path) -> (usize, usize, Vec<f64>, Option<f64>) {
         .expect("GDAL reads the band");
     (w, h, buf.data().to_vec(), band.no_data_value())
 }
+
+/// A sketch of one view as the fidelity suite draws it (640 x 360 px,
+/// 60 degrees wide, level) from `viewpoint` (lon, lat, absolute eye
+/// altitude in metres) towards `heading_deg`, with one stroke `s0` through
+/// `points`, and an influence of 1,500 m.
+pub fn one_stroke_sketch(
+    viewpoint: [f64; 3],
+    heading_deg: f64,
+    points: &[[f64; 2]],
+) -> serde_json::Value {
+    serde_json::json!({
+        "views": [{
+            "name": "fidelity",
+            "viewpoint": {"lon": viewpoint[0], "lat": viewpoint[1], "alt_m": viewpoint[2]},
+            "camera": {"heading_deg": heading_deg, "pitch_deg": 0.0, "roll_deg": 0.0,
+                       "hfov_deg": 60.0, "width": 640, "height": 360},
+            "strokes": [{"id": "s0", "points": points}]
+        }],
+        "options": {"influence_m": 1500.0}
+    })
+}
+
+/// `demsketch edit DEM --sketch SKETCH --allow-partial` plus `extra`, with
+/// the output and the report in a temporary directory: asserts that it
+/// succeeds and returns the report.
+pub fn edit_report(dem: &Path, sketch: &serde_json::Value, extra: &[&str]) -> serde_json::Value {
+    let tmp = tempfile::tempdir().expect("temporary directory");
+    let sk = tmp.path().join("sketch.json");
+    std::fs::write(&sk, serde_json::to_string(sketch).expect("sketch JSON")).expect("write sketch");
+    let (out, rep) = (tmp.path().join("out.tif"), tmp.path().join("report.json"));
+    let paths = [dem, &sk, &out, &rep].map(|p| p.to_string_lossy().into_owned());
+    let mut args = vec![
+        "edit",
+        &paths[0],
+        "--sketch",
+        &paths[1],
+        "--out",
+        &paths[2],
+        "--report",
+        &paths[3],
+        "--allow-partial",
+    ];
+    args.extend_from_slice(extra);
+    let o = demsketch(&args);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    serde_json::from_slice(&std::fs::read(&rep).expect("report")).expect("report JSON")
+}
