@@ -121,16 +121,27 @@ pub(crate) fn rasterise(
     camera: &Camera,
     last_row: Option<&[i32]>,
 ) -> (Vec<f32>, Vec<u32>) {
-    let n = camera.width * camera.height;
-    // Buffers of an earlier render where there are some (see
-    // `buffer_pool`), else fresh zeroed ones: either way each strip clears
-    // its own columns in parallel, so no page is touched serially.
-    let (mut depth, mut triangle) = (
-        crate::buffer_pool::overwritten_f32(n),
-        crate::buffer_pool::overwritten_u32(n),
-    );
+    let (mut depth, mut triangle) = pooled_buffers(camera);
     rasterise_into(terrain, camera, last_row, &mut depth, &mut triangle, true);
     (depth, triangle)
+}
+
+/// Depth and triangle buffers of `camera`'s image: buffers of an earlier
+/// render where there are some (see `buffer_pool`), else fresh zeroed
+/// ones; either way each strip clears its own columns in parallel, so no
+/// page is touched serially.
+fn pooled_buffers(camera: &Camera) -> (Vec<f32>, Vec<u32>) {
+    let n = camera.width * camera.height;
+    (
+        crate::buffer_pool::overwritten_f32(n),
+        crate::buffer_pool::overwritten_u32(n),
+    )
+}
+
+/// True when `earlier`'s depths and triangles are of `camera`'s image.
+fn of_image(earlier: (&[f32], &[u32]), camera: &Camera) -> bool {
+    let n = camera.width * camera.height;
+    earlier.0.len() == n && earlier.1.len() == n
 }
 
 /// [`rasterise`], taking the strips of pixel columns `x0..=x1` for which
@@ -146,14 +157,10 @@ pub(crate) fn rasterise_keeping(
     earlier: (&[f32], &[u32]),
     keep: &(dyn Fn(usize, usize) -> bool + Sync),
 ) -> (Vec<f32>, Vec<u32>) {
-    let (w, h) = (camera.width, camera.height);
-    if earlier.0.len() != w * h || earlier.1.len() != w * h {
+    if !of_image(earlier, camera) {
         return rasterise(terrain, camera, last_row);
     }
-    let (mut depth, mut triangle) = (
-        crate::buffer_pool::overwritten_f32(w * h),
-        crate::buffer_pool::overwritten_u32(w * h),
-    );
+    let (mut depth, mut triangle) = pooled_buffers(camera);
     rasterise_strips(
         terrain,
         camera,
@@ -224,17 +231,10 @@ pub(crate) fn rasterise_below(
     first_row: &[i32],
     earlier: (&[f32], &[u32]),
 ) -> (Vec<f32>, Vec<u32>) {
-    let (w, h) = (camera.width, camera.height);
-    if earlier.0.len() != w * h || earlier.1.len() != w * h || first_row.len() != w {
+    if !of_image(earlier, camera) || first_row.len() != camera.width || !terrain.far.is_empty() {
         return rasterise(terrain, camera, None);
     }
-    if !terrain.far.is_empty() {
-        return rasterise(terrain, camera, None);
-    }
-    let (mut depth, mut triangle) = (
-        crate::buffer_pool::overwritten_f32(w * h),
-        crate::buffer_pool::overwritten_u32(w * h),
-    );
+    let (mut depth, mut triangle) = pooled_buffers(camera);
     rasterise_strips(
         terrain,
         camera,
