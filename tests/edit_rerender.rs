@@ -45,15 +45,25 @@ fn assert_same_render(got: &RenderedView, want: &RenderedView, what: &str) {
     assert_eq!(got.by_column, want.by_column, "{what}: samples by column");
 }
 
-#[test]
-fn a_re_render_after_a_change_is_the_fresh_render() {
+/// How far the Zion view of these tests reaches, metres.
+const ZION_VIEW_M: f64 = 20_000.0;
+
+/// A camera 1.7 m above cell (210, 103) of the Zion fixture, looking at
+/// 200 degrees, and the wedge of the DEM it sees within [`ZION_VIEW_M`].
+fn zion_view() -> (Camera, Scene) {
     let dem = Dem::open(&fixture("zion_srtm_utm12n.tif")).unwrap();
     let (x, y) = dem.geotransform.pixel_to_crs(210.5, 103.5);
     let georef = Georef::for_crs(&dem.crs, "zion").unwrap();
     let (lon, lat) = georef.crs_to_lonlat(x, y).unwrap();
     let vp = Viewpoint::above_surface(lon, lat, 1.7);
     let cam = Camera::new(480, 240, 200.0, -1.0, 0.0, 60.0).unwrap();
-    let scene = Scene::open_wedge(&dem, &vp, Some(20_000.0), 1.0 / 7.0, &cam).unwrap();
+    let scene = Scene::open_wedge(&dem, &vp, Some(ZION_VIEW_M), 1.0 / 7.0, &cam).unwrap();
+    (cam, scene)
+}
+
+#[test]
+fn a_re_render_after_a_change_is_the_fresh_render() {
+    let (cam, scene) = zion_view();
     let (w, h) = (scene.window.width, scene.window.height);
     // The view before the edit, as the edit renders it (index and ranges
     // built, which the patched terrains patch).
@@ -130,14 +140,8 @@ fn a_re_render_after_a_change_is_the_fresh_render() {
 /// afresh.
 #[test]
 fn a_whole_render_after_a_region_render_of_its_surface_is_the_fresh_render() {
-    let dem = Dem::open(&fixture("zion_srtm_utm12n.tif")).unwrap();
-    let (x, y) = dem.geotransform.pixel_to_crs(210.5, 103.5);
-    let georef = Georef::for_crs(&dem.crs, "zion").unwrap();
-    let (lon, lat) = georef.crs_to_lonlat(x, y).unwrap();
-    let vp = Viewpoint::above_surface(lon, lat, 1.7);
-    let cam = Camera::new(480, 240, 200.0, -1.0, 0.0, 60.0).unwrap();
-    let max_d = Some(20_000.0);
-    let scene = Scene::open_wedge(&dem, &vp, max_d, 1.0 / 7.0, &cam).unwrap();
+    let (cam, scene) = zion_view();
+    let max_d = Some(ZION_VIEW_M);
     let (w, h) = (scene.window.width, scene.window.height);
     let before = RenderedView::from_terrain(scene.terrain.clone(), &cam).unwrap();
     let base: &LocalTerrain = &before.terrain;
