@@ -178,6 +178,29 @@ fn stroke_in_empty_sky_without_depth_is_refused() {
     assert!(!err.contains("empty sky"), "with depth_m: {err}");
 }
 
+/// A stroke drawn above a skyline, as a person draws the top of a peak
+/// that should stand higher, has terrain under it within the allowed rise
+/// (its ends pass 3 % of the distance above the peak): it is placed and
+/// fitted, not refused as drawn in empty sky (the old rule, 5 % of the
+/// image height, refused it at 60 px on this 600 px view).
+#[test]
+fn stroke_drawn_above_a_skyline_is_placed() {
+    let mut s = bundled_sketch();
+    let mut peak = s["views"][0]["strokes"][1].clone();
+    assert_eq!(peak["id"], json!("peak"));
+    for p in peak["points"].as_array_mut().unwrap() {
+        p[1] = json!(p[1].as_f64().unwrap() - 60.0);
+    }
+    s["views"][0]["strokes"] = json!([peak]);
+    let case = Case::new();
+    let r = case.edit(&s, &["--dry-run"]);
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert_eq!(r.status.code(), Some(0), "{err}");
+    let rep = case.report();
+    let stroke = &rep["views"][0]["strokes"][0];
+    assert_eq!(stroke["status"], json!("fitted"), "{stroke}");
+}
+
 #[test]
 fn strokes_beyond_max_distance_are_refused() {
     let s = bundled_sketch();

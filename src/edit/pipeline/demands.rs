@@ -7,9 +7,9 @@ use super::*;
 
 /// Refuse a stroke (without `depth_m`) whose end points both lie in empty
 /// sky in the view before the edit, with no terrain close under them
-/// ([`TERRAIN_TOUCH_SHARE`]): nothing says how far it is. Names the
-/// view and the stroke, and whether the terrain lies beyond
-/// `--max-distance` or nowhere on the DEM.
+/// ([`TERRAIN_TOUCH_RISE`], [`TERRAIN_TOUCH_PX`]): nothing says how far
+/// it is. Names the view and the stroke, and whether the terrain lies
+/// beyond `--max-distance` or nowhere on the DEM.
 pub(super) fn check_strokes_touch_terrain(
     v: &ViewState,
     dem: &Dem,
@@ -21,9 +21,7 @@ pub(super) fn check_strokes_touch_terrain(
     let touches = |p: [f64; 2]| -> bool {
         let i0 = (p[0].floor() as i64).clamp(0, w as i64 - 1);
         let j0 = (p[1].floor() as i64).clamp(0, h as i64 - 1);
-        let rows = (TERRAIN_TOUCH_SHARE * h as f64)
-            .max(TERRAIN_TOUCH_PX)
-            .ceil() as i64;
+        let rows = touch_rows(&v.camera, p).ceil() as i64;
         (i0 - 1..=i0 + 1).any(|i| {
             (j0 - 1..=j0 + rows)
                 .any(|j| i >= 0 && j >= 0 && depth.depth_at(i as usize, j as usize).is_finite())
@@ -67,6 +65,36 @@ pub(super) fn check_strokes_touch_terrain(
         });
     }
     Ok(())
+}
+
+/// How many rows below the stroke end `p` terrain may lie and still touch
+/// it: at least [`TERRAIN_TOUCH_PX`], and down to the row whose ray
+/// climbs [`TERRAIN_TOUCH_RISE`] less per metre of distance than the
+/// end's (at that row's terrain, whatever its distance, the end's ray
+/// passes at most that share of the distance above it). Rows below the
+/// image's lower border count too (the frame may cut a stroke off).
+fn touch_rows(camera: &Camera, p: [f64; 2]) -> f64 {
+    let slope = |y: f64| {
+        let r = camera.ray(p[0], y);
+        r[2] / r[0].hypot(r[1]).max(f64::MIN_POSITIVE)
+    };
+    let top = slope(p[1]);
+    // The slope falls with the row; bisect for the row where it has fallen
+    // by the allowed rise (rays steeper than 89 degrees stop the search).
+    let limit = p[1] + 4.0 * camera.height as f64;
+    if top - slope(limit) <= TERRAIN_TOUCH_RISE {
+        return (limit - p[1]).max(TERRAIN_TOUCH_PX);
+    }
+    let (mut lo, mut hi) = (p[1], limit);
+    for _ in 0..40 {
+        let mid = 0.5 * (lo + hi);
+        if top - slope(mid) <= TERRAIN_TOUCH_RISE {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    (lo - p[1]).max(TERRAIN_TOUCH_PX)
 }
 
 /// Anchors the matched strokes where they already lie on a silhouette and

@@ -105,12 +105,14 @@ impl EditOptions {
 /// the deformation's windows and the write re-read a few tiles.
 pub(super) const EDIT_BLOCK_CACHE_BYTES: usize = 64 << 20;
 
-/// A stroke end touches the terrain when a terrain pixel lies within this
-/// share of the image height below it (or a column beside it) in the view
-/// before the edit ...
-pub const TERRAIN_TOUCH_SHARE: f64 = 0.05;
+/// A stroke end touches the terrain when, in the view before the edit,
+/// terrain lies below it (or in a column beside it) no lower than this
+/// rise over distance: the end's ray passes at most 10 % of the terrain's
+/// distance above it (a landform raised by 100 m at 1 km), whatever the
+/// camera's field of view ...
+pub const TERRAIN_TOUCH_RISE: f64 = 0.10;
 
-/// ... and at least this many rows.
+/// ... or within this many rows.
 pub const TERRAIN_TOUCH_PX: f64 = 5.0;
 
 /// Default of [`EditOptions::min_fit`] (`--min-fit`).
