@@ -93,6 +93,18 @@ pub(super) fn refine(
             })
             .collect()
     };
+    // Makes `next` the rounds' terrain, rendering it only when it differs
+    // from the one `rendered` shows (the same terrain renders the same).
+    let adopt = |deformation: &mut Deformation,
+                 rendered: &mut Vec<RenderedView>,
+                 next: Deformation|
+     -> Result<(), EditError> {
+        if !same_terrain(deformation, &next) {
+            *rendered = render_all(&next, Some(rendered))?;
+        }
+        *deformation = next;
+        Ok(())
+    };
     edit.pb.set_message("lowering protruding silhouettes");
     let mut constraints = placed.demands.curves.clone();
     let user_constraints = constraints.len();
@@ -261,12 +273,8 @@ pub(super) fn refine(
             && worst_stroke_fit(curves, &rendered) >= opts.min_fit;
         if !worth {
             // (`rendered` is `deformation`'s render: when that is the
-            // best round's terrain already, rendering it again gives the
-            // same views)
-            if !same_terrain(&deformation, &d) {
-                rendered = render_all(&d, Some(&rendered))?;
-            }
-            deformation = d;
+            // best round's terrain already, it is not rendered again)
+            adopt(&mut deformation, &mut rendered, d)?;
             best_score = score_before;
         }
     }
@@ -284,10 +292,7 @@ pub(super) fn refine(
     // DEM the heights rounded to whole units. The test below and the
     // report measure the file a re-edit of the output will read.
     if let Some(q) = solver.as_written(&deformation) {
-        if !same_terrain(&deformation, &q) {
-            rendered = render_all(&q, Some(&rendered))?;
-        }
-        deformation = q;
+        adopt(&mut deformation, &mut rendered, q)?;
         best_score = fit_score(curves, &rendered);
     }
     // Do no harm: when the edit fits the strokes no better than the
@@ -304,10 +309,7 @@ pub(super) fn refine(
     }
     if kept_unedited {
         let before = unchanged(deformation.clone());
-        if !same_terrain(&deformation, &before) {
-            rendered = render_all(&before, Some(&rendered))?;
-        }
-        deformation = before;
+        adopt(&mut deformation, &mut rendered, before)?;
     }
     // No spikes: a lone apex (or pit) of the change field gets a
     // neighbour behind it within half a cell.
