@@ -159,6 +159,17 @@ fn unknown_option_key_is_refused() {
 }
 
 #[test]
+fn sketch_without_strokes_is_refused() {
+    let mut s = bundled_sketch();
+    s["views"][0]["strokes"] = json!([]);
+    let e = expect_refused(&s, &[], "no strokes");
+    assert!(
+        e.contains("sketch.json") && e.contains("no strokes") && e.contains("nothing to edit"),
+        "{e}"
+    );
+}
+
+#[test]
 fn stroke_in_empty_sky_without_depth_is_refused() {
     let mut s = bundled_sketch();
     s["views"][0]["strokes"] = json!([

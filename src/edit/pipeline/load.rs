@@ -24,6 +24,12 @@ pub(super) fn load_views(
     let sketch_name = &edit.sketch_name;
     edit.pb.set_message("loading DEM and sketch");
     let mut sketch = SketchFile::from_path(sketch_path)?;
+    if sketch.corrections.is_none() && sketch.views.iter().all(|v| v.strokes.is_empty()) {
+        return Err(EditError::Unusable {
+            sketch: sketch_name.clone(),
+            message: "the sketch has no strokes and no map_features: nothing to edit".into(),
+        });
+    }
     sketch.split_map_feature_strokes();
     let mut notes = Vec::new();
     let mut prepared = Vec::new();
