@@ -11,7 +11,11 @@
 //! becomes a [`PointSource::Silhouette`] point. Where a column has several
 //! boundaries that close (a crest grazing a farther skyline), the choice
 //! keeps the stroke on one silhouette from point to point rather than
-//! taking the nearest row each time ([`continuous_choice`]). The pipeline holds the
+//! taking the nearest row each time ([`continuous_choice`]); a piece of a
+//! run narrower than [`MIN_RUN_PX`] on another landform (a hand-drawn
+//! stroke touching a foreground crest for a point or two) is the stroke
+//! crossing that silhouette, and stays with the landform on either side of
+//! it ([`crossings`]). The pipeline holds the
 //! terrain under anchored points where it is (cell constraints at the input
 //! heights) instead of constraining a curve there, so an edit whose strokes
 //! all lie on existing silhouettes changes nothing, and a stroke that
@@ -405,10 +409,12 @@ fn crossings(hits: &[Option<BoundaryPoint>], xs: &[f64]) -> Vec<Crossing> {
                 let right = pieces.get(j + 1).copied();
                 let kind = match (left, right) {
                     // Between two pieces on one landform.
-                    (Some(l), Some(r)) if wide(&l) && wide(&r) => match (hits[l.1 - 1], hits[r.0]) {
-                        (Some(p), Some(q)) if !apart(&p, &q) => Crossing::Between,
-                        _ => Crossing::No,
-                    },
+                    (Some(l), Some(r)) if wide(&l) && wide(&r) => {
+                        match (hits[l.1 - 1], hits[r.0]) {
+                            (Some(p), Some(q)) if !apart(&p, &q) => Crossing::Between,
+                            _ => Crossing::No,
+                        }
+                    }
                     // At the run's edge next to a free stretch, the rest
                     // of the run on another landform.
                     (None, Some(r)) if s > 0 && wide(&r) => Crossing::Edge,
@@ -430,9 +436,6 @@ fn crossings(hits: &[Option<BoundaryPoint>], xs: &[f64]) -> Vec<Crossing> {
 /// so that the looser gap tolerance does not anchor them on that
 /// silhouette again.
 fn drop_crossings(hits: &mut [Option<BoundaryPoint>], xs: &[f64], refused: &mut [bool]) {
-    if std::env::var_os("DS_NO_CROSSINGS").is_some() {
-        return;
-    }
     let kinds = crossings(hits, xs);
     let n = hits.len();
     let mut a = 0;
@@ -780,7 +783,9 @@ mod tests {
         assert!(hits.iter().all(|h| h.is_some()));
         // A stroke passing from one landform to another along both (each
         // piece at least MIN_RUN_PX wide) keeps both.
-        let depths: Vec<f64> = (0..12).map(|k| if k < 6 { 2000.0 } else { 8000.0 }).collect();
+        let depths: Vec<f64> = (0..12)
+            .map(|k| if k < 6 { 2000.0 } else { 8000.0 })
+            .collect();
         let (mut hits, xs) = run_at(&depths);
         let mut refused = vec![false; 12];
         drop_crossings(&mut hits, &xs, &mut refused);
