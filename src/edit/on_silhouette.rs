@@ -11,7 +11,11 @@
 //! becomes a [`PointSource::Silhouette`] point. Where a column has several
 //! boundaries that close (a crest grazing a farther skyline), the choice
 //! keeps the stroke on one silhouette from point to point rather than
-//! taking the nearest row each time ([`continuous_choice`]). The pipeline holds the
+//! taking the nearest row each time ([`continuous_choice`]); a piece of a
+//! run narrower than [`MIN_RUN_PX`] on another landform (a hand-drawn
+//! stroke touching a foreground crest for a point or two) is the stroke
+//! crossing that silhouette, and stays with the landform on either side of
+//! it ([`crossings`]). The pipeline holds the
 //! terrain under anchored points where it is (cell constraints at the input
 //! heights) instead of constraining a curve there, so an edit whose strokes
 //! all lie on existing silhouettes changes nothing, and a stroke that
@@ -332,6 +336,155 @@ fn drop_short_runs(hits: &mut [Option<BoundaryPoint>], xs: &[f64]) {
     }
 }
 
+/// Neighbouring anchored points lie on different landforms when their
+/// depths differ by more than this fraction of the nearer (the placement's
+/// agreement, [`super::stretch_placement::AGREEMENT`]).
+pub const CROSSING_DEPTH_STEP: f64 = 0.15;
+
+/// What [`crossings`] makes of a piece of an anchored run that crosses
+/// another landform's silhouette.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Crossing {
+    /// Not a crossing.
+    No,
+    /// Between two pieces of the run on one landform: the stroke goes on
+    /// along that landform, interpolated between them.
+    Between,
+    /// At the run's edge: the point is free (placed with the stretch
+    /// beside it), never anchored on that silhouette again.
+    Edge,
+}
+
+/// Pieces of anchored runs that cross another landform's silhouette
+/// (Tassé et al. section 5.2.3: a stroke is one feature, each point at
+/// that feature's depth). A run is cut where neighbouring points' depths
+/// differ by more than [`CROSSING_DEPTH_STEP`]; a piece narrower than
+/// [`MIN_RUN_PX`] of image x, in a run that also has a piece at least that
+/// wide, is the stroke passing over a nearer (or farther) silhouette that
+/// comes within the on-silhouette tolerance of it for a few pixels (a
+/// hand-drawn stroke touching a foreground crest, a skyline trace passing
+/// a nearer peak's tip), as [`drop_short_runs`] reads a short run on its
+/// own. Such a piece between two wide pieces whose depths agree is
+/// [`Crossing::Between`]; at the edge of a run, next to a free stretch,
+/// beside a wide piece, it is [`Crossing::Edge`]. A narrow piece between
+/// two pieces at different depths, or at a stroke's end, is left anchored:
+/// a skyline traced where a farther range shows between two nearer crests
+/// (or at the end of one) steps through every depth on the way.
+fn crossings(hits: &[Option<BoundaryPoint>], xs: &[f64]) -> Vec<Crossing> {
+    let n = hits.len();
+    let mut out = vec![Crossing::No; n];
+    let apart = |a: &BoundaryPoint, b: &BoundaryPoint| {
+        (a.depth - b.depth).abs() > CROSSING_DEPTH_STEP * a.depth.min(b.depth)
+    };
+    let mut a = 0;
+    while a < n {
+        if hits[a].is_none() {
+            a += 1;
+            continue;
+        }
+        let mut b = a + 1;
+        while b < n && hits[b].is_some() {
+            b += 1;
+        }
+        // Pieces of the run a..b, cut at depth steps.
+        let mut pieces: Vec<(usize, usize)> = Vec::new();
+        let mut start = a;
+        for k in a + 1..b {
+            if let (Some(p), Some(q)) = (hits[k - 1], hits[k]) {
+                if apart(&p, &q) {
+                    pieces.push((start, k));
+                    start = k;
+                }
+            }
+        }
+        pieces.push((start, b));
+        let wide = |&(s, e): &(usize, usize)| (xs[e - 1] - xs[s]).abs() >= MIN_RUN_PX;
+        if pieces.len() > 1 && pieces.iter().any(wide) {
+            for (j, piece) in pieces.iter().enumerate() {
+                if wide(piece) {
+                    continue;
+                }
+                let (s, e) = *piece;
+                let left = (j > 0).then(|| pieces[j - 1]);
+                let right = pieces.get(j + 1).copied();
+                let kind = match (left, right) {
+                    // Between two pieces on one landform.
+                    (Some(l), Some(r)) if wide(&l) && wide(&r) => {
+                        match (hits[l.1 - 1], hits[r.0]) {
+                            (Some(p), Some(q)) if !apart(&p, &q) => Crossing::Between,
+                            _ => Crossing::No,
+                        }
+                    }
+                    // At the run's edge next to a free stretch, the rest
+                    // of the run on another landform.
+                    (None, Some(r)) if s > 0 && wide(&r) => Crossing::Edge,
+                    (Some(l), None) if e < n && wide(&l) => Crossing::Edge,
+                    _ => Crossing::No,
+                };
+                out[s..e].fill(kind);
+            }
+        }
+        a = b;
+    }
+    out
+}
+
+/// Applies [`crossings`] to `hits`: points of a piece between two on one
+/// landform take the interpolation of that landform's two nearest anchored
+/// points (as a sub-cell stretch between two anchors does); points of a
+/// piece at a run's edge lose their anchor and are marked in `refused`,
+/// so that the looser gap tolerance does not anchor them on that
+/// silhouette again.
+fn drop_crossings(hits: &mut [Option<BoundaryPoint>], xs: &[f64], refused: &mut [bool]) {
+    let kinds = crossings(hits, xs);
+    let n = hits.len();
+    let mut a = 0;
+    while a < n {
+        if kinds[a] == Crossing::No {
+            a += 1;
+            continue;
+        }
+        let mut b = a + 1;
+        while b < n && kinds[b] == kinds[a] {
+            b += 1;
+        }
+        match kinds[a] {
+            Crossing::Between => {
+                if let (Some(l), Some(r)) = (hits[a - 1], hits[b]) {
+                    let (x0, x1) = (xs[a - 1], xs[b]);
+                    for m in a..b {
+                        hits[m] = Some(between(&l, &r, (xs[m] - x0) / (x1 - x0).max(1e-9)));
+                    }
+                }
+            }
+            _ => {
+                for m in a..b {
+                    hits[m] = None;
+                    refused[m] = true;
+                }
+            }
+        }
+        a = b;
+    }
+}
+
+/// The point a share `t` (clamped to 0..1) of the way from boundary `l` to
+/// boundary `r`, in row, position and depth.
+fn between(l: &BoundaryPoint, r: &BoundaryPoint, t: f64) -> BoundaryPoint {
+    let t = t.clamp(0.0, 1.0);
+    let lerp = |u: f64, v: f64| u + t * (v - u);
+    BoundaryPoint {
+        row: lerp(l.row, r.row),
+        local: [
+            lerp(l.local[0], r.local[0]),
+            lerp(l.local[1], r.local[1]),
+            lerp(l.local[2], r.local[2]),
+        ],
+        depth: lerp(l.depth, r.depth),
+        precise: false,
+    }
+}
+
 /// Anchors the points of `placed` that lie on a boundary of `before` (the
 /// unedited view the stroke was drawn on; see the module documentation).
 /// Returns the share of the stroke's points anchored (0 to 1).
@@ -355,8 +508,10 @@ pub fn anchor_on_silhouettes(
         .map(|&p| boundaries_near(before, p, ON_SILHOUETTE_PX))
         .collect();
     let mut hits = continuous_choice(&near, &pixels.iter().map(|p| p[1]).collect::<Vec<_>>());
-    let refused = drop_offset_stretches(&mut hits, &pixels);
-    drop_short_runs(&mut hits, &pixels.iter().map(|p| p[0]).collect::<Vec<_>>());
+    let mut refused = drop_offset_stretches(&mut hits, &pixels);
+    let xs: Vec<f64> = pixels.iter().map(|p| p[0]).collect();
+    drop_short_runs(&mut hits, &xs);
+    drop_crossings(&mut hits, &xs, &mut refused);
     // Short stretches beside anchored points, within the looser tolerance.
     let mut a = 0;
     while a < n {
@@ -399,17 +554,7 @@ pub fn anchor_on_silhouettes(
             {
                 for m in a..b {
                     let t = (px(on_stroke[m])[0] - x0) / (x1 - x0).max(1e-9);
-                    let lerp = |u: f64, v: f64| u + t.clamp(0.0, 1.0) * (v - u);
-                    hits[m] = Some(BoundaryPoint {
-                        row: lerp(l.row, r.row),
-                        local: [
-                            lerp(l.local[0], r.local[0]),
-                            lerp(l.local[1], r.local[1]),
-                            lerp(l.local[2], r.local[2]),
-                        ],
-                        depth: lerp(l.depth, r.depth),
-                        precise: false,
-                    });
+                    hits[m] = Some(between(&l, &r, t));
                 }
             }
         }
@@ -584,5 +729,66 @@ mod tests {
         gap[2].clear();
         let chosen = continuous_choice(&gap, &rows);
         assert!(chosen[2].is_none() && chosen[1].is_some() && chosen[3].is_some());
+    }
+
+    /// Anchored points every 2 px from x = 10 at the given depths.
+    fn run_at(depths: &[f64]) -> (Vec<Option<BoundaryPoint>>, Vec<f64>) {
+        let hits = depths.iter().map(|&d| Some(at(50.0, d))).collect();
+        let xs = (0..depths.len()).map(|k| 10.0 + 2.0 * k as f64).collect();
+        (hits, xs)
+    }
+
+    #[test]
+    fn a_stroke_touching_a_nearer_crest_for_one_point_stays_on_its_landform() {
+        // Ten points on a ridge 3 km away, one on a foreground crest at
+        // 70 m, ten more on the ridge: the one point is interpolated
+        // between its neighbours, not held on the foreground.
+        let mut depths = vec![3000.0; 21];
+        depths[10] = 70.0;
+        let (mut hits, xs) = run_at(&depths);
+        let mut refused = vec![false; 21];
+        drop_crossings(&mut hits, &xs, &mut refused);
+        let d = hits[10].map(|h| h.depth).unwrap_or(0.0);
+        assert!((d - 3000.0).abs() < 1.0, "depth {d}");
+        assert!(!refused.iter().any(|&r| r));
+    }
+
+    #[test]
+    fn a_crossing_at_a_runs_edge_is_freed_and_a_wide_step_is_kept() {
+        // Two points at 950 m before twelve at 1.47 km (the stroke leaves
+        // a near hill's tip onto the far landform): the two are freed and
+        // not anchored again.
+        let mut depths = vec![1470.0; 15];
+        depths[1] = 950.0;
+        depths[2] = 988.0;
+        let (mut hits, xs) = run_at(&depths);
+        hits[0] = None;
+        let mut refused = vec![false; 15];
+        drop_crossings(&mut hits, &xs, &mut refused);
+        assert!(hits[1].is_none() && hits[2].is_none() && hits[3].is_some());
+        assert!(refused[1] && refused[2] && !refused[3]);
+        // At the stroke's end, or between two pieces at different depths
+        // (a skyline stepping through a farther range), it stays.
+        let (mut hits, xs) = run_at(&depths[1..]);
+        let mut refused = vec![false; 14];
+        drop_crossings(&mut hits, &xs, &mut refused);
+        assert!(hits.iter().all(|h| h.is_some()));
+        let mut steps = vec![9800.0; 8];
+        steps.extend([37000.0; 8]);
+        steps.extend([48000.0; 3]);
+        steps.extend([9600.0; 8]);
+        let (mut hits, xs) = run_at(&steps);
+        let mut refused = vec![false; steps.len()];
+        drop_crossings(&mut hits, &xs, &mut refused);
+        assert!(hits.iter().all(|h| h.is_some()));
+        // A stroke passing from one landform to another along both (each
+        // piece at least MIN_RUN_PX wide) keeps both.
+        let depths: Vec<f64> = (0..12)
+            .map(|k| if k < 6 { 2000.0 } else { 8000.0 })
+            .collect();
+        let (mut hits, xs) = run_at(&depths);
+        let mut refused = vec![false; 12];
+        drop_crossings(&mut hits, &xs, &mut refused);
+        assert!(hits.iter().all(|h| h.is_some()));
     }
 }
