@@ -12,7 +12,8 @@ use std::path::Path;
 
 use deform_support::*;
 use demsketch::deform::{
-    deform, deform_with_cells, plan, CellConstraint, CurveConstraint, DeformError, DeformOptions,
+    deform, deform_bounded, deform_with_cells, plan, CellConstraint, CurveConstraint, DeformError,
+    DeformOptions,
 };
 use demsketch::raster::{Dem, Destination, Provenance};
 
@@ -459,5 +460,70 @@ fn held_and_lowered_cells_never_widen_the_influence() {
         .displacement
         .iter()
         .zip(&d0.displacement)
+        .all(|(a, b)| a.to_bits() == b.to_bits()));
+}
+
+#[test]
+fn a_bounded_curve_beyond_the_influence_changes_nothing_there() {
+    // Issue 11: the edit's feature completion carries a stroke's end on
+    // for up to kilometres beyond what was drawn. Given as a bounded curve
+    // (`deform_bounded`), it acts only within the influence distance of
+    // the stroke's own curve: beyond it every cell stays exactly as it is,
+    // while within it the completion still raises the terrain.
+    let tmp = tempfile::tempdir().unwrap();
+    let crop = float_crop_with_hole(tmp.path());
+    let dem = Dem::open(&crop).unwrap();
+    let stroke = raised(&dem, &[[60.2, 70.4], [90.7, 85.1]], 50.0, 30);
+    // From the stroke's end on, 3.4 km, raised up to 120 m in its middle.
+    let completion = raised(&dem, &[[90.7, 85.1], [170.0, 160.0]], 120.0, 60);
+    let influence = 900.0;
+    let opts = DeformOptions {
+        influence_m: Some(influence),
+        ..DeformOptions::default()
+    };
+    let own = std::slice::from_ref(&stroke);
+    let bounded = std::slice::from_ref(&completion);
+    let d = deform_bounded(&dem, own, bounded, &[], &opts).unwrap();
+    let w = d.window;
+    assert_eq!(
+        w,
+        plan(&dem, own, &opts).unwrap().window,
+        "the stroke's window"
+    );
+    let poly: Vec<[f64; 2]> = stroke.points.iter().map(|p| [p[0], p[1]]).collect();
+    let gt = dem.geotransform.0;
+    let dist = |c: usize, r: usize| {
+        distance_to_polyline(centre(&gt, w.col as usize + c, w.row as usize + r), &poly)
+    };
+    let mut moved_by_completion = 0;
+    let alone = deform(&dem, own, &opts).unwrap();
+    for r in 0..w.height {
+        for c in 0..w.width {
+            let k = r * w.width + c;
+            let m = d.displacement[k];
+            if dist(c, r) > influence + 1e-6 {
+                assert!(
+                    m == 0.0 || m.is_nan(),
+                    "cell ({c}, {r}) beyond the influence moved {m}"
+                );
+            } else if (m - alone.displacement[k]).abs() > 1.0 {
+                moved_by_completion += 1;
+            }
+        }
+    }
+    assert!(
+        moved_by_completion > 20,
+        "the completion acts within the influence ({moved_by_completion} cells)"
+    );
+    // As an ordinary curve the completion reaches far beyond the stroke.
+    let both = [stroke.clone(), completion.clone()];
+    let wide = deform(&dem, &both, &opts).unwrap();
+    assert!(wide.stats.changed_cells > d.stats.changed_cells * 2);
+    // With no bounded curve: exactly `deform_with_cells`.
+    let none = deform_bounded(&dem, own, &[], &[], &opts).unwrap();
+    assert!(none
+        .displacement
+        .iter()
+        .zip(&alone.displacement)
         .all(|(a, b)| a.to_bits() == b.to_bits()));
 }
