@@ -233,7 +233,7 @@ pub fn apply_cells(
     }
 }
 
-/// Drops the constraints of `cons` on cells outside `within` (an
+/// Drops the constraints of `cons` on cells outside `within` (within an
 /// influence mask, [`super::locality::influence_mask`]), and counts the
 /// rest again: the cells of curves that act only within the influence of
 /// others (a stroke's feature completion beyond its ends).

@@ -367,9 +367,11 @@ pub fn deform_with_cells(
 /// drawn). The window, the default and the mask of the influence are
 /// those of `curves` alone; `bounded` is rasterised with them (the
 /// nearest curve point decides a cell, whichever list it is in), and its
-/// constraints on cells beyond the influence of `curves` are dropped
-/// ([`constraints::keep_within`]), so no cell farther than the influence
-/// distance from `curves` changes. With no `bounded` curve this is
+/// constraints on cells beyond the influence of `curves`, or too high
+/// above the terrain for the room left to the influence's edge
+/// ([`BOUNDED_FALL`]), are dropped ([`constraints::keep_within`]): no
+/// cell farther than the influence distance from `curves` changes, and
+/// the edge does not become a wall. With no `bounded` curve this is
 /// [`deform_with_cells`].
 pub fn deform_bounded(
     dem: &Dem,
@@ -464,16 +466,34 @@ fn constrain(
     bounded: &[CurveConstraint],
     plan: &DeformPlan,
 ) -> (ConstraintRaster, Vec<bool>) {
-    let own = constraints::rasterise(base, curves, plan.cell);
-    let inside = locality::influence_mask(&own, plan.cell, plan.influence_m);
+    let (cell, d) = (plan.cell, plan.influence_m);
+    let own = constraints::rasterise(base, curves, cell);
+    let d2 = locality::squared_distance_to_constraints(&own, cell);
+    let inside = locality::mask_of_distances(&d2, &own, cell, d);
     if bounded.is_empty() {
         return (own, inside);
     }
     let all: Vec<CurveConstraint> = curves.iter().chain(bounded).cloned().collect();
-    let mut cons = constraints::rasterise(base, &all, plan.cell);
-    constraints::keep_within(&mut cons, &inside);
+    let mut cons = constraints::rasterise(base, &all, cell);
+    let keep: Vec<bool> = (0..cons.delta.len())
+        .map(|i| {
+            own.constrained[i]
+                || (inside[i]
+                    && cons.delta[i].abs() as f64
+                        <= BOUNDED_FALL * locality::room_to_edge(d2[i], cell, d))
+        })
+        .collect();
+    constraints::keep_within(&mut cons, &keep);
     (cons, inside)
 }
+
+/// A bounded curve holds a cell only where the terrain can come back to
+/// its own height before the edge of the influence at a mean slope of at
+/// most this (1: 45 degrees): `|delta| <= BOUNDED_FALL * room`, the room
+/// being the cell's distance to that edge. A completion still high above
+/// the ground where it leaves the influence is let go before it, so the
+/// edge is not a wall.
+pub const BOUNDED_FALL: f64 = 1.0;
 
 /// The bounded curves must have points, all finite (numbered after the
 /// `first` influence-defining curves in the errors).
