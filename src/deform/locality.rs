@@ -15,7 +15,9 @@
 //!   plus the constraint reach `r` (the cell diagonal) is at most `d`;
 //!   constrained centres lie within `r` of a curve, so every free cell lies
 //!   within `d` of a curve, and every cell farther than `d` from all curves
-//!   is held at exactly 0.
+//!   is held at exactly 0. [`room_to_edge`]: how far inside that edge a
+//!   cell lies (the bounded curves of [`super::deform_bounded`] hold a
+//!   cell only where the room is at least their displacement there).
 //!   Distances come from an exact Euclidean distance transform (Felzenszwalb
 //!   and Huttenlocher's lower envelope of parabolas, separable, anisotropic
 //!   cells), parallel over rows and columns.
