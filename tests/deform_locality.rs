@@ -12,7 +12,8 @@ use std::path::Path;
 
 use deform_support::*;
 use demsketch::deform::{
-    deform, deform_with_cells, plan, CellConstraint, CurveConstraint, DeformError, DeformOptions,
+    deform, deform_bounded, deform_with_cells, plan, CellConstraint, CurveConstraint, DeformError,
+    DeformOptions,
 };
 use demsketch::raster::{Dem, Destination, Provenance};
 
@@ -459,5 +460,100 @@ fn held_and_lowered_cells_never_widen_the_influence() {
         .displacement
         .iter()
         .zip(&d0.displacement)
+        .all(|(a, b)| a.to_bits() == b.to_bits()));
+}
+
+#[test]
+fn a_bounded_curve_beyond_the_influence_changes_nothing_there() {
+    // Issue 11: the edit's feature completion carries a stroke's end on
+    // for up to kilometres beyond what was drawn. Given as a bounded curve
+    // (`deform_bounded`), it acts only within the influence distance of
+    // the stroke's own curve: beyond it every cell stays exactly as it is,
+    // while within it the completion still raises the terrain.
+    let tmp = tempfile::tempdir().unwrap();
+    let crop = float_crop_with_hole(tmp.path());
+    let dem = Dem::open(&crop).unwrap();
+    let stroke = raised(&dem, &[[60.2, 70.4], [90.7, 85.1]], 50.0, 30);
+    // From the stroke's end on, 3 km, raised up to 300 m in its middle.
+    let completion = raised(&dem, &[[90.7, 85.1], [116.0, 111.0]], 300.0, 60);
+    let influence = 900.0;
+    let opts = DeformOptions {
+        influence_m: Some(influence),
+        ..DeformOptions::default()
+    };
+    let own = std::slice::from_ref(&stroke);
+    let bounded = std::slice::from_ref(&completion);
+    let d = deform_bounded(&dem, own, bounded, &[], &opts).unwrap();
+    let w = d.window;
+    assert_eq!(
+        w,
+        plan(&dem, own, &opts).unwrap().window,
+        "the stroke's window"
+    );
+    let poly: Vec<[f64; 2]> = stroke.points.iter().map(|p| [p[0], p[1]]).collect();
+    let gt = dem.geotransform.0;
+    let dist = |c: usize, r: usize| {
+        distance_to_polyline(centre(&gt, w.col as usize + c, w.row as usize + r), &poly)
+    };
+    let mut moved_by_completion = 0;
+    let alone = deform(&dem, own, &opts).unwrap();
+    for r in 0..w.height {
+        for c in 0..w.width {
+            let k = r * w.width + c;
+            let m = d.displacement[k];
+            if dist(c, r) > influence + 1e-6 {
+                assert!(
+                    m == 0.0 || m.is_nan(),
+                    "cell ({c}, {r}) beyond the influence moved {m}"
+                );
+            } else if (m - alone.displacement[k]).abs() > 1.0 {
+                moved_by_completion += 1;
+            }
+        }
+    }
+    assert!(
+        moved_by_completion > 20,
+        "the completion acts within the influence ({moved_by_completion} cells)"
+    );
+    // Where the completion leaves the influence it is still far above the
+    // terrain; it is let go before the edge, so the edge is no wall: no
+    // step between neighbouring cells as high as the completion there.
+    let step = |m: &[f32]| {
+        let mut top = 0f32;
+        for r in 0..w.height {
+            for c in 0..w.width {
+                let k = r * w.width + c;
+                for j in [
+                    (c + 1 < w.width).then(|| k + 1),
+                    (r + 1 < w.height).then(|| k + w.width),
+                ]
+                .into_iter()
+                .flatten()
+                {
+                    if !m[k].is_nan() && !m[j].is_nan() {
+                        top = top.max((m[k] - m[j]).abs());
+                    }
+                }
+            }
+        }
+        top
+    };
+    let cell_m = gt[1].abs().min(gt[5].abs());
+    let top = step(&d.displacement) as f64;
+    assert!(
+        top <= cell_m,
+        "a step of {top:.1} m between neighbours ({cell_m:.1} m cells)"
+    );
+    // As an ordinary curve the completion reaches far beyond the stroke;
+    // cut off at the edge without letting it go, it would leave a wall.
+    let both = [stroke.clone(), completion.clone()];
+    let wide = deform(&dem, &both, &opts).unwrap();
+    assert!(wide.stats.changed_cells > d.stats.changed_cells * 3 / 2);
+    // With no bounded curve: exactly `deform_with_cells`.
+    let none = deform_bounded(&dem, own, &[], &[], &opts).unwrap();
+    assert!(none
+        .displacement
+        .iter()
+        .zip(&alone.displacement)
         .all(|(a, b)| a.to_bits() == b.to_bits()));
 }

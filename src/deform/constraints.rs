@@ -233,6 +233,34 @@ pub fn apply_cells(
     }
 }
 
+/// Drops the constraints of `cons` on cells outside `within` (within an
+/// influence mask, [`super::locality::influence_mask`]), and counts the
+/// rest again: the cells of curves that act only within the influence of
+/// others (a stroke's feature completion beyond its ends).
+pub fn keep_within(cons: &mut ConstraintRaster, within: &[bool]) {
+    let mut count = 0;
+    let mut max_abs_delta = 0f64;
+    for ((k, d), &w) in cons
+        .constrained
+        .iter_mut()
+        .zip(cons.delta.iter_mut())
+        .zip(within)
+    {
+        if !*k {
+            continue;
+        }
+        if !w {
+            *k = false;
+            *d = 0.0;
+            continue;
+        }
+        count += 1;
+        max_abs_delta = max_abs_delta.max(d.abs() as f64);
+    }
+    cons.count = count;
+    cons.max_abs_delta = max_abs_delta;
+}
+
 /// Pushes every cell whose centre lies within [`CellSize::constraint_reach`]
 /// of the segment `a b` (window pixel coordinates and heights), with its
 /// closest point on the segment and whether it is in the bilinear stencil of

@@ -15,7 +15,9 @@
 //!   plus the constraint reach `r` (the cell diagonal) is at most `d`;
 //!   constrained centres lie within `r` of a curve, so every free cell lies
 //!   within `d` of a curve, and every cell farther than `d` from all curves
-//!   is held at exactly 0.
+//!   is held at exactly 0. [`room_to_edge`]: how far inside that edge a
+//!   cell lies (the bounded curves of [`super::deform_bounded`] hold a
+//!   cell only where the room is at least their displacement there).
 //!   Distances come from an exact Euclidean distance transform (Felzenszwalb
 //!   and Huttenlocher's lower envelope of parabolas, separable, anisotropic
 //!   cells), parallel over rows and columns.
@@ -145,11 +147,29 @@ pub fn affected_window(
 /// are always inside.
 pub fn influence_mask(c: &ConstraintRaster, cell: CellSize, influence_m: f64) -> Vec<bool> {
     let d2 = squared_distance_to_constraints(c, cell);
-    let r = cell.constraint_reach();
+    mask_of_distances(&d2, c, cell, influence_m)
+}
+
+/// [`influence_mask`] from the squared distances `d2` of
+/// [`squared_distance_to_constraints`] of `c`.
+pub fn mask_of_distances(
+    d2: &[f32],
+    c: &ConstraintRaster,
+    cell: CellSize,
+    influence_m: f64,
+) -> Vec<bool> {
     d2.par_iter()
         .zip(c.constrained.par_iter())
-        .map(|(&d2, &k)| k || (d2 as f64).sqrt() * (1.0 + 1e-6) + r <= influence_m)
+        .map(|(&d2, &k)| k || room_to_edge(d2, cell, influence_m) >= 0.0)
         .collect()
+}
+
+/// How far, in metres, a cell at squared distance `d2` from the nearest
+/// constrained cell centre lies inside the edge of the influence
+/// (negative: beyond it). [`influence_mask`] holds the cells where it is
+/// at least 0.
+pub fn room_to_edge(d2: f32, cell: CellSize, influence_m: f64) -> f64 {
+    influence_m - ((d2 as f64).sqrt() * (1.0 + 1e-6) + cell.constraint_reach())
 }
 
 /// Squared distance in m^2 from every cell centre of the window to the

@@ -19,7 +19,9 @@
 //! 4. Cells farther than `d` from every curve, and nodata cells, are held at
 //!    `M = 0`; the multigrid solver diffuses the constraints over the rest
 //!    (Laplace, or screened Poisson with [`DeformOptions::screening`]) to the
-//!    stated relative residual.
+//!    stated relative residual. Held cells and *bounded* curves
+//!    ([`deform_bounded`]: the edit's feature completion beyond a stroke's
+//!    ends) act only within `d` of the curves; they never widen it.
 //! 5. [`Deformation::write_values`] gives `H + M` where `M != 0` and NaN
 //!    (keep) elsewhere, for [`crate::raster::Dem::write_back`]: cells beyond
 //!    the influence distance come out bit-identical and tiles without a
@@ -356,14 +358,36 @@ pub fn deform_with_cells(
     cells: &[CellConstraint],
     opts: &DeformOptions,
 ) -> Result<Deformation, DeformError> {
+    deform_bounded(dem, curves, &[], cells, opts)
+}
+
+/// [`deform_with_cells`] with, in addition, curves that act only within
+/// the influence of `curves` (`bounded`: the edit's feature completion,
+/// which carries a stroke's ends down to the ground beyond what was
+/// drawn). The window, the default and the mask of the influence are
+/// those of `curves` alone; `bounded` is rasterised with them (the
+/// nearest curve point decides a cell, whichever list it is in), and its
+/// constraints on cells beyond the influence of `curves`, or too high
+/// above the terrain for the room left to the influence's edge
+/// ([`BOUNDED_FALL`]), are dropped ([`constraints::keep_within`]): no
+/// cell farther than the influence distance from `curves` changes, and
+/// the edge does not become a wall. With no `bounded` curve this is
+/// [`deform_with_cells`].
+pub fn deform_bounded(
+    dem: &Dem,
+    curves: &[CurveConstraint],
+    bounded: &[CurveConstraint],
+    cells: &[CellConstraint],
+    opts: &DeformOptions,
+) -> Result<Deformation, DeformError> {
     let plan = plan(dem, curves, opts)?;
+    check_bounded(bounded, curves.len())?;
     let t0 = Instant::now();
     let base = dem.read_height_map(plan.window)?;
     let t1 = Instant::now();
-    let mut cons = constraints::rasterise(&base, curves, plan.cell);
-    // The influence is the curves' alone: held and lowered cells act only
-    // within it.
-    let inside = locality::influence_mask(&cons, plan.cell, plan.influence_m);
+    let (mut cons, inside) = constrain(&base, curves, bounded, &plan);
+    // Held and lowered cells, like the bounded curves, act only within the
+    // curves' influence.
     constraints::apply_cells(&mut cons, &base, plan.window, cells, &inside);
     if cons.count == 0 {
         return Err(DeformError::NothingConstrained {
@@ -431,4 +455,63 @@ pub fn deform_with_cells(
         },
         base,
     })
+}
+
+/// The constraints of `curves` and `bounded` on the window `base` of
+/// `plan`, and the influence mask of `curves` alone; the bounded curves'
+/// constraints beyond it are dropped.
+fn constrain(
+    base: &HeightMap,
+    curves: &[CurveConstraint],
+    bounded: &[CurveConstraint],
+    plan: &DeformPlan,
+) -> (ConstraintRaster, Vec<bool>) {
+    let (cell, d) = (plan.cell, plan.influence_m);
+    let own = constraints::rasterise(base, curves, cell);
+    let d2 = locality::squared_distance_to_constraints(&own, cell);
+    let inside = locality::mask_of_distances(&d2, &own, cell, d);
+    if bounded.is_empty() {
+        return (own, inside);
+    }
+    let all: Vec<CurveConstraint> = curves.iter().chain(bounded).cloned().collect();
+    let mut cons = constraints::rasterise(base, &all, cell);
+    let keep: Vec<bool> = (0..cons.delta.len())
+        .map(|i| {
+            own.constrained[i]
+                || (inside[i]
+                    && cons.delta[i].abs() as f64
+                        <= BOUNDED_FALL * locality::room_to_edge(d2[i], cell, d))
+        })
+        .collect();
+    constraints::keep_within(&mut cons, &keep);
+    (cons, inside)
+}
+
+/// A bounded curve holds a cell only where the terrain can come back to
+/// its own height before the edge of the influence at a mean slope of at
+/// most this (1: 45 degrees): `|delta| <= BOUNDED_FALL * room`, the room
+/// being the cell's distance to that edge. A completion still high above
+/// the ground where it leaves the influence is let go before it, so the
+/// edge is not a wall.
+pub const BOUNDED_FALL: f64 = 1.0;
+
+/// The bounded curves must have points, all finite (numbered after the
+/// `first` influence-defining curves in the errors).
+fn check_bounded(bounded: &[CurveConstraint], first: usize) -> Result<(), DeformError> {
+    for (k, c) in bounded.iter().enumerate() {
+        if c.points.is_empty() {
+            return Err(DeformError::EmptyCurve { index: first + k });
+        }
+        if let Some(pi) = c
+            .points
+            .iter()
+            .position(|p| !p.iter().all(|v| v.is_finite()))
+        {
+            return Err(DeformError::NonFinite {
+                curve: first + k,
+                point: pi,
+            });
+        }
+    }
+    Ok(())
 }

@@ -1,6 +1,8 @@
 //! What the matched strokes ask of the terrain: anchored points held where
 //! they already lie on a silhouette, the free stretches as curve
-//! constraints in the DEM's CRS, the observer's ground held; and the
+//! constraints in the DEM's CRS (the stroke's own points apart from the
+//! feature completion beyond its ends, which acts only within the
+//! influence of what was drawn), the observer's ground held; and the
 //! check that every stroke touches terrain.
 
 use super::*;
@@ -109,6 +111,7 @@ pub(super) fn place_demands(
 ) -> Demands {
     let mut d = Demands {
         curves: Vec::new(),
+        completions: Vec::new(),
         fixed: Vec::new(),
         strokes: Vec::new(),
         on_silhouette: Vec::new(),
@@ -150,8 +153,14 @@ pub(super) fn place_demands(
                 .map(|p| p.source == PointSource::Silhouette)
                 .collect();
             let depths: Vec<f64> = sm.points.iter().map(|p| p.depth).collect();
-            d.curves
-                .extend(free_stretches(&dem_points, &depths, &anchored));
+            let completion: Vec<bool> = sm
+                .points
+                .iter()
+                .map(|p| p.source == PointSource::Completion)
+                .collect();
+            let curves = stroke_curves(&dem_points, &depths, &anchored, &completion);
+            d.curves.extend(curves.own);
+            d.completions.extend(curves.completion);
             for (p, _) in dem_points.iter().zip(&anchored).filter(|(_, &a)| a) {
                 held.extend(v.stencil_cells(w, p[0], p[1]));
             }
@@ -166,7 +175,8 @@ pub(super) fn place_demands(
     // holding it would keep the free stretch beside it from rising. There
     // the free stretch's own curve, which starts on the anchor, decides.
     if let Some(v) = views.first() {
-        let near = cells_near_curves(v, &d.curves, ANCHOR_CLEARANCE_CELLS);
+        let all: Vec<CurveConstraint> = d.curves.iter().chain(&d.completions).cloned().collect();
+        let near = cells_near_curves(v, &all, ANCHOR_CLEARANCE_CELLS);
         d.fixed
             .extend(held.into_iter().filter(|c| !near.contains(&(c.col, c.row))));
     }
@@ -226,15 +236,60 @@ pub(super) fn cells_near_curves(
 /// wall across the ground in between).
 pub const DEPTH_BREAK: f64 = 0.15;
 
-/// The stretches of a placed stroke (DEM CRS points, with their depths)
-/// between anchored points, each with the anchored point on either side
-/// where its depth continues the stretch, so that the curve meets the
-/// terrain it continues; cut where the depth jumps ([`DEPTH_BREAK`]).
-pub(super) fn free_stretches(
+/// The curve constraints of a placed stroke (DEM CRS points, with their
+/// depths): its stretches between anchored points, each with the anchored
+/// point on either side where its depth continues the stretch, so that
+/// the curve meets the terrain it continues; cut where the depth jumps
+/// ([`DEPTH_BREAK`]). Each is split where the stroke's own points end and
+/// its feature completion begins (`completion`:
+/// the points [`PointSource::Completion`] added beyond the stroke's
+/// ends): the stroke's own parts, which define the edit's influence, and
+/// the completion parts, each starting (or ending) on the stroke's end
+/// point, which act only within it (`deform_bounded`). `influence_m` is
+/// the distance from what was drawn, not from the edit's extension of it.
+pub(super) fn stroke_curves(
     points: &[[f64; 3]],
     depths: &[f64],
     anchored: &[bool],
-) -> Vec<CurveConstraint> {
+    completion: &[bool],
+) -> StrokeCurves {
+    let mut out = StrokeCurves::default();
+    for piece in stretch_pieces(points, depths, anchored) {
+        let own: Vec<usize> = (0..piece.len())
+            .filter(|&j| !completion[piece[j]])
+            .collect();
+        let (Some(&first), Some(&last)) = (own.first(), own.last()) else {
+            out.completion.push(curve_of(points, &piece));
+            continue;
+        };
+        if first > 0 {
+            out.completion.push(curve_of(points, &piece[..=first]));
+        }
+        out.own.push(curve_of(points, &piece[first..=last]));
+        if last + 1 < piece.len() {
+            out.completion.push(curve_of(points, &piece[last..]));
+        }
+    }
+    out
+}
+
+/// [`stroke_curves`]: the stroke's own curves and its completion's.
+#[derive(Debug, Default)]
+pub(super) struct StrokeCurves {
+    pub(super) own: Vec<CurveConstraint>,
+    pub(super) completion: Vec<CurveConstraint>,
+}
+
+/// The curve through `points[k]` for the indices `k` of `piece`.
+fn curve_of(points: &[[f64; 3]], piece: &[usize]) -> CurveConstraint {
+    CurveConstraint {
+        points: piece.iter().map(|&k| points[k]).collect(),
+    }
+}
+
+/// The indices of the points of each stretch of [`stroke_curves`] before
+/// the split (finite points only, at least two per stretch).
+fn stretch_pieces(points: &[[f64; 3]], depths: &[f64], anchored: &[bool]) -> Vec<Vec<usize>> {
     let finite = |p: &[f64; 3]| p.iter().all(|c| c.is_finite());
     let joined = |i: usize, j: usize| {
         let (a, b) = (depths[i], depths[j]);
@@ -254,22 +309,20 @@ pub(super) fn free_stretches(
         }
         let lo = if a > 0 && joined(a - 1, a) { a - 1 } else { a };
         let hi = if b < n && joined(b - 1, b) { b } else { b - 1 };
-        let mut piece: Vec<[f64; 3]> = Vec::new();
+        let mut piece: Vec<usize> = Vec::new();
         for k in lo..=hi {
             if k > lo && !joined(k - 1, k) {
                 if piece.len() >= 2 {
-                    out.push(CurveConstraint {
-                        points: std::mem::take(&mut piece),
-                    });
+                    out.push(std::mem::take(&mut piece));
                 }
                 piece.clear();
             }
             if finite(&points[k]) {
-                piece.push(points[k]);
+                piece.push(k);
             }
         }
         if piece.len() >= 2 {
-            out.push(CurveConstraint { points: piece });
+            out.push(piece);
         }
         a = b;
     }

@@ -65,7 +65,7 @@ use super::spikes::find_spikes;
 use super::stretch_placement::{place_free_stretches, StretchPlacement};
 use super::EditError;
 use crate::deform::{
-    deform_with_cells, CellConstraint, CurveConstraint, DeformError, DeformOptions, Deformation,
+    deform_bounded, CellConstraint, CurveConstraint, DeformError, DeformOptions, Deformation,
 };
 use crate::features::{detect_ridges, RidgeNetwork, RidgeParams};
 use crate::raster::{Dem, Destination, HeightMap, Window, WriteOptions};
@@ -334,8 +334,14 @@ pub(super) struct Placed {
 /// What the placed strokes ask of the terrain.
 pub(super) struct Demands {
     /// Curve constraints: the stretches of placed strokes that do not lie
-    /// on a silhouette already ([`super::on_silhouette`]).
+    /// on a silhouette already ([`super::on_silhouette`]), the strokes'
+    /// own points only. They define the edit's influence.
     pub(super) curves: Vec<CurveConstraint>,
+    /// The parts of those stretches that the feature completion adds
+    /// beyond the strokes' ends (each from the stroke's end point on):
+    /// they act only within the influence of `curves`
+    /// ([`crate::deform::deform_bounded`]).
+    pub(super) completions: Vec<CurveConstraint>,
     /// Cells held at their input heights: under anchored stroke points and
     /// around every viewpoint. Applied after every other constraint, so
     /// nothing in the edit moves them.
@@ -355,6 +361,9 @@ pub(super) struct Solver<'a> {
     dem_name: &'a str,
     opts: DeformOptions,
     fixed: &'a [CellConstraint],
+    /// Curves that act only within the influence of the solved curves
+    /// (the strokes' feature completion), in every solve.
+    bounded: &'a [CurveConstraint],
     /// Window of the deformation when nothing needs to move.
     idle: Window,
 }
@@ -423,7 +432,8 @@ pub(crate) fn edited_terrain(
 
 #[cfg(test)]
 mod tests {
-    use super::{free_stretches, stroke_outcome};
+    use super::{stroke_curves, stroke_outcome};
+    use crate::deform::CurveConstraint;
     use crate::edit::fit::StrokeFit;
 
     #[test]
@@ -453,6 +463,32 @@ mod tests {
 
     fn pts(n: usize) -> Vec<[f64; 3]> {
         (0..n).map(|i| [i as f64, 0.0, 10.0]).collect()
+    }
+
+    /// The curves of a stroke without feature completion.
+    fn free_stretches(p: &[[f64; 3]], depths: &[f64], anchored: &[bool]) -> Vec<CurveConstraint> {
+        let c = stroke_curves(p, depths, anchored, &vec![false; p.len()]);
+        assert!(c.completion.is_empty());
+        c.own
+    }
+
+    #[test]
+    fn the_completion_beyond_a_strokes_ends_is_its_own_curve_from_the_end_point() {
+        let p = pts(7);
+        let depths = [1000.0, 1010.0, 1020.0, 1030.0, 1040.0, 1050.0, 1060.0];
+        let anchored = [false, false, false, false, false, true, true];
+        let completion = [true, true, false, false, false, false, false];
+        let c = stroke_curves(&p, &depths, &anchored, &completion);
+        assert_eq!(c.own.len(), 1);
+        assert_eq!(c.own[0].points, p[2..=5].to_vec());
+        assert_eq!(c.completion.len(), 1);
+        assert_eq!(c.completion[0].points, p[0..=2].to_vec());
+        // Completion at both ends of a stroke free throughout.
+        let completion = [true, false, false, false, false, true, true];
+        let c = stroke_curves(&p, &depths, &[false; 7], &completion);
+        assert_eq!(c.own[0].points, p[1..=4].to_vec());
+        let parts: Vec<_> = c.completion.iter().map(|c| c.points.clone()).collect();
+        assert_eq!(parts, vec![p[0..=1].to_vec(), p[4..=6].to_vec()]);
     }
 
     #[test]

@@ -136,6 +136,7 @@ pub(super) fn deform<'a>(
             ..DeformOptions::default()
         },
         fixed: &placed.demands.fixed,
+        bounded: &placed.demands.completions,
         idle: views[0].eye_cell(),
     };
     let deformation = solver.solve(&placed.demands.curves, &[])?;
@@ -210,7 +211,8 @@ impl Solver<'_> {
     }
 
     /// Deform the DEM through `curves` with the cells `cells` (then the
-    /// fixed ones) held; no curve: no deformation at all.
+    /// fixed ones) held, and the bounded curves within their influence;
+    /// no curve: no deformation at all.
     pub(in crate::edit) fn solve(
         &self,
         curves: &[CurveConstraint],
@@ -227,6 +229,6 @@ impl Solver<'_> {
             return Deformation::none(self.dem, self.idle).map_err(err);
         }
         let all: Vec<CellConstraint> = cells.iter().chain(self.fixed).copied().collect();
-        deform_with_cells(self.dem, curves, &all, &self.opts).map_err(err)
+        deform_bounded(self.dem, curves, self.bounded, &all, &self.opts).map_err(err)
     }
 }
