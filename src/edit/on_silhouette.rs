@@ -468,6 +468,63 @@ fn drop_crossings(hits: &mut [Option<BoundaryPoint>], xs: &[f64], refused: &mut 
     }
 }
 
+/// Removes the anchors of a run that lies between two free stretches at
+/// least [`MIN_RUN_PX`] wide, where every anchored point is more than
+/// [`CROSSING_DEPTH_STEP`] behind the stroke's matched feature at that
+/// point (`feature_depths`: the depth the matched feature gives each point,
+/// `None` where it gives none). Tassé et al. (5.2.3) place every point of
+/// a stroke at its one feature's depth: the feature, raised to the stroke
+/// on both sides of the run, stands in front of that farther silhouette
+/// and hides it, so the stroke outlines the feature there too; the run is
+/// the stroke passing within a pixel of the farther landform, not tracing
+/// it.
+fn drop_runs_behind_feature(
+    hits: &mut [Option<BoundaryPoint>],
+    xs: &[f64],
+    feature_depths: &[Option<f64>],
+) {
+    let n = hits.len();
+    let free_width = |a: usize, b: usize| (xs[b - 1] - xs[a]).abs();
+    // Maximal runs of anchored points.
+    let mut runs: Vec<(usize, usize)> = Vec::new();
+    let mut a = 0;
+    while a < n {
+        if hits[a].is_none() {
+            a += 1;
+            continue;
+        }
+        let mut b = a + 1;
+        while b < n && hits[b].is_some() {
+            b += 1;
+        }
+        runs.push((a, b));
+        a = b;
+    }
+    let mut freed: Vec<(usize, usize)> = Vec::new();
+    for (j, &(a, b)) in runs.iter().enumerate() {
+        if a == 0 || b == n {
+            continue;
+        }
+        let left_end = if j > 0 { runs[j - 1].1 } else { 0 };
+        let right_end = runs.get(j + 1).map_or(n, |r| r.0);
+        if free_width(left_end, a) < MIN_RUN_PX || free_width(b, right_end) < MIN_RUN_PX {
+            continue;
+        }
+        let behind = (a..b).all(|m| match (hits[m], feature_depths[m]) {
+            (Some(h), Some(f)) => h.depth > (1.0 + CROSSING_DEPTH_STEP) * f,
+            _ => false,
+        });
+        if behind {
+            freed.push((a, b));
+        }
+    }
+    for (a, b) in freed {
+        for h in &mut hits[a..b] {
+            *h = None;
+        }
+    }
+}
+
 /// The point a share `t` (clamped to 0..1) of the way from boundary `l` to
 /// boundary `r`, in row, position and depth.
 fn between(l: &BoundaryPoint, r: &BoundaryPoint, t: f64) -> BoundaryPoint {
@@ -559,6 +616,16 @@ pub fn anchor_on_silhouettes(
             }
         }
         a = b;
+    }
+    if std::env::var_os("DS_FREE_BEHIND").is_some() {
+        let feature_depths: Vec<Option<f64>> = on_stroke
+            .iter()
+            .map(|&k| {
+                let p = &placed.points[k];
+                (p.source == PointSource::Feature && p.depth.is_finite()).then_some(p.depth)
+            })
+            .collect();
+        drop_runs_behind_feature(&mut hits, &xs, &feature_depths);
     }
     let mut anchored = 0;
     for (&k, hit) in on_stroke.iter().zip(&hits) {
