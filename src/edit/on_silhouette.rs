@@ -15,7 +15,11 @@
 //! run narrower than [`MIN_RUN_PX`] on another landform (a hand-drawn
 //! stroke touching a foreground crest for a point or two) is the stroke
 //! crossing that silhouette, and stays with the landform on either side of
-//! it ([`crossings`]). The pipeline holds the
+//! it ([`crossings`]). A run between two free stretches that lies behind
+//! the stroke's matched feature there is the stroke passing within a pixel
+//! of a farther landform, which the feature raised to the stroke will hide:
+//! it is freed and follows the feature ([`drop_runs_behind_feature`]).
+//! The pipeline holds the
 //! terrain under anchored points where it is (cell constraints at the input
 //! heights) instead of constraining a curve there, so an edit whose strokes
 //! all lie on existing silhouettes changes nothing, and a stroke that
@@ -468,6 +472,63 @@ fn drop_crossings(hits: &mut [Option<BoundaryPoint>], xs: &[f64], refused: &mut 
     }
 }
 
+/// Removes the anchors of a run that lies between two free stretches at
+/// least [`MIN_RUN_PX`] wide, where every anchored point is more than
+/// [`CROSSING_DEPTH_STEP`] behind the stroke's matched feature at that
+/// point (`feature_depths`: the depth the matched feature gives each point,
+/// `None` where it gives none). Tassé et al. (5.2.3) place every point of
+/// a stroke at its one feature's depth: the feature, raised to the stroke
+/// on both sides of the run, stands in front of that farther silhouette
+/// and hides it, so the stroke outlines the feature there too; the run is
+/// the stroke passing within a pixel of the farther landform, not tracing
+/// it.
+fn drop_runs_behind_feature(
+    hits: &mut [Option<BoundaryPoint>],
+    xs: &[f64],
+    feature_depths: &[Option<f64>],
+) {
+    let n = hits.len();
+    let free_width = |a: usize, b: usize| (xs[b - 1] - xs[a]).abs();
+    // Maximal runs of anchored points.
+    let mut runs: Vec<(usize, usize)> = Vec::new();
+    let mut a = 0;
+    while a < n {
+        if hits[a].is_none() {
+            a += 1;
+            continue;
+        }
+        let mut b = a + 1;
+        while b < n && hits[b].is_some() {
+            b += 1;
+        }
+        runs.push((a, b));
+        a = b;
+    }
+    let mut freed: Vec<(usize, usize)> = Vec::new();
+    for (j, &(a, b)) in runs.iter().enumerate() {
+        if a == 0 || b == n {
+            continue;
+        }
+        let left_end = if j > 0 { runs[j - 1].1 } else { 0 };
+        let right_end = runs.get(j + 1).map_or(n, |r| r.0);
+        if free_width(left_end, a) < MIN_RUN_PX || free_width(b, right_end) < MIN_RUN_PX {
+            continue;
+        }
+        let behind = (a..b).all(|m| match (hits[m], feature_depths[m]) {
+            (Some(h), Some(f)) => h.depth > (1.0 + CROSSING_DEPTH_STEP) * f,
+            _ => false,
+        });
+        if behind {
+            freed.push((a, b));
+        }
+    }
+    for (a, b) in freed {
+        for h in &mut hits[a..b] {
+            *h = None;
+        }
+    }
+}
+
 /// The point a share `t` (clamped to 0..1) of the way from boundary `l` to
 /// boundary `r`, in row, position and depth.
 fn between(l: &BoundaryPoint, r: &BoundaryPoint, t: f64) -> BoundaryPoint {
@@ -560,6 +621,15 @@ pub fn anchor_on_silhouettes(
         }
         a = b;
     }
+    // The depth the matched feature gave each point, before anchoring.
+    let feature_depths: Vec<Option<f64>> = on_stroke
+        .iter()
+        .map(|&k| {
+            let p = &placed.points[k];
+            (p.source == PointSource::Feature && p.depth.is_finite()).then_some(p.depth)
+        })
+        .collect();
+    drop_runs_behind_feature(&mut hits, &xs, &feature_depths);
     let mut anchored = 0;
     for (&k, hit) in on_stroke.iter().zip(&hits) {
         if let Some(h) = hit {
@@ -790,5 +860,56 @@ mod tests {
         let mut refused = vec![false; 12];
         drop_crossings(&mut hits, &xs, &mut refused);
         assert!(hits.iter().all(|h| h.is_some()));
+    }
+
+    /// Free stretch (5 points, 8 px), an anchored run at `run_depth` (6
+    /// points), free stretch (5 points): x every 2 px; the matched feature
+    /// at `feature_depth` everywhere.
+    fn free_run_free(
+        run_depth: f64,
+        feature_depth: f64,
+    ) -> (Vec<Option<BoundaryPoint>>, Vec<f64>, Vec<Option<f64>>) {
+        let n = 16;
+        let hits = (0..n)
+            .map(|k| (5..11).contains(&k).then(|| at(50.0, run_depth)))
+            .collect();
+        let xs = (0..n).map(|k| 10.0 + 2.0 * k as f64).collect();
+        (hits, xs, vec![Some(feature_depth); n])
+    }
+
+    #[test]
+    fn a_run_between_two_free_stretches_behind_the_feature_is_freed() {
+        // The Arenal raised peak: the stroke outlines a peak at 1.2 km
+        // and touches the volcano's skyline at 1.7 km in between.
+        let (mut hits, xs, feature) = free_run_free(1700.0, 1200.0);
+        drop_runs_behind_feature(&mut hits, &xs, &feature);
+        assert!(hits.iter().all(|h| h.is_none()));
+    }
+
+    #[test]
+    fn a_run_on_the_feature_or_in_front_of_it_stays_anchored() {
+        for run_depth in [1250.0, 900.0] {
+            let (mut hits, xs, feature) = free_run_free(run_depth, 1200.0);
+            drop_runs_behind_feature(&mut hits, &xs, &feature);
+            assert_eq!(hits.iter().filter(|h| h.is_some()).count(), 6);
+        }
+    }
+
+    #[test]
+    fn a_run_at_a_stroke_end_or_beside_a_narrow_gap_stays_anchored() {
+        // At the stroke's end: the stroke may go on along the farther
+        // landform.
+        let mut hits: Vec<Option<BoundaryPoint>> =
+            (0..8).map(|k| (k >= 4).then(|| at(50.0, 1700.0))).collect();
+        let xs: Vec<f64> = (0..8).map(|k| 10.0 + 4.0 * k as f64).collect();
+        drop_runs_behind_feature(&mut hits, &xs, &[Some(1200.0); 8]);
+        assert_eq!(hits.iter().filter(|h| h.is_some()).count(), 4);
+        // A free gap narrower than MIN_RUN_PX on one side.
+        let (mut hits, mut xs, feature) = free_run_free(1700.0, 1200.0);
+        for (k, x) in xs.iter_mut().enumerate().take(5) {
+            *x = 19.0 + 0.25 * k as f64;
+        }
+        drop_runs_behind_feature(&mut hits, &xs, &feature);
+        assert_eq!(hits.iter().filter(|h| h.is_some()).count(), 6);
     }
 }
