@@ -82,7 +82,7 @@ fn touch_rows(camera: &Camera, p: [f64; 2]) -> f64 {
     };
     let top = slope(p[1]);
     // The slope falls with the row; bisect for the row where it has fallen
-    // by the allowed rise (rays steeper than 89 degrees stop the search).
+    // by the allowed rise (searched down to 4 image heights below the end).
     let limit = p[1] + 4.0 * camera.height as f64;
     if top - slope(limit) <= TERRAIN_TOUCH_RISE {
         return (limit - p[1]).max(TERRAIN_TOUCH_PX);
