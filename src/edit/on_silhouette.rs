@@ -320,6 +320,21 @@ fn runs_off(pixels: &[[f64; 2]], rows: &[f64]) -> bool {
 /// pixel of each other in the image. `xs` are the points' image x.
 fn drop_short_runs(hits: &mut [Option<BoundaryPoint>], xs: &[f64]) {
     let n = hits.len();
+    for (a, b) in anchored_runs(hits) {
+        let whole = a == 0 && b == n;
+        if !whole && (xs[b - 1] - xs[a]).abs() < MIN_RUN_PX {
+            for h in &mut hits[a..b] {
+                *h = None;
+            }
+        }
+    }
+}
+
+/// The runs of consecutive anchored points (`Some`) of `hits`, as
+/// half-open index ranges `(first, end)`, in order.
+fn anchored_runs(hits: &[Option<BoundaryPoint>]) -> Vec<(usize, usize)> {
+    let n = hits.len();
+    let mut runs = Vec::new();
     let mut a = 0;
     while a < n {
         if hits[a].is_none() {
@@ -330,14 +345,10 @@ fn drop_short_runs(hits: &mut [Option<BoundaryPoint>], xs: &[f64]) {
         while b < n && hits[b].is_some() {
             b += 1;
         }
-        let whole = a == 0 && b == n;
-        if !whole && (xs[b - 1] - xs[a]).abs() < MIN_RUN_PX {
-            for h in &mut hits[a..b] {
-                *h = None;
-            }
-        }
+        runs.push((a, b));
         a = b;
     }
+    runs
 }
 
 /// Neighbouring anchored points lie on different landforms when their
@@ -380,16 +391,7 @@ fn crossings(hits: &[Option<BoundaryPoint>], xs: &[f64]) -> Vec<Crossing> {
     let apart = |a: &BoundaryPoint, b: &BoundaryPoint| {
         (a.depth - b.depth).abs() > CROSSING_DEPTH_STEP * a.depth.min(b.depth)
     };
-    let mut a = 0;
-    while a < n {
-        if hits[a].is_none() {
-            a += 1;
-            continue;
-        }
-        let mut b = a + 1;
-        while b < n && hits[b].is_some() {
-            b += 1;
-        }
+    for (a, b) in anchored_runs(hits) {
         // Pieces of the run a..b, cut at depth steps.
         let mut pieces: Vec<(usize, usize)> = Vec::new();
         let mut start = a;
@@ -428,7 +430,6 @@ fn crossings(hits: &[Option<BoundaryPoint>], xs: &[f64]) -> Vec<Crossing> {
                 out[s..e].fill(kind);
             }
         }
-        a = b;
     }
     out
 }
@@ -490,20 +491,7 @@ fn drop_runs_behind_feature(
     let n = hits.len();
     let free_width = |a: usize, b: usize| (xs[b - 1] - xs[a]).abs();
     // Maximal runs of anchored points.
-    let mut runs: Vec<(usize, usize)> = Vec::new();
-    let mut a = 0;
-    while a < n {
-        if hits[a].is_none() {
-            a += 1;
-            continue;
-        }
-        let mut b = a + 1;
-        while b < n && hits[b].is_some() {
-            b += 1;
-        }
-        runs.push((a, b));
-        a = b;
-    }
+    let runs = anchored_runs(hits);
     let mut freed: Vec<(usize, usize)> = Vec::new();
     for (j, &(a, b)) in runs.iter().enumerate() {
         if a == 0 || b == n {
