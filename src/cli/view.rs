@@ -408,6 +408,9 @@ fn open_scene(args: &ViewArgs, dem: &Dem, view: &ResolvedView) -> anyhow::Result
     Ok(scene)
 }
 
+/// `demsketch view`: open the camera's wedge, render it and find its
+/// features, draw the picture, then stage every output and commit them
+/// together.
 pub fn run(args: ViewArgs) -> anyhow::Result<()> {
     let t_all = Instant::now();
     check_outputs(&args)?;
@@ -427,34 +430,82 @@ pub fn run(args: ViewArgs) -> anyhow::Result<()> {
     // apart, reading the DEM in bands outward from the eye
     // ([`viewshed_from_file`]), so that --viewshed changes none of them.
     let scene = open_scene(&args, &dem, &view)?;
-    let max_d = args
-        .camera
-        .max_distance
-        .filter(|d| d.is_finite() && *d > 0.0);
-    let terrain = &scene.terrain;
-    let seen = &scene.window;
     super::timing("load", t_all.elapsed().as_secs_f64());
     let t = Instant::now();
-    let overlays: Vec<Overlay> = if args.overlay.is_empty() {
-        if view.strokes.is_empty() {
-            Vec::new()
-        } else {
-            vec![Overlay::Strokes]
+    let overlays = overlays_of(&args, &view);
+    let rendered = render_with_features(&args, &scene, &view, &overlays)?;
+    super::timing("render and features", t.elapsed().as_secs_f64());
+    let t = Instant::now();
+    let rgb = draw_picture(&scene, &view, &rendered, &overlays);
+    // Every output is written and checked in a staging directory first,
+    // and all replace their targets together at the end: a failure of one
+    // (a full disk) leaves every file as it was.
+    let mut staged = StagedOutputs::default();
+    let written = (|| -> anyhow::Result<()> {
+        let (w, h) = (view.camera.width, view.camera.height);
+        let p = staged.stage(&args.out).map_err(anyhow::Error::msg)?;
+        write_picture(&p, w, h, &rgb)?;
+        if let Some(target) = &args.depth {
+            stage_depth(&args, &mut staged, target, &rendered.depth)?;
         }
-    } else {
+        if let Some(target) = &args.viewshed {
+            stage_viewshed(&args, &mut staged, target, &dem, &scene, &view)?;
+        }
+        if let Some(target) = &args.features {
+            stage_features(&mut staged, target, &scene, &view, &rendered)?;
+        }
+        Ok(())
+    })();
+    if let Err(e) = written {
+        let m = staged.hide(&format!("{e:#}"));
+        anyhow::bail!("{m}; nothing written");
+    }
+    staged.commit().map_err(anyhow::Error::msg)?;
+    super::timing("write", t.elapsed().as_secs_f64());
+    super::timing("total", t_all.elapsed().as_secs_f64());
+    Ok(())
+}
+
+/// The overlays to draw: `--overlay`, or the strokes when the sketch's
+/// view has any.
+fn overlays_of(args: &ViewArgs, view: &ResolvedView) -> Vec<Overlay> {
+    if !args.overlay.is_empty() {
         args.overlay.clone()
-    };
+    } else if view.strokes.is_empty() {
+        Vec::new()
+    } else {
+        vec![Overlay::Strokes]
+    }
+}
+
+/// What the view shows: its depth buffer, and the silhouettes and ridges
+/// when an overlay or `--features` needs them.
+struct Rendered {
+    depth: DepthBuffer,
+    silhouettes: Option<Silhouettes>,
+    ridges: Option<RidgeNetwork>,
+}
+
+/// Renders the scene and finds the features the outputs need. The ridges
+/// need only the heights read: they are detected while the view is
+/// rendered and its silhouettes extracted (each stage has serial parts
+/// that leave a core idle).
+fn render_with_features(
+    args: &ViewArgs,
+    scene: &Scene,
+    view: &ResolvedView,
+    overlays: &[Overlay],
+) -> anyhow::Result<Rendered> {
     let want = |o: Overlay| overlays.contains(&o);
     let need_sil =
         args.features.is_some() || want(Overlay::Silhouettes) || want(Overlay::Junctions);
     let need_ridges = args.features.is_some() || want(Overlay::Ridges);
-    // The ridges need only the heights read: they are detected while the
-    // view is rendered and its silhouettes extracted (each stage has
-    // serial parts that leave a core idle).
+    let (terrain, window) = (&scene.terrain, &scene.window);
+    let t = Instant::now();
     let (ridges, (depth, silhouettes)) = rayon::join(
         || {
             need_ridges
-                .then(|| detect_ridges(seen, &RidgeParams::default()))
+                .then(|| detect_ridges(window, &RidgeParams::default()))
                 .transpose()
         },
         || {
@@ -466,28 +517,40 @@ pub fn run(args: ViewArgs) -> anyhow::Result<()> {
             (depth, silhouettes)
         },
     );
-    let silhouettes: Option<Silhouettes> = silhouettes?;
-    let ridges: Option<RidgeNetwork> = ridges?;
-    super::timing("render and features", t.elapsed().as_secs_f64());
-    let t = Instant::now();
+    Ok(Rendered {
+        depth,
+        silhouettes: silhouettes?,
+        ridges: ridges?,
+    })
+}
+
+/// The shaded picture with its overlays (8-bit RGB). The sun stands behind
+/// the viewer's right shoulder, so the slopes facing the viewer are lit.
+fn draw_picture(
+    scene: &Scene,
+    view: &ResolvedView,
+    rendered: &Rendered,
+    overlays: &[Overlay],
+) -> Vec<u8> {
+    let want = |o: Overlay| overlays.contains(&o);
+    let terrain = &scene.terrain;
     let (w, h) = (view.camera.width, view.camera.height);
-    // Sun behind the viewer's right shoulder, so the slopes facing the
-    // viewer are lit.
     let opts = ShadeOptions {
         sun_azimuth_deg: view.camera.heading_deg + 135.0,
         ..ShadeOptions::default()
     };
-    let mut rgb = shade(&depth, terrain, &opts);
+    let mut rgb = shade(&rendered.depth, terrain, &opts);
     let line = (w.max(h) as f64 / 800.0).clamp(1.0, 4.0);
-    if let (true, Some(net)) = (want(Overlay::Ridges), &ridges) {
+    if let (true, Some(net)) = (want(Overlay::Ridges), &rendered.ridges) {
         let cell = terrain.frame.p[0][0].hypot(terrain.frame.p[1][0]);
         for l in &net.lines {
-            for part in visible_polylines(terrain, &depth, net.line_points(l), 2.0 * cell) {
+            for part in visible_polylines(terrain, &rendered.depth, net.line_points(l), 2.0 * cell)
+            {
                 draw_polyline(&mut rgb, w, h, &part, [255, 214, 0], line);
             }
         }
     }
-    if let Some(sil) = &silhouettes {
+    if let Some(sil) = &rendered.silhouettes {
         if want(Overlay::Silhouettes) {
             for c in &sil.curves {
                 draw_polyline(&mut rgb, w, h, &c.pixels(), [225, 30, 30], line);
@@ -504,104 +567,122 @@ pub fn run(args: ViewArgs) -> anyhow::Result<()> {
             draw_polyline(&mut rgb, w, h, s, [230, 0, 200], line + 1.0);
         }
     }
-    // Every output is written and checked in a staging directory first,
-    // and all replace their targets together at the end: a failure of one
-    // (a full disk) leaves every file as it was.
-    let mut staged = StagedOutputs::default();
-    let lossless = |p: &Path| {
-        args.creation_options.is_empty()
-            && matches!(
-                output_driver(p, args.format.as_deref()).as_deref(),
-                Ok("GTiff") | Ok("COG")
-            )
+    rgb
+}
+
+/// True when `target` is written losslessly (GeoTIFF or COG with no
+/// creation options), so that it can be read back and compared.
+fn lossless(args: &ViewArgs, target: &Path) -> bool {
+    args.creation_options.is_empty()
+        && matches!(
+            output_driver(target, args.format.as_deref()).as_deref(),
+            Ok("GTiff") | Ok("COG")
+        )
+}
+
+/// Stages `--depth`: the depth buffer as Float32 metres, sky as nodata.
+fn stage_depth(
+    args: &ViewArgs,
+    staged: &mut StagedOutputs,
+    target: &Path,
+    depth: &DepthBuffer,
+) -> anyhow::Result<()> {
+    let p = staged.stage(target).map_err(anyhow::Error::msg)?;
+    let data = depth_for_file(depth);
+    let spec = RasterSpec {
+        width: depth.width,
+        height: depth.height,
+        nodata: Some(DEPTH_NODATA),
+        description: Some("distance from the eye, m (nodata: sky)".into()),
+        format: args.format.clone(),
+        creation_options: args.creation_options.clone(),
+        ..Default::default()
     };
-    let mut write_all = || -> anyhow::Result<()> {
-        let p = staged.stage(&args.out).map_err(anyhow::Error::msg)?;
-        write_picture(&p, w, h, &rgb)?;
-        if let Some(target) = &args.depth {
-            let p = staged.stage(target).map_err(anyhow::Error::msg)?;
-            let data = depth_for_file(&depth);
-            let spec = RasterSpec {
-                width: depth.width,
-                height: depth.height,
-                nodata: Some(DEPTH_NODATA),
-                description: Some("distance from the eye, m (nodata: sky)".into()),
-                format: args.format.clone(),
-                creation_options: args.creation_options.clone(),
-                ..Default::default()
-            };
-            write_raster(&p, &spec, vec![data.clone()])?;
-            if lossless(target) {
-                verify_band(&p, depth.width, depth.height, &data)
-                    .map_err(|m| anyhow::anyhow!("{}: {m}", p.display()))?;
-            }
-        }
-        if let Some(target) = &args.viewshed {
-            // On the window a view reads within the distance (the DEM
-            // around the eye), like the exact reference.
-            let window = Scene::window_of(
-                &dem,
-                &scene.georef,
-                view.viewpoint.lon,
-                view.viewpoint.lat,
-                max_d,
-            )?;
-            let vs = if args.viewshed_exact {
-                let full = Scene::open(
-                    &dem,
-                    &view.viewpoint,
-                    args.camera.max_distance,
-                    args.camera.refraction,
-                )?;
-                viewshed_exact(&full.terrain, &full.window, args.target_height)
-            } else {
-                let frame =
-                    eye_frame(&dem, &scene.georef, &view.viewpoint, args.camera.refraction)?;
-                viewshed_from_file(&dem, &frame, max_d, args.target_height)?.crop(window)
-            };
-            let p = staged.stage(target).map_err(anyhow::Error::msg)?;
-            let spec = RasterSpec {
-                width: vs.width,
-                height: vs.height,
-                geotransform: Some(vs.geotransform.0),
-                crs: vs.crs.gdal_definition(),
-                format: args.format.clone(),
-                creation_options: args.creation_options.clone(),
-                ..Default::default()
-            };
-            write_raster(&p, &spec, vec![vs.data.clone()])?;
-            if lossless(target) {
-                verify_band(&p, vs.width, vs.height, &vs.data)
-                    .map_err(|m| anyhow::anyhow!("{}: {m}", p.display()))?;
-            }
-        }
-        if let Some(target) = &args.features {
-            let to_ll = to_lonlat_with_georef(&scene.georef);
-            let mut fc = feature_collection_of_view(
-                silhouettes.as_ref(),
-                ridges.as_ref(),
-                view.view_index,
-                &to_ll,
-            )?;
-            // Where the view reaches beyond the full-resolution terrain,
-            // how far that goes (a foreign member of the collection): the
-            // ridges stop there, and the silhouettes whose depth_min is
-            // beyond it are traced on the coarser rings.
-            if !terrain.far_layer_sizes().is_empty() {
-                fc["full_resolution_reach_m"] =
-                    serde_json::Value::from(terrain.max_distance.round());
-            }
-            let p = staged.stage(target).map_err(anyhow::Error::msg)?;
-            write_geojson(&p, &fc)?;
-        }
-        Ok(())
-    };
-    if let Err(e) = write_all() {
-        let m = staged.hide(&format!("{e:#}"));
-        anyhow::bail!("{m}; nothing written");
+    write_raster(&p, &spec, vec![data.clone()])?;
+    if lossless(args, target) {
+        verify_band(&p, depth.width, depth.height, &data)
+            .map_err(|m| anyhow::anyhow!("{}: {m}", p.display()))?;
     }
-    staged.commit().map_err(anyhow::Error::msg)?;
-    super::timing("write", t.elapsed().as_secs_f64());
-    super::timing("total", t_all.elapsed().as_secs_f64());
+    Ok(())
+}
+
+/// Stages `--viewshed`, on the window a view reads within the distance
+/// (the DEM around the eye), like the exact reference: swept outward from
+/// the eye in bands read from the file, or one exact line of sight per
+/// cell with `--viewshed-exact`.
+fn stage_viewshed(
+    args: &ViewArgs,
+    staged: &mut StagedOutputs,
+    target: &Path,
+    dem: &Dem,
+    scene: &Scene,
+    view: &ResolvedView,
+) -> anyhow::Result<()> {
+    let max_d = args
+        .camera
+        .max_distance
+        .filter(|d| d.is_finite() && *d > 0.0);
+    let window = Scene::window_of(
+        dem,
+        &scene.georef,
+        view.viewpoint.lon,
+        view.viewpoint.lat,
+        max_d,
+    )?;
+    let vs = if args.viewshed_exact {
+        let full = Scene::open(
+            dem,
+            &view.viewpoint,
+            args.camera.max_distance,
+            args.camera.refraction,
+        )?;
+        viewshed_exact(&full.terrain, &full.window, args.target_height)
+    } else {
+        let frame = eye_frame(dem, &scene.georef, &view.viewpoint, args.camera.refraction)?;
+        viewshed_from_file(dem, &frame, max_d, args.target_height)?.crop(window)
+    };
+    let p = staged.stage(target).map_err(anyhow::Error::msg)?;
+    let spec = RasterSpec {
+        width: vs.width,
+        height: vs.height,
+        geotransform: Some(vs.geotransform.0),
+        crs: vs.crs.gdal_definition(),
+        format: args.format.clone(),
+        creation_options: args.creation_options.clone(),
+        ..Default::default()
+    };
+    write_raster(&p, &spec, vec![vs.data.clone()])?;
+    if lossless(args, target) {
+        verify_band(&p, vs.width, vs.height, &vs.data)
+            .map_err(|m| anyhow::anyhow!("{}: {m}", p.display()))?;
+    }
+    Ok(())
+}
+
+/// Stages `--features`: the view's silhouettes, T-junctions and ridge
+/// lines as GeoJSON in lon/lat/z.
+fn stage_features(
+    staged: &mut StagedOutputs,
+    target: &Path,
+    scene: &Scene,
+    view: &ResolvedView,
+    rendered: &Rendered,
+) -> anyhow::Result<()> {
+    let to_ll = to_lonlat_with_georef(&scene.georef);
+    let mut fc = feature_collection_of_view(
+        rendered.silhouettes.as_ref(),
+        rendered.ridges.as_ref(),
+        view.view_index,
+        &to_ll,
+    )?;
+    // Where the view reaches beyond the full-resolution terrain, how far
+    // that goes (a foreign member of the collection): the ridges stop
+    // there, and the silhouettes whose depth_min is beyond it are traced on
+    // the coarser rings.
+    if !scene.terrain.far_layer_sizes().is_empty() {
+        fc["full_resolution_reach_m"] = serde_json::Value::from(scene.terrain.max_distance.round());
+    }
+    let p = staged.stage(target).map_err(anyhow::Error::msg)?;
+    write_geojson(&p, &fc)?;
     Ok(())
 }
