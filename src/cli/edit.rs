@@ -13,7 +13,7 @@
 //! input or each other ([`demsketch::raster::path_check`]).
 
 use anyhow::Context;
-use demsketch::edit::{run_opened, EditError, EditOptions};
+use demsketch::edit::{run_opened, EditError, EditOptions, EditReport};
 use demsketch::raster::Destination;
 use std::io::IsTerminal;
 use std::path::PathBuf;
@@ -166,7 +166,49 @@ pub(super) fn parse_min_fit(s: &str) -> Result<f64, String> {
     Ok(v)
 }
 
+/// `demsketch edit`: check the outputs, take the lock and open the DEM
+/// ([`demsketch::edit::guard`]), run the edit, then print its summary or
+/// its report.
 pub fn run(args: EditArgs) -> anyhow::Result<()> {
+    let destination = destination_of(&args)?;
+    let opts = options_of(&args, destination);
+    // The lock, recovery of a killed edit and the output checks
+    // ([`demsketch::edit::guard`]), each note one line on stderr.
+    // The DEM the guard opened is the one the edit runs on (opened once).
+    let (_lock, dem) = demsketch::edit::guard::prepare_open(
+        &args.dem,
+        &args.sketch,
+        &opts,
+        Duration::from_secs_f64(args.lock_timeout),
+        &mut |m| eprintln!("demsketch: {m}"),
+    )?;
+    let report = match run_opened(dem, &args.dem, &args.sketch, &opts) {
+        Ok(r) => r,
+        Err(e @ EditError::BelowMinFit { .. }) => {
+            if let (true, EditError::BelowMinFit { report, .. }) = (args.json, &e) {
+                super::print_stdout(&serde_json::to_string_pretty(report).context("report")?)
+                    .context("stdout")?;
+            }
+            return Err(BelowMinFit(e.to_string()).into());
+        }
+        Err(e) if e.is_user_error() => return Err(e.into()),
+        Err(EditError::Internal(m)) => return Err(InternalError(m).into()),
+        Err(e) => return Err(InternalError(e.to_string()).into()),
+    };
+    print_timings(&report);
+    if args.json {
+        super::print_stdout(&serde_json::to_string_pretty(&report).context("report")?)
+            .context("stdout")?;
+    } else if !super::quiet() {
+        print_summary(&report);
+    }
+    Ok(())
+}
+
+/// Where the edit writes (`--out` or `--in-place`), after checking that
+/// the outputs' formats and creation options can be written, before any
+/// work.
+fn destination_of(args: &EditArgs) -> anyhow::Result<Destination> {
     let destination = match (&args.out, args.in_place) {
         (_, true) => Destination::InPlace,
         (Some(p), false) => Destination::Path(p.clone()),
@@ -194,6 +236,11 @@ pub fn run(args: EditArgs) -> anyhow::Result<()> {
     }
     demsketch::raster::output_format::check_creation_options(&args.creation_options)
         .map_err(|m| anyhow::anyhow!(m))?;
+    Ok(destination)
+}
+
+/// The library's edit options from the command line.
+fn options_of(args: &EditArgs, destination: Destination) -> EditOptions {
     let mut opts = EditOptions::new(destination);
     opts.write.link_unchanged = args.link;
     opts.write.format = args.format.clone();
@@ -211,29 +258,11 @@ pub fn run(args: EditArgs) -> anyhow::Result<()> {
     opts.min_fit = args.min_fit;
     opts.allow_partial = args.allow_partial;
     opts.dry_run = args.dry_run;
-    // The lock, recovery of a killed edit and the output checks
-    // ([`demsketch::edit::guard`]), each note one line on stderr.
-    // The DEM the guard opened is the one the edit runs on (opened once).
-    let (_lock, dem) = demsketch::edit::guard::prepare_open(
-        &args.dem,
-        &args.sketch,
-        &opts,
-        Duration::from_secs_f64(args.lock_timeout),
-        &mut |m| eprintln!("demsketch: {m}"),
-    )?;
-    let report = match run_opened(dem, &args.dem, &args.sketch, &opts) {
-        Ok(r) => r,
-        Err(e @ EditError::BelowMinFit { .. }) => {
-            if let (true, EditError::BelowMinFit { report, .. }) = (args.json, &e) {
-                super::print_stdout(&serde_json::to_string_pretty(report).context("report")?)
-                    .context("stdout")?;
-            }
-            return Err(BelowMinFit(e.to_string()).into());
-        }
-        Err(e) if e.is_user_error() => return Err(e.into()),
-        Err(EditError::Internal(m)) => return Err(InternalError(m).into()),
-        Err(e) => return Err(InternalError(e.to_string()).into()),
-    };
+    opts
+}
+
+/// The report's stage times on stderr, under `--timings`.
+fn print_timings(report: &EditReport) {
     let t = &report.timings_s;
     for (stage, secs) in [
         ("load", t.load),
@@ -246,51 +275,50 @@ pub fn run(args: EditArgs) -> anyhow::Result<()> {
     ] {
         super::timing(stage, secs);
     }
-    if args.json {
-        super::print_stdout(&serde_json::to_string_pretty(&report).context("report")?)
-            .context("stdout")?;
-    } else if !super::quiet() {
-        for v in &report.views {
-            for s in &v.strokes {
-                eprintln!(
-                    "view \"{}\" stroke \"{}\": {:?}, fitted {:.2}, visible {:.2}, mean {:.2} px{}",
-                    v.name,
-                    s.id,
-                    s.matched.kind,
-                    s.fit.fitted_fraction,
-                    s.visible_fraction,
-                    s.fit.mean_px,
-                    s.reason
-                        .as_deref()
-                        .map(|r| format!(" ({r})"))
-                        .unwrap_or_default()
-                );
-            }
-        }
-        if report.matching.stopped_early {
+}
+
+/// One line per stroke (its match, fit, visibility and reason), then one
+/// for the edit (what was written, or what a real run would change).
+fn print_summary(report: &EditReport) {
+    for v in &report.views {
+        for s in &v.strokes {
             eprintln!(
-                "matching stopped at its budget of {} nodes (best assignment found kept)",
-                report.matching.node_budget
-            );
-        }
-        if report.written {
-            eprintln!(
-                "{}: {} cells changed (max |dz| {:.1} m) in {} file(s), {:.2} s",
-                report.output,
-                report.changed_cells,
-                report.max_abs_displacement_m,
-                report.tiles_written.len(),
-                report.timings_s.total
-            );
-        } else {
-            eprintln!(
-                "{}: dry run, nothing written; a real run would change {} cells (max |dz| {:.1} m), {:.2} s",
-                report.output,
-                report.changed_cells,
-                report.max_abs_displacement_m,
-                report.timings_s.total
+                "view \"{}\" stroke \"{}\": {:?}, fitted {:.2}, visible {:.2}, mean {:.2} px{}",
+                v.name,
+                s.id,
+                s.matched.kind,
+                s.fit.fitted_fraction,
+                s.visible_fraction,
+                s.fit.mean_px,
+                s.reason
+                    .as_deref()
+                    .map(|r| format!(" ({r})"))
+                    .unwrap_or_default()
             );
         }
     }
-    Ok(())
+    if report.matching.stopped_early {
+        eprintln!(
+            "matching stopped at its budget of {} nodes (best assignment found kept)",
+            report.matching.node_budget
+        );
+    }
+    if report.written {
+        eprintln!(
+            "{}: {} cells changed (max |dz| {:.1} m) in {} file(s), {:.2} s",
+            report.output,
+            report.changed_cells,
+            report.max_abs_displacement_m,
+            report.tiles_written.len(),
+            report.timings_s.total
+        );
+    } else {
+        eprintln!(
+            "{}: dry run, nothing written; a real run would change {} cells (max |dz| {:.1} m), {:.2} s",
+            report.output,
+            report.changed_cells,
+            report.max_abs_displacement_m,
+            report.timings_s.total
+        );
+    }
 }
