@@ -21,8 +21,27 @@ pub struct InfoArgs {
     pub no_stats: bool,
 }
 
+/// `demsketch info`: what the DEM is (size, CRS, bounds, nodata, sample
+/// type, tiles, encoding, vertical unit and datum, and its range unless
+/// `--no-stats`), as gdalinfo-like text or as JSON.
 pub fn run(args: InfoArgs) -> anyhow::Result<()> {
     let dem = Dem::open(&args.dem)?;
+    let min_max = if args.no_stats {
+        None
+    } else {
+        dem.min_max()
+            .with_context(|| "reading values for min/max")?
+    };
+    if args.json {
+        super::print_stdout(&serde_json::to_string_pretty(&info_json(&dem, min_max))?)?;
+    } else {
+        print_info(&dem, min_max);
+    }
+    Ok(())
+}
+
+/// The `--json` description of `dem`.
+fn info_json(dem: &Dem, min_max: Option<(f64, f64)>) -> serde_json::Value {
     let gt = dem.geotransform;
     let (px, py) = gt.pixel_size();
     let bounds = gt.bounds(dem.width, dem.height);
@@ -31,12 +50,6 @@ pub fn run(args: InfoArgs) -> anyhow::Result<()> {
         None => serde_json::Value::Null,
         Some(v) if v.is_nan() => json!("nan"),
         Some(v) => json!(v),
-    };
-    let min_max = if args.no_stats {
-        None
-    } else {
-        dem.min_max()
-            .with_context(|| "reading values for min/max")?
     };
     let tiles: Vec<_> = dem
         .tiles
@@ -55,7 +68,7 @@ pub fn run(args: InfoArgs) -> anyhow::Result<()> {
                    "layout": layout, "encoding": encoding})
         })
         .collect();
-    let out = json!({
+    json!({
         "path": dem.path.to_string_lossy(),
         "kind": dem.kind,
         "width": dem.width,
@@ -84,11 +97,15 @@ pub fn run(args: InfoArgs) -> anyhow::Result<()> {
         "min": min_max.map(|m| m.0),
         "max": min_max.map(|m| m.1),
         "min_max_unit": "metre",
-    });
-    if args.json {
-        super::print_stdout(&serde_json::to_string_pretty(&out)?)?;
-        return Ok(());
-    }
+    })
+}
+
+/// The text description of `dem`, gdalinfo-like, one field a line.
+fn print_info(dem: &Dem, min_max: Option<(f64, f64)>) {
+    let gt = dem.geotransform;
+    let (px, py) = gt.pixel_size();
+    let bounds = gt.bounds(dem.width, dem.height);
+    let ll = lonlat_bounds(&dem.crs, &gt, dem.width, dem.height);
     println!("DEM:          {}", dem.path.display());
     println!("Kind:         {:?}, {} file(s)", dem.kind, dem.tiles.len());
     println!("Size:         {} x {} pixels", dem.width, dem.height);
@@ -163,5 +180,4 @@ pub fn run(args: InfoArgs) -> anyhow::Result<()> {
     if let Some((lo, hi)) = min_max {
         println!("Min/max:      {lo} / {hi} m");
     }
-    Ok(())
 }
