@@ -1023,49 +1023,12 @@ pub fn apply_landform(
     for w in shadow.windows(2) {
         cum.push(cum.last().copied().unwrap_or(0.0) + (w[1][0] - w[0][0]).hypot(w[1][1] - w[0][1]));
     }
-    let (lc, lr) = (
-        (win.col - grid.window.col) as usize,
-        (win.row - grid.window.row) as usize,
-    );
+    let fp = Footprint::new(grid, win, &inside, &edge, &Attach::new(&shadow, &cum));
     // The heights before this landform, window-local.
     let prior: Vec<f64> = (0..win.len())
-        .map(|i| grid.values[(i / win.width + lr) * grid.width() + i % win.width + lc])
+        .map(|i| grid.values[fp.grid_index(i)])
         .collect();
-    // Per footprint cell: its arc length on the shadow and its relative
-    // position between shadow and boundary (eqn 1).
-    let attach = Attach::new(&shadow, &cum);
-    let mut param: Vec<Option<(f64, f64)>> = vec![None; win.len()];
-    for r in 0..win.height {
-        for c in 0..win.width {
-            let i = r * win.width + c;
-            let g = (r + lr) * grid.width() + c + lc;
-            if !inside[i] || grid.values[g].is_nan() {
-                continue;
-            }
-            let pt = [
-                (win.col as f64 + c as f64 + 0.5) * cell.hx,
-                (win.row as f64 + r as f64 + 0.5) * cell.hy,
-            ];
-            let (t, d) = attach.at(pt);
-            param[i] = Some((t, d / (d + edge[i]).max(1e-12)));
-        }
-    }
-    // Noise, blended in over the whole footprint (eqn 2).
-    let (mut sum2, mut count) = (0.0, 0usize);
-    if field.sigma() > 0.0 {
-        for r in 0..win.height {
-            for c in 0..win.width {
-                let Some((_, a)) = param[r * win.width + c] else {
-                    continue;
-                };
-                let g = (r + lr) * grid.width() + c + lc;
-                let dz = blend(a) * field.at(grid, c + lc, r + lr);
-                grid.values[g] += dz;
-                sum2 += dz * dz;
-                count += 1;
-            }
-        }
-    }
+    let noise = add_noise(grid, &fp, &field);
     // The silhouette's height above the (noisy) ground under it, band by
     // band, each blended in within its scaled boundary (eqn 3).
     let heights: Vec<f64> = p
@@ -1077,56 +1040,11 @@ pub fn apply_landform(
             q[2] - g
         })
         .collect();
-    let profile = Profile::new(&cum, &heights, ds);
-    for r in 0..win.height {
-        for c in 0..win.width {
-            let Some((t, a)) = param[r * win.width + c] else {
-                continue;
-            };
-            let g = (r + lr) * grid.width() + c + lc;
-            let dz: f64 = (0..profile.bands.len())
-                .map(|k| blend(a / profile.scale[k]) * profile.at(k, t))
-                .sum();
-            grid.values[g] += dz;
-        }
-    }
+    add_profile(grid, &fp, &Profile::new(&cum, &heights, ds));
     // Below the sight line through the silhouette (see [`Sight`]).
-    // The stencils' cells on the sight cone through the silhouette: the
-    // bilinear surface there is seen on the stroke.
-    let on_cone = |grid: &mut Grid, cells: &[bool]| {
-        let Some(sight) = &p.sight else { return };
-        for r in 0..win.height {
-            for c in 0..win.width {
-                let i = r * win.width + c;
-                if param[i].is_none() || !cells[i] {
-                    continue;
-                }
-                let z = sight.cone(win.col + c as i64, win.row + r as i64);
-                if z.is_finite() {
-                    let g = (r + lr) * grid.width() + c + lc;
-                    grid.values[g] = z;
-                }
-            }
-        }
-    };
-    let hold = |grid: &mut Grid, keep: Option<&[bool]>| {
-        let Some(sight) = &p.sight else { return };
-        for r in 0..win.height {
-            for c in 0..win.width {
-                let i = r * win.width + c;
-                if param[i].is_none() || keep.is_some_and(|k| k[i]) {
-                    continue;
-                }
-                let g = (r + lr) * grid.width() + c + lc;
-                let bound = sight.bound(win.col + c as i64, win.row + r as i64);
-                if bound.is_nan() || grid.values[g] <= bound {
-                    continue;
-                }
-                grid.values[g] = bound.max(prior[i]).min(grid.values[g]);
-            }
-        }
-    };
-    hold(grid, None);
+    if let Some(sight) = &p.sight {
+        hold_under_sight(grid, &fp, sight, &prior, None);
+    }
     // The multigrid's correction next to the silhouette: the bilinear
     // surface through the placed curve exactly.
     let curve = [CurveConstraint {
@@ -1143,8 +1061,152 @@ pub fn apply_landform(
     // holds the placed curve), so that the bilinear surface between them
     // is seen on the stroke in every column, not only at the curve's
     // points (on Zion 30 m, smooth bump at 3 km: judge 0.56 -> 0.88).
+    let stencil = stencil_cells(&p.shadow_px, win);
+    if let Some(sight) = &p.sight {
+        hold_under_sight(grid, &fp, sight, &prior, Some(&stencil));
+        put_on_cone(grid, &fp, sight, &stencil);
+    }
+    ease_landform_spikes(grid, win, &fp.param, &stencil, p.sight.as_ref());
+    let curve_error = super::control_curve::curve_error(grid, &p.curve);
+    Ok(LandformResult::new(
+        changes_in(grid, &fp),
+        Some(curve_error),
+        &field,
+        noise,
+        spec,
+    ))
+}
+
+/// A landform's footprint in its window: per window cell, its arc length
+/// on the shadow and its relative position between shadow (0) and
+/// boundary (1) (Gain et al. eqn 1), `None` outside the footprint or on
+/// nodata.
+struct Footprint {
+    win: Window,
+    /// The window's offset in the grid (columns, rows) and the grid's width.
+    offset: (usize, usize),
+    grid_width: usize,
+    param: Vec<Option<(f64, f64)>>,
+}
+
+impl Footprint {
+    fn new(grid: &Grid, win: Window, inside: &[bool], edge: &[f64], attach: &Attach) -> Footprint {
+        let cell = grid.cell;
+        let offset = (
+            (win.col - grid.window.col) as usize,
+            (win.row - grid.window.row) as usize,
+        );
+        let mut fp = Footprint {
+            win,
+            offset,
+            grid_width: grid.width(),
+            param: vec![None; win.len()],
+        };
+        for r in 0..win.height {
+            for c in 0..win.width {
+                let i = r * win.width + c;
+                if !inside[i] || grid.values[fp.grid_index(i)].is_nan() {
+                    continue;
+                }
+                let pt = [
+                    (win.col as f64 + c as f64 + 0.5) * cell.hx,
+                    (win.row as f64 + r as f64 + 0.5) * cell.hy,
+                ];
+                let (t, d) = attach.at(pt);
+                fp.param[i] = Some((t, d / (d + edge[i]).max(1e-12)));
+            }
+        }
+        fp
+    }
+
+    /// The grid index of window cell `i`.
+    fn grid_index(&self, i: usize) -> usize {
+        let (r, c) = (i / self.win.width, i % self.win.width);
+        (r + self.offset.1) * self.grid_width + c + self.offset.0
+    }
+
+    /// The footprint's cells, row by row: window index, grid column and
+    /// row, arc length and relative position.
+    fn cells(&self) -> impl Iterator<Item = (usize, usize, usize, f64, f64)> + '_ {
+        self.param.iter().enumerate().filter_map(|(i, q)| {
+            let (t, a) = (*q)?;
+            let (r, c) = (i / self.win.width, i % self.win.width);
+            Some((i, c + self.offset.0, r + self.offset.1, t, a))
+        })
+    }
+}
+
+/// Noise, blended in over the whole footprint (eqn 2); the sum of the
+/// squared changes and their count.
+fn add_noise(grid: &mut Grid, fp: &Footprint, field: &NoiseField) -> (f64, usize) {
+    let (mut sum2, mut count) = (0.0, 0usize);
+    if field.sigma() > 0.0 {
+        for (i, gc, gr, _, a) in fp.cells() {
+            let dz = blend(a) * field.at(grid, gc, gr);
+            grid.values[fp.grid_index(i)] += dz;
+            sum2 += dz * dz;
+            count += 1;
+        }
+    }
+    (sum2, count)
+}
+
+/// The silhouette's profile, band by band, each band blended in within its
+/// scaled boundary (eqn 3).
+fn add_profile(grid: &mut Grid, fp: &Footprint, profile: &Profile) {
+    for (i, _, _, t, a) in fp.cells() {
+        let dz: f64 = (0..profile.bands.len())
+            .map(|k| blend(a / profile.scale[k]) * profile.at(k, t))
+            .sum();
+        grid.values[fp.grid_index(i)] += dz;
+    }
+}
+
+/// Brings every footprint cell above its sight bound down to it (never
+/// below its height before the landform), but for the cells `keep`
+/// names.
+fn hold_under_sight(
+    grid: &mut Grid,
+    fp: &Footprint,
+    sight: &Sight,
+    prior: &[f64],
+    keep: Option<&[bool]>,
+) {
+    let win = fp.win;
+    for (i, _, _, _, _) in fp.cells() {
+        if keep.is_some_and(|k| k[i]) {
+            continue;
+        }
+        let (r, c) = (i / win.width, i % win.width);
+        let g = fp.grid_index(i);
+        let bound = sight.bound(win.col + c as i64, win.row + r as i64);
+        if bound.is_nan() || grid.values[g] <= bound {
+            continue;
+        }
+        grid.values[g] = bound.max(prior[i]).min(grid.values[g]);
+    }
+}
+
+/// Puts the footprint cells `cells` names on the sight cone through the
+/// silhouette: the bilinear surface there is seen on the stroke.
+fn put_on_cone(grid: &mut Grid, fp: &Footprint, sight: &Sight, cells: &[bool]) {
+    let win = fp.win;
+    for (i, _, _, _, _) in fp.cells() {
+        if !cells[i] {
+            continue;
+        }
+        let (r, c) = (i / win.width, i % win.width);
+        let z = sight.cone(win.col + c as i64, win.row + r as i64);
+        if z.is_finite() {
+            grid.values[fp.grid_index(i)] = z;
+        }
+    }
+}
+
+/// The window cells of the bilinear stencils the shadow's points lie in.
+fn stencil_cells(shadow_px: &[[f64; 2]], win: Window) -> Vec<bool> {
     let mut stencil = vec![false; win.len()];
-    for q in &p.shadow_px {
+    for q in shadow_px {
         let (c0, r0) = ((q[0] - 0.5).floor() as i64, (q[1] - 0.5).floor() as i64);
         for (dc, dr) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
             let (c, r) = (c0 + dc - win.col, r0 + dr - win.row);
@@ -1153,28 +1215,22 @@ pub fn apply_landform(
             }
         }
     }
-    hold(grid, Some(&stencil));
-    on_cone(grid, &stencil);
-    ease_landform_spikes(grid, win, &param, &stencil, p.sight.as_ref());
+    stencil
+}
+
+/// How many cells of the window the landform changed, and the largest
+/// change.
+fn changes_in(grid: &Grid, fp: &Footprint) -> (usize, f64) {
     let (mut changed, mut max_abs) = (0usize, 0f64);
-    for r in 0..win.height {
-        for c in 0..win.width {
-            let g = (r + lr) * grid.width() + c + lc;
-            let (v, b) = (grid.values[g], grid.base.data[g] as f64);
-            if !v.is_nan() && v != b {
-                changed += 1;
-                max_abs = max_abs.max((v - b).abs());
-            }
+    for i in 0..fp.win.len() {
+        let g = fp.grid_index(i);
+        let (v, b) = (grid.values[g], grid.base.data[g] as f64);
+        if !v.is_nan() && v != b {
+            changed += 1;
+            max_abs = max_abs.max((v - b).abs());
         }
     }
-    let curve_error = super::control_curve::curve_error(grid, &p.curve);
-    Ok(LandformResult::new(
-        (changed, max_abs),
-        Some(curve_error),
-        &field,
-        (sum2, count),
-        spec,
-    ))
+    (changed, max_abs)
 }
 
 /// No spikes in the landform's change (see [`super::spike_easing`]): the
