@@ -185,6 +185,11 @@ impl LocalTerrain {
         // element.
         let mut z = buffer_pool::overwritten_f32(nx * ny);
         let max_d2 = max_d * max_d * 1.0001 + 1.0;
+        // Each column's offset from the eye, once for all rows (the same
+        // value per cell as computing it in the row: the loop below is then
+        // straight arithmetic, which vectorises).
+        let dx0 = c0 as f64 + 0.5 - ex;
+        let dxs: Vec<f64> = (0..nx).map(|c| dx0 + c as f64).collect();
         z.par_chunks_mut(nx).enumerate().for_each(|(r, row)| {
             let src_r = r0 + r;
             if src_r >= dem.height {
@@ -196,9 +201,7 @@ impl LocalTerrain {
             let inside = dem.width.saturating_sub(c0).min(nx);
             let src = &dem.data[src_r * dem.width + c0..src_r * dem.width + c0 + inside];
             let (e0, n0) = (p[0][1] * dy, p[1][1] * dy);
-            let dx0 = c0 as f64 + 0.5 - ex;
-            for (c, (out, &h)) in row[..inside].iter_mut().zip(src).enumerate() {
-                let dx = dx0 + c as f64;
+            for ((out, &h), &dx) in row[..inside].iter_mut().zip(src).zip(&dxs[..inside]) {
                 let e = p[0][0] * dx + e0;
                 let n = p[1][0] * dx + n0;
                 let d2 = e * e + n * n;
@@ -645,6 +648,30 @@ impl LocalTerrain {
         let z = self.vertex_z(c, r)?;
         let (e, n) = self.v_to_en(c as f64, r as f64);
         Some([e, n, z])
+    }
+
+    /// The vertex columns of row `r` that may lie within `radius` metres
+    /// (horizontally) of the eye: a superset of those that do, for scans
+    /// that test each vertex's distance anyway. A vertex's offset from the
+    /// eye in cells is at most the Frobenius norm of the local-to-vertex
+    /// map times its distance in metres, so the columns outside the disc of
+    /// that radius (plus a cell) are beyond `radius`.
+    pub fn columns_within(&self, r: usize, radius: f64) -> std::ops::Range<usize> {
+        let m = self.en_to_v;
+        let norm =
+            (m[0][0] * m[0][0] + m[0][1] * m[0][1] + m[1][0] * m[1][0] + m[1][1] * m[1][1]).sqrt();
+        let reach = radius * norm * (1.0 + 1e-6) + 2.0;
+        if !reach.is_finite() {
+            return 0..self.nx;
+        }
+        let dy = r as f64 - self.eye_v.1;
+        if !(dy.abs() <= reach) {
+            return 0..0;
+        }
+        let half = (reach * reach - dy * dy).max(0.0).sqrt();
+        let c0 = (self.eye_v.0 - half).floor().max(0.0) as usize;
+        let c1 = ((self.eye_v.0 + half).ceil() + 1.0).max(0.0) as usize;
+        c0.min(self.nx)..c1.min(self.nx)
     }
 
     /// Local (east, north) of vertex coordinates `(vx, vy)`.
