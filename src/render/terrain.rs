@@ -201,18 +201,14 @@ impl LocalTerrain {
             let inside = dem.width.saturating_sub(c0).min(nx);
             let src = &dem.data[src_r * dem.width + c0..src_r * dem.width + c0 + inside];
             let (e0, n0) = (p[0][1] * dy, p[1][1] * dy);
-            for ((out, &h), &dx) in row[..inside].iter_mut().zip(src).zip(&dxs[..inside]) {
-                let e = p[0][0] * dx + e0;
-                let n = p[1][0] * dx + n0;
-                let d2 = e * e + n * n;
-                // NaN heights stay NaN
-                let v = (h as f64 - eye_alt - coef * d2) as f32;
-                *out = if d2 > max_d2 || d2 < min_d2 {
-                    f32::NAN
-                } else {
-                    v
-                };
-            }
+            let row_frame = RowFrame {
+                p0: (p[0][0], e0),
+                p1: (p[1][0], n0),
+                eye_alt,
+                coef,
+                d2_range: (min_d2, max_d2),
+            };
+            vertex_row(&mut row[..inside], src, &dxs[..inside], row_frame);
             row[inside..].fill(f32::NAN);
         });
         let eye_v = (ex - 0.5 - c0 as f64, ey - 0.5 - r0 as f64);
@@ -1828,4 +1824,39 @@ fn axis_block(a: &RayAxis, p: f64, s: f64, inv_s: f64, n: usize, tp: f64) -> Opt
         te = exit(b);
     }
     Some((b, te))
+}
+
+/// What [`vertex_row`] needs of a terrain's frame for one row: `e = p0.0
+/// dx + p0.1`, `n = p1.0 dx + p1.1` (the row's terms folded in), the eye's
+/// altitude, the curvature coefficient and the squared distances kept.
+#[derive(Clone, Copy)]
+struct RowFrame {
+    p0: (f64, f64),
+    p1: (f64, f64),
+    eye_alt: f64,
+    coef: f64,
+    d2_range: (f64, f64),
+}
+
+/// One row of [`LocalTerrain::build_over`]'s vertex heights: the height of
+/// each cell `h` at column offset `dx` from the eye, less the eye's altitude
+/// and the curvature drop at its squared distance, NaN outside the kept
+/// distances (NaN heights stay NaN). A function of its own, with every
+/// constant passed by value, so that the loop vectorises (in the row's
+/// closure the constants were read through references that the compiler
+/// could not tell apart from the row written).
+#[inline(never)]
+fn vertex_row(out: &mut [f32], src: &[f32], dxs: &[f64], f: RowFrame) {
+    let (min_d2, max_d2) = f.d2_range;
+    for ((out, &h), &dx) in out.iter_mut().zip(src).zip(dxs) {
+        let e = f.p0.0 * dx + f.p0.1;
+        let n = f.p1.0 * dx + f.p1.1;
+        let d2 = e * e + n * n;
+        let v = (h as f64 - f.eye_alt - f.coef * d2) as f32;
+        *out = if (d2 > max_d2) | (d2 < min_d2) {
+            f32::NAN
+        } else {
+            v
+        };
+    }
 }
