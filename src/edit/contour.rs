@@ -149,7 +149,9 @@ impl ProjectedVertices {
             .into_par_iter()
             .flat_map_iter(|r| {
                 let ranges = &ranges;
-                (0..t.nx).filter_map(move |c| {
+                // (only the columns that may lie within `hi`: the others
+                // fail the first test below)
+                t.columns_within(r, hi).filter_map(move |c| {
                     let (e, n) = t.v_to_en(c as f64, r as f64);
                     if e * e + n * n > hi * hi {
                         return None;

@@ -144,6 +144,40 @@ fn reduce_max(
     out: &mut [f32],
 ) {
     let rows = out.len() / w.max(1);
+    if k == 1 && read == full && c1 - c0 == read.width && rows <= read.height {
+        single_cells(cells, (c0, c1), w, out);
+    } else {
+        reduce_general(cells, read, full, k, (c0, c1), w, out);
+    }
+}
+
+/// [`reduce_max`] with one cell per coarse cell and the chunk read whole
+/// (a ring read from an overview of its own coarseness): the general
+/// path's two reductions of a single cell, row by row, without its
+/// per-cell slicing.
+fn single_cells(cells: &HeightMap, (c0, c1): (usize, usize), w: usize, out: &mut [f32]) {
+    let rows = out.len() / w.max(1);
+    let rw = cells.width;
+    for cr in 0..rows {
+        let src = &cells.data[cr * rw..(cr + 1) * rw];
+        let row = &mut out[cr * w + c0..cr * w + c1];
+        for (o, &v) in row.iter_mut().zip(src) {
+            *o = f32::NAN.max(f32::NAN.max(v));
+        }
+    }
+}
+
+/// [`reduce_max`] for any `k`: down the columns, then across each block.
+fn reduce_general(
+    cells: &HeightMap,
+    read: Window,
+    full: Window,
+    k: usize,
+    (c0, c1): (usize, usize),
+    w: usize,
+    out: &mut [f32],
+) {
+    let rows = out.len() / w.max(1);
     let mut column_max = vec![f32::NAN; read.width];
     for cr in 0..rows {
         // the block row's cells within what was read
@@ -181,6 +215,38 @@ mod tests {
             band_rows(w, 8, 0),
             vec![(0, 3), (3, 11), (11, 19), (19, 20)]
         );
+    }
+
+    /// With one cell per coarse cell the fast path gives the general
+    /// path's values, bit for bit (NaN cells too).
+    #[test]
+    fn single_cell_blocks_are_the_cells() {
+        let read = Window::new(4, 8, 5, 3);
+        let mut data: Vec<f32> = (0..read.len()).map(|i| (i as f32) * 1.5 - 3.0).collect();
+        data[2] = f32::NAN;
+        data[7] = -0.0;
+        let cells = HeightMap {
+            width: read.width,
+            height: read.height,
+            data: data.clone(),
+            geotransform: crate::raster::GeoTransform([0.0, 1.0, 0.0, 0.0, 0.0, -1.0]),
+            crs: crate::raster::Crs {
+                epsg: None,
+                wkt: String::new(),
+                proj: None,
+                geographic: false,
+            },
+        };
+        // (a band 7 wide with the chunk at columns 1..6)
+        let mut fast = vec![7.0f32; 7 * 3];
+        reduce_max(&cells, read, read, 1, (1, 6), 7, &mut fast);
+        let mut general = vec![7.0f32; 7 * 3];
+        reduce_general(&cells, read, read, 1, (1, 6), 7, &mut general);
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&fast), bits(&general));
+        assert!(fast[1 + 2].is_nan());
+        assert_eq!(fast[0], 7.0);
+        assert_eq!(fast[6], 7.0);
     }
 
     /// The block maxima are those of the cells, block by block, NaN

@@ -185,6 +185,11 @@ impl LocalTerrain {
         // element.
         let mut z = buffer_pool::overwritten_f32(nx * ny);
         let max_d2 = max_d * max_d * 1.0001 + 1.0;
+        // Each column's offset from the eye, once for all rows (the same
+        // value per cell as computing it in the row: the loop below is then
+        // straight arithmetic, which vectorises).
+        let dx0 = c0 as f64 + 0.5 - ex;
+        let dxs: Vec<f64> = (0..nx).map(|c| dx0 + c as f64).collect();
         z.par_chunks_mut(nx).enumerate().for_each(|(r, row)| {
             let src_r = r0 + r;
             if src_r >= dem.height {
@@ -196,20 +201,14 @@ impl LocalTerrain {
             let inside = dem.width.saturating_sub(c0).min(nx);
             let src = &dem.data[src_r * dem.width + c0..src_r * dem.width + c0 + inside];
             let (e0, n0) = (p[0][1] * dy, p[1][1] * dy);
-            let dx0 = c0 as f64 + 0.5 - ex;
-            for (c, (out, &h)) in row[..inside].iter_mut().zip(src).enumerate() {
-                let dx = dx0 + c as f64;
-                let e = p[0][0] * dx + e0;
-                let n = p[1][0] * dx + n0;
-                let d2 = e * e + n * n;
-                // NaN heights stay NaN
-                let v = (h as f64 - eye_alt - coef * d2) as f32;
-                *out = if d2 > max_d2 || d2 < min_d2 {
-                    f32::NAN
-                } else {
-                    v
-                };
-            }
+            let row_frame = RowFrame {
+                p0: (p[0][0], e0),
+                p1: (p[1][0], n0),
+                eye_alt,
+                coef,
+                d2_range: (min_d2, max_d2),
+            };
+            vertex_row(&mut row[..inside], src, &dxs[..inside], row_frame);
             row[inside..].fill(f32::NAN);
         });
         let eye_v = (ex - 0.5 - c0 as f64, ey - 0.5 - r0 as f64);
@@ -645,6 +644,30 @@ impl LocalTerrain {
         let z = self.vertex_z(c, r)?;
         let (e, n) = self.v_to_en(c as f64, r as f64);
         Some([e, n, z])
+    }
+
+    /// The vertex columns of row `r` that may lie within `radius` metres
+    /// (horizontally) of the eye: a superset of those that do, for scans
+    /// that test each vertex's distance anyway. A vertex's offset from the
+    /// eye in cells is at most the Frobenius norm of the local-to-vertex
+    /// map times its distance in metres, so the columns outside the disc of
+    /// that radius (plus a cell) are beyond `radius`.
+    pub fn columns_within(&self, r: usize, radius: f64) -> std::ops::Range<usize> {
+        let m = self.en_to_v;
+        let norm =
+            (m[0][0] * m[0][0] + m[0][1] * m[0][1] + m[1][0] * m[1][0] + m[1][1] * m[1][1]).sqrt();
+        let reach = radius * norm * (1.0 + 1e-6) + 2.0;
+        if !reach.is_finite() {
+            return 0..self.nx;
+        }
+        let dy = r as f64 - self.eye_v.1;
+        if !(dy.abs() <= reach) {
+            return 0..0;
+        }
+        let half = (reach * reach - dy * dy).max(0.0).sqrt();
+        let c0 = (self.eye_v.0 - half).floor().max(0.0) as usize;
+        let c1 = ((self.eye_v.0 + half).ceil() + 1.0).max(0.0) as usize;
+        c0.min(self.nx)..c1.min(self.nx)
     }
 
     /// Local (east, north) of vertex coordinates `(vx, vy)`.
@@ -1801,4 +1824,59 @@ fn axis_block(a: &RayAxis, p: f64, s: f64, inv_s: f64, n: usize, tp: f64) -> Opt
         te = exit(b);
     }
     Some((b, te))
+}
+
+/// What [`vertex_row`] needs of a terrain's frame for one row: `e = p0.0
+/// dx + p0.1`, `n = p1.0 dx + p1.1` (the row's terms folded in), the eye's
+/// altitude, the curvature coefficient and the squared distances kept.
+#[derive(Clone, Copy)]
+struct RowFrame {
+    p0: (f64, f64),
+    p1: (f64, f64),
+    eye_alt: f64,
+    coef: f64,
+    d2_range: (f64, f64),
+}
+
+/// One row of [`LocalTerrain::build_over`]'s vertex heights: the height of
+/// each cell `h` at column offset `dx` from the eye, less the eye's altitude
+/// and the curvature drop at its squared distance, NaN outside the kept
+/// distances (NaN heights stay NaN). A function of its own, with every
+/// constant passed by value, so that the loop vectorises (in the row's
+/// closure the constants were read through references that the compiler
+/// could not tell apart from the row written).
+#[inline(never)]
+fn vertex_row(out: &mut [f32], src: &[f32], dxs: &[f64], f: RowFrame) {
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has AVX2 (checked just above).
+        unsafe { vertex_row_avx2(out, src, dxs, f) };
+        return;
+    }
+    vertex_row_body(out, src, dxs, f);
+}
+
+/// [`vertex_row`] compiled for AVX2 (four `f64` lanes; the same IEEE
+/// operations per cell, no fused multiply-add: the same bits).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn vertex_row_avx2(out: &mut [f32], src: &[f32], dxs: &[f64], f: RowFrame) {
+    vertex_row_body(out, src, dxs, f);
+}
+
+/// The loop of [`vertex_row`].
+#[inline(always)]
+fn vertex_row_body(out: &mut [f32], src: &[f32], dxs: &[f64], f: RowFrame) {
+    let (min_d2, max_d2) = f.d2_range;
+    for ((out, &h), &dx) in out.iter_mut().zip(src).zip(dxs) {
+        let e = f.p0.0 * dx + f.p0.1;
+        let n = f.p1.0 * dx + f.p1.1;
+        let d2 = e * e + n * n;
+        let v = (h as f64 - f.eye_alt - f.coef * d2) as f32;
+        *out = if (d2 > max_d2) | (d2 < min_d2) {
+            f32::NAN
+        } else {
+            v
+        };
+    }
 }

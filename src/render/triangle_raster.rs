@@ -288,14 +288,21 @@ fn draw_far_layer(
         .par_chunks_mut(w)
         .zip(triangle.par_chunks_mut(w))
         .zip(r.depth.par_chunks(w).zip(r.triangle.par_chunks(w)))
-        .for_each(|((d, t), (fd, ft))| {
-            for i in 0..d.len() {
-                if fd[i] < d[i] {
-                    d[i] = fd[i];
-                    t[i] = ft[i] + id0;
-                }
-            }
-        });
+        .for_each(|((d, t), (fd, ft))| take_nearer(d, t, fd, ft, id0));
+}
+
+/// One row of [`draw_far_layer`]'s composite: where the layer's depth `fd`
+/// is nearer than the image's `d`, its depth and its triangle (moved by
+/// `id0`) are taken. Selects, not branches, with `id0` by value: the loop
+/// vectorises. (`wrapping_add`: the sum is computed for every pixel but
+/// kept only where the layer is nearer, where it is the old `ft + id0`.)
+#[inline(never)]
+fn take_nearer(d: &mut [f32], t: &mut [u32], fd: &[f32], ft: &[u32], id0: u32) {
+    for (((dv, tv), &f), &fi) in d.iter_mut().zip(t.iter_mut()).zip(fd).zip(ft) {
+        let nearer = f < *dv;
+        *tv = if nearer { fi.wrapping_add(id0) } else { *tv };
+        *dv = if nearer { f } else { *dv };
+    }
 }
 
 /// A render's strips kept from an earlier one: its depths and triangles,

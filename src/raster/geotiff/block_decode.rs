@@ -170,6 +170,42 @@ fn decompress(compression: u16, src: &[u8], expected: usize) -> Result<Vec<u8>, 
     Ok(out)
 }
 
+/// The `w` x `h` `f32` samples of a block of `stored_w`-sample rows stored
+/// with the floating-point predictor, on a little-endian machine: each of
+/// the first `h` rows undone as [`undo_float_predictor_row`] does and its
+/// first `w` samples gathered straight into the samples (the same bits as
+/// undoing every row into bytes and reading them as `f32`, without the
+/// intermediate bytes, their second pass and the padding rows).
+fn float32_predicted(
+    bytes: &mut [u8],
+    stored_w: usize,
+    w: usize,
+    h: usize,
+) -> Result<Vec<f32>, BlockError> {
+    let mut v: Vec<f32> = Vec::new();
+    v.try_reserve_exact(w * h)
+        .map_err(|_| BlockError::Decompress(format!("cannot allocate {} samples", w * h)))?;
+    for row in bytes.chunks_exact_mut(stored_w * 4).take(h) {
+        let mut acc = 0u8;
+        for b in row.iter_mut() {
+            acc = acc.wrapping_add(*b);
+            *b = acc;
+        }
+        let (p0, rest) = row.split_at(stored_w);
+        let (p1, rest) = rest.split_at(stored_w);
+        let (p2, p3) = rest.split_at(stored_w);
+        v.extend(
+            p0[..w]
+                .iter()
+                .zip(&p1[..w])
+                .zip(&p2[..w])
+                .zip(&p3[..w])
+                .map(|(((a, b), c), d)| f32::from_bits(u32::from_be_bytes([*a, *b, *c, *d]))),
+        );
+    }
+    Ok(v)
+}
+
 /// Undo the floating-point predictor (TIFF Technical Note 3) on one row of
 /// `n` samples of `size` bytes: byte-wise differencing, then the bytes of
 /// each sample gathered from `size` planes, most significant first.
@@ -289,6 +325,14 @@ pub fn decode_block(
     }
     let mut bytes = decompress(codec.compression, src, expected)?;
     let pred2 = codec.predictor == 2;
+    if codec.predictor == 3
+        && codec.sample_type == SampleType::Float32
+        && cfg!(target_endian = "little")
+        && w <= stored_w
+        && h <= stored_h
+    {
+        return float32_predicted(&mut bytes, stored_w, w, h).map(DecodingResult::F32);
+    }
     if codec.predictor == 3 {
         // After the float predictor the samples are in native order.
         let mut out = Vec::new();
@@ -348,6 +392,59 @@ mod tests {
             .map(|c| f32::from_ne_bytes([c[0], c[1], c[2], c[3]]))
             .collect();
         assert_eq!(got, vals);
+    }
+
+    /// The direct `f32` path gives the bits of undoing every row into bytes
+    /// and reading the samples inside the image from them (a block padded
+    /// on the right and at the bottom, with NaN and negative zero).
+    #[test]
+    fn float32_predicted_equals_the_bytes_path() {
+        let (stored_w, stored_h, w, h) = (6usize, 4usize, 5usize, 3usize);
+        let mut raw = Vec::new();
+        for r in 0..stored_h {
+            let vals: Vec<f32> = (0..stored_w)
+                .map(|c| match (r, c) {
+                    (0, 1) => f32::NAN,
+                    (1, 2) => -0.0,
+                    _ => (r * 7 + c) as f32 * -13.375 + 0.1,
+                })
+                .collect();
+            let mut planes = vec![0u8; stored_w * 4];
+            for (i, v) in vals.iter().enumerate() {
+                for (k, b) in v.to_be_bytes().iter().enumerate() {
+                    planes[k * stored_w + i] = *b;
+                }
+            }
+            for i in (1..planes.len()).rev() {
+                planes[i] = planes[i].wrapping_sub(planes[i - 1]);
+            }
+            raw.extend(planes);
+        }
+        let mut a = raw.clone();
+        let direct = float32_predicted(&mut a, stored_w, w, h).expect("direct");
+        let mut b = raw;
+        let mut out = vec![0u8; b.len()];
+        for (row, o) in b
+            .chunks_exact_mut(stored_w * 4)
+            .zip(out.chunks_exact_mut(stored_w * 4))
+        {
+            undo_float_predictor_row(row, 4, o);
+        }
+        let mut bytes_path = Vec::new();
+        for r in 0..h {
+            for c in 0..w {
+                let k = (r * stored_w + c) * 4;
+                bytes_path.push(f32::from_ne_bytes([
+                    out[k],
+                    out[k + 1],
+                    out[k + 2],
+                    out[k + 3],
+                ]));
+            }
+        }
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&direct), bits(&bytes_path));
+        assert!(direct[1].is_nan());
     }
 
     #[test]
