@@ -252,7 +252,14 @@ pub fn place_free_stretches(
                 || meets_anchor(right, on[b - 1], b == n))
             && !contradicts(left, on[a], a == 0)
             && !contradicts(right, on[b - 1], b == n)
-            && !cuts_anchored_landform(before, &run_points, left, right);
+            && !cuts_anchored_landform(before, &run_points, left, right)
+            && !leaves_farther_silhouette(
+                before,
+                feature,
+                &run_points,
+                (left, (a > 0).then(|| placed.points[on[a - 1]].pixel).flatten()),
+                (right, (b < n).then(|| placed.points[on[b]].pixel).flatten()),
+            );
         if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
             eprintln!(
                 "stretch {a}..{b} of {n} (x {:?}..{:?}): on_feature {on_feature} near {:?} left {:?} right {:?} depth {} {}",
@@ -490,6 +497,79 @@ fn cuts_anchored_landform(
         }
     }
     inside as f64 >= NEAR_COVERAGE * n as f64 && elsewhere as f64 >= NEAR_COVERAGE * n as f64
+}
+
+/// True when a stretch drawn in the sky (a raise: the unedited view shows
+/// sky over at least [`NEAR_COVERAGE`] of its points) leaves an anchored
+/// silhouette that lies behind its matched feature by more than
+/// [`AGREEMENT`], and no anchor beside it agrees with the feature. The
+/// stroke goes on from that silhouette into the sky without a break: it
+/// outlines the landform it leaves, raised over the nearer feature that
+/// happens to lie under it in the image (Gain et al. 2009, section 3.1:
+/// the silhouette stands on the terrain at its ends; a person raising a
+/// peak starts and ends the stroke on the shoulders that stay). The
+/// nearer feature would need less lift only because it is nearer in the
+/// image, and raising it would hide the very silhouette the stroke is
+/// anchored on.
+/// `left` and `right`: the bounds and whether each is an anchor (not a
+/// stroke end).
+fn leaves_farther_silhouette(
+    before: &RenderedView,
+    feature: Option<&ViewFeature>,
+    run: &[&PlacedPoint],
+    left: (Option<Bound>, Option<[f64; 2]>),
+    right: (Option<Bound>, Option<[f64; 2]>),
+) -> bool {
+    if std::env::var_os("DS_LEAVES_OFF").is_some() {
+        return false;
+    }
+    let (Some(first), Some(last), Some(feature)) = (run.first(), run.last(), feature) else {
+        return false;
+    };
+    // Some(true): the anchor lies behind the feature, which does not run
+    // along the anchor's silhouette; Some(false): they agree somewhere.
+    let relation = |bound: (Option<Bound>, Option<[f64; 2]>), p: &PlacedPoint| -> Option<bool> {
+        let (Some(q), Some(at)) = bound else {
+            return None;
+        };
+        if p.source != PointSource::Feature || q.junction {
+            return None;
+        }
+        let along = feature_depth_at(feature, at[0])
+            .is_some_and(|d| (d - q.depth).abs() <= AGREEMENT * q.depth);
+        Some(p.depth < q.depth * (1.0 - AGREEMENT) && !along)
+    };
+    let (l, r) = (relation(left, first), relation(right, last));
+    let behind = l == Some(true) || r == Some(true);
+    let agrees = l == Some(false) || r == Some(false);
+    if !behind || agrees {
+        return false;
+    }
+    let in_sky = run
+        .iter()
+        .filter(|p| p.pixel.is_some() && terrain_pixel(before, p.pixel).is_none())
+        .count();
+    in_sky as f64 >= NEAR_COVERAGE * run.len() as f64
+}
+
+/// The depth of `feature` where it projects at image column `x`
+/// (interpolated between its samples); `None` outside its span.
+fn feature_depth_at(feature: &ViewFeature, x: f64) -> Option<f64> {
+    let s = &feature.samples;
+    let k = s.partition_point(|q| q.pixel[0] < x);
+    if s.is_empty() || k >= s.len() || (k == 0 && s[0].pixel[0] > x) {
+        return None;
+    }
+    if k == 0 {
+        return Some(s[0].depth);
+    }
+    let (l, r) = (&s[k - 1], &s[k]);
+    let t = if r.pixel[0] > l.pixel[0] {
+        (x - l.pixel[0]) / (r.pixel[0] - l.pixel[0])
+    } else {
+        0.0
+    };
+    Some(l.depth + t * (r.depth - l.depth))
 }
 
 /// The image pixel (column, row) under `pixel` when it lies in the view
