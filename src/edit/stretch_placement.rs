@@ -28,7 +28,10 @@
 //! the stretch goes through the other end's terrain point when that lies
 //! behind the junction, and through the junction when it lies in front of
 //! it; the junction never contradicts the matched feature, and a stretch
-//! bounded by junctions only keeps its feature's depth. A whole stroke drawn in the sky just over
+//! bounded by junctions only keeps its feature's depth. A stretch drawn in
+//! the sky that leaves an anchored silhouette behind its feature, where
+//! the feature does not run along that silhouette, goes with the landform
+//! it leaves ([`leaves_farther_silhouette`]). A whole stroke drawn in the sky just over
 //! its feature, narrower than one DEM cell at that feature's depth, is a
 //! landform behind it that the DEM could not draw there: it goes behind,
 //! to the nearest depth where it spans one cell.
@@ -257,7 +260,10 @@ pub fn place_free_stretches(
                 before,
                 feature,
                 &run_points,
-                (left, (a > 0).then(|| placed.points[on[a - 1]].pixel).flatten()),
+                (
+                    left,
+                    (a > 0).then(|| placed.points[on[a - 1]].pixel).flatten(),
+                ),
                 (right, (b < n).then(|| placed.points[on[b]].pixel).flatten()),
             );
         if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
@@ -502,17 +508,21 @@ fn cuts_anchored_landform(
 /// True when a stretch drawn in the sky (a raise: the unedited view shows
 /// sky over at least [`NEAR_COVERAGE`] of its points) leaves an anchored
 /// silhouette that lies behind its matched feature by more than
-/// [`AGREEMENT`], and no anchor beside it agrees with the feature. The
-/// stroke goes on from that silhouette into the sky without a break: it
-/// outlines the landform it leaves, raised over the nearer feature that
-/// happens to lie under it in the image (Gain et al. 2009, section 3.1:
-/// the silhouette stands on the terrain at its ends; a person raising a
-/// peak starts and ends the stroke on the shoulders that stay). The
-/// nearer feature would need less lift only because it is nearer in the
-/// image, and raising it would hide the very silhouette the stroke is
-/// anchored on.
-/// `left` and `right`: the bounds and whether each is an anchor (not a
-/// stroke end).
+/// [`AGREEMENT`], where the feature does not itself run along that
+/// silhouette (its depth at the anchor's column is not the anchor's), and
+/// no anchor beside the stretch agrees with the feature. The stroke goes
+/// on from that silhouette into the sky without a break, and the feature
+/// it was matched to is another landform, nearer, that only lies under it
+/// in the image: the stretch outlines the landform it leaves (Gain et al.
+/// 2009, section 3.1: a silhouette stands on the terrain at its ends; a
+/// person raising a peak starts and ends the stroke on the shoulders that
+/// stay). Equation (1) prefers the nearer feature because the lift it
+/// needs looks small in the image; raising it would hide the very
+/// silhouette the stroke is anchored on. Where the feature does run along
+/// the anchor (a skyline candidate that steps from the anchor's landform
+/// to a nearer one at a T-junction, which the stroke follows), the match
+/// stands. `left` and `right`: each bound with the pixel of the anchored
+/// point it comes from (`None` at a stroke end).
 fn leaves_farther_silhouette(
     before: &RenderedView,
     feature: Option<&ViewFeature>,
@@ -520,9 +530,6 @@ fn leaves_farther_silhouette(
     left: (Option<Bound>, Option<[f64; 2]>),
     right: (Option<Bound>, Option<[f64; 2]>),
 ) -> bool {
-    if std::env::var_os("DS_LEAVES_OFF").is_some() {
-        return false;
-    }
     let (Some(first), Some(last), Some(feature)) = (run.first(), run.last(), feature) else {
         return false;
     };
