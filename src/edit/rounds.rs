@@ -168,6 +168,19 @@ pub(super) fn refine(
                     let protruding = find_protruding(after, &curves[k]);
                     if !protruding.is_empty() {
                         for p in &protruding {
+                            if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
+                                let z: Vec<f64> = p.lowered.iter().map(|q| q[2]).collect();
+                                eprintln!(
+                                    "lowering: curve {} h {:.1} m, {} points, first {:?} last {:?}, z {:.0}..{:.0}",
+                                    p.curve,
+                                    p.h,
+                                    p.lowered.len(),
+                                    p.lowered.first(),
+                                    p.lowered.last(),
+                                    z.iter().cloned().fold(f64::INFINITY, f64::min),
+                                    z.iter().cloned().fold(f64::NEG_INFINITY, f64::max)
+                                );
+                            }
                             if !p.lowered.is_empty() {
                                 constraints.push(CurveConstraint {
                                     points: p.lowered.clone(),
@@ -188,6 +201,9 @@ pub(super) fn refine(
                         *h = h.min(c.height);
                     }
                     for (&(col, row), &height) in &round {
+                        if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
+                            eprintln!("contour cell: col {col} row {row} height {height:.1}");
+                        }
                         let old = cells.insert((col, row), height);
                         moved |= old.is_none_or(|h| (h - height).abs() > CELL_CHANGE_M);
                     }

@@ -28,7 +28,10 @@
 //! the stretch goes through the other end's terrain point when that lies
 //! behind the junction, and through the junction when it lies in front of
 //! it; the junction never contradicts the matched feature, and a stretch
-//! bounded by junctions only keeps its feature's depth. A whole stroke drawn in the sky just over
+//! bounded by junctions only keeps its feature's depth. A stretch drawn in
+//! the sky that leaves an anchored silhouette behind its feature, where
+//! the feature does not run along that silhouette, goes with the landform
+//! it leaves ([`leaves_farther_silhouette`]). A whole stroke drawn in the sky just over
 //! its feature, narrower than one DEM cell at that feature's depth, is a
 //! landform behind it that the DEM could not draw there: it goes behind,
 //! to the nearest depth where it spans one cell.
@@ -252,7 +255,17 @@ pub fn place_free_stretches(
                 || meets_anchor(right, on[b - 1], b == n))
             && !contradicts(left, on[a], a == 0)
             && !contradicts(right, on[b - 1], b == n)
-            && !cuts_anchored_landform(before, &run_points, left, right);
+            && !cuts_anchored_landform(before, &run_points, left, right)
+            && !leaves_farther_silhouette(
+                before,
+                feature,
+                &run_points,
+                (
+                    left,
+                    (a > 0).then(|| placed.points[on[a - 1]].pixel).flatten(),
+                ),
+                (right, (b < n).then(|| placed.points[on[b]].pixel).flatten()),
+            );
         if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
             eprintln!(
                 "stretch {a}..{b} of {n} (x {:?}..{:?}): on_feature {on_feature} near {:?} left {:?} right {:?} depth {} {}",
@@ -490,6 +503,80 @@ fn cuts_anchored_landform(
         }
     }
     inside as f64 >= NEAR_COVERAGE * n as f64 && elsewhere as f64 >= NEAR_COVERAGE * n as f64
+}
+
+/// True when a stretch drawn in the sky (a raise: the unedited view shows
+/// sky over at least [`NEAR_COVERAGE`] of its points) leaves an anchored
+/// silhouette that lies behind its matched feature by more than
+/// [`AGREEMENT`], where the feature does not itself run along that
+/// silhouette (its depth at the anchor's column is not the anchor's), and
+/// no anchor beside the stretch agrees with the feature. The stroke goes
+/// on from that silhouette into the sky without a break, and the feature
+/// it was matched to is another landform, nearer, that only lies under it
+/// in the image: the stretch outlines the landform it leaves (Gain et al.
+/// 2009, section 3.1: a silhouette stands on the terrain at its ends; a
+/// person raising a peak starts and ends the stroke on the shoulders that
+/// stay). Equation (1) prefers the nearer feature because the lift it
+/// needs looks small in the image; raising it would hide the very
+/// silhouette the stroke is anchored on. Where the feature does run along
+/// the anchor (a skyline candidate that steps from the anchor's landform
+/// to a nearer one at a T-junction, which the stroke follows), the match
+/// stands. `left` and `right`: each bound with the pixel of the anchored
+/// point it comes from (`None` at a stroke end).
+fn leaves_farther_silhouette(
+    before: &RenderedView,
+    feature: Option<&ViewFeature>,
+    run: &[&PlacedPoint],
+    left: (Option<Bound>, Option<[f64; 2]>),
+    right: (Option<Bound>, Option<[f64; 2]>),
+) -> bool {
+    let (Some(first), Some(last), Some(feature)) = (run.first(), run.last(), feature) else {
+        return false;
+    };
+    // Some(true): the anchor lies behind the feature, which does not run
+    // along the anchor's silhouette; Some(false): they agree somewhere.
+    let relation = |bound: (Option<Bound>, Option<[f64; 2]>), p: &PlacedPoint| -> Option<bool> {
+        let (Some(q), Some(at)) = bound else {
+            return None;
+        };
+        if p.source != PointSource::Feature || q.junction {
+            return None;
+        }
+        let along = feature_depth_at(feature, at[0])
+            .is_some_and(|d| (d - q.depth).abs() <= AGREEMENT * q.depth);
+        Some(p.depth < q.depth * (1.0 - AGREEMENT) && !along)
+    };
+    let (l, r) = (relation(left, first), relation(right, last));
+    let behind = l == Some(true) || r == Some(true);
+    let agrees = l == Some(false) || r == Some(false);
+    if !behind || agrees {
+        return false;
+    }
+    let in_sky = run
+        .iter()
+        .filter(|p| p.pixel.is_some() && terrain_pixel(before, p.pixel).is_none())
+        .count();
+    in_sky as f64 >= NEAR_COVERAGE * run.len() as f64
+}
+
+/// The depth of `feature` where it projects at image column `x`
+/// (interpolated between its samples); `None` outside its span.
+fn feature_depth_at(feature: &ViewFeature, x: f64) -> Option<f64> {
+    let s = &feature.samples;
+    let k = s.partition_point(|q| q.pixel[0] < x);
+    if s.is_empty() || k >= s.len() || (k == 0 && s[0].pixel[0] > x) {
+        return None;
+    }
+    if k == 0 {
+        return Some(s[0].depth);
+    }
+    let (l, r) = (&s[k - 1], &s[k]);
+    let t = if r.pixel[0] > l.pixel[0] {
+        (x - l.pixel[0]) / (r.pixel[0] - l.pixel[0])
+    } else {
+        0.0
+    };
+    Some(l.depth + t * (r.depth - l.depth))
 }
 
 /// The image pixel (column, row) under `pixel` when it lies in the view

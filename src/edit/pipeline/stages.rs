@@ -90,11 +90,15 @@ pub(super) fn match_strokes(
 }
 
 /// Under `DEMSKETCH_DEBUG`: the best candidates of every stroke, with
-/// their depths and costs, on stderr.
+/// their depths and costs, on stderr (six, or `DEMSKETCH_DEBUG_CANDIDATES`).
 pub(super) fn trace_candidates(matched: &SketchMatch) {
+    let shown = std::env::var("DEMSKETCH_DEBUG_CANDIDATES")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(6);
     for m in &matched.views {
         for (k, l) in m.lists.iter().enumerate() {
-            for c in l.candidates.iter().take(6) {
+            for c in l.candidates.iter().take(shown) {
                 let d: Vec<f64> = c.points.iter().map(|p| p.depth).collect();
                 eprintln!(
                     "stroke {k}: feature {} {:?} depth {:.0}..{:.0} cost {:.2} = dis {:.2} def {:.2} sam {:.2} ext {:.2} cov {:.2}",
