@@ -126,6 +126,33 @@ struct Candidate {
 /// outside the window are allowed: only cells inside it are constrained.
 /// Curves must have finite coordinates (the caller checks).
 pub fn rasterise(base: &HeightMap, curves: &[CurveConstraint], cell: CellSize) -> ConstraintRaster {
+    resolve(base, curve_candidates(base, curves, cell))
+}
+
+/// [`rasterise`] of `curves`, and of `curves` followed by `extra`, with
+/// the candidates of `curves` found once: the two rasters are those of
+/// `rasterise(base, curves, cell)` and `rasterise(base, &[curves,
+/// extra].concat(), cell)`, to the bit (the candidates of a list of
+/// curves are those of its curves in turn).
+pub fn rasterise_with(
+    base: &HeightMap,
+    curves: &[CurveConstraint],
+    extra: &[CurveConstraint],
+    cell: CellSize,
+) -> (ConstraintRaster, ConstraintRaster) {
+    let own = curve_candidates(base, curves, cell);
+    let mut all = own.clone();
+    all.extend(curve_candidates(base, extra, cell));
+    (resolve(base, own), resolve(base, all))
+}
+
+/// The candidate cells of `curves` on the grid of `base`, curve by curve
+/// and segment by segment.
+fn curve_candidates(
+    base: &HeightMap,
+    curves: &[CurveConstraint],
+    cell: CellSize,
+) -> Vec<Candidate> {
     let (w, h) = (base.width, base.height);
     let mut cands: Vec<Candidate> = Vec::new();
     for curve in curves {
@@ -149,6 +176,13 @@ pub fn rasterise(base: &HeightMap, curves: &[CurveConstraint], cell: CellSize) -
             }
         }
     }
+    cands
+}
+
+/// The constraints of the candidates `cands` (in curve order): per cell,
+/// the closest candidate.
+fn resolve(base: &HeightMap, mut cands: Vec<Candidate>) -> ConstraintRaster {
+    let (w, h) = (base.width, base.height);
     // Per cell, the closest candidate; the stable sort keeps curve order
     // among exact ties, and the first of a tie wins.
     cands.sort_by_key(|c| c.cell);

@@ -467,14 +467,16 @@ fn constrain(
     plan: &DeformPlan,
 ) -> (ConstraintRaster, Vec<bool>) {
     let (cell, d) = (plan.cell, plan.influence_m);
-    let own = constraints::rasterise(base, curves, cell);
-    let d2 = locality::squared_distance_to_constraints(&own, cell);
-    let inside = locality::mask_of_distances(&d2, &own, cell, d);
     if bounded.is_empty() {
+        let own = constraints::rasterise(base, curves, cell);
+        let d2 = locality::squared_distance_to_constraints(&own, cell);
+        let inside = locality::mask_of_distances(&d2, &own, cell, d);
         return (own, inside);
     }
-    let all: Vec<CurveConstraint> = curves.iter().chain(bounded).cloned().collect();
-    let mut cons = constraints::rasterise(base, &all, cell);
+    // (the curves' candidate cells found once for both rasters)
+    let (own, mut cons) = constraints::rasterise_with(base, curves, bounded, cell);
+    let d2 = locality::squared_distance_to_constraints(&own, cell);
+    let inside = locality::mask_of_distances(&d2, &own, cell, d);
     let keep: Vec<bool> = (0..cons.delta.len())
         .map(|i| {
             own.constrained[i]

@@ -15,6 +15,8 @@
 //! where no neighbour behind it may move is a nearer one used, and only
 //! where every neighbour is held does the cell itself give way.
 
+use rayon::prelude::*;
+
 use crate::deform::Deformation;
 
 /// Cells whose change is more than half a cell above, or below, the changes
@@ -23,17 +25,17 @@ use crate::deform::Deformation;
 pub fn find_spikes(d: &Deformation) -> Vec<(usize, usize)> {
     let limit = 0.5 * d.stats.cell_size_m.hx.min(d.stats.cell_size_m.hy);
     let (w, h) = (d.window.width, d.window.height);
-    let mut out = Vec::new();
-    for r in 0..h {
-        for c in 0..w {
-            if let Some((above, below)) = excess(d, c, r) {
-                if above > limit || below > limit {
-                    out.push((c, r));
-                }
-            }
-        }
-    }
-    out
+    // Rows side by side, collected in row order.
+    (0..h)
+        .into_par_iter()
+        .flat_map_iter(|r| {
+            (0..w)
+                .filter(move |&c| {
+                    excess(d, c, r).is_some_and(|(above, below)| above > limit || below > limit)
+                })
+                .map(move |c| (c, r))
+        })
+        .collect()
 }
 
 /// How far the change at `(c, r)` lies above the largest, and below the
