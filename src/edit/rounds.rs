@@ -24,7 +24,7 @@ use super::contour::contour_constraints;
 use super::fit::fitted_fraction;
 use super::lowering::{find_protruding, find_raised_over_anchored, Protrusion};
 use super::pipeline::{render_edited_after, Edit, Placed, Solver, ViewState};
-use super::rendered_view::{RenderedView, StrokeCurve};
+use super::rendered_view::{RenderedView, StrokeCurve, StrokeRegion};
 use super::spikes::flatten_spikes;
 use super::EditError;
 use crate::deform::{CellConstraint, CurveConstraint, Deformation};
@@ -77,48 +77,16 @@ pub(super) fn refine(
 ) -> Result<Option<Rounds>, EditError> {
     let opts = edit.opts;
     let curves = &placed.demands.strokes;
-    let regions = &placed.regions;
-    // Each view's region on `deformation`'s terrain, taking from the
-    // views' `earlier` renders what the change since cannot reach (most of
-    // the image after a round that changed little).
-    let render_all = |deformation: &Deformation,
-                      earlier: Option<&[RenderedView]>|
-     -> Result<Vec<RenderedView>, EditError> {
-        views
-            .iter()
-            .zip(regions)
-            .enumerate()
-            .map(|(k, (v, r))| {
-                render_edited_after(v, deformation, Some(r), earlier.and_then(|e| e.get(k)))
-            })
-            .collect()
-    };
-    // Makes `next` the rounds' terrain, rendering it only when it differs
-    // from the one `rendered` shows (the same terrain renders the same).
-    let adopt = |deformation: &mut Deformation,
-                 rendered: &mut Vec<RenderedView>,
-                 next: Deformation|
-     -> Result<(), EditError> {
-        if !same_terrain(deformation, &next) {
-            *rendered = render_all(&next, Some(rendered))?;
-        }
-        *deformation = next;
-        Ok(())
-    };
+    let regions = &placed.regions[..];
     edit.pb.set_message("lowering protruding silhouettes");
-    let mut constraints = placed.demands.curves.clone();
-    let user_constraints = constraints.len();
-    let mut iterations = vec![0usize; views.len()];
-    let mut lowered = vec![0usize; views.len()];
-    let mut contour_rounds = vec![0usize; views.len()];
-    let mut cells: BTreeMap<(i64, i64), f64> = BTreeMap::new();
+    let mut gathered = Gathered::new(placed.demands.curves.clone(), views.len());
     // The best round so far: its score, terrain and renders (kept, so
     // that going back to it renders nothing again), and the renders of the
     // latest round when it is not the best.
     let mut best: Option<(f64, Deformation, Vec<RenderedView>)> = None;
-    // The constraints that made the best round's terrain (the curve list
-    // only grows: its length then), for the last try below.
-    let mut best_made_by = (constraints.len(), cells.clone());
+    // The constraints that made the best round's terrain, for the last
+    // try below.
+    let mut best_made_by = gathered.made_by();
     let mut raised_tried = false;
     // The best round before that try: (score, terrain).
     let mut before_raised: Option<(f64, Deformation)> = None;
@@ -131,14 +99,14 @@ pub(super) fn refine(
             (Some((_, r)), _) | (None, Some((_, _, r))) => Some(&r[..]),
             (None, None) => None,
         };
-        let renders = render_all(&deformation, latest)?;
+        let renders = render_all(views, regions, &deformation, latest)?;
         let score = fit_score(curves, &renders);
-        if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
+        if debug() {
             eprintln!(
                 "round: fit score {score:.3} (best {:?}), lowering {:?}, contour {:?}",
                 best.as_ref().map(|b| b.0),
-                iterations,
-                contour_rounds
+                gathered.iterations,
+                gathered.contour_rounds
             );
         }
         let stopped = match &best {
@@ -152,7 +120,7 @@ pub(super) fn refine(
                 stalled = 0;
                 last = None;
                 best = Some((score, deformation.clone(), renders));
-                best_made_by = (constraints.len(), cells.clone());
+                best_made_by = gathered.made_by();
                 false
             }
         };
@@ -160,60 +128,8 @@ pub(super) fn refine(
             (Some((_, r)), _) | (None, Some((_, _, r))) => r,
             (None, None) => unreachable!("a round's renders are kept"),
         };
-        let mut changed = false;
         // A stopped round adds nothing: the last try below, or the end.
-        if !stopped {
-            for (k, (v, after)) in views.iter().zip(rendered).enumerate() {
-                if iterations[k] < opts.max_lowering_iterations {
-                    let protruding = find_protruding(after, &curves[k]);
-                    if !protruding.is_empty() {
-                        for p in &protruding {
-                            if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
-                                let z: Vec<f64> = p.lowered.iter().map(|q| q[2]).collect();
-                                eprintln!(
-                                    "lowering: curve {} h {:.1} m, {} points, first {:?} last {:?}, z {:.0}..{:.0}",
-                                    p.curve,
-                                    p.h,
-                                    p.lowered.len(),
-                                    p.lowered.first(),
-                                    p.lowered.last(),
-                                    z.iter().cloned().fold(f64::INFINITY, f64::min),
-                                    z.iter().cloned().fold(f64::NEG_INFINITY, f64::max)
-                                );
-                            }
-                            if !p.lowered.is_empty() {
-                                constraints.push(CurveConstraint {
-                                    points: p.lowered.clone(),
-                                });
-                            }
-                        }
-                        lowered[k] += protruding.len();
-                        iterations[k] += 1;
-                        changed = true;
-                    }
-                }
-                if contour_rounds[k] < opts.max_contour_iterations {
-                    let mut moved = false;
-                    let mut round: BTreeMap<(i64, i64), f64> = BTreeMap::new();
-                    let known = |col: i64, row: i64| cells.contains_key(&(col, row));
-                    for c in contour_constraints(after, &curves[k], v.window_offset, &known) {
-                        let h = round.entry((c.col, c.row)).or_insert(c.height);
-                        *h = h.min(c.height);
-                    }
-                    for (&(col, row), &height) in &round {
-                        if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
-                            eprintln!("contour cell: col {col} row {row} height {height:.1}");
-                        }
-                        let old = cells.insert((col, row), height);
-                        moved |= old.is_none_or(|h| (h - height).abs() > CELL_CHANGE_M);
-                    }
-                    if moved {
-                        contour_rounds[k] += 1;
-                        changed = true;
-                    }
-                }
-            }
-        }
+        let changed = !stopped && gathered.round(views, rendered, curves, opts);
         if !changed {
             match lower_raised_crests(
                 &mut raised_tried,
@@ -225,15 +141,8 @@ pub(super) fn refine(
             ) {
                 RaisedTry::Lower(next) => {
                     before_raised = best.as_ref().map(|b| (b.0, b.1.clone()));
-                    deformation = retry_from_best(
-                        solver,
-                        &mut constraints,
-                        &mut cells,
-                        &best_made_by,
-                        next,
-                        &mut lowered,
-                        &mut iterations,
-                    )?;
+                    gathered.restart(&best_made_by, next);
+                    deformation = gathered.solve(solver)?;
                     stalled = 0;
                     continue;
                 }
@@ -248,18 +157,9 @@ pub(super) fn refine(
         }
         edit.pb.set_message(format!(
             "lowering protruding silhouettes, fitting contours: round {}",
-            iterations
-                .iter()
-                .chain(&contour_rounds)
-                .max()
-                .copied()
-                .unwrap_or(0)
+            gathered.rounds()
         ));
-        let cell_list: Vec<CellConstraint> = cells
-            .iter()
-            .map(|(&(col, row), &height)| CellConstraint { col, row, height })
-            .collect();
-        deformation = solver.solve(&constraints, &cell_list)?;
+        deformation = gathered.solve(solver)?;
     }
     // The best round's terrain and renders, if a later one did worse.
     let mut best_score = best.as_ref().map_or(0.0, |b| b.0);
@@ -290,7 +190,7 @@ pub(super) fn refine(
         if !worth {
             // (`rendered` is `deformation`'s render: when that is the
             // best round's terrain already, it is not rendered again)
-            adopt(&mut deformation, &mut rendered, d)?;
+            adopt(views, regions, &mut deformation, &mut rendered, d)?;
             best_score = score_before;
         }
     }
@@ -308,7 +208,7 @@ pub(super) fn refine(
     // DEM the heights rounded to whole units. The test below and the
     // report measure the file a re-edit of the output will read.
     if let Some(q) = solver.as_written(&deformation) {
-        adopt(&mut deformation, &mut rendered, q)?;
+        adopt(views, regions, &mut deformation, &mut rendered, q)?;
         best_score = fit_score(curves, &rendered);
     }
     // Do no harm: when the edit fits the strokes no better than the
@@ -320,12 +220,12 @@ pub(super) fn refine(
         .map(|(cs, v)| view_fit(cs, &v.before))
         .sum();
     let kept_unedited = unedited >= best_score - 1e-9 && best_score < perfect - 1e-9;
-    if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
+    if debug() {
         eprintln!("rounds: unedited fit {unedited:.3}, best {best_score:.3}, kept unedited {kept_unedited}");
     }
     if kept_unedited {
         let before = unchanged(deformation.clone());
-        adopt(&mut deformation, &mut rendered, before)?;
+        adopt(views, regions, &mut deformation, &mut rendered, before)?;
     }
     // No spikes: a lone apex (or pit) of the change field gets a
     // neighbour behind it within half a cell.
@@ -333,17 +233,220 @@ pub(super) fn refine(
         if let Some(q) = solver.as_written(&deformation) {
             deformation = q;
         }
-        rendered = render_all(&deformation, Some(&rendered))?;
+        rendered = render_all(views, regions, &deformation, Some(&rendered))?;
     }
     Ok(Some(Rounds {
         deformation,
         rendered,
-        lowering_iterations: iterations,
-        silhouettes_lowered: lowered,
-        contour_iterations: contour_rounds,
-        lowering_constraints: constraints.len() - user_constraints,
+        lowering_iterations: gathered.iterations,
+        silhouettes_lowered: gathered.lowered,
+        contour_iterations: gathered.contour_rounds,
+        lowering_constraints: gathered.constraints.len() - gathered.user_constraints,
         kept_unedited,
     }))
+}
+
+/// `DEMSKETCH_DEBUG` is set: the rounds print what they do on stderr.
+fn debug() -> bool {
+    std::env::var_os("DEMSKETCH_DEBUG").is_some()
+}
+
+/// Each view's region on `deformation`'s terrain, taking from the views'
+/// `earlier` renders what the change since cannot reach (most of the
+/// image after a round that changed little).
+fn render_all(
+    views: &[ViewState],
+    regions: &[StrokeRegion],
+    deformation: &Deformation,
+    earlier: Option<&[RenderedView]>,
+) -> Result<Vec<RenderedView>, EditError> {
+    views
+        .iter()
+        .zip(regions)
+        .enumerate()
+        .map(|(k, (v, r))| {
+            render_edited_after(v, deformation, Some(r), earlier.and_then(|e| e.get(k)))
+        })
+        .collect()
+}
+
+/// Makes `next` the rounds' terrain, rendering it only when it differs
+/// from the one `rendered` shows (the same terrain renders the same).
+fn adopt(
+    views: &[ViewState],
+    regions: &[StrokeRegion],
+    deformation: &mut Deformation,
+    rendered: &mut Vec<RenderedView>,
+    next: Deformation,
+) -> Result<(), EditError> {
+    if !same_terrain(deformation, &next) {
+        *rendered = render_all(views, regions, &next, Some(rendered))?;
+    }
+    *deformation = next;
+    Ok(())
+}
+
+/// What the rounds have gathered: the curve constraints (the user's
+/// first, then the lowered silhouettes), the contour cells, and per view
+/// how many rounds of each kind found something.
+struct Gathered {
+    constraints: Vec<CurveConstraint>,
+    /// How many of `constraints` are the user's.
+    user_constraints: usize,
+    cells: BTreeMap<(i64, i64), f64>,
+    /// Per view: lowering rounds that found protruding silhouettes.
+    iterations: Vec<usize>,
+    /// Per view: protruding silhouettes lowered, over all rounds.
+    lowered: Vec<usize>,
+    /// Per view: contour rounds that moved a cell.
+    contour_rounds: Vec<usize>,
+}
+
+/// The constraints that made a round's terrain: the curve list's length
+/// then (it only grows) and the contour cells.
+type MadeBy = (usize, BTreeMap<(i64, i64), f64>);
+
+impl Gathered {
+    fn new(user: Vec<CurveConstraint>, views: usize) -> Gathered {
+        Gathered {
+            user_constraints: user.len(),
+            constraints: user,
+            cells: BTreeMap::new(),
+            iterations: vec![0; views],
+            lowered: vec![0; views],
+            contour_rounds: vec![0; views],
+        }
+    }
+
+    fn made_by(&self) -> MadeBy {
+        (self.constraints.len(), self.cells.clone())
+    }
+
+    /// The most rounds any view has taken of either kind.
+    fn rounds(&self) -> usize {
+        self.iterations
+            .iter()
+            .chain(&self.contour_rounds)
+            .max()
+            .copied()
+            .unwrap_or(0)
+    }
+
+    /// One round over every view's renders: the protruding silhouettes
+    /// lowered and the contour cells moved, each within its iteration
+    /// limit. True when any view asks for more.
+    fn round(
+        &mut self,
+        views: &[ViewState],
+        rendered: &[RenderedView],
+        curves: &[Vec<StrokeCurve>],
+        opts: &super::EditOptions,
+    ) -> bool {
+        let mut changed = false;
+        for (k, (v, after)) in views.iter().zip(rendered).enumerate() {
+            if self.iterations[k] < opts.max_lowering_iterations {
+                changed |= self.lower_protruding(k, after, &curves[k]);
+            }
+            if self.contour_rounds[k] < opts.max_contour_iterations {
+                changed |= self.fit_contours(k, v, after, &curves[k]);
+            }
+        }
+        changed
+    }
+
+    /// Section 6.2: the silhouettes of view `k` that protrude above its
+    /// strokes, lowered by the paper's `h`. True when there were any.
+    fn lower_protruding(&mut self, k: usize, after: &RenderedView, curves: &[StrokeCurve]) -> bool {
+        let protruding = find_protruding(after, curves);
+        if protruding.is_empty() {
+            return false;
+        }
+        for p in &protruding {
+            if debug() {
+                let z: Vec<f64> = p.lowered.iter().map(|q| q[2]).collect();
+                eprintln!(
+                    "lowering: curve {} h {:.1} m, {} points, first {:?} last {:?}, z {:.0}..{:.0}",
+                    p.curve,
+                    p.h,
+                    p.lowered.len(),
+                    p.lowered.first(),
+                    p.lowered.last(),
+                    z.iter().cloned().fold(f64::INFINITY, f64::min),
+                    z.iter().cloned().fold(f64::NEG_INFINITY, f64::max)
+                );
+            }
+            if !p.lowered.is_empty() {
+                self.constraints.push(CurveConstraint {
+                    points: p.lowered.clone(),
+                });
+            }
+        }
+        self.lowered[k] += protruding.len();
+        self.iterations[k] += 1;
+        true
+    }
+
+    /// The contour cells of view `k`'s unfitted strokes
+    /// ([`contour_constraints`]), the lowest height where two strokes ask
+    /// for one cell. True when a cell is new or moved by more than
+    /// [`CELL_CHANGE_M`].
+    fn fit_contours(
+        &mut self,
+        k: usize,
+        view: &ViewState,
+        after: &RenderedView,
+        curves: &[StrokeCurve],
+    ) -> bool {
+        let mut round: BTreeMap<(i64, i64), f64> = BTreeMap::new();
+        let cells = &self.cells;
+        let known = |col: i64, row: i64| cells.contains_key(&(col, row));
+        for c in contour_constraints(after, curves, view.window_offset, &known) {
+            let h = round.entry((c.col, c.row)).or_insert(c.height);
+            *h = h.min(c.height);
+        }
+        let mut moved = false;
+        for (&(col, row), &height) in &round {
+            if debug() {
+                eprintln!("contour cell: col {col} row {row} height {height:.1}");
+            }
+            let old = self.cells.insert((col, row), height);
+            moved |= old.is_none_or(|h| (h - height).abs() > CELL_CHANGE_M);
+        }
+        if moved {
+            self.contour_rounds[k] += 1;
+        }
+        moved
+    }
+
+    /// Back to the constraints that made the best round's terrain
+    /// (`made_by`), plus the lowered crests of `next`, counted per view.
+    fn restart(&mut self, made_by: &MadeBy, next: Vec<Vec<Protrusion>>) {
+        self.constraints.truncate(made_by.0);
+        self.cells.clone_from(&made_by.1);
+        for (k, protrusions) in next.into_iter().enumerate() {
+            if protrusions.is_empty() {
+                continue;
+            }
+            self.lowered[k] += protrusions.len();
+            self.iterations[k] += 1;
+            self.constraints.extend(
+                protrusions
+                    .into_iter()
+                    .filter(|p| !p.lowered.is_empty())
+                    .map(|p| CurveConstraint { points: p.lowered }),
+            );
+        }
+    }
+
+    /// The terrain of everything gathered.
+    fn solve(&self, solver: &Solver) -> Result<Deformation, EditError> {
+        let cell_list: Vec<CellConstraint> = self
+            .cells
+            .iter()
+            .map(|(&(col, row), &height)| CellConstraint { col, row, height })
+            .collect();
+        solver.solve(&self.constraints, &cell_list)
+    }
 }
 
 /// Whether `a` and `b` give every view the same terrain: the same window,
@@ -450,40 +553,6 @@ fn can_complete(
                 (fitted + lowered as f64) / columns as f64 >= min_fit - 1e-9
             })
         })
-}
-
-/// Solve again from the constraints that made the best round's terrain
-/// (`made_by`: the curve list's length then and the contour cells), plus
-/// the lowered crests of `next`, counted per view.
-fn retry_from_best(
-    solver: &Solver,
-    constraints: &mut Vec<CurveConstraint>,
-    cells: &mut BTreeMap<(i64, i64), f64>,
-    made_by: &(usize, BTreeMap<(i64, i64), f64>),
-    next: Vec<Vec<Protrusion>>,
-    lowered: &mut [usize],
-    iterations: &mut [usize],
-) -> Result<Deformation, EditError> {
-    constraints.truncate(made_by.0);
-    cells.clone_from(&made_by.1);
-    for (k, protrusions) in next.into_iter().enumerate() {
-        if protrusions.is_empty() {
-            continue;
-        }
-        lowered[k] += protrusions.len();
-        iterations[k] += 1;
-        constraints.extend(
-            protrusions
-                .into_iter()
-                .filter(|p| !p.lowered.is_empty())
-                .map(|p| CurveConstraint { points: p.lowered }),
-        );
-    }
-    let cell_list: Vec<CellConstraint> = cells
-        .iter()
-        .map(|(&(col, row), &height)| CellConstraint { col, row, height })
-        .collect();
-    solver.solve(constraints, &cell_list)
 }
 
 /// The lowest fitted fraction of any stroke of any view.
