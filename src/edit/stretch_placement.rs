@@ -167,10 +167,82 @@ pub fn place_free_stretches(
         })
         .collect();
     let n = on.len();
+    // The free runs and their bounds (the anchors beside them, or the
+    // terrain under the stroke's end); then whether the matched depth
+    // agrees.
+    let mut spans = free_spans(before, proj, observer_radius_m, placed, &on);
+    drop_passed_anchors(placed, &on, &mut spans);
+    let runs: Vec<(Span, bool)> = spans
+        .into_iter()
+        .map(|span| {
+            let ok = keeps_feature(before, feature, near_px, placed, &on, span);
+            (span, ok)
+        })
+        .collect();
+    let mut replaced_ends = (false, false);
+    for ((a, b, left, right), feature_ok) in runs {
+        let count = b - a;
+        if feature_ok {
+            let whole = a == 0 && b == n;
+            let behind = whole
+                .then(|| drawable_depth_behind(before, proj, placed, &on[a..b]))
+                .flatten();
+            if let Some(surface) = behind {
+                put_at_depths(proj, placed, &on[a..b], |_, px| surface.depth(proj, px));
+                out.behind += count;
+                replaced_ends.0 |= a == 0;
+                replaced_ends.1 |= b == n;
+                continue;
+            }
+            out.feature += count;
+            hold_extension_depth(proj, placed, &on[a..b]);
+            continue;
+        }
+        // A stretch bounded by junctions only: nothing says where it stands.
+        let real = |q: Option<Bound>| q.filter(|q| !q.junction);
+        if real(left).is_none() && real(right).is_none() {
+            out.unsupported += count;
+            continue;
+        }
+        let surface = Surface::new(proj, left, right);
+        let cut = cut_depths(before, &on[a..b], placed, near_px);
+        put_at_depths(proj, placed, &on[a..b], |j, px| {
+            cut[j].or_else(|| surface.depth(proj, px))
+        });
+        if real(left).is_some() && real(right).is_some() {
+            out.end_points += count;
+        } else {
+            out.drawing_plane += count;
+        }
+        replaced_ends.0 |= a == 0;
+        replaced_ends.1 |= b == n;
+    }
+    drop_completions_at_ends(placed, &on, replaced_ends);
+    out
+}
+
+/// A free stretch of a stroke: its first and one-past-last index into the
+/// stroke's drawn points (`on`), and the terrain points bounding it on
+/// the left and the right.
+type Span = (usize, usize, Option<Bound>, Option<Bound>);
+
+/// The free stretches of the stroke's drawn points `on` (indices into
+/// `placed.points` of the points that are not completions), each with
+/// its bounds: the anchored point beside it, or at a stroke end the
+/// ground the end stands on or, failing that, the silhouette it stops on
+/// (a junction). Nothing on the observer's fixed ground is a landform's
+/// foot.
+fn free_spans(
+    before: &RenderedView,
+    proj: &SceneProjection,
+    observer_radius_m: f64,
+    placed: &StrokeMatch,
+    on: &[usize],
+) -> Vec<Span> {
+    let n = on.len();
     let anchored = |k: usize| placed.points[k].source == PointSource::Silhouette;
     let bound_at = |k: usize, end: bool| -> Option<Bound> {
         let p = &placed.points[k];
-        // Nothing on the observer's fixed ground is a landform's foot.
         if anchored(k) {
             return (p.depth > observer_radius_m).then_some(Bound {
                 world: p.world,
@@ -195,10 +267,7 @@ pub fn place_free_stretches(
             junction,
         })
     };
-    // The free runs and their bounds (the anchors beside them, or the
-    // terrain under the stroke's end); then whether the matched depth
-    // agrees.
-    let mut spans: Vec<(usize, usize, Option<Bound>, Option<Bound>)> = Vec::new();
+    let mut spans = Vec::new();
     let mut a = 0;
     while a < n {
         if anchored(on[a]) {
@@ -222,125 +291,108 @@ pub fn place_free_stretches(
         spans.push((a, b, left, right));
         a = b;
     }
-    drop_passed_anchors(placed, &on, &mut spans);
-    let mut runs: Vec<(usize, usize, Option<Bound>, Option<Bound>, bool)> = Vec::new();
-    for (a, b, left_all, right_all) in spans {
-        // A junction bounds the stretch only from the near side: it
-        // neither contradicts the feature nor names a landform it cuts.
-        let (left, right) = (
-            left_all.filter(|q| !q.junction),
-            right_all.filter(|q| !q.junction),
+    spans
+}
+
+/// Whether a free stretch keeps its matched feature's depth (see the
+/// module documentation): most of its points lie on the feature, the
+/// feature lies near it in the image or an anchor beside it agrees with
+/// it, no stroke end stands on nearer ground, and the stretch neither cuts
+/// the landform its anchors lie on nor leaves a farther silhouette into
+/// the sky.
+fn keeps_feature(
+    before: &RenderedView,
+    feature: Option<&ViewFeature>,
+    near_px: f64,
+    placed: &StrokeMatch,
+    on: &[usize],
+    (a, b, left_all, right_all): Span,
+) -> bool {
+    let n = on.len();
+    // A junction bounds the stretch only from the near side: it
+    // neither contradicts the feature nor names a landform it cuts.
+    let (left, right) = (
+        left_all.filter(|q| !q.junction),
+        right_all.filter(|q| !q.junction),
+    );
+    // Stroke ends (not anchors) standing on nearer ground contradict.
+    let contradicts = |bound: Option<Bound>, k: usize, is_end: bool| {
+        let p = &placed.points[k];
+        is_end && bound.is_some_and(|q| q.depth < p.depth * (1.0 - AGREEMENT))
+    };
+    let run_points: Vec<&PlacedPoint> = on[a..b].iter().map(|&k| &placed.points[k]).collect();
+    let on_feature = run_points
+        .iter()
+        .filter(|p| p.source == PointSource::Feature)
+        .count();
+    // An anchor beside the stretch at the feature's depth: the stroke
+    // leaves that silhouette along the feature's landform.
+    let meets_anchor = |bound: Option<Bound>, k: usize, is_end: bool| {
+        let p = &placed.points[k];
+        !is_end
+            && p.source == PointSource::Feature
+            && bound.is_some_and(|q| (q.depth - p.depth).abs() <= AGREEMENT * q.depth)
+    };
+    let feature_ok = on_feature as f64 >= NEAR_COVERAGE * run_points.len() as f64
+        && (feature.is_some_and(|f| near_in_image(f, &run_points, near_px))
+            || meets_anchor(left, on[a], a == 0)
+            || meets_anchor(right, on[b - 1], b == n))
+        && !contradicts(left, on[a], a == 0)
+        && !contradicts(right, on[b - 1], b == n)
+        && !cuts_anchored_landform(before, &run_points, left, right)
+        && !leaves_farther_silhouette(
+            before,
+            feature,
+            &run_points,
+            (
+                left,
+                (a > 0).then(|| placed.points[on[a - 1]].pixel).flatten(),
+            ),
+            (right, (b < n).then(|| placed.points[on[b]].pixel).flatten()),
         );
-        // Stroke ends (not anchors) standing on nearer ground contradict.
-        let contradicts = |bound: Option<Bound>, k: usize, is_end: bool| {
-            let p = &placed.points[k];
-            is_end && bound.is_some_and(|q| q.depth < p.depth * (1.0 - AGREEMENT))
-        };
-        let run_points: Vec<&PlacedPoint> = on[a..b].iter().map(|&k| &placed.points[k]).collect();
-        let on_feature = run_points
-            .iter()
-            .filter(|p| p.source == PointSource::Feature)
-            .count();
-        // An anchor beside the stretch at the feature's depth: the stroke
-        // leaves that silhouette along the feature's landform.
-        let meets_anchor = |bound: Option<Bound>, k: usize, is_end: bool| {
-            let p = &placed.points[k];
-            !is_end
-                && p.source == PointSource::Feature
-                && bound.is_some_and(|q| (q.depth - p.depth).abs() <= AGREEMENT * q.depth)
-        };
-        let feature_ok = on_feature as f64 >= NEAR_COVERAGE * run_points.len() as f64
-            && (feature.is_some_and(|f| near_in_image(f, &run_points, near_px))
-                || meets_anchor(left, on[a], a == 0)
-                || meets_anchor(right, on[b - 1], b == n))
-            && !contradicts(left, on[a], a == 0)
-            && !contradicts(right, on[b - 1], b == n)
-            && !cuts_anchored_landform(before, &run_points, left, right)
-            && !leaves_farther_silhouette(
-                before,
-                feature,
-                &run_points,
-                (
-                    left,
-                    (a > 0).then(|| placed.points[on[a - 1]].pixel).flatten(),
-                ),
-                (right, (b < n).then(|| placed.points[on[b]].pixel).flatten()),
-            );
-        if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
-            eprintln!(
-                "stretch {a}..{b} of {n} (x {:?}..{:?}): on_feature {on_feature} near {:?} left {:?} right {:?} depth {} {}",
-                placed.points[on[a]].pixel.map(|p| p[0]),
-                placed.points[on[b - 1]].pixel.map(|p| p[0]),
-                feature.map(|f| near_in_image(f, &run_points, near_px)),
-                left.map(|q| q.depth),
-                right.map(|q| q.depth),
-                placed.points[on[a]].depth,
-                placed.points[on[b - 1]].depth
-            );
-        }
-        runs.push((a, b, left_all, right_all, feature_ok));
+    if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
+        eprintln!(
+            "stretch {a}..{b} of {n} (x {:?}..{:?}): on_feature {on_feature} near {:?} left {:?} right {:?} depth {} {}",
+            placed.points[on[a]].pixel.map(|p| p[0]),
+            placed.points[on[b - 1]].pixel.map(|p| p[0]),
+            feature.map(|f| near_in_image(f, &run_points, near_px)),
+            left.map(|q| q.depth),
+            right.map(|q| q.depth),
+            placed.points[on[a]].depth,
+            placed.points[on[b - 1]].depth
+        );
     }
-    let mut replaced_ends = (false, false);
-    for (a, b, left, right, feature_ok) in runs {
-        let count = b - a;
-        if feature_ok {
-            let whole = a == 0 && b == n;
-            let behind = whole
-                .then(|| drawable_depth_behind(before, proj, placed, &on[a..b]))
-                .flatten();
-            if let Some(surface) = behind {
-                for &k in &on[a..b] {
-                    let Some(px) = placed.points[k].pixel else {
-                        continue;
-                    };
-                    if let Some(depth) = surface.depth(proj, px) {
-                        placed.points[k] = PlacedPoint {
-                            pixel: Some(px),
-                            world: proj.unproject(px, depth),
-                            depth,
-                            source: PointSource::Fallback,
-                        };
-                    }
-                }
-                out.behind += count;
-                replaced_ends.0 |= a == 0;
-                replaced_ends.1 |= b == n;
-                continue;
-            }
-            out.feature += count;
-            hold_extension_depth(proj, placed, &on[a..b]);
+    feature_ok
+}
+
+/// Puts the points `run` (indices into `placed.points`) at the depths
+/// `depth_of(j, pixel)` gives the `j`-th of them, as fallback points;
+/// a point with no depth stays as it was.
+fn put_at_depths(
+    proj: &SceneProjection,
+    placed: &mut StrokeMatch,
+    run: &[usize],
+    depth_of: impl Fn(usize, [f64; 2]) -> Option<f64>,
+) {
+    for (j, &k) in run.iter().enumerate() {
+        let Some(px) = placed.points[k].pixel else {
             continue;
-        }
-        // A stretch bounded by junctions only: nothing says where it stands.
-        let real = |q: Option<Bound>| q.filter(|q| !q.junction);
-        if real(left).is_none() && real(right).is_none() {
-            out.unsupported += count;
-            continue;
-        }
-        let surface = Surface::new(proj, left, right);
-        let cut = cut_depths(before, &on[a..b], placed, near_px);
-        for (j, &k) in on[a..b].iter().enumerate() {
-            let Some(px) = placed.points[k].pixel else {
-                continue;
+        };
+        if let Some(depth) = depth_of(j, px) {
+            placed.points[k] = PlacedPoint {
+                pixel: Some(px),
+                world: proj.unproject(px, depth),
+                depth,
+                source: PointSource::Fallback,
             };
-            if let Some(depth) = cut[j].or_else(|| surface.depth(proj, px)) {
-                placed.points[k] = PlacedPoint {
-                    pixel: Some(px),
-                    world: proj.unproject(px, depth),
-                    depth,
-                    source: PointSource::Fallback,
-                };
-            }
         }
-        if real(left).is_some() && real(right).is_some() {
-            out.end_points += count;
-        } else {
-            out.drawing_plane += count;
-        }
-        replaced_ends.0 |= a == 0;
-        replaced_ends.1 |= b == n;
     }
-    // Completion at a re-placed end: that end stands on the terrain.
+}
+
+/// Drops the completion beyond a re-placed stroke end (`replaced_ends`:
+/// the first, the last): that end stands on the terrain.
+fn drop_completions_at_ends(placed: &mut StrokeMatch, on: &[usize], replaced_ends: (bool, bool)) {
+    let n = on.len();
     if n > 0 && (replaced_ends.0 || replaced_ends.1) {
         let (first, last) = (on[0], on[n - 1]);
         let mut k = 0;
@@ -351,7 +403,6 @@ pub fn place_free_stretches(
             !drop
         });
     }
-    out
 }
 
 /// A free stretch narrower than this many DEM cells at the depth of its
