@@ -98,76 +98,21 @@ pub(super) fn write_outputs(
         Vec::new()
     };
     let staged_report = match &opts.report {
-        Some(p) => {
-            let werr = |e: std::io::Error| EditError::Write {
-                path: p.display().to_string(),
-                message: e.to_string(),
-            };
-            let mut f = StagedFile::create(p).map_err(werr)?;
-            // Its space is claimed before the DEM is written (a generous
-            // bound: the fixed part, each tile's path, each stroke).
-            let strokes: usize = view_reports.iter().map(|v| v.strokes.len()).sum();
-            let curve_points: usize = view_reports
-                .iter()
-                .flat_map(|v| &v.strokes)
-                .map(|s| s.placed_curve.len())
-                .sum();
-            let estimate =
-                64 * 1024 + 1024 * src.dem.tiles.len() + 8 * 1024 * strokes + 96 * curve_points;
-            f.reserve(estimate as u64).map_err(werr)?;
-            Some(f)
-        }
+        Some(p) => Some(stage_report(p, src, &view_reports)?),
         None => None,
     };
     let staged_renders = match &opts.renders {
         Some(dir) => Some(StagedDir::create(dir, &pictures)?),
         None => None,
     };
-    let provenance = Provenance {
-        edit_id: format!(
-            "{}:{}",
-            src.sketch_path
-                .file_name()
-                .map(|n| n.to_string_lossy().into_owned())
-                .unwrap_or_default(),
-            content_hash(src.sketch)
-        ),
-    };
     let below = (!opts.allow_partial)
         .then(|| worst_below_min_fit(&view_reports))
         .flatten();
     let write = below.is_none() && !opts.dry_run;
-    let values = deformation.write_values();
-    let mut write_opts = opts.write.clone();
-    write_opts.record = ProvenanceRecord {
-        input: Some(src.dem_path.display().to_string()),
-        sketch_sha256: std::fs::read(src.sketch_path).ok().map(|b| sha256_hex(&b)),
-        parameters: Some(opts.parameters()),
-    };
     let written = if write {
-        src.dem.write_back_with(
-            deformation.window,
-            &values,
-            &opts.destination,
-            &provenance,
-            &write_opts,
-        )?
+        write_back(src, &deformation, opts)?
     } else {
-        // Not written: what a real run would change (a dry run fails as the
-        // real run would on heights the DEM cannot store).
-        let changed = match src.dem.check_write_back(deformation.window, &values) {
-            Ok(n) => n,
-            Err(e) if below.is_none() => return Err(e.into()),
-            Err(e) => {
-                notes.push(format!("the write-back would also fail: {e}"));
-                0
-            }
-        };
-        WriteReport {
-            tiles_written: Vec::new(),
-            tiles_unchanged: Vec::new(),
-            changed_cells: changed,
-        }
+        check_write_back(src, &deformation, below.is_some(), &mut notes)?
     };
     if let Some(b) = &below {
         notes.push(format!(
@@ -224,15 +169,7 @@ pub(super) fn write_outputs(
         corrections,
     };
     if let (Some(staged), Some(path)) = (staged_report, &opts.report) {
-        let mut text = serde_json::to_string_pretty(&report)
-            .map_err(|e| EditError::Internal(format!("report: {e}")))?;
-        text.push('\n');
-        staged
-            .commit(text.as_bytes())
-            .map_err(|e| EditError::Write {
-                path: path.display().to_string(),
-                message: e.to_string(),
-            })?;
+        commit_report(staged, path, &report)?;
     }
     edit.pb.finish_and_clear();
     if let Some(b) = below {
@@ -247,6 +184,103 @@ pub(super) fn write_outputs(
         });
     }
     Ok(report)
+}
+
+/// The report's staged file at `p`, its space claimed before the DEM is
+/// written (a generous bound: the fixed part, each tile's path, each
+/// stroke).
+fn stage_report(
+    p: &Path,
+    src: &Sources,
+    view_reports: &[ViewReport],
+) -> Result<StagedFile, EditError> {
+    let werr = |e: std::io::Error| EditError::Write {
+        path: p.display().to_string(),
+        message: e.to_string(),
+    };
+    let mut f = StagedFile::create(p).map_err(werr)?;
+    let strokes: usize = view_reports.iter().map(|v| v.strokes.len()).sum();
+    let curve_points: usize = view_reports
+        .iter()
+        .flat_map(|v| &v.strokes)
+        .map(|s| s.placed_curve.len())
+        .sum();
+    let estimate = 64 * 1024 + 1024 * src.dem.tiles.len() + 8 * 1024 * strokes + 96 * curve_points;
+    f.reserve(estimate as u64).map_err(werr)?;
+    Ok(f)
+}
+
+/// Writes the deformation back to the DEM's tiles (atomically, verified),
+/// with the edit's provenance: the sketch's name and content hash, the
+/// input, the sketch file's SHA-256 and the edit's parameters.
+fn write_back(
+    src: &Sources,
+    deformation: &Deformation,
+    opts: &super::EditOptions,
+) -> Result<WriteReport, EditError> {
+    let provenance = Provenance {
+        edit_id: format!(
+            "{}:{}",
+            src.sketch_path
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default(),
+            content_hash(src.sketch)
+        ),
+    };
+    let mut write_opts = opts.write.clone();
+    write_opts.record = ProvenanceRecord {
+        input: Some(src.dem_path.display().to_string()),
+        sketch_sha256: std::fs::read(src.sketch_path).ok().map(|b| sha256_hex(&b)),
+        parameters: Some(opts.parameters()),
+    };
+    Ok(src.dem.write_back_with(
+        deformation.window,
+        &deformation.write_values(),
+        &opts.destination,
+        &provenance,
+        &write_opts,
+    )?)
+}
+
+/// Not written: what a real run would change (a dry run fails as the real
+/// run would on heights the DEM cannot store; when a stroke is `below`
+/// the minimum fit, that failure is a note instead).
+fn check_write_back(
+    src: &Sources,
+    deformation: &Deformation,
+    below: bool,
+    notes: &mut Vec<String>,
+) -> Result<WriteReport, EditError> {
+    let changed = match src
+        .dem
+        .check_write_back(deformation.window, &deformation.write_values())
+    {
+        Ok(n) => n,
+        Err(e) if !below => return Err(e.into()),
+        Err(e) => {
+            notes.push(format!("the write-back would also fail: {e}"));
+            0
+        }
+    };
+    Ok(WriteReport {
+        tiles_written: Vec::new(),
+        tiles_unchanged: Vec::new(),
+        changed_cells: changed,
+    })
+}
+
+/// Moves the report into place at `path`.
+fn commit_report(staged: StagedFile, path: &Path, report: &EditReport) -> Result<(), EditError> {
+    let mut text = serde_json::to_string_pretty(report)
+        .map_err(|e| EditError::Internal(format!("report: {e}")))?;
+    text.push('\n');
+    staged
+        .commit(text.as_bytes())
+        .map_err(|e| EditError::Write {
+            path: path.display().to_string(),
+            message: e.to_string(),
+        })
 }
 
 /// Nodata of the height-change GeoTIFF (`--dz`).
