@@ -239,17 +239,7 @@ pub fn build_candidate(
     if !(fb.min(sx1) - fa.max(sx0) >= opts.min_coverage * span) {
         return None;
     }
-    // Keep the x-monotone samples (the producer's contract).
-    let mut samples = Vec::with_capacity(feature.samples.len());
-    for s in &feature.samples {
-        if !(s.pixel[0].is_finite() && s.pixel[1].is_finite() && s.depth.is_finite()) {
-            continue;
-        }
-        match samples.last() {
-            Some(&(p, _)) if s.pixel[0] < p => {}
-            _ => samples.push((s.pixel[0], s)),
-        }
-    }
+    let samples = monotone_samples(feature);
     if samples.len() < 2 {
         return None;
     }
@@ -263,9 +253,64 @@ pub fn build_candidate(
     if coverage < opts.min_coverage {
         return None;
     }
-
     // 1. Truncation to [sx0, sx1].
-    let mut pts: Vec<(([f64; 2], f64), [f64; 3], bool)> = Vec::new();
+    let mut pts = truncate(proj, &samples, (sx0, sx1));
+    if pts.len() < 2 {
+        return None;
+    }
+    // 2. Extension to cover the stroke.
+    extend_to_cover(proj, &mut pts, (sx0, sx1), opts.extension_step_px.max(0.5));
+    // 3. Altitude adjustment.
+    let (cpoints, hfp, hf) = adjust_altitude(stroke, proj, &pts);
+    // 4. Costs.
+    let c = cost_integrals(&cpoints, &hfp, &hf);
+    let costs = CostTerms {
+        dissimilarity: opts.weights.dissimilarity * c.dissimilarity,
+        deformation: opts.weights.deformation * c.deformation,
+        sampling: 0.0,
+        extension: opts.weights.extension * c.extension,
+        total: 0.0,
+    };
+    Some(Candidate {
+        feature_id: feature.id,
+        kind: feature.kind,
+        points: cpoints,
+        costs,
+        coverage: coverage.min(1.0),
+        longest_edge_m: c.longest,
+        length_m: c.length,
+        extended_length_m: c.extended_length,
+    })
+}
+
+/// A point of a truncated (and extended) feature: its pixel and depth,
+/// its world point, and whether the extension made it.
+type FeaturePoint = (([f64; 2], f64), [f64; 3], bool);
+
+/// The feature's finite samples, keeping them x-monotone (the producer's
+/// contract), each with its pixel column.
+fn monotone_samples(feature: &ViewFeature) -> Vec<(f64, &super::projection::FeatureSample)> {
+    let mut samples = Vec::with_capacity(feature.samples.len());
+    for s in &feature.samples {
+        if !(s.pixel[0].is_finite() && s.pixel[1].is_finite() && s.depth.is_finite()) {
+            continue;
+        }
+        match samples.last() {
+            Some(&(p, _)) if s.pixel[0] < p => {}
+            _ => samples.push((s.pixel[0], s)),
+        }
+    }
+    samples
+}
+
+/// The feature truncated to the stroke's columns `sx0..sx1`, its ends cut
+/// where it crosses them (interpolated in the world and projected).
+fn truncate(
+    proj: &dyn ViewProjection,
+    samples: &[(f64, &super::projection::FeatureSample)],
+    (sx0, sx1): (f64, f64),
+) -> Vec<FeaturePoint> {
+    let mut pts: Vec<FeaturePoint> = Vec::new();
     let cut = |a: &super::projection::FeatureSample,
                b: &super::projection::FeatureSample,
                x: f64|
@@ -307,25 +352,39 @@ pub fn build_candidate(
         }
         pts.push(((s.pixel, s.depth), s.world, false));
     }
-    if pts.len() < 2 {
-        return None;
-    }
+    pts
+}
 
-    // 2. Extension to cover the stroke.
-    let step = opts.extension_step_px.max(0.5);
+/// Extends the truncated feature `pts` (at least two points) along its
+/// end directions until it covers the stroke's columns `sx0..sx1`, a
+/// point every `step` pixels.
+fn extend_to_cover(
+    proj: &dyn ViewProjection,
+    pts: &mut Vec<FeaturePoint>,
+    (sx0, sx1): (f64, f64),
+    step: f64,
+) {
     if pts[0].0 .0[0] > sx0 + 1e-6 {
         let ext = extend(proj, pts[0].1, pts[1].1, pts[0].0, sx0, step);
         let mut front: Vec<_> = ext.into_iter().rev().map(|(pd, w)| (pd, w, true)).collect();
-        front.append(&mut pts);
-        pts = front;
+        front.append(pts);
+        *pts = front;
     }
     let n = pts.len();
     if pts[n - 1].0 .0[0] < sx1 - 1e-6 {
         let ext = extend(proj, pts[n - 1].1, pts[n - 2].1, pts[n - 1].0, sx1, step);
         pts.extend(ext.into_iter().map(|(pd, w)| (pd, w, true)));
     }
+}
 
-    // 3. Altitude adjustment.
+/// Each feature point raised or lowered onto the stroke's sight line (the
+/// paper's altitude adjustment), with per point the stroke-to-feature
+/// distance in pixels and the lift seen from the eye in pixels.
+fn adjust_altitude(
+    stroke: &Stroke,
+    proj: &dyn ViewProjection,
+    pts: &[FeaturePoint],
+) -> (Vec<CandidatePoint>, Vec<f64>, Vec<f64>) {
     let (w, h) = proj.image_size();
     let (cx, cy) = (w as f64 / 2.0, h as f64 / 2.0);
     let f = proj.focal_px();
@@ -333,7 +392,7 @@ pub fn build_candidate(
     let mut cpoints: Vec<CandidatePoint> = Vec::with_capacity(pts.len());
     let mut hfp = Vec::with_capacity(pts.len());
     let mut hf = Vec::with_capacity(pts.len());
-    for &((pixel, _), world, extended) in &pts {
+    for &((pixel, _), world, extended) in pts {
         let ys = stroke.y_at_clamped(pixel[0]);
         // Signed pixel offset: positive when the feature is drawn below the
         // stroke on screen (it must be raised).
@@ -364,8 +423,25 @@ pub fn build_candidate(
             cpoints[i].deformed_pixel[0] = cpoints[i - 1].deformed_pixel[0];
         }
     }
+    (cpoints, hfp, hf)
+}
 
-    // 4. Costs.
+/// The unweighted cost terms of a candidate, and its lengths.
+struct CostIntegrals {
+    /// Mean pixel distance to the stroke along the feature's image length.
+    dissimilarity: f64,
+    /// Mean lift (pixels) along the deformed feature's length.
+    deformation: f64,
+    /// Share of the deformed length that is extension.
+    extension: f64,
+    longest: f64,
+    length: f64,
+    extended_length: f64,
+}
+
+/// The integrals of equation (1)'s terms over the candidate's points,
+/// each normalised by its length (the mean where a length is zero).
+fn cost_integrals(cpoints: &[CandidatePoint], hfp: &[f64], hf: &[f64]) -> CostIntegrals {
     let mut len_p = 0.0;
     let mut int_p = 0.0;
     let mut len = 0.0;
@@ -386,30 +462,18 @@ pub fn build_candidate(
         longest = longest.max(l);
     }
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
-    let dis = if len_p > 0.0 {
-        int_p / len_p
-    } else {
-        mean(&hfp)
-    };
-    let def = if len > 0.0 { int_f / len } else { mean(&hf) };
-    let ext = if len > 0.0 { ext_len / len } else { 0.0 };
-    let costs = CostTerms {
-        dissimilarity: opts.weights.dissimilarity * dis,
-        deformation: opts.weights.deformation * def,
-        sampling: 0.0,
-        extension: opts.weights.extension * ext,
-        total: 0.0,
-    };
-    Some(Candidate {
-        feature_id: feature.id,
-        kind: feature.kind,
-        points: cpoints,
-        costs,
-        coverage: coverage.min(1.0),
-        longest_edge_m: longest,
-        length_m: len,
-        extended_length_m: ext_len,
-    })
+    CostIntegrals {
+        dissimilarity: if len_p > 0.0 {
+            int_p / len_p
+        } else {
+            mean(hfp)
+        },
+        deformation: if len > 0.0 { int_f / len } else { mean(hf) },
+        extension: if len > 0.0 { ext_len / len } else { 0.0 },
+        longest,
+        length: len,
+        extended_length: ext_len,
+    }
 }
 
 /// Extends a feature from its end `end` (with `prev` the point before it)
