@@ -18,6 +18,7 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
 use rayon::prelude::*;
+use tiff::decoder::DecodingResult;
 
 use super::block_cache::BlockCache;
 use super::geotiff::{memory_budget, GeoTiff};
@@ -482,28 +483,7 @@ impl Dem {
         }
         // Nodata is the same for every tile (checked at open).
         let nodata = self.nodata.map(|v| self.sample_type.quantize(v));
-        // Jobs: (tile, block) pairs for native tiles; whole overlaps for GDAL ones.
-        let mut jobs: Vec<(usize, Option<u32>)> = Vec::new();
-        for (ti, tile) in self.tiles.iter().enumerate() {
-            let Some(ov) = tile.extent.intersect(&win) else {
-                continue;
-            };
-            match &tile.source {
-                TileSource::Tiff(tiff) => {
-                    let l = &tiff.layout;
-                    let lc0 = (ov.col - tile.extent.col) as u32;
-                    let lr0 = (ov.row - tile.extent.row) as u32;
-                    let lc1 = lc0 + ov.width as u32 - 1;
-                    let lr1 = lr0 + ov.height as u32 - 1;
-                    for by in lr0 / l.block_height..=lr1 / l.block_height {
-                        for bx in lc0 / l.block_width..=lc1 / l.block_width {
-                            jobs.push((ti, Some(by * l.blocks_across + bx)));
-                        }
-                    }
-                }
-                TileSource::Gdal(_) => jobs.push((ti, None)),
-            }
-        }
+        let jobs = self.read_jobs(win);
         // Fail fast: decode one block (kept in the cache) before the window
         // is allocated, so that a broken or crafted file costs little.
         if let Some(&(ti, Some(bi))) = jobs.first() {
@@ -532,104 +512,11 @@ impl Dem {
                 let tile = &self.tiles[ti];
                 match (&tile.source, block) {
                     (TileSource::Tiff(tiff), Some(bi)) => {
-                        let key = (ti, bi);
-                        let decoded = match self.cache.get(key) {
-                            Some(b) => b,
-                            None => {
-                                let b = Arc::new(tiff.decode_block(bi)?);
-                                if cached {
-                                    self.cache.insert(key, b.clone());
-                                }
-                                b
-                            }
-                        };
-                        let (bc, br, bw, bh) = tiff.block_extent(bi);
-                        let bwin = Window::new(
-                            tile.extent.col + bc as i64,
-                            tile.extent.row + br as i64,
-                            bw as usize,
-                            bh as usize,
-                        );
-                        let Some(ov) = bwin.intersect(&win) else {
-                            return Ok(());
-                        };
-                        let row_len = tiff.decoded_row_len(bi);
-                        let conv =
-                            (metres && !tile.vertical.is_identity()).then_some(&tile.vertical);
-                        let mut row = if conv.is_some() {
-                            vec![0f64; ov.width]
-                        } else {
-                            Vec::new()
-                        };
-                        if super::sample_type::decoded_bytes(&decoded)
-                            < row_len * bh as usize * tiff.sample_type.bytes()
-                        {
-                            return Err(RasterError::Corrupt {
-                                path: tiff.path.clone(),
-                                detail: format!("block {bi} decodes to too few samples"),
-                            });
-                        }
-                        for r in 0..ov.height {
-                            let src_row = (ov.row - bwin.row) as usize + r;
-                            let src = src_row * row_len + (ov.col - bwin.col) as usize;
-                            let dst = (ov.row - win.row) as usize + r;
-                            let dst = dst * win.width + (ov.col - win.col) as usize;
-                            // SAFETY: blocks are disjoint rectangles of the
-                            // window, so no two jobs write the same cells.
-                            let out = unsafe { out.slice(dst, ov.width) };
-                            match &conv {
-                                None => {
-                                    T::copy_from_block(&decoded, src, out);
-                                    mask_nodata(out, nodata);
-                                }
-                                Some(v) => {
-                                    f64::copy_from_block(&decoded, src, &mut row);
-                                    store_metres(&row, out, nodata, v);
-                                }
-                            }
-                        }
-                        Ok(())
+                        let decoded = self.block((ti, bi), tiff, cached)?;
+                        copy_block(tile, tiff, bi, &decoded, win, metres, nodata, &out)
                     }
                     (TileSource::Gdal(ds), _) => {
-                        let Some(ov) = tile.extent.intersect(&win) else {
-                            return Ok(());
-                        };
-                        let mut buf = vec![0f64; ov.len()];
-                        {
-                            let ds = ds.lock().map_err(|_| {
-                                RasterError::gdal(&tile.path, "dataset lock poisoned")
-                            })?;
-                            let band = ds
-                                .rasterband(1)
-                                .map_err(|e| RasterError::gdal(&tile.path, e))?;
-                            band.read_into_slice::<f64>(
-                                (
-                                    (ov.col - tile.extent.col) as isize,
-                                    (ov.row - tile.extent.row) as isize,
-                                ),
-                                (ov.width, ov.height),
-                                (ov.width, ov.height),
-                                &mut buf,
-                                None,
-                            )
-                            .map_err(|e| RasterError::gdal(&tile.path, e))?;
-                        }
-                        for r in 0..ov.height {
-                            let dst = ((ov.row - win.row) as usize + r) * win.width
-                                + (ov.col - win.col) as usize;
-                            // SAFETY: tiles do not overlap (checked at open).
-                            let out = unsafe { out.slice(dst, ov.width) };
-                            let src = &buf[r * ov.width..(r + 1) * ov.width];
-                            if metres && !tile.vertical.is_identity() {
-                                store_metres(src, out, nodata, &tile.vertical);
-                            } else {
-                                for (o, v) in out.iter_mut().zip(src) {
-                                    *o = T::from_f64(*v);
-                                }
-                                mask_nodata(out, nodata);
-                            }
-                        }
-                        Ok(())
+                        copy_gdal_tile(tile, ds, win, metres, nodata, &out)
                     }
                     (TileSource::Tiff(_), None) => Ok(()),
                 }
@@ -664,6 +551,53 @@ impl Dem {
             window: win,
             data,
             valid,
+        })
+    }
+
+    /// What reading `win` takes: (tile, block) pairs for native tiles, the
+    /// whole overlap for GDAL ones.
+    fn read_jobs(&self, win: Window) -> Vec<(usize, Option<u32>)> {
+        let mut jobs: Vec<(usize, Option<u32>)> = Vec::new();
+        for (ti, tile) in self.tiles.iter().enumerate() {
+            let Some(ov) = tile.extent.intersect(&win) else {
+                continue;
+            };
+            match &tile.source {
+                TileSource::Tiff(tiff) => {
+                    let l = &tiff.layout;
+                    let lc0 = (ov.col - tile.extent.col) as u32;
+                    let lr0 = (ov.row - tile.extent.row) as u32;
+                    let lc1 = lc0 + ov.width as u32 - 1;
+                    let lr1 = lr0 + ov.height as u32 - 1;
+                    for by in lr0 / l.block_height..=lr1 / l.block_height {
+                        for bx in lc0 / l.block_width..=lc1 / l.block_width {
+                            jobs.push((ti, Some(by * l.blocks_across + bx)));
+                        }
+                    }
+                }
+                TileSource::Gdal(_) => jobs.push((ti, None)),
+            }
+        }
+        jobs
+    }
+
+    /// Block `key` (tile, block) decoded: from the cache, or decoded (and
+    /// kept when `cached`).
+    fn block(
+        &self,
+        key: (usize, u32),
+        tiff: &GeoTiff,
+        cached: bool,
+    ) -> Result<Arc<DecodingResult>, RasterError> {
+        Ok(match self.cache.get(key) {
+            Some(b) => b,
+            None => {
+                let b = Arc::new(tiff.decode_block(key.1)?);
+                if cached {
+                    self.cache.insert(key, b.clone());
+                }
+                b
+            }
         })
     }
 
@@ -1038,6 +972,115 @@ fn horizontal_epsg(srs: &gdal::spatial_ref::SpatialRef) -> Option<u32> {
         .then(|| srs.auth_code().ok())
         .flatten()
         .map(|c| c as u32)
+}
+
+/// Copies the cells of native block `bi` of `tile` that lie in `win` into
+/// `out` (the window's samples), in metres when `metres`, nodata masked.
+#[allow(clippy::too_many_arguments)]
+fn copy_block<T: Sample>(
+    tile: &Tile,
+    tiff: &GeoTiff,
+    bi: u32,
+    decoded: &DecodingResult,
+    win: Window,
+    metres: bool,
+    nodata: Option<f64>,
+    out: &SharedOut<T>,
+) -> Result<(), RasterError> {
+    let (bc, br, bw, bh) = tiff.block_extent(bi);
+    let bwin = Window::new(
+        tile.extent.col + bc as i64,
+        tile.extent.row + br as i64,
+        bw as usize,
+        bh as usize,
+    );
+    let Some(ov) = bwin.intersect(&win) else {
+        return Ok(());
+    };
+    let row_len = tiff.decoded_row_len(bi);
+    let conv = (metres && !tile.vertical.is_identity()).then_some(&tile.vertical);
+    let mut row = if conv.is_some() {
+        vec![0f64; ov.width]
+    } else {
+        Vec::new()
+    };
+    if super::sample_type::decoded_bytes(decoded) < row_len * bh as usize * tiff.sample_type.bytes()
+    {
+        return Err(RasterError::Corrupt {
+            path: tiff.path.clone(),
+            detail: format!("block {bi} decodes to too few samples"),
+        });
+    }
+    for r in 0..ov.height {
+        let src_row = (ov.row - bwin.row) as usize + r;
+        let src = src_row * row_len + (ov.col - bwin.col) as usize;
+        let dst = (ov.row - win.row) as usize + r;
+        let dst = dst * win.width + (ov.col - win.col) as usize;
+        // SAFETY: blocks are disjoint rectangles of the
+        // window, so no two jobs write the same cells.
+        let out = unsafe { out.slice(dst, ov.width) };
+        match &conv {
+            None => {
+                T::copy_from_block(decoded, src, out);
+                mask_nodata(out, nodata);
+            }
+            Some(v) => {
+                f64::copy_from_block(decoded, src, &mut row);
+                store_metres(&row, out, nodata, v);
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Reads the overlap of GDAL tile `tile` with `win` into `out` (the
+/// window's samples), in metres when `metres`, nodata masked.
+fn copy_gdal_tile<T: Sample>(
+    tile: &Tile,
+    ds: &Mutex<gdal::Dataset>,
+    win: Window,
+    metres: bool,
+    nodata: Option<f64>,
+    out: &SharedOut<T>,
+) -> Result<(), RasterError> {
+    let Some(ov) = tile.extent.intersect(&win) else {
+        return Ok(());
+    };
+    let mut buf = vec![0f64; ov.len()];
+    {
+        let ds = ds
+            .lock()
+            .map_err(|_| RasterError::gdal(&tile.path, "dataset lock poisoned"))?;
+        let band = ds
+            .rasterband(1)
+            .map_err(|e| RasterError::gdal(&tile.path, e))?;
+        band.read_into_slice::<f64>(
+            (
+                (ov.col - tile.extent.col) as isize,
+                (ov.row - tile.extent.row) as isize,
+            ),
+            (ov.width, ov.height),
+            (ov.width, ov.height),
+            &mut buf,
+            None,
+        )
+        .map_err(|e| RasterError::gdal(&tile.path, e))?;
+    }
+    for r in 0..ov.height {
+        let dst = ((ov.row - win.row) as usize + r) * win.width + (ov.col - win.col) as usize;
+        // SAFETY: tiles do not overlap (checked at open).
+        let out = unsafe { out.slice(dst, ov.width) };
+        let src = &buf[r * ov.width..(r + 1) * ov.width];
+        if metres && !tile.vertical.is_identity() {
+            store_metres(src, out, nodata, &tile.vertical);
+        } else {
+            for (o, v) in out.iter_mut().zip(src) {
+                *o = T::from_f64(*v);
+            }
+            mask_nodata(out, nodata);
+        }
+    }
+    Ok(())
 }
 
 /// Disjoint mutable access to the output of a parallel window read.
