@@ -38,7 +38,7 @@
 
 use super::rendered_view::RenderedView;
 use crate::render::SKY;
-use crate::sketch::projection::{dot, sub};
+use crate::sketch::projection::{dot, sub, FeatureSample};
 use crate::sketch::{
     PlacedPoint, PointSource, SceneProjection, StrokeMatch, ViewFeature, ViewProjection,
 };
@@ -615,11 +615,23 @@ fn leaves_farther_silhouette(
 fn feature_depth_at(feature: &ViewFeature, x: f64) -> Option<f64> {
     let s = &feature.samples;
     let k = s.partition_point(|q| q.pixel[0] < x);
-    if s.is_empty() || k >= s.len() || (k == 0 && s[0].pixel[0] > x) {
-        return None;
-    }
     if k == 0 {
-        return Some(s[0].depth);
+        return s.first().filter(|q| !(q.pixel[0] > x)).map(|q| q.depth);
+    }
+    between_samples(s, k, x, |q| q.depth)
+}
+
+/// `value` of the feature samples `s` interpolated at image column `x`
+/// between samples `k - 1` and `k` (`k` from a partition of `s` at `x`);
+/// `None` when `k` is not inside `s`.
+fn between_samples(
+    s: &[FeatureSample],
+    k: usize,
+    x: f64,
+    value: impl Fn(&FeatureSample) -> f64,
+) -> Option<f64> {
+    if k == 0 || k >= s.len() {
+        return None;
     }
     let (l, r) = (&s[k - 1], &s[k]);
     let t = if r.pixel[0] > l.pixel[0] {
@@ -627,7 +639,7 @@ fn feature_depth_at(feature: &ViewFeature, x: f64) -> Option<f64> {
     } else {
         0.0
     };
-    Some(l.depth + t * (r.depth - l.depth))
+    Some(value(l) + t * (value(r) - value(l)))
 }
 
 /// The image pixel (column, row) under `pixel` when it lies in the view
@@ -726,16 +738,9 @@ fn near_in_image(feature: &ViewFeature, points: &[&PlacedPoint], near_px: f64) -
     for p in points {
         let Some([x, y]) = p.pixel else { continue };
         let k = s.partition_point(|q| q.pixel[0] < x);
-        if k == 0 || k >= s.len() {
+        let Some(fy) = between_samples(s, k, x, |q| q.pixel[1]) else {
             continue;
-        }
-        let (l, r) = (&s[k - 1], &s[k]);
-        let t = if r.pixel[0] > l.pixel[0] {
-            (x - l.pixel[0]) / (r.pixel[0] - l.pixel[0])
-        } else {
-            0.0
         };
-        let fy = l.pixel[1] + t * (r.pixel[1] - l.pixel[1]);
         sum += (fy - y).abs();
         count += 1;
     }
