@@ -269,17 +269,13 @@ impl Dem {
             proj: srs.as_ref().and_then(|s| s.to_proj4().ok()),
             geographic: srs.as_ref().map(|s| s.is_geographic()).unwrap_or(false),
         };
-        let (datum, crs_unit) = match srs.as_ref().and_then(vertical_of_srs) {
-            Some((name, unit)) => (Some(name), unit),
-            None => (None, None),
-        };
-        let vertical =
-            Vertical::from_parts(scale, offset, &unit, crs_unit, datum).map_err(|message| {
-                RasterError::Crs {
-                    path: path.to_path_buf(),
-                    message,
-                }
-            })?;
+        let vertical = Vertical::of_file(
+            path,
+            scale,
+            offset,
+            &unit,
+            srs.as_ref().and_then(vertical_of_srs),
+        )?;
         Ok(Part {
             earth_crs: srs
                 .as_ref()
@@ -487,11 +483,8 @@ impl Dem {
         // Fail fast: decode one block (kept in the cache) before the window
         // is allocated, so that a broken or crafted file costs little.
         if let Some(&(ti, Some(bi))) = jobs.first() {
-            if let TileSource::Tiff(tiff) = &self.tiles[ti].source {
-                if cached && self.cache.get((ti, bi)).is_none() {
-                    let b = Arc::new(tiff.decode_block(bi)?);
-                    self.cache.insert((ti, bi), b);
-                }
+            if let (TileSource::Tiff(tiff), true) = (&self.tiles[ti].source, cached) {
+                self.block((ti, bi), tiff, true)?;
             }
         }
         let mut data =

@@ -79,6 +79,28 @@ impl Vertical {
         (metres / self.unit_to_metre - self.offset) / self.scale
     }
 
+    /// [`Vertical::from_parts`] for the file at `path`, with its vertical
+    /// CRS as read (name, and unit name with metres per unit); the error
+    /// names the file.
+    pub fn of_file(
+        path: &std::path::Path,
+        scale: Option<f64>,
+        offset: Option<f64>,
+        band_unit: &str,
+        vertical_crs: Option<(String, Option<(String, f64)>)>,
+    ) -> Result<Vertical, super::RasterError> {
+        let (datum, crs_unit) = match vertical_crs {
+            Some((name, unit)) => (Some(name), unit),
+            None => (None, None),
+        };
+        Vertical::from_parts(scale, offset, band_unit, crs_unit, datum).map_err(|message| {
+            super::RasterError::Crs {
+                path: path.to_path_buf(),
+                message,
+            }
+        })
+    }
+
     /// Build from what a file says: band scale, offset and unit (empty =
     /// none), and the vertical CRS's name and (unit name, metres per unit).
     /// The band unit wins over the CRS's; a unit that is not a length, or a

@@ -371,16 +371,6 @@ pub(super) fn nodata_and_vertical(
         .as_deref()
         .map(crate::raster::vertical::from_gdal_metadata)
         .unwrap_or_default();
-    let (datum, crs_unit) = match keys.and_then(|k| k.vertical()) {
-        Some((name, unit)) => (Some(name), unit),
-        None => (None, None),
-    };
-    let vertical =
-        Vertical::from_parts(scale, offset, &unit, crs_unit, datum).map_err(|message| {
-            RasterError::Crs {
-                path: p.to_path_buf(),
-                message,
-            }
-        })?;
+    let vertical = Vertical::of_file(p, scale, offset, &unit, keys.and_then(|k| k.vertical()))?;
     Ok((nodata, gdal_metadata, vertical))
 }
