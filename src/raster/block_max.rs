@@ -104,7 +104,15 @@ impl Dem {
             );
             if let Some(read) = full.intersect(&self.full_window()).filter(|f| wanted(*f)) {
                 let cells = self.read_height_map_once(read)?;
-                reduce_max(&cells, read, full, k, (c, c1), w, out);
+                ChunkMax {
+                    cells: &cells,
+                    read,
+                    full,
+                    k,
+                    cols: (c, c1),
+                    w,
+                }
+                .reduce_max(out);
             }
             c = c1;
         }
@@ -128,78 +136,92 @@ fn band_rows(cwin: Window, cc: usize, first_band: i64) -> Vec<(usize, usize)> {
     out
 }
 
-/// The highest valid height of each `k x k` block of `cells` (DEM window
-/// `read`, within the chunk's full extent `full`), into the coarse columns
-/// `c0..c1` of `out` (a band of rows `w` coarse cells wide, starting at the
-/// chunk's first coarse row). Each coarse row is reduced down the columns
-/// first (whole rows at a time, which vectorises), then across each
-/// block's columns: the same maximum as cell by cell.
-fn reduce_max(
-    cells: &HeightMap,
+/// One chunk's share of a band: its heights `cells` (DEM window `read`,
+/// within the chunk's full extent `full`, `k x k` DEM cells a coarse cell),
+/// and where its coarse cells go: the coarse columns `cols` of a band of
+/// rows `w` coarse cells wide, starting at the chunk's first coarse row.
+struct ChunkMax<'a> {
+    cells: &'a HeightMap,
     read: Window,
     full: Window,
     k: usize,
-    (c0, c1): (usize, usize),
+    cols: (usize, usize),
     w: usize,
-    out: &mut [f32],
-) {
-    let rows = out.len() / w.max(1);
-    if k == 1 && read == full && c1 - c0 == read.width && rows <= read.height {
-        single_cells(cells, (c0, c1), w, out);
-    } else {
-        reduce_general(cells, read, full, k, (c0, c1), w, out);
-    }
 }
 
-/// [`reduce_max`] with one cell per coarse cell and the chunk read whole
-/// (a ring read from an overview of its own coarseness): the general
-/// path's two reductions of a single cell, row by row, without its
-/// per-cell slicing.
-fn single_cells(cells: &HeightMap, (c0, c1): (usize, usize), w: usize, out: &mut [f32]) {
-    let rows = out.len() / w.max(1);
-    let rw = cells.width;
-    for cr in 0..rows {
-        let src = &cells.data[cr * rw..(cr + 1) * rw];
-        let row = &mut out[cr * w + c0..cr * w + c1];
-        for (o, &v) in row.iter_mut().zip(src) {
-            *o = f32::NAN.max(f32::NAN.max(v));
+impl ChunkMax<'_> {
+    /// The highest valid height of each `k x k` block of the chunk, into
+    /// its coarse columns of the band `out`. Each coarse row is reduced
+    /// down the columns first (whole rows at a time, which vectorises),
+    /// then across each block's columns: the same maximum as cell by cell.
+    fn reduce_max(&self, out: &mut [f32]) {
+        let (c0, c1) = self.cols;
+        let single = self.k == 1
+            && self.read == self.full
+            && c1 - c0 == self.read.width
+            && self.rows(out) <= self.read.height;
+        if single {
+            self.single_cells(out);
+        } else {
+            self.reduce_general(out);
         }
     }
-}
 
-/// [`reduce_max`] for any `k`: down the columns, then across each block.
-fn reduce_general(
-    cells: &HeightMap,
-    read: Window,
-    full: Window,
-    k: usize,
-    (c0, c1): (usize, usize),
-    w: usize,
-    out: &mut [f32],
-) {
-    let rows = out.len() / w.max(1);
-    let mut column_max = vec![f32::NAN; read.width];
-    for cr in 0..rows {
-        // the block row's cells within what was read
-        let br0 = full.row + (cr * k) as i64;
-        let y0 = (br0.max(read.row) - read.row) as usize;
-        let y1 = ((br0 + k as i64).min(read.row_end()) - read.row).max(0) as usize;
-        column_max.fill(f32::NAN);
-        for y in y0..y1 {
-            let src = &cells.data[y * read.width..(y + 1) * read.width];
-            for (m, &v) in column_max.iter_mut().zip(src) {
-                // f32::max skips NaN
-                *m = m.max(v);
+    /// The coarse rows of the band `out`.
+    fn rows(&self, out: &[f32]) -> usize {
+        out.len() / self.w.max(1)
+    }
+
+    /// [`ChunkMax::reduce_max`] with one cell per coarse cell and the chunk
+    /// read whole (a ring read from an overview of its own coarseness): the
+    /// general path's two reductions of a single cell, row by row, without
+    /// its per-cell slicing.
+    fn single_cells(&self, out: &mut [f32]) {
+        let ((c0, c1), w) = (self.cols, self.w);
+        let rw = self.cells.width;
+        for cr in 0..self.rows(out) {
+            let src = &self.cells.data[cr * rw..(cr + 1) * rw];
+            let row = &mut out[cr * w + c0..cr * w + c1];
+            for (o, &v) in row.iter_mut().zip(src) {
+                *o = f32::NAN.max(f32::NAN.max(v));
             }
         }
-        let row = &mut out[cr * w + c0..cr * w + c1];
-        for (i, o) in row.iter_mut().enumerate() {
-            let bc0 = full.col + (i * k) as i64;
-            let x0 = (bc0.max(read.col) - read.col) as usize;
-            let x1 = ((bc0 + k as i64).min(read.col_end()) - read.col).max(0) as usize;
-            *o = column_max[x0.min(x1)..x1]
-                .iter()
-                .fold(f32::NAN, |m, &v| m.max(v));
+    }
+
+    /// [`ChunkMax::reduce_max`] for any `k`: down the columns, then across
+    /// each block.
+    fn reduce_general(&self, out: &mut [f32]) {
+        let Self {
+            cells,
+            read,
+            full,
+            k,
+            cols: (c0, c1),
+            w,
+        } = *self;
+        let mut column_max = vec![f32::NAN; read.width];
+        for cr in 0..self.rows(out) {
+            // the block row's cells within what was read
+            let br0 = full.row + (cr * k) as i64;
+            let y0 = (br0.max(read.row) - read.row) as usize;
+            let y1 = ((br0 + k as i64).min(read.row_end()) - read.row).max(0) as usize;
+            column_max.fill(f32::NAN);
+            for y in y0..y1 {
+                let src = &cells.data[y * read.width..(y + 1) * read.width];
+                for (m, &v) in column_max.iter_mut().zip(src) {
+                    // f32::max skips NaN
+                    *m = m.max(v);
+                }
+            }
+            let row = &mut out[cr * w + c0..cr * w + c1];
+            for (i, o) in row.iter_mut().enumerate() {
+                let bc0 = full.col + (i * k) as i64;
+                let x0 = (bc0.max(read.col) - read.col) as usize;
+                let x1 = ((bc0 + k as i64).min(read.col_end()) - read.col).max(0) as usize;
+                *o = column_max[x0.min(x1)..x1]
+                    .iter()
+                    .fold(f32::NAN, |m, &v| m.max(v));
+            }
         }
     }
 }
@@ -207,6 +229,42 @@ fn reduce_general(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The heights `data` of DEM window `read`, as read.
+    fn cells_of(read: Window, data: Vec<f32>) -> HeightMap {
+        HeightMap {
+            width: read.width,
+            height: read.height,
+            data,
+            geotransform: crate::raster::GeoTransform([0.0, 1.0, 0.0, 0.0, 0.0, -1.0]),
+            crs: crate::raster::Crs {
+                epsg: None,
+                wkt: String::new(),
+                proj: None,
+                geographic: false,
+            },
+        }
+    }
+
+    /// The reduction of chunk `cells` (DEM window `read` within `full`)
+    /// into the coarse columns `cols` of a band `w` wide.
+    fn chunk(
+        cells: &HeightMap,
+        read: Window,
+        full: Window,
+        k: usize,
+        cols: (usize, usize),
+        w: usize,
+    ) -> ChunkMax<'_> {
+        ChunkMax {
+            cells,
+            read,
+            full,
+            k,
+            cols,
+            w,
+        }
+    }
 
     #[test]
     fn bands_follow_the_chunk_grid() {
@@ -225,23 +283,12 @@ mod tests {
         let mut data: Vec<f32> = (0..read.len()).map(|i| (i as f32) * 1.5 - 3.0).collect();
         data[2] = f32::NAN;
         data[7] = -0.0;
-        let cells = HeightMap {
-            width: read.width,
-            height: read.height,
-            data: data.clone(),
-            geotransform: crate::raster::GeoTransform([0.0, 1.0, 0.0, 0.0, 0.0, -1.0]),
-            crs: crate::raster::Crs {
-                epsg: None,
-                wkt: String::new(),
-                proj: None,
-                geographic: false,
-            },
-        };
+        let cells = cells_of(read, data.clone());
         // (a band 7 wide with the chunk at columns 1..6)
         let mut fast = vec![7.0f32; 7 * 3];
-        reduce_max(&cells, read, read, 1, (1, 6), 7, &mut fast);
+        chunk(&cells, read, read, 1, (1, 6), 7).reduce_max(&mut fast);
         let mut general = vec![7.0f32; 7 * 3];
-        reduce_general(&cells, read, read, 1, (1, 6), 7, &mut general);
+        chunk(&cells, read, read, 1, (1, 6), 7).reduce_general(&mut general);
         let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
         assert_eq!(bits(&fast), bits(&general));
         assert!(fast[1 + 2].is_nan());
@@ -259,20 +306,9 @@ mod tests {
         let k = 4;
         let mut data: Vec<f32> = (0..read.len()).map(|i| ((i * 37) % 11) as f32).collect();
         data[3] = f32::NAN;
-        let cells = HeightMap {
-            width: read.width,
-            height: read.height,
-            data,
-            geotransform: crate::raster::GeoTransform([0.0, 1.0, 0.0, 0.0, 0.0, -1.0]),
-            crs: crate::raster::Crs {
-                epsg: None,
-                wkt: String::new(),
-                proj: None,
-                geographic: false,
-            },
-        };
+        let cells = cells_of(read, data);
         let mut out = vec![0.0f32; 4];
-        reduce_max(&cells, read, full, k, (0, 2), 2, &mut out);
+        chunk(&cells, read, full, k, (0, 2), 2).reduce_max(&mut out);
         for (o, (bc, br)) in out.iter().zip([(0, 0), (1, 0), (0, 1), (1, 1)]) {
             let mut m = f32::NAN;
             for y in 0..read.height {
