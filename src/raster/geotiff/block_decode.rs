@@ -371,10 +371,11 @@ pub fn decode_block(
 mod tests {
     use super::*;
 
-    #[test]
-    fn float_predictor_round_trip() {
-        let vals = [1.5f32, -2.25, 1000.125, 0.0, 3.4e38];
-        // Encode: shuffle big-endian bytes into planes, then difference.
+    /// A row of `f32` samples as the floating-point predictor (TIFF
+    /// predictor 3) stores it: each sample's big-endian bytes shuffled
+    /// into byte planes, then each byte the difference from the one
+    /// before.
+    fn float_predicted_row(vals: &[f32]) -> Vec<u8> {
         let n = vals.len();
         let mut planes = vec![0u8; n * 4];
         for (i, v) in vals.iter().enumerate() {
@@ -385,6 +386,14 @@ mod tests {
         for i in (1..planes.len()).rev() {
             planes[i] = planes[i].wrapping_sub(planes[i - 1]);
         }
+        planes
+    }
+
+    #[test]
+    fn float_predictor_round_trip() {
+        let vals = [1.5f32, -2.25, 1000.125, 0.0, 3.4e38];
+        let n = vals.len();
+        let mut planes = float_predicted_row(&vals);
         let mut out = vec![0u8; n * 4];
         undo_float_predictor_row(&mut planes, 4, &mut out);
         let got: Vec<f32> = out
@@ -409,16 +418,7 @@ mod tests {
                     _ => (r * 7 + c) as f32 * -13.375 + 0.1,
                 })
                 .collect();
-            let mut planes = vec![0u8; stored_w * 4];
-            for (i, v) in vals.iter().enumerate() {
-                for (k, b) in v.to_be_bytes().iter().enumerate() {
-                    planes[k * stored_w + i] = *b;
-                }
-            }
-            for i in (1..planes.len()).rev() {
-                planes[i] = planes[i].wrapping_sub(planes[i - 1]);
-            }
-            raw.extend(planes);
+            raw.extend(float_predicted_row(&vals));
         }
         let mut a = raw.clone();
         let direct = float32_predicted(&mut a, stored_w, w, h).expect("direct");
