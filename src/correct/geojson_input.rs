@@ -670,6 +670,16 @@ fn parse_lake(
     t: &Transform,
     dem: &Dem,
 ) -> Result<CorrectionKind, String> {
+    Ok(CorrectionKind::Lake {
+        area: lake_area(geom, t, dem)?,
+        level_m: number(props, "level_m")?,
+        blend_m: positive(props, "blend_m")?,
+    })
+}
+
+/// The area of a lake (or a river given as its area): a Polygon or a
+/// MultiPolygon.
+fn lake_area(geom: &GeometryValue, t: &Transform, dem: &Dem) -> Result<MultiPolygon, String> {
     let polys = match geom {
         GeometryValue::Polygon { coordinates } => vec![polygon(coordinates, t, dem)?],
         GeometryValue::MultiPolygon { coordinates } => coordinates
@@ -683,11 +693,7 @@ fn parse_lake(
             ))
         }
     };
-    Ok(CorrectionKind::Lake {
-        area: MultiPolygon::new(polys),
-        level_m: number(props, "level_m")?,
-        blend_m: positive(props, "blend_m")?,
-    })
+    Ok(MultiPolygon::new(polys))
 }
 
 fn parse_river(
@@ -699,9 +705,10 @@ fn parse_river(
     let line = match geom {
         GeometryValue::LineString { coordinates } => coordinates,
         GeometryValue::Polygon { .. } | GeometryValue::MultiPolygon { .. } => {
-            let CorrectionKind::Lake { area, .. } = parse_lake(geom, props, t, dem)? else {
-                unreachable!("parse_lake gives a lake")
-            };
+            // Read as a lake's: a level_m, unused here, must still be a
+            // number.
+            let area = lake_area(geom, t, dem)?;
+            number(props, "level_m")?;
             return Ok(CorrectionKind::RiverArea {
                 area,
                 blend_m: positive(props, "blend_m")?,
