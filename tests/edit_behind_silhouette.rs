@@ -11,11 +11,14 @@
 
 mod common;
 
-use common::{edit_report, fixture, one_stroke_sketch};
-use serde_json::{json, Value};
+use common::OneStrokeCase;
+use serde_json::json;
 
-fn sketch() -> Value {
-    let points = [
+const CASE: OneStrokeCase = OneStrokeCase {
+    dem: "zion_srtm90m_epsg4326.tif",
+    viewpoint: [-113.14580110243843, 37.2364721722352, 1217.175],
+    heading_deg: 186.2937,
+    points: &[
         [348.5, 84.815],
         [351.5, 86.107],
         [354.5, 87.385],
@@ -25,27 +28,23 @@ fn sketch() -> Value {
         [366.5, 94.343],
         [369.5, 96.572],
         [372.5, 98.779],
-    ];
-    one_stroke_sketch(
-        [-113.14580110243843, 37.2364721722352, 1217.175],
-        186.2937,
-        &points,
-    )
-}
+    ],
+    influence_m: None,
+    extra: &[],
+};
 
 #[test]
 fn a_stroke_finer_than_the_dem_over_a_near_silhouette_goes_behind_it() {
-    let r = edit_report(&fixture("zion_srtm90m_epsg4326.tif"), &sketch(), &[]);
-    let s = &r["views"][0]["strokes"][0];
+    let e = CASE.edit();
+    let (r, s) = (e.report(), e.stroke());
     // (the stroke is resampled: count the points, not the input's nine)
     assert!(s["placement"]["behind"].as_u64().unwrap() >= 9, "{s}");
     assert_eq!(s["placement"]["feature"], json!(0), "{s}");
-    let depth = &s["match"]["depth_m"];
-    let (lo, hi) = (depth[0].as_f64().unwrap(), depth[1].as_f64().unwrap());
+    let (lo, hi) = e.depth_m();
     // One cell (92 m) spans the stroke's 24 px at 2.1 km; the hill is at
     // 2.05 km, the slope it was matched to at 0.47-0.53 km.
     assert!(lo > 1900.0 && hi < 2400.0, "placed at {lo:.0}-{hi:.0} m");
     assert!(r["changed_cells"].as_u64().unwrap() > 0);
-    let fit = s["fit"]["fitted_fraction"].as_f64().unwrap();
+    let fit = e.fitted_fraction();
     assert!(fit >= 0.9, "fit {fit}");
 }

@@ -15,11 +15,13 @@
 
 mod common;
 
-use common::{edit_report, fixture, one_stroke_sketch};
-use serde_json::Value;
+use common::OneStrokeCase;
 
-fn sketch() -> Value {
-    let points = [
+const CASE: OneStrokeCase = OneStrokeCase {
+    dem: "zion_srtm_utm12n.tif",
+    viewpoint: [-113.03928539810016, 37.43633002564174, 2490.18],
+    heading_deg: 225.5251,
+    points: &[
         [314.5, 147.86],
         [337.22, 145.27],
         [358.2, 145.25],
@@ -29,26 +31,17 @@ fn sketch() -> Value {
         [443.78, 149.1],
         [454.81, 150.81],
         [481.8, 146.08],
-    ];
-    one_stroke_sketch(
-        [-113.03928539810016, 37.43633002564174, 2490.18],
-        225.5251,
-        &points,
-    )
-}
+    ],
+    influence_m: None,
+    extra: &["--max-distance", "50000"],
+};
 
 #[test]
 fn a_stroke_touching_a_foreground_crest_stays_on_its_ridge() {
-    let r = edit_report(
-        &fixture("zion_srtm_utm12n.tif"),
-        &sketch(),
-        &["--max-distance", "50000"],
-    );
-    let s = &r["views"][0]["strokes"][0];
-    let depth = &s["match"]["depth_m"];
-    let (lo, hi) = (depth[0].as_f64().unwrap(), depth[1].as_f64().unwrap());
+    let e = CASE.edit();
+    let (lo, hi) = e.depth_m();
     // The ridge's true outline lies 2.23-3.24 km away.
     assert!(lo > 1900.0 && hi < 3700.0, "placed {lo:.0}-{hi:.0} m");
-    let fit = s["fit"]["fitted_fraction"].as_f64().unwrap();
+    let fit = e.fitted_fraction();
     assert!(fit >= 0.95, "fit {fit}");
 }

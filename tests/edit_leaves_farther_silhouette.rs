@@ -15,11 +15,13 @@
 
 mod common;
 
-use common::{edit_report, fixture, one_stroke_sketch};
-use serde_json::Value;
+use common::OneStrokeCase;
 
-fn sketch() -> Value {
-    let points = [
+const CASE: OneStrokeCase = OneStrokeCase {
+    dem: "nz_1km_nan_nodata.tif",
+    viewpoint: [172.3790191741533, -41.850561994491294, 667.795],
+    heading_deg: 119.5159,
+    points: &[
         [412.50, 153.44],
         [415.50, 152.40],
         [418.50, 151.36],
@@ -42,33 +44,23 @@ fn sketch() -> Value {
         [469.50, 155.62],
         [472.50, 155.35],
         [474.50, 155.48],
-    ];
-    let mut s = one_stroke_sketch(
-        [172.3790191741533, -41.850561994491294, 667.795],
-        119.5159,
-        &points,
-    );
+    ],
     // The suite's influence on the 1 km DEM: six cells.
-    s["options"]["influence_m"] = 6000.0.into();
-    s
-}
+    influence_m: Some(6000.0),
+    extra: &["--max-distance", "50000"],
+};
 
 #[test]
 fn a_stroke_leaving_a_farther_silhouette_into_the_sky_stays_on_its_landform() {
-    let r = edit_report(
-        &fixture("nz_1km_nan_nodata.tif"),
-        &sketch(),
-        &["--max-distance", "50000"],
-    );
-    let s = &r["views"][0]["strokes"][0];
+    let e = CASE.edit();
+    let s = e.stroke();
     // The free stretch goes on the drawing plane through the anchor, not
     // on the nearer ridge.
     let placement = &s["placement"];
     assert_eq!(placement["feature"].as_u64(), Some(0), "{s}");
     assert!(placement["drawing_plane"].as_u64().unwrap() >= 20, "{s}");
-    let depth = &s["match"]["depth_m"];
-    let hi = depth[1].as_f64().unwrap();
+    let (_, hi) = e.depth_m();
     assert!(hi > 29000.0 && hi < 35000.0, "placed up to {hi:.0} m");
-    let fit = s["fit"]["fitted_fraction"].as_f64().unwrap();
+    let fit = e.fitted_fraction();
     assert!(fit >= 0.9, "fit {fit}");
 }

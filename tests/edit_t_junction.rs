@@ -14,11 +14,13 @@
 
 mod common;
 
-use common::{edit_report, fixture, one_stroke_sketch};
-use serde_json::Value;
+use common::OneStrokeCase;
 
-fn sketch() -> Value {
-    let points = [
+const CASE: OneStrokeCase = OneStrokeCase {
+    dem: "texas_srtm90m_tiled_int16.tif",
+    viewpoint: [-97.28851995978872, 32.71421766452901, 198.585],
+    heading_deg: 290.0955,
+    points: &[
         [272.5, 177.17],
         [310.44, 175.66],
         [329.24, 173.81],
@@ -27,29 +29,21 @@ fn sketch() -> Value {
         [380.25, 171.43],
         [417.55, 177.61],
         [432.51, 179.74],
-    ];
-    one_stroke_sketch(
-        [-97.28851995978872, 32.71421766452901, 198.585],
-        290.0955,
-        &points,
-    )
-}
+    ],
+    influence_m: None,
+    extra: &["--max-distance", "50000"],
+};
 
 #[test]
 fn a_stroke_end_stopping_on_a_silhouette_bounds_its_depth_from_the_near_side() {
-    let r = edit_report(
-        &fixture("texas_srtm90m_tiled_int16.tif"),
-        &sketch(),
-        &["--max-distance", "50000"],
-    );
-    let s = &r["views"][0]["strokes"][0];
+    let e = CASE.edit();
+    let s = e.stroke();
     assert!(s["placement"]["drawing_plane"].as_u64().unwrap() > 0, "{s}");
-    let depth = &s["match"]["depth_m"];
-    let hi = depth[1].as_f64().unwrap();
+    let (_, hi) = e.depth_m();
     // The free stretch, through the left end's junction, reaches the raised
     // peak's depth; the anchored right end stays on its 2.48 km silhouette
     // (the report's range counts it).
     assert!(hi > 3300.0 && hi < 4400.0, "placed up to {hi:.0} m");
-    let fit = s["fit"]["fitted_fraction"].as_f64().unwrap();
+    let fit = e.fitted_fraction();
     assert!(fit >= 0.95, "fit {fit}");
 }

@@ -134,3 +134,60 @@ pub fn edit_report(dem: &Path, sketch: &serde_json::Value, extra: &[&str]) -> se
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     serde_json::from_slice(&std::fs::read(&rep).expect("report")).expect("report JSON")
 }
+
+/// A fidelity suite case of one stroke (a sketch as [`one_stroke_sketch`]
+/// draws it) edited on fixture `dem` with `extra` arguments; `influence_m`,
+/// where given, in place of the sketch's 1,500 m.
+pub struct OneStrokeCase {
+    pub dem: &'static str,
+    pub viewpoint: [f64; 3],
+    pub heading_deg: f64,
+    pub points: &'static [[f64; 2]],
+    pub influence_m: Option<f64>,
+    pub extra: &'static [&'static str],
+}
+
+impl OneStrokeCase {
+    /// The case's sketch.
+    pub fn sketch(&self) -> serde_json::Value {
+        let mut s = one_stroke_sketch(self.viewpoint, self.heading_deg, self.points);
+        if let Some(m) = self.influence_m {
+            s["options"]["influence_m"] = m.into();
+        }
+        s
+    }
+
+    /// The report of the case's edit (see [`edit_report`]).
+    pub fn edit(&self) -> EditedStroke {
+        EditedStroke(edit_report(&fixture(self.dem), &self.sketch(), self.extra))
+    }
+}
+
+/// The report of a [`OneStrokeCase`]'s edit.
+pub struct EditedStroke(pub serde_json::Value);
+
+impl EditedStroke {
+    /// The whole report.
+    pub fn report(&self) -> &serde_json::Value {
+        &self.0
+    }
+
+    /// The report on the stroke.
+    pub fn stroke(&self) -> &serde_json::Value {
+        &self.0["views"][0]["strokes"][0]
+    }
+
+    /// The nearest and farthest depth at which the stroke was placed, m.
+    pub fn depth_m(&self) -> (f64, f64) {
+        let depth = &self.stroke()["match"]["depth_m"];
+        let at = |i: usize| depth[i].as_f64().expect("a depth in metres");
+        (at(0), at(1))
+    }
+
+    /// The fraction of the stroke the edited DEM fits.
+    pub fn fitted_fraction(&self) -> f64 {
+        self.stroke()["fit"]["fitted_fraction"]
+            .as_f64()
+            .expect("a fitted fraction")
+    }
+}
