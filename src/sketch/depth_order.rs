@@ -429,14 +429,18 @@ fn topo_order(prev: &[usize], cues: &[Cue]) -> Vec<usize> {
 /// section 4. `threshold` is the T-junction distance in pixels.
 ///
 /// ```
-/// use demsketch::sketch::{order_strokes, prepare_stroke, FoldBackPolicy};
-/// let mk = |id: &str, i, p: &[[f64; 2]]| prepare_stroke(id, i, p, 2.0, 1.0,
-///     FoldBackPolicy::Split).unwrap().remove(0);
+/// use demsketch::sketch::{order_strokes, prepare_stroke, FoldBackPolicy, StrokeError};
+/// # fn main() -> Result<(), StrokeError> {
+/// let mk = |id: &str, i, p: &[[f64; 2]]| {
+///     prepare_stroke(id, i, p, 2.0, 1.0, FoldBackPolicy::Split).map(|mut v| v.remove(0))
+/// };
 /// // A far ridge descending into a nearer hill: a T-junction.
-/// let far = mk("far", 0, &[[0.0, 100.0], [100.0, 200.0]]);
-/// let near = mk("near", 1, &[[50.0, 300.0], [100.0, 200.0], [200.0, 150.0]]);
+/// let far = mk("far", 0, &[[0.0, 100.0], [100.0, 200.0]])?;
+/// let near = mk("near", 1, &[[50.0, 300.0], [100.0, 200.0], [200.0, 150.0]])?;
 /// let o = order_strokes(&[far, near], 4.0);
 /// assert_eq!(o.order, vec![1, 0]);
+/// # Ok(())
+/// # }
 /// ```
 pub fn order_strokes(strokes: &[Stroke], threshold: f64) -> DepthOrdering {
     let junctions = label_junctions(strokes, threshold);

@@ -9,18 +9,21 @@
 //! one-line message names the file, the view, the stroke and the problem.
 //!
 //! ```
-//! use demsketch::sketch::SketchFile;
+//! use demsketch::sketch::{SketchError, SketchFile};
+//! # fn main() -> Result<(), SketchError> {
 //! let text = r#"{"views": [{"name": "rim",
 //!   "viewpoint": {"lon": 6.5, "lat": 45.9},
 //!   "camera": {"heading_deg": 180.0, "hfov_deg": 50.0, "width": 800, "height": 600},
 //!   "strokes": [{"id": "dome", "points": [[10.0, 300.0], [200.0, 250.5]]}]}]}"#;
-//! let sketch = SketchFile::from_json_str(text, "demo.json").unwrap();
+//! let sketch = SketchFile::from_json_str(text, "demo.json")?;
 //! assert_eq!(sketch.views[0].strokes[0].id, "dome");
 //! assert_eq!(sketch.options.weights.dissimilarity, 1.0);
 //!
 //! let bad = text.replace("200.0, 250.5", "900.0, 250.5");
 //! let err = SketchFile::from_json_str(&bad, "demo.json").unwrap_err();
 //! assert!(err.to_string().starts_with("demo.json: view \"rim\" stroke \"dome\" point 2"));
+//! # Ok(())
+//! # }
 //! ```
 
 use serde::{Deserialize, Serialize};

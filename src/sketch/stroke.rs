@@ -11,13 +11,16 @@
 //! back-steps below a tolerance are drawing jitter and are dropped.
 //!
 //! ```
-//! use demsketch::sketch::{prepare_stroke, FoldBackPolicy};
+//! use demsketch::sketch::{prepare_stroke, FoldBackPolicy, StrokeError};
+//! # fn main() -> Result<(), StrokeError> {
 //! // Drawn right to left: prepared strokes run left to right.
 //! let pieces = prepare_stroke("a", 0, &[[100.0, 50.0], [0.0, 60.0]], 2.0, 1.0,
-//!     FoldBackPolicy::Split).unwrap();
+//!     FoldBackPolicy::Split)?;
 //! assert_eq!(pieces.len(), 1);
 //! assert_eq!(pieces[0].points[0], [0.0, 60.0]);
-//! assert!((pieces[0].y_at(50.0).unwrap() - 55.0).abs() < 1e-9);
+//! assert!(pieces[0].y_at(50.0).is_some_and(|y| (y - 55.0).abs() < 1e-9));
+//! # Ok(())
+//! # }
 //! ```
 
 use super::file::FoldBackPolicy;
