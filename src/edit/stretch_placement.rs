@@ -99,7 +99,14 @@ fn ground_under_end(view: &RenderedView, pixel: [f64; 2]) -> Option<([f64; 3], f
         return None;
     }
     let i = (pixel[0].floor().max(0.0) as usize).min(view.camera.width.saturating_sub(1));
-    if view.boundaries(i).any(|b| (b - row).abs() <= END_TOUCH_PX) {
+    // A boundary just under the terrain the end shows, or at it, leaves
+    // the end ambiguous (on a crest, or on the farther ground just over
+    // it); one more than the on-silhouette tolerance above it is the
+    // crest of the face the end stands on.
+    if view
+        .boundaries(i)
+        .any(|b| b - row <= END_TOUCH_PX && row - b <= JUNCTION_ABOVE_PX)
+    {
         return None;
     }
     Some((local, depth))
@@ -542,7 +549,7 @@ fn cuts_anchored_landform(
     let (mut inside, mut elsewhere) = (0usize, 0usize);
     for (k, p) in run.iter().enumerate() {
         let anchor = l.depth + (r.depth - l.depth) * (k as f64 + 0.5) / n as f64;
-        if (p.depth - anchor).abs() > AGREEMENT * anchor {
+        if (p.depth - anchor).abs() > SAME_LANDFORM * anchor {
             elsewhere += 1;
         }
         let Some((i, j)) = terrain_pixel(before, p.pixel) else {
@@ -654,14 +661,21 @@ fn terrain_pixel(before: &RenderedView, pixel: Option<[f64; 2]>) -> Option<(usiz
     (before.depth.triangle[j * w + i] != SKY).then_some((i, j))
 }
 
+/// A matched depth within this fraction of the anchors' is their
+/// landform; one farther off, where the stroke's own pixels show the
+/// anchors' landform, is another (at 2 km, 100 m: more than a cell of
+/// the 30 to 90 m DEMs), which the stroke does not outline there.
+pub const SAME_LANDFORM: f64 = 0.05;
+
 /// Half-width (points) of the running median that smooths [`cut_depths`].
 pub const CUT_MEDIAN_HALF: usize = 3;
 
 /// For a free run drawn into the terrain (the unedited view shows terrain,
-/// not sky, under at least [`NEAR_COVERAGE`] of its points, and the
-/// skyline lies within `near_px` above them): per point, the
-/// depth of the skyline above it, which is what the stroke cuts (the
-/// skyline is lowered onto the stroke at its own depth, as Tassé et al.
+/// not sky, under at least [`NEAR_COVERAGE`] of its points, and the crest
+/// of that terrain lies within `near_px` above them): per point, the
+/// depth of the crest above it ([`crest_above`]: the skyline, or the
+/// silhouette of a nearer landform), which is what the stroke cuts (the
+/// crest is lowered onto the stroke at its own depth, as Tassé et al.
 /// section 5.2.1 lower a feature drawn above the stroke; nearer terrain
 /// left above the stroke is lowered by the rounds as protruding),
 /// smoothed by a running median over the run. `None` everywhere for a run
@@ -672,17 +686,16 @@ fn cut_depths(
     placed: &StrokeMatch,
     near_px: f64,
 ) -> Vec<Option<f64>> {
-    let w = before.camera.width;
     let shown: Vec<Option<f64>> = run
         .iter()
         .map(|&k| {
             let (i, j) = terrain_pixel(before, placed.points[k].pixel)?;
-            // The skyline above: the first terrain pixel from the top,
-            // within `near_px` of the stroke (a stroke drawn far under the
-            // skyline does not cut it: at the skyline's depth its ray runs
-            // far under that landform's ground).
-            let top = (0..=j).find(|&r| before.depth.triangle[r * w + i] != SKY)?;
-            ((j - top) as f64 <= near_px).then(|| before.depth.depth[top * w + i] as f64)
+            // The crest above: the silhouette of the surface the stroke's
+            // pixel shows, within `near_px` of the stroke (a stroke drawn
+            // far under a crest does not cut it: at the crest's depth its
+            // ray runs far under that landform's ground).
+            let (row, depth) = crest_above(before, i, j)?;
+            (j as f64 - row <= near_px).then_some(depth)
         })
         .collect();
     let inside = shown.iter().flatten().count();
@@ -699,6 +712,28 @@ fn cut_depths(
             Some(near[near.len() / 2])
         })
         .collect()
+}
+
+/// The crest of the surface that pixel `(i, j)` shows: the nearest
+/// occlusion boundary above it in its column (a silhouette sample that
+/// shows as a boundary, or the skyline), as its row and depth.
+fn crest_above(view: &RenderedView, i: usize, j: usize) -> Option<(f64, f64)> {
+    let w = view.camera.width;
+    let y = j as f64 + 0.5;
+    let mut best: Option<(f64, f64)> = view
+        .skyline_row
+        .get(i)
+        .copied()
+        .flatten()
+        .filter(|&top| top <= j)
+        .map(|top| (top as f64, view.depth.depth[top * w + i] as f64));
+    for &(c, k) in &view.by_column[i] {
+        let s = &view.silhouettes.curves[c as usize].samples[k as usize];
+        if s.pixel[1] <= y && view.shows_as_boundary(s) && best.is_none_or(|b| s.pixel[1] > b.0) {
+            best = Some((s.pixel[1], s.depth));
+        }
+    }
+    best
 }
 
 /// Points of a run beyond its feature's ends (placed along the feature's
