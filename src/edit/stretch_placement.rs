@@ -192,7 +192,7 @@ pub fn place_free_stretches(
         if feature_ok {
             let whole = a == 0 && b == n;
             let behind = whole
-                .then(|| drawable_depth_behind(before, proj, placed, &on[a..b]))
+                .then(|| drawable_depth_behind(before, proj, placed, &on[a..b], near_px))
                 .flatten();
             if let Some(surface) = behind {
                 put_at_depths(proj, placed, &on[a..b], |_, px| surface.depth(proj, px));
@@ -436,6 +436,7 @@ fn drawable_depth_behind(
     proj: &SceneProjection,
     placed: &StrokeMatch,
     run: &[usize],
+    near_px: f64,
 ) -> Option<Surface> {
     let pixels: Vec<[f64; 2]> = run.iter().filter_map(|&k| placed.points[k].pixel).collect();
     let (first, last) = (pixels.first()?, pixels.last()?);
@@ -462,7 +463,8 @@ fn drawable_depth_behind(
         return None;
     }
     // cell_px falls as 1 / depth: it equals `wide` at this depth.
-    let behind = depth * cell / wide;
+    let drawable = depth * cell / wide;
+    let behind = skyline_behind(before, &pixels, drawable, near_px).unwrap_or(drawable);
     let mid = pixels[pixels.len() / 2];
     let world = proj.unproject(mid, behind);
     let ground = proj.terrain_height(world[0], world[1])?;
@@ -477,6 +479,40 @@ fn drawable_depth_behind(
             junction: false,
         },
     ))
+}
+
+/// The depth of a farther skyline a stroke is drawn over: the median
+/// depth of the skyline just under the stroke's points (within `near_px`
+/// below each), where at least [`NEAR_COVERAGE`] of the points have one at
+/// `min_depth` or farther. The stroke outlines that landform, raised over
+/// the nearer one its ends stop on (Tassé et al. section 5.2.2: an outline
+/// that ends on another is occluded by it), rather than a landform at the
+/// least depth the DEM could draw it.
+fn skyline_behind(
+    before: &RenderedView,
+    pixels: &[[f64; 2]],
+    min_depth: f64,
+    near_px: f64,
+) -> Option<f64> {
+    let (w, h) = (before.camera.width, before.camera.height);
+    let mut farther: Vec<f64> = pixels
+        .iter()
+        .filter_map(|&[x, y]| {
+            if !(x >= 0.0 && y >= 0.0 && x < w as f64 && y < h as f64) {
+                return None;
+            }
+            let i = x as usize;
+            let top = before.skyline_row[i]?;
+            let below = top as f64 + 0.5 - y;
+            (below >= 0.0 && below <= near_px).then(|| before.depth.depth[top * w + i] as f64)
+        })
+        .filter(|&d| d.is_finite() && d >= min_depth)
+        .collect();
+    if (farther.len() as f64) < NEAR_COVERAGE * pixels.len() as f64 {
+        return None;
+    }
+    farther.sort_by(f64::total_cmp);
+    Some(farther[farther.len() / 2])
 }
 
 /// Anchors a stroke only passes: when both ends of the stroke are free
