@@ -192,7 +192,11 @@ pub fn place_free_stretches(
         if feature_ok {
             let whole = a == 0 && b == n;
             let behind = whole
-                .then(|| drawable_depth_behind(before, proj, placed, &on[a..b], near_px))
+                .then(|| {
+                    drawable_depth_behind(before, proj, placed, &on[a..b], near_px).or_else(|| {
+                        behind_junctions(before, proj, placed, &on[a..b], (left, right), near_px)
+                    })
+                })
                 .flatten();
             if let Some(surface) = behind {
                 put_at_depths(proj, placed, &on[a..b], |_, px| surface.depth(proj, px));
@@ -464,9 +468,20 @@ fn drawable_depth_behind(
     }
     // cell_px falls as 1 / depth: it equals `wide` at this depth.
     let drawable = depth * cell / wide;
-    let behind = skyline_behind(before, &pixels, drawable, near_px).unwrap_or(drawable);
-    let mid = pixels[pixels.len() / 2];
-    let world = proj.unproject(mid, behind);
+    let behind =
+        skyline_behind(before, &pixels, drawable, near_px, NEAR_COVERAGE).unwrap_or(drawable);
+    drawing_plane_over_ground(proj, &pixels, behind)
+}
+
+/// The drawing plane at `depth` through the middle of `pixels`, when the
+/// stroke's middle point there lies over the DEM and above its ground.
+fn drawing_plane_over_ground(
+    proj: &SceneProjection,
+    pixels: &[[f64; 2]],
+    depth: f64,
+) -> Option<Surface> {
+    let mid = pixels.get(pixels.len() / 2)?;
+    let world = proj.unproject(*mid, depth);
     let ground = proj.terrain_height(world[0], world[1])?;
     if !(ground < world[2]) {
         return None;
@@ -475,15 +490,64 @@ fn drawable_depth_behind(
         proj.eye(),
         Bound {
             world,
-            depth: behind,
+            depth,
             junction: false,
         },
     ))
 }
 
+/// Share of a stroke between two T-junctions that must lie just over a
+/// farther skyline for it to go there ([`behind_junctions`]): its ends
+/// stop on the nearer silhouette, so only its middle can show over the
+/// farther landform.
+pub const JUNCTION_SKYLINE_SHARE: f64 = 0.25;
+
+/// Where a whole stroke drawn in the sky goes when both its ends stop on
+/// the silhouette of its own matched feature (T-junctions, Tassé et al.
+/// section 5.2.2: an outline that ends on another is occluded by it) and
+/// part of it (at least [`JUNCTION_SKYLINE_SHARE`]) lies just over a
+/// skyline farther than that silhouette by more than [`AGREEMENT`]: the
+/// stroke outlines that farther landform, raised behind the nearer one,
+/// and goes on the drawing plane at its skyline's depth
+/// ([`skyline_behind`]). `None`: the stroke keeps its feature's depth.
+fn behind_junctions(
+    before: &RenderedView,
+    proj: &SceneProjection,
+    placed: &StrokeMatch,
+    run: &[usize],
+    (left, right): (Option<Bound>, Option<Bound>),
+    near_px: f64,
+) -> Option<Surface> {
+    let (Some(l), Some(r)) = (left, right) else {
+        return None;
+    };
+    if !(l.junction && r.junction) {
+        return None;
+    }
+    let on_feature = |q: Bound, k: usize| {
+        let d = placed.points[k].depth;
+        (q.depth - d).abs() <= AGREEMENT * q.depth
+    };
+    let (first, last) = (*run.first()?, *run.last()?);
+    if !(on_feature(l, first) && on_feature(r, last)) {
+        return None;
+    }
+    let pixels: Vec<[f64; 2]> = run.iter().filter_map(|&k| placed.points[k].pixel).collect();
+    let in_sky = pixels
+        .iter()
+        .filter(|&&p| terrain_pixel(before, Some(p)).is_none())
+        .count();
+    if (in_sky as f64) < NEAR_COVERAGE * pixels.len() as f64 {
+        return None;
+    }
+    let beyond = l.depth.max(r.depth) * (1.0 + AGREEMENT);
+    let depth = skyline_behind(before, &pixels, beyond, near_px, JUNCTION_SKYLINE_SHARE)?;
+    drawing_plane_over_ground(proj, &pixels, depth)
+}
+
 /// The depth of a farther skyline a stroke is drawn over: the median
 /// depth of the skyline just under the stroke's points (within `near_px`
-/// below each), where at least [`NEAR_COVERAGE`] of the points have one at
+/// below each), where at least `share` of the points have one at
 /// `min_depth` or farther. The stroke outlines that landform, raised over
 /// the nearer one its ends stop on (Tassé et al. section 5.2.2: an outline
 /// that ends on another is occluded by it), rather than a landform at the
@@ -493,6 +557,7 @@ fn skyline_behind(
     pixels: &[[f64; 2]],
     min_depth: f64,
     near_px: f64,
+    share: f64,
 ) -> Option<f64> {
     let (w, h) = (before.camera.width, before.camera.height);
     let mut farther: Vec<f64> = pixels
@@ -508,7 +573,7 @@ fn skyline_behind(
         })
         .filter(|&d| d.is_finite() && d >= min_depth)
         .collect();
-    if (farther.len() as f64) < NEAR_COVERAGE * pixels.len() as f64 {
+    if farther.is_empty() || (farther.len() as f64) < share * pixels.len() as f64 {
         return None;
     }
     farther.sort_by(f64::total_cmp);
