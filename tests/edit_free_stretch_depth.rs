@@ -19,6 +19,12 @@
 //!    behind it, to the least depth where it spans one (609 m: fit 0.42).
 //!    Now it goes to the skyline it is drawn over (Tassé et al. section
 //!    5.2.2: an outline that ends on another is occluded by it).
+//! 3. A peak raised behind a nearer ridge whose notch shows it (Zion 90 m,
+//!    peak raised, dense style): both ends stop 1.7-2.6 px over the ridge
+//!    1.6 km away, the matched feature; the middle 40 % rises 12 px over
+//!    the skyline of a peak 2.1-2.2 km away. The stroke was kept on the
+//!    ridge (fit 0.82, depth ratio 0.76); both ends being T-junctions on
+//!    that ridge, it now goes to the farther skyline it rises over.
 
 mod common;
 
@@ -138,6 +144,41 @@ const RAISED_BEHIND_A_HILL: OneStrokeCase = OneStrokeCase {
     extra: &["--max-distance", "50000"],
 };
 
+const RAISED_BETWEEN_JUNCTIONS: OneStrokeCase = OneStrokeCase {
+    dem: "zion_srtm90m_epsg4326.tif",
+    viewpoint: [-113.00597419801213, 37.320839914560224, 2016.834],
+    heading_deg: 220.1366,
+    points: &[
+        [400.50, 130.70],
+        [403.50, 127.34],
+        [406.50, 123.84],
+        [409.50, 120.20],
+        [412.50, 116.43],
+        [415.50, 112.51],
+        [418.50, 108.49],
+        [421.50, 104.44],
+        [424.50, 103.85],
+        [427.50, 103.71],
+        [430.50, 103.55],
+        [433.50, 103.39],
+        [436.50, 103.27],
+        [439.50, 103.11],
+        [442.50, 103.40],
+        [445.50, 104.28],
+        [448.50, 105.13],
+        [451.50, 105.92],
+        [454.50, 106.64],
+        [457.50, 107.30],
+        [460.50, 107.89],
+        [463.50, 108.44],
+        [466.50, 108.99],
+        [469.50, 109.54],
+        [470.50, 109.73],
+    ],
+    influence_m: None,
+    extra: &["--max-distance", "50000"],
+};
+
 #[test]
 fn a_stretch_under_a_crest_cuts_that_crest() {
     let e = CUT_UNDER_CREST.edit();
@@ -163,6 +204,20 @@ fn a_stroke_raised_behind_a_nearer_hill_goes_to_the_skyline_it_is_drawn_over() {
     let (near, far) = e.depth_m();
     assert!(
         near > 2000.0 && far < 3000.0,
+        "placed at {near:.0}-{far:.0} m"
+    );
+    let fit = e.fitted_fraction();
+    assert!(fit >= 0.95, "fit {fit}");
+}
+
+#[test]
+fn a_stroke_between_junctions_on_a_nearer_ridge_goes_to_the_skyline_it_rises_over() {
+    let e = RAISED_BETWEEN_JUNCTIONS.edit();
+    let s = e.stroke();
+    assert!(s["placement"]["behind"].as_u64().unwrap_or(0) >= 20, "{s}");
+    let (near, far) = e.depth_m();
+    assert!(
+        near > 1950.0 && far < 2450.0,
         "placed at {near:.0}-{far:.0} m"
     );
     let fit = e.fitted_fraction();
