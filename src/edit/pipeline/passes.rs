@@ -228,7 +228,7 @@ pub(super) fn second_pass(
 
 /// The most passes of one edit: the first and the later ones over the
 /// strokes the passes before left unfitted ([`second_pass`]).
-pub const MAX_PASSES: usize = 4;
+pub const MAX_PASSES: usize = 8;
 
 /// "second", "third", ...: the name of pass `n` in the report's notes.
 pub(super) fn ordinal(n: usize) -> String {
