@@ -37,7 +37,15 @@
 //!   vertices around that point are put on the stroke's *sight surface*
 //!   (the rays from the eye through the stroke), so that the terrain comes
 //!   up to the stroke there; vertices constrained in an earlier round start
-//!   there again too;
+//!   there again too. A carrier lies up to a cell beyond the stroke's end
+//!   when the placed point is near it; where the frame cuts the stroke
+//!   there (the hill goes on out of the image) it is put on the stroke's
+//!   continuation, the chord over the stroke's last cell
+//!   ([`carry_row`], [`beyond_cut_end`]): the mesh edge from it shapes the
+//!   stroke's last columns, and left where it is it kept them a few pixels
+//!   under the stroke on coarse cells (issue 11: hold-out 3's Zion 90 m new
+//!   hill, 26 px per cell, stopped at fit 0.64). Beyond an end inside the
+//!   image it is only kept under the stroke's continuation, as before;
 //! - then no mesh edge between two of these vertices may rise above the
 //!   stroke by more than [`ABOVE_STROKE_PX`] anywhere along its segment (a
 //!   traced stroke cuts the corners of a contour a little), and none in
@@ -55,7 +63,7 @@
 use super::fit::{FIT_TOLERANCE_PX, HIDDEN_MARGIN};
 use super::rendered_view::{RenderedView, StrokeCurve};
 use crate::deform::CellConstraint;
-use crate::sketch::terrain_height_local;
+use crate::sketch::{terrain_height_local, Stroke};
 use crate::view::{Camera, CameraModel};
 use rayon::prelude::*;
 use std::collections::HashMap;
@@ -227,6 +235,15 @@ fn stroke_constraints(
     let (xs0, xs1) = s.stroke.x_range();
     let (x0, x1) = (xs0 - END_PAD_PX, xs1 + END_PAD_PX);
     let target = |x: f64| stroke_row(&s.stroke, x);
+    // One DEM cell in pixels at the placed curve's depth at the stroke's
+    // end nearer to image column `x`.
+    let end_cell_px = |x: f64| {
+        let end = if x < (xs0 + xs1) / 2.0 { xs0 } else { xs1 };
+        s.depth_at(end).map_or(0.0, |d| view.cell_px(d))
+    };
+    let frame = (cam.width as f64, cam.height as f64);
+    let carry = |x: f64| carry_row(&s.stroke, x, end_cell_px(x));
+    let cut_end = |x: f64| beyond_cut_end(&s.stroke, x, end_cell_px(x), frame);
     let dem_cell = |c: usize, r: usize| {
         (
             window_offset.0 + (t.col0 + c) as i64,
@@ -238,8 +255,8 @@ fn stroke_constraints(
     let mut add = |c: usize, r: usize, carrier: bool, verts: &mut Vec<Vertex>| {
         if let Some(&k) = index.get(&(c, r)) {
             let v = &mut verts[k];
-            if carrier && v.x >= xs0 && v.x <= xs1 {
-                v.y = target(v.x) + v.clear.max(0.0);
+            if carrier && ((v.x >= xs0 && v.x <= xs1) || cut_end(v.x)) {
+                v.y = carry(v.x) + v.clear.max(0.0);
             }
             return;
         }
@@ -260,8 +277,8 @@ fn stroke_constraints(
         } else {
             -VERTEX_ABOVE_PX
         };
-        let y = if on_stroke && (carrier || constrained(col, row)) {
-            stroke_y + clear.max(0.0)
+        let y = if (on_stroke || cut_end(px[0])) && (carrier || constrained(col, row)) {
+            carry(px[0]) + clear.max(0.0)
         } else if px[1] < stroke_y + clear {
             stroke_y + clear.max(0.0)
         } else {
@@ -362,7 +379,7 @@ fn stroke_constraints(
 
 /// The stroke's row at image column `x`, continued along its end segments
 /// beyond its ends.
-fn stroke_row(s: &crate::sketch::Stroke, x: f64) -> f64 {
+fn stroke_row(s: &Stroke, x: f64) -> f64 {
     if let Some(y) = s.y_at(x) {
         return y;
     }
@@ -378,6 +395,52 @@ fn stroke_row(s: &crate::sketch::Stroke, x: f64) -> f64 {
         return end[1];
     }
     end[1] + (x - end[0]) * (b[1] - a[1]) / (b[0] - a[0])
+}
+
+/// The row a carrier vertex at image column `x` is put on: the stroke's
+/// over its extent; beyond an end, the chord from that end to the stroke's
+/// point `cell_px` (one DEM cell in pixels at the placed curve's depth
+/// there) inward, continued. A carrier beyond an end lies at most a cell
+/// beyond it, and the end segment alone (a few pixels of a traced line)
+/// would tilt it by its jitter.
+fn carry_row(st: &Stroke, x: f64, cell_px: f64) -> f64 {
+    let (xs0, xs1) = st.x_range();
+    if (xs0..=xs1).contains(&x) {
+        return stroke_row(st, x);
+    }
+    let end = if x < xs0 { xs0 } else { xs1 };
+    let reach = cell_px.min(xs1 - xs0);
+    let inner = if x < xs0 { end + reach } else { end - reach };
+    match (st.y_at(end), st.y_at(inner)) {
+        (Some(ye), Some(yi)) if reach >= 1.0 => ye + (x - end) * (yi - ye) / (inner - end),
+        _ => stroke_row(st, x),
+    }
+}
+
+/// Whether image column `x` lies beyond an end of the stroke that the
+/// frame (`size`: image width and height) cuts: the stroke continued
+/// `cell_px` beyond that end ([`carry_row`]) leaves the image. Such a
+/// stroke stops at the frame, not where its silhouette does (Gain et al.
+/// 2009, section 3.1), so the mesh vertices that shape its last columns
+/// from beyond the end are carried onto its continuation; beyond an end
+/// inside the image the stroke says nothing about the terrain, and those
+/// vertices are only kept under it.
+fn beyond_cut_end(st: &Stroke, x: f64, cell_px: f64, size: (f64, f64)) -> bool {
+    let (xs0, xs1) = st.x_range();
+    if (xs0..=xs1).contains(&x) {
+        return false;
+    }
+    let end = if x < xs0 { xs0 } else { xs1 };
+    let out = if x < xs0 {
+        end - cell_px
+    } else {
+        end + cell_px
+    };
+    let outside = |x: f64| {
+        let y = carry_row(st, x, cell_px);
+        !(0.0..=size.0).contains(&x) || !(0.0..=size.1).contains(&y)
+    };
+    outside(out) || outside(end)
 }
 
 /// Most relaxation sweeps per stroke and round.
@@ -486,6 +549,48 @@ mod tests {
         assert!((stroke_row(&s, 8.0) - 52.0).abs() < 1e-9);
         // Right of the end: flat like the last segment.
         assert!((stroke_row(&s, 33.0) - 40.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn a_carrier_beyond_an_end_follows_the_chord_of_the_last_cell() {
+        // The hand-drawn start of the zion new hill (hold-out 3): its first
+        // segment is steeper than the stroke over the cell after it.
+        let s = stroke(&[
+            [420.5, 5.2],
+            [425.1, 10.2],
+            [430.8, 14.8],
+            [443.0, 25.6],
+            [449.6, 32.8],
+        ]);
+        // Inside the stroke: its own row.
+        assert!((carry_row(&s, 430.8, 26.0) - 14.8).abs() < 0.2);
+        // Beyond the start, the end segment would give -2.1; the chord over
+        // 26 px (one cell) about -1.
+        let end_segment = stroke_row(&s, 413.8);
+        let chord = carry_row(&s, 413.8, 26.0);
+        assert!(end_segment < -1.8, "{end_segment}");
+        assert!(chord > -1.5 && chord < -0.5, "{chord}");
+        // A cell under one pixel: the end segment.
+        assert_eq!(carry_row(&s, 413.8, 0.5), end_segment);
+    }
+
+    #[test]
+    fn only_an_end_the_frame_cuts_carries_vertices_beyond_it() {
+        let frame = (640.0, 360.0);
+        // Running up to the top border: continued a cell, it leaves the
+        // image.
+        let s = stroke(&[[420.5, 5.6], [440.0, 23.0], [470.0, 57.0]]);
+        assert!(beyond_cut_end(&s, 413.8, 26.0, frame));
+        // Its lower end, inside the image, does not.
+        assert!(!beyond_cut_end(&s, 480.0, 26.0, frame));
+        // Within the stroke, never.
+        assert!(!beyond_cut_end(&s, 450.0, 26.0, frame));
+        // The same stroke well inside the image: neither end.
+        let t = stroke(&[[420.5, 105.6], [440.0, 123.0], [470.0, 157.0]]);
+        assert!(!beyond_cut_end(&t, 413.8, 26.0, frame));
+        // Ending at the right border: cut.
+        let r = stroke(&[[600.0, 100.0], [639.5, 110.0]]);
+        assert!(beyond_cut_end(&r, 645.0, 10.0, frame));
     }
 
     #[test]

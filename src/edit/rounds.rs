@@ -102,6 +102,9 @@ pub(super) fn refine(
         let renders = render_all(views, regions, &deformation, latest)?;
         let score = fit_score(curves, &renders);
         if debug() {
+            print_unfitted(curves, &renders);
+        }
+        if debug() {
             eprintln!(
                 "round: fit score {score:.3} (best {:?}), lowering {:?}, contour {:?}",
                 best.as_ref().map(|b| b.0),
@@ -249,6 +252,29 @@ pub(super) fn refine(
 /// `DEMSKETCH_DEBUG` is set: the rounds print what they do on stderr.
 fn debug() -> bool {
     std::env::var_os("DEMSKETCH_DEBUG").is_some()
+}
+
+/// Every stroke's unfitted columns on stderr: column (`a`: anchored) and
+/// the distance to its nearest boundary, pixels.
+fn print_unfitted(curves: &[Vec<StrokeCurve>], renders: &[RenderedView]) {
+    for (cs, r) in curves.iter().zip(renders) {
+        for c in cs {
+            let missed: Vec<String> = c
+                .columns(r.camera.width)
+                .into_iter()
+                .filter_map(|(i, y, _)| {
+                    let (near, within) = r.boundary_near(i, y, super::fit::FIT_TOLERANCE_PX);
+                    let anchored = if c.is_anchored(i as f64 + 0.5) {
+                        "a"
+                    } else {
+                        ""
+                    };
+                    (!within).then(|| format!("{i}{anchored}:{near:.1}"))
+                })
+                .collect();
+            eprintln!("unfitted {}: {}", c.id, missed.join(" "));
+        }
+    }
 }
 
 /// Each view's region on `deformation`'s terrain, taking from the views'
