@@ -34,7 +34,13 @@
 //! it leaves ([`leaves_farther_silhouette`]). A whole stroke drawn in the sky just over
 //! its feature, narrower than one DEM cell at that feature's depth, is a
 //! landform behind it that the DEM could not draw there: it goes behind,
-//! to the nearest depth where it spans one cell.
+//! to the skyline of the farther landform it is drawn over where it lies
+//! over one, else to the nearest depth where it spans one cell; so does a
+//! whole stroke whose two ends stop on its feature's silhouette
+//! (T-junctions) and which rises over a farther skyline
+//! (`behind_junctions`). A stretch drawn into the face just under a
+//! crest (a cut) is placed at that crest (`crest_above`), and a stroke
+//! end inside a face more than a pixel under its crest stands on it.
 
 use super::rendered_view::RenderedView;
 use crate::render::SKY;
@@ -459,11 +465,7 @@ fn drawable_depth_behind(
     if !(cell.is_finite() && wide < cell) {
         return None;
     }
-    let in_sky = pixels
-        .iter()
-        .filter(|&&p| terrain_pixel(before, Some(p)).is_none())
-        .count();
-    if (in_sky as f64) < NEAR_COVERAGE * pixels.len() as f64 {
+    if !mostly_in_sky(before, &pixels) {
         return None;
     }
     // cell_px falls as 1 / depth: it equals `wide` at this depth.
@@ -533,11 +535,7 @@ fn behind_junctions(
         return None;
     }
     let pixels: Vec<[f64; 2]> = run.iter().filter_map(|&k| placed.points[k].pixel).collect();
-    let in_sky = pixels
-        .iter()
-        .filter(|&&p| terrain_pixel(before, Some(p)).is_none())
-        .count();
-    if (in_sky as f64) < NEAR_COVERAGE * pixels.len() as f64 {
+    if !mostly_in_sky(before, &pixels) {
         return None;
     }
     let beyond = l.depth.max(r.depth) * (1.0 + AGREEMENT);
@@ -716,6 +714,16 @@ fn leaves_farther_silhouette(
         .filter(|p| p.pixel.is_some() && terrain_pixel(before, p.pixel).is_none())
         .count();
     in_sky as f64 >= NEAR_COVERAGE * run.len() as f64
+}
+
+/// True when at least [`NEAR_COVERAGE`] of `pixels` show sky in the
+/// unedited view: the stroke raises terrain there, it does not cut it.
+fn mostly_in_sky(before: &RenderedView, pixels: &[[f64; 2]]) -> bool {
+    let in_sky = pixels
+        .iter()
+        .filter(|&&p| terrain_pixel(before, Some(p)).is_none())
+        .count();
+    in_sky as f64 >= NEAR_COVERAGE * pixels.len() as f64
 }
 
 /// The depth of `feature` where it projects at image column `x`
