@@ -165,13 +165,18 @@ pub(super) fn refine(
         deformation = gathered.solve(solver)?;
     }
     // The best round's terrain and renders, if a later one did worse.
+    // When the latest round only equalled it, the best round's terrain
+    // and renders are kept aside (`spare`): the edit may go back to that
+    // terrain below, and it renders the same.
     let mut best_score = best.as_ref().map_or(0.0, |b| b.0);
+    let mut spare: Option<(Deformation, Vec<RenderedView>)> = None;
     let mut rendered = match (last, best) {
         (Some((score, r)), Some((b, d, best_r))) => {
             if score < b - 1e-9 {
                 deformation = d;
                 best_r
             } else {
+                spare = Some((d, best_r));
                 r
             }
         }
@@ -192,11 +197,14 @@ pub(super) fn refine(
             && worst_stroke_fit(curves, &rendered) >= opts.min_fit;
         if !worth {
             // (`rendered` is `deformation`'s render: when that is the
-            // best round's terrain already, it is not rendered again)
-            adopt(views, regions, &mut deformation, &mut rendered, d)?;
+            // best round's terrain already, it is not rendered again;
+            // when it is the spare's, the spare's renders are taken)
+            let spare = spare.take();
+            adopt_rendered(views, regions, (&mut deformation, &mut rendered), d, spare)?;
             best_score = score_before;
         }
     }
+    drop(spare);
     // A terrain that changes no cell (as the write stores it) stays so
     // to the end: the unedited terrain is kept, or its spikes (none)
     // flattened. A later pass that ends there is dropped whatever it
@@ -225,6 +233,12 @@ pub(super) fn refine(
     let kept_unedited = unedited >= best_score - 1e-9 && best_score < perfect - 1e-9;
     if debug() {
         eprintln!("rounds: unedited fit {unedited:.3}, best {best_score:.3}, kept unedited {kept_unedited}");
+    }
+    // A later pass that keeps the terrain as it is changes no cell and
+    // is dropped (see `discard_unchanged` above): it stops here, before
+    // rendering the unedited terrain again.
+    if kept_unedited && discard_unchanged {
+        return Ok(None);
     }
     if kept_unedited {
         let before = unchanged(deformation.clone());
@@ -305,8 +319,23 @@ fn adopt(
     rendered: &mut Vec<RenderedView>,
     next: Deformation,
 ) -> Result<(), EditError> {
+    adopt_rendered(views, regions, (deformation, rendered), next, None)
+}
+
+/// [`adopt`], also taking `spare`'s renders (an earlier round's terrain
+/// and its renders) when `next` is that terrain.
+fn adopt_rendered(
+    views: &[ViewState],
+    regions: &[StrokeRegion],
+    (deformation, rendered): (&mut Deformation, &mut Vec<RenderedView>),
+    next: Deformation,
+    spare: Option<(Deformation, Vec<RenderedView>)>,
+) -> Result<(), EditError> {
     if !same_terrain(deformation, &next) {
-        *rendered = render_all(views, regions, &next, Some(rendered))?;
+        *rendered = match spare {
+            Some((d, r)) if same_terrain(&d, &next) => r,
+            _ => render_all(views, regions, &next, Some(rendered))?,
+        };
     }
     *deformation = next;
     Ok(())
