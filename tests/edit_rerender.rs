@@ -201,3 +201,63 @@ fn a_whole_render_after_a_region_render_of_its_surface_is_the_fresh_render() {
     let got = RenderedView::from_terrain_after(lowered, &cam, Some(&last)).unwrap();
     assert_same_render(&got, &want, "another surface");
 }
+
+#[test]
+fn a_region_render_taken_from_a_whole_render_is_the_fresh_region_render() {
+    let (cam, scene) = zion_view();
+    let (w, h) = (scene.window.width, scene.window.height);
+    let before = RenderedView::from_terrain(scene.terrain.clone(), &cam).unwrap();
+    let unedited = || before.terrain.with_heights((0, 0, 0, 0), &|_, _| None);
+    // Regions as the edit's (see the test above), one with columns left
+    // out (last row -1) and columns down to the image's last row.
+    let mut strokes = region(&cam);
+    let limit = before.depth.depth.iter().copied().filter(|d| d.is_finite());
+    let far = limit.fold(0.0f32, f32::max);
+    for x in 0..cam.width {
+        strokes.last_row[x] = match x % 97 {
+            0..=4 => -1,
+            5..=9 => cam.height as i32 - 1,
+            _ => (cam.height / 2 + (x * 7) % 61) as i32,
+        };
+        strokes.depth_limit[x] = if x % 3 == 0 { far / 4.0 } else { 0.0 };
+        strokes.stroke_rows[x] = vec![(cam.height / 3 + x % 17) as f32];
+    }
+    for (name, r) in [("any depth", region(&cam)), ("strokes", strokes)] {
+        let want = RenderedView::render_terrain_region(scene.terrain.clone(), &cam, &r).unwrap();
+        assert!(
+            want.silhouettes.sample_count() > 0,
+            "{name}: the region has silhouettes"
+        );
+        let got = before.region_of(unedited(), &r).expect("usable").unwrap();
+        assert_same_render(&got, &want, name);
+        assert_eq!(got.columns.samples, want.columns.samples, "{name}: columns");
+        assert_eq!(
+            got.columns.candidates, want.columns.candidates,
+            "{name}: candidates"
+        );
+        assert_eq!(got.region.as_ref(), Some(&r), "{name}: region");
+        // A re-render from it after a change of a few vertices is the
+        // fresh one too.
+        let (c0, r0) = (w / 2, h / 3);
+        let changed = before
+            .terrain
+            .with_heights((c0, r0, c0 + 3, r0 + 3), &|c, r| {
+                Some(scene.window.get(c, r)? + 7.0)
+            });
+        let want = RenderedView::render_terrain_region(changed.clone(), &cam, &r).unwrap();
+        let again = RenderedView::rerender_terrain_region(changed, &cam, &r, &got).unwrap();
+        assert_same_render(&again, &want, &format!("{name}, changed"));
+        // Not from a region render, nor onto another surface.
+        assert!(
+            got.region_of(unedited(), &r).is_none(),
+            "{name}: region render"
+        );
+        let lowered = before
+            .terrain
+            .with_heights((0, 0, w, h), &|c, r| Some(scene.window.get(c, r)? - 5.0));
+        assert!(
+            before.region_of(lowered, &r).is_none(),
+            "{name}: another surface"
+        );
+    }
+}

@@ -254,6 +254,46 @@ impl RenderedView {
         Self::with_silhouettes(terrain, depth, None, &all, Some(reuse))
     }
 
+    /// The render of `region` ([`RenderedView::render_terrain_region`])
+    /// on `terrain`, taken from this whole render of the same surface (to
+    /// the bit, [`LocalTerrain::same_surface`]) instead of rendered: the
+    /// region's rows of the depth buffer ([`DepthBuffer::rows_of`]), and
+    /// every silhouette candidate the region wants between rows `y - 1`
+    /// and `y` with rows `y - 1 ..= y + 1` in the region refined to the
+    /// samples this render holds ([`Reuse::Candidates`]; the others, at
+    /// the region's last row, are refined). The result is that of the
+    /// region's render, to the bit. `None` where this is not a whole
+    /// render of that surface without far layers.
+    pub fn region_of(
+        &self,
+        terrain: LocalTerrain,
+        region: &StrokeRegion,
+    ) -> Option<Result<RenderedView, FeatureError>> {
+        let camera = &self.camera;
+        let usable = self.region.is_none()
+            && region.last_row.len() == camera.width
+            && self.depth.depth.len() == camera.width * camera.height
+            && self.columns.samples.len() == camera.width
+            && terrain.same_surface(&self.terrain);
+        if !usable {
+            return None;
+        }
+        let last_row = &region.last_row;
+        let depth = DepthBuffer::rows_of(&self.depth, last_row);
+        let take = |x: usize, y: usize, near: f32| {
+            (y as i64) < last_row[x] as i64 && region.wants(x, y, near)
+        };
+        let wants = |x: usize, y: usize, near: f32| region.wants(x, y, near);
+        let reuse = Reuse::Candidates(&self.columns, &take);
+        Some(Self::with_silhouettes(
+            terrain,
+            depth,
+            Some(region),
+            &wants,
+            Some(reuse),
+        ))
+    }
+
     /// Silhouettes (those `region` wants, or all) and boundaries of a
     /// rendered depth buffer.
     fn from_depth(

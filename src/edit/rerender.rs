@@ -101,6 +101,41 @@ impl RenderedView {
     }
 }
 
+impl RenderedView {
+    /// Whether [`RenderedView::rerender_terrain_region`] of `terrain`
+    /// from `earlier` can take any column of it: the same camera and
+    /// region, terrains patched from one, and a change whose reach is
+    /// bounded short of the whole image (through the depth buffer or the
+    /// silhouettes).
+    pub fn rerender_keeps_some(
+        terrain: &LocalTerrain,
+        camera: &Camera,
+        region: &StrokeRegion,
+        earlier: &RenderedView,
+    ) -> bool {
+        earlier.camera == *camera
+            && earlier.region.as_ref() == Some(region)
+            && Self::change_keeps_some(terrain, camera, &earlier.terrain)
+    }
+
+    /// Whether the change from `earlier` to `terrain` (patched from one)
+    /// has a reach bounded short of the whole image of `camera`, through
+    /// the depth buffer or the silhouettes (see
+    /// [`RenderedView::rerender_keeps_some`]).
+    pub fn change_keeps_some(
+        terrain: &LocalTerrain,
+        camera: &Camera,
+        earlier: &LocalTerrain,
+    ) -> bool {
+        let Some(change) = terrain.changed_since(earlier) else {
+            return false;
+        };
+        let all = Some((0, camera.width.saturating_sub(1)));
+        change_reach(terrain, earlier, camera, change)
+            .is_some_and(|r| r.raster != all || r.columns != all)
+    }
+}
+
 /// The pixel columns a change of terrain can reach: through the depth
 /// buffer (`raster`) and through the silhouettes' refinement (`columns`);
 /// `None` in either: no column.

@@ -123,6 +123,42 @@ impl DepthBuffer {
         Self::of(camera, rasterise(terrain, camera, Some(last_row)))
     }
 
+    /// What [`DepthBuffer::render_rows`] gives for `last_row`, taken from
+    /// `whole`, a whole render ([`DepthBuffer::render`]) of the same
+    /// camera and terrain, which has no far layers: a region's rows hold
+    /// the whole render's pixels (the premise of
+    /// [`DepthBuffer::render_below`]), the rows below a NaN depth and
+    /// [`SKY`], as the rasteriser leaves them.
+    ///
+    /// # Panics
+    /// When `last_row.len() != whole.width`.
+    pub fn rows_of(whole: &DepthBuffer, last_row: &[i32]) -> Self {
+        let (w, h) = (whole.width, whole.height);
+        assert_eq!(last_row.len(), w, "one last row per column");
+        // Rows `first_below[x]..` of column `x` are not rendered.
+        let first_below: Vec<i32> = last_row
+            .iter()
+            .map(|&r| (r + 1).clamp(0, h as i32))
+            .collect();
+        let n = w * h;
+        let mut depth = crate::buffer_pool::overwritten_f32(n);
+        let mut triangle = crate::buffer_pool::overwritten_u32(n);
+        depth
+            .par_chunks_mut(w)
+            .zip(triangle.par_chunks_mut(w))
+            .enumerate()
+            .for_each(|(j, (t, id))| {
+                let k = j * w;
+                let (wt, wid) = (&whole.depth[k..k + w], &whole.triangle[k..k + w]);
+                for x in 0..w {
+                    let inside = (j as i32) < first_below[x];
+                    t[x] = if inside { wt[x] } else { f32::NAN };
+                    id[x] = if inside { wid[x] } else { SKY };
+                }
+            });
+        Self::of(&whole.camera, (depth, triangle))
+    }
+
     /// [`DepthBuffer::render_rows`], taking the strips of pixel columns
     /// `x0..=x1` for which `keep(x0, x1)` holds from `earlier` (a render of
     /// the same camera and rows, on a terrain whose changed triangles none

@@ -391,12 +391,50 @@ pub(super) fn render_edited_after(
     earlier: Option<&RenderedView>,
 ) -> Result<RenderedView, EditError> {
     let terrain = edited_terrain(&v.before.terrain, v.window_offset, d);
+    let camera = &v.camera;
     match (region, earlier) {
-        (Some(r), Some(e)) => RenderedView::rerender_terrain_region(terrain, &v.camera, r, e),
-        (Some(r), None) => RenderedView::render_terrain_region(terrain, &v.camera, r),
-        (None, _) => RenderedView::from_terrain(terrain, &v.camera),
+        // From the earlier render where that can keep something, else
+        // from the unedited view where that can, else as before.
+        (Some(r), e) => {
+            match e.filter(|e| RenderedView::rerender_keeps_some(&terrain, camera, r, e)) {
+                Some(e) => RenderedView::rerender_terrain_region(terrain, camera, r, e),
+                None => match unedited_region(v, r, &terrain) {
+                    Some(before) => before.and_then(|before| {
+                        RenderedView::rerender_terrain_region(terrain, camera, r, &before)
+                    }),
+                    None => match e {
+                        Some(e) => RenderedView::rerender_terrain_region(terrain, camera, r, e),
+                        None => RenderedView::render_terrain_region(terrain, camera, r),
+                    },
+                },
+            }
+        }
+        (None, _) => RenderedView::from_terrain(terrain, camera),
     }
     .map_err(|e| EditError::Internal(format!("view \"{}\": features: {e}", v.spec.name)))
+}
+
+/// The render of `region` of view `v`'s terrain before the edit, taken
+/// from its whole render ([`RenderedView::region_of`]), where a re-render
+/// of `terrain` from it can take some of it
+/// ([`RenderedView::rerender_keeps_some`]): a terrain that differs from
+/// the unedited one in a few cells only (a later pass whose change rounds
+/// to almost nothing on an integer DEM), while it differs a little
+/// everywhere from the rounds' last render. `None`: no such render.
+fn unedited_region(
+    v: &ViewState,
+    region: &StrokeRegion,
+    terrain: &crate::render::LocalTerrain,
+) -> Option<Result<RenderedView, crate::features::FeatureError>> {
+    let before = &v.before;
+    if before.region.is_some()
+        || before.camera != v.camera
+        || !RenderedView::change_keeps_some(terrain, &v.camera, &before.terrain)
+    {
+        return None;
+    }
+    let unedited = before.terrain.with_heights((0, 0, 0, 0), &|_, _| None);
+    before.region_of(unedited, region)
 }
 
 /// `terrain` (built over a window of the DEM at `offset`) with `H + M`
