@@ -36,7 +36,12 @@
 //!
 //! Anything out of the ordinary (another camera or region, terrains not
 //! patched from one, a change of the height range, a change the geometry
-//! cannot bound) renders the region afresh, as before.
+//! cannot bound) renders the region afresh, as before. Where the change
+//! from the rounds' latest render reaches every column but that from the
+//! unedited terrain does not (a pass's terrain as the write stores it,
+//! rounded to a few changed cells), the edit re-renders from the
+//! unedited view's region instead, cut from the pass's whole render
+//! ([`RenderedView::region_of`], [`RenderedView::rerender_keeps_some`]).
 
 use super::rendered_view::{RenderedView, StrokeRegion};
 use crate::features::{reach_rows, FeatureError};
