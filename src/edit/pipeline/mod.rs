@@ -53,7 +53,7 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use rayon::prelude::*;
 
 use super::fit::measure;
-use super::on_silhouette::anchor_on_silhouettes;
+use super::on_silhouette::{anchor_on_silhouettes, Anchoring};
 use super::outputs::{write_outputs, Outcome, Sources};
 use super::rendered_view::{RenderedView, StrokeCurve, StrokeRegion};
 use super::report::{
@@ -123,6 +123,9 @@ pub(super) struct Edit<'o> {
     /// The views' skylines are candidate features
     /// ([`crate::sketch::skyline`]); `false` on the run without them.
     pub(super) skyline: bool,
+    /// How strokes are anchored on the silhouettes near them: as traced
+    /// by hand, except in the polishing passes ([`Anchoring`]).
+    pub(super) anchoring: Anchoring,
 }
 
 pub(super) fn secs(t: Instant) -> f64 {
@@ -183,6 +186,7 @@ pub fn run_opened(
         max_d: opts.max_distance_m.filter(|d| d.is_finite() && *d > 0.0),
         pb: progress_bar(opts),
         skyline: true,
+        anchoring: Anchoring::Traced,
     };
     let mut timings = Timings::default();
     check_output_paths(opts)?;
@@ -218,6 +222,7 @@ pub fn run_opened(
             max_d: edit.max_d,
             pb: edit.pb.clone(),
             skyline: false,
+            anchoring: Anchoring::Traced,
         };
         let reloaded = dem.reopened().map_err(EditError::from).and_then(|d| {
             load_views(

@@ -7,7 +7,7 @@ use super::*;
 
 /// The first pass ([`edit_pass`]) and, while one is kept and leaves a
 /// stroke unfitted, the later ones ([`second_pass`]), up to
-/// [`MAX_PASSES`].
+/// [`MAX_PASSES`]; then the polishing passes ([`polish`]).
 pub(super) fn all_passes<'s>(
     edit: &Edit,
     (sketch, dem, dem_name, sketch_path): (&'s SketchFile, &Dem, &str, &Path),
@@ -22,29 +22,130 @@ pub(super) fn all_passes<'s>(
         timings,
         false,
     )?;
-    let Some(mut outcome) = outcome else {
+    let Some(outcome) = outcome else {
         return Err(EditError::Internal(
             "the first pass was dropped as a later one".into(),
         ));
     };
-    let mut pass = 1;
-    while pass < MAX_PASSES && needs_second_pass(sketch, &outcome) {
-        let t = Instant::now();
-        // The far rings of a long view lie beyond every pass's changes:
-        // the later passes take the first's (when they serve, see `load_views`).
-        let far: Vec<FarLayers> = views
-            .iter()
-            .map(|v| v.before.terrain.far_layers())
-            .collect();
-        pass += 1;
+    // The far rings of a long view lie beyond every pass's changes:
+    // the later passes take the first's (when they serve, see `load_views`).
+    let far: Vec<FarLayers> = views
+        .iter()
+        .map(|v| v.before.terrain.far_layers())
+        .collect();
+    let t = Instant::now();
+    let (outcome, pass) = later_passes(
+        edit,
+        (sketch, dem, sketch_path),
+        outcome,
+        &far,
+        (1, MAX_PASSES),
+    )?;
+    let outcome = polish(edit, (sketch, dem, sketch_path), outcome, &far, pass)?;
+    timings.lowering += secs(t);
+    Ok((views, outcome))
+}
+
+/// Later passes ([`second_pass`]) after pass `from`, while one is kept,
+/// leaves a stroke unfitted and the pass number stays within `to`.
+/// Returns the outcome and the number of the last pass kept.
+fn later_passes(
+    edit: &Edit,
+    (sketch, dem, sketch_path): (&SketchFile, &Dem, &Path),
+    mut outcome: Outcome,
+    far: &[FarLayers],
+    (from, to): (usize, usize),
+) -> Result<(Outcome, usize), EditError> {
+    let mut pass = from;
+    while pass < to && needs_second_pass(sketch, &outcome) {
         let changed;
-        (outcome, changed) = second_pass(edit, dem, sketch_path, outcome, &far, pass)?;
-        timings.lowering += secs(t);
+        (outcome, changed) = second_pass(edit, dem, sketch_path, outcome, far, pass + 1)?;
         if !changed {
             break;
         }
+        pass += 1;
     }
-    Ok((views, outcome))
+    Ok((outcome, pass))
+}
+
+/// The most polishing passes of one edit ([`polish`]).
+pub const POLISH_PASSES: usize = 4;
+
+/// Polishing (issue 11, a stroke fitted at the right depth): after the
+/// passes end with a stroke unfitted, later passes that anchor the
+/// strokes with the fit's own pixel only ([`Anchoring::Strict`]). Passes
+/// anchor a stroke within 3 px of a silhouette in short gaps between
+/// anchors (a hand tracing a silhouette wanders); after a first pass the
+/// silhouette beside a stroke is often the pass's own near miss of it,
+/// 1-3 px off, which those passes then hold and never fit. The polished
+/// terrain is kept only when it fits the strokes better and a pass as a
+/// re-edit of the output would make it (traced anchoring, on the polished
+/// terrain) changes no cell: the output stays its own fixed point. Else
+/// the passes' terrain stands. `pass`: the last pass kept.
+fn polish(
+    edit: &Edit,
+    (sketch, dem, sketch_path): (&SketchFile, &Dem, &Path),
+    outcome: Outcome,
+    far: &[FarLayers],
+    pass: usize,
+) -> Result<Outcome, EditError> {
+    if !needs_second_pass(sketch, &outcome) {
+        return Ok(outcome);
+    }
+    let strict = Edit {
+        opts: edit.opts,
+        sketch_name: edit.sketch_name.clone(),
+        max_d: edit.max_d,
+        pb: edit.pb.clone(),
+        skyline: edit.skyline,
+        anchoring: Anchoring::Strict,
+    };
+    let unpolished = outcome.without_renders();
+    let f0 = fit_score(&outcome);
+    let (mut polished, last) = later_passes(
+        &strict,
+        (sketch, dem, sketch_path),
+        outcome,
+        far,
+        (pass, pass + POLISH_PASSES),
+    )?;
+    if last == pass {
+        return Ok(polished);
+    }
+    let f1 = fit_score(&polished);
+    if f1 <= f0 + 1e-9 {
+        return Ok(unpolished);
+    }
+    if !fixed_point(edit, dem, sketch_path, &mut polished, far) {
+        let mut out = unpolished;
+        out.notes.push(format!(
+            "polishing took the strokes' summed fit from {f0:.3} to {f1:.3}, but a re-edit of that terrain would change it: not kept"
+        ));
+        return Ok(out);
+    }
+    polished.notes.push(format!(
+        "polishing (passes anchoring the strokes within the fit's own pixel only) took the strokes' summed fit from {f0:.3} to {f1:.3}"
+    ));
+    Ok(polished)
+}
+
+/// True when a pass with `edit`'s anchoring on the terrain `outcome`
+/// made (as the first pass of a re-edit of the output) changes no cell.
+/// Takes `outcome`'s renders.
+fn fixed_point(
+    edit: &Edit,
+    dem: &Dem,
+    sketch_path: &Path,
+    outcome: &mut Outcome,
+    far: &[FarLayers],
+) -> bool {
+    let d1 = quantized(dem, &outcome.deformation);
+    let earlier = std::mem::take(&mut outcome.renders);
+    match pass_on(edit, dem, sketch_path, &d1, earlier, far) {
+        Ok(None) => true,
+        Ok(Some(o)) => o.deformation.stats.changed_cells == 0,
+        Err(_) => false,
+    }
 }
 
 /// Stages 2 to 5 on the loaded views: features, matching, deformation,
@@ -157,27 +258,7 @@ pub(super) fn second_pass(
     // The pass before's last renders are of the terrain this pass starts
     // from: its views' renders take what they can from them.
     let earlier = std::mem::take(&mut first.renders);
-    let run_second = || -> Result<Option<Outcome>, EditError> {
-        let overlay = dem.reopened()?.with_overlay(d1.window, d1.edited().data);
-        let Loaded {
-            sketch,
-            dem: dem2,
-            notes,
-            prepared,
-            scenes,
-        } = load_views(edit, overlay, sketch_path, far)?;
-        let dem_name = dem.path.display().to_string();
-        let mut scratch = Timings::default();
-        let (_, second) = edit_pass(
-            edit,
-            (&sketch, &dem2, &dem_name),
-            (scenes, prepared, notes),
-            earlier,
-            &mut scratch,
-            true,
-        )?;
-        Ok(second)
-    };
+    let run_second = || pass_on(edit, dem, sketch_path, d1, earlier, far);
     // The first pass stands on its own: a second that cannot run (a stroke
     // end no longer on terrain, say) leaves it as it is.
     let second = match run_second() {
@@ -224,6 +305,39 @@ pub(super) fn second_pass(
     ));
     out.deformation = total;
     Ok((out, true))
+}
+
+/// A pass (stages 1 to 5, [`edit_pass`] as a later one) on the terrain
+/// `d1` makes of `dem` (read through an overlay, nothing written);
+/// `earlier`: the renders of that terrain the pass before left. `None`
+/// when it changes no cell.
+fn pass_on(
+    edit: &Edit,
+    dem: &Dem,
+    sketch_path: &Path,
+    d1: &Deformation,
+    earlier: Vec<RenderedView>,
+    far: &[FarLayers],
+) -> Result<Option<Outcome>, EditError> {
+    let overlay = dem.reopened()?.with_overlay(d1.window, d1.edited().data);
+    let Loaded {
+        sketch,
+        dem: dem2,
+        notes,
+        prepared,
+        scenes,
+    } = load_views(edit, overlay, sketch_path, far)?;
+    let dem_name = dem.path.display().to_string();
+    let mut scratch = Timings::default();
+    let (_, second) = edit_pass(
+        edit,
+        (&sketch, &dem2, &dem_name),
+        (scenes, prepared, notes),
+        earlier,
+        &mut scratch,
+        true,
+    )?;
+    Ok(second)
 }
 
 /// The most passes of one edit: the first and the later ones over the
