@@ -41,7 +41,13 @@ pub(super) fn all_passes<'s>(
         &far,
         (1, MAX_PASSES),
     )?;
-    let outcome = polish(edit, (sketch, dem, sketch_path), outcome, &far, pass)?;
+    let outcome = polish(
+        edit,
+        (sketch, dem, sketch_path),
+        (&views, outcome),
+        &far,
+        pass,
+    )?;
     timings.lowering += secs(t);
     Ok((views, outcome))
 }
@@ -80,12 +86,14 @@ pub const POLISH_PASSES: usize = 4;
 /// 1-3 px off, which those passes then hold and never fit. The polished
 /// terrain is kept only when it fits the strokes better and a pass as a
 /// re-edit of the output would make it (traced anchoring, on the polished
-/// terrain) changes no cell: the output stays its own fixed point. Else
-/// the passes' terrain stands. `pass`: the last pass kept.
+/// terrain) changes no cell: the output stays its own fixed point; and
+/// when it changes no cell farther than the influence distance from the
+/// strokes' sight wedge ([`within_sight_wedge`]). Else the passes' terrain
+/// stands. `views`: the first pass's; `pass`: the last pass kept.
 fn polish(
     edit: &Edit,
     (sketch, dem, sketch_path): (&SketchFile, &Dem, &Path),
-    outcome: Outcome,
+    (views, outcome): (&[ViewState], Outcome),
     far: &[FarLayers],
     pass: usize,
 ) -> Result<Outcome, EditError> {
@@ -116,6 +124,13 @@ fn polish(
     if f1 <= f0 + 1e-9 {
         return Ok(unpolished);
     }
+    if !within_sight_wedge(dem, views, &unpolished, &polished.deformation) {
+        let mut out = unpolished;
+        out.notes.push(format!(
+            "polishing took the strokes' summed fit from {f0:.3} to {f1:.3}, but changed terrain beyond the influence distance of the strokes as placed: not kept"
+        ));
+        return Ok(out);
+    }
     if !fixed_point(edit, dem, sketch_path, &mut polished, far) {
         let mut out = unpolished;
         out.notes.push(format!(
@@ -127,6 +142,89 @@ fn polish(
         "polishing (passes anchoring the strokes within the fit's own pixel only) took the strokes' summed fit from {f0:.3} to {f1:.3}"
     ));
     Ok(polished)
+}
+
+/// Change under this (metres) is no change, for [`within_sight_wedge`].
+const NO_CHANGE_M: f32 = 0.05;
+
+/// True when every cell that `polished` changes from `before`'s
+/// deformation (by more than [`NO_CHANGE_M`]) lies within the influence
+/// distance of a stroke's sight wedge: the segments from a view's eye to
+/// the points the strokes were placed at (`before`'s report). A polishing
+/// pass re-matches the strokes; one placed farther than the edit placed it
+/// moves terrain the edit as reported never reached.
+fn within_sight_wedge(
+    dem: &Dem,
+    views: &[ViewState],
+    before: &Outcome,
+    polished: &Deformation,
+) -> bool {
+    let a = &before.deformation;
+    let influence = a.stats.influence_m;
+    if !(influence.is_finite() && influence > 0.0) {
+        return true;
+    }
+    // Per view: its frame and the ends of its sight segments (local east,
+    // north), a few dozen per stroke.
+    let wedges: Vec<(&LocalFrame, Vec<(f64, f64)>)> = views
+        .iter()
+        .zip(&before.views)
+        .map(|(v, r)| {
+            let ends = r
+                .strokes
+                .iter()
+                .flat_map(|s| {
+                    let step = (s.placed_curve.len() / 40).max(1);
+                    s.placed_curve.iter().step_by(step)
+                })
+                .map(|p| v.frame.crs_to_en(p[0], p[1]))
+                .collect();
+            (&v.frame, ends)
+        })
+        .collect();
+    let near = |x: f64, y: f64| {
+        wedges.iter().any(|(frame, ends)| {
+            let c = frame.crs_to_en(x, y);
+            ends.iter().any(|&e| segment_distance(c, e) <= influence)
+        })
+    };
+    let (wa, wb) = (a.window, polished.window);
+    for r in 0..wb.height {
+        for c in 0..wb.width {
+            let (col, row) = (wb.col + c as i64, wb.row + r as i64);
+            let m = polished.displacement[r * wb.width + c];
+            let (ca, ra) = (col - wa.col, row - wa.row);
+            let inside =
+                ca >= 0 && ra >= 0 && (ca as usize) < wa.width && (ra as usize) < wa.height;
+            let before_m = if inside {
+                a.displacement[ra as usize * wa.width + ca as usize]
+            } else {
+                0.0
+            };
+            let d = m - before_m;
+            if d.is_nan() || d.abs() <= NO_CHANGE_M {
+                continue;
+            }
+            let (x, y) = dem
+                .geotransform
+                .pixel_to_crs(col as f64 + 0.5, row as f64 + 0.5);
+            if !near(x, y) {
+                return false;
+            }
+        }
+    }
+    true
+}
+
+/// Distance from point `p` to the segment from the origin to `e`.
+fn segment_distance(p: (f64, f64), e: (f64, f64)) -> f64 {
+    let len2 = e.0 * e.0 + e.1 * e.1;
+    let t = if len2 > 0.0 {
+        ((p.0 * e.0 + p.1 * e.1) / len2).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    (p.0 - t * e.0).hypot(p.1 - t * e.1)
 }
 
 /// True when a pass with `edit`'s anchoring on the terrain `outcome`
