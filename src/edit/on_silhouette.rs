@@ -32,7 +32,9 @@
 //! so is a stretch between two anchors on one silhouette that is narrower
 //! than one DEM cell seen from there (the DEM cannot draw such a detail).
 //! Feature completion at an anchored end is dropped: that end already sits
-//! on the terrain.
+//! on the terrain. The polishing passes of an edit anchor without these
+//! two looser rules ([`Anchoring::Strict`]): there the silhouette near a
+//! stroke is the edit's own near miss of it, not one the sketcher traced.
 
 use super::rendered_view::RenderedView;
 use crate::sketch::{PlacedPoint, PointSource, SceneProjection, StrokeMatch};

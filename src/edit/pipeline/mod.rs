@@ -27,7 +27,12 @@
 //! of it, as the write stores it, nothing written) and the deformations
 //! are written as one (`compose`); while a pass is kept and leaves a
 //! stroke unfitted, another follows, up to [`MAX_PASSES`], so that editing
-//! the output again changes nothing (`all_passes`).
+//! the output again changes nothing (`all_passes`). When they end with a
+//! stroke still short, polishing passes anchor the strokes within the
+//! fit's own pixel only (`polish`: the passes hold a stroke's 1-3 px near
+//! misses as a hand's tracing of a silhouette), kept only where the fit
+//! rises, no cell changes beyond the strokes' influence, and a pass as a
+//! re-edit's first on the result changes nothing.
 //!
 //! Each view's skyline is one of the candidate features
 //! ([`crate::sketch::skyline`]). Where a stroke matched to a skyline is

@@ -1,7 +1,8 @@
 //! The passes of an edit: the first (stages 2 to 5 on the loaded views),
 //! and the later ones on the terrain the earlier made, while they help and
-//! a stroke is left unfitted; their deformations composed into the one the
-//! write stores.
+//! a stroke is left unfitted; then the polishing passes, with the strict
+//! anchoring, kept only at a fixed point of a re-edit; their deformations
+//! composed into the one the write stores.
 
 use super::*;
 
