@@ -27,7 +27,12 @@
 //! of it, as the write stores it, nothing written) and the deformations
 //! are written as one (`compose`); while a pass is kept and leaves a
 //! stroke unfitted, another follows, up to [`MAX_PASSES`], so that editing
-//! the output again changes nothing (`all_passes`).
+//! the output again changes nothing (`all_passes`). When they end with a
+//! stroke still short, polishing passes anchor the strokes within the
+//! fit's own pixel only (`polish`: the passes hold a stroke's 1-3 px near
+//! misses as a hand's tracing of a silhouette), kept only where the fit
+//! rises, no cell changes beyond the strokes' influence, and a pass as a
+//! re-edit's first on the result changes nothing.
 //!
 //! Each view's skyline is one of the candidate features
 //! ([`crate::sketch::skyline`]). Where a stroke matched to a skyline is
@@ -53,7 +58,7 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use rayon::prelude::*;
 
 use super::fit::measure;
-use super::on_silhouette::anchor_on_silhouettes;
+use super::on_silhouette::{anchor_on_silhouettes, Anchoring};
 use super::outputs::{write_outputs, Outcome, Sources};
 use super::rendered_view::{RenderedView, StrokeCurve, StrokeRegion};
 use super::report::{
@@ -123,6 +128,9 @@ pub(super) struct Edit<'o> {
     /// The views' skylines are candidate features
     /// ([`crate::sketch::skyline`]); `false` on the run without them.
     pub(super) skyline: bool,
+    /// How strokes are anchored on the silhouettes near them: as traced
+    /// by hand, except in the polishing passes ([`Anchoring`]).
+    pub(super) anchoring: Anchoring,
 }
 
 pub(super) fn secs(t: Instant) -> f64 {
@@ -183,6 +191,7 @@ pub fn run_opened(
         max_d: opts.max_distance_m.filter(|d| d.is_finite() && *d > 0.0),
         pb: progress_bar(opts),
         skyline: true,
+        anchoring: Anchoring::Traced,
     };
     let mut timings = Timings::default();
     check_output_paths(opts)?;
@@ -218,6 +227,7 @@ pub fn run_opened(
             max_d: edit.max_d,
             pb: edit.pb.clone(),
             skyline: false,
+            anchoring: Anchoring::Traced,
         };
         let reloaded = dem.reopened().map_err(EditError::from).and_then(|d| {
             load_views(
