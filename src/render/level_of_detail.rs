@@ -93,6 +93,42 @@ impl LodPlan {
         Some(LodPlan { near_m, rings })
     }
 
+    /// [`LodPlan::new`] with the exact terrain cut at `exact_m` metres
+    /// where that is nearer than the plan's exact reach: between the two a
+    /// ring of the DEM's own cells (`k` = 1, the same surface as the exact
+    /// terrain's), which is drawn and cast into as a far layer but is not
+    /// part of the terrain an edit changes, re-renders or detects ridges
+    /// on. For an edit whose strokes and deformation lie well within
+    /// `exact_m` (the caller checks it, [`crate::edit`]'s pipeline). A view
+    /// whose maximum distance is within `exact_m` has no ring.
+    pub fn new_within(
+        frame: &LocalFrame,
+        camera: &Camera,
+        max_d: Option<f64>,
+        exact_m: Option<f64>,
+    ) -> Option<LodPlan> {
+        let plan = LodPlan::new(frame, camera, max_d);
+        let Some(r) = exact_m.filter(|r| r.is_finite() && *r > 0.0) else {
+            return plan;
+        };
+        let max_d = super::scene::usable_distance(max_d)?;
+        if max_d <= r || !(frame_cell_m(frame) * camera.focal_px).is_finite() {
+            return plan;
+        }
+        match plan {
+            Some(mut p) if r < p.near_m => {
+                p.rings.insert(0, (1, r, p.near_m));
+                p.near_m = r;
+                Some(p)
+            }
+            Some(p) => Some(p),
+            None => Some(LodPlan {
+                near_m: r,
+                rings: vec![(1, r, max_d)],
+            }),
+        }
+    }
+
     /// The rings' cells (coarse), each the box of the camera's wedge on its
     /// grid: for checking sizes before reading.
     pub fn ring_cells(&self, dem: &Dem, frame_abs: &LocalFrame, camera: &Camera) -> u64 {

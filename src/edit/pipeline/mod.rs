@@ -123,6 +123,9 @@ pub(super) struct Edit<'o> {
     /// The views' skylines are candidate features
     /// ([`crate::sketch::skyline`]); `false` on the run without them.
     pub(super) skyline: bool,
+    /// The views' exact terrain cut at this distance, metres
+    /// ([`EDIT_EXACT_REACH_M`]); `None`: each view's full exact reach.
+    pub(super) exact_m: Option<f64>,
 }
 
 pub(super) fn secs(t: Instant) -> f64 {
@@ -161,8 +164,27 @@ pub fn run(
     run_opened(Dem::open(dem_path)?, dem_path, sketch_path, opts)
 }
 
+/// How far from the eye an edit's exact terrain reaches at first
+/// (metres), where the view's level of detail would reach farther
+/// ([`crate::render::LodPlan::new_within`]: between the two, a ring of the
+/// DEM's own cells): the ridge network, the terrain the rounds change and
+/// re-render, and the deformation's reach are confined to it. The edit is
+/// kept where every cell it changed lies within it, less
+/// [`EXACT_MARGIN_CELLS`] cells ([`changes_within`]); otherwise it is made
+/// again with the view's whole exact reach.
+pub const EDIT_EXACT_REACH_M: f64 = 15_000.0;
+
+/// Cells kept between the farthest changed cell and the exact terrain's
+/// edge (the ring beyond overlaps the exact terrain by two of its cells).
+pub const EXACT_MARGIN_CELLS: f64 = 8.0;
+
 /// [`run`] on `dem`, the DEM at `dem_path` opened already (by
 /// [`super::guard::prepare_open`]): not opened a second time.
+///
+/// First with the exact terrain cut at [`EDIT_EXACT_REACH_M`]; where the
+/// edit's changes reach beyond it (checked before anything is written),
+/// the whole edit again with each view's full exact reach, as without
+/// the cut.
 pub fn run_opened(
     dem: Dem,
     dem_path: &Path,
@@ -177,15 +199,45 @@ pub fn run_opened(
         return rayon::join(|| run_opened(dem, dem_path, sketch_path, opts), || ()).0;
     }
     let t_all = Instant::now();
+    check_output_paths(opts)?;
+    if let Ok(near) = dem.reopened() {
+        let first = run_within(
+            near,
+            dem_path,
+            sketch_path,
+            opts,
+            Some(EDIT_EXACT_REACH_M),
+            t_all,
+        );
+        // (an error is the edit's outcome: it may come after a write)
+        if let Some(report) = first? {
+            return Ok(report);
+        }
+    }
+    run_within(dem, dem_path, sketch_path, opts, None, t_all)?
+        .ok_or_else(|| EditError::Internal("an edit without a cut refused its changes".into()))
+}
+
+/// The edit of [`run_opened`] with the exact terrain cut at `exact_m`
+/// metres (`None`: each view's full exact reach): `None` when it was cut
+/// and its changes reach beyond the cut (nothing written).
+fn run_within(
+    dem: Dem,
+    dem_path: &Path,
+    sketch_path: &Path,
+    opts: &EditOptions,
+    exact_m: Option<f64>,
+    t_all: Instant,
+) -> Result<Option<EditReport>, EditError> {
     let edit = Edit {
         opts,
         sketch_name: sketch_path.display().to_string(),
         max_d: opts.max_distance_m.filter(|d| d.is_finite() && *d > 0.0),
         pb: progress_bar(opts),
         skyline: true,
+        exact_m,
     };
     let mut timings = Timings::default();
-    check_output_paths(opts)?;
 
     let t = Instant::now();
     let Loaded {
@@ -218,6 +270,7 @@ pub fn run_opened(
             max_d: edit.max_d,
             pb: edit.pb.clone(),
             skyline: false,
+            exact_m,
         };
         let reloaded = dem.reopened().map_err(EditError::from).and_then(|d| {
             load_views(
@@ -246,6 +299,9 @@ pub fn run_opened(
             timings.add(&scratch);
             if let Ok((views2, mut outcome2)) = other {
                 if fits_better(&outcome2, &outcome) {
+                    if !kept_within(exact_m, &views2, &outcome2.deformation) {
+                        return Ok(None);
+                    }
                     outcome2
                         .notes
                         .push(skyline_dropped_note(&outcome2, &outcome));
@@ -255,10 +311,14 @@ pub fn run_opened(
                         dem: &dem2,
                         sketch: &sketch2,
                     };
-                    return write_outputs(plain, &sources, &views2, outcome2, timings, t_all);
+                    return write_outputs(plain, &sources, &views2, outcome2, timings, t_all)
+                        .map(Some);
                 }
             }
         }
+    }
+    if !kept_within(exact_m, &views, &outcome.deformation) {
+        return Ok(None);
     }
     let sources = Sources {
         dem_path,
@@ -266,7 +326,51 @@ pub fn run_opened(
         dem: &dem,
         sketch: &sketch,
     };
-    write_outputs(edit, &sources, &views, outcome, timings, t_all)
+    write_outputs(edit, &sources, &views, outcome, timings, t_all).map(Some)
+}
+
+/// Whether an edit made with the exact terrain cut at `exact_m` (`None`:
+/// not cut) may be kept: every cell it changed within the cut of every
+/// view ([`changes_within`]).
+fn kept_within(exact_m: Option<f64>, views: &[ViewState], deformation: &Deformation) -> bool {
+    exact_m.is_none_or(|r| changes_within(views, deformation, r))
+}
+
+/// Whether every cell `deformation` changes (non-zero displacement) lies,
+/// with its four corners, within `reach` metres less
+/// [`EXACT_MARGIN_CELLS`] cells of each view's eye: where the view's
+/// exact terrain, which the rounds change and re-render, holds it, and no
+/// far layer (the DEM as it was) stands over it.
+pub(super) fn changes_within(views: &[ViewState], deformation: &Deformation, reach: f64) -> bool {
+    let w = deformation.window;
+    if w.width == 0 {
+        return true;
+    }
+    views.iter().all(|v| {
+        let p = v.frame.p;
+        let cell = p[0][0].hypot(p[1][0]).max(p[0][1].hypot(p[1][1]));
+        let limit = reach - EXACT_MARGIN_CELLS * cell;
+        let (ox, oy) = v.window_offset;
+        deformation
+            .displacement
+            .chunks(w.width)
+            .enumerate()
+            .all(|(r, row)| {
+                let py = (w.row + r as i64 - oy) as f64;
+                row.iter().enumerate().all(|(c, &m)| {
+                    if m == 0.0 || m.is_nan() {
+                        return true;
+                    }
+                    let px = (w.col + c as i64 - ox) as f64;
+                    [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0)]
+                        .iter()
+                        .all(|&(a, b)| {
+                            let (e, n) = v.frame.pixel_to_en(px + a, py + b);
+                            e.hypot(n) <= limit
+                        })
+                })
+            })
+    })
 }
 
 /// The DEM cells around a view's eye that its observer's fixed ground can
