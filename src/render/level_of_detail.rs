@@ -43,6 +43,10 @@ use crate::view::{Camera, LocalFrame};
 /// reaches (where the first ring may start earlier by the pixel rule).
 pub const LOD_MIN_NEAR_M: f64 = 20_000.0;
 
+/// [`LodPlan::new_within`] cuts the exact terrain only where it reaches
+/// farther than this many times the cut.
+const MIN_CUT: f64 = 1.25;
+
 /// Coarsest ring: cells of the DEM per ring cell (a chunk is one cell).
 const MAX_K: usize = 256;
 
@@ -93,26 +97,32 @@ impl LodPlan {
         Some(LodPlan { near_m, rings })
     }
 
-    /// [`LodPlan::new`] with the exact terrain cut at `exact_m` metres
-    /// where that is nearer than the plan's exact reach: between the two a
-    /// ring of the DEM's own cells (`k` = 1, the same surface as the exact
-    /// terrain's), which is drawn and cast into as a far layer but is not
-    /// part of the terrain an edit changes, re-renders or detects ridges
-    /// on. For an edit whose strokes and deformation lie well within
-    /// `exact_m` (the caller checks it, [`crate::edit`]'s pipeline). A view
-    /// whose maximum distance is within `exact_m` has no ring.
+    /// [`LodPlan::new`] with the exact terrain cut at `exact_cells` cells
+    /// of the DEM from the eye where that is nearer than the plan's exact
+    /// reach: between the two a ring of the DEM's own cells (`k` = 1, the
+    /// same surface as the exact terrain's), which is drawn and cast into
+    /// as a far layer but is not part of the terrain an edit changes,
+    /// re-renders or detects ridges on. For an edit whose strokes and
+    /// deformation lie well within the cut (the caller checks it,
+    /// [`crate::edit`]'s pipeline). A view whose exact reach (or maximum
+    /// distance) is within [`MIN_CUT`] times the cut is not cut.
     pub fn new_within(
         frame: &LocalFrame,
         camera: &Camera,
         max_d: Option<f64>,
-        exact_m: Option<f64>,
+        exact_cells: Option<f64>,
     ) -> Option<LodPlan> {
         let plan = LodPlan::new(frame, camera, max_d);
-        let Some(r) = exact_m.filter(|r| r.is_finite() && *r > 0.0) else {
+        let Some(r) = exact_cells
+            .map(|n| n * frame_cell_m(frame))
+            .filter(|r| r.is_finite() && *r > 0.0)
+        else {
             return plan;
         };
         let max_d = super::scene::usable_distance(max_d)?;
-        if max_d <= r || !(frame_cell_m(frame) * camera.focal_px).is_finite() {
+        // (no cut where it would leave the exact terrain most of its reach)
+        let reach = plan.as_ref().map_or(max_d, |p| p.near_m.min(max_d));
+        if reach <= MIN_CUT * r || !(frame_cell_m(frame) * camera.focal_px).is_finite() {
             return plan;
         }
         match plan {

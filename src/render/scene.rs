@@ -125,9 +125,10 @@ impl Scene {
         Self::open_lod(dem, vp, max_distance, k, camera, reuse, None, |_| None)
     }
 
-    /// [`Scene::open_wedge_lod`] with the exact terrain cut at `exact_m`
-    /// metres ([`LodPlan::new_within`]: a ring of the DEM's own cells
-    /// between it and the plan's exact reach); `None`: the same.
+    /// [`Scene::open_wedge_lod`] with the exact terrain cut at
+    /// `exact_cells` cells from the eye ([`LodPlan::new_within`]: a ring
+    /// of the DEM's own cells between it and the plan's exact reach);
+    /// `None`: the same.
     pub fn open_wedge_lod_within(
         dem: &Dem,
         vp: &Viewpoint,
@@ -135,9 +136,9 @@ impl Scene {
         k: f64,
         camera: &crate::view::Camera,
         reuse: Option<&FarLayers>,
-        exact_m: Option<f64>,
+        exact_cells: Option<f64>,
     ) -> Result<Scene, RenderError> {
-        Self::open_lod(dem, vp, max_distance, k, camera, reuse, exact_m, |_| None)
+        Self::open_lod(dem, vp, max_distance, k, camera, reuse, exact_cells, |_| None)
     }
 
     /// Like [`Scene::open_wedge_lod`] for a picture (`demsketch view`):
@@ -169,13 +170,13 @@ impl Scene {
         k: f64,
         camera: &crate::view::Camera,
         reuse: Option<&FarLayers>,
-        exact_m: Option<f64>,
+        exact_cells: Option<f64>,
         unbounded_reach: impl Fn(&WedgePlan) -> Option<f64>,
     ) -> Result<Scene, RenderError> {
         let max_d = usable_distance(max_distance);
         let plan = Self::wedge_plan(dem, vp, max_d, k, camera)?;
         let reach = max_d.or_else(|| unbounded_reach(&plan));
-        match LodPlan::new_within(&plan.probe, camera, reach, exact_m) {
+        match LodPlan::new_within(&plan.probe, camera, reach, exact_cells) {
             Some(lod) => Self::open_planned_lod(dem, vp, max_d, k, camera, &lod, reuse),
             None => Self::open_wedge(dem, vp, max_distance, k, camera),
         }

@@ -55,7 +55,7 @@ pub(super) fn load_views(
             edit.opts.refraction,
             &camera,
             far.get(i),
-            edit.exact_m,
+            edit.exact_cells,
         )
         .map_err(view_err)?;
         if let EyeHeightSpec::Absolute(a) = v.viewpoint.height() {

@@ -123,9 +123,9 @@ pub(super) struct Edit<'o> {
     /// The views' skylines are candidate features
     /// ([`crate::sketch::skyline`]); `false` on the run without them.
     pub(super) skyline: bool,
-    /// The views' exact terrain cut at this distance, metres
-    /// ([`EDIT_EXACT_REACH_M`]); `None`: each view's full exact reach.
-    pub(super) exact_m: Option<f64>,
+    /// The views' exact terrain cut at this many cells from the eye
+    /// ([`EDIT_EXACT_REACH_CELLS`]); `None`: each view's full exact reach.
+    pub(super) exact_cells: Option<f64>,
 }
 
 pub(super) fn secs(t: Instant) -> f64 {
@@ -164,25 +164,28 @@ pub fn run(
     run_opened(Dem::open(dem_path)?, dem_path, sketch_path, opts)
 }
 
-/// How far from the eye an edit's exact terrain reaches at first
-/// (metres), where the view's level of detail would reach farther
+/// How far from the eye an edit's exact terrain reaches at first, in
+/// cells of the DEM (15 km with 15 m cells, 30 km with 30 m cells), where
+/// the view's level of detail would reach farther
 /// ([`crate::render::LodPlan::new_within`]: between the two, a ring of the
 /// DEM's own cells): the ridge network, the terrain the rounds change and
 /// re-render, and the deformation's reach are confined to it. The edit is
-/// kept where every cell it changed lies within it, less
-/// [`EXACT_MARGIN_CELLS`] cells ([`changes_within`]); otherwise it is made
-/// again with the view's whole exact reach.
-pub const EDIT_EXACT_REACH_M: f64 = 15_000.0;
+/// kept where it fits every stroke on curves within it and changes no
+/// cell beyond it, less [`EXACT_MARGIN_CELLS`] cells ([`kept_within`]);
+/// otherwise it is made again with the view's whole exact reach.
+pub const EDIT_EXACT_REACH_CELLS: f64 = 1000.0;
 
-/// Cells kept between the farthest changed cell and the exact terrain's
-/// edge (the ring beyond overlaps the exact terrain by two of its cells).
+/// Cells kept between the farthest changed cell or placed point and the
+/// exact terrain's edge (the ring beyond overlaps the exact terrain by
+/// two of its cells).
 pub const EXACT_MARGIN_CELLS: f64 = 8.0;
 
 /// [`run`] on `dem`, the DEM at `dem_path` opened already (by
 /// [`super::guard::prepare_open`]): not opened a second time.
 ///
-/// First with the exact terrain cut at [`EDIT_EXACT_REACH_M`]; where the
-/// edit's changes reach beyond it (checked before anything is written),
+/// First with the exact terrain cut at [`EDIT_EXACT_REACH_CELLS`] cells;
+/// where the edit does not keep within it (checked before anything is
+/// written, [`kept_within`]),
 /// the whole edit again with each view's full exact reach, as without
 /// the cut.
 pub fn run_opened(
@@ -206,27 +209,30 @@ pub fn run_opened(
             dem_path,
             sketch_path,
             opts,
-            Some(EDIT_EXACT_REACH_M),
+            Some(EDIT_EXACT_REACH_CELLS),
             t_all,
         );
         // (an error is the edit's outcome: it may come after a write)
         if let Some(report) = first? {
             return Ok(report);
         }
+        if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
+            eprintln!("exact cut: the edit does not keep within it; made again without");
+        }
     }
     run_within(dem, dem_path, sketch_path, opts, None, t_all)?
         .ok_or_else(|| EditError::Internal("an edit without a cut refused its changes".into()))
 }
 
-/// The edit of [`run_opened`] with the exact terrain cut at `exact_m`
-/// metres (`None`: each view's full exact reach): `None` when it was cut
-/// and its changes reach beyond the cut (nothing written).
+/// The edit of [`run_opened`] with the exact terrain cut at `exact_cells`
+/// cells (`None`: each view's full exact reach): `None` when it was cut
+/// and does not keep within the cut (nothing written).
 fn run_within(
     dem: Dem,
     dem_path: &Path,
     sketch_path: &Path,
     opts: &EditOptions,
-    exact_m: Option<f64>,
+    exact_cells: Option<f64>,
     t_all: Instant,
 ) -> Result<Option<EditReport>, EditError> {
     let edit = Edit {
@@ -235,7 +241,7 @@ fn run_within(
         max_d: opts.max_distance_m.filter(|d| d.is_finite() && *d > 0.0),
         pb: progress_bar(opts),
         skyline: true,
-        exact_m,
+        exact_cells,
     };
     let mut timings = Timings::default();
 
@@ -270,7 +276,7 @@ fn run_within(
             max_d: edit.max_d,
             pb: edit.pb.clone(),
             skyline: false,
-            exact_m,
+            exact_cells,
         };
         let reloaded = dem.reopened().map_err(EditError::from).and_then(|d| {
             load_views(
@@ -299,7 +305,7 @@ fn run_within(
             timings.add(&scratch);
             if let Ok((views2, mut outcome2)) = other {
                 if fits_better(&outcome2, &outcome) {
-                    if !kept_within(exact_m, &views2, &outcome2.deformation) {
+                    if !kept_within(exact_cells, &views2, &outcome2) {
                         return Ok(None);
                     }
                     outcome2
@@ -317,7 +323,7 @@ fn run_within(
             }
         }
     }
-    if !kept_within(exact_m, &views, &outcome.deformation) {
+    if !kept_within(exact_cells, &views, &outcome) {
         return Ok(None);
     }
     let sources = Sources {
@@ -329,27 +335,52 @@ fn run_within(
     write_outputs(edit, &sources, &views, outcome, timings, t_all).map(Some)
 }
 
-/// Whether an edit made with the exact terrain cut at `exact_m` (`None`:
-/// not cut) may be kept: every cell it changed within the cut of every
-/// view ([`changes_within`]).
-fn kept_within(exact_m: Option<f64>, views: &[ViewState], deformation: &Deformation) -> bool {
-    exact_m.is_none_or(|r| changes_within(views, deformation, r))
+/// Whether an edit made with the exact terrain cut at `exact_cells` cells
+/// (`None`: not cut) may be kept: every stroke fitted, on a placed curve within
+/// the cut of its view, and every cell it changed within the cut of
+/// every view ([`changes_within`]), each less [`EXACT_MARGIN_CELLS`]
+/// cells. (A stroke not fitted, or fitted farther, might fit otherwise
+/// with the features and terrain beyond the cut.)
+fn kept_within(exact_cells: Option<f64>, views: &[ViewState], outcome: &Outcome) -> bool {
+    let Some(cells) = exact_cells else {
+        return true;
+    };
+    // (no view cut: the edit is the one without the cut)
+    let cut = |v: &ViewState| v.before.terrain.far_layer_sizes().first().is_some_and(|l| l.0 == 1);
+    if !views.iter().any(cut) {
+        return true;
+    }
+    let strokes_within = views.iter().zip(&outcome.views).all(|(v, report)| {
+        let limit = (cells - EXACT_MARGIN_CELLS) * frame_cell_m(&v.frame);
+        report.strokes.iter().all(|s| {
+            s.status == StrokeStatus::Fitted
+                && !s.placed_curve.is_empty()
+                && s.matched.depth_m.iter().all(|d| d.is_finite() && *d <= limit)
+        })
+    });
+    views.len() == outcome.views.len()
+        && strokes_within
+        && changes_within(views, &outcome.deformation, cells)
+}
+
+/// The longer side of a cell of `frame`'s grid, metres.
+fn frame_cell_m(frame: &LocalFrame) -> f64 {
+    let p = frame.p;
+    p[0][0].hypot(p[1][0]).max(p[0][1].hypot(p[1][1]))
 }
 
 /// Whether every cell `deformation` changes (non-zero displacement) lies,
-/// with its four corners, within `reach` metres less
-/// [`EXACT_MARGIN_CELLS`] cells of each view's eye: where the view's
-/// exact terrain, which the rounds change and re-render, holds it, and no
-/// far layer (the DEM as it was) stands over it.
-pub(super) fn changes_within(views: &[ViewState], deformation: &Deformation, reach: f64) -> bool {
+/// with its four corners, within `cells` cells less
+/// [`EXACT_MARGIN_CELLS`] of each view's eye: where the view's exact
+/// terrain, which the rounds change and re-render, holds it, and no far
+/// layer (the DEM as it was) stands over it.
+pub(super) fn changes_within(views: &[ViewState], deformation: &Deformation, cells: f64) -> bool {
     let w = deformation.window;
     if w.width == 0 {
         return true;
     }
     views.iter().all(|v| {
-        let p = v.frame.p;
-        let cell = p[0][0].hypot(p[1][0]).max(p[0][1].hypot(p[1][1]));
-        let limit = reach - EXACT_MARGIN_CELLS * cell;
+        let limit = (cells - EXACT_MARGIN_CELLS) * frame_cell_m(&v.frame);
         let (ox, oy) = v.window_offset;
         deformation
             .displacement
