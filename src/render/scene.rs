@@ -138,7 +138,9 @@ impl Scene {
         reuse: Option<&FarLayers>,
         exact_cells: Option<f64>,
     ) -> Result<Scene, RenderError> {
-        Self::open_lod(dem, vp, max_distance, k, camera, reuse, exact_cells, |_| None)
+        Self::open_lod(dem, vp, max_distance, k, camera, reuse, exact_cells, |_| {
+            None
+        })
     }
 
     /// Like [`Scene::open_wedge_lod`] for a picture (`demsketch view`):

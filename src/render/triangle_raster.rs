@@ -291,7 +291,11 @@ fn draw_far_layer(
     depth[..n]
         .par_chunks_mut(w)
         .zip(triangle[..n].par_chunks_mut(w))
-        .zip(r.depth[..n].par_chunks(w).zip(r.triangle[..n].par_chunks(w)))
+        .zip(
+            r.depth[..n]
+                .par_chunks(w)
+                .zip(r.triangle[..n].par_chunks(w)),
+        )
         .for_each(|((d, t), (fd, ft))| take_nearer(d, t, fd, ft, id0));
 }
 

@@ -346,7 +346,13 @@ fn kept_within(exact_cells: Option<f64>, views: &[ViewState], outcome: &Outcome)
         return true;
     };
     // (no view cut: the edit is the one without the cut)
-    let cut = |v: &ViewState| v.before.terrain.far_layer_sizes().first().is_some_and(|l| l.0 == 1);
+    let cut = |v: &ViewState| {
+        v.before
+            .terrain
+            .far_layer_sizes()
+            .first()
+            .is_some_and(|l| l.0 == 1)
+    };
     if !views.iter().any(cut) {
         return true;
     }
@@ -355,7 +361,10 @@ fn kept_within(exact_cells: Option<f64>, views: &[ViewState], outcome: &Outcome)
         report.strokes.iter().all(|s| {
             s.status == StrokeStatus::Fitted
                 && !s.placed_curve.is_empty()
-                && s.matched.depth_m.iter().all(|d| d.is_finite() && *d <= limit)
+                && s.matched
+                    .depth_m
+                    .iter()
+                    .all(|d| d.is_finite() && *d <= limit)
         })
     });
     views.len() == outcome.views.len()
