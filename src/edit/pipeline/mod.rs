@@ -175,6 +175,17 @@ pub fn run(
 /// otherwise it is made again with the view's whole exact reach.
 pub const EDIT_EXACT_REACH_CELLS: f64 = 1000.0;
 
+/// [`EDIT_EXACT_REACH_CELLS`], or the cells `DEMSKETCH_EXACT_CUT_CELLS`
+/// gives (for checking the cut where the fidelity suite's views reach:
+/// their DEMs' cells of 30 m and more keep them within the default).
+fn exact_reach_cells() -> f64 {
+    std::env::var("DEMSKETCH_EXACT_CUT_CELLS")
+        .ok()
+        .and_then(|v| v.parse::<f64>().ok())
+        .filter(|c| c.is_finite() && *c > EXACT_MARGIN_CELLS)
+        .unwrap_or(EDIT_EXACT_REACH_CELLS)
+}
+
 /// Cells kept between the farthest changed cell or placed point and the
 /// exact terrain's edge (the ring beyond overlaps the exact terrain by
 /// two of its cells).
@@ -209,7 +220,7 @@ pub fn run_opened(
             dem_path,
             sketch_path,
             opts,
-            Some(EDIT_EXACT_REACH_CELLS),
+            Some(exact_reach_cells()),
             t_all,
         );
         // (an error is the edit's outcome: it may come after a write)
