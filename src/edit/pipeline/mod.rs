@@ -214,30 +214,42 @@ pub fn run_opened(
     }
     let t_all = Instant::now();
     check_output_paths(opts)?;
-    if let Ok(near) = dem.reopened() {
-        let first = run_within(
-            near,
-            dem_path,
-            sketch_path,
-            opts,
-            Some(exact_reach_cells()),
-            t_all,
-        );
-        // (an error is the edit's outcome: it may come after a write)
-        if let Some(report) = first? {
-            return Ok(report);
-        }
-        if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
-            eprintln!("exact cut: the edit does not keep within it; made again without");
-        }
+    let first = run_within(
+        dem,
+        dem_path,
+        sketch_path,
+        opts,
+        Some(exact_reach_cells()),
+        t_all,
+    );
+    // (an error is the edit's outcome: it may come after a write)
+    let dem = match first? {
+        Attempt::Done(report) => return Ok(report),
+        Attempt::Beyond(dem) => dem,
+    };
+    if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
+        eprintln!("exact cut: the edit does not keep within it; made again without");
     }
-    run_within(dem, dem_path, sketch_path, opts, None, t_all)?
-        .ok_or_else(|| EditError::Internal("an edit without a cut refused its changes".into()))
+    match run_within(dem, dem_path, sketch_path, opts, None, t_all)? {
+        Attempt::Done(report) => Ok(report),
+        Attempt::Beyond(_) => Err(EditError::Internal(
+            "an edit without a cut refused its changes".into(),
+        )),
+    }
+}
+
+/// What [`run_within`] made of an edit.
+enum Attempt {
+    /// The edit, written.
+    Done(EditReport),
+    /// The exact terrain was cut and the edit does not keep within the cut
+    /// (nothing written): the DEM, to make it again.
+    Beyond(Dem),
 }
 
 /// The edit of [`run_opened`] with the exact terrain cut at `exact_cells`
-/// cells (`None`: each view's full exact reach): `None` when it was cut
-/// and does not keep within the cut (nothing written).
+/// cells (`None`: each view's full exact reach): [`Attempt::Beyond`] when
+/// it was cut and does not keep within the cut (nothing written).
 fn run_within(
     dem: Dem,
     dem_path: &Path,
@@ -245,7 +257,7 @@ fn run_within(
     opts: &EditOptions,
     exact_cells: Option<f64>,
     t_all: Instant,
-) -> Result<Option<EditReport>, EditError> {
+) -> Result<Attempt, EditError> {
     let edit = Edit {
         opts,
         sketch_name: sketch_path.display().to_string(),
@@ -317,7 +329,7 @@ fn run_within(
             if let Ok((views2, mut outcome2)) = other {
                 if fits_better(&outcome2, &outcome) {
                     if !kept_within(exact_cells, &views2, &outcome2) {
-                        return Ok(None);
+                        return Ok(Attempt::Beyond(dem));
                     }
                     outcome2
                         .notes
@@ -329,13 +341,13 @@ fn run_within(
                         sketch: &sketch2,
                     };
                     return write_outputs(plain, &sources, &views2, outcome2, timings, t_all)
-                        .map(Some);
+                        .map(Attempt::Done);
                 }
             }
         }
     }
     if !kept_within(exact_cells, &views, &outcome) {
-        return Ok(None);
+        return Ok(Attempt::Beyond(dem));
     }
     let sources = Sources {
         dem_path,
@@ -343,7 +355,7 @@ fn run_within(
         dem: &dem,
         sketch: &sketch,
     };
-    write_outputs(edit, &sources, &views, outcome, timings, t_all).map(Some)
+    write_outputs(edit, &sources, &views, outcome, timings, t_all).map(Attempt::Done)
 }
 
 /// Whether an edit made with the exact terrain cut at `exact_cells` cells
