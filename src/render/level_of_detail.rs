@@ -32,6 +32,12 @@
 //! Without overviews every chunk the wedge crosses is decoded at full
 //! resolution: the reading, not the terrain, is then the cost of a long
 //! view.
+//!
+//! An edit may cut the exact terrain nearer ([`LodPlan::new_within`]): a
+//! ring of the DEM's own cells (`k` = 1) then lies between the cut and the
+//! exact reach. The picture is the same surface; what the cut saves is the
+//! work an edit does on its exact terrain only (ridges, rounds,
+//! re-renders), and the edit checks that it kept within the cut.
 
 use super::far_layers::FarRing;
 use super::terrain::wedge_azimuths;

@@ -37,6 +37,12 @@
 //! does not fit the strokes better, in all or where its placed curves
 //! are visible (`fits_better`).
 //!
+//! A view that reaches far is first loaded with its exact terrain cut at
+//! [`EDIT_EXACT_REACH_CELLS`] cells from the eye (the DEM's own cells
+//! beyond, as a far layer); the edit is kept where every stroke is fitted
+//! within the cut and every changed cell lies within it, else made again
+//! without the cut (`run_opened`, `kept_within`).
+//!
 //! 6. `write` (`super::outputs::write_outputs`): affected tiles written
 //!    back atomically, then the pictures and the report.
 //!
