@@ -298,3 +298,40 @@ fn a_view_without_a_distance_reads_the_far_wedge_coarser() {
     assert!(b.terrain.far_layer_sizes().is_empty());
     assert_same_terrain(&a, &b);
 }
+
+/// An edit's cut of the exact terrain (`LodPlan::new_within`): a ring of
+/// the DEM's own cells from the cut to the plan's exact reach (here the
+/// view's distance, within it), the same surface as the exact terrain's:
+/// every pixel shows terrain or sky as the exact view does, at the same
+/// depth to rounding. No cut where the exact reach is within 1.25 times
+/// the cut.
+#[test]
+fn a_cut_exact_terrain_draws_the_exact_view() {
+    let (dem, vp, cam) = setup();
+    let max_d = Some(15_000.0);
+    let exact = Scene::open_wedge(&dem, &vp, max_d, 1.0 / 7.0, &cam).unwrap();
+    let p = exact.frame.p;
+    let cell = p[0][0].hypot(p[1][0]).max(p[0][1].hypot(p[1][1]));
+    let plan = LodPlan::new_within(&exact.frame, &cam, max_d, Some(100.0)).expect("a plan");
+    assert!((plan.near_m - 100.0 * cell).abs() < 1e-6);
+    assert_eq!(plan.rings, vec![(1, plan.near_m, 15_000.0)]);
+    assert!(LodPlan::new_within(&exact.frame, &cam, max_d, Some(15_000.0 / cell)).is_none());
+    let cut =
+        Scene::open_wedge_lod_within(&dem, &vp, max_d, 1.0 / 7.0, &cam, None, Some(100.0)).unwrap();
+    assert_eq!(cut.terrain.far_layer_sizes()[0].0, 1);
+    assert!(cut.window.width * cut.window.height < exact.window.width * exact.window.height);
+    let (de, dc) = (
+        DepthBuffer::render(&exact.terrain, &cam),
+        DepthBuffer::render(&cut.terrain, &cam),
+    );
+    let mut beyond = 0;
+    for k in 0..de.depth.len() {
+        let (a, b) = (de.depth[k], dc.depth[k]);
+        assert_eq!(de.triangle[k] == SKY, dc.triangle[k] == SKY, "pixel {k}");
+        if a.is_finite() {
+            assert!((a - b).abs() <= 1e-4 * a, "pixel {k}: {a} against {b}");
+            beyond += usize::from(cut.terrain.is_far_triangle(dc.triangle[k]));
+        }
+    }
+    assert!(beyond > 0, "no pixel on the ring");
+}

@@ -32,6 +32,12 @@
 //! Without overviews every chunk the wedge crosses is decoded at full
 //! resolution: the reading, not the terrain, is then the cost of a long
 //! view.
+//!
+//! An edit may cut the exact terrain nearer ([`LodPlan::new_within`]): a
+//! ring of the DEM's own cells (`k` = 1) then lies between the cut and the
+//! exact reach. The picture is the same surface; what the cut saves is the
+//! work an edit does on its exact terrain only (ridges, rounds,
+//! re-renders), and the edit checks that it kept within the cut.
 
 use super::far_layers::FarRing;
 use super::terrain::wedge_azimuths;
@@ -42,6 +48,10 @@ use crate::view::{Camera, LocalFrame};
 /// The least distance, metres, the exact terrain of a level-of-detail view
 /// reaches (where the first ring may start earlier by the pixel rule).
 pub const LOD_MIN_NEAR_M: f64 = 20_000.0;
+
+/// [`LodPlan::new_within`] cuts the exact terrain only where it reaches
+/// farther than this many times the cut.
+const MIN_CUT: f64 = 1.25;
 
 /// Coarsest ring: cells of the DEM per ring cell (a chunk is one cell).
 const MAX_K: usize = 256;
@@ -91,6 +101,48 @@ impl LodPlan {
             inner = outer;
         }
         Some(LodPlan { near_m, rings })
+    }
+
+    /// [`LodPlan::new`] with the exact terrain cut at `exact_cells` cells
+    /// of the DEM from the eye where that is nearer than the plan's exact
+    /// reach: between the two a ring of the DEM's own cells (`k` = 1, the
+    /// same surface as the exact terrain's), which is drawn and cast into
+    /// as a far layer but is not part of the terrain an edit changes,
+    /// re-renders or detects ridges on. For an edit whose strokes and
+    /// deformation lie well within the cut (the caller checks it,
+    /// [`crate::edit`]'s pipeline). A view whose exact reach (or maximum
+    /// distance) is within [`MIN_CUT`] times the cut is not cut.
+    pub fn new_within(
+        frame: &LocalFrame,
+        camera: &Camera,
+        max_d: Option<f64>,
+        exact_cells: Option<f64>,
+    ) -> Option<LodPlan> {
+        let plan = LodPlan::new(frame, camera, max_d);
+        let Some(r) = exact_cells
+            .map(|n| n * frame_cell_m(frame))
+            .filter(|r| r.is_finite() && *r > 0.0)
+        else {
+            return plan;
+        };
+        let max_d = super::scene::usable_distance(max_d)?;
+        // (no cut where it would leave the exact terrain most of its reach)
+        let reach = plan.as_ref().map_or(max_d, |p| p.near_m.min(max_d));
+        if reach <= MIN_CUT * r || !(frame_cell_m(frame) * camera.focal_px).is_finite() {
+            return plan;
+        }
+        match plan {
+            Some(mut p) if r < p.near_m => {
+                p.rings.insert(0, (1, r, p.near_m));
+                p.near_m = r;
+                Some(p)
+            }
+            Some(p) => Some(p),
+            None => Some(LodPlan {
+                near_m: r,
+                rings: vec![(1, r, max_d)],
+            }),
+        }
     }
 
     /// The rings' cells (coarse), each the box of the camera's wedge on its

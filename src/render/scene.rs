@@ -122,7 +122,25 @@ impl Scene {
         camera: &crate::view::Camera,
         reuse: Option<&FarLayers>,
     ) -> Result<Scene, RenderError> {
-        Self::open_lod(dem, vp, max_distance, k, camera, reuse, |_| None)
+        Self::open_lod(dem, vp, max_distance, k, camera, reuse, None, |_| None)
+    }
+
+    /// [`Scene::open_wedge_lod`] with the exact terrain cut at
+    /// `exact_cells` cells from the eye ([`LodPlan::new_within`]: a ring
+    /// of the DEM's own cells between it and the plan's exact reach);
+    /// `None`: the same.
+    pub fn open_wedge_lod_within(
+        dem: &Dem,
+        vp: &Viewpoint,
+        max_distance: Option<f64>,
+        k: f64,
+        camera: &crate::view::Camera,
+        reuse: Option<&FarLayers>,
+        exact_cells: Option<f64>,
+    ) -> Result<Scene, RenderError> {
+        Self::open_lod(dem, vp, max_distance, k, camera, reuse, exact_cells, |_| {
+            None
+        })
     }
 
     /// Like [`Scene::open_wedge_lod`] for a picture (`demsketch view`):
@@ -138,7 +156,7 @@ impl Scene {
         k: f64,
         camera: &crate::view::Camera,
     ) -> Result<Scene, RenderError> {
-        Self::open_lod(dem, vp, max_distance, k, camera, None, |plan| {
+        Self::open_lod(dem, vp, max_distance, k, camera, None, None, |plan| {
             Some(farthest_corner_m(plan))
         })
     }
@@ -146,6 +164,7 @@ impl Scene {
     /// [`Scene::open_wedge_lod`] and [`Scene::open_view_lod`]: the rings
     /// reach `max_distance`, or without one `unbounded_reach` of the
     /// wedge's plan (`None`: no rings).
+    #[allow(clippy::too_many_arguments)]
     fn open_lod(
         dem: &Dem,
         vp: &Viewpoint,
@@ -153,12 +172,13 @@ impl Scene {
         k: f64,
         camera: &crate::view::Camera,
         reuse: Option<&FarLayers>,
+        exact_cells: Option<f64>,
         unbounded_reach: impl Fn(&WedgePlan) -> Option<f64>,
     ) -> Result<Scene, RenderError> {
         let max_d = usable_distance(max_distance);
         let plan = Self::wedge_plan(dem, vp, max_d, k, camera)?;
         let reach = max_d.or_else(|| unbounded_reach(&plan));
-        match LodPlan::new(&plan.probe, camera, reach) {
+        match LodPlan::new_within(&plan.probe, camera, reach, exact_cells) {
             Some(lod) => Self::open_planned_lod(dem, vp, max_d, k, camera, &lod, reuse),
             None => Self::open_wedge(dem, vp, max_distance, k, camera),
         }

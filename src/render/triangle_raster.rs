@@ -284,10 +284,18 @@ fn draw_far_layer(
     let needed = layer.rows_shown(depth, camera.width);
     let r = layer.render_with(camera, &needed, |t, rows| rasterise(t, camera, rows));
     let (id0, w) = (layer.id0, camera.width.max(1));
-    depth
+    // Only the rows some column needs: below them every pixel is nearer
+    // than any point of the layer (or NaN), where the composite keeps it.
+    let rows = needed.iter().max().map_or(0, |&m| (m + 1).max(0) as usize);
+    let n = (rows * w).min(depth.len()).min(r.depth.len());
+    depth[..n]
         .par_chunks_mut(w)
-        .zip(triangle.par_chunks_mut(w))
-        .zip(r.depth.par_chunks(w).zip(r.triangle.par_chunks(w)))
+        .zip(triangle[..n].par_chunks_mut(w))
+        .zip(
+            r.depth[..n]
+                .par_chunks(w)
+                .zip(r.triangle[..n].par_chunks(w)),
+        )
         .for_each(|((d, t), (fd, ft))| take_nearer(d, t, fd, ft, id0));
 }
 

@@ -48,13 +48,14 @@ pub(super) fn load_views(
             source,
         };
         let camera = v.pinhole().map_err(|e| view_err(e.into()))?;
-        let scene = Scene::open_wedge_lod(
+        let scene = Scene::open_wedge_lod_within(
             &dem,
             &vp,
             edit.max_d,
             edit.opts.refraction,
             &camera,
             far.get(i),
+            edit.exact_cells,
         )
         .map_err(view_err)?;
         if let EyeHeightSpec::Absolute(a) = v.viewpoint.height() {

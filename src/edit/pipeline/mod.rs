@@ -42,6 +42,12 @@
 //! does not fit the strokes better, in all or where its placed curves
 //! are visible (`fits_better`).
 //!
+//! A view that reaches far is first loaded with its exact terrain cut at
+//! [`EDIT_EXACT_REACH_CELLS`] cells from the eye (the DEM's own cells
+//! beyond, as a far layer); the edit is kept where every stroke is fitted
+//! within the cut and every changed cell lies within it, else made again
+//! without the cut (`run_opened`, `kept_within`).
+//!
 //! 6. `write` (`super::outputs::write_outputs`): affected tiles written
 //!    back atomically, then the pictures and the report.
 //!
@@ -131,6 +137,9 @@ pub(super) struct Edit<'o> {
     /// How strokes are anchored on the silhouettes near them: as traced
     /// by hand, except in the polishing passes ([`Anchoring`]).
     pub(super) anchoring: Anchoring,
+    /// The views' exact terrain cut at this many cells from the eye
+    /// ([`EDIT_EXACT_REACH_CELLS`]); `None`: each view's full exact reach.
+    pub(super) exact_cells: Option<f64>,
 }
 
 pub(super) fn secs(t: Instant) -> f64 {
@@ -169,8 +178,41 @@ pub fn run(
     run_opened(Dem::open(dem_path)?, dem_path, sketch_path, opts)
 }
 
+/// How far from the eye an edit's exact terrain reaches at first, in
+/// cells of the DEM (15 km with 15 m cells, 30 km with 30 m cells), where
+/// the view's level of detail would reach farther
+/// ([`crate::render::LodPlan::new_within`]: between the two, a ring of the
+/// DEM's own cells): the ridge network, the terrain the rounds change and
+/// re-render, and the deformation's reach are confined to it. The edit is
+/// kept where it fits every stroke on curves within it and changes no
+/// cell beyond it, less [`EXACT_MARGIN_CELLS`] cells ([`kept_within`]);
+/// otherwise it is made again with the view's whole exact reach.
+pub const EDIT_EXACT_REACH_CELLS: f64 = 1000.0;
+
+/// [`EDIT_EXACT_REACH_CELLS`], or the cells `DEMSKETCH_EXACT_CUT_CELLS`
+/// gives (for checking the cut where the fidelity suite's views reach:
+/// their DEMs' cells of 30 m and more keep them within the default).
+fn exact_reach_cells() -> f64 {
+    std::env::var("DEMSKETCH_EXACT_CUT_CELLS")
+        .ok()
+        .and_then(|v| v.parse::<f64>().ok())
+        .filter(|c| c.is_finite() && *c > EXACT_MARGIN_CELLS)
+        .unwrap_or(EDIT_EXACT_REACH_CELLS)
+}
+
+/// Cells kept between the farthest changed cell or placed point and the
+/// exact terrain's edge (the ring beyond overlaps the exact terrain by
+/// two of its cells).
+pub const EXACT_MARGIN_CELLS: f64 = 8.0;
+
 /// [`run`] on `dem`, the DEM at `dem_path` opened already (by
 /// [`super::guard::prepare_open`]): not opened a second time.
+///
+/// First with the exact terrain cut at [`EDIT_EXACT_REACH_CELLS`] cells;
+/// where the edit does not keep within it (checked before anything is
+/// written, [`kept_within`]),
+/// the whole edit again with each view's full exact reach, as without
+/// the cut.
 pub fn run_opened(
     dem: Dem,
     dem_path: &Path,
@@ -185,6 +227,51 @@ pub fn run_opened(
         return rayon::join(|| run_opened(dem, dem_path, sketch_path, opts), || ()).0;
     }
     let t_all = Instant::now();
+    check_output_paths(opts)?;
+    let first = run_within(
+        dem,
+        dem_path,
+        sketch_path,
+        opts,
+        Some(exact_reach_cells()),
+        t_all,
+    );
+    // (an error is the edit's outcome: it may come after a write)
+    let dem = match first? {
+        Attempt::Done(report) => return Ok(report),
+        Attempt::Beyond(dem) => dem,
+    };
+    if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
+        eprintln!("exact cut: the edit does not keep within it; made again without");
+    }
+    match run_within(dem, dem_path, sketch_path, opts, None, t_all)? {
+        Attempt::Done(report) => Ok(report),
+        Attempt::Beyond(_) => Err(EditError::Internal(
+            "an edit without a cut refused its changes".into(),
+        )),
+    }
+}
+
+/// What [`run_within`] made of an edit.
+enum Attempt {
+    /// The edit, written.
+    Done(EditReport),
+    /// The exact terrain was cut and the edit does not keep within the cut
+    /// (nothing written): the DEM, to make it again.
+    Beyond(Dem),
+}
+
+/// The edit of [`run_opened`] with the exact terrain cut at `exact_cells`
+/// cells (`None`: each view's full exact reach): [`Attempt::Beyond`] when
+/// it was cut and does not keep within the cut (nothing written).
+fn run_within(
+    dem: Dem,
+    dem_path: &Path,
+    sketch_path: &Path,
+    opts: &EditOptions,
+    exact_cells: Option<f64>,
+    t_all: Instant,
+) -> Result<Attempt, EditError> {
     let edit = Edit {
         opts,
         sketch_name: sketch_path.display().to_string(),
@@ -192,9 +279,9 @@ pub fn run_opened(
         pb: progress_bar(opts),
         skyline: true,
         anchoring: Anchoring::Traced,
+        exact_cells,
     };
     let mut timings = Timings::default();
-    check_output_paths(opts)?;
 
     let t = Instant::now();
     let Loaded {
@@ -228,6 +315,7 @@ pub fn run_opened(
             pb: edit.pb.clone(),
             skyline: false,
             anchoring: Anchoring::Traced,
+            exact_cells,
         };
         let reloaded = dem.reopened().map_err(EditError::from).and_then(|d| {
             load_views(
@@ -256,6 +344,9 @@ pub fn run_opened(
             timings.add(&scratch);
             if let Ok((views2, mut outcome2)) = other {
                 if fits_better(&outcome2, &outcome) {
+                    if !kept_within(exact_cells, &views2, &outcome2) {
+                        return Ok(Attempt::Beyond(dem));
+                    }
                     outcome2
                         .notes
                         .push(skyline_dropped_note(&outcome2, &outcome));
@@ -265,10 +356,14 @@ pub fn run_opened(
                         dem: &dem2,
                         sketch: &sketch2,
                     };
-                    return write_outputs(plain, &sources, &views2, outcome2, timings, t_all);
+                    return write_outputs(plain, &sources, &views2, outcome2, timings, t_all)
+                        .map(Attempt::Done);
                 }
             }
         }
+    }
+    if !kept_within(exact_cells, &views, &outcome) {
+        return Ok(Attempt::Beyond(dem));
     }
     let sources = Sources {
         dem_path,
@@ -276,7 +371,85 @@ pub fn run_opened(
         dem: &dem,
         sketch: &sketch,
     };
-    write_outputs(edit, &sources, &views, outcome, timings, t_all)
+    write_outputs(edit, &sources, &views, outcome, timings, t_all).map(Attempt::Done)
+}
+
+/// Whether an edit made with the exact terrain cut at `exact_cells` cells
+/// (`None`: not cut) may be kept: every stroke fitted, on a placed curve within
+/// the cut of its view, and every cell it changed within the cut of
+/// every view ([`changes_within`]), each less [`EXACT_MARGIN_CELLS`]
+/// cells. (A stroke not fitted, or fitted farther, might fit otherwise
+/// with the features and terrain beyond the cut.)
+fn kept_within(exact_cells: Option<f64>, views: &[ViewState], outcome: &Outcome) -> bool {
+    let Some(cells) = exact_cells else {
+        return true;
+    };
+    // (no view cut: the edit is the one without the cut)
+    let cut = |v: &ViewState| {
+        v.before
+            .terrain
+            .far_layer_sizes()
+            .first()
+            .is_some_and(|l| l.0 == 1)
+    };
+    if !views.iter().any(cut) {
+        return true;
+    }
+    let strokes_within = views.iter().zip(&outcome.views).all(|(v, report)| {
+        let limit = (cells - EXACT_MARGIN_CELLS) * frame_cell_m(&v.frame);
+        report.strokes.iter().all(|s| {
+            s.status == StrokeStatus::Fitted
+                && !s.placed_curve.is_empty()
+                && s.matched
+                    .depth_m
+                    .iter()
+                    .all(|d| d.is_finite() && *d <= limit)
+        })
+    });
+    views.len() == outcome.views.len()
+        && strokes_within
+        && changes_within(views, &outcome.deformation, cells)
+}
+
+/// The longer side of a cell of `frame`'s grid, metres.
+fn frame_cell_m(frame: &LocalFrame) -> f64 {
+    let p = frame.p;
+    p[0][0].hypot(p[1][0]).max(p[0][1].hypot(p[1][1]))
+}
+
+/// Whether every cell `deformation` changes (non-zero displacement) lies,
+/// with its four corners, within `cells` cells less
+/// [`EXACT_MARGIN_CELLS`] of each view's eye: where the view's exact
+/// terrain, which the rounds change and re-render, holds it, and no far
+/// layer (the DEM as it was) stands over it.
+pub(super) fn changes_within(views: &[ViewState], deformation: &Deformation, cells: f64) -> bool {
+    let w = deformation.window;
+    if w.width == 0 {
+        return true;
+    }
+    views.iter().all(|v| {
+        let limit = (cells - EXACT_MARGIN_CELLS) * frame_cell_m(&v.frame);
+        let (ox, oy) = v.window_offset;
+        deformation
+            .displacement
+            .chunks(w.width)
+            .enumerate()
+            .all(|(r, row)| {
+                let py = (w.row + r as i64 - oy) as f64;
+                row.iter().enumerate().all(|(c, &m)| {
+                    if m == 0.0 || m.is_nan() {
+                        return true;
+                    }
+                    let px = (w.col + c as i64 - ox) as f64;
+                    [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0)]
+                        .iter()
+                        .all(|&(a, b)| {
+                            let (e, n) = v.frame.pixel_to_en(px + a, py + b);
+                            e.hypot(n) <= limit
+                        })
+                })
+            })
+    })
 }
 
 /// The DEM cells around a view's eye that its observer's fixed ground can

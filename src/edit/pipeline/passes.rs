@@ -108,6 +108,7 @@ fn polish(
         pb: edit.pb.clone(),
         skyline: edit.skyline,
         anchoring: Anchoring::Strict,
+        exact_cells: edit.exact_cells,
     };
     let unpolished = outcome.without_renders();
     let f0 = fit_score(&outcome);
