@@ -32,9 +32,7 @@
 //! so is a stretch between two anchors on one silhouette that is narrower
 //! than one DEM cell seen from there (the DEM cannot draw such a detail).
 //! Feature completion at an anchored end is dropped: that end already sits
-//! on the terrain. The polishing passes of an edit anchor without these
-//! two looser rules ([`Anchoring::Strict`]): there the silhouette near a
-//! stroke is the edit's own near miss of it, not one the sketcher traced.
+//! on the terrain.
 
 use super::rendered_view::RenderedView;
 use crate::sketch::{PlacedPoint, PointSource, SceneProjection, StrokeMatch};
@@ -536,19 +534,6 @@ fn between(l: &BoundaryPoint, r: &BoundaryPoint, t: f64) -> BoundaryPoint {
     }
 }
 
-/// How near a boundary a stroke point must lie to be anchored on it.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Anchoring {
-    /// The fit's own pixel, loosened to [`GAP_TOLERANCE_PX`] in short
-    /// gaps between anchors and across stretches narrower than a cell:
-    /// a person's hand tracing a silhouette that is already right.
-    Traced,
-    /// The fit's own pixel only: the polishing passes of an edit
-    /// (`pipeline::passes`), where the silhouettes near a stroke are the
-    /// edit's own near misses of it, not a silhouette the sketcher traced.
-    Strict,
-}
-
 /// Anchors the points of `placed` that lie on a boundary of `before` (the
 /// unedited view the stroke was drawn on; see the module documentation).
 /// Returns the share of the stroke's points anchored (0 to 1).
@@ -556,7 +541,6 @@ pub fn anchor_on_silhouettes(
     before: &RenderedView,
     proj: &SceneProjection,
     placed: &mut StrokeMatch,
-    anchoring: Anchoring,
 ) -> f64 {
     let on_stroke: Vec<usize> = (0..placed.points.len())
         .filter(|&k| placed.points[k].source != PointSource::Completion)
@@ -578,7 +562,7 @@ pub fn anchor_on_silhouettes(
     drop_short_runs(&mut hits, &xs);
     drop_crossings(&mut hits, &xs, &mut refused);
     // Short stretches beside anchored points, within the looser tolerance.
-    let mut a = if anchoring == Anchoring::Traced { 0 } else { n };
+    let mut a = 0;
     while a < n {
         if hits[a].is_some() {
             a += 1;

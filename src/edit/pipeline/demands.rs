@@ -108,7 +108,6 @@ pub(super) fn place_demands(
     scene_views: &[SceneView],
     matched: &mut [crate::sketch::ViewMatch],
     options: &SketchOptions,
-    anchoring: Anchoring,
 ) -> Demands {
     let mut d = Demands {
         curves: Vec::new(),
@@ -129,12 +128,7 @@ pub(super) fn place_demands(
         let mut fractions = Vec::new();
         let mut placements = Vec::new();
         for (s, sm) in v.strokes.iter().zip(m.strokes.iter_mut()) {
-            fractions.push(anchor_on_silhouettes(
-                &v.before,
-                &sv.projection,
-                sm,
-                anchoring,
-            ));
+            fractions.push(anchor_on_silhouettes(&v.before, &sv.projection, sm));
             placements.push(place_free_stretches(
                 &v.before,
                 &sv.projection,

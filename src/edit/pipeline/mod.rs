@@ -27,12 +27,7 @@
 //! of it, as the write stores it, nothing written) and the deformations
 //! are written as one (`compose`); while a pass is kept and leaves a
 //! stroke unfitted, another follows, up to [`MAX_PASSES`], so that editing
-//! the output again changes nothing (`all_passes`). When they end with a
-//! stroke still short, polishing passes anchor the strokes within the
-//! fit's own pixel only (`polish`: the passes hold a stroke's 1-3 px near
-//! misses as a hand's tracing of a silhouette), kept only where the fit
-//! rises, no cell changes beyond the strokes' influence, and a pass as a
-//! re-edit's first on the result changes nothing.
+//! the output again changes nothing (`all_passes`).
 //!
 //! Each view's skyline is one of the candidate features
 //! ([`crate::sketch::skyline`]). Where a stroke matched to a skyline is
@@ -64,7 +59,7 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use rayon::prelude::*;
 
 use super::fit::measure;
-use super::on_silhouette::{anchor_on_silhouettes, Anchoring};
+use super::on_silhouette::anchor_on_silhouettes;
 use super::outputs::{write_outputs, Outcome, Sources};
 use super::rendered_view::{RenderedView, StrokeCurve, StrokeRegion};
 use super::report::{
@@ -134,9 +129,6 @@ pub(super) struct Edit<'o> {
     /// The views' skylines are candidate features
     /// ([`crate::sketch::skyline`]); `false` on the run without them.
     pub(super) skyline: bool,
-    /// How strokes are anchored on the silhouettes near them: as traced
-    /// by hand, except in the polishing passes ([`Anchoring`]).
-    pub(super) anchoring: Anchoring,
     /// The views' exact terrain cut at this many cells from the eye
     /// ([`EDIT_EXACT_REACH_CELLS`]); `None`: each view's full exact reach.
     pub(super) exact_cells: Option<f64>,
@@ -278,7 +270,6 @@ fn run_within(
         max_d: opts.max_distance_m.filter(|d| d.is_finite() && *d > 0.0),
         pb: progress_bar(opts),
         skyline: true,
-        anchoring: Anchoring::Traced,
         exact_cells,
     };
     let mut timings = Timings::default();
@@ -314,7 +305,6 @@ fn run_within(
             max_d: edit.max_d,
             pb: edit.pb.clone(),
             skyline: false,
-            anchoring: Anchoring::Traced,
             exact_cells,
         };
         let reloaded = dem.reopened().map_err(EditError::from).and_then(|d| {

@@ -1,14 +1,13 @@
 //! The passes of an edit: the first (stages 2 to 5 on the loaded views),
 //! and the later ones on the terrain the earlier made, while they help and
-//! a stroke is left unfitted; then the polishing passes, with the strict
-//! anchoring, kept only at a fixed point of a re-edit; their deformations
-//! composed into the one the write stores.
+//! a stroke is left unfitted; their deformations composed into the one the
+//! write stores.
 
 use super::*;
 
 /// The first pass ([`edit_pass`]) and, while one is kept and leaves a
 /// stroke unfitted, the later ones ([`second_pass`]), up to
-/// [`MAX_PASSES`]; then the polishing passes ([`polish`]).
+/// [`MAX_PASSES`].
 pub(super) fn all_passes<'s>(
     edit: &Edit,
     (sketch, dem, dem_name, sketch_path): (&'s SketchFile, &Dem, &str, &Path),
@@ -23,229 +22,29 @@ pub(super) fn all_passes<'s>(
         timings,
         false,
     )?;
-    let Some(outcome) = outcome else {
+    let Some(mut outcome) = outcome else {
         return Err(EditError::Internal(
             "the first pass was dropped as a later one".into(),
         ));
     };
-    // The far rings of a long view lie beyond every pass's changes:
-    // the later passes take the first's (when they serve, see `load_views`).
-    let far: Vec<FarLayers> = views
-        .iter()
-        .map(|v| v.before.terrain.far_layers())
-        .collect();
-    let t = Instant::now();
-    let (outcome, pass) = later_passes(
-        edit,
-        (sketch, dem, sketch_path),
-        outcome,
-        &far,
-        (1, MAX_PASSES),
-    )?;
-    let outcome = polish(
-        edit,
-        (sketch, dem, sketch_path),
-        (&views, outcome),
-        &far,
-        pass,
-    )?;
-    timings.lowering += secs(t);
-    Ok((views, outcome))
-}
-
-/// Later passes ([`second_pass`]) after pass `from`, while one is kept,
-/// leaves a stroke unfitted and the pass number stays within `to`.
-/// Returns the outcome and the number of the last pass kept.
-fn later_passes(
-    edit: &Edit,
-    (sketch, dem, sketch_path): (&SketchFile, &Dem, &Path),
-    mut outcome: Outcome,
-    far: &[FarLayers],
-    (from, to): (usize, usize),
-) -> Result<(Outcome, usize), EditError> {
-    let mut pass = from;
-    while pass < to && needs_second_pass(sketch, &outcome) {
+    let mut pass = 1;
+    while pass < MAX_PASSES && needs_second_pass(sketch, &outcome) {
+        let t = Instant::now();
+        // The far rings of a long view lie beyond every pass's changes:
+        // the later passes take the first's (when they serve, see `load_views`).
+        let far: Vec<FarLayers> = views
+            .iter()
+            .map(|v| v.before.terrain.far_layers())
+            .collect();
+        pass += 1;
         let changed;
-        (outcome, changed) = second_pass(edit, dem, sketch_path, outcome, far, pass + 1)?;
+        (outcome, changed) = second_pass(edit, dem, sketch_path, outcome, &far, pass)?;
+        timings.lowering += secs(t);
         if !changed {
             break;
         }
-        pass += 1;
     }
-    Ok((outcome, pass))
-}
-
-/// The most polishing passes of one edit ([`polish`]).
-pub const POLISH_PASSES: usize = 4;
-
-/// Polishing (issue 11, a stroke fitted at the right depth): after the
-/// passes end with a stroke unfitted, later passes that anchor the
-/// strokes with the fit's own pixel only ([`Anchoring::Strict`]). Passes
-/// anchor a stroke within 3 px of a silhouette in short gaps between
-/// anchors (a hand tracing a silhouette wanders); after a first pass the
-/// silhouette beside a stroke is often the pass's own near miss of it,
-/// 1-3 px off, which those passes then hold and never fit. The polished
-/// terrain is kept only when it fits the strokes better and a pass as a
-/// re-edit of the output would make it (traced anchoring, on the polished
-/// terrain) changes no cell: the output stays its own fixed point; and
-/// when it changes no cell farther than the influence distance from the
-/// strokes' sight wedge ([`within_sight_wedge`]). Else the passes' terrain
-/// stands. `views`: the first pass's; `pass`: the last pass kept.
-fn polish(
-    edit: &Edit,
-    (sketch, dem, sketch_path): (&SketchFile, &Dem, &Path),
-    (views, outcome): (&[ViewState], Outcome),
-    far: &[FarLayers],
-    pass: usize,
-) -> Result<Outcome, EditError> {
-    if !needs_second_pass(sketch, &outcome) {
-        return Ok(outcome);
-    }
-    let strict = Edit {
-        opts: edit.opts,
-        sketch_name: edit.sketch_name.clone(),
-        max_d: edit.max_d,
-        pb: edit.pb.clone(),
-        skyline: edit.skyline,
-        anchoring: Anchoring::Strict,
-        exact_cells: edit.exact_cells,
-    };
-    let unpolished = outcome.without_renders();
-    let f0 = fit_score(&outcome);
-    let (mut polished, last) = later_passes(
-        &strict,
-        (sketch, dem, sketch_path),
-        outcome,
-        far,
-        (pass, pass + POLISH_PASSES),
-    )?;
-    if last == pass {
-        return Ok(polished);
-    }
-    let f1 = fit_score(&polished);
-    if f1 <= f0 + 1e-9 {
-        return Ok(unpolished);
-    }
-    if !within_sight_wedge(dem, views, &unpolished, &polished.deformation) {
-        let mut out = unpolished;
-        out.notes.push(format!(
-            "polishing took the strokes' summed fit from {f0:.3} to {f1:.3}, but changed terrain beyond the influence distance of the strokes as placed: not kept"
-        ));
-        return Ok(out);
-    }
-    if !fixed_point(edit, dem, sketch_path, &mut polished, far) {
-        let mut out = unpolished;
-        out.notes.push(format!(
-            "polishing took the strokes' summed fit from {f0:.3} to {f1:.3}, but a re-edit of that terrain would change it: not kept"
-        ));
-        return Ok(out);
-    }
-    polished.notes.push(format!(
-        "polishing (passes anchoring the strokes within the fit's own pixel only) took the strokes' summed fit from {f0:.3} to {f1:.3}"
-    ));
-    Ok(polished)
-}
-
-/// Change under this (metres) is no change, for [`within_sight_wedge`].
-const NO_CHANGE_M: f32 = 0.05;
-
-/// True when every cell that `polished` changes from `before`'s
-/// deformation (by more than [`NO_CHANGE_M`]) lies within the influence
-/// distance of a stroke's sight wedge: the segments from a view's eye to
-/// the points the strokes were placed at (`before`'s report). A polishing
-/// pass re-matches the strokes; one placed farther than the edit placed it
-/// moves terrain the edit as reported never reached.
-fn within_sight_wedge(
-    dem: &Dem,
-    views: &[ViewState],
-    before: &Outcome,
-    polished: &Deformation,
-) -> bool {
-    let a = &before.deformation;
-    let influence = a.stats.influence_m;
-    if !(influence.is_finite() && influence > 0.0) {
-        return true;
-    }
-    // Per view: its frame and the ends of its sight segments (local east,
-    // north), a few dozen per stroke.
-    let wedges: Vec<(&LocalFrame, Vec<(f64, f64)>)> = views
-        .iter()
-        .zip(&before.views)
-        .map(|(v, r)| {
-            let ends = r
-                .strokes
-                .iter()
-                .flat_map(|s| {
-                    let step = (s.placed_curve.len() / 40).max(1);
-                    s.placed_curve.iter().step_by(step)
-                })
-                .map(|p| v.frame.crs_to_en(p[0], p[1]))
-                .collect();
-            (&v.frame, ends)
-        })
-        .collect();
-    let near = |x: f64, y: f64| {
-        wedges.iter().any(|(frame, ends)| {
-            let c = frame.crs_to_en(x, y);
-            ends.iter().any(|&e| segment_distance(c, e) <= influence)
-        })
-    };
-    let (wa, wb) = (a.window, polished.window);
-    for r in 0..wb.height {
-        for c in 0..wb.width {
-            let (col, row) = (wb.col + c as i64, wb.row + r as i64);
-            let m = polished.displacement[r * wb.width + c];
-            let (ca, ra) = (col - wa.col, row - wa.row);
-            let inside =
-                ca >= 0 && ra >= 0 && (ca as usize) < wa.width && (ra as usize) < wa.height;
-            let before_m = if inside {
-                a.displacement[ra as usize * wa.width + ca as usize]
-            } else {
-                0.0
-            };
-            let d = m - before_m;
-            if d.is_nan() || d.abs() <= NO_CHANGE_M {
-                continue;
-            }
-            let (x, y) = dem
-                .geotransform
-                .pixel_to_crs(col as f64 + 0.5, row as f64 + 0.5);
-            if !near(x, y) {
-                return false;
-            }
-        }
-    }
-    true
-}
-
-/// Distance from point `p` to the segment from the origin to `e`.
-fn segment_distance(p: (f64, f64), e: (f64, f64)) -> f64 {
-    let len2 = e.0 * e.0 + e.1 * e.1;
-    let t = if len2 > 0.0 {
-        ((p.0 * e.0 + p.1 * e.1) / len2).clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
-    (p.0 - t * e.0).hypot(p.1 - t * e.1)
-}
-
-/// True when a pass with `edit`'s anchoring on the terrain `outcome`
-/// made (as the first pass of a re-edit of the output) changes no cell.
-/// Takes `outcome`'s renders.
-fn fixed_point(
-    edit: &Edit,
-    dem: &Dem,
-    sketch_path: &Path,
-    outcome: &mut Outcome,
-    far: &[FarLayers],
-) -> bool {
-    let d1 = quantized(dem, &outcome.deformation);
-    let earlier = std::mem::take(&mut outcome.renders);
-    match pass_on(edit, dem, sketch_path, &d1, earlier, far) {
-        Ok(None) => true,
-        Ok(Some(o)) => o.deformation.stats.changed_cells == 0,
-        Err(_) => false,
-    }
+    Ok((views, outcome))
 }
 
 /// Stages 2 to 5 on the loaded views: features, matching, deformation,
@@ -358,7 +157,27 @@ pub(super) fn second_pass(
     // The pass before's last renders are of the terrain this pass starts
     // from: its views' renders take what they can from them.
     let earlier = std::mem::take(&mut first.renders);
-    let run_second = || pass_on(edit, dem, sketch_path, d1, earlier, far);
+    let run_second = || -> Result<Option<Outcome>, EditError> {
+        let overlay = dem.reopened()?.with_overlay(d1.window, d1.edited().data);
+        let Loaded {
+            sketch,
+            dem: dem2,
+            notes,
+            prepared,
+            scenes,
+        } = load_views(edit, overlay, sketch_path, far)?;
+        let dem_name = dem.path.display().to_string();
+        let mut scratch = Timings::default();
+        let (_, second) = edit_pass(
+            edit,
+            (&sketch, &dem2, &dem_name),
+            (scenes, prepared, notes),
+            earlier,
+            &mut scratch,
+            true,
+        )?;
+        Ok(second)
+    };
     // The first pass stands on its own: a second that cannot run (a stroke
     // end no longer on terrain, say) leaves it as it is.
     let second = match run_second() {
@@ -405,39 +224,6 @@ pub(super) fn second_pass(
     ));
     out.deformation = total;
     Ok((out, true))
-}
-
-/// A pass (stages 1 to 5, [`edit_pass`] as a later one) on the terrain
-/// `d1` makes of `dem` (read through an overlay, nothing written);
-/// `earlier`: the renders of that terrain the pass before left. `None`
-/// when it changes no cell.
-fn pass_on(
-    edit: &Edit,
-    dem: &Dem,
-    sketch_path: &Path,
-    d1: &Deformation,
-    earlier: Vec<RenderedView>,
-    far: &[FarLayers],
-) -> Result<Option<Outcome>, EditError> {
-    let overlay = dem.reopened()?.with_overlay(d1.window, d1.edited().data);
-    let Loaded {
-        sketch,
-        dem: dem2,
-        notes,
-        prepared,
-        scenes,
-    } = load_views(edit, overlay, sketch_path, far)?;
-    let dem_name = dem.path.display().to_string();
-    let mut scratch = Timings::default();
-    let (_, second) = edit_pass(
-        edit,
-        (&sketch, &dem2, &dem_name),
-        (scenes, prepared, notes),
-        earlier,
-        &mut scratch,
-        true,
-    )?;
-    Ok(second)
 }
 
 /// The most passes of one edit: the first and the later ones over the
