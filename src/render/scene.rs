@@ -122,7 +122,7 @@ impl Scene {
         camera: &crate::view::Camera,
         reuse: Option<&FarLayers>,
     ) -> Result<Scene, RenderError> {
-        Self::open_lod(dem, vp, max_distance, k, camera, reuse, None, |_| None)
+        Self::open_wedge_lod_within(dem, vp, max_distance, k, camera, reuse, None)
     }
 
     /// [`Scene::open_wedge_lod`] with the exact terrain cut at
