@@ -347,23 +347,44 @@ impl LocalTerrain {
         t_limit: f64,
         kind: CastKind,
     ) -> Option<RayHit> {
+        self.with_far_hits(hit, d, t_start, t_limit, kind, None)
+    }
+
+    /// [`LocalTerrain::with_far_hit`] where the hit of layer `i` is known
+    /// (`known`: `(i, hit)`, the hit in the layer's own ids): it stands
+    /// for that layer's cast, in the same order (the terrain, then the
+    /// layers innermost first; the nearer wins, the earlier on a tie).
+    fn with_far_hits(
+        &self,
+        hit: Option<RayHit>,
+        d: [f64; 3],
+        t_start: f64,
+        t_limit: f64,
+        kind: CastKind,
+        known: Option<(usize, RayHit)>,
+    ) -> Option<RayHit> {
         if self.far.is_empty() {
             return hit;
         }
         let dh = d[0].hypot(d[1]);
         let mut best = hit;
-        for l in &self.far {
+        for (i, l) in self.far.iter().enumerate() {
             let limit = best.map_or(t_limit, |h| h.t.min(t_limit));
-            // (false for NaN too)
-            let reaches = dh * limit >= l.reach_m && limit > t_start;
-            if !reaches {
-                continue;
-            }
-            let t = &l.terrain;
-            let h = match kind {
-                CastKind::Full => t.cast(d, limit),
-                CastKind::Within => t.cast_within(d, limit),
-                CastKind::Segment => t.cast_segment(d, t_start, limit),
+            let h = match known {
+                Some((k, h)) if k == i => Some(h),
+                _ => {
+                    // (false for NaN too)
+                    let reaches = dh * limit >= l.reach_m && limit > t_start;
+                    if !reaches {
+                        continue;
+                    }
+                    let t = &l.terrain;
+                    match kind {
+                        CastKind::Full => t.cast(d, limit),
+                        CastKind::Within => t.cast_within(d, limit),
+                        CastKind::Segment => t.cast_segment(d, t_start, limit),
+                    }
+                }
             };
             if let Some(h) = h.filter(|h| best.is_none_or(|b| h.t < b.t)) {
                 best = Some(RayHit {
@@ -373,6 +394,40 @@ impl LocalTerrain {
             }
         }
         best
+    }
+
+    /// [`LocalTerrain::cast_from_cell`] from far triangle `id`: the walk
+    /// of its layer's own cells from the cell of `id`
+    /// ([`LocalTerrain::walk_cells`], with the same checks), then the
+    /// terrain's own grid and the other layers cast over the segment from
+    /// `t_start` to the walk's hit for a nearer one, as
+    /// [`LocalTerrain::with_far_hit`] orders them. What
+    /// [`LocalTerrain::cast_segment`] from `t_start` finds where the ray
+    /// meets the layer nothing before that cell (the caller's
+    /// bisection knows it: the ray passes above one that first met the
+    /// terrain there), for a few patches' work instead of a traversal of
+    /// the layer's index. `None`: the walk refused or met nothing; the
+    /// caller casts.
+    pub(crate) fn far_walk(
+        &self,
+        d: [f64; 3],
+        id: u32,
+        t_start: f64,
+        latest_entry: f64,
+        max_cells: usize,
+    ) -> Option<RayHit> {
+        let first = self.far.first()?;
+        if id < first.id0 || id == SKY {
+            return None;
+        }
+        let i = self.far.iter().rposition(|l| id >= l.id0)?;
+        let l = &self.far[i];
+        let hit = l
+            .terrain
+            .walk_cells(d, id - l.id0, t_start, latest_entry, max_cells)
+            .ok()?;
+        let own = self.cast_segment_own(d, t_start, hit.t);
+        self.with_far_hits(own, d, t_start, hit.t, CastKind::Segment, Some((i, hit)))
     }
 
     /// The cell of the DEM grid the terrain was built from under far

@@ -803,12 +803,23 @@ impl LocalTerrain {
     /// of the crest they start at), which pays for its build when the
     /// terrain serves many casts.
     pub fn cast_segment(&self, d: [f64; 3], t_start: f64, t_limit: f64) -> Option<RayHit> {
+        let hit = self.cast_segment_own(d, t_start, t_limit);
+        self.with_far_hit(hit, d, t_start, t_limit, CastKind::Segment)
+    }
+
+    /// [`LocalTerrain::cast_segment`] on this terrain's own grid (no far
+    /// layer).
+    pub(crate) fn cast_segment_own(
+        &self,
+        d: [f64; 3],
+        t_start: f64,
+        t_limit: f64,
+    ) -> Option<RayHit> {
         let index = match self.index.get() {
             Some(full) => full,
             None => self.coarse_index(),
         };
-        let hit = self.traverse_with(index, d, t_start, t_limit);
-        self.with_far_hit(hit, d, t_start, t_limit, CastKind::Segment)
+        self.traverse_with(index, d, t_start, t_limit)
     }
 
     /// The horizontal part of direction `d` (east, north, up) in vertex
@@ -1122,8 +1133,11 @@ impl LocalTerrain {
         max_cells: usize,
     ) -> Result<RayHit, Option<(usize, usize)>> {
         if self.is_far_triangle(id) {
-            // (a far layer's cells are not walked: the caller casts)
-            return Err(None);
+            // The far layer's own cells are walked, and the terrain and
+            // the other layers asked for a nearer hit; a walk that meets
+            // nothing leaves the cast to the caller (from the start: its
+            // cells are not this grid's).
+            return self.far_walk(d, id, t_start, latest_entry, max_cells).ok_or(None);
         }
         let hit = self.walk_cells(d, id, t_start, latest_entry, max_cells)?;
         match self.with_far_hit(Some(hit), d, t_start, hit.t, CastKind::Segment) {
@@ -1134,7 +1148,7 @@ impl LocalTerrain {
 
     /// The walk of [`LocalTerrain::cast_from_cell_walk`] over this
     /// terrain's own cells.
-    fn walk_cells(
+    pub(crate) fn walk_cells(
         &self,
         d: [f64; 3],
         id: u32,
