@@ -48,13 +48,49 @@ fn reserve(v: &mut Vec<u8>, n: usize) -> Result<(), BlockError> {
 /// in one call; `None` for any other stream (longer, shorter or damaged)
 /// or where the buffer cannot be had (the streaming inflate then decides).
 fn inflate_whole(src: &[u8], expected: usize) -> Option<Vec<u8>> {
-    let mut out = Vec::new();
-    out.try_reserve_exact(expected).ok()?;
-    out.resize(expected, 0);
+    let mut out = scratch(expected)?;
     let mut d = libdeflater::Decompressor::new();
     match d.zlib_decompress(src, &mut out) {
         Ok(n) if n == expected => Some(out),
         _ => None,
+    }
+}
+
+thread_local! {
+    /// The bytes of the last block this thread decoded, kept for the next
+    /// one ([`scratch`], [`recycle`]): a block's bytes are read once, into
+    /// its samples, and a buffer taken again needs no zeroing (a fresh one
+    /// is zeroed, and its pages mapped, for every block).
+    static SCRATCH: std::cell::RefCell<Vec<u8>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+/// The largest buffer [`recycle`] keeps (bytes).
+const SCRATCH_MAX: usize = 1 << 24;
+
+/// A buffer of `expected` bytes for a decompression to overwrite whole:
+/// this thread's kept one where there is one (its old bytes left in place,
+/// only growth zeroed), else a new zeroed one. `None`: no memory.
+fn scratch(expected: usize) -> Option<Vec<u8>> {
+    let mut out = SCRATCH.with(|s| std::mem::take(&mut *s.borrow_mut()));
+    if out.len() >= expected {
+        out.truncate(expected);
+    } else {
+        out.try_reserve_exact(expected - out.len()).ok()?;
+        out.resize(expected, 0);
+    }
+    Some(out)
+}
+
+/// Keep `bytes` (a block's bytes, read) for this thread's next
+/// [`scratch`], unless a larger one is kept or it is over [`SCRATCH_MAX`].
+fn recycle(bytes: Vec<u8>) {
+    if bytes.capacity() <= SCRATCH_MAX {
+        SCRATCH.with(|s| {
+            let mut s = s.borrow_mut();
+            if s.capacity() < bytes.capacity() {
+                *s = bytes;
+            }
+        });
     }
 }
 
@@ -428,7 +464,9 @@ pub fn decode_block(
         && w <= stored_w
         && h <= stored_h
     {
-        return float32_predicted(&mut bytes, stored_w, w, h).map(DecodingResult::F32);
+        let samples = float32_predicted(&mut bytes, stored_w, w, h).map(DecodingResult::F32);
+        recycle(bytes);
+        return samples;
     }
     if codec.predictor == 3 {
         // After the float predictor the samples are in native order.
@@ -597,6 +635,53 @@ mod tests {
 
     /// The one-call inflate gives what the streaming one gives, and leaves
     /// every stream that does not hold exactly the block to it.
+    /// Blocks decoded one after another on one thread (reusing the kept
+    /// buffer of the block before, larger or smaller) give the samples a
+    /// decode on a fresh thread gives.
+    #[test]
+    fn blocks_decoded_in_turn_equal_blocks_decoded_alone() {
+        use std::io::Write;
+        let codec = BlockCodec {
+            compression: 8,
+            predictor: 3,
+            sample_type: SampleType::Float32,
+            little_endian: true,
+        };
+        let block = |side: usize, seed: f32| {
+            let mut raw = Vec::new();
+            for r in 0..side {
+                let vals: Vec<f32> = (0..side)
+                    .map(|c| seed + (r * 31 + c * 7) as f32 * 0.37 - (c as f32).sqrt())
+                    .collect();
+                raw.extend(float_predicted_row(&vals));
+            }
+            let mut e = flate2::write::ZlibEncoder::new(Vec::new(), flate2::Compression::default());
+            e.write_all(&raw).expect("compress");
+            e.finish().expect("compress")
+        };
+        let bits = |r: DecodingResult| match r {
+            DecodingResult::F32(v) => v.iter().map(|x| x.to_bits()).collect::<Vec<_>>(),
+            _ => panic!("not f32"),
+        };
+        let sizes = [(64usize, 1.0f32), (16, -5.0), (32, 900.5), (64, 3.25)];
+        let alone: Vec<Vec<u32>> = sizes
+            .iter()
+            .map(|&(side, seed)| {
+                let z = block(side, seed);
+                std::thread::spawn(move || {
+                    bits(decode_block(&codec, &z, side, side, side - 3, side - 1).expect("decode"))
+                })
+                .join()
+                .expect("thread")
+            })
+            .collect();
+        for (&(side, seed), want) in sizes.iter().zip(&alone) {
+            let z = block(side, seed);
+            let got = bits(decode_block(&codec, &z, side, side, side - 3, side - 1).expect("decode"));
+            assert_eq!(&got, want, "block of {side}");
+        }
+    }
+
     #[test]
     fn deflate_in_one_call_or_streamed_gives_the_same_bytes() {
         use std::io::Write;
