@@ -213,7 +213,12 @@ impl LocalTerrain {
             let (a, b) = surely_inside(&dxs[..inside], &row_frame);
             vertex_row(&mut row[..a], &src[..a], &dxs[..a], row_frame);
             row[a..b].fill(f32::NAN);
-            vertex_row(&mut row[b..inside], &src[b..inside], &dxs[b..inside], row_frame);
+            vertex_row(
+                &mut row[b..inside],
+                &src[b..inside],
+                &dxs[b..inside],
+                row_frame,
+            );
             row[inside..].fill(f32::NAN);
         });
         let eye_v = (ex - 0.5 - c0 as f64, ey - 0.5 - r0 as f64);
@@ -1128,7 +1133,8 @@ impl LocalTerrain {
     /// terrain in its `max_cells` cells stopped: `Err(Some(cell))`, the
     /// first cell it did not test (a traversal may start at that cell's
     /// entry, [`LocalTerrain::cell_entry_at`]); `Err(None)` for the other
-    /// refusals.
+    /// refusals. From a far layer's triangle the walk is over that layer's
+    /// cells ([`LocalTerrain::far_walk`]), and any refusal is `Err(None)`.
     pub fn cast_from_cell_walk(
         &self,
         d: [f64; 3],
@@ -1142,7 +1148,9 @@ impl LocalTerrain {
             // the other layers asked for a nearer hit; a walk that meets
             // nothing leaves the cast to the caller (from the start: its
             // cells are not this grid's).
-            return self.far_walk(d, id, t_start, latest_entry, max_cells).ok_or(None);
+            return self
+                .far_walk(d, id, t_start, latest_entry, max_cells)
+                .ok_or(None);
         }
         let hit = self.walk_cells(d, id, t_start, latest_entry, max_cells)?;
         match self.with_far_hit(Some(hit), d, t_start, hit.t, CastKind::Segment) {
@@ -1564,11 +1572,36 @@ fn column_ranges(z: &VertexHeights, cy: usize, by: usize, lo: &mut [f32], hi: &m
     lo.fill(f32::INFINITY);
     hi.fill(f32::NEG_INFINITY);
     for r in r0..=r1 {
-        let row = z.row(r);
-        for ((l, h), &v) in lo.iter_mut().zip(hi.iter_mut()).zip(row.iter()) {
-            *l = if v < *l { v } else { *l };
-            *h = if v > *h { v } else { *h };
-        }
+        range_row(lo, hi, &z.row(r));
+    }
+}
+
+/// One row of [`column_ranges`]: each column's lowest and highest so far
+/// lowered and raised by `row`'s vertex (NaN skipped). Compiled for AVX2
+/// where the CPU has it (compares and selects: the same result).
+fn range_row(lo: &mut [f32], hi: &mut [f32], row: &[f32]) {
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has AVX2 (checked just above).
+        unsafe { range_row_avx2(lo, hi, row) };
+        return;
+    }
+    range_row_body(lo, hi, row);
+}
+
+/// [`range_row`] compiled for AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn range_row_avx2(lo: &mut [f32], hi: &mut [f32], row: &[f32]) {
+    range_row_body(lo, hi, row);
+}
+
+/// The loop of [`range_row`].
+#[inline(always)]
+fn range_row_body(lo: &mut [f32], hi: &mut [f32], row: &[f32]) {
+    for ((l, h), &v) in lo.iter_mut().zip(hi.iter_mut()).zip(row.iter()) {
+        *l = if v < *l { v } else { *l };
+        *h = if v > *h { v } else { *h };
     }
 }
 
@@ -1880,7 +1913,10 @@ fn surely_inside(dxs: &[f64], f: &RowFrame) -> (usize, usize) {
         let n = f.p1.0 * dx + f.p1.1;
         e * e + n * n
     };
-    let (a2, b2) = (f.p0.0 * f.p0.0 + f.p1.0 * f.p1.0, f.p0.0 * f.p0.1 + f.p1.0 * f.p1.1);
+    let (a2, b2) = (
+        f.p0.0 * f.p0.0 + f.p1.0 * f.p1.0,
+        f.p0.0 * f.p0.1 + f.p1.0 * f.p1.1,
+    );
     // (the roots a little inside, so that the end columns pass the check)
     let c = f.p0.1 * f.p0.1 + f.p1.1 * f.p1.1 - min_d2 * (1.0 - 4e-9);
     // a2 s^2 + 2 b2 s + c < 0 between the roots
@@ -1988,6 +2024,9 @@ mod ring_tests {
                 }
             }
         }
-        assert!(skipped > 0 && skipped + skipped / 50 >= inside, "{skipped} of {inside}");
+        assert!(
+            skipped > 0 && skipped + skipped / 50 >= inside,
+            "{skipped} of {inside}"
+        );
     }
 }

@@ -564,8 +564,28 @@ mod tests {
             let planes: Vec<Vec<u8>> = (0..4)
                 .map(|k| match (k, n) {
                     // a NaN and a negative zero among the samples
-                    (0, 3..) => (0..n).map(|i| if i == 1 { 0x7f } else if i == 2 { 0x80 } else { byte() }).collect(),
-                    (1, 3..) => (0..n).map(|i| if i == 1 { 0xc0 } else if i == 2 { 0 } else { byte() }).collect(),
+                    (0, 3..) => (0..n)
+                        .map(|i| {
+                            if i == 1 {
+                                0x7f
+                            } else if i == 2 {
+                                0x80
+                            } else {
+                                byte()
+                            }
+                        })
+                        .collect(),
+                    (1, 3..) => (0..n)
+                        .map(|i| {
+                            if i == 1 {
+                                0xc0
+                            } else if i == 2 {
+                                0
+                            } else {
+                                byte()
+                            }
+                        })
+                        .collect(),
                     (_, 3..) => (0..n).map(|i| if i == 2 { 0 } else { byte() }).collect(),
                     _ => (0..n).map(|_| byte()).collect(),
                 })
@@ -677,7 +697,8 @@ mod tests {
             .collect();
         for (&(side, seed), want) in sizes.iter().zip(&alone) {
             let z = block(side, seed);
-            let got = bits(decode_block(&codec, &z, side, side, side - 3, side - 1).expect("decode"));
+            let got =
+                bits(decode_block(&codec, &z, side, side, side - 3, side - 1).expect("decode"));
             assert_eq!(&got, want, "block of {side}");
         }
     }
