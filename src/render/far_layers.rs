@@ -137,21 +137,48 @@ impl FarLayer {
         let mut open = vec![1i32; w];
         for j in (0..h).rev() {
             let row = &depth[j * w..(j + 1) * w];
-            let mut any = 0i32;
-            for ((l, o), &d) in last.iter_mut().zip(open.iter_mut()).zip(row) {
-                // NaN or nearer than the bound: covered
-                let covered = i32::from(!(d >= bound));
-                *o &= covered;
-                // while open, the last row shown is above this one
-                *l -= *o;
-                any |= *o;
-            }
-            if any == 0 {
+            if covered_row(&mut last, &mut open, row, bound) == 0 {
                 break;
             }
         }
         last
     }
+}
+
+/// One row of [`FarLayer::rows_shown`], from the bottom up: each column
+/// still `open` (covered in every row below) stays open where this row's
+/// depth is NaN or nearer than `bound`, and its `last` row shown moves
+/// above this one. Returns non-zero while some column is open. Compiled
+/// for AVX2 where the CPU has it (integer selects: the same result).
+fn covered_row(last: &mut [i32], open: &mut [i32], row: &[f32], bound: f32) -> i32 {
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has AVX2 (checked just above).
+        return unsafe { covered_row_avx2(last, open, row, bound) };
+    }
+    covered_row_body(last, open, row, bound)
+}
+
+/// [`covered_row`] compiled for AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn covered_row_avx2(last: &mut [i32], open: &mut [i32], row: &[f32], bound: f32) -> i32 {
+    covered_row_body(last, open, row, bound)
+}
+
+/// The loop of [`covered_row`] (branch-free over the row: it vectorises).
+#[inline(always)]
+fn covered_row_body(last: &mut [i32], open: &mut [i32], row: &[f32], bound: f32) -> i32 {
+    let mut any = 0i32;
+    for ((l, o), &d) in last.iter_mut().zip(open.iter_mut()).zip(row) {
+        // NaN or nearer than the bound: covered
+        let covered = i32::from(!(d >= bound));
+        *o &= covered;
+        // while open, the last row shown is above this one
+        *l -= *o;
+        any |= *o;
+    }
+    any
 }
 
 /// The far layers of a terrain, as they are (shared): for a later view of
@@ -347,23 +374,44 @@ impl LocalTerrain {
         t_limit: f64,
         kind: CastKind,
     ) -> Option<RayHit> {
+        self.with_far_hits(hit, d, t_start, t_limit, kind, None)
+    }
+
+    /// [`LocalTerrain::with_far_hit`] where the hit of layer `i` is known
+    /// (`known`: `(i, hit)`, the hit in the layer's own ids): it stands
+    /// for that layer's cast, in the same order (the terrain, then the
+    /// layers innermost first; the nearer wins, the earlier on a tie).
+    fn with_far_hits(
+        &self,
+        hit: Option<RayHit>,
+        d: [f64; 3],
+        t_start: f64,
+        t_limit: f64,
+        kind: CastKind,
+        known: Option<(usize, RayHit)>,
+    ) -> Option<RayHit> {
         if self.far.is_empty() {
             return hit;
         }
         let dh = d[0].hypot(d[1]);
         let mut best = hit;
-        for l in &self.far {
+        for (i, l) in self.far.iter().enumerate() {
             let limit = best.map_or(t_limit, |h| h.t.min(t_limit));
-            // (false for NaN too)
-            let reaches = dh * limit >= l.reach_m && limit > t_start;
-            if !reaches {
-                continue;
-            }
-            let t = &l.terrain;
-            let h = match kind {
-                CastKind::Full => t.cast(d, limit),
-                CastKind::Within => t.cast_within(d, limit),
-                CastKind::Segment => t.cast_segment(d, t_start, limit),
+            let h = match known {
+                Some((k, h)) if k == i => Some(h),
+                _ => {
+                    // (false for NaN too)
+                    let reaches = dh * limit >= l.reach_m && limit > t_start;
+                    if !reaches {
+                        continue;
+                    }
+                    let t = &l.terrain;
+                    match kind {
+                        CastKind::Full => t.cast(d, limit),
+                        CastKind::Within => t.cast_within(d, limit),
+                        CastKind::Segment => t.cast_segment(d, t_start, limit),
+                    }
+                }
             };
             if let Some(h) = h.filter(|h| best.is_none_or(|b| h.t < b.t)) {
                 best = Some(RayHit {
@@ -373,6 +421,40 @@ impl LocalTerrain {
             }
         }
         best
+    }
+
+    /// [`LocalTerrain::cast_from_cell`] from far triangle `id`: the walk
+    /// of its layer's own cells from the cell of `id`
+    /// ([`LocalTerrain::walk_cells`], with the same checks), then the
+    /// terrain's own grid and the other layers cast over the segment from
+    /// `t_start` to the walk's hit for a nearer one, as
+    /// [`LocalTerrain::with_far_hit`] orders them. What
+    /// [`LocalTerrain::cast_segment`] from `t_start` finds where the ray
+    /// meets the layer nothing before that cell (the caller's
+    /// bisection knows it: the ray passes above one that first met the
+    /// terrain there), for a few patches' work instead of a traversal of
+    /// the layer's index. `None`: the walk refused or met nothing; the
+    /// caller casts.
+    pub(crate) fn far_walk(
+        &self,
+        d: [f64; 3],
+        id: u32,
+        t_start: f64,
+        latest_entry: f64,
+        max_cells: usize,
+    ) -> Option<RayHit> {
+        let first = self.far.first()?;
+        if id < first.id0 || id == SKY {
+            return None;
+        }
+        let i = self.far.iter().rposition(|l| id >= l.id0)?;
+        let l = &self.far[i];
+        let hit = l
+            .terrain
+            .walk_cells(d, id - l.id0, t_start, latest_entry, max_cells)
+            .ok()?;
+        let own = self.cast_segment_own(d, t_start, hit.t);
+        self.with_far_hits(own, d, t_start, hit.t, CastKind::Segment, Some((i, hit)))
     }
 
     /// The cell of the DEM grid the terrain was built from under far

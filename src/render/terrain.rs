@@ -208,7 +208,17 @@ impl LocalTerrain {
                 coef,
                 d2_range: (min_d2, max_d2),
             };
-            vertex_row(&mut row[..inside], src, &dxs[..inside], row_frame);
+            // (a ring's vertices surely nearer than its inner radius are
+            // nodata whatever their height: not computed)
+            let (a, b) = surely_inside(&dxs[..inside], &row_frame);
+            vertex_row(&mut row[..a], &src[..a], &dxs[..a], row_frame);
+            row[a..b].fill(f32::NAN);
+            vertex_row(
+                &mut row[b..inside],
+                &src[b..inside],
+                &dxs[b..inside],
+                row_frame,
+            );
             row[inside..].fill(f32::NAN);
         });
         let eye_v = (ex - 0.5 - c0 as f64, ey - 0.5 - r0 as f64);
@@ -803,12 +813,23 @@ impl LocalTerrain {
     /// of the crest they start at), which pays for its build when the
     /// terrain serves many casts.
     pub fn cast_segment(&self, d: [f64; 3], t_start: f64, t_limit: f64) -> Option<RayHit> {
+        let hit = self.cast_segment_own(d, t_start, t_limit);
+        self.with_far_hit(hit, d, t_start, t_limit, CastKind::Segment)
+    }
+
+    /// [`LocalTerrain::cast_segment`] on this terrain's own grid (no far
+    /// layer).
+    pub(crate) fn cast_segment_own(
+        &self,
+        d: [f64; 3],
+        t_start: f64,
+        t_limit: f64,
+    ) -> Option<RayHit> {
         let index = match self.index.get() {
             Some(full) => full,
             None => self.coarse_index(),
         };
-        let hit = self.traverse_with(index, d, t_start, t_limit);
-        self.with_far_hit(hit, d, t_start, t_limit, CastKind::Segment)
+        self.traverse_with(index, d, t_start, t_limit)
     }
 
     /// The horizontal part of direction `d` (east, north, up) in vertex
@@ -1112,7 +1133,8 @@ impl LocalTerrain {
     /// terrain in its `max_cells` cells stopped: `Err(Some(cell))`, the
     /// first cell it did not test (a traversal may start at that cell's
     /// entry, [`LocalTerrain::cell_entry_at`]); `Err(None)` for the other
-    /// refusals.
+    /// refusals. From a far layer's triangle the walk is over that layer's
+    /// cells ([`LocalTerrain::far_walk`]), and any refusal is `Err(None)`.
     pub fn cast_from_cell_walk(
         &self,
         d: [f64; 3],
@@ -1122,8 +1144,13 @@ impl LocalTerrain {
         max_cells: usize,
     ) -> Result<RayHit, Option<(usize, usize)>> {
         if self.is_far_triangle(id) {
-            // (a far layer's cells are not walked: the caller casts)
-            return Err(None);
+            // The far layer's own cells are walked, and the terrain and
+            // the other layers asked for a nearer hit; a walk that meets
+            // nothing leaves the cast to the caller (from the start: its
+            // cells are not this grid's).
+            return self
+                .far_walk(d, id, t_start, latest_entry, max_cells)
+                .ok_or(None);
         }
         let hit = self.walk_cells(d, id, t_start, latest_entry, max_cells)?;
         match self.with_far_hit(Some(hit), d, t_start, hit.t, CastKind::Segment) {
@@ -1134,7 +1161,7 @@ impl LocalTerrain {
 
     /// The walk of [`LocalTerrain::cast_from_cell_walk`] over this
     /// terrain's own cells.
-    fn walk_cells(
+    pub(crate) fn walk_cells(
         &self,
         d: [f64; 3],
         id: u32,
@@ -1545,11 +1572,36 @@ fn column_ranges(z: &VertexHeights, cy: usize, by: usize, lo: &mut [f32], hi: &m
     lo.fill(f32::INFINITY);
     hi.fill(f32::NEG_INFINITY);
     for r in r0..=r1 {
-        let row = z.row(r);
-        for ((l, h), &v) in lo.iter_mut().zip(hi.iter_mut()).zip(row.iter()) {
-            *l = if v < *l { v } else { *l };
-            *h = if v > *h { v } else { *h };
-        }
+        range_row(lo, hi, &z.row(r));
+    }
+}
+
+/// One row of [`column_ranges`]: each column's lowest and highest so far
+/// lowered and raised by `row`'s vertex (NaN skipped). Compiled for AVX2
+/// where the CPU has it (compares and selects: the same result).
+fn range_row(lo: &mut [f32], hi: &mut [f32], row: &[f32]) {
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has AVX2 (checked just above).
+        unsafe { range_row_avx2(lo, hi, row) };
+        return;
+    }
+    range_row_body(lo, hi, row);
+}
+
+/// [`range_row`] compiled for AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn range_row_avx2(lo: &mut [f32], hi: &mut [f32], row: &[f32]) {
+    range_row_body(lo, hi, row);
+}
+
+/// The loop of [`range_row`].
+#[inline(always)]
+fn range_row_body(lo: &mut [f32], hi: &mut [f32], row: &[f32]) {
+    for ((l, h), &v) in lo.iter_mut().zip(hi.iter_mut()).zip(row.iter()) {
+        *l = if v < *l { v } else { *l };
+        *h = if v > *h { v } else { *h };
     }
 }
 
@@ -1838,6 +1890,53 @@ struct RowFrame {
     d2_range: (f64, f64),
 }
 
+/// The columns `[a, b)` of a row (column offsets `dxs` from the eye, in
+/// increasing order; the row's frame `f`) whose squared distance, as
+/// [`vertex_row`] computes it, is surely under the row's least kept one:
+/// [`vertex_row`] writes NaN there whatever the height. `(0, 0)` where no
+/// column is sure (or nothing is cut). The interval comes from the roots of
+/// the squared distance (a quadratic in the offset) at a slightly smaller
+/// radius, and is kept only where its two end columns, computed as
+/// [`vertex_row`] does, lie under `1 - 1e-9` times the least squared
+/// distance: the exact squared distance is convex along the row, so every
+/// column between lies at most that far, and the rounding of
+/// [`vertex_row`]'s few operations (relative 1e-14 for any ring whose box
+/// is within a million times its inner radius) cannot lift it to the bound.
+fn surely_inside(dxs: &[f64], f: &RowFrame) -> (usize, usize) {
+    const MARGIN: f64 = 1.0 - 1e-9;
+    let min_d2 = f.d2_range.0;
+    let (Some(&first), true) = (dxs.first(), min_d2 > 0.0) else {
+        return (0, 0);
+    };
+    let d2_at = |dx: f64| {
+        let e = f.p0.0 * dx + f.p0.1;
+        let n = f.p1.0 * dx + f.p1.1;
+        e * e + n * n
+    };
+    let (a2, b2) = (
+        f.p0.0 * f.p0.0 + f.p1.0 * f.p1.0,
+        f.p0.0 * f.p0.1 + f.p1.0 * f.p1.1,
+    );
+    // (the roots a little inside, so that the end columns pass the check)
+    let c = f.p0.1 * f.p0.1 + f.p1.1 * f.p1.1 - min_d2 * (1.0 - 4e-9);
+    // a2 s^2 + 2 b2 s + c < 0 between the roots
+    let disc = b2 * b2 - a2 * c;
+    if !(a2 > 0.0 && disc > 0.0) {
+        return (0, 0);
+    }
+    let root = disc.sqrt();
+    let (lo, hi) = ((-b2 - root) / a2, (-b2 + root) / a2);
+    let n = dxs.len() as f64;
+    let a = (lo - first).ceil().clamp(0.0, n) as usize;
+    let b = ((hi - first).floor() + 1.0).clamp(0.0, n) as usize;
+    let sure = |i: usize| d2_at(dxs[i]) < min_d2 * MARGIN;
+    if a < b && sure(a) && sure(b - 1) {
+        (a, b)
+    } else {
+        (0, 0)
+    }
+}
+
 /// One row of [`LocalTerrain::build_over`]'s vertex heights: the height of
 /// each cell `h` at column offset `dx` from the eye, less the eye's altitude
 /// and the curvature drop at its squared distance, NaN outside the kept
@@ -1878,5 +1977,56 @@ fn vertex_row_body(out: &mut [f32], src: &[f32], dxs: &[f64], f: RowFrame) {
         } else {
             v
         };
+    }
+}
+
+#[cfg(test)]
+mod ring_tests {
+    use super::*;
+
+    /// The columns a ring's row skips are columns whose squared distance,
+    /// as the vertex loop computes it, is under the inner radius's (where
+    /// it writes NaN whatever the height): on rows through, beside and
+    /// tangent to the inner disc, for rotated grids of several cell sizes;
+    /// and the skipped interval is most of the inside.
+    #[test]
+    fn the_columns_a_ring_skips_are_nodata_in_the_vertex_loop() {
+        let mut skipped = 0usize;
+        let mut inside = 0usize;
+        for (cell, turn) in [(15.0, 0.0), (30.0, 0.3), (83.5, 1.1), (1.0, 2.0)] {
+            let (s, c) = (f64::sin(turn), f64::cos(turn));
+            let p = [[cell * c, -cell * s], [cell * s, cell * c]];
+            let min_d = 1000.0 * cell;
+            let min_d2 = min_d * min_d;
+            let dx0 = -1500.37;
+            let dxs: Vec<f64> = (0..3000).map(|i| dx0 + i as f64).collect();
+            for dy in (-1100..1100).map(|r| r as f64 + 0.5) {
+                let f = RowFrame {
+                    p0: (p[0][0], p[0][1] * dy),
+                    p1: (p[1][0], p[1][1] * dy),
+                    eye_alt: 0.0,
+                    coef: 0.0,
+                    d2_range: (min_d2, f64::INFINITY),
+                };
+                let (a, b) = surely_inside(&dxs, &f);
+                let mut src = vec![100.0f32; dxs.len()];
+                src[0] = f32::NAN;
+                let mut whole = vec![0f32; dxs.len()];
+                vertex_row_body(&mut whole, &src, &dxs, f);
+                for (i, v) in whole.iter().enumerate() {
+                    if (a..b).contains(&i) {
+                        assert_eq!(v.to_bits(), f32::NAN.to_bits(), "column {i} of row {dy}");
+                        skipped += 1;
+                    }
+                    if v.is_nan() && i > 0 {
+                        inside += 1;
+                    }
+                }
+            }
+        }
+        assert!(
+            skipped > 0 && skipped + skipped / 50 >= inside,
+            "{skipped} of {inside}"
+        );
     }
 }
