@@ -59,7 +59,7 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use rayon::prelude::*;
 
 use super::fit::measure;
-use super::on_silhouette::anchor_on_silhouettes;
+use super::on_silhouette::{anchor_on_silhouettes, TracedBoundaries};
 use super::outputs::{write_outputs, Outcome, Sources};
 use super::rendered_view::{RenderedView, StrokeCurve, StrokeRegion};
 use super::report::{
@@ -132,6 +132,11 @@ pub(super) struct Edit<'o> {
     /// The views' exact terrain cut at this many cells from the eye
     /// ([`EDIT_EXACT_REACH_CELLS`]); `None`: each view's full exact reach.
     pub(super) exact_cells: Option<f64>,
+    /// In the passes after the first, each view's boundaries as the
+    /// sketcher drew on it (the first pass's unedited render), which the
+    /// looser anchoring of a stroke's short gaps asks for
+    /// ([`TracedBoundaries`]); `None` in the first pass.
+    pub(super) traced: Option<std::sync::Arc<Vec<TracedBoundaries>>>,
 }
 
 pub(super) fn secs(t: Instant) -> f64 {
@@ -271,6 +276,7 @@ fn run_within(
         pb: progress_bar(opts),
         skyline: true,
         exact_cells,
+        traced: None,
     };
     let mut timings = Timings::default();
 
@@ -306,6 +312,7 @@ fn run_within(
             pb: edit.pb.clone(),
             skyline: false,
             exact_cells,
+            traced: None,
         };
         let reloaded = dem.reopened().map_err(EditError::from).and_then(|d| {
             load_views(

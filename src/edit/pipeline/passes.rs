@@ -27,6 +27,22 @@ pub(super) fn all_passes<'s>(
             "the first pass was dropped as a later one".into(),
         ));
     };
+    // The later passes anchor a stroke's short gaps loosely only where the
+    // view as drawn on had a boundary that near ([`TracedBoundaries`]).
+    let later = Edit {
+        opts: edit.opts,
+        sketch_name: edit.sketch_name.clone(),
+        max_d: edit.max_d,
+        pb: edit.pb.clone(),
+        skyline: edit.skyline,
+        exact_cells: edit.exact_cells,
+        traced: Some(std::sync::Arc::new(
+            views
+                .iter()
+                .map(|v| TracedBoundaries::of(&v.before))
+                .collect(),
+        )),
+    };
     let mut pass = 1;
     while pass < MAX_PASSES && needs_second_pass(sketch, &outcome) {
         let t = Instant::now();
@@ -38,7 +54,7 @@ pub(super) fn all_passes<'s>(
             .collect();
         pass += 1;
         let changed;
-        (outcome, changed) = second_pass(edit, dem, sketch_path, outcome, &far, pass)?;
+        (outcome, changed) = second_pass(&later, dem, sketch_path, outcome, &far, pass)?;
         timings.lowering += secs(t);
         if !changed {
             break;
