@@ -1,11 +1,13 @@
-//! Polishing (issue 11, known change fit >= 0.95): after the passes end
-//! with a stroke unfitted, passes that anchor strokes within the fit's own
-//! pixel only fit the 1-3 px near misses the passes left, and the output is
-//! still its own fixed point. The sketch is the fidelity suite's tuned case
-//! "Arenal peak raised, hand style" (strokes traced by the judge's renderer
-//! on the truth DEM, a Gaussian of +60 m on a peak 1.5 km away): the passes
-//! anchored stroke s1's last near misses by the looser tolerance a hand
-//! tracing an existing silhouette needs, and left it fitted at 0.938.
+//! The passes' own near misses (issue 11, known change fit >= 0.95): a
+//! later pass anchors a stroke's short gaps by the looser tolerance a hand
+//! tracing an existing silhouette needs only on boundaries the view as
+//! drawn on showed there too, so the 1-3 px near misses the passes before
+//! left are placed again, not held; and the output is still its own fixed
+//! point. The sketch is the fidelity suite's tuned case "Arenal peak
+//! raised, hand style" (strokes traced by the judge's renderer on the truth
+//! DEM, a Gaussian of +60 m on a peak 1.5 km away): the passes anchored
+//! stroke s1's last near misses (1.0-1.3 px) as traced, and left it fitted
+//! at 0.938.
 
 mod common;
 
@@ -37,13 +39,13 @@ fn edit(input: &std::path::Path, out: &std::path::Path, report: &std::path::Path
 }
 
 #[test]
-fn polishing_fits_the_near_misses_and_stays_a_fixed_point() {
+fn later_passes_fit_their_own_near_misses_and_stay_a_fixed_point() {
     let tmp = tempfile::tempdir().expect("temporary directory");
     let dem = fixture("arenal_aster30m_epsg4326.tif");
     let (first, second) = (tmp.path().join("first.tif"), tmp.path().join("second.tif"));
     let report = tmp.path().join("report.json");
     edit(&dem, &first, &report);
-    let r: Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+    let r: Value = serde_json::from_slice(&std::fs::read(&report).expect("report")).expect("report JSON");
     let fits: Vec<f64> = r["views"][0]["strokes"]
         .as_array()
         .expect("strokes")
@@ -54,8 +56,6 @@ fn polishing_fits_the_near_misses_and_stays_a_fixed_point() {
         fits.iter().all(|&f| f >= 0.95),
         "every stroke fitted: {fits:?}"
     );
-    let notes = r["notes"].to_string();
-    assert!(notes.contains("polishing"), "polished: {notes}");
     edit(&first, &second, &tmp.path().join("report2.json"));
     let (_, _, a, nodata) = gdal_values(&first);
     let (_, _, b, _) = gdal_values(&second);
