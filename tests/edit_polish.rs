@@ -45,7 +45,8 @@ fn later_passes_fit_their_own_near_misses_and_stay_a_fixed_point() {
     let (first, second) = (tmp.path().join("first.tif"), tmp.path().join("second.tif"));
     let report = tmp.path().join("report.json");
     edit(&dem, &first, &report);
-    let r: Value = serde_json::from_slice(&std::fs::read(&report).expect("report")).expect("report JSON");
+    let r: Value =
+        serde_json::from_slice(&std::fs::read(&report).expect("report")).expect("report JSON");
     let fits: Vec<f64> = r["views"][0]["strokes"]
         .as_array()
         .expect("strokes")

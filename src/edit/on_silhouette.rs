@@ -51,6 +51,11 @@ pub const MAX_GAP_PX: f64 = 40.0;
 /// by the passes before ([`TracedBoundaries`]).
 pub const UNMOVED_PX: f64 = 0.25;
 
+/// In a later pass, a stroke point in a short gap is still held on a
+/// boundary the passes before moved when it lies this near it: the fit's
+/// own tolerance (a column the fit counts is not placed again).
+pub const MOVED_TOLERANCE_PX: f64 = ON_SILHOUETTE_PX;
+
 /// The terrain point forming an occlusion boundary of a view.
 #[derive(Debug, Clone, Copy)]
 struct BoundaryPoint {
@@ -638,11 +643,16 @@ pub fn anchor_on_silhouettes(
                 .map(|m| nearest_boundary(before, px(on_stroke[m]), GAP_TOLERANCE_PX))
                 .collect();
             let rows: Vec<f64> = loose.iter().flatten().map(|h| h.row).collect();
-            // In a later pass, only a boundary the view as drawn on showed
-            // there too (not one the passes before moved).
+            // In a later pass, a boundary the view as drawn on showed there
+            // too; one the passes before moved only within
+            // [`MOVED_TOLERANCE_PX`].
             let drawn_on = traced.is_none_or(|t| {
                 (a..b).zip(&loose).all(|(m, h)| {
-                    h.is_some_and(|h| t.near([px(on_stroke[m])[0], h.row], UNMOVED_PX))
+                    let p = px(on_stroke[m]);
+                    h.is_some_and(|h| {
+                        (h.row - p[1]).abs() <= MOVED_TOLERANCE_PX
+                            || t.near([p[0], h.row], UNMOVED_PX)
+                    })
                 })
             });
             if drawn_on && loose.iter().all(|h| h.is_some()) && !runs_off(&pixels[a..b], &rows) {
