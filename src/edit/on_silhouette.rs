@@ -32,7 +32,11 @@
 //! so is a stretch between two anchors on one silhouette that is narrower
 //! than one DEM cell seen from there (the DEM cannot draw such a detail).
 //! Feature completion at an anchored end is dropped: that end already sits
-//! on the terrain.
+//! on the terrain. In the later passes of an edit the view is the terrain
+//! the passes before made, whose silhouette beside a stroke is often their
+//! own near miss of it: the two looser rules then hold only on boundaries
+//! the view as drawn on showed there too ([`TracedBoundaries`]), so those
+//! near misses are placed again rather than held as if traced.
 
 use super::rendered_view::RenderedView;
 use crate::sketch::{PlacedPoint, PointSource, SceneProjection, StrokeMatch};

@@ -27,7 +27,12 @@
 //! of it, as the write stores it, nothing written) and the deformations
 //! are written as one (`compose`); while a pass is kept and leaves a
 //! stroke unfitted, another follows, up to [`MAX_PASSES`], so that editing
-//! the output again changes nothing (`all_passes`).
+//! the output again changes nothing (`all_passes`). The later passes first
+//! place again the near misses the passes before left (their looser
+//! anchoring only on boundaries the view as drawn on showed,
+//! [`TracedBoundaries`]; the terrain read in whole metres, the same for
+//! every storage of the same heights, `in_whole_metres`), then run as a
+//! re-edit of the output would, until one changes nothing.
 //!
 //! Each view's skyline is one of the candidate features
 //! ([`crate::sketch::skyline`]). Where a stroke matched to a skyline is

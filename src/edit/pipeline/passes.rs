@@ -190,8 +190,13 @@ pub(super) fn second_pass(
     edit.pb
         .set_message(format!("pass {pass} over the strokes left unfitted"));
     // What the pass reads: the terrain the passes before made, in whole
-    // metres (see `in_whole_metres`).
-    let seen = &in_whole_metres(&first.deformation);
+    // metres where the pass places their near misses again
+    // (`in_whole_metres`), else as the write would store it (as a re-edit
+    // of the output reads it).
+    let seen = &match edit.traced {
+        Some(_) => in_whole_metres(&first.deformation),
+        None => quantized(dem, &first.deformation),
+    };
     // The pass before's last renders are of the terrain this pass starts
     // from, as the write would store it: its views' renders take what they
     // can from them where that is the terrain the pass reads (a DEM in
@@ -314,7 +319,8 @@ pub(super) fn quantized(dem: &Dem, d: &Deformation) -> Deformation {
 }
 
 /// `d` with each changed cell's edited height rounded to whole metres:
-/// the terrain a later pass reads ([`second_pass`]). A later pass re-places
+/// the terrain a later pass that places the passes' near misses again
+/// reads ([`second_pass`]). Such a pass re-places
 /// the columns the passes before left unfitted, and where it anchors a
 /// stroke point can turn on a few centimetres; reading the terrain as each
 /// file stores it (`quantized`: 1 m in integer metres, 0.1 m in
