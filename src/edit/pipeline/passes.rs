@@ -22,7 +22,7 @@ pub(super) fn all_passes<'s>(
         timings,
         false,
     )?;
-    let Some(mut outcome) = outcome else {
+    let Some(outcome) = outcome else {
         return Err(EditError::Internal(
             "the first pass was dropped as a later one".into(),
         ));
@@ -51,28 +51,33 @@ pub(super) fn all_passes<'s>(
         .map(|v| v.before.terrain.far_layers())
         .collect();
     let t = Instant::now();
-    let mut pass = 1;
+    let inputs = (sketch, dem, sketch_path);
+    let (outcome, pass) = later_passes(&later, inputs, outcome, &far, (1, 1 + NEAR_MISS_PASSES))?;
     // Then passes as a re-edit of the output would make them, until one
-    // changes nothing: the edit ends at its own fixed point.
-    for e in [&later, edit] {
-        (outcome, pass) = later_passes(e, (sketch, dem, sketch_path), outcome, &far, pass)?;
-    }
+    // changes nothing: the edit ends at its own fixed point. (They have
+    // their own budget, as many as an edit without the passes above.)
+    let (outcome, _) = later_passes(edit, inputs, outcome, &far, (pass, pass + MAX_PASSES - 1))?;
     timings.lowering += secs(t);
     Ok((views, outcome))
 }
 
+/// The most later passes that place again the near misses the passes
+/// before left (with [`TracedBoundaries`]) in one edit; the passes as a
+/// re-edit makes them follow.
+pub const NEAR_MISS_PASSES: usize = 3;
+
 /// Later passes ([`second_pass`]) with `edit`'s anchoring after pass
 /// `pass`, while one is kept, leaves a stroke unfitted and the passes
-/// stay within [`MAX_PASSES`]. Returns the outcome and the number of the
-/// last pass made.
+/// stay within pass number `last`. Returns the outcome and the number of
+/// the last pass made.
 fn later_passes(
     edit: &Edit,
     (sketch, dem, sketch_path): (&SketchFile, &Dem, &Path),
     mut outcome: Outcome,
     far: &[FarLayers],
-    mut pass: usize,
+    (mut pass, last): (usize, usize),
 ) -> Result<(Outcome, usize), EditError> {
-    while pass < MAX_PASSES && needs_second_pass(sketch, &outcome) {
+    while pass < last && needs_second_pass(sketch, &outcome) {
         pass += 1;
         let changed;
         (outcome, changed) = second_pass(edit, dem, sketch_path, outcome, far, pass)?;
