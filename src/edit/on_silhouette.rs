@@ -32,7 +32,11 @@
 //! so is a stretch between two anchors on one silhouette that is narrower
 //! than one DEM cell seen from there (the DEM cannot draw such a detail).
 //! Feature completion at an anchored end is dropped: that end already sits
-//! on the terrain.
+//! on the terrain. In the later passes of an edit the view is the terrain
+//! the passes before made, whose silhouette beside a stroke is often their
+//! own near miss of it: the two looser rules then hold only on boundaries
+//! the view as drawn on showed there too ([`TracedBoundaries`]), so those
+//! near misses are placed again rather than held as if traced.
 
 use super::rendered_view::RenderedView;
 use crate::sketch::{PlacedPoint, PointSource, SceneProjection, StrokeMatch};
@@ -45,6 +49,16 @@ pub const ON_SILHOUETTE_PX: f64 = super::fit::FIT_TOLERANCE_PX;
 pub const GAP_TOLERANCE_PX: f64 = 3.0;
 /// The widest such stretch, pixels.
 pub const MAX_GAP_PX: f64 = 40.0;
+
+/// A boundary of a later pass's view within this many pixels of one the
+/// view as drawn on showed in the same column is that boundary, not moved
+/// by the passes before ([`TracedBoundaries`]).
+pub const UNMOVED_PX: f64 = 0.25;
+
+/// In a later pass, a stroke point in a short gap is still held on a
+/// boundary the passes before moved when it lies this near it: the fit's
+/// own tolerance (a column the fit counts is not placed again).
+pub const MOVED_TOLERANCE_PX: f64 = ON_SILHOUETTE_PX;
 
 /// The terrain point forming an occlusion boundary of a view.
 #[derive(Debug, Clone, Copy)]
@@ -534,13 +548,63 @@ fn between(l: &BoundaryPoint, r: &BoundaryPoint, t: f64) -> BoundaryPoint {
     }
 }
 
+/// The rows, column by column, of the boundaries a view showed before an
+/// edit changed anything: where the sketcher may have traced a silhouette.
+/// A later pass of an edit renders the terrain the passes before made; a
+/// boundary there within [`GAP_TOLERANCE_PX`] of a stroke may be the
+/// edit's own near miss of it, not a silhouette the hand traced, and is
+/// taken with the looser tolerance only where the view as drawn on showed
+/// that boundary there too, within [`UNMOVED_PX`] ([`anchor_on_silhouettes`]).
+#[derive(Debug, Clone, Default)]
+pub struct TracedBoundaries {
+    rows: Vec<Vec<f32>>,
+}
+
+impl TracedBoundaries {
+    /// The boundaries of `view` (those the fit counts, and the skyline).
+    pub fn of(view: &RenderedView) -> Self {
+        let rows = (0..view.camera.width)
+            .map(|i| {
+                let mut r: Vec<f32> = view.by_column[i]
+                    .iter()
+                    .map(|&(c, s)| &view.silhouettes.curves[c as usize].samples[s as usize])
+                    .filter(|sample| view.shows_as_boundary(sample))
+                    .map(|sample| sample.pixel[1] as f32)
+                    .collect();
+                if let Some(j) = view.skyline_row[i].filter(|&j| j > 0) {
+                    r.push(j as f32);
+                }
+                r
+            })
+            .collect();
+        TracedBoundaries { rows }
+    }
+
+    /// True when a boundary lies within `tol` pixels of `pixel`'s row in
+    /// its column.
+    fn near(&self, pixel: [f64; 2], tol: f64) -> bool {
+        if !(pixel[0] >= 0.0 && pixel[0].is_finite()) || self.rows.is_empty() {
+            return false;
+        }
+        let i = (pixel[0].floor() as usize).min(self.rows.len() - 1);
+        self.rows[i]
+            .iter()
+            .any(|&r| (r as f64 - pixel[1]).abs() <= tol)
+    }
+}
+
 /// Anchors the points of `placed` that lie on a boundary of `before` (the
-/// unedited view the stroke was drawn on; see the module documentation).
-/// Returns the share of the stroke's points anchored (0 to 1).
+/// view the stroke is placed on; see the module documentation).
+/// `traced`: in a later pass of an edit, the boundaries of the view as the
+/// sketcher drew on it; the looser tolerance of short gaps then holds only
+/// on boundaries it showed there too ([`TracedBoundaries`]). `None`: `before`
+/// is that view. Returns the share of the stroke's points anchored (0 to
+/// 1).
 pub fn anchor_on_silhouettes(
     before: &RenderedView,
     proj: &SceneProjection,
     placed: &mut StrokeMatch,
+    traced: Option<&TracedBoundaries>,
 ) -> f64 {
     let on_stroke: Vec<usize> = (0..placed.points.len())
         .filter(|&k| placed.points[k].source != PointSource::Completion)
@@ -583,7 +647,19 @@ pub fn anchor_on_silhouettes(
                 .map(|m| nearest_boundary(before, px(on_stroke[m]), GAP_TOLERANCE_PX))
                 .collect();
             let rows: Vec<f64> = loose.iter().flatten().map(|h| h.row).collect();
-            if loose.iter().all(|h| h.is_some()) && !runs_off(&pixels[a..b], &rows) {
+            // In a later pass, a boundary the view as drawn on showed there
+            // too; one the passes before moved only within
+            // [`MOVED_TOLERANCE_PX`].
+            let drawn_on = traced.is_none_or(|t| {
+                (a..b).zip(&loose).all(|(m, h)| {
+                    let p = px(on_stroke[m]);
+                    h.is_some_and(|h| {
+                        (h.row - p[1]).abs() <= MOVED_TOLERANCE_PX
+                            || t.near([p[0], h.row], UNMOVED_PX)
+                    })
+                })
+            });
+            if drawn_on && loose.iter().all(|h| h.is_some()) && !runs_off(&pixels[a..b], &rows) {
                 for (m, h) in (a..b).zip(loose) {
                     hits[m] = h;
                 }
@@ -599,7 +675,16 @@ pub fn anchor_on_silhouettes(
             // (The straight line between the anchors' rows is not the
             // silhouette inside a cell, which the bilinear patch curves: a
             // stroke traced on it may stand off that line by pixels.)
-            if same && !refused_here && (x1 - x0).abs() < before.cell_px(0.5 * (l.depth + r.depth))
+            // In a later pass, only between anchors on boundaries the view
+            // as drawn on showed there too: where the passes before moved
+            // the silhouette, the stretch is their near miss, not a detail
+            // the sketcher traced.
+            let drawn_on = traced
+                .is_none_or(|t| t.near([x0, l.row], UNMOVED_PX) && t.near([x1, r.row], UNMOVED_PX));
+            if same
+                && drawn_on
+                && !refused_here
+                && (x1 - x0).abs() < before.cell_px(0.5 * (l.depth + r.depth))
             {
                 for m in a..b {
                     let t = (px(on_stroke[m])[0] - x0) / (x1 - x0).max(1e-9);

@@ -108,6 +108,7 @@ pub(super) fn place_demands(
     scene_views: &[SceneView],
     matched: &mut [crate::sketch::ViewMatch],
     options: &SketchOptions,
+    traced: Option<&[TracedBoundaries]>,
 ) -> Demands {
     let mut d = Demands {
         curves: Vec::new(),
@@ -118,17 +119,24 @@ pub(super) fn place_demands(
         placement: Vec::new(),
     };
     let mut held = Vec::new();
-    for (((v, w), sv), m) in views
+    for (i, (((v, w), sv), m)) in views
         .iter()
         .zip(windows)
         .zip(scene_views)
         .zip(matched.iter_mut())
+        .enumerate()
     {
+        let traced_here = traced.and_then(|t| t.get(i));
         let mut cs = Vec::new();
         let mut fractions = Vec::new();
         let mut placements = Vec::new();
         for (s, sm) in v.strokes.iter().zip(m.strokes.iter_mut()) {
-            fractions.push(anchor_on_silhouettes(&v.before, &sv.projection, sm));
+            fractions.push(anchor_on_silhouettes(
+                &v.before,
+                &sv.projection,
+                sm,
+                traced_here,
+            ));
             placements.push(place_free_stretches(
                 &v.before,
                 &sv.projection,

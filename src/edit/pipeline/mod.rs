@@ -27,7 +27,12 @@
 //! of it, as the write stores it, nothing written) and the deformations
 //! are written as one (`compose`); while a pass is kept and leaves a
 //! stroke unfitted, another follows, up to [`MAX_PASSES`], so that editing
-//! the output again changes nothing (`all_passes`).
+//! the output again changes nothing (`all_passes`). The later passes first
+//! place again the near misses the passes before left (their looser
+//! anchoring only on boundaries the view as drawn on showed,
+//! [`TracedBoundaries`]; the terrain read in whole metres, the same for
+//! every storage of the same heights, `in_whole_metres`), then run as a
+//! re-edit of the output would, until one changes nothing.
 //!
 //! Each view's skyline is one of the candidate features
 //! ([`crate::sketch::skyline`]). Where a stroke matched to a skyline is
@@ -59,7 +64,7 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use rayon::prelude::*;
 
 use super::fit::measure;
-use super::on_silhouette::anchor_on_silhouettes;
+use super::on_silhouette::{anchor_on_silhouettes, TracedBoundaries};
 use super::outputs::{write_outputs, Outcome, Sources};
 use super::rendered_view::{RenderedView, StrokeCurve, StrokeRegion};
 use super::report::{
@@ -132,6 +137,11 @@ pub(super) struct Edit<'o> {
     /// The views' exact terrain cut at this many cells from the eye
     /// ([`EDIT_EXACT_REACH_CELLS`]); `None`: each view's full exact reach.
     pub(super) exact_cells: Option<f64>,
+    /// In the passes after the first, each view's boundaries as the
+    /// sketcher drew on it (the first pass's unedited render), which the
+    /// looser anchoring of a stroke's short gaps asks for
+    /// ([`TracedBoundaries`]); `None` in the first pass.
+    pub(super) traced: Option<std::sync::Arc<Vec<TracedBoundaries>>>,
 }
 
 pub(super) fn secs(t: Instant) -> f64 {
@@ -271,6 +281,7 @@ fn run_within(
         pb: progress_bar(opts),
         skyline: true,
         exact_cells,
+        traced: None,
     };
     let mut timings = Timings::default();
 
@@ -306,6 +317,7 @@ fn run_within(
             pb: edit.pb.clone(),
             skyline: false,
             exact_cells,
+            traced: None,
         };
         let reloaded = dem.reopened().map_err(EditError::from).and_then(|d| {
             load_views(

@@ -22,29 +22,70 @@ pub(super) fn all_passes<'s>(
         timings,
         false,
     )?;
-    let Some(mut outcome) = outcome else {
+    let Some(outcome) = outcome else {
         return Err(EditError::Internal(
             "the first pass was dropped as a later one".into(),
         ));
     };
-    let mut pass = 1;
-    while pass < MAX_PASSES && needs_second_pass(sketch, &outcome) {
-        let t = Instant::now();
-        // The far rings of a long view lie beyond every pass's changes:
-        // the later passes take the first's (when they serve, see `load_views`).
-        let far: Vec<FarLayers> = views
-            .iter()
-            .map(|v| v.before.terrain.far_layers())
-            .collect();
+    // The later passes anchor a stroke's short gaps loosely only on
+    // boundaries the view as drawn on showed there too
+    // ([`TracedBoundaries`]): the passes' own near misses are placed again.
+    let later = Edit {
+        opts: edit.opts,
+        sketch_name: edit.sketch_name.clone(),
+        max_d: edit.max_d,
+        pb: edit.pb.clone(),
+        skyline: edit.skyline,
+        exact_cells: edit.exact_cells,
+        traced: Some(std::sync::Arc::new(
+            views
+                .iter()
+                .map(|v| TracedBoundaries::of(&v.before))
+                .collect(),
+        )),
+    };
+    // The far rings of a long view lie beyond every pass's changes: the
+    // later passes take the first's (when they serve, see `load_views`).
+    let far: Vec<FarLayers> = views
+        .iter()
+        .map(|v| v.before.terrain.far_layers())
+        .collect();
+    let t = Instant::now();
+    let inputs = (sketch, dem, sketch_path);
+    let (outcome, pass) = later_passes(&later, inputs, outcome, &far, (1, 1 + NEAR_MISS_PASSES))?;
+    // Then passes as a re-edit of the output would make them, until one
+    // changes nothing: the edit ends at its own fixed point. (They have
+    // their own budget, as many as an edit without the passes above.)
+    let (outcome, _) = later_passes(edit, inputs, outcome, &far, (pass, pass + MAX_PASSES - 1))?;
+    timings.lowering += secs(t);
+    Ok((views, outcome))
+}
+
+/// The most later passes that place again the near misses the passes
+/// before left (with [`TracedBoundaries`]) in one edit; the passes as a
+/// re-edit makes them follow.
+pub const NEAR_MISS_PASSES: usize = 3;
+
+/// Later passes ([`second_pass`]) with `edit`'s anchoring after pass
+/// `pass`, while one is kept, leaves a stroke unfitted and the passes
+/// stay within pass number `last`. Returns the outcome and the number of
+/// the last pass made.
+fn later_passes(
+    edit: &Edit,
+    (sketch, dem, sketch_path): (&SketchFile, &Dem, &Path),
+    mut outcome: Outcome,
+    far: &[FarLayers],
+    (mut pass, last): (usize, usize),
+) -> Result<(Outcome, usize), EditError> {
+    while pass < last && needs_second_pass(sketch, &outcome) {
         pass += 1;
         let changed;
-        (outcome, changed) = second_pass(edit, dem, sketch_path, outcome, &far, pass)?;
-        timings.lowering += secs(t);
+        (outcome, changed) = second_pass(edit, dem, sketch_path, outcome, far, pass)?;
         if !changed {
             break;
         }
     }
-    Ok((views, outcome))
+    Ok((outcome, pass))
 }
 
 /// Stages 2 to 5 on the loaded views: features, matching, deformation,
@@ -153,12 +194,26 @@ pub(super) fn second_pass(
 ) -> Result<(Outcome, bool), EditError> {
     edit.pb
         .set_message(format!("pass {pass} over the strokes left unfitted"));
-    let d1 = &quantized(dem, &first.deformation);
+    // What the pass reads: the terrain the passes before made, in whole
+    // metres where the pass places their near misses again
+    // (`in_whole_metres`), else as the write would store it (as a re-edit
+    // of the output reads it).
+    let seen = &match edit.traced {
+        Some(_) => in_whole_metres(&first.deformation),
+        None => quantized(dem, &first.deformation),
+    };
     // The pass before's last renders are of the terrain this pass starts
-    // from: its views' renders take what they can from them.
-    let earlier = std::mem::take(&mut first.renders);
+    // from, as the write would store it: its views' renders take what they
+    // can from them where that is the terrain the pass reads (a DEM in
+    // whole units of a metre).
+    let mut earlier = std::mem::take(&mut first.renders);
+    if seen.displacement != quantized(dem, &first.deformation).displacement {
+        earlier.clear();
+    }
     let run_second = || -> Result<Option<Outcome>, EditError> {
-        let overlay = dem.reopened()?.with_overlay(d1.window, d1.edited().data);
+        let overlay = dem
+            .reopened()?
+            .with_overlay(seen.window, seen.edited().data);
         let Loaded {
             sketch,
             dem: dem2,
@@ -195,10 +250,15 @@ pub(super) fn second_pass(
     if score(&second) < score(&first) - 1e-9 || second.deformation.stats.changed_cells == 0 {
         return Ok((first, false));
     }
-    let total = compose(dem, d1, &second.deformation)?;
+    // The change is added to the terrain the passes before made, as solved
+    // (the write rounds the sum to the file's step once).
+    let total = compose(dem, &first.deformation, &second.deformation)?;
     // Each pass's change is free of spikes, but their sum need not be
     // (issue 11, item 5): a pass that adds one is dropped.
-    let (added, before) = rayon::join(|| find_spikes(&total).len(), || find_spikes(d1).len());
+    let (added, before) = rayon::join(
+        || find_spikes(&total).len(),
+        || find_spikes(&first.deformation).len(),
+    );
     if added > before {
         return Ok((first, false));
     }
@@ -257,6 +317,29 @@ pub(super) fn quantized(dem: &Dem, d: &Deformation) -> Deformation {
         if *m != 0.0 && !m.is_nan() && !h.is_nan() {
             let stored = v.to_metres(st.quantize(v.to_raw(h as f64 + *m as f64)));
             *m = (stored - h as f64) as f32;
+        }
+    }
+    q.stats.recount(&q.displacement);
+    q
+}
+
+/// `d` with each changed cell's edited height rounded to whole metres:
+/// the terrain a later pass that places the passes' near misses again
+/// reads ([`second_pass`]). Such a pass re-places
+/// the columns the passes before left unfitted, and where it anchors a
+/// stroke point can turn on a few centimetres; reading the terrain as each
+/// file stores it (`quantized`: 1 m in integer metres, 0.1 m in
+/// decimetres, unrounded in floating point) made the same DEM stored in
+/// metres, decimetres or feet get edits up to 11.7 m apart (the bundled
+/// demo, `tests/raster_units.rs`). Whole metres are the coarsest step of
+/// the common storages, so a DEM in integer metres reads exactly what it
+/// stores, and every storage of the same heights reads the same terrain;
+/// the pass's change is then added to the terrain as the file stores it.
+pub(super) fn in_whole_metres(d: &Deformation) -> Deformation {
+    let mut q = d.clone();
+    for (m, &h) in q.displacement.iter_mut().zip(&d.base.data) {
+        if *m != 0.0 && !m.is_nan() && !h.is_nan() {
+            *m = ((h as f64 + *m as f64).round() - h as f64) as f32;
         }
     }
     q.stats.recount(&q.displacement);

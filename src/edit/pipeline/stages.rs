@@ -46,7 +46,14 @@ pub(super) fn match_strokes(
     if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
         trace_candidates(&matched);
     }
-    let demands = place_demands(views, windows, scene_views, &mut matched.views, options);
+    let demands = place_demands(
+        views,
+        windows,
+        scene_views,
+        &mut matched.views,
+        options,
+        edit.traced.as_deref().map(|t| &t[..]),
+    );
     notes.extend(depth_notes(views, &demands.strokes));
     let issues: Vec<Vec<Option<&'static str>>> = scene_views
         .iter()
