@@ -10,7 +10,7 @@
 
 mod common;
 
-use common::{demsketch, fixture, gdal_values};
+use common::{fixture, gdal_values, suite_edit};
 
 #[test]
 fn editing_the_output_again_changes_nothing() {
@@ -22,20 +22,7 @@ fn editing_the_output_again_changes_nothing() {
     let dem = fixture("zion_srtm90m_epsg4326.tif");
     let (first, second) = (tmp.path().join("first.tif"), tmp.path().join("second.tif"));
     for (input, out) in [(dem.as_path(), &first), (first.as_path(), &second)] {
-        let paths = [input, out.as_path()].map(|p| p.to_string_lossy().into_owned());
-        let o = demsketch(&[
-            "edit",
-            &paths[0],
-            "--sketch",
-            sketch,
-            "--out",
-            &paths[1],
-            "--allow-partial",
-            "--max-distance",
-            "50000",
-            "-q",
-        ]);
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        suite_edit(input, std::path::Path::new(sketch), out, None);
     }
     let (_, _, a, nodata) = gdal_values(&first);
     let (_, _, b, _) = gdal_values(&second);

@@ -11,31 +11,14 @@
 
 mod common;
 
-use common::{demsketch, fixture, gdal_values};
+use common::{fixture, gdal_values, suite_edit};
 use serde_json::Value;
 
 /// `edit` of `input` with the sketch into `out` (and its report).
 fn edit(input: &std::path::Path, out: &std::path::Path, report: &std::path::Path) {
-    let sketch = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/tests/data/tuned_arenal_peak_raised_hand.json"
-    );
-    let paths = [input, out, report].map(|p| p.to_string_lossy().into_owned());
-    let o = demsketch(&[
-        "edit",
-        &paths[0],
-        "--sketch",
-        sketch,
-        "--out",
-        &paths[1],
-        "--report",
-        &paths[2],
-        "--allow-partial",
-        "--max-distance",
-        "50000",
-        "-q",
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let sketch = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data/tuned_arenal_peak_raised_hand.json");
+    suite_edit(input, &sketch, out, Some(report));
 }
 
 #[test]

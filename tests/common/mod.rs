@@ -60,6 +60,22 @@ pub fn demsketch(args: &[&str]) -> Output {
         .expect("run demsketch")
 }
 
+/// `edit` of `input` with `sketch` into `out` (and its report, where
+/// given) as the fidelity suite runs it (`--allow-partial`, 50 km); the
+/// edit must succeed.
+pub fn suite_edit(input: &Path, sketch: &Path, out: &Path, report: Option<&Path>) {
+    let s = |p: &Path| p.to_string_lossy().into_owned();
+    let (input, sketch, out) = (s(input), s(sketch), s(out));
+    let report = report.map(s);
+    let mut args = vec!["edit", &input, "--sketch", &sketch, "--out", &out];
+    if let Some(r) = &report {
+        args.extend(["--report", r.as_str()]);
+    }
+    args.extend(["--allow-partial", "--max-distance", "50000", "-q"]);
+    let o = demsketch(&args);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
 /// Every file under `dir` with its bytes, for "nothing changed" checks.
 pub fn snapshot(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
     let mut v = Vec::new();
