@@ -46,6 +46,22 @@ pub(super) struct Outcome {
     pub(super) renders: Vec<super::rendered_view::RenderedView>,
 }
 
+impl Outcome {
+    /// A copy without the renders (which only a later pass reads).
+    pub(super) fn without_renders(&self) -> Outcome {
+        Outcome {
+            deformation: self.deformation.clone(),
+            views: self.views.clone(),
+            notes: self.notes.clone(),
+            curve_constraints: self.curve_constraints,
+            lowering_constraints: self.lowering_constraints,
+            matching: self.matching,
+            corrections: self.corrections.clone(),
+            renders: Vec::new(),
+        }
+    }
+}
+
 /// The worst stroke below the minimum fit, which stops the write.
 struct BelowMinFit {
     view: String,

@@ -52,7 +52,7 @@ pub(super) fn all_passes<'s>(
         .collect();
     let t = Instant::now();
     let inputs = (sketch, dem, sketch_path);
-    let (outcome, pass) = later_passes(&later, inputs, outcome, &far, (1, 1 + NEAR_MISS_PASSES))?;
+    let (outcome, pass) = near_miss_passes(&later, inputs, &views, outcome, &far)?;
     // Then passes as a re-edit of the output would make them, until one
     // changes nothing: the edit ends at its own fixed point. (They have
     // their own budget, as many as an edit without the passes above.)
@@ -65,6 +65,125 @@ pub(super) fn all_passes<'s>(
 /// before left (with [`TracedBoundaries`]) in one edit; the passes as a
 /// re-edit makes them follow.
 pub const NEAR_MISS_PASSES: usize = 3;
+
+/// The later passes that place again the near misses the passes before
+/// left (`edit` carries the view as drawn on, [`TracedBoundaries`]), up to
+/// [`NEAR_MISS_PASSES`], while one is kept and leaves a stroke unfitted.
+/// Such a pass re-matches those columns and may place them farther than
+/// the edit had them: a pass that changes a cell farther than the
+/// influence distance from the sight lines to the strokes as the passes
+/// before placed them ([`within_sight_wedge`]) is not kept, and ends them.
+/// `views`: the first pass's. Returns the outcome and the number of the
+/// last pass made.
+fn near_miss_passes(
+    edit: &Edit,
+    (sketch, dem, sketch_path): (&SketchFile, &Dem, &Path),
+    views: &[ViewState],
+    mut outcome: Outcome,
+    far: &[FarLayers],
+) -> Result<(Outcome, usize), EditError> {
+    let mut pass = 1;
+    while pass < 1 + NEAR_MISS_PASSES && needs_second_pass(sketch, &outcome) {
+        pass += 1;
+        let before = outcome.without_renders();
+        let changed;
+        (outcome, changed) = second_pass(edit, dem, sketch_path, outcome, far, pass)?;
+        if !changed {
+            break;
+        }
+        if !within_sight_wedge(dem, views, &before, &outcome.deformation) {
+            outcome = before;
+            outcome.notes.push(format!(
+                "a {} pass placed the strokes' near misses again, but changed terrain beyond the influence distance of the strokes as placed: not kept",
+                ordinal(pass)
+            ));
+            break;
+        }
+    }
+    Ok((outcome, pass))
+}
+
+/// Change under this (metres) is no change, for [`within_sight_wedge`]:
+/// half a metre, above the rounding of the usual storages, so that the
+/// same heights stored in metres, decimetres or feet give one answer.
+const NO_CHANGE_M: f32 = 0.5;
+
+/// True when every cell that `after` changes from `before`'s deformation
+/// (by more than [`NO_CHANGE_M`]) lies within the influence distance of a
+/// stroke's sight line as placed: the segments from a view's eye to the
+/// points `before`'s report placed the strokes at.
+fn within_sight_wedge(
+    dem: &Dem,
+    views: &[ViewState],
+    before: &Outcome,
+    after: &Deformation,
+) -> bool {
+    let a = &before.deformation;
+    let influence = a.stats.influence_m;
+    if !(influence.is_finite() && influence > 0.0) {
+        return true;
+    }
+    // Per view: its frame and the ends of its sight segments (local east,
+    // north), a few dozen per stroke.
+    let wedges: Vec<(&LocalFrame, Vec<(f64, f64)>)> = views
+        .iter()
+        .zip(&before.views)
+        .map(|(v, r)| {
+            let ends = r
+                .strokes
+                .iter()
+                .flat_map(|s| {
+                    let step = (s.placed_curve.len() / 40).max(1);
+                    s.placed_curve.iter().step_by(step)
+                })
+                .map(|p| v.frame.crs_to_en(p[0], p[1]))
+                .collect();
+            (&v.frame, ends)
+        })
+        .collect();
+    let near = |x: f64, y: f64| {
+        wedges.iter().any(|(frame, ends)| {
+            let c = frame.crs_to_en(x, y);
+            ends.iter().any(|&e| segment_distance(c, e) <= influence)
+        })
+    };
+    let (wa, wb) = (a.window, after.window);
+    for r in 0..wb.height {
+        for c in 0..wb.width {
+            let (col, row) = (wb.col + c as i64, wb.row + r as i64);
+            let (ca, ra) = (col - wa.col, row - wa.row);
+            let inside =
+                ca >= 0 && ra >= 0 && (ca as usize) < wa.width && (ra as usize) < wa.height;
+            let was = if inside {
+                a.displacement[ra as usize * wa.width + ca as usize]
+            } else {
+                0.0
+            };
+            let d = after.displacement[r * wb.width + c] - was;
+            if d.is_nan() || d.abs() <= NO_CHANGE_M {
+                continue;
+            }
+            let (x, y) = dem
+                .geotransform
+                .pixel_to_crs(col as f64 + 0.5, row as f64 + 0.5);
+            if !near(x, y) {
+                return false;
+            }
+        }
+    }
+    true
+}
+
+/// Distance from point `p` to the segment from the origin to `e`.
+fn segment_distance(p: (f64, f64), e: (f64, f64)) -> f64 {
+    let len2 = e.0 * e.0 + e.1 * e.1;
+    let t = if len2 > 0.0 {
+        ((p.0 * e.0 + p.1 * e.1) / len2).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    (p.0 - t * e.0).hypot(p.1 - t * e.1)
+}
 
 /// Later passes ([`second_pass`]) with `edit`'s anchoring after pass
 /// `pass`, while one is kept, leaves a stroke unfitted and the passes
