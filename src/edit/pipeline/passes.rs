@@ -611,3 +611,20 @@ pub(super) fn compose(
         stats,
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::dilated;
+
+    #[test]
+    fn a_line_dilated_by_r_sets_the_cells_within_r_of_a_set_one() {
+        let line = [false, false, true, false, false, false, false, true];
+        assert_eq!(
+            dilated(&line, 1),
+            vec![false, true, true, true, false, false, true, true]
+        );
+        assert_eq!(dilated(&line, 0), line.to_vec());
+        assert!(dilated(&line, 5).iter().all(|&b| b));
+        assert!(dilated(&[false; 4], 3).iter().all(|&b| !b));
+    }
+}
