@@ -1,7 +1,10 @@
 //! The passes of an edit: the first (stages 2 to 5 on the loaded views),
 //! and the later ones on the terrain the earlier made, while they help and
-//! a stroke is left unfitted; their deformations composed into the one the
-//! write stores.
+//! a stroke is left unfitted: first those that place the passes' own near
+//! misses again ([`NEAR_MISS_PASSES`], each kept only near the strokes as
+//! placed and near what the passes before changed), then those a re-edit
+//! of the output would make, until one changes nothing; their
+//! deformations composed into the one the write stores.
 
 use super::*;
 
