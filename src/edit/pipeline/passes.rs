@@ -94,8 +94,10 @@ fn near_miss_passes(
         if !changed {
             break;
         }
-        let d = &outcome.deformation;
-        if !(within_sight_wedge(dem, views, &before, d) && near_earlier_change(views, &before, d)) {
+        let changed = changed_cells(&before.deformation, &outcome.deformation);
+        if !(within_sight_wedge(dem, views, &before, &changed)
+            && near_earlier_change(views, &before, &changed))
+        {
             outcome = before;
             outcome.notes.push(format!(
                 "a {} pass placed the strokes' near misses again, but changed terrain beyond the influence distance of the strokes as placed, or of what the passes before changed: not kept",
@@ -112,15 +114,15 @@ fn near_miss_passes(
 /// same heights stored in metres, decimetres or feet give one answer.
 const NO_CHANGE_M: f32 = 0.5;
 
-/// True when every cell that `after` changes from `before`'s deformation
-/// (by more than [`NO_CHANGE_M`]) lies within the influence distance of a
+/// True when every cell a near-miss pass changed (`changed`,
+/// [`changed_cells`]) lies within the influence distance of a
 /// stroke's sight line as placed: the segments from a view's eye to the
 /// points `before`'s report placed the strokes at.
 fn within_sight_wedge(
     dem: &Dem,
     views: &[ViewState],
     before: &Outcome,
-    after: &Deformation,
+    changed: &[(i64, i64)],
 ) -> bool {
     let a = &before.deformation;
     let influence = a.stats.influence_m;
@@ -151,41 +153,22 @@ fn within_sight_wedge(
             ends.iter().any(|&e| segment_distance(c, e) <= influence)
         })
     };
-    let (wa, wb) = (a.window, after.window);
-    for r in 0..wb.height {
-        for c in 0..wb.width {
-            let (col, row) = (wb.col + c as i64, wb.row + r as i64);
-            let (ca, ra) = (col - wa.col, row - wa.row);
-            let inside =
-                ca >= 0 && ra >= 0 && (ca as usize) < wa.width && (ra as usize) < wa.height;
-            let was = if inside {
-                a.displacement[ra as usize * wa.width + ca as usize]
-            } else {
-                0.0
-            };
-            let d = after.displacement[r * wb.width + c] - was;
-            if d.is_nan() || d.abs() <= NO_CHANGE_M {
-                continue;
-            }
-            let (x, y) = dem
-                .geotransform
-                .pixel_to_crs(col as f64 + 0.5, row as f64 + 0.5);
-            if !near(x, y) {
-                return false;
-            }
-        }
-    }
-    true
+    changed.iter().all(|&(col, row)| {
+        let (x, y) = dem
+            .geotransform
+            .pixel_to_crs(col as f64 + 0.5, row as f64 + 0.5);
+        near(x, y)
+    })
 }
 
-/// True when every cell that `after` changes from `before`'s deformation
-/// (by more than [`NO_CHANGE_M`]) lies within the influence distance (in
+/// True when every cell a near-miss pass changed (`changed`,
+/// [`changed_cells`]) lies within the influence distance (in
 /// cells of the first view's grid, per axis) of a cell `before` changed:
 /// a near-miss pass refines the terrain the passes before made, it does
 /// not start a change elsewhere along a stroke's sight line (hold-out 4:
 /// Zion UTM peak raised long, placed up to 8.5 km against a truth within
 /// 3.3 km, changed cells at the far end the passes before had left).
-fn near_earlier_change(views: &[ViewState], before: &Outcome, after: &Deformation) -> bool {
+fn near_earlier_change(views: &[ViewState], before: &Outcome, changed: &[(i64, i64)]) -> bool {
     let a = &before.deformation;
     let influence = a.stats.influence_m;
     let Some(v) = views.first() else {
@@ -200,7 +183,7 @@ fn near_earlier_change(views: &[ViewState], before: &Outcome, after: &Deformatio
         (influence / hy.max(1e-9)).ceil() as usize,
     );
     let wa = a.window;
-    let changed: Vec<bool> = a
+    let was_changed: Vec<bool> = a
         .displacement
         .iter()
         .map(|m| !m.is_nan() && m.abs() > NO_CHANGE_M)
@@ -211,7 +194,7 @@ fn near_earlier_change(views: &[ViewState], before: &Outcome, after: &Deformatio
     let mut grid = vec![false; w * h];
     for r in 0..wa.height {
         for c in 0..wa.width {
-            grid[(r + ry) * w + c + rx] = changed[r * wa.width + c];
+            grid[(r + ry) * w + c + rx] = was_changed[r * wa.width + c];
         }
     }
     for row in grid.chunks_mut(w) {
@@ -228,7 +211,21 @@ fn near_earlier_change(views: &[ViewState], before: &Outcome, after: &Deformatio
         }
     }
     let near = grid;
-    let wb = after.window;
+    changed.iter().all(|&(col, row)| {
+        let (x, y) = (col - wa.col + rx as i64, row - wa.row + ry as i64);
+        x >= 0
+            && y >= 0
+            && (x as usize) < w
+            && (y as usize) < h
+            && near[y as usize * w + x as usize]
+    })
+}
+
+/// The cells (column, row on the DEM grid) where `after` differs from
+/// `before` by more than [`NO_CHANGE_M`]: what a near-miss pass changed.
+fn changed_cells(before: &Deformation, after: &Deformation) -> Vec<(i64, i64)> {
+    let (wa, wb) = (before.window, after.window);
+    let mut out = Vec::new();
     for r in 0..wb.height {
         for c in 0..wb.width {
             let (col, row) = (wb.col + c as i64, wb.row + r as i64);
@@ -236,26 +233,17 @@ fn near_earlier_change(views: &[ViewState], before: &Outcome, after: &Deformatio
             let inside =
                 ca >= 0 && ra >= 0 && (ca as usize) < wa.width && (ra as usize) < wa.height;
             let was = if inside {
-                a.displacement[ra as usize * wa.width + ca as usize]
+                before.displacement[ra as usize * wa.width + ca as usize]
             } else {
                 0.0
             };
             let d = after.displacement[r * wb.width + c] - was;
-            if d.is_nan() || d.abs() <= NO_CHANGE_M {
-                continue;
-            }
-            let (x, y) = (ca + rx as i64, ra + ry as i64);
-            let ok = x >= 0
-                && y >= 0
-                && (x as usize) < w
-                && (y as usize) < h
-                && near[y as usize * w + x as usize];
-            if !ok {
-                return false;
+            if !d.is_nan() && d.abs() > NO_CHANGE_M {
+                out.push((col, row));
             }
         }
     }
-    true
+    out
 }
 
 /// `line` dilated by `r`: cell `i` is set where a cell of `line` within
