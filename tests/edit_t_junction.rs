@@ -10,7 +10,12 @@
 //! style): a peak raised 3.67-3.86 km from the eye; its left end stops on
 //! a silhouette about 3.6 km away, its right end is anchored on one
 //! 2.48 km away. Before, the free stretch was placed at 2.48-2.59 km
-//! (the judge's depth ratio 0.68); now through the left end's junction.
+//! (the judge's depth ratio 0.68); then through the left end's junction
+//! (the plain match's drawing plane). Since a stretch over a gap in the
+//! nearer landform keeps that landform's depth (`bridge_farther_gaps`),
+//! the skyline match places it on the skyline at 3.6-3.9 km and is kept:
+//! either way the stretch reaches the peak's depth, which is what this
+//! test holds.
 
 mod common;
 
@@ -37,8 +42,6 @@ const CASE: OneStrokeCase = OneStrokeCase {
 #[test]
 fn a_stroke_end_stopping_on_a_silhouette_bounds_its_depth_from_the_near_side() {
     let e = CASE.edit();
-    let s = e.stroke();
-    assert!(s["placement"]["drawing_plane"].as_u64().unwrap() > 0, "{s}");
     let (_, hi) = e.depth_m();
     // The free stretch, through the left end's junction, reaches the raised
     // peak's depth; the anchored right end stays on its 2.48 km silhouette

@@ -213,6 +213,7 @@ pub fn place_free_stretches(
             }
             out.feature += count;
             hold_extension_depth(proj, placed, &on[a..b]);
+            bridge_farther_gaps(proj, placed, &on[a..b], (left, right));
             continue;
         }
         // A stretch bounded by junctions only: nothing says where it stands.
@@ -871,6 +872,93 @@ fn hold_extension_depth(proj: &SceneProjection, placed: &mut StrokeMatch, run: &
                 source: PointSource::Tangent,
             };
         }
+    }
+}
+
+/// A gap of a stretch kept on its feature lies this fraction or more
+/// behind the stretch's depth on both sides of it (a farther landform
+/// seen through a gap in the nearer one; see [`bridge_farther_gaps`]).
+pub const GAP_BEHIND: f64 = 0.3;
+
+/// Points of a stretch kept on its feature that lie on a farther piece of
+/// it, seen through a gap of the nearer landform the rest of the stretch
+/// is on (at least [`GAP_BEHIND`] behind the stretch's nearer points, or
+/// the anchors beside it, on both sides), are put at the depth between
+/// those sides, linearly in image x. The stroke is one outline drawn in
+/// the sky over both: where it does not leave the nearer landform in the
+/// image (it is free, not on a silhouette), it outlines that landform
+/// grown over the gap, as the paper's deformation cost prefers (the far
+/// landform would have to rise by the depth ratio more for the same
+/// outline, and every stroke point there would build a wall in the
+/// valley between the two).
+fn bridge_farther_gaps(
+    proj: &SceneProjection,
+    placed: &mut StrokeMatch,
+    run: &[usize],
+    (left, right): (Option<Bound>, Option<Bound>),
+) {
+    let real = |q: Option<Bound>| q.filter(|q| !q.junction);
+    let side = |q: Option<Bound>, x: Option<f64>| real(q).zip(x).map(|(q, x)| (x, q.depth));
+    let x_of = |k: usize| placed.points[k].pixel.map(|p| p[0]);
+    let n = run.len();
+    let mut bridged = Vec::new();
+    let mut i = 0;
+    while i < n {
+        // The nearer side before point i: the previous point, or the
+        // left anchor at the stretch's first point's x.
+        let before = if i > 0 {
+            x_of(run[i - 1]).map(|x| (x, placed.points[run[i - 1]].depth))
+        } else {
+            side(left, x_of(run[0]))
+        };
+        let Some((x0, d0)) = before else {
+            i += 1;
+            continue;
+        };
+        if placed.points[run[i]].depth < d0 * (1.0 + GAP_BEHIND) {
+            i += 1;
+            continue;
+        }
+        let mut j = i;
+        while j < n && placed.points[run[j]].depth >= d0 * (1.0 + GAP_BEHIND) {
+            j += 1;
+        }
+        let after = if j < n {
+            x_of(run[j]).map(|x| (x, placed.points[run[j]].depth))
+        } else {
+            side(right, x_of(run[n - 1]))
+        };
+        let Some((x1, d1)) = after else {
+            i = j;
+            continue;
+        };
+        let gap_min = run[i..j]
+            .iter()
+            .map(|&k| placed.points[k].depth)
+            .fold(f64::INFINITY, f64::min);
+        if gap_min < d1 * (1.0 + GAP_BEHIND) {
+            i = j;
+            continue;
+        }
+        for &k in &run[i..j] {
+            if let Some(px) = placed.points[k].pixel {
+                let t = if x1 != x0 {
+                    ((px[0] - x0) / (x1 - x0)).clamp(0.0, 1.0)
+                } else {
+                    0.5
+                };
+                bridged.push((k, px, d0 + t * (d1 - d0)));
+            }
+        }
+        i = j;
+    }
+    for (k, px, depth) in bridged {
+        placed.points[k] = PlacedPoint {
+            pixel: Some(px),
+            world: proj.unproject(px, depth),
+            depth,
+            source: PointSource::Fallback,
+        };
     }
 }
 
