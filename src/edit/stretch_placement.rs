@@ -71,6 +71,10 @@ pub struct StretchPlacement {
     pub drawing_plane: usize,
     /// Points with no terrain at either end, left as matched.
     pub unsupported: usize,
+    /// Points of a stretch drawn a pixel or two off a silhouette along its
+    /// length, at that silhouette's depth (`on_silhouette`'s
+    /// `NearSilhouette` points): it asks to move that silhouette.
+    pub near_silhouette: usize,
     /// Points of a stretch drawn in the sky over its feature, narrower
     /// than one DEM cell at the feature's depth: put behind it, at the
     /// nearest depth where they span one cell ([`drawable_depth_behind`]).
@@ -195,6 +199,13 @@ pub fn place_free_stretches(
     let mut replaced_ends = (false, false);
     for ((a, b, left, right), feature_ok) in runs {
         let count = b - a;
+        if on[a..b]
+            .iter()
+            .all(|&k| placed.points[k].source == PointSource::NearSilhouette)
+        {
+            out.near_silhouette += count;
+            continue;
+        }
         if feature_ok {
             let whole = a == 0 && b == n;
             let behind = whole
@@ -272,6 +283,14 @@ fn free_spans(
             return None;
         }
         let px = p.pixel?;
+        if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
+            eprintln!(
+                "end {px:?}: terrain below {:?}, ground {:?}, junction {:?}",
+                terrain_below(before, px).map(|t| (t.1, t.2)),
+                ground_under_end(before, px).map(|g| g.1),
+                junction_under_end(before, px).map(|g| g.1)
+            );
+        }
         let (local, depth, junction) = match ground_under_end(before, px) {
             Some((local, depth)) => (local, depth, false),
             None => {

@@ -31,6 +31,11 @@ pub enum PointSource {
     /// point is the terrain point forming it, kept where it is (see
     /// `edit::on_silhouette`).
     Silhouette,
+    /// The stroke runs off a silhouette of the unedited terrain here by
+    /// more than the fit's pixel on average, within the looser gap
+    /// tolerance: the point is at that silhouette's depth, which the
+    /// stroke asks to move by its offset (see `edit::on_silhouette`).
+    NearSilhouette,
 }
 
 /// One point of a stroke placed in world space.
