@@ -10,7 +10,9 @@
 //! a ridge 3.5 km away that the matcher had found near them, and the edit
 //! raised terrain by 53 m. Now such a stretch is placed at the depth of
 //! the silhouette it runs off (`NearSilhouette`), and asks for about the
-//! pixel it is off.
+//! pixel it is off. (First pass only: a later pass reads the terrain the
+//! passes before made, which each storage rounds to its own step, and
+//! `tests/raster_units.rs` holds those passes to the same decisions.)
 
 mod common;
 

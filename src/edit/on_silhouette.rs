@@ -717,10 +717,10 @@ pub fn anchor_on_silhouettes(
                 a = b;
                 continue;
             }
-            if loose.iter().all(|h| h.is_some()) {
+            if traced.is_none() && loose.iter().all(|h| h.is_some()) {
                 keep_near(&mut near_of[a..b], &loose);
             }
-        } else if refused_here {
+        } else if traced.is_none() && refused_here {
             keep_near(&mut near_of[a..b], &chosen[a..b]);
         }
         // Narrower than one cell of the DEM seen from there, between two
