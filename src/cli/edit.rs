@@ -180,7 +180,14 @@ pub fn run(args: EditArgs) -> anyhow::Result<()> {
         &args.sketch,
         &opts,
         Duration::from_secs_f64(args.lock_timeout),
-        &mut |m| eprintln!("demsketch: {m}"),
+        // (`--quiet` silences them, as GDAL's `-q` does all but errors:
+        // under load the wait for another edit's lock, one of them, made
+        // a quiet edit talk.)
+        &mut |m| {
+            if !super::quiet() {
+                eprintln!("demsketch: {m}")
+            }
+        },
     )?;
     let report = match run_opened(dem, &args.dem, &args.sketch, &opts) {
         Ok(r) => r,
