@@ -644,7 +644,10 @@ pub fn anchor_on_silhouettes(
     let mut hits = continuous_choice(&near, &pixels.iter().map(|p| p[1]).collect::<Vec<_>>());
     let dbg = |what: &str, hits: &[Option<BoundaryPoint>]| {
         if std::env::var_os("DEMSKETCH_DEBUG_ANCHOR").is_some() {
-            let s: String = hits.iter().map(|h| if h.is_some() { '#' } else { '.' }).collect();
+            let s: String = hits
+                .iter()
+                .map(|h| if h.is_some() { '#' } else { '.' })
+                .collect();
             eprintln!("anchor {what:>10}: {s}");
         }
     };
