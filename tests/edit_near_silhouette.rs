@@ -20,29 +20,15 @@ use common::{fixture, gdal_values, run, suite_edit};
 use serde_json::Value;
 use std::path::Path;
 
-/// The suite's noisy copy of the DEM: the same generator, seed and
-/// writer as `tools/fidelity/run.py` (`noise_stability`).
+/// The suite's noisy copy of the DEM, made by `tools/fidelity/run.py`'s
+/// own generator and writer (`noisy_heights`, `write_f32`).
 const NOISY_COPY: &str = r#"
-import hashlib, sys
-import numpy as np
-from osgeo import gdal
-src, dst, gid, style = sys.argv[1:5]
-ds = gdal.Open(src)
-b = ds.GetRasterBand(1)
-h = b.ReadAsArray().astype(np.float64)
-nd = b.GetNoDataValue()
-if nd is not None:
-    h[h == nd] = np.nan
-seed = int.from_bytes(hashlib.sha256(("noise:%s:%s" % (gid, style)).encode()).digest()[:8], "little")
-h = h + np.random.default_rng(seed).uniform(-0.05, 0.05, h.shape)
-out = gdal.GetDriverByName("GTiff").Create(dst, ds.RasterXSize, ds.RasterYSize, 1, gdal.GDT_Float32)
-out.SetGeoTransform(ds.GetGeoTransform())
-out.SetProjection(ds.GetProjection())
-ob = out.GetRasterBand(1)
-ob.SetNoDataValue(-32768.0)
-ob.WriteArray(np.where(np.isfinite(h), h, -32768.0).astype(np.float32))
-ob = None
-out = None
+import sys
+src, dst, gid, style, tools = sys.argv[1:6]
+sys.path.insert(0, tools)
+import judge, run
+h = judge.Dem(src).h.astype("float64")
+run.write_f32(dst, src, run.noisy_heights(h, gid, style, 0.05))
 "#;
 
 fn largest_change(input: &Path, output: &Path) -> f64 {
@@ -70,6 +56,7 @@ fn a_stretch_a_pixel_off_a_silhouette_moves_that_silhouette_only() {
             &noisy.to_string_lossy(),
             "zion_srtm90m_epsg4326-identity-valley0",
             "hand",
+            concat!(env!("CARGO_MANIFEST_DIR"), "/tools/fidelity"),
         ],
     );
     let sketch = Path::new(env!("CARGO_MANIFEST_DIR"))

@@ -293,11 +293,16 @@ def write_f32(path, like, h):
     src = None
 
 
+def noisy_heights(h, gid, style, noise_m):
+    """h plus uniform noise of +-noise_m, seeded by the case (group id and style)."""
+    rng = np.random.default_rng(seed_of_case(gid, style))
+    return h + rng.uniform(-noise_m, noise_m, h.shape)
+
+
 def noise_stability(g, style, sketch_path, d):
     dem = judge.Dem(g["base_path"])
-    rng = np.random.default_rng(seed_of_case(g["id"], style))
     h = dem.h.astype(np.float64)
-    noisy = h + rng.uniform(-NOISE_M, NOISE_M, h.shape)
+    noisy = noisy_heights(h, g["id"], style, NOISE_M)
     dz = {}
     for name, hh in (("plain", h), ("noisy", noisy)):
         inp = os.path.join(d, "stab-%s.tif" % name)
