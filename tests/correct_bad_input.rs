@@ -404,11 +404,15 @@ fn qgis_fid_is_accepted() {
         )
     };
     let mut outs = Vec::new();
+    // A copy of the DEM: the shared fixture's edit lock, held by these
+    // corrections, would make the other tests' one-line errors wait.
+    let dem = tmp.path().join("dem.tif");
+    std::fs::copy(fixture(DEM), &dem).unwrap();
     for fid in [false, true] {
         let f = tmp.path().join(format!("f{fid}.geojson"));
         std::fs::write(&f, features(fid)).unwrap();
         let out = tmp.path().join(format!("o{fid}.tif"));
-        correct_support::correct_succeeds(&fixture(DEM), &f, &out, &[]);
+        correct_support::correct_succeeds(&dem, &f, &out, &[]);
         outs.push(Raster::read(&out));
     }
     let bits = |r: &Raster| r.v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();

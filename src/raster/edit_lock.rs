@@ -14,6 +14,9 @@ use rustix::fs::{flock, FlockOperation, Mode, OFlags};
 
 use super::RasterError;
 
+/// How long an edit waits for another's lock before it says so.
+pub const TELL_AFTER: Duration = Duration::from_secs(2);
+
 /// The directory whose lock guards edits of `dem`.
 pub fn lock_dir(dem: &Path) -> PathBuf {
     if dem.is_dir() {
@@ -94,7 +97,10 @@ impl EditLock {
                     ),
                 });
             }
-            if !told {
+            // Said once the wait lasts: a lock held for a moment (another
+            // run failing on its input, a quick correction) is not news,
+            // and would add a line to that run's one-line error.
+            if !told && start.elapsed() >= TELL_AFTER {
                 waiting(&format!(
                     "{}: another demsketch edit of this DEM is running; waiting for it (at most {} s, --lock-timeout)",
                     dem.display(),
