@@ -942,6 +942,11 @@ fn bridge_farther_gaps(
         while j < n && placed.points[run[j]].depth >= d0 * (1.0 + GAP_BEHIND) {
             j += 1;
         }
+        if j == i {
+            // A depth that compares with nothing (not finite): no gap.
+            i += 1;
+            continue;
+        }
         let after = if j < n {
             x_of(run[j]).map(|x| (x, placed.points[run[j]].depth))
         } else {
