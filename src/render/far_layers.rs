@@ -13,7 +13,9 @@
 //! the nearest hit over the terrain and its layers, and the triangle ids of
 //! a layer follow the terrain's (`id0` on), so that a pixel's id says which
 //! layer it shows and every per-triangle question (vertices, normals, the
-//! patch distance) is answered by that layer. The cell of a layer's
+//! patch distance) is answered by that layer. A layer's segment casts
+//! start at its reach and are remembered ([`super::cast_memo`]): it never
+//! changes, so the same question gets the same answer. The cell of a layer's
 //! triangle is given in the DEM grid the terrain was built from (the
 //! coarse cell's centre). Layers are never patched by an edit's
 //! re-renders: they lie beyond the deformations (which the planner keeps
@@ -21,6 +23,7 @@
 
 use std::sync::Arc;
 
+use super::cast_memo::{CastKey, CastMemo};
 use super::terrain::{LocalTerrain, RayHit};
 use super::SKY;
 
@@ -43,6 +46,10 @@ pub(crate) struct FarLayer {
     /// camera (an edit re-renders one view round after round; the layer
     /// never changes): shared by the clones of the layer.
     pub(crate) drawn: Arc<std::sync::Mutex<Option<Arc<LayerRender>>>>,
+    /// The answers of the segment casts made into the layer (it never
+    /// changes: the same question gets the same answer), shared by the
+    /// clones of the layer.
+    pub(crate) casts: Arc<CastMemo>,
 }
 
 /// A far layer's render: the camera and, per pixel, depth and the
@@ -293,6 +300,7 @@ impl LocalTerrain {
                 k: ring.k,
                 origin: ring.origin,
                 drawn: Arc::default(),
+                casts: Arc::default(),
             });
             next += ids;
         }
@@ -409,7 +417,12 @@ impl LocalTerrain {
                     match kind {
                         CastKind::Full => t.cast(d, limit),
                         CastKind::Within => t.cast_within(d, limit),
-                        CastKind::Segment => t.cast_segment(d, t_start, limit),
+                        CastKind::Segment => {
+                            let start = start_at_reach(t, d, t_start, l.reach_m / dh);
+                            l.casts.answer(CastKey::new(d, start, limit), || {
+                                t.cast_segment(d, start, limit)
+                            })
+                        }
                     }
                 }
             };
@@ -465,6 +478,28 @@ impl LocalTerrain {
         let k = l.k as i64;
         let full = |o: i64, v: usize| (o + v as i64 * k + k / 2).max(0) as usize;
         (full(l.origin.0, c), full(l.origin.1, r), half)
+    }
+}
+
+/// Where a segment cast of far layer `t` from `t_start` may start without
+/// changing its answer: the entry of the cell the ray crosses at `t_reach`
+/// (where its horizontal distance is the layer's reach), as the layer's
+/// traversal computes it ([`LocalTerrain::cell_entry`]), when that lies
+/// after `t_start`. No point of the layer lies nearer than its reach, so
+/// the cells the ray crosses before that one hold no hit (their vertices
+/// are nodata: a layer's inner hole), and the traversal from `t_start`
+/// reaches that cell at that very entry: the hit is the same, bit for bit,
+/// without walking the hole (most of a bisection's rays start at a near
+/// crest, kilometres inside it). `t_start` where the point is off the
+/// layer's grid or the reach is no later.
+fn start_at_reach(t: &LocalTerrain, d: [f64; 3], t_start: f64, t_reach: f64) -> f64 {
+    // (NaN: no later start)
+    if t_reach.partial_cmp(&t_start) != Some(std::cmp::Ordering::Greater) {
+        return t_start;
+    }
+    match t.cell_entry(d, t_reach) {
+        Some(e) if e > t_start && e <= t_reach => e,
+        _ => t_start,
     }
 }
 

@@ -12,6 +12,7 @@
 //! DEM of any size, reading only the window within the maximum view distance.
 
 mod atomic;
+mod cast_memo;
 mod depth_buffer;
 mod far_layers;
 mod horizon;
