@@ -5,8 +5,9 @@
 //! ask the same questions of it again and again (each round extracts the
 //! silhouettes of its render anew, and the columns the edit does not touch
 //! bisect the same brackets with the same rays: on the bench's long view
-//! about 29,000 distinct casts of 83,000). The answer kept for the same
-//! question, bit for bit, is the answer the cast would give.
+//! about 29,000 distinct casts of 83,000); so do the walks of a layer's
+//! cells from a bisection's near side on it. The answer kept for the same
+//! question, bit for bit, is the answer the cast (or walk) would give.
 
 use std::collections::HashMap;
 use std::hash::{BuildHasherDefault, Hash, Hasher};
@@ -18,10 +19,11 @@ use super::terrain::RayHit;
 /// overhead: under 20 MiB a layer); beyond, casts are made and not kept.
 const MAX_KEPT: usize = 1 << 18;
 
-/// A segment cast's question, bit for bit: the direction's three
-/// components, the start and the limit.
+/// A cast's (or walk's) question, bit for bit: the direction's three
+/// components, two distances and, for a walk, the triangle it starts in
+/// and the most cells it walks.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) struct CastKey([u64; 5]);
+pub(crate) struct CastKey([u64; 7]);
 
 impl CastKey {
     /// The question of a cast of unit ray `d` over `[t_start, t_limit]`.
@@ -32,6 +34,28 @@ impl CastKey {
             d[2].to_bits(),
             t_start.to_bits(),
             t_limit.to_bits(),
+            0,
+            0,
+        ])
+    }
+
+    /// The question of a walk of unit ray `d` from triangle `id`
+    /// ([`super::LocalTerrain::walk_cells`]'s arguments).
+    pub(crate) fn walk(
+        d: [f64; 3],
+        id: u32,
+        t_start: f64,
+        latest_entry: f64,
+        max_cells: usize,
+    ) -> CastKey {
+        CastKey([
+            d[0].to_bits(),
+            d[1].to_bits(),
+            d[2].to_bits(),
+            t_start.to_bits(),
+            latest_entry.to_bits(),
+            u64::from(id),
+            max_cells as u64,
         ])
     }
 }

@@ -50,6 +50,9 @@ pub(crate) struct FarLayer {
     /// changes: the same question gets the same answer), shared by the
     /// clones of the layer.
     pub(crate) casts: Arc<CastMemo>,
+    /// The answers of the walks of the layer's cells
+    /// ([`LocalTerrain::far_walk`]), shared likewise.
+    pub(crate) walks: Arc<CastMemo>,
 }
 
 /// A far layer's render: the camera and, per pixel, depth and the
@@ -301,6 +304,7 @@ impl LocalTerrain {
                 origin: ring.origin,
                 drawn: Arc::default(),
                 casts: Arc::default(),
+                walks: Arc::default(),
             });
             next += ids;
         }
@@ -462,10 +466,13 @@ impl LocalTerrain {
         }
         let i = self.far.iter().rposition(|l| id >= l.id0)?;
         let l = &self.far[i];
-        let hit = l
-            .terrain
-            .walk_cells(d, id - l.id0, t_start, latest_entry, max_cells)
-            .ok()?;
+        let own_id = id - l.id0;
+        let key = CastKey::walk(d, own_id, t_start, latest_entry, max_cells);
+        let hit = l.walks.answer(key, || {
+            l.terrain
+                .walk_cells(d, own_id, t_start, latest_entry, max_cells)
+                .ok()
+        })?;
         let own = self.cast_segment_own(d, t_start, hit.t);
         self.with_far_hits(own, d, t_start, hit.t, CastKind::Segment, Some((i, hit)))
     }
