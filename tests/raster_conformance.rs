@@ -206,7 +206,7 @@ fn encoding_variants_agree_with_gdal() {
     let dem = Dem::open(&dir.path().join("cog.tif")).expect("open COG");
     match &dem.tiles[0].source {
         demsketch::raster::TileSource::Tiff(t) => {
-            assert!(!t.overviews.is_empty(), "COG overviews found")
+            assert!(!t.overviews().is_empty(), "COG overviews found")
         }
         _ => panic!("COG read natively"),
     }

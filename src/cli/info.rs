@@ -59,7 +59,7 @@ fn info_json(dem: &Dem, min_max: Option<(f64, f64)>) -> serde_json::Value {
                 TileSource::Tiff(g) => (
                     json!({"tiled": g.layout.tiled, "block": [g.layout.block_width, g.layout.block_height]}),
                     json!({"compression": g.encoding.compression, "predictor": g.encoding.predictor,
-                           "overviews": g.overviews, "pixel_is_point": g.raster_type == demsketch::raster::geotiff::RasterType::PixelIsPoint}),
+                           "overviews": g.overviews(), "pixel_is_point": g.raster_type == demsketch::raster::geotiff::RasterType::PixelIsPoint}),
                 ),
                 TileSource::Gdal(_) => (json!(null), json!({"driver": "GDAL"})),
             };
@@ -157,10 +157,10 @@ fn print_info(dem: &Dem, min_max: Option<(f64, f64)>) {
             g.layout.block_height,
             g.encoding.compression,
             g.encoding.predictor,
-            if g.overviews.is_empty() {
+            if g.overviews().is_empty() {
                 String::new()
             } else {
-                format!(", {} overview(s)", g.overviews.len())
+                format!(", {} overview(s)", g.overviews().len())
             }
         );
     }

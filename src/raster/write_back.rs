@@ -741,7 +741,7 @@ fn encode_tile(
 ) -> Result<Sidecars, RasterError> {
     let entry = provenance.item(edit.changed, opts);
     let native = matches!(&tile.source, TileSource::Tiff(_));
-    let internal_ovr = matches!(&tile.source, TileSource::Tiff(t) if !t.overviews.is_empty());
+    let internal_ovr = matches!(&tile.source, TileSource::Tiff(t) if !t.overviews().is_empty());
     let out_path = (target != tile.path.as_path()).then_some(target);
     let mut sidecars = Sidecars::stage(&tile.path, tmp, target, internal_ovr)?;
     let settings = PatchSettings {
@@ -877,7 +877,7 @@ fn encode_tile_copy(
         let resampling = super::overviews::resampling_for(&src, settings.overview_resampling);
         let factors: Vec<i32> = match &tile.source {
             TileSource::Tiff(t) => t
-                .overviews
+                .overviews()
                 .iter()
                 .map(|(w, _)| ((t.width as f64 / *w as f64).round() as i32).max(2))
                 .collect(),

@@ -10,6 +10,7 @@
 mod block_decode;
 pub mod fuzz;
 mod geokeys;
+mod ifd_chain;
 mod limits;
 mod overview;
 mod tags;
@@ -87,10 +88,11 @@ pub struct GeoTiff {
     pub gdal_metadata: Option<String>,
     /// Band scale, offset, vertical unit and datum (stored value -> metres).
     pub vertical: Vertical,
-    /// Sizes of the reduced-resolution images (overviews).
-    pub overviews: Vec<(u32, u32)>,
-    /// Their images' indices in the file (for [`GeoTiff::overview`]).
-    overview_ifds: Vec<usize>,
+    /// The reduced-resolution images (overviews): listed at open, or on
+    /// first use ([`GeoTiff::overviews`]).
+    overview_list: std::sync::OnceLock<OverviewList>,
+    /// The memory budget the file was opened under (its decoder's limits).
+    budget: u64,
     codec: BlockCodec,
     offsets: Vec<u64>,
     counts: Vec<u64>,
@@ -213,59 +215,81 @@ impl GeoTiff {
                 },
             });
         }
-        let mut dec = Decoder::new(Cursor::new(&bytes[..]))
-            .map_err(|e| tiff_err(path, e))?
-            .with_limits(limits::decoder_limits_within(bytes.len() as u64, budget));
-
-        // Walk the IFD chain: the first full-resolution, non-mask image is
-        // the DEM; reduced-resolution images are its overviews.
-        let mut ifd_index = None;
-        let mut overviews = Vec::new();
-        let mut overview_ifds = Vec::new();
-        let mut index = 0usize;
-        loop {
-            let subfile = dec
-                .find_tag_unsigned::<u32>(Tag::NewSubfileType)
-                .map_err(|e| tiff_err(path, e))?
-                .unwrap_or(0);
-            let is_mask = subfile & 4 != 0;
-            let reduced = subfile & 1 != 0;
-            if !is_mask {
-                if reduced {
-                    let dims = dec.dimensions().map_err(|e| tiff_err(path, e))?;
-                    overviews.push(dims);
-                    overview_ifds.push(index);
-                } else if ifd_index.is_none() {
-                    ifd_index = Some(index);
-                }
-            }
-            if !dec.more_images() {
-                break;
-            }
-            index += 1;
-            if dec.next_image().is_err() {
-                // An IFD the decoder cannot describe (e.g. a JPEG mask) is not
-                // the DEM; stop the walk there.
-                break;
-            }
+        let mut dec = Self::decoder(path, &bytes, budget)?;
+        let first = subfile_type(&mut dec, path)?;
+        // The first image the DEM (as a rule), and a walk over the others
+        // that cannot fail (`ifd_chain`): described now, its overviews
+        // listed on first use. What the open gives is what the walk would
+        // have let it give.
+        if first & (SUBFILE_REDUCED | SUBFILE_MASK) == 0
+            && ifd_chain::subfile_types_readable(&bytes)
+        {
+            let mut tiff = Self::describe(path, bytes.clone(), &mut dec, 0, budget)?;
+            tiff.budget = budget;
+            return Ok(tiff);
         }
+        // Otherwise the walk now, its errors first. The DEM is described
+        // where the walk starts on it instead of seeking back to it: its
+        // tags read then are the ones read after the walk (the same
+        // directory, and limits no tighter than those it was first read
+        // under).
+        let mut described = None;
+        let (ifd_index, list) = walk_images(path, &mut dec, first, |dec| {
+            described = Some(Self::describe(path, bytes.clone(), dec, 0, budget));
+        })?;
         let ifd_index = ifd_index.ok_or_else(|| RasterError::Corrupt {
             path: path.to_path_buf(),
             detail: "no full-resolution image in the file".into(),
         })?;
-        dec.seek_to_image(ifd_index)
-            .map_err(|e| tiff_err(path, e))?;
-        let mut tiff = Self::describe(path, bytes.clone(), dec, ifd_index, overviews, budget)?;
-        tiff.overview_ifds = overview_ifds;
+        let mut tiff = match described {
+            Some(tiff) => tiff?,
+            None => {
+                dec.seek_to_image(ifd_index)
+                    .map_err(|e| tiff_err(path, e))?;
+                Self::describe(path, bytes.clone(), &mut dec, ifd_index, budget)?
+            }
+        };
+        tiff.budget = budget;
+        tiff.overview_list = std::sync::OnceLock::from(list);
         Ok(tiff)
     }
 
+    /// A decoder of `bytes` on its first image, with the limits of `budget`.
+    fn decoder<'a>(
+        path: &Path,
+        bytes: &'a [u8],
+        budget: u64,
+    ) -> Result<Decoder<Cursor<&'a [u8]>>, RasterError> {
+        Ok(Decoder::new(Cursor::new(bytes))
+            .map_err(|e| tiff_err(path, e))?
+            .with_limits(limits::decoder_limits_within(bytes.len() as u64, budget)))
+    }
+
+    /// Sizes of the reduced-resolution images (overviews), in the file's
+    /// order.
+    pub fn overviews(&self) -> &[(u32, u32)] {
+        &self.overview_list().sizes
+    }
+
+    /// The overviews, listed by the walk over the file's images on first
+    /// use where the open put it off (it found that the walk cannot fail).
+    fn overview_list(&self) -> &OverviewList {
+        self.overview_list.get_or_init(|| {
+            let walked = Self::decoder(&self.path, &self.bytes, self.budget).and_then(|mut dec| {
+                let first = subfile_type(&mut dec, &self.path)?;
+                walk_images(&self.path, &mut dec, first, |_| {})
+            });
+            walked.map(|(_, list)| list).unwrap_or_default()
+        })
+    }
+
+    /// The image `dec` is on (image `ifd_index` of the file) described as
+    /// the DEM; its overviews are left for the caller to list.
     fn describe(
         path: &Path,
         bytes: Arc<Bytes>,
-        mut dec: Decoder<Cursor<&[u8]>>,
+        dec: &mut Decoder<Cursor<&[u8]>>,
         ifd_index: usize,
-        overviews: Vec<(u32, u32)>,
         budget: u64,
     ) -> Result<GeoTiff, RasterError> {
         let p = path;
@@ -296,19 +320,17 @@ impl GeoTiff {
                 "{samples} samples per pixel (a DEM has one band)"
             )));
         }
-        let sample_type = tags::sample_type(&mut dec, p)?;
-        let (compression, compression_code) = tags::compression(&mut dec, p)?;
-        let predictor = tags::predictor(&mut dec, p, sample_type)?;
+        let sample_type = tags::sample_type(dec, p)?;
+        let (compression, compression_code) = tags::compression(dec, p)?;
+        let predictor = tags::predictor(dec, p, sample_type)?;
         // One sample per pixel: both planar configurations are equal, but
         // the tag must be readable.
         dec.find_tag_unsigned::<u16>(Tag::PlanarConfiguration)
             .map_err(|e| tiff_err(p, e))?;
-        let layout = tags::block_layout(&mut dec, p, (width, height), sample_type, budget)?;
-        let (offsets, counts) =
-            tags::block_extents(&mut dec, p, (width, height), &layout, file_len)?;
-        let (geotransform, raster_type, crs, keys) = tags::georeference(&mut dec, p)?;
-        let (nodata, gdal_metadata, vertical) =
-            tags::nodata_and_vertical(&mut dec, p, keys.as_ref())?;
+        let layout = tags::block_layout(dec, p, (width, height), sample_type, budget)?;
+        let (offsets, counts) = tags::block_extents(dec, p, (width, height), &layout, file_len)?;
+        let (geotransform, raster_type, crs, keys) = tags::georeference(dec, p)?;
+        let (nodata, gdal_metadata, vertical) = tags::nodata_and_vertical(dec, p, keys.as_ref())?;
         let codec = BlockCodec {
             compression: compression_code,
             predictor,
@@ -333,8 +355,8 @@ impl GeoTiff {
             nodata,
             gdal_metadata,
             vertical,
-            overviews,
-            overview_ifds: Vec::new(),
+            overview_list: std::sync::OnceLock::new(),
+            budget,
             codec,
             offsets,
             counts,
@@ -391,6 +413,67 @@ impl GeoTiff {
     pub fn decoded_row_len(&self, index: u32) -> usize {
         self.block_extent(index).2 as usize
     }
+}
+
+/// NewSubfileType bits: a reduced-resolution image, a transparency mask.
+const SUBFILE_REDUCED: u32 = 1;
+const SUBFILE_MASK: u32 = 4;
+
+/// A file's reduced-resolution images: their sizes and their images'
+/// indices in the file (for [`GeoTiff::overview`]).
+#[derive(Debug, Clone, Default)]
+struct OverviewList {
+    sizes: Vec<(u32, u32)>,
+    ifds: Vec<usize>,
+}
+
+/// The NewSubfileType of the image `dec` is on (0 where absent).
+fn subfile_type(dec: &mut Decoder<Cursor<&[u8]>>, path: &Path) -> Result<u32, RasterError> {
+    Ok(dec
+        .find_tag_unsigned::<u32>(Tag::NewSubfileType)
+        .map_err(|e| tiff_err(path, e))?
+        .unwrap_or(0))
+}
+
+/// Walk the chain of images from the first (`dec` on it, its
+/// NewSubfileType `first`): the first full-resolution, non-mask image is
+/// the DEM (its index; `at_dem` is run on the decoder when that is the
+/// first image), reduced-resolution images are its overviews. An image
+/// the decoder cannot describe (e.g. a JPEG mask) is not the DEM: the walk
+/// stops there.
+fn walk_images(
+    path: &Path,
+    dec: &mut Decoder<Cursor<&[u8]>>,
+    first: u32,
+    mut at_dem: impl FnMut(&mut Decoder<Cursor<&[u8]>>),
+) -> Result<(Option<usize>, OverviewList), RasterError> {
+    let mut ifd_index = None;
+    let mut list = OverviewList::default();
+    let mut index = 0usize;
+    let mut subfile = first;
+    loop {
+        if subfile & SUBFILE_MASK == 0 {
+            if subfile & SUBFILE_REDUCED != 0 {
+                let dims = dec.dimensions().map_err(|e| tiff_err(path, e))?;
+                list.sizes.push(dims);
+                list.ifds.push(index);
+            } else if ifd_index.is_none() {
+                ifd_index = Some(index);
+                if index == 0 {
+                    at_dem(dec);
+                }
+            }
+        }
+        if !dec.more_images() {
+            break;
+        }
+        index += 1;
+        if dec.next_image().is_err() {
+            break;
+        }
+        subfile = subfile_type(dec, path)?;
+    }
+    Ok((ifd_index, list))
 }
 
 /// The entry of the image file directory at `offset` that claims the most

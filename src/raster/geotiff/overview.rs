@@ -21,8 +21,9 @@ impl GeoTiff {
             return None;
         }
         let want = (self.width.div_ceil(k), self.height.div_ceil(k));
-        let at = self.overviews.iter().position(|&d| d == want)?;
-        let index = *self.overview_ifds.get(at)?;
+        let list = self.overview_list();
+        let at = list.sizes.iter().position(|&d| d == want)?;
+        let index = *list.ifds.get(at)?;
         let bytes = &self.bytes[..];
         let mut dec =
             Decoder::new(Cursor::new(bytes))
@@ -105,8 +106,7 @@ impl GeoTiff {
         ov.offsets = offsets[..n].to_vec();
         ov.counts = counts[..n].to_vec();
         ov.geotransform = GeoTransform([g[0], g[1] * sx, g[2] * sy, g[3], g[4] * sx, g[5] * sy]);
-        ov.overviews = Vec::new();
-        ov.overview_ifds = Vec::new();
+        ov.overview_list = std::sync::OnceLock::from(super::OverviewList::default());
         Some(ov)
     }
 }
