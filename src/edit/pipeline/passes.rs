@@ -451,6 +451,16 @@ pub(super) fn second_pass(
         }
     };
     let score = fit_score;
+    if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
+        eprintln!(
+            "pass {pass}: fit {:.3} -> {:.3}, its change {} cells, max |dz| {:.1} m (before: {:.1} m)",
+            score(&first),
+            score(&second),
+            second.deformation.stats.changed_cells,
+            second.deformation.stats.max_abs_displacement_m,
+            first.deformation.stats.max_abs_displacement_m
+        );
+    }
     if score(&second) < score(&first) - 1e-9 || second.deformation.stats.changed_cells == 0 {
         return Ok((first, false));
     }
