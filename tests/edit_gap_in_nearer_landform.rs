@@ -13,23 +13,15 @@
 
 mod common;
 
-use common::{fixture, suite_edit};
-use serde_json::Value;
+use common::edit_fidelity_case;
 
 #[test]
 fn a_stroke_over_a_gap_in_a_nearer_ridge_raises_that_ridge() {
-    let tmp = tempfile::tempdir().expect("temporary directory");
-    let sketch = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("tests/data/tuned_vinschgau_new_hill_long.json");
-    let (out, report) = (tmp.path().join("out.tif"), tmp.path().join("report.json"));
-    suite_edit(
-        &fixture("vinschgau_250m_utm32n.tif"),
-        &sketch,
-        &out,
-        Some(&report),
+    let case = edit_fidelity_case(
+        "vinschgau_250m_utm32n.tif",
+        "tuned_vinschgau_new_hill_long.json",
     );
-    let r: Value =
-        serde_json::from_slice(&std::fs::read(&report).expect("report")).expect("report JSON");
+    let r = &case.report;
     let s = &r["views"][0]["strokes"][0];
     let fit = s["fit"]["fitted_fraction"].as_f64().expect("fit");
     assert!(fit >= 0.95, "fit {fit}");

@@ -12,23 +12,15 @@
 
 mod common;
 
-use common::{fixture, suite_edit};
-use serde_json::Value;
+use common::{edit_fidelity_case, fixture};
 
 #[test]
 fn a_cut_placed_on_the_near_flank_lowers_the_crest_behind_it() {
-    let tmp = tempfile::tempdir().expect("temporary directory");
-    let sketch = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("tests/data/holdout1_zion_utm_ridge_cut_dense.json");
-    let (out, report) = (tmp.path().join("out.tif"), tmp.path().join("report.json"));
-    suite_edit(
-        &fixture("zion_srtm_utm12n.tif"),
-        &sketch,
-        &out,
-        Some(&report),
+    let case = edit_fidelity_case(
+        "zion_srtm_utm12n.tif",
+        "holdout1_zion_utm_ridge_cut_dense.json",
     );
-    let r: Value =
-        serde_json::from_slice(&std::fs::read(&report).expect("report")).expect("report JSON");
+    let (r, out) = (&case.report, &case.out);
     let s = &r["views"][0]["strokes"][0];
     let fit = s["fit"]["fitted_fraction"].as_f64().expect("fit");
     assert!(fit >= 0.95, "fit {fit}");
@@ -36,7 +28,7 @@ fn a_cut_placed_on_the_near_flank_lowers_the_crest_behind_it() {
     let dz = r["max_abs_displacement_m"].as_f64().expect("displacement");
     assert!(dz <= 45.0, "largest change {dz:.0} m");
     let (_, _, before, _) = common::gdal_values(&fixture("zion_srtm_utm12n.tif"));
-    let (_, _, after, _) = common::gdal_values(&out);
+    let (_, _, after, _) = common::gdal_values(out);
     let raised = before
         .iter()
         .zip(&after)

@@ -76,6 +76,29 @@ pub fn suite_edit(input: &Path, sketch: &Path, out: &Path, report: Option<&Path>
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 }
 
+/// What [`edit_fidelity_case`] leaves: its directory, the written DEM and
+/// the report.
+pub struct EditedCase {
+    pub dir: tempfile::TempDir,
+    pub out: PathBuf,
+    pub report: serde_json::Value,
+}
+
+/// The fixture `dem` edited as the fidelity suite edits it
+/// ([`suite_edit`]) with the sketch `tests/data/<sketch>` (a case the
+/// suite's judge traced), into a temporary directory.
+pub fn edit_fidelity_case(dem: &str, sketch: &str) -> EditedCase {
+    let dir = tempfile::tempdir().expect("temporary directory");
+    let sketch = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data")
+        .join(sketch);
+    let (out, report) = (dir.path().join("out.tif"), dir.path().join("report.json"));
+    suite_edit(&fixture(dem), &sketch, &out, Some(&report));
+    let report =
+        serde_json::from_slice(&std::fs::read(&report).expect("report")).expect("report JSON");
+    EditedCase { dir, out, report }
+}
+
 /// Every file under `dir` with its bytes, for "nothing changed" checks.
 pub fn snapshot(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
     let mut v = Vec::new();
