@@ -62,7 +62,7 @@ fn lifted_strokes_keep_their_features_and_land_on_the_stroke() {
     let scene = Scene::three_ranges();
     let cam = scene.camera(0.0, 0.0, 0.0);
     let features = scene.features(&cam, 10.0);
-    let lift = |x: f64| 10.0 + 10.0 * ((x - 100.0) / 600.0 * 3.14).sin();
+    let lift = |x: f64| 10.0 + 10.0 * ((x - 100.0) / 600.0 * std::f64::consts::PI).sin();
     let strokes = vec![
         trace("r0", 0, &features[0], 300.0, 500.0, lift),
         trace("r1", 1, &features[1], 200.0, 600.0, lift),
