@@ -102,12 +102,13 @@ pub(super) fn seen_fit_score(o: &Outcome) -> f64 {
         .sum()
 }
 
-/// True when outcome `a` fits the strokes better than `b` by either
-/// measure: the summed fit ([`fit_score`]) or the summed fit where the
-/// placed curves are visible ([`seen_fit_score`]). The skyline's edit is
-/// kept only where it is at least as good by both.
+/// True when outcome `a` fits the strokes better than `b` by the two
+/// measures together: the summed fit ([`fit_score`]) plus the summed fit
+/// where the placed curves are visible ([`seen_fit_score`]). A small gain
+/// by one measure does not outweigh a larger loss by the other.
 pub(super) fn fits_better(a: &Outcome, b: &Outcome) -> bool {
-    fit_score(a) > fit_score(b) + 1e-9 || seen_fit_score(a) > seen_fit_score(b) + 1e-9
+    let gain = (fit_score(a) - fit_score(b)) + (seen_fit_score(a) - seen_fit_score(b));
+    gain > 1e-9
 }
 
 /// The report's note when the edit without the skylines (`plain`) is
