@@ -230,6 +230,16 @@ pub fn place_free_stretches(
         // A stretch bounded by junctions only: nothing says where it stands.
         let real = |q: Option<Bound>| q.filter(|q| !q.junction);
         if real(left).is_none() && real(right).is_none() {
+            let whole = a == 0 && b == n && placed.feature_id.is_none();
+            let behind = whole
+                .then(|| behind_occluder(before, proj, placed, &on[a..b], near_px))
+                .flatten();
+            if let Some(surface) = behind {
+                put_at_depths(proj, placed, &on[a..b], |_, px| surface.depth(proj, px));
+                out.behind += count;
+                replaced_ends = (true, true);
+                continue;
+            }
             out.unsupported += count;
             continue;
         }
@@ -560,6 +570,117 @@ fn behind_junctions(
     }
     let beyond = l.depth.max(r.depth) * (1.0 + AGREEMENT);
     let depth = skyline_behind(before, &pixels, beyond, near_px, JUNCTION_SKYLINE_SHARE)?;
+    drawing_plane_over_ground(proj, &pixels, depth)
+}
+
+/// The largest distance, in pixels, by which a stroke may leave the
+/// piecewise-linear outline through its heights at equal steps across it
+/// and still count as drawn by cells that wide ([`shape_cells`]): half the
+/// fit's one-pixel tolerance, the other half left to the surface between
+/// the cells.
+pub const SHAPE_TOLERANCE_PX: f64 = 0.5;
+
+/// The most cells across [`shape_cells`] asks for.
+pub const MAX_SHAPE_CELLS: usize = 64;
+
+/// The fewest equal steps across a stroke (its `pixels`, drawn left to
+/// right or right to left, one height per column) at which the
+/// piecewise-linear outline through its heights at those steps stays
+/// within [`SHAPE_TOLERANCE_PX`] of it: how many DEM cells across the
+/// stroke must span for the terrain to draw its shape. `None` when the
+/// stroke turns back on itself in the image or is not one pixel wide.
+fn shape_cells(pixels: &[[f64; 2]]) -> Option<usize> {
+    let mut pts: Vec<[f64; 2]> = pixels.to_vec();
+    if pts.first()?[0] > pts.last()?[0] {
+        pts.reverse();
+    }
+    if pts.windows(2).any(|w| !(w[1][0] >= w[0][0])) {
+        return None;
+    }
+    let (x0, x1) = (pts.first()?[0], pts.last()?[0]);
+    let wide = x1 - x0;
+    if !(wide >= 1.0) {
+        return None;
+    }
+    let height_at = |x: f64| {
+        let k = pts.partition_point(|p| p[0] < x).clamp(1, pts.len() - 1);
+        let (p, q) = (pts[k - 1], pts[k]);
+        let t = if q[0] > p[0] {
+            (x - p[0]) / (q[0] - p[0])
+        } else {
+            0.0
+        };
+        p[1] + t.clamp(0.0, 1.0) * (q[1] - p[1])
+    };
+    (1..=MAX_SHAPE_CELLS).find(|&m| {
+        let step = wide / m as f64;
+        let knots: Vec<f64> = (0..=m).map(|j| height_at(x0 + j as f64 * step)).collect();
+        pts.iter().all(|p| {
+            let u = ((p[0] - x0) / step).clamp(0.0, m as f64);
+            let j = (u.floor() as usize).min(m - 1);
+            let t = u - j as f64;
+            let line = knots[j] + t * (knots[j + 1] - knots[j]);
+            (line - p[1]).abs() <= SHAPE_TOLERANCE_PX
+        })
+    })
+}
+
+/// Where a whole stroke drawn in the sky goes when neither end stands on
+/// terrain and one or both stop on a silhouette (T-junctions, Tassé et
+/// al. section 5.2.2: an outline that ends on another is occluded by it),
+/// and no feature was matched near it: the landform lies behind those
+/// silhouettes, also where they are the observer's own fixed ground. Over
+/// a farther skyline (at least [`JUNCTION_SKYLINE_SHARE`] of it, beyond
+/// the junctions by more than [`AGREEMENT`]) it outlines that landform
+/// ([`skyline_behind`]); otherwise nothing in the image says how far
+/// behind, and it goes to the nearest depth behind the junctions where
+/// the DEM's cells can draw its shape ([`shape_cells`]). The paper's
+/// fallback would keep it at the occluder's depth, where a landform a few
+/// pixels tall and a fraction of a cell wide cannot be drawn: the edit
+/// then changed nothing (a hill drawn over a plain's skyline, which the
+/// ground 100 m from an eye 1.7 m up forms). `None`: the stroke stays
+/// where the matcher put it.
+fn behind_occluder(
+    before: &RenderedView,
+    proj: &SceneProjection,
+    placed: &StrokeMatch,
+    run: &[usize],
+    near_px: f64,
+) -> Option<Surface> {
+    let ends = [
+        placed.points[*run.first()?].pixel?,
+        placed.points[*run.last()?].pixel?,
+    ];
+    if ends
+        .iter()
+        .any(|&px| ground_under_end(before, px).is_some())
+    {
+        return None;
+    }
+    let occluder = ends
+        .iter()
+        .filter_map(|&px| junction_under_end(before, px).map(|j| j.1))
+        .fold(None, |m: Option<f64>, d| Some(m.map_or(d, |m| m.max(d))))?;
+    let pixels: Vec<[f64; 2]> = run.iter().filter_map(|&k| placed.points[k].pixel).collect();
+    if !mostly_in_sky(before, &pixels) {
+        return None;
+    }
+    let beyond = occluder * (1.0 + AGREEMENT);
+    let depth = match skyline_behind(before, &pixels, beyond, near_px, JUNCTION_SKYLINE_SHARE) {
+        Some(d) => d,
+        None => {
+            let (first, last) = (pixels.first()?, pixels.last()?);
+            let wide = (last[0] - first[0]).abs();
+            let cells = shape_cells(&pixels)? as f64;
+            // cell_px falls as 1 / depth: the stroke spans `cells` cells
+            // where one cell is wide / cells pixels.
+            let drawable = before.cell_px(1.0) * cells / wide;
+            if !drawable.is_finite() {
+                return None;
+            }
+            drawable.max(beyond)
+        }
+    };
     drawing_plane_over_ground(proj, &pixels, depth)
 }
 
@@ -1146,4 +1267,39 @@ pub fn place_on_end_surface(
         })
         .collect::<Option<Vec<_>>>()?;
     Some((placed, left.is_some() && right.is_some()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A parabola 14 px tall and 162 px wide: its chord error over m
+    /// equal steps is 14 / m^2 px, within half a pixel from m = 6.
+    #[test]
+    fn shape_cells_of_a_parabola() {
+        let pixels: Vec<[f64; 2]> = (0..=162)
+            .map(|i| {
+                let u = i as f64 / 81.0 - 1.0;
+                [100.0 + i as f64, 170.0 - 14.0 * (1.0 - u * u)]
+            })
+            .collect();
+        assert_eq!(shape_cells(&pixels), Some(6));
+        let mut back = pixels.clone();
+        back.reverse();
+        assert_eq!(shape_cells(&back), Some(6));
+    }
+
+    /// A straight stroke needs one cell; one that turns back in the image
+    /// has no single height per column.
+    #[test]
+    fn shape_cells_of_a_line_and_a_loop() {
+        assert_eq!(
+            shape_cells(&[[0.0, 10.0], [50.0, 20.0], [100.0, 30.0]]),
+            Some(1)
+        );
+        assert_eq!(
+            shape_cells(&[[0.0, 10.0], [50.0, 20.0], [40.0, 30.0]]),
+            None
+        );
+    }
 }
