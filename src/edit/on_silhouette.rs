@@ -30,7 +30,9 @@
 //! between anchored points, or between one and the stroke's end, is
 //! anchored too where it stays within [`GAP_TOLERANCE_PX`] of a boundary;
 //! so is a stretch between two anchors on one silhouette that is narrower
-//! than one DEM cell seen from there (the DEM cannot draw such a detail).
+//! than one DEM cell seen from there (the DEM cannot draw such a detail),
+//! unless it runs off the boundaries under it (`runs_off`): a whole
+//! stretch a pixel or two over the silhouette asks to move it.
 //! Feature completion at an anchored end is dropped: that end already sits
 //! on the terrain. In the later passes of an edit the view is the terrain
 //! the passes before made, whose silhouette beside a stroke is often their
@@ -340,8 +342,21 @@ fn keep_near(near_of: &mut [Option<BoundaryPoint>], found: &[Option<BoundaryPoin
     if depths.len() != found.len() || depths.is_empty() {
         return;
     }
-    let lo = depths.iter().copied().fold(f64::INFINITY, f64::min);
-    let hi = depths.iter().copied().fold(0.0, f64::max);
+    // A point at either end of the stretch may lie on the landform beside
+    // it (the stretch starts where the silhouette passes from one
+    // landform to the other): it moves that landform's silhouette.
+    let mut sorted = depths.clone();
+    sorted.sort_by(f64::total_cmp);
+    let median = sorted[sorted.len() / 2];
+    let off = |d: f64| (d - median).abs() > RUN_DEPTH_STEP * median;
+    let first = depths.iter().position(|&d| !off(d)).unwrap_or(0);
+    let last = depths.iter().rposition(|&d| !off(d)).unwrap_or(0);
+    if first > 1 || depths.len() - 1 - last > 1 {
+        return;
+    }
+    let inner = &depths[first..=last];
+    let lo = inner.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = inner.iter().copied().fold(0.0, f64::max);
     if hi - lo <= RUN_DEPTH_STEP * lo {
         near_of.copy_from_slice(found);
     }
@@ -680,6 +695,9 @@ pub fn anchor_on_silhouettes(
         let x0 = px(on_stroke[left.unwrap_or(a)])[0];
         let x1 = px(on_stroke[right.unwrap_or(b - 1)])[0];
         let refused_here = refused[a..b].iter().any(|&r| r);
+        // The stretch runs off the silhouettes beside it (every point has
+        // one within the gap tolerance): it asks to move them.
+        let mut runs_off_here = false;
         if !refused_here && (left.is_some() || right.is_some()) && (x1 - x0).abs() <= MAX_GAP_PX {
             let loose: Vec<Option<BoundaryPoint>> = (a..b)
                 .map(|m| nearest_boundary(before, px(on_stroke[m]), GAP_TOLERANCE_PX))
@@ -720,6 +738,7 @@ pub fn anchor_on_silhouettes(
                 a = b;
                 continue;
             }
+            runs_off_here = loose.iter().all(|h| h.is_some()) && runs_off(&pixels[a..b], &rows);
             if traced.is_none() && loose.iter().all(|h| h.is_some()) {
                 keep_near(&mut near_of[a..b], &loose);
             }
@@ -743,6 +762,7 @@ pub fn anchor_on_silhouettes(
             if same
                 && drawn_on
                 && !refused_here
+                && !runs_off_here
                 && (x1 - x0).abs() < before.cell_px(0.5 * (l.depth + r.depth))
             {
                 for m in a..b {
@@ -1052,5 +1072,31 @@ mod tests {
         }
         drop_runs_behind_feature(&mut hits, &xs, &feature);
         assert_eq!(hits.iter().filter(|h| h.is_some()).count(), 6);
+    }
+
+    fn at_depth(depth: f64) -> Option<BoundaryPoint> {
+        boundary(100.0).map(|b| BoundaryPoint { depth, ..b })
+    }
+
+    /// A stretch running off one landform's silhouette keeps it, also when
+    /// its first point lies on the landform beside it (where the
+    /// silhouette passes from one to the other); two such points are two
+    /// landforms.
+    #[test]
+    fn keep_near_allows_one_point_of_the_landform_beside() {
+        let found: Vec<_> = [369.0, 440.0, 441.0, 443.0, 438.0]
+            .iter()
+            .map(|&d| at_depth(d))
+            .collect();
+        let mut near = vec![None; found.len()];
+        keep_near(&mut near, &found);
+        assert!(near.iter().all(|h| h.is_some()));
+        let found: Vec<_> = [369.0, 300.0, 441.0, 443.0, 438.0]
+            .iter()
+            .map(|&d| at_depth(d))
+            .collect();
+        let mut near = vec![None; found.len()];
+        keep_near(&mut near, &found);
+        assert!(near.iter().all(|h| h.is_none()));
     }
 }
