@@ -77,6 +77,40 @@ impl Dem {
         })
     }
 
+    /// The part of coarse window `cwin` that [`Dem::read_block_max`] with
+    /// the same `k` and `wanted` reads: the box of the chunks it reads,
+    /// clipped to `cwin` (every coarse cell outside it comes out NaN).
+    /// `None` when it reads no chunk. Asks `wanted` the same questions,
+    /// without reading.
+    pub fn block_max_extent(
+        &self,
+        cwin: Window,
+        k: usize,
+        wanted: &(dyn Fn(Window) -> bool + Sync),
+    ) -> Option<Window> {
+        let k = k.max(1);
+        let cc = (CHUNK / k).max(1);
+        let first_band = cwin.row.div_euclid(cc as i64);
+        let mut extent: Option<(i64, i64, i64, i64)> = None;
+        for (r0, r1) in band_rows(cwin, cc, first_band) {
+            for (_, coarse, full) in chunks_of_band(cwin, k, cc, (r0, r1)) {
+                if full
+                    .intersect(&self.full_window())
+                    .is_some_and(|f| wanted(f))
+                {
+                    let (c0, rr0) = (coarse.col, coarse.row);
+                    let (c1, rr1) = (coarse.col_end(), coarse.row_end());
+                    extent = Some(match extent {
+                        None => (c0, rr0, c1, rr1),
+                        Some((a, b, c, d)) => (a.min(c0), b.min(rr0), c.max(c1), d.max(rr1)),
+                    });
+                }
+            }
+        }
+        let (c0, r0, c1, r1) = extent?;
+        Some(Window::new(c0, r0, (c1 - c0) as usize, (r1 - r0) as usize))
+    }
+
     /// One band of [`Dem::read_block_max`]: coarse rows `r0..r1` of
     /// `cwin` (relative to it) into `out`, chunk by chunk.
     fn band_max(
@@ -89,19 +123,7 @@ impl Dem {
         wanted: &(dyn Fn(Window) -> bool + Sync),
     ) -> Result<(), RasterError> {
         let w = cwin.width;
-        let mut c = 0usize;
-        while c < w {
-            // the chunk column holding coarse column c, clipped to cwin
-            let abs = cwin.col + c as i64;
-            let next = (abs.div_euclid(cc as i64) + 1) * cc as i64;
-            let c1 = ((next - cwin.col) as usize).min(w);
-            let coarse = Window::new(abs, cwin.row + r0 as i64, c1 - c, r1 - r0);
-            let full = Window::new(
-                coarse.col * k as i64,
-                coarse.row * k as i64,
-                coarse.width * k,
-                coarse.height * k,
-            );
+        for ((c, c1), _, full) in chunks_of_band(cwin, k, cc, (r0, r1)) {
             if let Some(read) = full.intersect(&self.full_window()).filter(|f| wanted(*f)) {
                 let cells = self.read_height_map_once(read)?;
                 ChunkMax {
@@ -114,10 +136,42 @@ impl Dem {
                 }
                 .reduce_max(out);
             }
-            c = c1;
         }
         Ok(())
     }
+}
+
+/// The chunks of the band of coarse rows `r0..r1` of `cwin` (relative to
+/// it), left to right: the coarse columns of `cwin` each covers (relative,
+/// end exclusive), its coarse window (clipped to `cwin`) and that window
+/// in DEM cells (`k` a coarse cell).
+fn chunks_of_band(
+    cwin: Window,
+    k: usize,
+    cc: usize,
+    (r0, r1): (usize, usize),
+) -> impl Iterator<Item = ((usize, usize), Window, Window)> {
+    let w = cwin.width;
+    let mut c = 0usize;
+    std::iter::from_fn(move || {
+        if c >= w {
+            return None;
+        }
+        // the chunk column holding coarse column c, clipped to cwin
+        let abs = cwin.col + c as i64;
+        let next = (abs.div_euclid(cc as i64) + 1) * cc as i64;
+        let c1 = ((next - cwin.col) as usize).min(w);
+        let coarse = Window::new(abs, cwin.row + r0 as i64, c1 - c, r1 - r0);
+        let full = Window::new(
+            coarse.col * k as i64,
+            coarse.row * k as i64,
+            coarse.width * k,
+            coarse.height * k,
+        );
+        let cols = (c, c1);
+        c = c1;
+        Some((cols, coarse, full))
+    })
 }
 
 /// The bands of coarse rows of `cwin` (relative to it, end exclusive) cut
