@@ -39,7 +39,9 @@ impl Dem {
         // coarse cells per chunk edge (a chunk a whole number of coarse cells)
         let cc = (CHUNK / k).max(1);
         let (w, h) = (cwin.width, cwin.height);
-        let mut data = vec![f32::NAN; w * h];
+        // (a recycled buffer where there is one: each band sets its rows
+        // to NaN before its chunks are reduced into them)
+        let mut data = crate::buffer_pool::overwritten_f32(w * h);
         if w > 0 && h > 0 {
             // Bands of coarse rows aligned to the chunk grid.
             let first_band = cwin.row.div_euclid(cc as i64);
@@ -123,6 +125,7 @@ impl Dem {
         wanted: &(dyn Fn(Window) -> bool + Sync),
     ) -> Result<(), RasterError> {
         let w = cwin.width;
+        out.fill(f32::NAN);
         for ((c, c1), _, full) in chunks_of_band(cwin, k, cc, (r0, r1)) {
             if let Some(read) = full.intersect(&self.full_window()).filter(|f| wanted(*f)) {
                 let cells = self.read_height_map_once(read)?;

@@ -80,6 +80,16 @@ impl LayerRender {
     }
 }
 
+impl Drop for LayerRender {
+    /// The buffers go back to [`crate::buffer_pool`] when a later render
+    /// replaces this one (a layer is drawn again as an edit's rounds open
+    /// more sky), for that render or the view's next.
+    fn drop(&mut self) {
+        crate::buffer_pool::recycle_f32(std::mem::take(&mut self.depth));
+        crate::buffer_pool::recycle_u32(std::mem::take(&mut self.triangle));
+    }
+}
+
 impl FarLayer {
     /// The layer's render with `camera`, holding at least the rows
     /// `0..=needed[x]` of each column `x` (the others may be left out: see
@@ -258,7 +268,7 @@ impl FarLayers {
 
 /// A far layer before it joins a terrain ([`LocalTerrain::with_far_layers`]).
 pub struct FarRing {
-    /// The layer, built by [`LocalTerrain::ring_over`] on the coarse grid.
+    /// The layer, built by [`LocalTerrain::ring_from`] on the coarse grid.
     pub terrain: LocalTerrain,
     /// Its inner radius, metres (its vertices nearer are nodata).
     pub inner_m: f64,

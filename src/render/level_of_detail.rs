@@ -209,7 +209,7 @@ impl LodPlan {
             }
             let frame_c = coarse_frame(frame_abs, k, (cwin.col, cwin.row));
             let read_s = started.elapsed().as_secs_f64();
-            let terrain = LocalTerrain::ring_over(&map, &frame_c, inner_v, outer);
+            let terrain = LocalTerrain::ring_from(map, &frame_c, inner_v, outer);
             if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
                 eprintln!(
                     "level of detail: ring k {k} read in {read_s:.3} s, built in {:.3} s",
