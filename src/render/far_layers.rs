@@ -55,6 +55,11 @@ pub(crate) struct FarLayer {
     pub(crate) walks: Arc<CastMemo>,
 }
 
+/// A kept render of a far layer, and which of its strips of pixel columns
+/// (`x0..=x1`) a new render of the same camera takes from it
+/// ([`FarLayer::render_with`]).
+pub(crate) type KeptRender<'a> = (&'a LayerRender, &'a (dyn Fn(usize, usize) -> bool + Sync));
+
 /// A far layer's render: the camera and, per pixel, depth and the
 /// layer's own triangle id (sky: infinite depth and [`SKY`]); with
 /// `last_row`, only the rows `0..=last_row[x]` of each column `x` (the
@@ -95,17 +100,20 @@ impl FarLayer {
     /// `0..=needed[x]` of each column `x` (the others may be left out: see
     /// [`LayerRender`]): the kept one when it was made with the same camera
     /// and holds them, else made by `render` (given the rows to draw,
-    /// `None` for all) and kept. A new render draws the rows of the kept
-    /// one too (same camera), so that the renders of an edit's rounds,
-    /// whose nearer terrain opens a little more sky here and there, settle
-    /// after a few. The lock is not held while rendering (a render is
-    /// parallel: a worker waiting in it may take up another render of this
-    /// layer).
+    /// `None` for all, and the kept render of the same camera with which
+    /// of its strips of columns `x0..=x1` to take: those whose rows are the
+    /// new render's, which a render of the strip gives again, each strip
+    /// being drawn on its own) and kept. A new render draws the rows of
+    /// the kept one too (same camera), so that the renders of an edit's
+    /// rounds, whose nearer terrain opens a little more sky here and
+    /// there, settle after a few. The lock is not held while rendering (a
+    /// render is parallel: a worker waiting in it may take up another
+    /// render of this layer).
     pub(crate) fn render_with(
         &self,
         camera: &crate::view::Camera,
         needed: &[i32],
-        render: impl FnOnce(&LocalTerrain, Option<&[i32]>) -> (Vec<f32>, Vec<u32>),
+        render: impl FnOnce(&LocalTerrain, Option<&[i32]>, Option<KeptRender>) -> (Vec<f32>, Vec<u32>),
     ) -> Arc<LayerRender> {
         let lock = || {
             self.drawn
@@ -128,7 +136,23 @@ impl FarLayer {
         } else {
             None
         };
-        let (depth, triangle) = render(&self.terrain, last_row.as_deref());
+        // The rows drawn of column `x` (`0..` this) under `rows`.
+        let drawn = |rows: Option<&[i32]>, x: usize| match rows {
+            None => Some(h),
+            Some(l) => l.get(x).map(|&r| (r + 1).clamp(0, h)),
+        };
+        let keep = |x0: usize, x1: usize| {
+            same.as_ref().is_some_and(|old| {
+                (x0..=x1).all(|x| {
+                    let d = drawn(last_row.as_deref(), x);
+                    d.is_some() && d == drawn(old.last_row.as_deref(), x)
+                })
+            })
+        };
+        let kept = same
+            .as_deref()
+            .map(|old| (old, &keep as &(dyn Fn(usize, usize) -> bool + Sync)));
+        let (depth, triangle) = render(&self.terrain, last_row.as_deref(), kept);
         let r = Arc::new(LayerRender {
             camera: *camera,
             last_row,

@@ -282,7 +282,10 @@ fn draw_far_layer(
     // Only the rows the image so far does not already show nearer (the
     // layer's own culling then skips what lies behind the nearer ridges).
     let needed = layer.rows_shown(depth, camera.width);
-    let r = layer.render_with(camera, &needed, |t, rows| rasterise(t, camera, rows));
+    let r = layer.render_with(camera, &needed, |t, rows, kept| match kept {
+        Some((old, keep)) => rasterise_keeping(t, camera, rows, (&old.depth, &old.triangle), keep),
+        None => rasterise(t, camera, rows),
+    });
     let (id0, w) = (layer.id0, camera.width.max(1));
     // Only the rows some column needs: below them every pixel is nearer
     // than any point of the layer (or NaN), where the composite keeps it.
