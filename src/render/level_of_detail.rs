@@ -389,6 +389,33 @@ fn distance_to_quad(q: &[(f64, f64); 4]) -> f64 {
 mod tests {
     use super::*;
 
+    /// A ring's window is cut only on the sides the eye lies beyond, at
+    /// the start by whole multiples of [`TRIM_ALIGN`] with a cell of NaN
+    /// before the first cell read, at the end a cell after the last.
+    #[test]
+    fn a_ring_window_is_cut_beyond_the_eye_only() {
+        let cwin = Window::new(100, 200, 1000, 900);
+        let read = Window::new(700, 250, 380, 500);
+        // eye west of the cells read, within the rows: columns cut at
+        // the start (by 9 x 64 = 576: the first cell read is 700)
+        let t = trimmed(cwin, Some(read), (400.0, 600.0));
+        assert_eq!((t.col, t.row, t.width, t.height), (676, 200, 424, 900));
+        assert!(t.col < read.col && (t.col - cwin.col) % TRIM_ALIGN == 0);
+        // eye east of them: the end cut a cell after the last read
+        let t = trimmed(cwin, Some(read), (1095.0, 600.0));
+        assert_eq!((t.col, t.col_end()), (100, 1081));
+        // eye south of them (rows grow southward): the rows' end cut
+        let t = trimmed(cwin, Some(read), (800.0, 1095.0));
+        assert_eq!((t.col, t.width, t.row, t.row_end()), (100, 1000, 200, 751));
+        // eye among them, or nothing read: no cut
+        assert_eq!(trimmed(cwin, Some(read), (800.0, 600.0)), cwin);
+        assert_eq!(trimmed(cwin, None, (105.0, 600.0)), cwin);
+        // a start more than twice the eye's pixel: not cut there
+        let far = Window::new(0, 0, 1000, 10);
+        let t = trimmed(far, Some(Window::new(600, 0, 400, 10)), (5.0, 5.0));
+        assert_eq!(t.col, 0);
+    }
+
     #[test]
     fn the_distance_to_a_square_is_to_its_nearest_edge() {
         let sq = [(1.0, -1.0), (3.0, -1.0), (3.0, 1.0), (1.0, 1.0)];

@@ -2109,4 +2109,35 @@ mod ring_tests {
             "{skipped} of {inside}"
         );
     }
+    /// A ring's heights made in place are those made from a copy, bit
+    /// for bit (NaN heights, the inner hole and the outer edge included).
+    #[test]
+    fn heights_made_in_place_are_those_made_from_a_copy() {
+        let p = [[30.0, 0.4], [-0.2, -30.0]];
+        let dxs: Vec<f64> = (0..500).map(|i| -250.37 + i as f64).collect();
+        for dy in [-200.5, -3.5, 0.5, 77.5] {
+            let f = RowFrame {
+                p0: (p[0][0], p[0][1] * dy),
+                p1: (p[1][0], p[1][1] * dy),
+                eye_alt: 1234.5,
+                coef: 6.7e-8,
+                d2_range: (3000.0f64.powi(2), 7000.0f64.powi(2)),
+            };
+            let src: Vec<f32> = (0..dxs.len())
+                .map(|i| {
+                    if i % 17 == 3 {
+                        f32::NAN
+                    } else {
+                        900.0 + (i * 37 % 101) as f32 * 1.25
+                    }
+                })
+                .collect();
+            let mut copied = vec![0f32; dxs.len()];
+            vertex_row(&mut copied, &src, &dxs, f);
+            let mut own = src.clone();
+            vertex_row_in_place(&mut own, &dxs, f);
+            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&own), bits(&copied), "row {dy}");
+        }
+    }
 }

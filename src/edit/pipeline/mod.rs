@@ -437,10 +437,13 @@ pub(super) fn changes_within(views: &[ViewState], deformation: &Deformation, cel
         // window's, in a disc; the margin covers the rounding of each).
         let (x0, y0) = ((w.col - ox) as f64, (w.row - oy) as f64);
         let (x1, y1) = (x0 + w.width as f64, y0 + w.height as f64);
-        if [(x0, y0), (x1, y0), (x0, y1), (x1, y1)].iter().all(|&(x, y)| {
-            let (e, n) = v.frame.pixel_to_en(x, y);
-            e.hypot(n) <= limit * (1.0 - 1e-9)
-        }) {
+        if [(x0, y0), (x1, y0), (x0, y1), (x1, y1)]
+            .iter()
+            .all(|&(x, y)| {
+                let (e, n) = v.frame.pixel_to_en(x, y);
+                e.hypot(n) <= limit * (1.0 - 1e-9)
+            })
+        {
             return true;
         }
         deformation
