@@ -79,40 +79,6 @@ impl Dem {
         })
     }
 
-    /// The part of coarse window `cwin` that [`Dem::read_block_max`] with
-    /// the same `k` and `wanted` reads: the box of the chunks it reads,
-    /// clipped to `cwin` (every coarse cell outside it comes out NaN).
-    /// `None` when it reads no chunk. Asks `wanted` the same questions,
-    /// without reading.
-    pub fn block_max_extent(
-        &self,
-        cwin: Window,
-        k: usize,
-        wanted: &(dyn Fn(Window) -> bool + Sync),
-    ) -> Option<Window> {
-        let k = k.max(1);
-        let cc = (CHUNK / k).max(1);
-        let first_band = cwin.row.div_euclid(cc as i64);
-        let mut extent: Option<(i64, i64, i64, i64)> = None;
-        for (r0, r1) in band_rows(cwin, cc, first_band) {
-            for (_, coarse, full) in chunks_of_band(cwin, k, cc, (r0, r1)) {
-                if full
-                    .intersect(&self.full_window())
-                    .is_some_and(|f| wanted(f))
-                {
-                    let (c0, rr0) = (coarse.col, coarse.row);
-                    let (c1, rr1) = (coarse.col_end(), coarse.row_end());
-                    extent = Some(match extent {
-                        None => (c0, rr0, c1, rr1),
-                        Some((a, b, c, d)) => (a.min(c0), b.min(rr0), c.max(c1), d.max(rr1)),
-                    });
-                }
-            }
-        }
-        let (c0, r0, c1, r1) = extent?;
-        Some(Window::new(c0, r0, (c1 - c0) as usize, (r1 - r0) as usize))
-    }
-
     /// One band of [`Dem::read_block_max`]: coarse rows `r0..r1` of
     /// `cwin` (relative to it) into `out`, chunk by chunk.
     fn band_max(
@@ -142,6 +108,38 @@ impl Dem {
         }
         Ok(())
     }
+}
+
+/// The box of the chunks of [`CHUNK`] x [`CHUNK`] cells of a grid (its
+/// cells `grid`, chunks aligned to its origin) that reach window `cwin` of
+/// it and for which `wanted` holds (asked of the chunk clipped to `cwin`
+/// and `grid`, as [`Dem::read_block_max`] with `k` = 1 asks), clipped to
+/// `cwin`; `None` when there is none. What reading `cwin` that way
+/// reads, and, for a grid `k` times coarser than a DEM's and `wanted` of
+/// the DEM cells under a window, a box holding every chunk that reading
+/// the DEM's block maxima (chunks `k` times finer, each within one of
+/// these) reads: outside it every coarse cell comes out NaN.
+pub fn block_max_extent(
+    cwin: Window,
+    grid: Window,
+    wanted: &(dyn Fn(Window) -> bool + Sync),
+) -> Option<Window> {
+    let first_band = cwin.row.div_euclid(CHUNK as i64);
+    let mut extent: Option<(i64, i64, i64, i64)> = None;
+    for (r0, r1) in band_rows(cwin, CHUNK, first_band) {
+        for (_, coarse, _) in chunks_of_band(cwin, 1, CHUNK, (r0, r1)) {
+            if coarse.intersect(&grid).is_some_and(|f| wanted(f)) {
+                let (c0, rr0) = (coarse.col, coarse.row);
+                let (c1, rr1) = (coarse.col_end(), coarse.row_end());
+                extent = Some(match extent {
+                    None => (c0, rr0, c1, rr1),
+                    Some((a, b, c, d)) => (a.min(c0), b.min(rr0), c.max(c1), d.max(rr1)),
+                });
+            }
+        }
+    }
+    let (c0, r0, c1, r1) = extent?;
+    Some(Window::new(c0, r0, (c1 - c0) as usize, (r1 - r0) as usize))
 }
 
 /// The chunks of the band of coarse rows `r0..r1` of `cwin` (relative to

@@ -42,7 +42,7 @@
 use super::far_layers::FarRing;
 use super::terrain::wedge_azimuths;
 use super::{LocalTerrain, RenderError};
-use crate::raster::{Dem, Window};
+use crate::raster::{block_max_extent, Dem, Window};
 use crate::view::{Camera, LocalFrame};
 
 /// The least distance, metres, the exact terrain of a level-of-detail view
@@ -189,10 +189,10 @@ impl LodPlan {
             let overviews = dem.overview_layer(k, finer(cwin, k));
             let from_overview = |w: Window| area.wants(finer(w, k));
             let from_dem = |w: Window| area.wants(w);
-            let read = match &overviews {
-                Some(ov) => ov.block_max_extent(cwin, 1, &from_overview),
-                None => dem.block_max_extent(cwin, k, &from_dem),
-            };
+            // (the box of what reading from overviews reads, which holds
+            // what reading block maxima reads: the same cut either way)
+            let grid = Window::new(0, 0, dem.width.div_ceil(k), dem.height.div_ceil(k));
+            let read = block_max_extent(cwin, grid, &from_overview);
             let eye = frame_abs.eye_pixel;
             let cwin = trimmed(cwin, read, (eye.0 / k as f64, eye.1 / k as f64));
             let map = match &overviews {
