@@ -142,14 +142,12 @@ impl LocalTerrain {
         if w == 0 || h == 0 || dem.data.len() != w * h {
             return Self::build_over(&dem, frame, max_d, (0, 0, w, h), min_d);
         }
-        let mut z = dem.data;
+        let own = dem.data;
         let dem = HeightMap {
             data: Vec::new(),
             ..dem
         };
-        let mut t = Self::build_rows(&dem, frame, max_d, (0, 0, w, h), min_d, &mut z, true);
-        t.z = VertexHeights::new(z, w);
-        t
+        Self::build_over_with::<true>(&dem, frame, max_d, (0, 0, w, h), min_d, own)
     }
 
     /// The cells `(c0, r0, c1, r1)` (end exclusive) of a grid of `size`
@@ -183,33 +181,22 @@ impl LocalTerrain {
         dem: &HeightMap,
         frame: &LocalFrame,
         max_d: f64,
-        (c0, r0, c1, r1): (usize, usize, usize, usize),
+        cells: (usize, usize, usize, usize),
         min_d: f64,
     ) -> Self {
-        let nx = c1.saturating_sub(c0).max(1);
-        let ny = r1.saturating_sub(r0).max(1);
-        // A recycled buffer (see `buffer_pool`) or a zeroed allocation whose
-        // pages are mapped by the parallel fill below, which writes every
-        // element.
-        let mut z = buffer_pool::overwritten_f32(nx * ny);
-        let mut t = Self::build_rows(dem, frame, max_d, (c0, r0, c1, r1), min_d, &mut z, false);
-        t.z = VertexHeights::new(z, nx);
-        t
+        Self::build_over_with::<false>(dem, frame, max_d, cells, min_d, Vec::new())
     }
 
-    /// The vertex heights of [`LocalTerrain::build_over`] written into `z`
-    /// (`nx * ny` long), from `dem`'s cells, or with `in_place` from `z`
-    /// itself (then `dem` is the grid of `z`, its data not read, and the
-    /// cells `(0, 0, width, height)`), and the terrain around them (its
-    /// heights left empty for the caller to put `z` in).
-    fn build_rows(
+    /// [`LocalTerrain::build_over`]; with `IN_PLACE`, the heights are
+    /// `own`'s (`dem` is then its grid, its data not read, and the cells
+    /// `(0, 0, width, height)`), each turned into its vertex's in place.
+    fn build_over_with<const IN_PLACE: bool>(
         dem: &HeightMap,
         frame: &LocalFrame,
         max_d: f64,
         (c0, r0, c1, r1): (usize, usize, usize, usize),
         min_d: f64,
-        z: &mut [f32],
-        in_place: bool,
+        own: Vec<f32>,
     ) -> Self {
         // (0 for a whole terrain: no squared distance is under it)
         let min_d2 = min_d * min_d;
@@ -220,6 +207,14 @@ impl LocalTerrain {
         let ny = r1.saturating_sub(r0).max(1);
         let coef = frame.curvature.coefficient();
         let eye_alt = frame.eye_alt;
+        // A recycled buffer (see `buffer_pool`) or a zeroed allocation whose
+        // pages are mapped by the parallel fill below, which writes every
+        // element.
+        let mut z = if IN_PLACE {
+            own
+        } else {
+            buffer_pool::overwritten_f32(nx * ny)
+        };
         let max_d2 = max_d * max_d * 1.0001 + 1.0;
         // Each column's offset from the eye, once for all rows (the same
         // value per cell as computing it in the row: the loop below is then
@@ -235,8 +230,11 @@ impl LocalTerrain {
             let dy = src_r as f64 + 0.5 - ey;
             // columns inside the DEM, then any beyond its edge
             let inside = dem.width.saturating_sub(c0).min(nx);
-            let src = (!in_place)
-                .then(|| &dem.data[src_r * dem.width + c0..src_r * dem.width + c0 + inside]);
+            let src = if IN_PLACE {
+                &[][..]
+            } else {
+                &dem.data[src_r * dem.width + c0..src_r * dem.width + c0 + inside]
+            };
             let (e0, n0) = (p[0][1] * dy, p[1][1] * dy);
             let row_frame = RowFrame {
                 p0: (p[0][0], e0),
@@ -248,22 +246,19 @@ impl LocalTerrain {
             // (a ring's vertices surely nearer than its inner radius are
             // nodata whatever their height: not computed)
             let (a, b) = surely_inside(&dxs[..inside], &row_frame);
-            match src {
-                Some(src) => {
-                    vertex_row(&mut row[..a], &src[..a], &dxs[..a], row_frame);
-                    row[a..b].fill(f32::NAN);
-                    vertex_row(
-                        &mut row[b..inside],
-                        &src[b..inside],
-                        &dxs[b..inside],
-                        row_frame,
-                    );
-                }
-                None => {
-                    vertex_row_in_place(&mut row[..a], &dxs[..a], row_frame);
-                    row[a..b].fill(f32::NAN);
-                    vertex_row_in_place(&mut row[b..inside], &dxs[b..inside], row_frame);
-                }
+            if IN_PLACE {
+                vertex_row_in_place(&mut row[..a], &dxs[..a], row_frame);
+                row[a..b].fill(f32::NAN);
+                vertex_row_in_place(&mut row[b..inside], &dxs[b..inside], row_frame);
+            } else {
+                vertex_row(&mut row[..a], &src[..a], &dxs[..a], row_frame);
+                row[a..b].fill(f32::NAN);
+                vertex_row(
+                    &mut row[b..inside],
+                    &src[b..inside],
+                    &dxs[b..inside],
+                    row_frame,
+                );
             }
             row[inside..].fill(f32::NAN);
         });
@@ -287,7 +282,7 @@ impl LocalTerrain {
             row0: r0,
             nx,
             ny,
-            z: VertexHeights::new(Vec::new(), nx),
+            z: VertexHeights::new(z, nx),
             max_distance: max_d,
             eye_v,
             en_to_v: pinv,
