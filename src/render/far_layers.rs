@@ -70,6 +70,10 @@ pub(crate) struct LayerRender {
     pub(crate) last_row: Option<Vec<i32>>,
     pub(crate) depth: Vec<f32>,
     pub(crate) triangle: Vec<u32>,
+    /// The first row with a finite depth (the image's height where none
+    /// has): the rows above are sky or not drawn, which no composite
+    /// takes.
+    pub(crate) first_row: usize,
 }
 
 impl LayerRender {
@@ -153,11 +157,20 @@ impl FarLayer {
             .as_deref()
             .map(|old| (old, &keep as &(dyn Fn(usize, usize) -> bool + Sync)));
         let (depth, triangle) = render(&self.terrain, last_row.as_deref(), kept);
+        // (a whole row at a time, branch-free: it vectorises)
+        let first_row = depth
+            .chunks(camera.width.max(1))
+            .position(|row| {
+                row.iter()
+                    .fold(false, |a, &d| a | (d.abs() < f32::INFINITY))
+            })
+            .unwrap_or(camera.height);
         let r = Arc::new(LayerRender {
             camera: *camera,
             last_row,
             depth,
             triangle,
+            first_row,
         });
         *lock() = Some(Arc::clone(&r));
         r

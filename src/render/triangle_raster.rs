@@ -289,15 +289,18 @@ fn draw_far_layer(
     let (id0, w) = (layer.id0, camera.width.max(1));
     // Only the rows some column needs: below them every pixel is nearer
     // than any point of the layer (or NaN), where the composite keeps it.
+    // Nor the rows above the layer's first finite depth (sky or not drawn:
+    // never nearer).
     let rows = needed.iter().max().map_or(0, |&m| (m + 1).max(0) as usize);
     let n = (rows * w).min(depth.len()).min(r.depth.len());
-    depth[..n]
+    let a = (r.first_row * w).min(n);
+    depth[a..n]
         .par_chunks_mut(w)
-        .zip(triangle[..n].par_chunks_mut(w))
+        .zip(triangle[a..n].par_chunks_mut(w))
         .zip(
-            r.depth[..n]
+            r.depth[a..n]
                 .par_chunks(w)
-                .zip(r.triangle[..n].par_chunks(w)),
+                .zip(r.triangle[a..n].par_chunks(w)),
         )
         .for_each(|((d, t), (fd, ft))| take_nearer(d, t, fd, ft, id0));
 }
