@@ -128,7 +128,7 @@ pub fn block_max_extent(
     let mut extent: Option<(i64, i64, i64, i64)> = None;
     for (r0, r1) in band_rows(cwin, CHUNK, first_band) {
         for (_, coarse, _) in chunks_of_band(cwin, 1, CHUNK, (r0, r1)) {
-            if coarse.intersect(&grid).is_some_and(|f| wanted(f)) {
+            if coarse.intersect(&grid).is_some_and(wanted) {
                 let (c0, rr0) = (coarse.col, coarse.row);
                 let (c1, rr1) = (coarse.col_end(), coarse.row_end());
                 extent = Some(match extent {
