@@ -39,7 +39,9 @@ impl Dem {
         // coarse cells per chunk edge (a chunk a whole number of coarse cells)
         let cc = (CHUNK / k).max(1);
         let (w, h) = (cwin.width, cwin.height);
-        let mut data = vec![f32::NAN; w * h];
+        // (a recycled buffer where there is one: each band sets its rows
+        // to NaN before its chunks are reduced into them)
+        let mut data = crate::buffer_pool::overwritten_f32(w * h);
         if w > 0 && h > 0 {
             // Bands of coarse rows aligned to the chunk grid.
             let first_band = cwin.row.div_euclid(cc as i64);
@@ -89,19 +91,8 @@ impl Dem {
         wanted: &(dyn Fn(Window) -> bool + Sync),
     ) -> Result<(), RasterError> {
         let w = cwin.width;
-        let mut c = 0usize;
-        while c < w {
-            // the chunk column holding coarse column c, clipped to cwin
-            let abs = cwin.col + c as i64;
-            let next = (abs.div_euclid(cc as i64) + 1) * cc as i64;
-            let c1 = ((next - cwin.col) as usize).min(w);
-            let coarse = Window::new(abs, cwin.row + r0 as i64, c1 - c, r1 - r0);
-            let full = Window::new(
-                coarse.col * k as i64,
-                coarse.row * k as i64,
-                coarse.width * k,
-                coarse.height * k,
-            );
+        out.fill(f32::NAN);
+        for ((c, c1), _, full) in chunks_of_band(cwin, k, cc, (r0, r1)) {
             if let Some(read) = full.intersect(&self.full_window()).filter(|f| wanted(*f)) {
                 let cells = self.read_height_map_once(read)?;
                 ChunkMax {
@@ -114,10 +105,74 @@ impl Dem {
                 }
                 .reduce_max(out);
             }
-            c = c1;
         }
         Ok(())
     }
+}
+
+/// The box of the chunks of [`CHUNK`] x [`CHUNK`] cells of a grid (its
+/// cells `grid`, chunks aligned to its origin) that reach window `cwin` of
+/// it and for which `wanted` holds (asked of the chunk clipped to `cwin`
+/// and `grid`, as [`Dem::read_block_max`] with `k` = 1 asks), clipped to
+/// `cwin`; `None` when there is none. What reading `cwin` that way
+/// reads, and, for a grid `k` times coarser than a DEM's and `wanted` of
+/// the DEM cells under a window, a box holding every chunk that reading
+/// the DEM's block maxima (chunks `k` times finer, each within one of
+/// these) reads: outside it every coarse cell comes out NaN.
+pub fn block_max_extent(
+    cwin: Window,
+    grid: Window,
+    wanted: &(dyn Fn(Window) -> bool + Sync),
+) -> Option<Window> {
+    let first_band = cwin.row.div_euclid(CHUNK as i64);
+    let mut extent: Option<(i64, i64, i64, i64)> = None;
+    for (r0, r1) in band_rows(cwin, CHUNK, first_band) {
+        for (_, coarse, _) in chunks_of_band(cwin, 1, CHUNK, (r0, r1)) {
+            if coarse.intersect(&grid).is_some_and(wanted) {
+                let (c0, rr0) = (coarse.col, coarse.row);
+                let (c1, rr1) = (coarse.col_end(), coarse.row_end());
+                extent = Some(match extent {
+                    None => (c0, rr0, c1, rr1),
+                    Some((a, b, c, d)) => (a.min(c0), b.min(rr0), c.max(c1), d.max(rr1)),
+                });
+            }
+        }
+    }
+    let (c0, r0, c1, r1) = extent?;
+    Some(Window::new(c0, r0, (c1 - c0) as usize, (r1 - r0) as usize))
+}
+
+/// The chunks of the band of coarse rows `r0..r1` of `cwin` (relative to
+/// it), left to right: the coarse columns of `cwin` each covers (relative,
+/// end exclusive), its coarse window (clipped to `cwin`) and that window
+/// in DEM cells (`k` a coarse cell).
+fn chunks_of_band(
+    cwin: Window,
+    k: usize,
+    cc: usize,
+    (r0, r1): (usize, usize),
+) -> impl Iterator<Item = ((usize, usize), Window, Window)> {
+    let w = cwin.width;
+    let mut c = 0usize;
+    std::iter::from_fn(move || {
+        if c >= w {
+            return None;
+        }
+        // the chunk column holding coarse column c, clipped to cwin
+        let abs = cwin.col + c as i64;
+        let next = (abs.div_euclid(cc as i64) + 1) * cc as i64;
+        let c1 = ((next - cwin.col) as usize).min(w);
+        let coarse = Window::new(abs, cwin.row + r0 as i64, c1 - c, r1 - r0);
+        let full = Window::new(
+            coarse.col * k as i64,
+            coarse.row * k as i64,
+            coarse.width * k,
+            coarse.height * k,
+        );
+        let cols = (c, c1);
+        c = c1;
+        Some((cols, coarse, full))
+    })
 }
 
 /// The bands of coarse rows of `cwin` (relative to it, end exclusive) cut

@@ -15,7 +15,7 @@ pub use sample_type::{Sample, SampleType};
 pub(crate) mod alloc;
 mod block_cache;
 mod block_max;
-pub use block_max::CHUNK as BLOCK_MAX_CHUNK;
+pub use block_max::{block_max_extent, CHUNK as BLOCK_MAX_CHUNK};
 mod tile_layer;
 mod window;
 pub use tile_layer::{read_height_map, Dem, LayerKind, Tile, TileSource};

@@ -55,6 +55,11 @@ pub(crate) struct FarLayer {
     pub(crate) walks: Arc<CastMemo>,
 }
 
+/// A kept render of a far layer, and which of its strips of pixel columns
+/// (`x0..=x1`) a new render of the same camera takes from it
+/// ([`FarLayer::render_with`]).
+pub(crate) type KeptRender<'a> = (&'a LayerRender, &'a (dyn Fn(usize, usize) -> bool + Sync));
+
 /// A far layer's render: the camera and, per pixel, depth and the
 /// layer's own triangle id (sky: infinite depth and [`SKY`]); with
 /// `last_row`, only the rows `0..=last_row[x]` of each column `x` (the
@@ -65,6 +70,10 @@ pub(crate) struct LayerRender {
     pub(crate) last_row: Option<Vec<i32>>,
     pub(crate) depth: Vec<f32>,
     pub(crate) triangle: Vec<u32>,
+    /// The first row with a finite depth (the image's height where none
+    /// has): the rows above are sky or not drawn, which no composite
+    /// takes.
+    pub(crate) first_row: usize,
 }
 
 impl LayerRender {
@@ -80,22 +89,35 @@ impl LayerRender {
     }
 }
 
+impl Drop for LayerRender {
+    /// The buffers go back to [`crate::buffer_pool`] when a later render
+    /// replaces this one (a layer is drawn again as an edit's rounds open
+    /// more sky), for that render or the view's next.
+    fn drop(&mut self) {
+        crate::buffer_pool::recycle_f32(std::mem::take(&mut self.depth));
+        crate::buffer_pool::recycle_u32(std::mem::take(&mut self.triangle));
+    }
+}
+
 impl FarLayer {
     /// The layer's render with `camera`, holding at least the rows
     /// `0..=needed[x]` of each column `x` (the others may be left out: see
     /// [`LayerRender`]): the kept one when it was made with the same camera
     /// and holds them, else made by `render` (given the rows to draw,
-    /// `None` for all) and kept. A new render draws the rows of the kept
-    /// one too (same camera), so that the renders of an edit's rounds,
-    /// whose nearer terrain opens a little more sky here and there, settle
-    /// after a few. The lock is not held while rendering (a render is
-    /// parallel: a worker waiting in it may take up another render of this
-    /// layer).
+    /// `None` for all, and the kept render of the same camera with which
+    /// of its strips of columns `x0..=x1` to take: those whose rows are the
+    /// new render's, which a render of the strip gives again, each strip
+    /// being drawn on its own) and kept. A new render draws the rows of
+    /// the kept one too (same camera), so that the renders of an edit's
+    /// rounds, whose nearer terrain opens a little more sky here and
+    /// there, settle after a few. The lock is not held while rendering (a
+    /// render is parallel: a worker waiting in it may take up another
+    /// render of this layer).
     pub(crate) fn render_with(
         &self,
         camera: &crate::view::Camera,
         needed: &[i32],
-        render: impl FnOnce(&LocalTerrain, Option<&[i32]>) -> (Vec<f32>, Vec<u32>),
+        render: impl FnOnce(&LocalTerrain, Option<&[i32]>, Option<KeptRender>) -> (Vec<f32>, Vec<u32>),
     ) -> Arc<LayerRender> {
         let lock = || {
             self.drawn
@@ -118,12 +140,37 @@ impl FarLayer {
         } else {
             None
         };
-        let (depth, triangle) = render(&self.terrain, last_row.as_deref());
+        // The rows drawn of column `x` (`0..` this) under `rows`.
+        let drawn = |rows: Option<&[i32]>, x: usize| match rows {
+            None => Some(h),
+            Some(l) => l.get(x).map(|&r| (r + 1).clamp(0, h)),
+        };
+        let keep = |x0: usize, x1: usize| {
+            same.as_ref().is_some_and(|old| {
+                (x0..=x1).all(|x| {
+                    let d = drawn(last_row.as_deref(), x);
+                    d.is_some() && d == drawn(old.last_row.as_deref(), x)
+                })
+            })
+        };
+        let kept = same
+            .as_deref()
+            .map(|old| (old, &keep as &(dyn Fn(usize, usize) -> bool + Sync)));
+        let (depth, triangle) = render(&self.terrain, last_row.as_deref(), kept);
+        // (a whole row at a time, branch-free: it vectorises)
+        let first_row = depth
+            .chunks(camera.width.max(1))
+            .position(|row| {
+                row.iter()
+                    .fold(false, |a, &d| a | (d.abs() < f32::INFINITY))
+            })
+            .unwrap_or(camera.height);
         let r = Arc::new(LayerRender {
             camera: *camera,
             last_row,
             depth,
             triangle,
+            first_row,
         });
         *lock() = Some(Arc::clone(&r));
         r
@@ -258,7 +305,7 @@ impl FarLayers {
 
 /// A far layer before it joins a terrain ([`LocalTerrain::with_far_layers`]).
 pub struct FarRing {
-    /// The layer, built by [`LocalTerrain::ring_over`] on the coarse grid.
+    /// The layer, built by [`LocalTerrain::ring_from`] on the coarse grid.
     pub terrain: LocalTerrain,
     /// Its inner radius, metres (its vertices nearer are nodata).
     pub inner_m: f64,

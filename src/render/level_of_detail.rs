@@ -42,7 +42,7 @@
 use super::far_layers::FarRing;
 use super::terrain::wedge_azimuths;
 use super::{LocalTerrain, RenderError};
-use crate::raster::{Dem, Window};
+use crate::raster::{block_max_extent, Dem, Window};
 use crate::view::{Camera, LocalFrame};
 
 /// The least distance, metres, the exact terrain of a level-of-detail view
@@ -183,12 +183,21 @@ impl LodPlan {
                 margin: 2.0 * coarse_m,
             };
             // From the tiles' overviews where they have them (the coarse
-            // cells then are what the overviews hold), else block maxima.
+            // cells then are what the overviews hold), else block maxima;
+            // over the part of the box the reading reaches.
             let started = std::time::Instant::now();
             let overviews = dem.overview_layer(k, finer(cwin, k));
+            let from_overview = |w: Window| area.wants(finer(w, k));
+            let from_dem = |w: Window| area.wants(w);
+            // (the box of what reading from overviews reads, which holds
+            // what reading block maxima reads: the same cut either way)
+            let grid = Window::new(0, 0, dem.width.div_ceil(k), dem.height.div_ceil(k));
+            let read = block_max_extent(cwin, grid, &from_overview);
+            let eye = frame_abs.eye_pixel;
+            let cwin = trimmed(cwin, read, (eye.0 / k as f64, eye.1 / k as f64));
             let map = match &overviews {
-                Some(ov) => ov.read_block_max(cwin, 1, &|w| area.wants(finer(w, k)))?,
-                None => dem.read_block_max(cwin, k, &|w| area.wants(w))?,
+                Some(ov) => ov.read_block_max(cwin, 1, &from_overview)?,
+                None => dem.read_block_max(cwin, k, &from_dem)?,
             };
             if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
                 eprintln!(
@@ -200,7 +209,7 @@ impl LodPlan {
             }
             let frame_c = coarse_frame(frame_abs, k, (cwin.col, cwin.row));
             let read_s = started.elapsed().as_secs_f64();
-            let terrain = LocalTerrain::ring_over(&map, &frame_c, inner_v, outer);
+            let terrain = LocalTerrain::ring_from(map, &frame_c, inner_v, outer);
             if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
                 eprintln!(
                     "level of detail: ring k {k} read in {read_s:.3} s, built in {:.3} s",
@@ -242,6 +251,51 @@ fn coarse_frame(frame_abs: &LocalFrame, k: usize, (c0, r0): (i64, i64)) -> Local
 fn finer(w: Window, k: usize) -> Window {
     let ki = k as i64;
     Window::new(w.col * ki, w.row * ki, w.width * k, w.height * k)
+}
+
+/// A ring's window is cut at its start by whole multiples of this many
+/// coarse cells (see [`trimmed`]).
+const TRIM_ALIGN: i64 = 64;
+
+/// Ring window `cwin` (coarse cells) cut to the cells a ring reads, `read`
+/// (the box of the chunks read: every cell outside it is NaN), on the
+/// sides the eye (`eye`, coarse pixels) lies beyond, so that the ring is
+/// the same surface held in fewer cells: the box of the camera's wedge
+/// starts at the eye, and a ring's inner hole is most of it. Each cut
+/// leaves a column (or row) of NaN cells before the first cell read, so
+/// that a cast enters the ring's first cells where the uncut grid's
+/// traversal enters them; a cut at the start is a multiple of
+/// [`TRIM_ALIGN`], so that the renderer's blocks and superblocks, counted
+/// from the window's start, are the uncut window's, shifted. The ring's
+/// vertices, and the renders and casts over it, are then the uncut
+/// ring's: the vertices' offsets from the eye are computed from the same
+/// numbers (the eye's coarse pixel less a whole number of cells, exact
+/// where the start is at most twice the eye's pixel), and the rays from
+/// the eye leave the grid by the sides it does not lie beyond, which
+/// stay where they were.
+fn trimmed(cwin: Window, read: Option<Window>, (ex, ey): (f64, f64)) -> Window {
+    let Some(read) = read else {
+        return cwin;
+    };
+    // (start, end) along one axis: `start..end` the window, `r0..r1` the
+    // cells read, `e` the eye
+    let axis = |start: i64, end: i64, r0: i64, r1: i64, e: f64| -> (i64, i64) {
+        let (mut s, mut t) = (start, end);
+        let cut = (r0 - 1 - start).div_euclid(TRIM_ALIGN) * TRIM_ALIGN;
+        let cut_at = (start + cut) as f64;
+        // (at most twice the eye's pixel: the eye's pixel less the start is
+        // then exact, as it is from the uncut start)
+        if cut > 0 && e + 1.0 < cut_at && cut_at <= 2.0 * e {
+            s = start + cut;
+        }
+        if r1 + 1 < end && e > (r1 + 2) as f64 {
+            t = r1 + 1;
+        }
+        (s, t)
+    };
+    let (c0, c1) = axis(cwin.col, cwin.col_end(), read.col, read.col_end(), ex);
+    let (r0, r1) = axis(cwin.row, cwin.row_end(), read.row, read.row_end(), ey);
+    Window::new(c0, r0, (c1 - c0) as usize, (r1 - r0) as usize)
 }
 
 /// The box (coarse cells) of the camera's wedge out to `outer` metres on
@@ -334,6 +388,33 @@ fn distance_to_quad(q: &[(f64, f64); 4]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A ring's window is cut only on the sides the eye lies beyond, at
+    /// the start by whole multiples of [`TRIM_ALIGN`] with a cell of NaN
+    /// before the first cell read, at the end a cell after the last.
+    #[test]
+    fn a_ring_window_is_cut_beyond_the_eye_only() {
+        let cwin = Window::new(100, 200, 1000, 900);
+        let read = Window::new(700, 250, 380, 500);
+        // eye west of the cells read, within the rows: columns cut at
+        // the start (by 9 x 64 = 576: the first cell read is 700)
+        let t = trimmed(cwin, Some(read), (400.0, 600.0));
+        assert_eq!((t.col, t.row, t.width, t.height), (676, 200, 424, 900));
+        assert!(t.col < read.col && (t.col - cwin.col) % TRIM_ALIGN == 0);
+        // eye east of them: the end cut a cell after the last read
+        let t = trimmed(cwin, Some(read), (1095.0, 600.0));
+        assert_eq!((t.col, t.col_end()), (100, 1081));
+        // eye south of them (rows grow southward): the rows' end cut
+        let t = trimmed(cwin, Some(read), (800.0, 1095.0));
+        assert_eq!((t.col, t.width, t.row, t.row_end()), (100, 1000, 200, 751));
+        // eye among them, or nothing read: no cut
+        assert_eq!(trimmed(cwin, Some(read), (800.0, 600.0)), cwin);
+        assert_eq!(trimmed(cwin, None, (105.0, 600.0)), cwin);
+        // a start more than twice the eye's pixel: not cut there
+        let far = Window::new(0, 0, 1000, 10);
+        let t = trimmed(far, Some(Window::new(600, 0, 400, 10)), (5.0, 5.0));
+        assert_eq!(t.col, 0);
+    }
 
     #[test]
     fn the_distance_to_a_square_is_to_its_nearest_edge() {

@@ -132,9 +132,22 @@ impl LocalTerrain {
 
     /// [`LocalTerrain::over`] keeping only the vertices between `min_d`
     /// and `max_d` metres from the eye (the others nodata): one ring of a
-    /// level-of-detail terrain ([`super::far_layers`]).
-    pub(crate) fn ring_over(dem: &HeightMap, frame: &LocalFrame, min_d: f64, max_d: f64) -> Self {
-        Self::build_over(dem, frame, max_d, (0, 0, dem.width, dem.height), min_d)
+    /// level-of-detail terrain ([`super::far_layers`]). The vertex heights
+    /// are made in `dem`'s own buffer (each cell's height turned into its
+    /// vertex's, the same operations as from a copy): a ring's heights are
+    /// read for it alone, and a second buffer as large would be fresh
+    /// pages.
+    pub(crate) fn ring_from(dem: HeightMap, frame: &LocalFrame, min_d: f64, max_d: f64) -> Self {
+        let (w, h) = (dem.width, dem.height);
+        if w == 0 || h == 0 || dem.data.len() != w * h {
+            return Self::build_over(&dem, frame, max_d, (0, 0, w, h), min_d);
+        }
+        let own = dem.data;
+        let dem = HeightMap {
+            data: Vec::new(),
+            ..dem
+        };
+        Self::build_over_with::<true>(&dem, frame, max_d, (0, 0, w, h), min_d, own)
     }
 
     /// The cells `(c0, r0, c1, r1)` (end exclusive) of a grid of `size`
@@ -168,8 +181,22 @@ impl LocalTerrain {
         dem: &HeightMap,
         frame: &LocalFrame,
         max_d: f64,
+        cells: (usize, usize, usize, usize),
+        min_d: f64,
+    ) -> Self {
+        Self::build_over_with::<false>(dem, frame, max_d, cells, min_d, Vec::new())
+    }
+
+    /// [`LocalTerrain::build_over`]; with `IN_PLACE`, the heights are
+    /// `own`'s (`dem` is then its grid, its data not read, and the cells
+    /// `(0, 0, width, height)`), each turned into its vertex's in place.
+    fn build_over_with<const IN_PLACE: bool>(
+        dem: &HeightMap,
+        frame: &LocalFrame,
+        max_d: f64,
         (c0, r0, c1, r1): (usize, usize, usize, usize),
         min_d: f64,
+        own: Vec<f32>,
     ) -> Self {
         // (0 for a whole terrain: no squared distance is under it)
         let min_d2 = min_d * min_d;
@@ -183,7 +210,11 @@ impl LocalTerrain {
         // A recycled buffer (see `buffer_pool`) or a zeroed allocation whose
         // pages are mapped by the parallel fill below, which writes every
         // element.
-        let mut z = buffer_pool::overwritten_f32(nx * ny);
+        let mut z = if IN_PLACE {
+            own
+        } else {
+            buffer_pool::overwritten_f32(nx * ny)
+        };
         let max_d2 = max_d * max_d * 1.0001 + 1.0;
         // Each column's offset from the eye, once for all rows (the same
         // value per cell as computing it in the row: the loop below is then
@@ -199,7 +230,11 @@ impl LocalTerrain {
             let dy = src_r as f64 + 0.5 - ey;
             // columns inside the DEM, then any beyond its edge
             let inside = dem.width.saturating_sub(c0).min(nx);
-            let src = &dem.data[src_r * dem.width + c0..src_r * dem.width + c0 + inside];
+            let src = if IN_PLACE {
+                &[][..]
+            } else {
+                &dem.data[src_r * dem.width + c0..src_r * dem.width + c0 + inside]
+            };
             let (e0, n0) = (p[0][1] * dy, p[1][1] * dy);
             let row_frame = RowFrame {
                 p0: (p[0][0], e0),
@@ -211,14 +246,20 @@ impl LocalTerrain {
             // (a ring's vertices surely nearer than its inner radius are
             // nodata whatever their height: not computed)
             let (a, b) = surely_inside(&dxs[..inside], &row_frame);
-            vertex_row(&mut row[..a], &src[..a], &dxs[..a], row_frame);
-            row[a..b].fill(f32::NAN);
-            vertex_row(
-                &mut row[b..inside],
-                &src[b..inside],
-                &dxs[b..inside],
-                row_frame,
-            );
+            if IN_PLACE {
+                vertex_row_in_place(&mut row[..a], &dxs[..a], row_frame);
+                row[a..b].fill(f32::NAN);
+                vertex_row_in_place(&mut row[b..inside], &dxs[b..inside], row_frame);
+            } else {
+                vertex_row(&mut row[..a], &src[..a], &dxs[..a], row_frame);
+                row[a..b].fill(f32::NAN);
+                vertex_row(
+                    &mut row[b..inside],
+                    &src[b..inside],
+                    &dxs[b..inside],
+                    row_frame,
+                );
+            }
             row[inside..].fill(f32::NAN);
         });
         let eye_v = (ex - 0.5 - c0 as f64, ey - 0.5 - r0 as f64);
@@ -235,14 +276,13 @@ impl LocalTerrain {
                 || (f32::INFINITY, f32::NEG_INFINITY),
                 |x, y| (x.0.min(y.0), x.1.max(y.1)),
             );
-        let z = VertexHeights::new(z, nx);
         LocalTerrain {
             frame: *frame,
             col0: c0,
             row0: r0,
             nx,
             ny,
-            z,
+            z: VertexHeights::new(z, nx),
             max_distance: max_d,
             eye_v,
             en_to_v: pinv,
@@ -1966,17 +2006,52 @@ unsafe fn vertex_row_avx2(out: &mut [f32], src: &[f32], dxs: &[f64], f: RowFrame
 /// The loop of [`vertex_row`].
 #[inline(always)]
 fn vertex_row_body(out: &mut [f32], src: &[f32], dxs: &[f64], f: RowFrame) {
-    let (min_d2, max_d2) = f.d2_range;
     for ((out, &h), &dx) in out.iter_mut().zip(src).zip(dxs) {
-        let e = f.p0.0 * dx + f.p0.1;
-        let n = f.p1.0 * dx + f.p1.1;
-        let d2 = e * e + n * n;
-        let v = (h as f64 - f.eye_alt - f.coef * d2) as f32;
-        *out = if (d2 > max_d2) | (d2 < min_d2) {
-            f32::NAN
-        } else {
-            v
-        };
+        *out = vertex_height(h, dx, &f);
+    }
+}
+
+/// [`vertex_row`] with each cell's height in `out` itself, turned into
+/// its vertex's height in place.
+#[inline(never)]
+fn vertex_row_in_place(out: &mut [f32], dxs: &[f64], f: RowFrame) {
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has AVX2 (checked just above).
+        unsafe { vertex_row_in_place_avx2(out, dxs, f) };
+        return;
+    }
+    vertex_row_in_place_body(out, dxs, f);
+}
+
+/// [`vertex_row_in_place`] compiled for AVX2 (as [`vertex_row_avx2`]).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn vertex_row_in_place_avx2(out: &mut [f32], dxs: &[f64], f: RowFrame) {
+    vertex_row_in_place_body(out, dxs, f);
+}
+
+/// The loop of [`vertex_row_in_place`].
+#[inline(always)]
+fn vertex_row_in_place_body(out: &mut [f32], dxs: &[f64], f: RowFrame) {
+    for (out, &dx) in out.iter_mut().zip(dxs) {
+        *out = vertex_height(*out, dx, &f);
+    }
+}
+
+/// The vertex height of a cell of height `h` at column offset `dx` from
+/// the eye, in a row of frame `f` (see [`vertex_row`]).
+#[inline(always)]
+fn vertex_height(h: f32, dx: f64, f: &RowFrame) -> f32 {
+    let (min_d2, max_d2) = f.d2_range;
+    let e = f.p0.0 * dx + f.p0.1;
+    let n = f.p1.0 * dx + f.p1.1;
+    let d2 = e * e + n * n;
+    let v = (h as f64 - f.eye_alt - f.coef * d2) as f32;
+    if (d2 > max_d2) | (d2 < min_d2) {
+        f32::NAN
+    } else {
+        v
     }
 }
 
@@ -2028,5 +2103,36 @@ mod ring_tests {
             skipped > 0 && skipped + skipped / 50 >= inside,
             "{skipped} of {inside}"
         );
+    }
+    /// A ring's heights made in place are those made from a copy, bit
+    /// for bit (NaN heights, the inner hole and the outer edge included).
+    #[test]
+    fn heights_made_in_place_are_those_made_from_a_copy() {
+        let p = [[30.0, 0.4], [-0.2, -30.0]];
+        let dxs: Vec<f64> = (0..500).map(|i| -250.37 + i as f64).collect();
+        for dy in [-200.5, -3.5, 0.5, 77.5] {
+            let f = RowFrame {
+                p0: (p[0][0], p[0][1] * dy),
+                p1: (p[1][0], p[1][1] * dy),
+                eye_alt: 1234.5,
+                coef: 6.7e-8,
+                d2_range: (3000.0f64.powi(2), 7000.0f64.powi(2)),
+            };
+            let src: Vec<f32> = (0..dxs.len())
+                .map(|i| {
+                    if i % 17 == 3 {
+                        f32::NAN
+                    } else {
+                        900.0 + (i * 37 % 101) as f32 * 1.25
+                    }
+                })
+                .collect();
+            let mut copied = vec![0f32; dxs.len()];
+            vertex_row(&mut copied, &src, &dxs, f);
+            let mut own = src.clone();
+            vertex_row_in_place(&mut own, &dxs, f);
+            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&own), bits(&copied), "row {dy}");
+        }
     }
 }

@@ -282,19 +282,25 @@ fn draw_far_layer(
     // Only the rows the image so far does not already show nearer (the
     // layer's own culling then skips what lies behind the nearer ridges).
     let needed = layer.rows_shown(depth, camera.width);
-    let r = layer.render_with(camera, &needed, |t, rows| rasterise(t, camera, rows));
+    let r = layer.render_with(camera, &needed, |t, rows, kept| match kept {
+        Some((old, keep)) => rasterise_keeping(t, camera, rows, (&old.depth, &old.triangle), keep),
+        None => rasterise(t, camera, rows),
+    });
     let (id0, w) = (layer.id0, camera.width.max(1));
     // Only the rows some column needs: below them every pixel is nearer
     // than any point of the layer (or NaN), where the composite keeps it.
+    // Nor the rows above the layer's first finite depth (sky or not drawn:
+    // never nearer).
     let rows = needed.iter().max().map_or(0, |&m| (m + 1).max(0) as usize);
     let n = (rows * w).min(depth.len()).min(r.depth.len());
-    depth[..n]
+    let a = (r.first_row * w).min(n);
+    depth[a..n]
         .par_chunks_mut(w)
-        .zip(triangle[..n].par_chunks_mut(w))
+        .zip(triangle[a..n].par_chunks_mut(w))
         .zip(
-            r.depth[..n]
+            r.depth[a..n]
                 .par_chunks(w)
-                .zip(r.triangle[..n].par_chunks(w)),
+                .zip(r.triangle[a..n].par_chunks(w)),
         )
         .for_each(|((d, t), (fd, ft))| take_nearer(d, t, fd, ft, id0));
 }

@@ -432,6 +432,20 @@ pub(super) fn changes_within(views: &[ViewState], deformation: &Deformation, cel
     views.iter().all(|v| {
         let limit = (cells - EXACT_MARGIN_CELLS) * frame_cell_m(&v.frame);
         let (ox, oy) = v.window_offset;
+        // The window's corners well within: so is every corner of its
+        // cells (the cells' corners lie in the parallelogram of the
+        // window's, in a disc; the margin covers the rounding of each).
+        let (x0, y0) = ((w.col - ox) as f64, (w.row - oy) as f64);
+        let (x1, y1) = (x0 + w.width as f64, y0 + w.height as f64);
+        if [(x0, y0), (x1, y0), (x0, y1), (x1, y1)]
+            .iter()
+            .all(|&(x, y)| {
+                let (e, n) = v.frame.pixel_to_en(x, y);
+                e.hypot(n) <= limit * (1.0 - 1e-9)
+            })
+        {
+            return true;
+        }
         deformation
             .displacement
             .chunks(w.width)

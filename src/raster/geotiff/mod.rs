@@ -166,7 +166,8 @@ impl GeoTiff {
         thread_local! {
             static HEAD: std::cell::RefCell<Vec<u8>> = const { std::cell::RefCell::new(Vec::new()) };
         }
-        let small = HEAD.with(|head| -> std::io::Result<Option<Vec<u8>>> {
+        // (the whole file where it is small, else its length)
+        let small = HEAD.with(|head| -> std::io::Result<Result<Vec<u8>, u64>> {
             let mut head = head.borrow_mut();
             head.resize(SMALL_FILE as usize + 1, 0);
             let mut want = FIRST_READ.min(head.len());
@@ -182,19 +183,33 @@ impl GeoTiff {
                     // More than the first read: small enough to read whole?
                     let len = file.metadata()?.len();
                     if len > SMALL_FILE {
-                        return Ok(None);
+                        return Ok(Err(len));
                     }
                     want = head.len();
                 }
             }
-            Ok((got <= SMALL_FILE as usize).then(|| head[..got].to_vec()))
+            if got > SMALL_FILE as usize {
+                // (it grew while read: mapped, as a large file)
+                return Ok(Err(file.metadata()?.len()));
+            }
+            Ok(Ok(head[..got].to_vec()))
         });
-        if let Some(data) = small.map_err(|e| RasterError::io(path, e))? {
-            return Self::parse(path, Arc::new(Bytes::Owned(data)), budget);
-        }
+        let len = match small.map_err(|e| RasterError::io(path, e))? {
+            Ok(data) => return Self::parse(path, Arc::new(Bytes::Owned(data)), budget),
+            Err(len) => len,
+        };
+        // The length just read (a map measures the file again otherwise).
+        let len = usize::try_from(len).map_err(|_| {
+            let e = std::io::Error::new(
+                std::io::ErrorKind::InvalidData,
+                "memory map length overflows usize",
+            );
+            RasterError::io(path, e)
+        })?;
         // SAFETY: the map is read-only; a file truncated by another process
         // while mapped is outside what any GIS reader can guard against.
-        let map = unsafe { Mmap::map(&file) }.map_err(|e| RasterError::io(path, e))?;
+        let map = unsafe { memmap2::MmapOptions::new().len(len).map(&file) }
+            .map_err(|e| RasterError::io(path, e))?;
         Self::parse(path, Arc::new(Bytes::Map(map)), budget)
     }
 
