@@ -524,7 +524,11 @@ def test_photo_trace(binary, shots, tmp):
         print("  " + note)
         set_field(d, "photo-opacity", 0.5)
         d.execute_script("document.getElementById('photo-opacity').dispatchEvent(new Event('input'))")
-        # Align: drag the render under the photo (3 degrees right, 1 up).
+        # Align: drag the render under the photo (3 degrees right, 1 up),
+        # once the render for the photo's camera is in (a drag while the
+        # page lays out a render arriving was lost once in CI: the camera
+        # stayed where it was).
+        wait_for(lambda: rendered_for_camera(d), 30, "the render for the photo's camera")
         d.find_element(By.CSS_SELECTOR, "input[name=tool][value=align]").click()
         canvas = d.find_element(By.ID, "strokes")
         rw = d.execute_script("return arguments[0].getBoundingClientRect().width", canvas)
