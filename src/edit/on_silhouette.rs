@@ -731,15 +731,16 @@ pub fn anchor_on_silhouettes(
                     })
                 })
             });
-            if drawn_on && loose.iter().all(|h| h.is_some()) && !runs_off(&pixels[a..b], &rows) {
+            let all_found = loose.iter().all(|h| h.is_some());
+            runs_off_here = all_found && runs_off(&pixels[a..b], &rows);
+            if drawn_on && all_found && !runs_off_here {
                 for (m, h) in (a..b).zip(loose) {
                     hits[m] = h;
                 }
                 a = b;
                 continue;
             }
-            runs_off_here = loose.iter().all(|h| h.is_some()) && runs_off(&pixels[a..b], &rows);
-            if traced.is_none() && loose.iter().all(|h| h.is_some()) {
+            if traced.is_none() && all_found {
                 keep_near(&mut near_of[a..b], &loose);
             }
         } else if traced.is_none() && refused_here {
