@@ -8,6 +8,7 @@
 //! ([`GeoTiff::overview`]); masks are recognised and skipped.
 
 mod block_decode;
+mod file_bytes;
 pub mod fuzz;
 mod geokeys;
 mod ifd_chain;
@@ -18,6 +19,7 @@ mod tags;
 pub use limits::{decoder_limits, max_decompressed, memory_budget};
 
 use block_decode::BlockCodec;
+use file_bytes::{Bytes, FileStamp};
 
 pub use geokeys::{GeoKeys, RasterType};
 
@@ -25,7 +27,6 @@ use std::io::Cursor;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use memmap2::Mmap;
 use tiff::decoder::{Decoder, DecodingResult};
 use tiff::tags::Tag;
 
@@ -98,23 +99,6 @@ pub struct GeoTiff {
     counts: Vec<u64>,
 }
 
-/// The bytes of a GeoTIFF: a read-only map of the file, or a buffer.
-#[derive(Debug)]
-enum Bytes {
-    Map(Mmap),
-    Owned(Vec<u8>),
-}
-
-impl std::ops::Deref for Bytes {
-    type Target = [u8];
-    fn deref(&self) -> &[u8] {
-        match self {
-            Bytes::Map(m) => m,
-            Bytes::Owned(v) => v,
-        }
-    }
-}
-
 fn tiff_err(path: &Path, e: tiff::TiffError) -> RasterError {
     use tiff::TiffError as T;
     match e {
@@ -166,40 +150,57 @@ impl GeoTiff {
         thread_local! {
             static HEAD: std::cell::RefCell<Vec<u8>> = const { std::cell::RefCell::new(Vec::new()) };
         }
-        // (the whole file where it is small, else its length)
-        let small = HEAD.with(|head| -> std::io::Result<Result<Vec<u8>, u64>> {
-            let mut head = head.borrow_mut();
-            head.resize(SMALL_FILE as usize + 1, 0);
-            let mut want = FIRST_READ.min(head.len());
-            let mut got = 0;
-            while got < want {
-                match file.read(&mut head[got..want]) {
-                    Ok(0) => break,
-                    Ok(n) => got += n,
-                    Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
-                    Err(e) => return Err(e),
-                }
-                if got == want && want < head.len() {
-                    // More than the first read: small enough to read whole?
-                    let len = file.metadata()?.len();
-                    if len > SMALL_FILE {
-                        return Ok(Err(len));
+        // (the whole file where it is small, else its metadata and its
+        // first bytes)
+        let small = HEAD.with(
+            |head| -> std::io::Result<Result<Vec<u8>, (std::fs::Metadata, Vec<u8>)>> {
+                let mut head = head.borrow_mut();
+                head.resize(SMALL_FILE as usize + 1, 0);
+                let mut want = FIRST_READ.min(head.len());
+                let mut got = 0;
+                while got < want {
+                    match file.read(&mut head[got..want]) {
+                        Ok(0) => break,
+                        Ok(n) => got += n,
+                        Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                        Err(e) => return Err(e),
                     }
-                    want = head.len();
+                    if got == want && want < head.len() {
+                        // More than the first read: small enough to read whole?
+                        let meta = file.metadata()?;
+                        if meta.len() > SMALL_FILE {
+                            return Ok(Err((meta, head[..got].to_vec())));
+                        }
+                        want = head.len();
+                    }
                 }
-            }
-            if got > SMALL_FILE as usize {
-                // (it grew while read: mapped, as a large file)
-                return Ok(Err(file.metadata()?.len()));
-            }
-            Ok(Ok(head[..got].to_vec()))
-        });
-        let len = match small.map_err(|e| RasterError::io(path, e))? {
+                if got > SMALL_FILE as usize {
+                    // (it grew while read: mapped, as a large file)
+                    return Ok(Err((file.metadata()?, Vec::new())));
+                }
+                Ok(Ok(head[..got].to_vec()))
+            },
+        );
+        let (meta, first) = match small.map_err(|e| RasterError::io(path, e))? {
             Ok(data) => return Self::parse(path, Arc::new(Bytes::Owned(data)), budget),
-            Err(len) => len,
+            Err(large) => large,
         };
+        // A header within the first bytes read is parsed from them, and
+        // the file mapped when its blocks are first read
+        // ([`Bytes::Deferred`]): every read of the parse lies in those
+        // bytes, and every check of a length is against the file's, so
+        // what it gives is what parsing the mapped file gives. Where it
+        // fails (something lies beyond them), the mapped file is parsed,
+        // and its errors are the file's.
+        let stamp = FileStamp::of(&meta);
+        if !first.is_empty() {
+            let deferred = Arc::new(Bytes::deferred(stamp));
+            if let Ok(tiff) = Self::parse_from(path, &first, stamp.len(), deferred, budget) {
+                return Ok(tiff);
+            }
+        }
         // The length just read (a map measures the file again otherwise).
-        let len = usize::try_from(len).map_err(|_| {
+        let len = usize::try_from(stamp.len()).map_err(|_| {
             let e = std::io::Error::new(
                 std::io::ErrorKind::InvalidData,
                 "memory map length overflows usize",
@@ -219,7 +220,22 @@ impl GeoTiff {
         Self::parse(label, Arc::new(Bytes::Owned(data)), memory_budget())
     }
 
+    /// Parse the file held in `bytes` (whole: in memory or mapped).
     fn parse(path: &Path, bytes: Arc<Bytes>, budget: u64) -> Result<GeoTiff, RasterError> {
+        let data = bytes.data(path)?;
+        Self::parse_from(path, data, data.len() as u64, bytes.clone(), budget)
+    }
+
+    /// Parse a file of `file_len` bytes from `bytes`, its first bytes
+    /// (all of them, or a header's worth: a read beyond them fails), the
+    /// GeoTIFF keeping `store` for its blocks.
+    fn parse_from(
+        path: &Path,
+        bytes: &[u8],
+        file_len: u64,
+        store: Arc<Bytes>,
+        budget: u64,
+    ) -> Result<GeoTiff, RasterError> {
         if bytes.len() < 8 || !(bytes.starts_with(b"II") || bytes.starts_with(b"MM")) {
             return Err(RasterError::NotTiff {
                 path: path.to_path_buf(),
@@ -230,16 +246,15 @@ impl GeoTiff {
                 },
             });
         }
-        let mut dec = Self::decoder(path, &bytes, budget)?;
+        let mut dec = Self::decoder(path, bytes, file_len, budget)?;
         let first = subfile_type(&mut dec, path)?;
         // The first image the DEM (as a rule), and a walk over the others
         // that cannot fail (`ifd_chain`): described now, its overviews
         // listed on first use. What the open gives is what the walk would
         // have let it give.
-        if first & (SUBFILE_REDUCED | SUBFILE_MASK) == 0
-            && ifd_chain::subfile_types_readable(&bytes)
+        if first & (SUBFILE_REDUCED | SUBFILE_MASK) == 0 && ifd_chain::subfile_types_readable(bytes)
         {
-            let mut tiff = Self::describe(path, bytes.clone(), &mut dec, 0, budget)?;
+            let mut tiff = Self::describe(path, (bytes, file_len), store, &mut dec, 0, budget)?;
             tiff.budget = budget;
             return Ok(tiff);
         }
@@ -250,7 +265,14 @@ impl GeoTiff {
         // under).
         let mut described = None;
         let (ifd_index, list) = walk_images(path, &mut dec, first, |dec| {
-            described = Some(Self::describe(path, bytes.clone(), dec, 0, budget));
+            described = Some(Self::describe(
+                path,
+                (bytes, file_len),
+                store.clone(),
+                dec,
+                0,
+                budget,
+            ));
         })?;
         let ifd_index = ifd_index.ok_or_else(|| RasterError::Corrupt {
             path: path.to_path_buf(),
@@ -261,7 +283,7 @@ impl GeoTiff {
             None => {
                 dec.seek_to_image(ifd_index)
                     .map_err(|e| tiff_err(path, e))?;
-                Self::describe(path, bytes.clone(), &mut dec, ifd_index, budget)?
+                Self::describe(path, (bytes, file_len), store, &mut dec, ifd_index, budget)?
             }
         };
         tiff.budget = budget;
@@ -269,15 +291,22 @@ impl GeoTiff {
         Ok(tiff)
     }
 
-    /// A decoder of `bytes` on its first image, with the limits of `budget`.
+    /// A decoder of `bytes` (of a file of `file_len` bytes) on its first
+    /// image, with the limits of `budget`.
     fn decoder<'a>(
         path: &Path,
         bytes: &'a [u8],
+        file_len: u64,
         budget: u64,
     ) -> Result<Decoder<Cursor<&'a [u8]>>, RasterError> {
         Ok(Decoder::new(Cursor::new(bytes))
             .map_err(|e| tiff_err(path, e))?
-            .with_limits(limits::decoder_limits_within(bytes.len() as u64, budget)))
+            .with_limits(limits::decoder_limits_within(file_len, budget)))
+    }
+
+    /// The whole file's bytes (mapped now where the map was put off).
+    fn bytes(&self) -> Result<&[u8], RasterError> {
+        self.bytes.data(&self.path)
     }
 
     /// Sizes of the reduced-resolution images (overviews), in the file's
@@ -290,7 +319,8 @@ impl GeoTiff {
     /// use where the open put it off (it found that the walk cannot fail).
     fn overview_list(&self) -> &OverviewList {
         self.overview_list.get_or_init(|| {
-            let walked = Self::decoder(&self.path, &self.bytes, self.budget).and_then(|mut dec| {
+            let walked = self.bytes().and_then(|bytes| {
+                let mut dec = Self::decoder(&self.path, bytes, bytes.len() as u64, self.budget)?;
                 let first = subfile_type(&mut dec, &self.path)?;
                 walk_images(&self.path, &mut dec, first, |_| {})
             });
@@ -302,7 +332,8 @@ impl GeoTiff {
     /// the DEM; its overviews are left for the caller to list.
     fn describe(
         path: &Path,
-        bytes: Arc<Bytes>,
+        (bytes, file_len): (&[u8], u64),
+        store: Arc<Bytes>,
         dec: &mut Decoder<Cursor<&[u8]>>,
         ifd_index: usize,
         budget: u64,
@@ -314,9 +345,8 @@ impl GeoTiff {
         };
         // No tag may claim more values than the file has bytes (a crafted
         // count would otherwise make the decoder reserve gigabytes).
-        let file_len = bytes.len() as u64;
         if let Some(ptr) = dec.ifd_pointer() {
-            if let Some((tag, count)) = oversized_entry(&bytes, ptr.0) {
+            if let Some((tag, count)) = oversized_entry(bytes, file_len, ptr.0) {
                 return Err(RasterError::Corrupt {
                     path: p.to_path_buf(),
                     detail: format!(
@@ -354,7 +384,7 @@ impl GeoTiff {
         };
         Ok(GeoTiff {
             path: p.to_path_buf(),
-            bytes,
+            bytes: store,
             ifd_index,
             width,
             height,
@@ -397,8 +427,9 @@ impl GeoTiff {
         } else {
             (self.width as usize, h as usize)
         };
-        // Offsets and lengths were checked against the file size at open.
-        let src = &self.bytes[off as usize..(off + len) as usize];
+        // Offsets and lengths were checked against the file size at open
+        // (and a deferred map is of the same file).
+        let src = &self.bytes()?[off as usize..(off + len) as usize];
         block_decode::decode_block(&self.codec, src, stored_w, stored_h, w as usize, h as usize)
             .map_err(|e| RasterError::Corrupt {
                 path: self.path.clone(),
@@ -496,7 +527,7 @@ fn walk_images(
 /// read from the directory's bytes (its entries' counts), without decoding
 /// it again. `None` when every count fits, or the directory cannot be read
 /// (the decoder, which read it already, says what is wrong then).
-fn oversized_entry(bytes: &[u8], offset: u64) -> Option<(u16, u64)> {
+fn oversized_entry(bytes: &[u8], file_len: u64, offset: u64) -> Option<(u16, u64)> {
     let little = bytes.get(..2)? == b"II";
     let big = {
         let v = bytes.get(2..4)?;
@@ -516,7 +547,6 @@ fn oversized_entry(bytes: &[u8], offset: u64) -> Option<(u16, u64)> {
     } else {
         (uint(at, 2)?, at + 2, 12, 4, 4)
     };
-    let file_len = bytes.len() as u64;
     let mut worst: Option<(u16, u64)> = None;
     for i in 0..usize::try_from(entries).ok()? {
         let e = first.checked_add(i.checked_mul(size)?)?;

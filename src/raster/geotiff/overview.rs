@@ -24,7 +24,7 @@ impl GeoTiff {
         let list = self.overview_list();
         let at = list.sizes.iter().position(|&d| d == want)?;
         let index = *list.ifds.get(at)?;
-        let bytes = &self.bytes[..];
+        let bytes = self.bytes().ok()?;
         let mut dec =
             Decoder::new(Cursor::new(bytes))
                 .ok()?
