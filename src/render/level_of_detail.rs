@@ -39,6 +39,8 @@
 //! work an edit does on its exact terrain only (ridges, rounds,
 //! re-renders), and the edit checks that it kept within the cut.
 
+use rayon::prelude::*;
+
 use super::far_layers::FarRing;
 use super::terrain::wedge_azimuths;
 use super::{LocalTerrain, RenderError};
@@ -164,70 +166,87 @@ impl LodPlan {
         camera: &Camera,
         origin: (i64, i64),
     ) -> Result<Vec<FarRing>, RenderError> {
-        let cell = frame_cell_m(frame_abs);
-        let wedge = wedge_azimuths(camera);
-        let mut out = Vec::with_capacity(self.rings.len());
-        for &(k, inner, outer) in &self.rings {
-            let cwin = ring_box(dem, frame_abs, camera, k, outer);
-            // A ring's vertices start a little inside its inner radius (it
-            // overlaps the terrain inside it by two coarse cells: no gap
-            // between them), and its chunks are read with a coarse cell's
-            // margin more.
-            let coarse_m = k as f64 * cell;
-            let inner_v = (inner - 2.0 * coarse_m).max(0.0);
-            let area = ReadArea {
-                frame: frame_abs,
-                inner: inner_v - 2.0 * coarse_m,
-                outer: outer + 2.0 * coarse_m,
-                wedge,
-                margin: 2.0 * coarse_m,
-            };
-            // From the tiles' overviews where they have them (the coarse
-            // cells then are what the overviews hold), else block maxima;
-            // over the part of the box the reading reaches.
-            let started = std::time::Instant::now();
-            let overviews = dem.overview_layer(k, finer(cwin, k));
-            let from_overview = |w: Window| area.wants(finer(w, k));
-            let from_dem = |w: Window| area.wants(w);
-            // (the box of what reading from overviews reads, which holds
-            // what reading block maxima reads: the same cut either way)
-            let grid = Window::new(0, 0, dem.width.div_ceil(k), dem.height.div_ceil(k));
-            let read = block_max_extent(cwin, grid, &from_overview);
-            let eye = frame_abs.eye_pixel;
-            let cwin = trimmed(cwin, read, (eye.0 / k as f64, eye.1 / k as f64));
-            let map = match &overviews {
-                Some(ov) => ov.read_block_max(cwin, 1, &from_overview)?,
-                None => dem.read_block_max(cwin, k, &from_dem)?,
-            };
-            if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
-                eprintln!(
-                    "level of detail: ring k {k} from {inner:.0} to {outer:.0} m, {} x {} cells, {}",
-                    cwin.width,
-                    cwin.height,
-                    if overviews.is_some() { "from overviews" } else { "block maxima" }
-                );
-            }
-            let frame_c = coarse_frame(frame_abs, k, (cwin.col, cwin.row));
-            let read_s = started.elapsed().as_secs_f64();
-            let terrain = LocalTerrain::ring_from(map, &frame_c, inner_v, outer);
-            if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
-                eprintln!(
-                    "level of detail: ring k {k} read in {read_s:.3} s, built in {:.3} s",
-                    started.elapsed().as_secs_f64() - read_s
-                );
-            }
-            out.push(FarRing {
-                terrain,
-                inner_m: inner_v,
-                k,
-                origin: (
-                    cwin.col * k as i64 - origin.0,
-                    cwin.row * k as i64 - origin.1,
-                ),
-            });
-        }
-        Ok(out)
+        // The rings are read and built at once (each reads its chunks in
+        // parallel too): one ring has too few bands of chunks to keep
+        // every core busy, and the first cores done would wait.
+        self.rings
+            .par_iter()
+            .map(|&ring| build_ring(ring, dem, frame_abs, camera, origin))
+            .collect()
     }
+}
+
+/// Ring `(k, inner, outer)` of [`LodPlan::build_rings`], read and built.
+fn build_ring(
+    (k, inner, outer): (usize, f64, f64),
+    dem: &Dem,
+    frame_abs: &LocalFrame,
+    camera: &Camera,
+    origin: (i64, i64),
+) -> Result<FarRing, RenderError> {
+    let cell = frame_cell_m(frame_abs);
+    let wedge = wedge_azimuths(camera);
+    let cwin = ring_box(dem, frame_abs, camera, k, outer);
+    // A ring's vertices start a little inside its inner radius (it
+    // overlaps the terrain inside it by two coarse cells: no gap
+    // between them), and its chunks are read with a coarse cell's
+    // margin more.
+    let coarse_m = k as f64 * cell;
+    let inner_v = (inner - 2.0 * coarse_m).max(0.0);
+    let area = ReadArea {
+        frame: frame_abs,
+        inner: inner_v - 2.0 * coarse_m,
+        outer: outer + 2.0 * coarse_m,
+        wedge,
+        margin: 2.0 * coarse_m,
+    };
+    // From the tiles' overviews where they have them (the coarse
+    // cells then are what the overviews hold), else block maxima;
+    // over the part of the box the reading reaches.
+    let started = std::time::Instant::now();
+    let overviews = dem.overview_layer(k, finer(cwin, k));
+    let from_overview = |w: Window| area.wants(finer(w, k));
+    let from_dem = |w: Window| area.wants(w);
+    // (the box of what reading from overviews reads, which holds
+    // what reading block maxima reads: the same cut either way)
+    let grid = Window::new(0, 0, dem.width.div_ceil(k), dem.height.div_ceil(k));
+    let read = block_max_extent(cwin, grid, &from_overview);
+    let eye = frame_abs.eye_pixel;
+    let cwin = trimmed(cwin, read, (eye.0 / k as f64, eye.1 / k as f64));
+    let map = match &overviews {
+        Some(ov) => ov.read_block_max(cwin, 1, &from_overview)?,
+        None => dem.read_block_max(cwin, k, &from_dem)?,
+    };
+    if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
+        eprintln!(
+            "level of detail: ring k {k} from {inner:.0} to {outer:.0} m, {} x {} cells, {}",
+            cwin.width,
+            cwin.height,
+            if overviews.is_some() {
+                "from overviews"
+            } else {
+                "block maxima"
+            }
+        );
+    }
+    let frame_c = coarse_frame(frame_abs, k, (cwin.col, cwin.row));
+    let read_s = started.elapsed().as_secs_f64();
+    let terrain = LocalTerrain::ring_from(map, &frame_c, inner_v, outer);
+    if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
+        eprintln!(
+            "level of detail: ring k {k} read in {read_s:.3} s, built in {:.3} s",
+            started.elapsed().as_secs_f64() - read_s
+        );
+    }
+    Ok(FarRing {
+        terrain,
+        inner_m: inner_v,
+        k,
+        origin: (
+            cwin.col * k as i64 - origin.0,
+            cwin.row * k as i64 - origin.1,
+        ),
+    })
 }
 
 /// The frame of a grid `k` times coarser than `frame_abs`'s (the whole
