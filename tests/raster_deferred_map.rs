@@ -10,9 +10,10 @@ mod common;
 
 use common::{fixture, gdal_translate, gdal_values};
 use demsketch::raster::Dem;
+use std::path::{Path, PathBuf};
 
 /// Our reading of `path`, whole, against GDAL's.
-fn assert_reads_as_gdal(path: &std::path::Path) {
+fn assert_reads_as_gdal(path: &Path) {
     let dem = Dem::open(path).expect("opens");
     let ours = dem.read_height_map(dem.full_window()).expect("reads");
     let (w, h, gdal, nodata) = gdal_values(path);
@@ -26,66 +27,43 @@ fn assert_reads_as_gdal(path: &std::path::Path) {
     }
 }
 
+/// The Zion fixture copied to `dir/name` by GDAL, tiled in blocks of
+/// `block` cells (uncompressed: larger than the 64 KB read whole), with
+/// `extra` arguments.
+fn tiled_copy(dir: &Path, name: &str, block: usize, extra: &[&str]) -> PathBuf {
+    let out = dir.join(name);
+    let (bx, by) = (format!("BLOCKXSIZE={block}"), format!("BLOCKYSIZE={block}"));
+    let mut args = vec!["-co", "TILED=YES", "-co", &bx, "-co", &by];
+    args.extend_from_slice(extra);
+    gdal_translate(&fixture("zion_srtm_utm12n.tif"), &out, &args);
+    assert!(std::fs::metadata(&out).unwrap().len() > 64 << 10);
+    out
+}
+
 #[test]
 fn a_tiled_file_with_its_header_first_reads_as_gdal_does() {
-    let dir = tempfile::tempdir().unwrap();
     // 64 x 64 blocks: the header (a few hundred bytes of offsets) lies in
-    // the first 8 KB, the file is larger than the 64 KB read whole.
-    let tif = dir.path().join("tiled.tif");
-    gdal_translate(
-        &fixture("zion_srtm_utm12n.tif"),
-        &tif,
-        &[
-            "-co",
-            "TILED=YES",
-            "-co",
-            "BLOCKXSIZE=64",
-            "-co",
-            "BLOCKYSIZE=64",
-        ],
-    );
-    assert!(std::fs::metadata(&tif).unwrap().len() > 64 << 10);
-    assert_reads_as_gdal(&tif);
+    // the first 8 KB.
+    let dir = tempfile::tempdir().unwrap();
+    assert_reads_as_gdal(&tiled_copy(dir.path(), "tiled.tif", 64, &[]));
 }
 
 #[test]
 fn a_file_with_its_header_beyond_the_first_bytes_reads_as_gdal_does() {
-    let dir = tempfile::tempdir().unwrap();
     // 16 x 16 blocks: thousands of offsets, past the first 8 KB.
-    let tif = dir.path().join("small_blocks.tif");
-    gdal_translate(
-        &fixture("zion_srtm_utm12n.tif"),
-        &tif,
-        &[
-            "-co",
-            "TILED=YES",
-            "-co",
-            "BLOCKXSIZE=16",
-            "-co",
-            "BLOCKYSIZE=16",
-        ],
-    );
-    assert_reads_as_gdal(&tif);
+    let dir = tempfile::tempdir().unwrap();
+    assert_reads_as_gdal(&tiled_copy(dir.path(), "small_blocks.tif", 16, &[]));
 }
 
 #[test]
 fn a_file_replaced_after_the_open_fails_in_one_line_naming_it() {
     let dir = tempfile::tempdir().unwrap();
-    let tif = dir.path().join("replaced.tif");
-    let other = dir.path().join("other.tif");
-    let extra = [
-        "-co",
-        "TILED=YES",
-        "-co",
-        "BLOCKXSIZE=64",
-        "-co",
-        "BLOCKYSIZE=64",
-    ];
-    gdal_translate(&fixture("zion_srtm_utm12n.tif"), &tif, &extra);
-    gdal_translate(
-        &fixture("zion_srtm_utm12n.tif"),
-        &other,
-        &[&extra[..], &["-scale", "0", "4000", "4000", "0"]].concat(),
+    let tif = tiled_copy(dir.path(), "replaced.tif", 64, &[]);
+    let other = tiled_copy(
+        dir.path(),
+        "other.tif",
+        64,
+        &["-scale", "0", "4000", "4000", "0"],
     );
     let dem = Dem::open(&tif).expect("opens");
     std::fs::rename(&other, &tif).unwrap();
