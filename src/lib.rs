@@ -22,6 +22,11 @@
 //! [`buffer_pool`] keeps the large per-view and per-solve buffers warm
 //! between views and solves.
 
+// Errors are values: nothing that comes from a file, a user, the environment
+// or the OS is unwrapped. A true invariant is an `expect("why it holds")`;
+// tests may unwrap.
+#![cfg_attr(not(test), deny(clippy::unwrap_used))]
+
 pub mod batch;
 pub mod buffer_pool;
 pub mod correct;
