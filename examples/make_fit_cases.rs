@@ -526,7 +526,6 @@ fn write_f32_tiff(map: &HeightMap, path: &Path) -> Result<(), String> {
     let mut buf = gdal::raster::Buffer::new((map.width, map.height), map.data.clone());
     band.write((0, 0), (map.width, map.height), &mut buf)
         .map_err(err)?;
-    drop(band);
     ds.close().map_err(err)?;
     Ok(())
 }

@@ -22,6 +22,15 @@
 //! [`buffer_pool`] keeps the large per-view and per-solve buffers warm
 //! between views and solves.
 
+// Errors are values: nothing that comes from a file, a user, the environment
+// or the OS is unwrapped. A true invariant is an `expect("why it holds")`;
+// tests may unwrap.
+#![cfg_attr(not(test), deny(clippy::unwrap_used))]
+// `!(a < b)` is deliberate throughout: it is true for NaN, which is what the
+// checks want (a NaN depth, distance or bound is rejected). Rewriting it as
+// `a >= b` would let NaN through, so the lint stays off.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 pub mod batch;
 pub mod buffer_pool;
 pub mod correct;

@@ -4,6 +4,9 @@
 //! the problem), 2 internal error, 3 an edit whose fit is below `--min-fit`
 //! (nothing written).
 
+// No unwrap on what comes from a file, a user or the OS (see `lib.rs`).
+#![cfg_attr(not(test), deny(clippy::unwrap_used))]
+
 mod cli;
 
 // mimalloc keeps freed pages for reuse: the renderer's and solver's large

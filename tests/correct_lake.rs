@@ -31,11 +31,12 @@ fn lake_ring() -> Vec<[f64; 2]> {
 }
 
 fn run(features: &Path, out: &Path, rep: &Path) -> Value {
-    correct_ok(&fixture(DEM), &features, &out, &rep)
+    correct_ok(&fixture(DEM), features, out, rep)
 }
 
 /// Checks the three acceptance lines for a lake with outer ring `ring`
 /// and island `hole` (pixel space), level `level`, blend `blend_m`.
+#[allow(clippy::too_many_arguments)]
 fn check_lake(
     input: &Raster,
     output: &Raster,

@@ -120,7 +120,7 @@ fn check_case(case: &Case) {
         }
         let case = &case;
         let stencil = stencil_distance(px, 4000);
-        let d = deform(&dem, &[c.clone()], &DeformOptions::default()).unwrap();
+        let d = deform(&dem, std::slice::from_ref(&c), &DeformOptions::default()).unwrap();
         let win = d.window;
         let edited = d.edited();
         // 1. The constrained set is exactly the union of the curve's bilinear

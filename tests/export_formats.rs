@@ -588,8 +588,8 @@ fn gltf_loads_with_the_right_vertices_and_bounds() {
     }
     // East-west and north-south extents: the window's size in metres
     // (250 m cells, UTM scale within 0.1 %), less a sampled cell.
-    let ex = (max[0].as_f64().unwrap() - min[0].as_f64().unwrap()) as f64;
-    let ez = (max[2].as_f64().unwrap() - min[2].as_f64().unwrap()) as f64;
+    let ex = max[0].as_f64().unwrap() - min[0].as_f64().unwrap();
+    let ez = max[2].as_f64().unwrap() - min[2].as_f64().unwrap();
     let (wx, wz) = (250.0 * (win[2] - 1) as f64, 250.0 * (win[3] - 1) as f64);
     assert!(
         (ex - wx).abs() < 0.01 * wx + 500.0,

@@ -23,8 +23,10 @@ fn identity_on_synthetic_features() {
         trace("r1", 1, &features[1], 200.0, 600.0, |_| 0.0),
         trace("r2", 2, &features[2], 100.0, 700.0, |_| 0.0),
     ];
-    let mut opts = SketchOptions::default();
-    opts.feature_completion = false;
+    let opts = SketchOptions {
+        feature_completion: false,
+        ..SketchOptions::default()
+    };
     let view = ViewInput {
         name: "synthetic".into(),
         strokes,
@@ -185,8 +187,10 @@ fn unmatched_stroke_is_embedded_between_its_neighbours() {
         trace("far", 1, &features[2], 100.0, 420.0, |_| 0.0),
         trace("mid", 2, &features[1], 500.0, 700.0, |_| 0.0),
     ];
-    let mut opts = SketchOptions::default();
-    opts.feature_completion = false;
+    let opts = SketchOptions {
+        feature_completion: false,
+        ..SketchOptions::default()
+    };
     let view = ViewInput {
         name: "v".into(),
         strokes,
@@ -235,8 +239,10 @@ fn without_features_strokes_sit_on_a_plane_through_the_terrain() {
         features: &[],
         projection: &cam,
     };
-    let mut opts = SketchOptions::default();
-    opts.feature_completion = false;
+    let opts = SketchOptions {
+        feature_completion: false,
+        ..SketchOptions::default()
+    };
     let m = match_view(&view, &opts).unwrap();
     let st = &m.strokes[0];
     assert_eq!(st.kind, MatchKind::Embedded);

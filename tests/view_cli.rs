@@ -401,5 +401,5 @@ fn viewshed_exact_flag_and_the_sweep_agree() {
     let same = sweep.iter().zip(&exact).filter(|(a, b)| a == b).count();
     let frac = same as f64 / sweep.len() as f64;
     assert!(frac >= 0.99, "agreement {frac}");
-    assert!(exact.iter().any(|&v| v == 255));
+    assert!(exact.contains(&255));
 }

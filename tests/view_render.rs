@@ -585,7 +585,7 @@ fn patched_terrain_is_the_terrain_of_the_patched_grid() {
     let rect2 = (w / 5, h / 3, w / 2, h / 3 + 9);
     let lower = |c: usize, r: usize| -> Option<f32> {
         let v = map.get(c, r)?;
-        (r % 3 != 1).then(|| v - 2.5)
+        (r % 3 != 1).then_some(v - 2.5)
     };
     let mut map2 = map.clone();
     for r in rect2.1..rect2.3 {

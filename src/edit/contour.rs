@@ -170,8 +170,9 @@ impl ProjectedVertices {
                     }
                     let p = t.vertex_local(c, r)?;
                     let dist = norm(p);
-                    if !(dist >= lo && dist <= hi)
-                        || !ranges.iter().any(|q| dist >= q.0 && dist <= q.1)
+                    if !(dist >= lo
+                        && dist <= hi
+                        && ranges.iter().any(|q| dist >= q.0 && dist <= q.1))
                     {
                         return None;
                     }

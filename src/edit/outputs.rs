@@ -363,7 +363,7 @@ fn pictures(
     after: &[RenderedView],
     d: &Deformation,
 ) -> Result<Vec<Picture>, EditError> {
-    let enc = |w, h, rgb: &[u8]| encode_png(w, h, rgb).map_err(|e| EditError::Internal(e));
+    let enc = |w, h, rgb: &[u8]| encode_png(w, h, rgb).map_err(EditError::Internal);
     let mut out = Vec::new();
     for (v, a) in views.iter().zip(after) {
         let strokes: Vec<Vec<[f64; 2]>> = v.spec.strokes.iter().map(|s| s.points.clone()).collect();

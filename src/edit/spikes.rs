@@ -59,7 +59,7 @@ fn excess(d: &Deformation, c: usize, r: usize) -> Option<(f64, f64)> {
             hi = hi.max(v);
         }
     }
-    hi.is_finite().then(|| ((m - hi) as f64, (lo - m) as f64))
+    hi.is_finite().then_some(((m - hi) as f64, (lo - m) as f64))
 }
 
 /// The 8 neighbours of a cell, `(column, row)` offsets.

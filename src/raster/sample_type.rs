@@ -156,20 +156,6 @@ impl Sample for f64 {
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn quantize_rounds_and_clamps_like_gdal() {
-        assert_eq!(SampleType::Int16.quantize(12.5), 13.0);
-        assert_eq!(SampleType::Int16.quantize(-12.5), -13.0);
-        assert_eq!(SampleType::Int16.quantize(40000.0), 32767.0);
-        assert_eq!(SampleType::UInt16.quantize(-3.0), 0.0);
-        assert_eq!(SampleType::Float32.quantize(0.1), 0.1f32 as f64);
-    }
-}
-
 /// Size in bytes of a decoded block.
 pub fn decoded_bytes(block: &DecodingResult) -> usize {
     match block {
@@ -184,5 +170,19 @@ pub fn decoded_bytes(block: &DecodingResult) -> usize {
         DecodingResult::U64(v) => v.len() * 8,
         DecodingResult::I64(v) => v.len() * 8,
         DecodingResult::F64(v) => v.len() * 8,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn quantize_rounds_and_clamps_like_gdal() {
+        assert_eq!(SampleType::Int16.quantize(12.5), 13.0);
+        assert_eq!(SampleType::Int16.quantize(-12.5), -13.0);
+        assert_eq!(SampleType::Int16.quantize(40000.0), 32767.0);
+        assert_eq!(SampleType::UInt16.quantize(-3.0), 0.0);
+        assert_eq!(SampleType::Float32.quantize(0.1), 0.1f32 as f64);
     }
 }

@@ -264,7 +264,6 @@ impl Dem {
             })?;
         let nodata = band.no_data_value();
         let (scale, offset, unit) = (band.scale(), band.offset(), band.unit());
-        drop(band);
         let srs = ds.spatial_ref().ok();
         let crs = Crs {
             epsg: srs.as_ref().and_then(horizontal_epsg),

@@ -575,7 +575,7 @@ fn validate_options(o: &SketchOptions) -> Result<(), String> {
         }
     }
     if let Some(r) = o.observer_radius_m {
-        if !(r.is_finite() && r >= 0.0 && r <= MAX_OBSERVER_RADIUS_M) {
+        if !(r.is_finite() && (0.0..=MAX_OBSERVER_RADIUS_M).contains(&r)) {
             return Err(format!(
                 "observer_radius_m {r} is not in [0, {MAX_OBSERVER_RADIUS_M}] metres"
             ));

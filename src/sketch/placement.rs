@@ -122,14 +122,14 @@ pub fn place_with_depths(
         }
     };
     if first > 0 {
-        let anchor = out[first].unwrap_or_else(|| unreachable_point());
+        let anchor = out[first].unwrap_or_else(unreachable_point);
         let inner = out[(first + 1).min(last)].unwrap_or(anchor);
         for i in (0..first).rev() {
             out[i] = Some(follow(&anchor, &inner, stroke.points[i]));
         }
     }
     if last + 1 < n {
-        let anchor = out[last].unwrap_or_else(|| unreachable_point());
+        let anchor = out[last].unwrap_or_else(unreachable_point);
         let inner = out[last.saturating_sub(1).max(first)].unwrap_or(anchor);
         for i in last + 1..n {
             out[i] = Some(follow(&anchor, &inner, stroke.points[i]));

@@ -32,12 +32,6 @@ pub fn load(path: &Path) -> HeightMap {
     let gt = ds.geo_transform().expect("geotransform");
     let sr = ds.spatial_ref().expect("srs");
     let epsg = sr.auth_code().ok().map(|c| c as u32);
-    Crs {
-        epsg,
-        wkt: sr.to_wkt().unwrap_or_default(),
-        proj: None,
-        geographic: sr.is_geographic(),
-    };
     HeightMap {
         width: w,
         height: h,

@@ -25,8 +25,8 @@
 //! one. Two fine points is exact: the stencil of `(I, J)` reads the weights
 //! of the fine points within 2 of `(2I, 2J)`, and a weight reads the fine
 //! stencil of its own point, or for a cell point (odd, odd), those of its
-//! 3 x 3 neighbourhood, which for the cell points of the window (at distance
-//! 1) stays within 2 as well; the same holds for the weights that the
+//! 3 x 3 neighbourhood, which for the cell points of the window (at
+//! distance 1) stays within 2 as well; the same holds for the weights that the
 //! transfers use around a regular point.
 //!
 //! The weights of the four fine points `(2I + a, 2J + b)` of coarse point

@@ -168,6 +168,7 @@ fn relax_row_kernel(
 /// Residual of the first `out.len()` entries of one colour row whose values
 /// are `u`: `ax (west + east) + ay (north + south) - diag u`.
 #[inline(always)]
+#[allow(clippy::too_many_arguments)]
 fn residual_row_kernel(
     out: &mut [f32],
     u: &[f32],

@@ -803,6 +803,35 @@ fn full_multigrid(h: &mut Hierarchy, opts: &MultigridOptions) {
     prolongate_fine(h, false);
 }
 
+/// `ax (west + east) + ay (north + south)` of cell (i, j) for the 5-point
+/// operator, with `at(i, j)` giving a neighbour's value; neighbours outside
+/// the grid count as 0 (Dirichlet 0 just outside the edge).
+#[inline(always)]
+fn weighted_neighbour_sum(
+    i: usize,
+    j: usize,
+    nx: usize,
+    ny: usize,
+    ax: f64,
+    ay: f64,
+    at: impl Fn(usize, usize) -> f64,
+) -> f64 {
+    let mut s = 0.0;
+    if i > 0 {
+        s += ax * at(i - 1, j);
+    }
+    if i + 1 < nx {
+        s += ax * at(i + 1, j);
+    }
+    if j > 0 {
+        s += ay * at(i, j - 1);
+    }
+    if j + 1 < ny {
+        s += ay * at(i, j + 1);
+    }
+    s
+}
+
 #[cfg(test)]
 mod tests {
     use super::galerkin::sidx;
@@ -848,33 +877,4 @@ mod tests {
             assert!((a - b).abs() < 1e-12, "{reg:?}");
         }
     }
-}
-
-/// `ax (west + east) + ay (north + south)` of cell (i, j) for the 5-point
-/// operator, with `at(i, j)` giving a neighbour's value; neighbours outside
-/// the grid count as 0 (Dirichlet 0 just outside the edge).
-#[inline(always)]
-fn weighted_neighbour_sum(
-    i: usize,
-    j: usize,
-    nx: usize,
-    ny: usize,
-    ax: f64,
-    ay: f64,
-    at: impl Fn(usize, usize) -> f64,
-) -> f64 {
-    let mut s = 0.0;
-    if i > 0 {
-        s += ax * at(i - 1, j);
-    }
-    if i + 1 < nx {
-        s += ax * at(i + 1, j);
-    }
-    if j > 0 {
-        s += ay * at(i, j - 1);
-    }
-    if j + 1 < ny {
-        s += ay * at(i, j + 1);
-    }
-    s
 }

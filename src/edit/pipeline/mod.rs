@@ -659,7 +659,7 @@ pub(crate) fn edited_terrain(
         }
         let s = y as usize * w.width + x as usize;
         let (h, m) = (d.base.data[s], d.displacement[s]);
-        (!h.is_nan() && m.is_finite() && m != 0.0).then(|| h + m)
+        (!h.is_nan() && m.is_finite() && m != 0.0).then_some(h + m)
     };
     terrain.with_heights(
         (c0 as usize, r0 as usize, c1 as usize, r1 as usize),

@@ -90,16 +90,6 @@ impl Bytes {
                 }),
         }
     }
-
-    /// Whether the file's bytes are in memory or mapped (not put off, or
-    /// mapped since).
-    #[cfg(test)]
-    pub(super) fn is_mapped(&self) -> bool {
-        match self {
-            Bytes::Deferred { map, .. } => map.get().is_some(),
-            _ => true,
-        }
-    }
 }
 
 /// Map `path`, which must still be the file of `stamp`.
