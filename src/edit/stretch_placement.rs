@@ -498,6 +498,12 @@ fn drawable_depth_behind(
     if !mostly_in_sky(before, &pixels) {
         return None;
     }
+    // A stroke straight within the fit's tolerance is drawn by the edge
+    // of one cell, however much wider the cell is: the DEM can draw it at
+    // its feature's depth.
+    if chord_deviation_px(&pixels) <= super::fit::FIT_TOLERANCE_PX {
+        return None;
+    }
     // cell_px falls as 1 / depth: it equals `wide` at this depth.
     let drawable = depth * cell / wide;
     let behind =
@@ -571,6 +577,23 @@ fn behind_junctions(
     let beyond = l.depth.max(r.depth) * (1.0 + AGREEMENT);
     let depth = skyline_behind(before, &pixels, beyond, near_px, JUNCTION_SKYLINE_SHARE)?;
     drawing_plane_over_ground(proj, &pixels, depth)
+}
+
+/// The largest distance, in pixels, of `pixels` from the straight line
+/// through the first and the last (infinite where they coincide).
+fn chord_deviation_px(pixels: &[[f64; 2]]) -> f64 {
+    let (Some(a), Some(b)) = (pixels.first(), pixels.last()) else {
+        return f64::INFINITY;
+    };
+    let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
+    let len = dx.hypot(dy);
+    if !(len > 0.0) {
+        return f64::INFINITY;
+    }
+    pixels
+        .iter()
+        .map(|p| ((p[0] - a[0]) * dy - (p[1] - a[1]) * dx).abs() / len)
+        .fold(0.0, f64::max)
 }
 
 /// The largest distance, in pixels, by which a stroke may leave the
