@@ -1296,6 +1296,17 @@ pub fn place_on_end_surface(
 mod tests {
     use super::*;
 
+    #[test]
+    fn a_chords_deviation_is_the_farthest_point_from_it() {
+        // a 3 px bump; its ends on the chord
+        let pixels = [[0.0, 0.0], [5.0, 3.0], [10.0, 0.0]];
+        assert!((chord_deviation_px(&pixels) - 3.0).abs() < 1e-12);
+        let slanted = [[0.0, 0.0], [3.0, 4.0], [6.0, 8.0]];
+        assert!(chord_deviation_px(&slanted) < 1e-12);
+        assert!(chord_deviation_px(&[[1.0, 1.0], [1.0, 1.0]]).is_infinite());
+        assert!(chord_deviation_px(&[]).is_infinite());
+    }
+
     /// A parabola 14 px tall and 162 px wide: its chord error over m
     /// equal steps is 14 / m^2 px, within half a pixel from m = 6.
     #[test]
