@@ -42,6 +42,16 @@ const SMALL_FILE: u64 = 64 << 10;
 /// [`GeoTiff::open_with_budget`]).
 const FIRST_READ: usize = 8 << 10;
 
+/// What the open's first read found: a small file, read whole, or a large
+/// one's metadata and first bytes (none where it grew while read).
+enum FirstRead {
+    Whole(Vec<u8>),
+    Large {
+        meta: std::fs::Metadata,
+        head: Vec<u8>,
+    },
+}
+
 /// How a TIFF's pixels are cut into blocks.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct BlockLayout {
@@ -152,38 +162,43 @@ impl GeoTiff {
         }
         // (the whole file where it is small, else its metadata and its
         // first bytes)
-        let small = HEAD.with(
-            |head| -> std::io::Result<Result<Vec<u8>, (std::fs::Metadata, Vec<u8>)>> {
-                let mut head = head.borrow_mut();
-                head.resize(SMALL_FILE as usize + 1, 0);
-                let mut want = FIRST_READ.min(head.len());
-                let mut got = 0;
-                while got < want {
-                    match file.read(&mut head[got..want]) {
-                        Ok(0) => break,
-                        Ok(n) => got += n,
-                        Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
-                        Err(e) => return Err(e),
-                    }
-                    if got == want && want < head.len() {
-                        // More than the first read: small enough to read whole?
-                        let meta = file.metadata()?;
-                        if meta.len() > SMALL_FILE {
-                            return Ok(Err((meta, head[..got].to_vec())));
-                        }
-                        want = head.len();
-                    }
+        let small = HEAD.with(|head| -> std::io::Result<FirstRead> {
+            let mut head = head.borrow_mut();
+            head.resize(SMALL_FILE as usize + 1, 0);
+            let mut want = FIRST_READ.min(head.len());
+            let mut got = 0;
+            while got < want {
+                match file.read(&mut head[got..want]) {
+                    Ok(0) => break,
+                    Ok(n) => got += n,
+                    Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                    Err(e) => return Err(e),
                 }
-                if got > SMALL_FILE as usize {
-                    // (it grew while read: mapped, as a large file)
-                    return Ok(Err((file.metadata()?, Vec::new())));
+                if got == want && want < head.len() {
+                    // More than the first read: small enough to read whole?
+                    let meta = file.metadata()?;
+                    if meta.len() > SMALL_FILE {
+                        let head = head[..got].to_vec();
+                        return Ok(FirstRead::Large { meta, head });
+                    }
+                    want = head.len();
                 }
-                Ok(Ok(head[..got].to_vec()))
-            },
-        );
+            }
+            if got > SMALL_FILE as usize {
+                // (it grew while read: mapped, as a large file)
+                let meta = file.metadata()?;
+                return Ok(FirstRead::Large {
+                    meta,
+                    head: Vec::new(),
+                });
+            }
+            Ok(FirstRead::Whole(head[..got].to_vec()))
+        });
         let (meta, first) = match small.map_err(|e| RasterError::io(path, e))? {
-            Ok(data) => return Self::parse(path, Arc::new(Bytes::Owned(data)), budget),
-            Err(large) => large,
+            FirstRead::Whole(data) => {
+                return Self::parse(path, Arc::new(Bytes::Owned(data)), budget)
+            }
+            FirstRead::Large { meta, head } => (meta, head),
         };
         // A header within the first bytes read is parsed from them, and
         // the file mapped when its blocks are first read
