@@ -198,7 +198,11 @@ fn environment(e: &EditError) -> bool {
     matches!(
         e,
         EditError::Write { .. }
-            | EditError::Raster(RasterError::Io { .. } | RasterError::Write { .. })
+            | EditError::Raster(
+                RasterError::Io { .. }
+                    | RasterError::Write { .. }
+                    | RasterError::ChangedSinceOpened { .. }
+            )
     )
 }
 

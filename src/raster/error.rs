@@ -14,6 +14,10 @@ pub enum RasterError {
     },
     #[error("{path}: not a TIFF file ({detail})")]
     NotTiff { path: PathBuf, detail: String },
+    /// A tile parsed at open and mapped only when first read was replaced
+    /// or rewritten in between.
+    #[error("{path}: the file changed since it was opened (replaced or rewritten by another program): run again once it is written")]
+    ChangedSinceOpened { path: PathBuf },
     #[error("{path}: corrupt or truncated TIFF: {detail}")]
     Corrupt { path: PathBuf, detail: String },
     #[error("{path}: unsupported {what}")]

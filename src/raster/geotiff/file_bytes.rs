@@ -62,7 +62,7 @@ pub(super) enum Bytes {
     /// A file parsed from its first bytes, mapped on first use.
     Deferred {
         stamp: FileStamp,
-        map: OnceLock<Result<Mmap, String>>,
+        map: OnceLock<Result<Mmap, MapFailure>>,
     },
 }
 
@@ -81,29 +81,44 @@ impl Bytes {
         match self {
             Bytes::Map(m) => Ok(m),
             Bytes::Owned(v) => Ok(v),
-            Bytes::Deferred { stamp, map } => map
-                .get_or_init(|| map_stamped(path, *stamp))
-                .as_deref()
-                .map_err(|detail| RasterError::Corrupt {
+            Bytes::Deferred { stamp, map } => match map.get_or_init(|| map_stamped(path, *stamp)) {
+                Ok(m) => Ok(m),
+                Err(MapFailure::Changed) => Err(RasterError::ChangedSinceOpened {
                     path: path.to_path_buf(),
-                    detail: detail.clone(),
                 }),
+                Err(MapFailure::Io(kind, message)) => Err(RasterError::Io {
+                    path: path.to_path_buf(),
+                    source: std::io::Error::new(*kind, message.clone()),
+                }),
+            },
         }
     }
 }
 
-/// Map `path`, which must still be the file of `stamp`.
-fn map_stamped(path: &Path, stamp: FileStamp) -> Result<Mmap, String> {
-    let file = std::fs::File::open(path).map_err(|e| format!("cannot open it again: {e}"))?;
-    let meta = file
-        .metadata()
-        .map_err(|e| format!("cannot open it again: {e}"))?;
-    if FileStamp::of(&meta) != stamp {
-        return Err("the file changed since it was opened (replaced or rewritten)".into());
+/// Why a deferred map failed (kept for every later read of the file).
+#[derive(Debug)]
+pub(super) enum MapFailure {
+    /// Not the file that was parsed any more.
+    Changed,
+    /// Opening, measuring or mapping it failed.
+    Io(std::io::ErrorKind, String),
+}
+
+impl From<std::io::Error> for MapFailure {
+    fn from(e: std::io::Error) -> Self {
+        MapFailure::Io(e.kind(), e.to_string())
     }
-    let len = usize::try_from(stamp.len).map_err(|_| "too large to map".to_string())?;
+}
+
+/// Map `path`, which must still be the file of `stamp`.
+fn map_stamped(path: &Path, stamp: FileStamp) -> Result<Mmap, MapFailure> {
+    let file = std::fs::File::open(path)?;
+    if FileStamp::of(&file.metadata()?) != stamp {
+        return Err(MapFailure::Changed);
+    }
+    let len = usize::try_from(stamp.len)
+        .map_err(|_| MapFailure::Io(std::io::ErrorKind::InvalidData, "too large to map".into()))?;
     // SAFETY: the map is read-only; a file truncated by another process
     // while mapped is outside what any GIS reader can guard against.
-    unsafe { memmap2::MmapOptions::new().len(len).map(&file) }
-        .map_err(|e| format!("cannot map it: {e}"))
+    Ok(unsafe { memmap2::MmapOptions::new().len(len).map(&file) }?)
 }
