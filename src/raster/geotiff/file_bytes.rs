@@ -116,9 +116,19 @@ fn map_stamped(path: &Path, stamp: FileStamp) -> Result<Mmap, MapFailure> {
     if FileStamp::of(&file.metadata()?) != stamp {
         return Err(MapFailure::Changed);
     }
-    let len = usize::try_from(stamp.len)
-        .map_err(|_| MapFailure::Io(std::io::ErrorKind::InvalidData, "too large to map".into()))?;
+    Ok(map_whole(&file, stamp.len)?)
+}
+
+/// A read-only map of the whole of `file`, `len` bytes long (its length as
+/// measured already: a map measures the file again otherwise).
+pub(super) fn map_whole(file: &std::fs::File, len: u64) -> std::io::Result<Mmap> {
+    let len = usize::try_from(len).map_err(|_| {
+        std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            "memory map length overflows usize",
+        )
+    })?;
     // SAFETY: the map is read-only; a file truncated by another process
     // while mapped is outside what any GIS reader can guard against.
-    Ok(unsafe { memmap2::MmapOptions::new().len(len).map(&file) }?)
+    unsafe { memmap2::MmapOptions::new().len(len).map(file) }
 }

@@ -214,18 +214,8 @@ impl GeoTiff {
                 return Ok(tiff);
             }
         }
-        // The length just read (a map measures the file again otherwise).
-        let len = usize::try_from(stamp.len()).map_err(|_| {
-            let e = std::io::Error::new(
-                std::io::ErrorKind::InvalidData,
-                "memory map length overflows usize",
-            );
-            RasterError::io(path, e)
-        })?;
-        // SAFETY: the map is read-only; a file truncated by another process
-        // while mapped is outside what any GIS reader can guard against.
-        let map = unsafe { memmap2::MmapOptions::new().len(len).map(&file) }
-            .map_err(|e| RasterError::io(path, e))?;
+        let map =
+            file_bytes::map_whole(&file, stamp.len()).map_err(|e| RasterError::io(path, e))?;
         Self::parse(path, Arc::new(Bytes::Map(map)), budget)
     }
 
