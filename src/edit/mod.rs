@@ -37,7 +37,9 @@ pub use outputs::picture_stem;
 pub use pipeline::{run, run_opened, EditOptions, DEFAULT_MIN_FIT};
 pub use report::{EditReport, MatchingReport, StrokeStatus};
 
-/// Errors of an edit. One line naming the file and the problem.
+/// Errors of an edit. One line naming the file and the problem. (The
+/// sources of other stages are boxed where they are large: every `Result`
+/// of an edit carries the largest variant's size.)
 #[derive(Debug, thiserror::Error)]
 pub enum EditError {
     #[error(transparent)]
@@ -49,13 +51,13 @@ pub enum EditError {
         sketch: String,
         view: String,
         #[source]
-        source: crate::render::RenderError,
+        source: Box<crate::render::RenderError>,
     },
     #[error("{sketch}: {source}")]
     Match {
         sketch: String,
         #[source]
-        source: crate::sketch::MatchError,
+        source: Box<crate::sketch::MatchError>,
     },
     #[error("{sketch}: {message}")]
     Unusable { sketch: String, message: String },

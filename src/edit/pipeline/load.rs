@@ -45,7 +45,7 @@ pub(super) fn load_views(
         let view_err = |source| EditError::View {
             sketch: sketch_name.clone(),
             view: v.name.clone(),
-            source,
+            source: Box::new(source),
         };
         let camera = v.pinhole().map_err(|e| view_err(e.into()))?;
         let scene = Scene::open_wedge_lod_within(
@@ -113,7 +113,7 @@ pub(super) fn check_view_sizes(
         let view_err = |source| EditError::View {
             sketch: edit.sketch_name.clone(),
             view: v.name.clone(),
-            source,
+            source: Box::new(source),
         };
         let camera = v.pinhole().map_err(|e| view_err(e.into()))?;
         let (w, rings) =

@@ -27,7 +27,7 @@ pub(super) fn match_strokes(
         .collect();
     let mut matched = match_sketch(&inputs, options).map_err(|source| EditError::Match {
         sketch: edit.sketch_name.clone(),
-        source,
+        source: Box::new(source),
     })?;
     for (v, m) in views.iter().zip(&matched.views) {
         for c in &m.ordering.conflicts {
