@@ -48,7 +48,7 @@ not name the DEM, one of its tiles, the sketch, or each other.";
 pub struct EditArgs {
     /// A GeoTIFF, a directory of GeoTIFF tiles, or any raster GDAL opens.
     pub dem: PathBuf,
-    /// Sketch file (JSON, see DESIGN.md).
+    /// Sketch file (JSON: views, each with a viewpoint, a camera and strokes in pixels; `options`; see docs/user_guide.md, sections 2 and 3).
     #[arg(long)]
     pub sketch: PathBuf,
     /// Corrected GeoTIFF (single-file DEM) or directory receiving the full
