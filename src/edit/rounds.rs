@@ -72,25 +72,134 @@ pub(super) fn refine(
     views: &[ViewState],
     solver: &Solver,
     placed: &Placed,
-    mut deformation: Deformation,
+    deformation: Deformation,
     discard_unchanged: bool,
 ) -> Result<Option<Rounds>, EditError> {
-    let opts = edit.opts;
     let curves = &placed.demands.strokes;
     let regions = &placed.regions[..];
     edit.pb.set_message("lowering protruding silhouettes");
+    let looped = run_rounds(edit, views, solver, placed, deformation)?;
+    let gathered = looped.gathered;
+    let mut end = looped.end.settle();
+    if let Some(before) = looped.before_raised {
+        drop_unworthy_raised_try(views, regions, curves, edit.opts.min_fit, before, &mut end)?;
+    }
+    let Settled {
+        mut deformation,
+        mut rendered,
+        best_score,
+        spare,
+    } = end;
+    drop(spare);
+    // A terrain that changes no cell (as the write stores it) stays so
+    // to the end: the unedited terrain is kept, or its spikes (none)
+    // flattened. A later pass that ends there is dropped whatever it
+    // measures, so it stops here.
+    if discard_unchanged {
+        let written = solver.as_written(&deformation);
+        if changes_nothing(written.as_ref().unwrap_or(&deformation)) {
+            return Ok(None);
+        }
+    }
+    // From here on, the terrain is the one the write stores: on an integer
+    // DEM the heights rounded to whole units. The test below and the
+    // report measure the file a re-edit of the output will read.
+    let best_score = match solver.as_written(&deformation) {
+        Some(q) => {
+            adopt(views, regions, &mut deformation, &mut rendered, q)?;
+            fit_score(curves, &rendered)
+        }
+        None => best_score,
+    };
+    let kept_unedited = no_better_than_unedited(views, curves, best_score);
+    // A later pass that keeps the terrain as it is changes no cell and
+    // is dropped (see `discard_unchanged` above): it stops here, before
+    // rendering the unedited terrain again.
+    if kept_unedited && discard_unchanged {
+        return Ok(None);
+    }
+    if kept_unedited {
+        let before = unchanged(deformation.clone());
+        adopt(views, regions, &mut deformation, &mut rendered, before)?;
+    }
+    // No spikes: a lone apex (or pit) of the change field gets a
+    // neighbour behind it within half a cell.
+    if flatten_final_spikes(views, &mut deformation, &placed.demands.fixed) > 0 {
+        if let Some(q) = solver.as_written(&deformation) {
+            deformation = q;
+        }
+        rendered = render_all(views, regions, &deformation, Some(&rendered))?;
+    }
+    Ok(Some(Rounds {
+        deformation,
+        rendered,
+        lowering_iterations: gathered.iterations,
+        silhouettes_lowered: gathered.lowered,
+        contour_iterations: gathered.contour_rounds,
+        lowering_constraints: gathered.constraints.len() - gathered.user_constraints,
+        kept_unedited,
+    }))
+}
+
+/// A terrain, its score and its renders.
+type Scored = (f64, Deformation, Vec<RenderedView>);
+
+/// Where the round loop ended: the terrain of the latest solve, the best
+/// round (its score, terrain and renders) and the latest round's score
+/// and renders when it is not the best.
+struct LoopEnd {
+    deformation: Deformation,
+    best: Option<Scored>,
+    last: Option<(f64, Vec<RenderedView>)>,
+}
+
+/// What [`run_rounds`] leaves: where the loop ended, what it gathered,
+/// and, when the last try lowered raised crests (or would have been
+/// dropped), the best round before it (score, terrain).
+struct Looped {
+    end: LoopEnd,
+    gathered: Gathered,
+    before_raised: Option<(f64, Deformation)>,
+}
+
+/// The terrain the rounds settle on, its renders and score, and the best
+/// round's terrain and renders kept aside (`spare`) when the latest round
+/// only equalled it: the edit may go back to that terrain, and it renders
+/// the same.
+struct Settled {
+    deformation: Deformation,
+    rendered: Vec<RenderedView>,
+    best_score: f64,
+    spare: Option<(Deformation, Vec<RenderedView>)>,
+}
+
+/// The rounds: render every view, score the fit, keep the best round,
+/// gather the next round's constraints and solve, until a round stops
+/// helping ([`STALLED_ROUNDS`]) or no view asks for more; then, once, the
+/// try that lowers the crests raised over anchored stretches
+/// ([`lower_raised_crests`]).
+fn run_rounds(
+    edit: &Edit,
+    views: &[ViewState],
+    solver: &Solver,
+    placed: &Placed,
+    mut deformation: Deformation,
+) -> Result<Looped, EditError> {
+    let opts = edit.opts;
+    let curves = &placed.demands.strokes;
+    let regions = &placed.regions[..];
     let mut gathered = Gathered::new(placed.demands.curves.clone(), views.len());
     // The best round so far: its score, terrain and renders (kept, so
     // that going back to it renders nothing again), and the renders of the
     // latest round when it is not the best.
-    let mut best: Option<(f64, Deformation, Vec<RenderedView>)> = None;
+    let mut best: Option<Scored> = None;
     // The constraints that made the best round's terrain, for the last
     // try below.
     let mut best_made_by = gathered.made_by();
     let mut raised_tried = false;
     // The best round before that try: (score, terrain).
     let mut before_raised: Option<(f64, Deformation)> = None;
-    let perfect = curves.iter().map(Vec::len).sum::<usize>() as f64;
+    let perfect = perfect_score(curves);
     let mut last: Option<(f64, Vec<RenderedView>)> = None;
     let mut stalled = 0;
     loop {
@@ -164,103 +273,107 @@ pub(super) fn refine(
         ));
         deformation = gathered.solve(solver)?;
     }
-    // The best round's terrain and renders, if a later one did worse.
-    // When the latest round only equalled it, the best round's terrain
-    // and renders are kept aside (`spare`): the edit may go back to that
-    // terrain below, and it renders the same.
-    let mut best_score = best.as_ref().map_or(0.0, |b| b.0);
-    let mut spare: Option<(Deformation, Vec<RenderedView>)> = None;
-    let mut rendered = match (last, best) {
-        (Some((score, r)), Some((b, d, best_r))) => {
-            if score < b - 1e-9 {
-                deformation = d;
-                best_r
-            } else {
-                spare = Some((d, best_r));
-                r
+    Ok(Looped {
+        end: LoopEnd {
+            deformation,
+            best,
+            last,
+        },
+        gathered,
+        before_raised,
+    })
+}
+
+impl LoopEnd {
+    /// The best round's terrain and renders, if a later one did worse.
+    /// When the latest round only equalled it, the best round's terrain
+    /// and renders are kept aside ([`Settled::spare`]).
+    fn settle(self) -> Settled {
+        let LoopEnd {
+            deformation,
+            best,
+            last,
+        } = self;
+        let best_score = best.as_ref().map_or(0.0, |b| b.0);
+        let (deformation, rendered, spare) = match (last, best) {
+            (Some((score, r)), Some((b, d, best_r))) => {
+                if score < b - 1e-9 {
+                    (d, best_r, None)
+                } else {
+                    (deformation, r, Some((d, best_r)))
+                }
             }
-        }
-        (None, Some((_, _, r))) | (Some((_, r)), None) => r,
-        (None, None) => unreachable!("the loop renders at least once"),
-    };
-    // The lowered crests are kept only when they complete the edit (every
-    // stroke fitted at least `min_fit`) and are worth their change (the
-    // fit rose by at least `RAISED_TRY_MIN_GAIN`). Short of that, the
-    // rounds' terrain before the try stands: a partial gain there moved
-    // terrain that a second edit of the output would move again, and a
-    // gain of a column or two does not justify lowering a crest by tens of
-    // metres.
-    if let Some((score_before, d)) = before_raised {
-        // (the rounds keep a later round that only equals the best, so
-        // the terrain may be the try's even when the score did not rise)
-        let worth = best_score >= score_before + RAISED_TRY_MIN_GAIN
-            && worst_stroke_fit(curves, &rendered) >= opts.min_fit;
-        if !worth {
-            // (`rendered` is `deformation`'s render: when that is the
-            // best round's terrain already, it is not rendered again;
-            // when it is the spare's, the spare's renders are taken)
-            let spare = spare.take();
-            adopt_rendered(views, regions, (&mut deformation, &mut rendered), d, spare)?;
-            best_score = score_before;
+            (None, Some((_, _, r))) | (Some((_, r)), None) => (deformation, r, None),
+            (None, None) => unreachable!("the loop renders at least once"),
+        };
+        Settled {
+            deformation,
+            rendered,
+            best_score,
+            spare,
         }
     }
-    drop(spare);
-    // A terrain that changes no cell (as the write stores it) stays so
-    // to the end: the unedited terrain is kept, or its spikes (none)
-    // flattened. A later pass that ends there is dropped whatever it
-    // measures, so it stops here.
-    if discard_unchanged {
-        let written = solver.as_written(&deformation);
-        if changes_nothing(written.as_ref().unwrap_or(&deformation)) {
-            return Ok(None);
-        }
+}
+
+/// The lowered crests are kept only when they complete the edit (every
+/// stroke fitted at least `min_fit`) and are worth their change (the fit
+/// rose by at least [`RAISED_TRY_MIN_GAIN`] over `before`, the best round
+/// before the try). Short of that, the rounds' terrain before the try
+/// stands: a partial gain there moved terrain that a second edit of the
+/// output would move again, and a gain of a column or two does not
+/// justify lowering a crest by tens of metres.
+fn drop_unworthy_raised_try(
+    views: &[ViewState],
+    regions: &[StrokeRegion],
+    curves: &[Vec<StrokeCurve>],
+    min_fit: f64,
+    (score_before, d): (f64, Deformation),
+    end: &mut Settled,
+) -> Result<(), EditError> {
+    // (the rounds keep a later round that only equals the best, so the
+    // terrain may be the try's even when the score did not rise)
+    let worth = end.best_score >= score_before + RAISED_TRY_MIN_GAIN
+        && worst_stroke_fit(curves, &end.rendered) >= min_fit;
+    if !worth {
+        // (`rendered` is `deformation`'s render: when that is the best
+        // round's terrain already, it is not rendered again; when it is
+        // the spare's, the spare's renders are taken)
+        let spare = end.spare.take();
+        adopt_rendered(
+            views,
+            regions,
+            (&mut end.deformation, &mut end.rendered),
+            d,
+            spare,
+        )?;
+        end.best_score = score_before;
     }
-    // From here on, the terrain is the one the write stores: on an integer
-    // DEM the heights rounded to whole units. The test below and the
-    // report measure the file a re-edit of the output will read.
-    if let Some(q) = solver.as_written(&deformation) {
-        adopt(views, regions, &mut deformation, &mut rendered, q)?;
-        best_score = fit_score(curves, &rendered);
-    }
-    // Do no harm: when the edit fits the strokes no better than the
-    // terrain as it is (the strokes already lie where its silhouettes are,
-    // to within what this edit can reach), nothing is changed.
+    Ok(())
+}
+
+/// Do no harm: the edit fits the strokes no better than the terrain as it
+/// is (the strokes already lie where its silhouettes are, to within what
+/// this edit can reach), so nothing is to be changed.
+fn no_better_than_unedited(
+    views: &[ViewState],
+    curves: &[Vec<StrokeCurve>],
+    best_score: f64,
+) -> bool {
     let unedited: f64 = curves
         .iter()
         .zip(views)
         .map(|(cs, v)| view_fit(cs, &v.before))
         .sum();
-    let kept_unedited = unedited >= best_score - 1e-9 && best_score < perfect - 1e-9;
+    let kept_unedited = unedited >= best_score - 1e-9 && best_score < perfect_score(curves) - 1e-9;
     if debug() {
         eprintln!("rounds: unedited fit {unedited:.3}, best {best_score:.3}, kept unedited {kept_unedited}");
     }
-    // A later pass that keeps the terrain as it is changes no cell and
-    // is dropped (see `discard_unchanged` above): it stops here, before
-    // rendering the unedited terrain again.
-    if kept_unedited && discard_unchanged {
-        return Ok(None);
-    }
-    if kept_unedited {
-        let before = unchanged(deformation.clone());
-        adopt(views, regions, &mut deformation, &mut rendered, before)?;
-    }
-    // No spikes: a lone apex (or pit) of the change field gets a
-    // neighbour behind it within half a cell.
-    if flatten_final_spikes(views, &mut deformation, &placed.demands.fixed) > 0 {
-        if let Some(q) = solver.as_written(&deformation) {
-            deformation = q;
-        }
-        rendered = render_all(views, regions, &deformation, Some(&rendered))?;
-    }
-    Ok(Some(Rounds {
-        deformation,
-        rendered,
-        lowering_iterations: gathered.iterations,
-        silhouettes_lowered: gathered.lowered,
-        contour_iterations: gathered.contour_rounds,
-        lowering_constraints: gathered.constraints.len() - gathered.user_constraints,
-        kept_unedited,
-    }))
+    kept_unedited
+}
+
+/// The score of every stroke fitted whole ([`fit_score`]'s most).
+fn perfect_score(curves: &[Vec<StrokeCurve>]) -> f64 {
+    curves.iter().map(Vec::len).sum::<usize>() as f64
 }
 
 /// `DEMSKETCH_DEBUG` is set: the rounds print what they do on stderr.
