@@ -294,42 +294,21 @@ pub fn footprint(dem: &Dem, features: &Path) -> Result<Window, CorrectError> {
 }
 
 /// Applies the corrections of `features` (GeoJSON) to `dem_path` and writes
-/// the result (see the module documentation).
+/// the result (see the module documentation): the features read and
+/// planned ([`planned`]), solved on the window's grid, the DEM written
+/// with its provenance ([`write_corrected`]), then the report.
 pub fn run(
     dem_path: &Path,
     features: &Path,
     opts: &CorrectOptions,
 ) -> Result<CorrectReport, CorrectError> {
     let t0 = Instant::now();
-    let dem = Dem::open(dem_path)?;
-    let mut corrections = geojson_input::read(features, &dem).map_err(CorrectError::Input)?;
-    let fname = features.display().to_string();
-    let sketch = match &opts.sketch {
-        Some(p) => Some(
-            crate::sketch::SketchFile::from_path(p)
-                .map_err(|e| CorrectError::Input(e.to_string()))?,
-        ),
-        None => None,
-    };
-    let sketch_name = opts
-        .sketch
-        .as_ref()
-        .map(|p| p.display().to_string())
-        .unwrap_or_default();
-    landform::resolve(
-        &dem,
-        sketch.as_ref().map(|s| (s, sketch_name.as_str())),
-        &mut corrections,
-        &fname,
-        LANDFORM_HINT_CORRECT,
-    )
-    .map_err(CorrectError::Input)?;
-    let plan = plan(&dem, corrections, &fname, opts.max_window_cells)?;
+    let (dem, plan, fname) = planned(dem_path, features, opts)?;
     let (window, cell) = (plan.window, plan.cell);
+    // (the report's file is made before anything is solved: a path that
+    // cannot be written fails first)
     let staged_report = match &opts.report {
-        Some(p) => Some(StagedFile::create(p).map_err(|e| {
-            CorrectError::Input(format!("{}: cannot write the report: {e}", p.display()))
-        })?),
+        Some(p) => Some(StagedFile::create(p).map_err(|e| report_error(p, e))?),
         None => None,
     };
     let t_plan = t0.elapsed().as_secs_f64();
@@ -340,48 +319,8 @@ pub fn run(
     let t_solve = t1.elapsed().as_secs_f64();
 
     let t2 = Instant::now();
-    let staged_renders = match &opts.renders {
-        Some(dir) => {
-            let pics = pictures::pictures(&dem, &grid, &plan.corrections)
-                .map_err(|e| CorrectError::Internal(format!("pictures: {e}")))?;
-            Some(
-                crate::edit::StagedDir::create(dir, &pics)
-                    .map_err(|e| CorrectError::Input(e.to_string()))?,
-            )
-        }
-        None => None,
-    };
-    let values = grid.write_values();
-    let bytes = std::fs::read(features).unwrap_or_default();
-    let hash = sha256_hex(&bytes);
-    let provenance = Provenance {
-        edit_id: format!(
-            "correct {}:{}",
-            features
-                .file_name()
-                .map(|n| n.to_string_lossy().into_owned())
-                .unwrap_or_default(),
-            &hash[..16]
-        ),
-    };
-    let mut wopts = opts.write.clone();
-    wopts.record = ProvenanceRecord {
-        input: Some(dem_path.display().to_string()),
-        sketch_sha256: Some(hash),
-        parameters: Some(format!("--features {}", features.display())),
-    };
-    let (changed_cells, tiles_written) = if opts.dry_run {
-        (dem.check_write_back(window, &values)?, Vec::new())
-    } else {
-        let w = dem.write_back_with(window, &values, &opts.destination, &provenance, &wopts)?;
-        (w.changed_cells, w.tiles_written)
-    };
-    if let Some(path) = &opts.water_mask {
-        write_water_mask(path, &dem, &grid)?;
-    }
-    if let Some(s) = staged_renders {
-        s.commit().map_err(|e| CorrectError::Input(e.to_string()))?;
-    }
+    let (changed_cells, tiles_written) =
+        write_corrected(dem_path, features, opts, &dem, &plan, &grid)?;
     let output = match &opts.destination {
         Destination::InPlace => dem_path.display().to_string(),
         Destination::Path(p) => p.display().to_string(),
@@ -415,11 +354,122 @@ pub fn run(
         let mut text = serde_json::to_string_pretty(&report)
             .map_err(|e| CorrectError::Internal(format!("report: {e}")))?;
         text.push('\n');
-        staged.commit(text.as_bytes()).map_err(|e| {
-            CorrectError::Input(format!("{}: cannot write the report: {e}", path.display()))
-        })?;
+        staged
+            .commit(text.as_bytes())
+            .map_err(|e| report_error(path, e))?;
     }
     Ok(report)
+}
+
+/// The DEM opened, the features of `features` read and checked against
+/// it, the landforms placed on the views of the sketch they name
+/// (`--sketch`), and their window planned: nothing solved yet. Also the
+/// features file's name, which starts every message about a feature.
+fn planned(
+    dem_path: &Path,
+    features: &Path,
+    opts: &CorrectOptions,
+) -> Result<(Dem, Plan, String), CorrectError> {
+    let dem = Dem::open(dem_path)?;
+    let mut corrections = geojson_input::read(features, &dem).map_err(CorrectError::Input)?;
+    let fname = features.display().to_string();
+    let sketch = match &opts.sketch {
+        Some(p) => Some(
+            crate::sketch::SketchFile::from_path(p)
+                .map_err(|e| CorrectError::Input(e.to_string()))?,
+        ),
+        None => None,
+    };
+    let sketch_name = opts
+        .sketch
+        .as_ref()
+        .map(|p| p.display().to_string())
+        .unwrap_or_default();
+    landform::resolve(
+        &dem,
+        sketch.as_ref().map(|s| (s, sketch_name.as_str())),
+        &mut corrections,
+        &fname,
+        LANDFORM_HINT_CORRECT,
+    )
+    .map_err(CorrectError::Input)?;
+    let plan = plan(&dem, corrections, &fname, opts.max_window_cells)?;
+    Ok((dem, plan, fname))
+}
+
+/// Writes what the corrections made of `grid`: the pictures staged first
+/// (`--renders`), the DEM (or, on a dry run, the check that it could be
+/// written) with the provenance of `features`, the water mask, then the
+/// pictures committed. The changed cells and the tiles written.
+fn write_corrected(
+    dem_path: &Path,
+    features: &Path,
+    opts: &CorrectOptions,
+    dem: &Dem,
+    plan: &Plan,
+    grid: &grid::Grid,
+) -> Result<(usize, Vec<PathBuf>), CorrectError> {
+    let window = plan.window;
+    let staged_renders = match &opts.renders {
+        Some(dir) => {
+            let pics = pictures::pictures(dem, grid, &plan.corrections)
+                .map_err(|e| CorrectError::Internal(format!("pictures: {e}")))?;
+            Some(
+                crate::edit::StagedDir::create(dir, &pics)
+                    .map_err(|e| CorrectError::Input(e.to_string()))?,
+            )
+        }
+        None => None,
+    };
+    let values = grid.write_values();
+    let (provenance, wopts) = provenance_of(dem_path, features, &opts.write);
+    let written = if opts.dry_run {
+        (dem.check_write_back(window, &values)?, Vec::new())
+    } else {
+        let w = dem.write_back_with(window, &values, &opts.destination, &provenance, &wopts)?;
+        (w.changed_cells, w.tiles_written)
+    };
+    if let Some(path) = &opts.water_mask {
+        write_water_mask(path, dem, grid)?;
+    }
+    if let Some(s) = staged_renders {
+        s.commit().map_err(|e| CorrectError::Input(e.to_string()))?;
+    }
+    Ok(written)
+}
+
+/// The provenance a correction writes (its id names the features file
+/// and the start of its SHA-256), and `write` with the record of the
+/// input DEM, the features' hash and the parameters.
+fn provenance_of(
+    dem_path: &Path,
+    features: &Path,
+    write: &WriteOptions,
+) -> (Provenance, WriteOptions) {
+    let bytes = std::fs::read(features).unwrap_or_default();
+    let hash = sha256_hex(&bytes);
+    let provenance = Provenance {
+        edit_id: format!(
+            "correct {}:{}",
+            features
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default(),
+            &hash[..16]
+        ),
+    };
+    let mut wopts = write.clone();
+    wopts.record = ProvenanceRecord {
+        input: Some(dem_path.display().to_string()),
+        sketch_sha256: Some(hash),
+        parameters: Some(format!("--features {}", features.display())),
+    };
+    (provenance, wopts)
+}
+
+/// The report's path cannot be written: a user error naming it.
+fn report_error(path: &Path, e: impl std::fmt::Display) -> CorrectError {
+    CorrectError::Input(format!("{}: cannot write the report: {e}", path.display()))
 }
 
 /// The water mask (`--water-mask`): Byte, 1 on water cells, 0 elsewhere,
@@ -490,33 +540,13 @@ fn apply_one(
         } => {
             let blend = blend_m.unwrap_or(default_blend);
             let res =
-                river::apply(grid, centreline, *width_m, *flow, blend).map_err(|e| match e {
-                    river::RiverError::Solver(s) => solver_error(s),
-                    e => ApplyError::User(e.to_string()),
-                })?;
-            r.blend_m = Some(blend);
-            r.surface_start_m = Some(res.surface_start_m);
-            r.surface_end_m = Some(res.surface_end_m);
-            r.reversed = Some(res.reversed);
-            r.surface_knots_m = Some(res.knots.clone());
-            r.water_cells = Some(res.change.water_cells);
-            r.cells_changed = res.change.cells_changed;
-            r.max_abs_dz_m = res.change.max_abs_dz_m;
+                river::apply(grid, centreline, *width_m, *flow, blend).map_err(river_error)?;
+            river_report(&mut r, &res, blend);
         }
         CorrectionKind::RiverArea { area, blend_m } => {
             let blend = blend_m.unwrap_or(default_blend);
-            let res = river::apply_polygon(grid, area, blend).map_err(|e| match e {
-                river::RiverError::Solver(s) => solver_error(s),
-                e => ApplyError::User(e.to_string()),
-            })?;
-            r.blend_m = Some(blend);
-            r.surface_start_m = Some(res.surface_start_m);
-            r.surface_end_m = Some(res.surface_end_m);
-            r.reversed = Some(res.reversed);
-            r.surface_knots_m = Some(res.knots.clone());
-            r.water_cells = Some(res.change.water_cells);
-            r.cells_changed = res.change.cells_changed;
-            r.max_abs_dz_m = res.change.max_abs_dz_m;
+            let res = river::apply_polygon(grid, area, blend).map_err(river_error)?;
+            river_report(&mut r, &res, blend);
         }
         CorrectionKind::ControlCurve {
             points, sections, ..
@@ -524,11 +554,7 @@ fn apply_one(
             let infl =
                 influence.unwrap_or_else(|| control_curve::influence_for(dem, grid, points, None));
             let res =
-                control_curve::apply(dem, grid, points, sections, infl).map_err(|e| match e {
-                    control_curve::CurveError::Solver(s) => solver_error(s),
-                    control_curve::CurveError::Fit(f) => ApplyError::Internal(f.to_string()),
-                    e => ApplyError::User(e.to_string()),
-                })?;
+                control_curve::apply(dem, grid, points, sections, infl).map_err(curve_error)?;
             r.influence_m = Some(res.influence_m);
             r.max_curve_error_m = Some(res.max_curve_error_m);
             if !sections.is_empty() {
@@ -576,11 +602,7 @@ fn apply_one(
                 r.max_abs_dz_m = res.max_abs_dz_m;
             } else {
                 let res =
-                    control_curve::apply(dem, grid, points, &[], infl).map_err(|e| match e {
-                        control_curve::CurveError::Solver(s) => solver_error(s),
-                        control_curve::CurveError::Fit(f) => ApplyError::Internal(f.to_string()),
-                        e => ApplyError::User(e.to_string()),
-                    })?;
+                    control_curve::apply(dem, grid, points, &[], infl).map_err(curve_error)?;
                 r.max_curve_error_m = Some(res.max_curve_error_m);
                 r.cells_changed = res.cells_changed;
                 r.max_abs_dz_m = res.max_abs_dz_m;
@@ -590,12 +612,40 @@ fn apply_one(
     Ok(r)
 }
 
+/// A river's outcome in its feature's report.
+fn river_report(r: &mut FeatureReport, res: &river::RiverResult, blend: f64) {
+    r.blend_m = Some(blend);
+    r.surface_start_m = Some(res.surface_start_m);
+    r.surface_end_m = Some(res.surface_end_m);
+    r.reversed = Some(res.reversed);
+    r.surface_knots_m = Some(res.knots.clone());
+    r.water_cells = Some(res.change.water_cells);
+    r.cells_changed = res.change.cells_changed;
+    r.max_abs_dz_m = res.change.max_abs_dz_m;
+}
+
+fn river_error(e: river::RiverError) -> ApplyError {
+    match e {
+        river::RiverError::Solver(s) => solver_error(s),
+        e => ApplyError::User(e.to_string()),
+    }
+}
+
+/// A control curve's (or soft breakline's) failure: the solver's and the
+/// fit's are the program's, the rest the feature's.
+fn curve_error(e: control_curve::CurveError) -> ApplyError {
+    match e {
+        control_curve::CurveError::Solver(s) => solver_error(s),
+        control_curve::CurveError::Fit(f) => ApplyError::Internal(f.to_string()),
+        e => ApplyError::User(e.to_string()),
+    }
+}
+
 fn landform_error(e: landform::LandformError) -> ApplyError {
     match e {
-        landform::LandformError::Curve(control_curve::CurveError::Solver(s)) => solver_error(s),
-        landform::LandformError::Curve(control_curve::CurveError::Fit(f)) => {
-            ApplyError::Internal(f.to_string())
-        }
+        landform::LandformError::Curve(
+            c @ (control_curve::CurveError::Solver(_) | control_curve::CurveError::Fit(_)),
+        ) => curve_error(c),
         landform::LandformError::NotPlaced => ApplyError::Internal(e.to_string()),
         e => ApplyError::User(e.to_string()),
     }
