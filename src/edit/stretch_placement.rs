@@ -1131,9 +1131,13 @@ fn hold_background_ends(
         // The end pixel shows that far ground (the stroke comes down onto
         // it), or nearer terrain that closes the gap on the end's side.
         let far = (0..m).map(depth).fold(f64::INFINITY, f64::min);
-        let shows = terrain_below(before, end_px).is_some_and(|(_, d, _)| {
-            d >= near * (1.0 + GAP_BEHIND) || d * (1.0 + GAP_BEHIND) <= far
-        });
+        // (a junction at the far run's depth is a lower bound the run
+        // agrees with: the stroke goes on behind it)
+        let on_far_ground =
+            ground_under_end(before, end_px).is_some_and(|(_, d)| d >= near * (1.0 + GAP_BEHIND));
+        let closes =
+            terrain_below(before, end_px).is_some_and(|(_, d, _)| d * (1.0 + GAP_BEHIND) <= far);
+        let shows = on_far_ground || closes;
         if !shows {
             continue;
         }
