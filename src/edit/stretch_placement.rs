@@ -1091,13 +1091,20 @@ fn stands_on_background(
 /// The points at a stroke end of a stretch kept on its feature (`ends`:
 /// the stretch holds the stroke's first point, its last) that lie on a
 /// piece of the feature at least [`GAP_BEHIND`] farther than the point
-/// before them, where the end pixel itself shows terrain that far, keep
-/// the nearer point's depth. The stroke comes down there onto the ground
-/// seen past the landform it outlines (the valley floor behind a new
-/// hill): its end on that ground says the landform stands in front of it
-/// (an upper bound, as the junction at a stroke's other end is a lower
-/// one), not that the outline goes back to it; placed on it, the last
-/// points build a wall at the background's depth.
+/// before them keep the nearer point's depth when the end stands on
+/// ground that far (the stroke comes down there onto the ground seen past
+/// the landform it outlines, the valley floor behind a new hill: its end
+/// on that ground says the landform stands in front of it, an upper
+/// bound, as a junction is a lower one), or when the end pixel shows
+/// terrain nearer than the far piece by [`GAP_BEHIND`] (the gap is closed
+/// on the end's side, as [`bridge_farther_gaps`] bridges a gap closed on
+/// both). Placed on the far piece, the last points build a wall at the
+/// background's depth, beyond the influence of the landform drawn (the
+/// later passes of hold-out 4's Vinschgau new hill, whose re-matched
+/// skyline runs from the raised hill 3 km away onto the valley 14.5 km
+/// away at the stroke's last columns). A junction at the far piece's depth
+/// is a lower bound the piece agrees with: the stroke goes on behind it
+/// (a raised peak's shoulder), and the piece stays.
 fn hold_background_ends(
     before: &RenderedView,
     proj: &SceneProjection,
