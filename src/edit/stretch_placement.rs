@@ -225,6 +225,7 @@ pub fn place_free_stretches(
             out.feature += count;
             hold_extension_depth(proj, placed, &on[a..b]);
             bridge_farther_gaps(proj, placed, &on[a..b], (left, right));
+            hold_background_ends(before, proj, placed, &on[a..b], (a == 0, b == n));
             continue;
         }
         // A stretch bounded by junctions only: nothing says where it stands.
@@ -241,6 +242,12 @@ pub fn place_free_stretches(
                 continue;
             }
             out.unsupported += count;
+            continue;
+        }
+        if stands_on_background(placed, &on[a..b], (left, right), (a == 0, b == n)) {
+            out.feature += count;
+            hold_extension_depth(proj, placed, &on[a..b]);
+            bridge_farther_gaps(proj, placed, &on[a..b], (left, right));
             continue;
         }
         let surface = Surface::new(proj, left, right);
@@ -1035,6 +1042,114 @@ fn hold_extension_depth(proj: &SceneProjection, placed: &mut StrokeMatch, run: &
                 source: PointSource::Tangent,
             };
         }
+    }
+}
+
+/// A stroke end stands on the background it is drawn against, not on the
+/// landform's foot, when its ground lies this many times farther than the
+/// stretch's matched feature (see [`stands_on_background`]).
+pub const BACKGROUND_RATIO: f64 = 2.0;
+
+/// True when a stretch bounded by a junction at one end and ground at the
+/// other has its matched feature at or behind the junction (the junction
+/// bounds the depth from the near side) but the ground lies more than
+/// [`BACKGROUND_RATIO`] times farther than the feature anywhere: the
+/// outline comes down onto far ground seen past the landform (the valley
+/// floor behind a new hill), which it occludes there. The drawing plane
+/// through that ground (Gain et al.'s end rule) would make the landform as
+/// many times taller to show so (hold-out 4's Vinschgau new hill: a hill
+/// of +175 m 2.6-3.6 km away, its stroke's right end on ground 13.9 km
+/// away, became 2,878 m of terrain); the feature between the junction and
+/// the ground is the landform, as Tassé et al. place a stroke.
+fn stands_on_background(
+    placed: &StrokeMatch,
+    run: &[usize],
+    (left, right): (Option<Bound>, Option<Bound>),
+    ends: (bool, bool),
+) -> bool {
+    // The ground must be a stroke end's (an anchor beside the stretch is
+    // the landform's own silhouette, Gain et al.'s end point).
+    let (junction, ground) = match (left, right) {
+        (Some(j), Some(q)) if j.junction && !q.junction && ends.1 => (j, q),
+        (Some(q), Some(j)) if j.junction && !q.junction && ends.0 => (j, q),
+        _ => return false,
+    };
+    let depths: Vec<f64> = run
+        .iter()
+        .map(|&k| &placed.points[k])
+        .filter(|p| p.source == PointSource::Feature)
+        .map(|p| p.depth)
+        .collect();
+    if (depths.len() as f64) < NEAR_COVERAGE * run.len() as f64 || depths.is_empty() {
+        return false;
+    }
+    let lo = depths.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = depths.iter().copied().fold(0.0, f64::max);
+    lo >= junction.depth * (1.0 - AGREEMENT) && ground.depth > BACKGROUND_RATIO * hi
+}
+
+/// The points at a stroke end of a stretch kept on its feature (`ends`:
+/// the stretch holds the stroke's first point, its last) that lie on a
+/// piece of the feature at least [`GAP_BEHIND`] farther than the point
+/// before them keep the nearer point's depth when the end stands on
+/// ground that far (the stroke comes down there onto the ground seen past
+/// the landform it outlines, the valley floor behind a new hill: its end
+/// on that ground says the landform stands in front of it, an upper
+/// bound, as a junction is a lower one), or when the end pixel shows
+/// terrain nearer than the far piece by [`GAP_BEHIND`] (the gap is closed
+/// on the end's side, as [`bridge_farther_gaps`] bridges a gap closed on
+/// both). Placed on the far piece, the last points build a wall at the
+/// background's depth, beyond the influence of the landform drawn (the
+/// later passes of hold-out 4's Vinschgau new hill, whose re-matched
+/// skyline runs from the raised hill 3 km away onto the valley 14.5 km
+/// away at the stroke's last columns). A junction at the far piece's depth
+/// is a lower bound the piece agrees with: the stroke goes on behind it
+/// (a raised peak's shoulder), and the piece stays.
+fn hold_background_ends(
+    before: &RenderedView,
+    proj: &SceneProjection,
+    placed: &mut StrokeMatch,
+    run: &[usize],
+    ends: (bool, bool),
+) {
+    let n = run.len();
+    if n < 2 {
+        return;
+    }
+    for (is_end, order) in [
+        (ends.0, (0..n).collect::<Vec<usize>>()),
+        (ends.1, (0..n).rev().collect()),
+    ] {
+        if !is_end {
+            continue;
+        }
+        // From the stroke end inward: the far run, then the nearer point.
+        let depth = |i: usize| placed.points[run[order[i]]].depth;
+        let Some(end_px) = placed.points[run[order[0]]].pixel else {
+            continue;
+        };
+        let Some(m) = (1..n).find(|&i| depth(i) * (1.0 + GAP_BEHIND) <= depth(i - 1)) else {
+            continue;
+        };
+        let near = depth(m);
+        if !(0..m).all(|i| depth(i) >= near * (1.0 + GAP_BEHIND)) {
+            continue;
+        }
+        // The end pixel shows that far ground (the stroke comes down onto
+        // it), or nearer terrain that closes the gap on the end's side.
+        let far = (0..m).map(depth).fold(f64::INFINITY, f64::min);
+        // (a junction at the far run's depth is a lower bound the run
+        // agrees with: the stroke goes on behind it)
+        let on_far_ground =
+            ground_under_end(before, end_px).is_some_and(|(_, d)| d >= near * (1.0 + GAP_BEHIND));
+        let closes =
+            terrain_below(before, end_px).is_some_and(|(_, d, _)| d * (1.0 + GAP_BEHIND) <= far);
+        let shows = on_far_ground || closes;
+        if !shows {
+            continue;
+        }
+        let held: Vec<usize> = order[..m].iter().map(|&i| run[i]).collect();
+        put_at_depths(proj, placed, &held, |_, _| Some(near));
     }
 }
 
