@@ -171,6 +171,7 @@ pub fn place_free_stretches(
     proj: &SceneProjection,
     features: &[ViewFeature],
     observer_radius_m: f64,
+    occluder: Option<f64>,
     placed: &mut StrokeMatch,
 ) -> StretchPlacement {
     let feature = placed
@@ -189,6 +190,9 @@ pub fn place_free_stretches(
     // agrees.
     let mut spans = free_spans(before, proj, observer_radius_m, placed, &on);
     drop_passed_anchors(placed, &on, &mut spans);
+    if let Some(d) = occluder {
+        occluded_bounds(&mut spans, d);
+    }
     let runs: Vec<(Span, bool)> = spans
         .into_iter()
         .map(|span| {
@@ -339,6 +343,20 @@ fn free_spans(
         a = b;
     }
     spans
+}
+
+/// A stroke matched behind the silhouette it rises out of and falls back
+/// into ([`super::tangent_rise`]): the anchors and ends on that silhouette
+/// (at most [`AGREEMENT`] behind its depth `occluder`) are T-junctions,
+/// lower bounds on the stroke's depth, not its ground.
+fn occluded_bounds(spans: &mut [Span], occluder: f64) {
+    for (_, _, left, right) in spans.iter_mut() {
+        for q in [left, right].into_iter().flatten() {
+            if q.depth <= occluder * (1.0 + AGREEMENT) {
+                q.junction = true;
+            }
+        }
+    }
 }
 
 /// Whether a free stretch keeps its matched feature's depth (see the

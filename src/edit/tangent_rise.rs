@@ -1,0 +1,223 @@
+//! A stroke that rises out of one silhouette and falls back into it: a
+//! landform appearing from behind that silhouette (issue 11, item 3).
+//!
+//! Both ends of such a stroke lie within the fit's pixel
+//! ([`FIT_TOLERANCE_PX`]) of one occluding silhouette, and the stroke's
+//! middle stands above it: both ends are T-junctions with it (Tassé et
+//! al. section 5.2.2: an outline that ends on another is occluded by it;
+//! Gain et al. 2009 read T-junctions as depth-order cues too). The
+//! silhouette is then not the stroke's landform but a lower bound on its
+//! depth. Equation (1) cannot see this: `E_dis` and `E_def` both measure
+//! the vertical pixel offset between stroke and feature, and a feature
+//! hidden behind the silhouette projects below it in every column, so the
+//! occluder itself is always the cheaper match. Here the stroke is matched
+//! again, to the cheapest candidate of its priority list (the usual costs)
+//! that lies hidden behind the occluder in every column where both are
+//! seen: farther than it by more than [`AGREEMENT`] and not above it in
+//! the image. With no such candidate the match stands.
+
+use std::collections::HashMap;
+
+use super::fit::FIT_TOLERANCE_PX;
+use super::rendered_view::RenderedView;
+use super::stretch_placement::AGREEMENT;
+use crate::render::SKY;
+use crate::sketch::{
+    complete_feature, place_on_candidate, Candidate, FeatureKind, MatchKind, PriorityList,
+    SceneProjection, SketchOptions, Stroke, StrokeMatch,
+};
+
+/// The silhouette a stroke rises out of and falls back into: its image
+/// row and depth in each column it covers under the stroke.
+#[derive(Debug, Clone)]
+pub struct Occluder {
+    /// Column -> (row, depth) of the curve's samples.
+    rows: HashMap<usize, (f64, f64)>,
+}
+
+impl Occluder {
+    /// The occluder's median depth under the stroke.
+    pub fn depth(&self) -> f64 {
+        let mut d: Vec<f64> = self.rows.values().map(|r| r.1).collect();
+        d.sort_by(f64::total_cmp);
+        d.get(d.len() / 2).copied().unwrap_or(f64::NAN)
+    }
+
+    fn at(&self, x: f64) -> Option<(f64, f64)> {
+        if !(x.is_finite() && x >= 0.0) {
+            return None;
+        }
+        self.rows.get(&(x.floor() as usize)).copied()
+    }
+}
+
+/// Share of a candidate's own points that must lie in the stroke's
+/// columns for it to count as hidden behind the outline there.
+pub const OCCLUDER_COVERAGE: f64 = 0.5;
+
+fn column(before: &RenderedView, x: f64) -> Option<usize> {
+    let w = before.camera.width;
+    (x.is_finite() && x >= 0.0 && w > 0).then(|| (x.floor() as usize).min(w - 1))
+}
+
+/// The outline the view shows under `pixel` in its column: the topmost
+/// occlusion boundary (a silhouette sample showing as one, or the
+/// skyline) at or below the pixel, within the fit's pixel above it, as
+/// its row and depth. `None` when the pixel lies in the terrain (more
+/// than that pixel under the outline) or nothing is under it.
+fn outline_under(before: &RenderedView, pixel: [f64; 2]) -> Option<(f64, f64)> {
+    let i = column(before, pixel[0])?;
+    let (w, h) = (before.camera.width, before.camera.height);
+    let top = pixel[1] - FIT_TOLERANCE_PX;
+    if top >= 0.0 && (top as usize) < h && before.depth.triangle[top as usize * w + i] != SKY {
+        return None;
+    }
+    let mut best: Option<(f64, f64)> = None;
+    for &(c, k) in &before.by_column[i] {
+        let s = &before.silhouettes.curves[c as usize].samples[k as usize];
+        if s.pixel[1] >= top
+            && before.shows_as_boundary(s)
+            && best.is_none_or(|b| s.pixel[1] < b.0)
+        {
+            best = Some((s.pixel[1], s.depth));
+        }
+    }
+    if let Some(j) = before.skyline_row[i].filter(|&j| j > 0 && j as f64 >= top) {
+        if best.is_none_or(|b| (j as f64) < b.0) {
+            let d = before.depth.depth[j * w + i] as f64;
+            if d.is_finite() {
+                best = Some((j as f64, d));
+            }
+        }
+    }
+    best
+}
+
+/// The outline a stroke (its `pixels`, left to right) rises out of and
+/// falls back into: both its ends lie within [`FIT_TOLERANCE_PX`] of the
+/// outline the view shows under them (a T-junction with it, tangential:
+/// within the fit's pixel), the stroke stands above that outline (within
+/// that pixel) in every column, and more than that pixel above it
+/// somewhere. The outline is the topmost boundary under the stroke,
+/// whichever silhouette curves make it up (a skyline of several crests
+/// reads as one outline in the image).
+pub fn occluder_of(before: &RenderedView, pixels: &[[f64; 2]]) -> Option<Occluder> {
+    let (first, last) = (*pixels.first()?, *pixels.last()?);
+    let mut rows = HashMap::new();
+    let mut rise = 0.0f64;
+    for p in pixels {
+        let (row, depth) = outline_under(before, *p)?;
+        rise = rise.max(row - p[1]);
+        rows.entry(column(before, p[0])?).or_insert((row, depth));
+    }
+    let on = |p: [f64; 2]| {
+        column(before, p[0])
+            .and_then(|i| rows.get(&i))
+            .is_some_and(|r: &(f64, f64)| (r.0 - p[1]).abs() <= FIT_TOLERANCE_PX)
+    };
+    if !(on(first) && on(last) && rise > FIT_TOLERANCE_PX) {
+        return None;
+    }
+    Some(Occluder { rows })
+}
+
+/// The median depth of a candidate's own (not extended) points.
+fn candidate_depth(c: &Candidate) -> f64 {
+    let mut d: Vec<f64> = c
+        .points
+        .iter()
+        .filter(|p| !p.extended)
+        .map(|p| p.depth)
+        .collect();
+    d.sort_by(f64::total_cmp);
+    d.get(d.len() / 2).copied().unwrap_or(f64::NAN)
+}
+
+/// Whether a candidate lies hidden behind the occluder: each of its own
+/// points in a column the occluder is seen in is farther than the
+/// occluder there by more than [`AGREEMENT`] and projects at or under it
+/// (within the fit's pixel), and at least half of its own points are in
+/// such columns.
+fn hidden_behind(occ: &Occluder, c: &Candidate) -> bool {
+    let own: Vec<_> = c.points.iter().filter(|p| !p.extended).collect();
+    let mut seen = 0usize;
+    for p in &own {
+        let Some((row, depth)) = occ.at(p.pixel[0]) else {
+            continue;
+        };
+        seen += 1;
+        if !(p.depth > depth * (1.0 + AGREEMENT) && p.pixel[1] >= row - FIT_TOLERANCE_PX) {
+            return false;
+        }
+    }
+    seen > 0 && seen as f64 >= OCCLUDER_COVERAGE * own.len() as f64
+}
+
+/// Matches again a stroke that rises out of one silhouette and falls back
+/// into it (see the module documentation), when it was matched on or in
+/// front of that silhouette: to the cheapest candidate of its priority
+/// list hidden behind it. Returns the occluder's depth (a lower bound on
+/// the stroke's) when the stroke was matched again.
+pub fn match_behind_occluder(
+    before: &RenderedView,
+    proj: &SceneProjection,
+    stroke: &Stroke,
+    list: &PriorityList,
+    options: &SketchOptions,
+    placed: &mut StrokeMatch,
+) -> Option<f64> {
+    let debug = std::env::var_os("DEMSKETCH_DEBUG").is_some();
+    let occ = occluder_of(before, &stroke.points)?;
+    let occ_depth = occ.depth();
+    let current = placed.candidate.and_then(|a| list.candidates.get(a));
+    let current_depth = current.map(candidate_depth);
+    if debug {
+        eprintln!(
+            "tangent rise {}: occluder depth {:.0}, matched {:?} at {:?}",
+            stroke.id,
+            occ_depth,
+            placed.feature_id.map(|f| f % (1 << 40)),
+            current_depth.map(|d| d.round())
+        );
+    }
+    if current_depth.is_some_and(|d| d > occ_depth * (1.0 + AGREEMENT)) {
+        return None;
+    }
+    let (a, cand) = list
+        .candidates
+        .iter()
+        .enumerate()
+        .find(|(_, c)| hidden_behind(&occ, c))?;
+    let mut pts = place_on_candidate(stroke, cand, proj);
+    if pts.is_empty() {
+        return None;
+    }
+    if options.feature_completion {
+        pts = complete_feature(
+            &pts,
+            proj,
+            options.completion_step_m,
+            options.completion_max_m,
+            0.25,
+        );
+    }
+    if debug {
+        eprintln!(
+            "tangent rise {}: matched behind to feature {} {:?} at {:.0} m, cost {:.2}",
+            stroke.id,
+            cand.feature_id % (1 << 40),
+            cand.kind,
+            candidate_depth(cand),
+            cand.costs.total
+        );
+    }
+    placed.kind = match cand.kind {
+        FeatureKind::Silhouette => MatchKind::Silhouette,
+        FeatureKind::Ridge => MatchKind::Ridge,
+    };
+    placed.feature_id = Some(cand.feature_id);
+    placed.candidate = Some(a);
+    placed.costs = Some(cand.costs);
+    placed.points = pts;
+    Some(occ_depth)
+}
