@@ -630,7 +630,7 @@ pub const MAX_SHAPE_CELLS: usize = 64;
 /// within [`SHAPE_TOLERANCE_PX`] of it: how many DEM cells across the
 /// stroke must span for the terrain to draw its shape. `None` when the
 /// stroke turns back on itself in the image or is not one pixel wide.
-fn shape_cells(pixels: &[[f64; 2]]) -> Option<usize> {
+pub(super) fn shape_cells(pixels: &[[f64; 2]]) -> Option<usize> {
     let mut pts: Vec<[f64; 2]> = pixels.to_vec();
     if pts.first()?[0] > pts.last()?[0] {
         pts.reverse();

@@ -20,7 +20,7 @@ use std::collections::HashMap;
 
 use super::fit::FIT_TOLERANCE_PX;
 use super::rendered_view::RenderedView;
-use super::stretch_placement::AGREEMENT;
+use super::stretch_placement::{shape_cells, AGREEMENT};
 use crate::render::SKY;
 use crate::sketch::{
     complete_feature, place_on_candidate, Candidate, FeatureKind, MatchKind, PriorityList,
@@ -105,10 +105,22 @@ pub fn occluder_of(before: &RenderedView, pixels: &[[f64; 2]]) -> Option<Occlude
     let (first, last) = (*pixels.first()?, *pixels.last()?);
     let mut rows = HashMap::new();
     let mut rise = 0.0f64;
+    // Every column the stroke crosses, at the stroke's row there (its
+    // points may lie several columns apart).
+    let (i0, i1) = (column(before, first[0])?, column(before, last[0])?);
+    for i in i0.min(i1)..=i0.max(i1) {
+        let x = (i as f64 + 0.5).clamp(first[0].min(last[0]), first[0].max(last[0]));
+        let k = pixels.partition_point(|p| p[0] < x).clamp(1, pixels.len().max(2) - 1);
+        let (a, b) = (pixels[k - 1], pixels[k.min(pixels.len() - 1)]);
+        let t = if b[0] > a[0] { (x - a[0]) / (b[0] - a[0]) } else { 0.0 };
+        let y = a[1] + t.clamp(0.0, 1.0) * (b[1] - a[1]);
+        let (row, depth) = outline_under(before, [x, y])?;
+        rise = rise.max(row - y);
+        rows.insert(i, (row, depth));
+    }
     for p in pixels {
-        let (row, depth) = outline_under(before, *p)?;
+        let (row, _) = outline_under(before, *p)?;
         rise = rise.max(row - p[1]);
-        rows.entry(column(before, p[0])?).or_insert((row, depth));
     }
     let on = |p: [f64; 2]| {
         column(before, p[0])
@@ -133,11 +145,13 @@ fn candidate_depth(c: &Candidate) -> f64 {
     d.get(d.len() / 2).copied().unwrap_or(f64::NAN)
 }
 
-/// Whether a candidate lies hidden behind the occluder: each of its own
-/// points in a column the occluder is seen in is farther than the
-/// occluder there by more than [`AGREEMENT`] and projects at or under it
-/// (within the fit's pixel), and at least half of its own points are in
-/// such columns.
+/// Whether a candidate lies behind the outline: none of its own points in
+/// the stroke's columns lies in front of the outline there by more than
+/// [`AGREEMENT`] or projects above it by more than the fit's pixel (the
+/// outline bounds it from the near side; where the candidate itself makes
+/// the outline, it is on it), its median depth is beyond the outline's by
+/// more than [`AGREEMENT`], and at least [`OCCLUDER_COVERAGE`] of its own
+/// points lie in the stroke's columns.
 fn hidden_behind(occ: &Occluder, c: &Candidate) -> bool {
     let own: Vec<_> = c.points.iter().filter(|p| !p.extended).collect();
     let mut seen = 0usize;
@@ -146,11 +160,13 @@ fn hidden_behind(occ: &Occluder, c: &Candidate) -> bool {
             continue;
         };
         seen += 1;
-        if !(p.depth > depth * (1.0 + AGREEMENT) && p.pixel[1] >= row - FIT_TOLERANCE_PX) {
+        if !(p.depth >= depth * (1.0 - AGREEMENT) && p.pixel[1] >= row - FIT_TOLERANCE_PX) {
             return false;
         }
     }
-    seen > 0 && seen as f64 >= OCCLUDER_COVERAGE * own.len() as f64
+    seen > 0
+        && seen as f64 >= OCCLUDER_COVERAGE * own.len() as f64
+        && candidate_depth(c) > occ.depth() * (1.0 + AGREEMENT)
 }
 
 /// Matches again a stroke that rises out of one silhouette and falls back
@@ -181,6 +197,22 @@ pub fn match_behind_occluder(
         );
     }
     if current_depth.is_some_and(|d| d > occ_depth * (1.0 + AGREEMENT)) {
+        return None;
+    }
+    // The outline's own landform, raised, is the reading that needs no
+    // hidden one (the paper's preference for the nearer feature): kept
+    // where the DEM's cells at the outline's depth can draw the stroke's
+    // shape ([`shape_cells`]: as many cells as its outline needs steps).
+    let (x0, x1) = (stroke.points.first()?[0], stroke.points.last()?[0]);
+    let cells_across = (x1 - x0).abs() / before.cell_px(occ_depth);
+    let needed = shape_cells(&stroke.points);
+    if debug {
+        eprintln!(
+            "tangent rise {}: {:.2} cells across at the outline's depth, shape needs {:?}",
+            stroke.id, cells_across, needed
+        );
+    }
+    if !needed.is_some_and(|m| cells_across < m as f64) {
         return None;
     }
     let (a, cand) = list
