@@ -20,11 +20,11 @@ use std::collections::HashMap;
 
 use super::fit::FIT_TOLERANCE_PX;
 use super::rendered_view::RenderedView;
-use super::stretch_placement::{shape_cells, AGREEMENT};
+use super::stretch_placement::{shape_cells, AGREEMENT, NEAR_IN_IMAGE_RAD};
 use crate::render::SKY;
 use crate::sketch::{
     complete_feature, place_on_candidate, Candidate, FeatureKind, MatchKind, PriorityList,
-    SceneProjection, SketchOptions, Stroke, StrokeMatch,
+    SceneProjection, SketchOptions, Stroke, StrokeMatch, ViewProjection,
 };
 
 /// The silhouette a stroke rises out of and falls back into: its image
@@ -75,9 +75,7 @@ fn outline_under(before: &RenderedView, pixel: [f64; 2]) -> Option<(f64, f64)> {
     let mut best: Option<(f64, f64)> = None;
     for &(c, k) in &before.by_column[i] {
         let s = &before.silhouettes.curves[c as usize].samples[k as usize];
-        if s.pixel[1] >= top
-            && before.shows_as_boundary(s)
-            && best.is_none_or(|b| s.pixel[1] < b.0)
+        if s.pixel[1] >= top && before.shows_as_boundary(s) && best.is_none_or(|b| s.pixel[1] < b.0)
         {
             best = Some((s.pixel[1], s.depth));
         }
@@ -110,9 +108,15 @@ pub fn occluder_of(before: &RenderedView, pixels: &[[f64; 2]]) -> Option<Occlude
     let (i0, i1) = (column(before, first[0])?, column(before, last[0])?);
     for i in i0.min(i1)..=i0.max(i1) {
         let x = (i as f64 + 0.5).clamp(first[0].min(last[0]), first[0].max(last[0]));
-        let k = pixels.partition_point(|p| p[0] < x).clamp(1, pixels.len().max(2) - 1);
+        let k = pixels
+            .partition_point(|p| p[0] < x)
+            .clamp(1, pixels.len().max(2) - 1);
         let (a, b) = (pixels[k - 1], pixels[k.min(pixels.len() - 1)]);
-        let t = if b[0] > a[0] { (x - a[0]) / (b[0] - a[0]) } else { 0.0 };
+        let t = if b[0] > a[0] {
+            (x - a[0]) / (b[0] - a[0])
+        } else {
+            0.0
+        };
         let y = a[1] + t.clamp(0.0, 1.0) * (b[1] - a[1]);
         let (row, depth) = outline_under(before, [x, y])?;
         rise = rise.max(row - y);
@@ -152,7 +156,7 @@ fn candidate_depth(c: &Candidate) -> f64 {
 /// the outline, it is on it), its median depth is beyond the outline's by
 /// more than [`AGREEMENT`], and at least [`OCCLUDER_COVERAGE`] of its own
 /// points lie in the stroke's columns.
-fn hidden_behind(occ: &Occluder, c: &Candidate) -> bool {
+fn hidden_behind(occ: &Occluder, c: &Candidate, near_px: f64) -> bool {
     let own: Vec<_> = c.points.iter().filter(|p| !p.extended).collect();
     let mut seen = 0usize;
     for p in &own {
@@ -164,9 +168,18 @@ fn hidden_behind(occ: &Occluder, c: &Candidate) -> bool {
             return false;
         }
     }
+    // Near the stroke in the image (as `stretch_placement` asks of a
+    // feature that describes a stretch): a feature far under it is not
+    // what it outlines.
+    let offset = own
+        .iter()
+        .map(|p| (p.pixel[1] - p.deformed_pixel[1]).abs())
+        .sum::<f64>()
+        / own.len().max(1) as f64;
     seen > 0
         && seen as f64 >= OCCLUDER_COVERAGE * own.len() as f64
         && candidate_depth(c) > occ.depth() * (1.0 + AGREEMENT)
+        && offset <= near_px
 }
 
 /// Matches again a stroke that rises out of one silhouette and falls back
@@ -184,6 +197,7 @@ pub fn match_behind_occluder(
 ) -> Option<f64> {
     let debug = std::env::var_os("DEMSKETCH_DEBUG").is_some();
     let occ = occluder_of(before, &stroke.points)?;
+    let near_px = NEAR_IN_IMAGE_RAD * proj.focal_px();
     let occ_depth = occ.depth();
     let current = placed.candidate.and_then(|a| list.candidates.get(a));
     let current_depth = current.map(candidate_depth);
@@ -219,7 +233,7 @@ pub fn match_behind_occluder(
         .candidates
         .iter()
         .enumerate()
-        .find(|(_, c)| hidden_behind(&occ, c))?;
+        .find(|(_, c)| hidden_behind(&occ, c, near_px))?;
     let mut pts = place_on_candidate(stroke, cand, proj);
     if pts.is_empty() {
         return None;
