@@ -171,7 +171,6 @@ pub fn place_free_stretches(
     proj: &SceneProjection,
     features: &[ViewFeature],
     observer_radius_m: f64,
-    occluder: Option<f64>,
     placed: &mut StrokeMatch,
 ) -> StretchPlacement {
     let feature = placed
@@ -190,9 +189,6 @@ pub fn place_free_stretches(
     // agrees.
     let mut spans = free_spans(before, proj, observer_radius_m, placed, &on);
     drop_passed_anchors(placed, &on, &mut spans);
-    if let Some(d) = occluder {
-        occluded_bounds(&mut spans, d);
-    }
     let runs: Vec<(Span, bool)> = spans
         .into_iter()
         .map(|span| {
@@ -343,20 +339,6 @@ fn free_spans(
         a = b;
     }
     spans
-}
-
-/// A stroke matched behind the silhouette it rises out of and falls back
-/// into ([`super::tangent_rise`]): the anchors and ends on that silhouette
-/// (at most [`AGREEMENT`] behind its depth `occluder`) are T-junctions,
-/// lower bounds on the stroke's depth, not its ground.
-fn occluded_bounds(spans: &mut [Span], occluder: f64) {
-    for (_, _, left, right) in spans.iter_mut() {
-        for q in [left, right].into_iter().flatten() {
-            if q.depth <= occluder * (1.0 + AGREEMENT) {
-                q.junction = true;
-            }
-        }
-    }
 }
 
 /// Whether a free stretch keeps its matched feature's depth (see the
@@ -630,7 +612,7 @@ pub const MAX_SHAPE_CELLS: usize = 64;
 /// within [`SHAPE_TOLERANCE_PX`] of it: how many DEM cells across the
 /// stroke must span for the terrain to draw its shape. `None` when the
 /// stroke turns back on itself in the image or is not one pixel wide.
-pub(super) fn shape_cells(pixels: &[[f64; 2]]) -> Option<usize> {
+fn shape_cells(pixels: &[[f64; 2]]) -> Option<usize> {
     let mut pts: Vec<[f64; 2]> = pixels.to_vec();
     if pts.first()?[0] > pts.last()?[0] {
         pts.reverse();

@@ -130,15 +130,7 @@ pub(super) fn place_demands(
         let mut cs = Vec::new();
         let mut fractions = Vec::new();
         let mut placements = Vec::new();
-        let crate::sketch::ViewMatch {
-            strokes: stroke_matches,
-            lists,
-            ..
-        } = m;
-        for (k, (s, sm)) in v.strokes.iter().zip(stroke_matches.iter_mut()).enumerate() {
-            let occluder = lists.get(k).and_then(|list| {
-                match_behind_occluder(&v.before, &sv.projection, s, list, options, sm)
-            });
+        for (s, sm) in v.strokes.iter().zip(m.strokes.iter_mut()) {
             fractions.push(anchor_on_silhouettes(
                 &v.before,
                 &sv.projection,
@@ -150,7 +142,6 @@ pub(super) fn place_demands(
                 &sv.projection,
                 &sv.features,
                 v.observer_radius(options.observer_radius_m),
-                occluder,
                 sm,
             ));
             if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
