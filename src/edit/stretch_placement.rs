@@ -223,8 +223,7 @@ pub fn place_free_stretches(
                 continue;
             }
             out.feature += count;
-            hold_extension_depth(proj, placed, &on[a..b]);
-            bridge_farther_gaps(proj, placed, &on[a..b], (left, right));
+            keep_on_feature(proj, placed, &on[a..b], (left, right));
             hold_background_ends(before, proj, placed, &on[a..b], (a == 0, b == n));
             continue;
         }
@@ -246,8 +245,7 @@ pub fn place_free_stretches(
         }
         if stands_on_background(placed, &on[a..b], (left, right), (a == 0, b == n)) {
             out.feature += count;
-            hold_extension_depth(proj, placed, &on[a..b]);
-            bridge_farther_gaps(proj, placed, &on[a..b], (left, right));
+            keep_on_feature(proj, placed, &on[a..b], (left, right));
             continue;
         }
         let surface = Surface::new(proj, left, right);
@@ -1043,6 +1041,20 @@ fn hold_extension_depth(proj: &SceneProjection, placed: &mut StrokeMatch, run: &
             };
         }
     }
+}
+
+/// A stretch kept at its matched feature's depth: its extension points
+/// keep the depth of the feature's end ([`hold_extension_depth`]) and the
+/// gaps through which a farther landform shows are bridged
+/// ([`bridge_farther_gaps`]).
+fn keep_on_feature(
+    proj: &SceneProjection,
+    placed: &mut StrokeMatch,
+    run: &[usize],
+    bounds: (Option<Bound>, Option<Bound>),
+) {
+    hold_extension_depth(proj, placed, run);
+    bridge_farther_gaps(proj, placed, run, bounds);
 }
 
 /// A stroke end stands on the background it is drawn against, not on the
