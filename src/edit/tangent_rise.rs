@@ -15,6 +15,21 @@
 //! that lies hidden behind the occluder in every column where both are
 //! seen: farther than it by more than [`AGREEMENT`] and not above it in
 //! the image. With no such candidate the match stands.
+//!
+//! The reading needs a stroke that comes out from behind the outline:
+//! its highest point stands more than the fit's pixel above both its ends
+//! ([`Occluder::falls_back`]; a stroke whose top is an end climbs with the
+//! outline). And it needs an outline with no summit of its own under the
+//! stroke's bump ([`Occluder::own_summit`]): where the outline peaks where
+//! the stroke peaks, that summit raised is the reading that needs no
+//! hidden landform (a raised own summit on a coarse DEM, which the
+//! DEM's cells could draw no better than a hidden one); a flat skyline
+//! under the bump has no landform there for the stroke to outline. The
+//! points anchored on the outline then go with the landform behind
+//! (`pipeline::demands`), and the stroke stands on the drawing plane
+//! through the matched feature's point under its top
+//! (`stretch_placement::summit_plane`): what shows over the outline is
+//! the hidden summit, not the feature's whole crest.
 
 use std::collections::HashMap;
 
@@ -57,32 +72,6 @@ impl Occluder {
                 self.stroke.get(&i).map(|&y| (i, r, d, y))
             })
             .collect()
-    }
-
-    /// Summary of the outline's own summit under the stroke, for the
-    /// diagnosis: (outline top column, its rise over the left end, over
-    /// the right end, stroke top column, the stroke's raised columns
-    /// (first, last) where it stands more than half its largest height
-    /// over the outline).
-    pub fn summit_summary(&self) -> Option<(usize, f64, f64, usize, usize, usize)> {
-        let p = self.profile();
-        let (first, last) = (p.first()?, p.last()?);
-        let top = p.iter().min_by(|a, b| a.1.total_cmp(&b.1))?;
-        let stop = p.iter().min_by(|a, b| a.3.total_cmp(&b.3))?;
-        let hmax = p.iter().map(|q| q.1 - q.3).fold(0.0f64, f64::max);
-        let raised: Vec<usize> = p
-            .iter()
-            .filter(|q| q.1 - q.3 > 0.5 * hmax)
-            .map(|q| q.0)
-            .collect();
-        Some((
-            top.0,
-            first.1 - top.1,
-            last.1 - top.1,
-            stop.0,
-            *raised.first()?,
-            *raised.last()?,
-        ))
     }
 
     /// Whether the stroke falls back into the outline: its highest point
@@ -303,16 +292,12 @@ pub fn match_behind_occluder(
             current_depth.map(|d| d.round())
         );
     }
-    if debug {
-        eprintln!(
-            "tangent rise {}: summit (outline top col, rise left, rise right, stroke top col, raised cols) {:?}",
-            stroke.id,
-            occ.summit_summary()
-        );
-        if std::env::var_os("DEMSKETCH_DEBUG_PROFILE").is_some() {
-            for (i, r, d, y) in occ.profile() {
-                eprintln!("profile {} {i} outline {r:.1} depth {d:.0} stroke {y:.1}", stroke.id);
-            }
+    if debug && std::env::var_os("DEMSKETCH_DEBUG_PROFILE").is_some() {
+        for (i, r, d, y) in occ.profile() {
+            eprintln!(
+                "profile {} {i} outline {r:.1} depth {d:.0} stroke {y:.1}",
+                stroke.id
+            );
         }
     }
     if current_depth.is_some_and(|d| d > occ_depth * (1.0 + AGREEMENT)) {

@@ -381,7 +381,9 @@ fn unanchor_occluder(sm: &mut crate::sketch::StrokeMatch, behind: Vec<PlacedPoin
     }
     // Completions only at ends that are not anchored (as anchoring does).
     let first = out.iter().position(|p| p.source != PointSource::Completion);
-    let last = out.iter().rposition(|p| p.source != PointSource::Completion);
+    let last = out
+        .iter()
+        .rposition(|p| p.source != PointSource::Completion);
     let (Some(first), Some(last)) = (first, last) else {
         return;
     };
