@@ -32,6 +32,7 @@ mod rerender;
 mod rounds;
 pub mod spikes;
 pub mod stretch_placement;
+pub mod tangent_rise;
 
 pub use outputs::picture_stem;
 pub use pipeline::{run, run_opened, EditOptions, DEFAULT_MIN_FIT};

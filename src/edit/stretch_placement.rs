@@ -171,6 +171,7 @@ pub fn place_free_stretches(
     proj: &SceneProjection,
     features: &[ViewFeature],
     observer_radius_m: f64,
+    occluder: Option<f64>,
     placed: &mut StrokeMatch,
 ) -> StretchPlacement {
     let feature = placed
@@ -184,11 +185,30 @@ pub fn place_free_stretches(
         })
         .collect();
     let n = on.len();
+    if let Some(surface) = occluder.and_then(|d| summit_plane(proj, placed, &on, d)) {
+        let free: Vec<usize> = on
+            .iter()
+            .copied()
+            .filter(|&k| placed.points[k].source != PointSource::Silhouette)
+            .collect();
+        put_at_depths(proj, placed, &free, |_, px| surface.depth(proj, px));
+        out.drawing_plane += free.len();
+        let end_free = |k: usize| placed.points[k].source != PointSource::Silhouette;
+        let ends = (
+            on.first().is_some_and(|&k| end_free(k)),
+            on.last().is_some_and(|&k| end_free(k)),
+        );
+        drop_completions_at_ends(placed, &on, ends);
+        return out;
+    }
     // The free runs and their bounds (the anchors beside them, or the
     // terrain under the stroke's end); then whether the matched depth
     // agrees.
     let mut spans = free_spans(before, proj, observer_radius_m, placed, &on);
     drop_passed_anchors(placed, &on, &mut spans);
+    if let Some(d) = occluder {
+        occluded_bounds(&mut spans, d);
+    }
     let runs: Vec<(Span, bool)> = spans
         .into_iter()
         .map(|span| {
@@ -344,6 +364,55 @@ fn free_spans(
         a = b;
     }
     spans
+}
+
+/// A stroke matched behind the silhouette it rises out of and falls back
+/// into ([`super::tangent_rise`]): the anchors and ends on that silhouette
+/// (at most [`AGREEMENT`] behind its depth `occluder`) are T-junctions,
+/// lower bounds on the stroke's depth, not its ground.
+fn occluded_bounds(spans: &mut [Span], occluder: f64) {
+    for (_, _, left, right) in spans.iter_mut() {
+        for q in [left, right].into_iter().flatten() {
+            if q.depth <= occluder * (1.0 + AGREEMENT) {
+                q.junction = true;
+            }
+        }
+    }
+}
+
+/// The drawing plane of a stroke matched behind the outline it rises out
+/// of and falls back into ([`super::tangent_rise`]): through the matched
+/// feature's point under the stroke's highest point (farther than the
+/// outline's depth `occluder` by more than [`AGREEMENT`]). What shows over
+/// the outline is the hidden landform's summit, and its outline lies
+/// across the line of sight there (Gain et al. 2009, section 3.1: a
+/// silhouette stroke with no terrain under its ends stands on the plane
+/// facing the viewer), not along the feature's crest, which may run in
+/// depth far beyond the part that shows.
+fn summit_plane(
+    proj: &SceneProjection,
+    placed: &StrokeMatch,
+    on: &[usize],
+    occluder: f64,
+) -> Option<Surface> {
+    let top = on
+        .iter()
+        .map(|&k| &placed.points[k])
+        .filter(|p| {
+            matches!(p.source, PointSource::Feature | PointSource::Tangent)
+                && p.depth > occluder * (1.0 + AGREEMENT)
+        })
+        .filter_map(|p| p.pixel.map(|px| (px[1], p)))
+        .min_by(|a, b| a.0.total_cmp(&b.0))?
+        .1;
+    Some(Surface::drawing_plane(
+        proj.eye(),
+        Bound {
+            world: top.world,
+            depth: top.depth,
+            junction: false,
+        },
+    ))
 }
 
 /// Whether a free stretch keeps its matched feature's depth (see the
@@ -617,7 +686,7 @@ pub const MAX_SHAPE_CELLS: usize = 64;
 /// within [`SHAPE_TOLERANCE_PX`] of it: how many DEM cells across the
 /// stroke must span for the terrain to draw its shape. `None` when the
 /// stroke turns back on itself in the image or is not one pixel wide.
-fn shape_cells(pixels: &[[f64; 2]]) -> Option<usize> {
+pub(super) fn shape_cells(pixels: &[[f64; 2]]) -> Option<usize> {
     let mut pts: Vec<[f64; 2]> = pixels.to_vec();
     if pts.first()?[0] > pts.last()?[0] {
         pts.reverse();

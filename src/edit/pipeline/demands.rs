@@ -6,6 +6,8 @@
 //! check that every stroke touches terrain.
 
 use super::*;
+use crate::edit::stretch_placement::AGREEMENT;
+use crate::sketch::PlacedPoint;
 
 /// Refuse a stroke (without `depth_m`) whose end points both lie in empty
 /// sky in the view before the edit, with no terrain close under them
@@ -130,18 +132,31 @@ pub(super) fn place_demands(
         let mut cs = Vec::new();
         let mut fractions = Vec::new();
         let mut placements = Vec::new();
-        for (s, sm) in v.strokes.iter().zip(m.strokes.iter_mut()) {
+        let crate::sketch::ViewMatch {
+            strokes: stroke_matches,
+            lists,
+            ..
+        } = m;
+        for (k, (s, sm)) in v.strokes.iter().zip(stroke_matches.iter_mut()).enumerate() {
+            let occluder = lists.get(k).and_then(|list| {
+                match_behind_occluder(&v.before, &sv.projection, s, list, options, sm)
+            });
+            let matched_behind = occluder.map(|_| sm.points.clone());
             fractions.push(anchor_on_silhouettes(
                 &v.before,
                 &sv.projection,
                 sm,
                 traced_here,
             ));
+            if let Some(behind) = matched_behind {
+                unanchor_occluder(sm, behind);
+            }
             placements.push(place_free_stretches(
                 &v.before,
                 &sv.projection,
                 &sv.features,
                 v.observer_radius(options.observer_radius_m),
+                occluder,
                 sm,
             ));
             if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
@@ -335,4 +350,51 @@ fn stretch_pieces(points: &[[f64; 3]], depths: &[f64], anchored: &[bool]) -> Vec
         a = b;
     }
     out
+}
+
+/// A stroke matched behind the outline it rises out of and falls back
+/// into ([`match_behind_occluder`]): the points anchored on that outline
+/// (in front of their place on the matched feature by more than
+/// [`AGREEMENT`]) are where the landform behind passes out of sight
+/// (T-junctions, Tassé et al. section 5.2.2), not the landform itself:
+/// they go with the stretch behind, at the matched feature's depth
+/// (`behind`, the placement before anchoring), and the completions at an
+/// end that is no longer anchored come back.
+fn unanchor_occluder(sm: &mut crate::sketch::StrokeMatch, behind: Vec<PlacedPoint>) {
+    let drawn = |p: &&PlacedPoint| p.source != PointSource::Completion;
+    let anchored: Vec<PlacedPoint> = sm.points.iter().filter(drawn).copied().collect();
+    if anchored.len() != behind.iter().filter(drawn).count() {
+        return;
+    }
+    let mut it = anchored.into_iter();
+    let mut out: Vec<PlacedPoint> = Vec::with_capacity(behind.len());
+    for p in &behind {
+        if p.source == PointSource::Completion {
+            out.push(*p);
+            continue;
+        }
+        let q = it.next().unwrap_or(*p);
+        let on_occluder = q.source == PointSource::Silhouette
+            && p.depth.is_finite()
+            && q.depth < p.depth * (1.0 - AGREEMENT);
+        out.push(if on_occluder { *p } else { q });
+    }
+    // Completions only at ends that are not anchored (as anchoring does).
+    let first = out.iter().position(|p| p.source != PointSource::Completion);
+    let last = out
+        .iter()
+        .rposition(|p| p.source != PointSource::Completion);
+    let (Some(first), Some(last)) = (first, last) else {
+        return;
+    };
+    let first_anchored = out[first].source == PointSource::Silhouette;
+    let last_anchored = out[last].source == PointSource::Silhouette;
+    let mut k = 0;
+    out.retain(|p| {
+        let keep = p.source != PointSource::Completion
+            || !((k < first && first_anchored) || (k > last && last_anchored));
+        k += 1;
+        keep
+    });
+    sm.points = out;
 }

@@ -74,6 +74,7 @@ use super::report::{
 use super::rounds::{refine, Rounds};
 use super::spikes::find_spikes;
 use super::stretch_placement::{place_free_stretches, StretchPlacement};
+use super::tangent_rise::match_behind_occluder;
 use super::EditError;
 use crate::deform::{
     deform_bounded, CellConstraint, CurveConstraint, DeformError, DeformOptions, Deformation,
