@@ -328,7 +328,8 @@ pub fn slope_sections(dem: &Dem, points: &[[f64; 3]], slope: [f64; 2]) -> Vec<Ve
 
 /// A parsed feature: a correction, or a cross-section to attach to one.
 enum Parsed {
-    Correction(Correction),
+    /// (boxed: a correction is several times a cross-section's size)
+    Correction(Box<Correction>),
     Section {
         index: usize,
         id: Option<String>,
@@ -347,7 +348,7 @@ fn attach_sections(parsed: Vec<Parsed>) -> Result<Vec<Correction>, String> {
     let mut sections = Vec::new();
     for p in parsed {
         match p {
-            Parsed::Correction(c) => out.push(c),
+            Parsed::Correction(c) => out.push(*c),
             Parsed::Section {
                 index,
                 id,
@@ -509,7 +510,7 @@ fn parse_feature(
     check_properties(kind, geometry.map(|g| &g.value), props)?;
     if kind == "landform" {
         let kind = parse_landform(geometry.map(|g| &g.value), props, t, dem)?;
-        return Ok(Parsed::Correction(Correction { index, id, kind }));
+        return Ok(Parsed::Correction(Box::new(Correction { index, id, kind })));
     }
     let geom = &geometry.ok_or("has no geometry")?.value;
     let kind = match kind {
@@ -558,7 +559,7 @@ fn parse_feature(
             ))
         }
     };
-    Ok(Parsed::Correction(Correction { index, id, kind }))
+    Ok(Parsed::Correction(Box::new(Correction { index, id, kind })))
 }
 
 /// Properties every feature may carry: `kind`, the `id` or `name` that

@@ -373,6 +373,16 @@ fn place_on_end_pixels(
 /// with this the one 0.5 px above is placed, the one 4.4 px above is not).
 pub const END_SNAP_PX: usize = 2;
 
+/// A stroke placed in the DEM's CRS ([`place_stroke`]).
+struct PlacedStroke {
+    /// The silhouette curve, `[x, y, z]`.
+    curve: Vec<[f64; 3]>,
+    /// The terrain's height under each of its points.
+    ground: Vec<f64>,
+    /// Whether both ends stand on terrain (`None`: no shadow was given).
+    both_ends: Option<bool>,
+}
+
 /// Places `stroke` of view `v` (see the module documentation); `shadow`
 /// in the DEM's CRS.
 fn place_stroke(
@@ -381,7 +391,7 @@ fn place_stroke(
     v: &ViewSpec,
     stroke_id: &str,
     shadow: Option<&[[f64; 2]]>,
-) -> Result<(Vec<[f64; 3]>, Vec<f64>, Option<bool>), String> {
+) -> Result<PlacedStroke, String> {
     let stroke = v
         .strokes
         .iter()
@@ -455,7 +465,11 @@ fn place_stroke(
         curve.push(p);
         ground.push(g);
     }
-    Ok((curve, ground, both))
+    Ok(PlacedStroke {
+        curve,
+        ground,
+        both_ends: both,
+    })
 }
 
 /// The larger cell side of `dem`, metres (at its centre).
@@ -652,8 +666,11 @@ pub fn resolve(
             setups.insert(v.name.clone(), s);
         }
         let setup = &setups[&v.name];
-        let (curve, ground, both) =
-            place_stroke(dem, setup, v, &r.stroke, shadow.as_deref()).map_err(&err)?;
+        let PlacedStroke {
+            curve,
+            ground,
+            both_ends: both,
+        } = place_stroke(dem, setup, v, &r.stroke, shadow.as_deref()).map_err(&err)?;
         let gt = dem.geotransform;
         let shadow_px: Vec<[f64; 2]> = curve
             .iter()

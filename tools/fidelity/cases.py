@@ -253,6 +253,29 @@ def groups():
     return out
 
 
+IDENTITY_SELF_FIT = 0.95
+IDENTITY_REDRAWS = 8
+
+
+def identity_drawable(g, ch, style, srng, width, r_truth):
+    """The strokes of one chain in a style. An identity case claims its
+    strokes lie on silhouettes the judge shows on the unedited DEM (issue 11:
+    "strokes on silhouettes that both renderers show"), so a hand-drawn
+    stroke whose jitter takes it off that silhouette in more than 5 % of its
+    columns (the judge's own fit under the line's 0.95) is drawn again with
+    the next draws of the style's generator, up to IDENTITY_REDRAWS times;
+    pieces still off are left out. Known-change strokes are kept as drawn:
+    there the edit is free to move terrain to the stroke."""
+    strokes = trace.style_points(ch, style, srng, width)
+    if g["kind"] != "identity":
+        return strokes
+    for _ in range(IDENTITY_REDRAWS):
+        if all(judge.fit(r_truth, p)[0] >= IDENTITY_SELF_FIT for p in strokes):
+            return strokes
+        strokes = trace.style_points(ch, style, srng, width)
+    return [p for p in strokes if judge.fit(r_truth, p)[0] >= IDENTITY_SELF_FIT]
+
+
 def build_group(g, fixtures_dir, workdir):
     """Resolve a group: viewpoint, truth DEM, base DEM, traced chains.
     Returns dict with paths, view, and per-style stroke lists (with truth
@@ -361,7 +384,7 @@ def build_group(g, fixtures_dir, workdir):
                 pick = [trace.sub_chain(ch, lo - 30, hi + 30) for ch, lo, hi in chs_focus[:2]]
         lst = []
         for ch in pick:
-            for pts in trace.style_points(ch, style, srng, W):
+            for pts in identity_drawable(g, ch, style, srng, W, r_truth):
                 lst.append({"points": pts, "truth_cols": ch["col"].tolist(), "truth_depth": ch["depth"].tolist()})
         if lst:
             strokes[style] = lst

@@ -83,6 +83,10 @@ pub(super) struct Intake {
 /// `(E, O)`: the residual of the even and of the odd cells, padded (entry
 /// `k` at `k + 1`, a leading zero, zeros past the row's end, `w + 2`
 /// entries each), as [`Level::residual_halves`] gives them.
+/// Writes the residual of row `j` into its two colour halves `(e, o)`
+/// (see [`RowVisitor::finish`]).
+pub(super) type RowResidual<'a> = dyn Fn(usize, &mut [f32], &mut [f32]) + Sync + 'a;
+
 pub(super) trait RowVisitor: Sync {
     /// State of one band.
     type State: Send;
@@ -95,13 +99,7 @@ pub(super) trait RowVisitor: Sync {
     fn row<F: FnOnce(&mut [f32], &mut [f32])>(&self, state: &mut Self::State, j: usize, fill: F);
     /// After the sweep: `residual(j, e, o)` writes the residual of any row
     /// (the band's edge rows were not given to `row`).
-    fn finish(
-        &self,
-        state: &mut Self::State,
-        r0: usize,
-        r1: usize,
-        residual: &(dyn Fn(usize, &mut [f32], &mut [f32]) + Sync),
-    );
+    fn finish(&self, state: &mut Self::State, r0: usize, r1: usize, residual: &RowResidual);
 }
 
 /// Raw pointers to the two colour arrays of a level's unknown, shared by the

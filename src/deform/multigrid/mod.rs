@@ -710,7 +710,7 @@ impl RowVisitor for RestrictVisitor<'_> {
         st: &mut RestrictBuffers,
         r0: usize,
         r1: usize,
-        residual: &(dyn Fn(usize, &mut [f32], &mut [f32]) + Sync),
+        residual: &level::RowResidual,
     ) {
         for cj in self.target.rows_centred_in(r0..r1) {
             let fj = 2 * cj;
@@ -762,13 +762,7 @@ impl RowVisitor for NormVisitor {
         *sum += level::sum_squares(e) + level::sum_squares(o);
     }
 
-    fn finish(
-        &self,
-        st: &mut Self::State,
-        r0: usize,
-        r1: usize,
-        residual: &(dyn Fn(usize, &mut [f32], &mut [f32]) + Sync),
-    ) {
+    fn finish(&self, st: &mut Self::State, r0: usize, r1: usize, residual: &level::RowResidual) {
         let (sum, e, o) = st;
         for j in (r0..r1).filter(|&j| j < r0 + 2 || j + 3 > r1) {
             residual(j, e, o);
