@@ -119,7 +119,57 @@ pub struct StrokeReport {
     /// The 3D curve the stroke was placed at: `[x, y, z]` in the DEM's CRS,
     /// z the absolute height in metres (what `demsketch export geojson`
     /// draws), in stroke order; points that could not be placed are left out.
+    /// When later passes placed the stroke again (the columns an earlier
+    /// pass left unfitted, on the terrain it made), the curve of the last
+    /// pass kept: the one the written terrain was fitted to.
     pub placed_curve: Vec<[f64; 3]>,
+    /// The first pass's placement (`match.depth_m` and `placed_curve`)
+    /// when a later pass placed the stroke again: what the passes' own
+    /// checks measure against (the strokes as first placed); not written.
+    #[serde(skip)]
+    pub first_placed: Option<FirstPlaced>,
+}
+
+/// A stroke's placement by the first pass of an edit, kept when a later
+/// pass's placement replaces it in the report ([`StrokeReport::first_placed`]).
+#[derive(Debug, Clone)]
+pub struct FirstPlaced {
+    pub depth_m: [f64; 2],
+    pub placed_curve: Vec<[f64; 3]>,
+}
+
+impl StrokeReport {
+    /// The first pass's placed curve (the report's own when no later pass
+    /// placed the stroke again).
+    pub fn first_curve(&self) -> &[[f64; 3]] {
+        match &self.first_placed {
+            Some(f) => &f.placed_curve,
+            None => &self.placed_curve,
+        }
+    }
+
+    /// The first pass's placed depth range (see [`Self::first_curve`]).
+    pub fn first_depth_m(&self) -> [f64; 2] {
+        match &self.first_placed {
+            Some(f) => f.depth_m,
+            None => self.matched.depth_m,
+        }
+    }
+
+    /// Takes a later pass's placement of this stroke (`later`, the same
+    /// stroke's report from that pass) as the report's, keeping the first
+    /// pass's for the passes' checks: the match (feature, kind, cost)
+    /// stays the first pass's, the landform the stroke asked for.
+    pub fn take_placement(&mut self, later: &StrokeReport) {
+        if self.first_placed.is_none() {
+            self.first_placed = Some(FirstPlaced {
+                depth_m: self.matched.depth_m,
+                placed_curve: std::mem::take(&mut self.placed_curve),
+            });
+        }
+        self.matched.depth_m = later.matched.depth_m;
+        self.placed_curve = later.placed_curve.clone();
+    }
 }
 
 /// What a stroke was matched to.

@@ -55,6 +55,7 @@ pub(super) fn measure_strokes(
                     on_silhouette: demands.on_silhouette[k][j],
                     placement: demands.placement[k][j],
                     placed_curve: placed_curve(&features.scene_views[k], sm),
+                    first_placed: None,
                 }
             })
             .collect();

@@ -402,9 +402,8 @@ fn kept_within(exact_cells: Option<f64>, views: &[ViewState], outcome: &Outcome)
         let limit = (cells - EXACT_MARGIN_CELLS) * frame_cell_m(&v.frame);
         report.strokes.iter().all(|s| {
             s.status == StrokeStatus::Fitted
-                && !s.placed_curve.is_empty()
-                && s.matched
-                    .depth_m
+                && !s.first_curve().is_empty()
+                && s.first_depth_m()
                     .iter()
                     .all(|d| d.is_finite() && *d <= limit)
         })

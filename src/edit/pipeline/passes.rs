@@ -139,8 +139,9 @@ fn within_sight_wedge(
                 .strokes
                 .iter()
                 .flat_map(|s| {
-                    let step = (s.placed_curve.len() / 40).max(1);
-                    s.placed_curve.iter().step_by(step)
+                    let curve = s.first_curve();
+                    let step = (curve.len() / 40).max(1);
+                    curve.iter().step_by(step)
                 })
                 .map(|p| v.frame.crs_to_en(p[0], p[1]))
                 .collect();
@@ -379,8 +380,11 @@ pub(super) fn needs_second_pass(sketch: &SketchFile, first: &Outcome) -> bool {
 /// would move those columns (issue 11: on the fidelity suite, 3 of 126
 /// tuned and 35 of 235 hold-out cases moved by more than 0.5 m). The
 /// result is the first pass's deformation plus the second's, reported with
-/// the first pass's matches and placements (the landform the strokes
-/// asked for) and the final fit; it is kept only when it fits the strokes
+/// the first pass's matches (the landform the strokes asked for), the
+/// placement of the last pass kept (the curve the written terrain is
+/// fitted to: a report's `depth_m` says where the change stands; the
+/// passes' own checks keep measuring against the first placement, see
+/// [`crate::edit::report::StrokeReport::first_curve`]) and the final fit; it is kept only when it fits the strokes
 /// at least as well as the first pass alone and the sum of the two changes
 /// has no more spikes ([`find_spikes`]) than the first alone. `pass` numbers
 /// it (2 for the second; `first` is then everything the passes before
@@ -480,6 +484,14 @@ pub(super) fn second_pass(
     let (f1, f2) = (score(&out), score(&second));
     for (v1, v2) in out.views.iter_mut().zip(second.views) {
         for (s1, s2) in v1.strokes.iter_mut().zip(v2.strokes) {
+            // The report states where the stroke now stands: this pass's
+            // placement, on the terrain the passes before made (the
+            // columns they fitted anchored on the silhouettes they made,
+            // the others placed again), is the curve the written terrain
+            // is fitted to.
+            if !s2.placed_curve.is_empty() {
+                s1.take_placement(&s2);
+            }
             s1.fit = s2.fit;
             s1.visible_fraction = s2.visible_fraction;
             s1.status = s2.status;
