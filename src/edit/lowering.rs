@@ -47,7 +47,6 @@ use super::rendered_view::{RenderedView, StrokeCurve};
 use crate::features::silhouettes::SilhouetteSample;
 use crate::view::CameraModel;
 use rayon::prelude::*;
-use std::collections::BTreeMap;
 
 /// Pixels of the protruding silhouette kept on each side of the hidden
 /// columns when it is lowered.
@@ -69,159 +68,57 @@ pub struct Protrusion {
     pub lowered: Vec<[f64; 3]>,
 }
 
-/// Find the protruding silhouettes of `view` with respect to `strokes`;
-/// `before` is the view of the unedited terrain. A silhouette whose
-/// hiding samples the edit itself raised ([`raised_by_edit`]) is lowered
-/// sample by sample, each by its own need ([`own_need_runs`]); any other
-/// uniformly by the largest (the paper's `h`).
-pub fn find_protruding(
-    view: &RenderedView,
-    before: &RenderedView,
-    strokes: &[StrokeCurve],
-) -> Vec<Protrusion> {
-    let debug = std::env::var_os("DEMSKETCH_DEBUG").is_some();
+/// Find the protruding silhouettes of `view` with respect to `strokes`.
+pub fn find_protruding(view: &RenderedView, strokes: &[StrokeCurve]) -> Vec<Protrusion> {
     let n = view.silhouettes.curves.len();
     // Per curve: lowering needed and the x range of the hidden columns.
     let mut need = vec![0.0f64; n];
     let mut range = vec![(f64::INFINITY, f64::NEG_INFINITY); n];
     let mut hidden = vec![0usize; n];
-    // Per curve: its hiding samples (sample index -> own need), and
-    // whether the edit raised every one of them.
-    let mut own: Vec<BTreeMap<usize, f64>> = vec![BTreeMap::new(); n];
-    let mut all_raised = vec![true; n];
     let mut extra = Vec::new();
     // Strokes in parallel (the casts of hidden columns dominate), merged in
     // stroke order.
-    let per_stroke: Vec<StrokeHits> = strokes
-        .par_iter()
-        .map(|g| stroke_hits(view, before, g, strokes))
-        .collect();
+    let per_stroke: Vec<StrokeHits> = strokes.par_iter().map(|g| stroke_hits(view, g)).collect();
     for hits in per_stroke {
-        for (c, s, h, x, raised) in hits.samples {
+        for (c, h, x) in hits.samples {
             need[c] = need[c].max(h);
             range[c] = (range[c].0.min(x), range[c].1.max(x));
             hidden[c] += 1;
-            let e = own[c].entry(s).or_insert(0.0);
-            *e = e.max(h);
-            all_raised[c] &= raised;
         }
         let fallback = hits.fallback;
-        if fallback.is_empty() {
-            continue;
-        }
-        if OWN_NEED && fallback.iter().all(|f| f.3) {
-            // Runs of adjacent columns, each point by its own need.
-            let mut run: Vec<[f64; 3]> = Vec::new();
-            let mut run_h = 0.0f64;
-            let mut last: Option<usize> = None;
-            for &(i, p, h, _) in &fallback {
-                if last.is_some_and(|l| l + 1 != i) && !run.is_empty() {
-                    extra.push(Protrusion {
-                        curve: usize::MAX,
-                        h: run_h,
-                        hidden_columns: run.len(),
-                        lowered: std::mem::take(&mut run),
-                    });
-                    run_h = 0.0;
-                }
-                run.push([p[0], p[1], p[2] - h]);
-                run_h = run_h.max(h);
-                last = Some(i);
-            }
-            if !run.is_empty() {
-                extra.push(Protrusion {
-                    curve: usize::MAX,
-                    h: run_h,
-                    hidden_columns: run.len(),
-                    lowered: run,
-                });
-            }
-            continue;
-        }
-        let h = fallback.iter().fold(0.0f64, |a, p| a.max(p.2));
-        extra.push(Protrusion {
-            curve: usize::MAX,
-            h,
-            hidden_columns: fallback.len(),
-            lowered: fallback
-                .iter()
-                .map(|(_, p, _, _)| [p[0], p[1], p[2] - h])
-                .collect(),
-        });
-    }
-    let mut out: Vec<Protrusion> = Vec::new();
-    for c in (0..n).filter(|&c| hidden[c] > 0) {
-        if debug {
-            eprintln!(
-                "protruding curve {c}: need {:.1} m, {} samples, x {:.0}..{:.0}, raised by the edit {}",
-                need[c],
-                own[c].len(),
-                range[c].0,
-                range[c].1,
-                all_raised[c]
-            );
-        }
-        if OWN_NEED && all_raised[c] {
-            out.extend(own_need_runs(view, strokes, c, &own[c]));
-            continue;
-        }
-        let (x0, x1) = (range[c].0 - LOWERING_PAD_PX, range[c].1 + LOWERING_PAD_PX);
-        let lowered = view.silhouettes.curves[c]
-            .samples
-            .iter()
-            .filter(|s| s.pixel[0] >= x0 && s.pixel[0] <= x1)
-            .filter(|s| !carries_anchored_stroke(strokes, s.pixel))
-            .map(|s| [s.world[0], s.world[1], s.world[2] - need[c]])
-            .collect();
-        out.push(Protrusion {
-            curve: c,
-            h: need[c],
-            hidden_columns: hidden[c],
-            lowered,
-        });
-    }
-    out.extend(extra);
-    out
-}
-
-/// Lower a silhouette the edit raised sample by sample (experiment switch).
-const OWN_NEED: bool = true;
-
-/// The hiding samples `own` (sample index -> need) of silhouette `c`, a
-/// piece the edit raised, each lowered by its own need, in runs of
-/// adjacent samples (one curve constraint each: a gap must not be bridged
-/// by a line through the terrain between).
-fn own_need_runs(
-    view: &RenderedView,
-    strokes: &[StrokeCurve],
-    c: usize,
-    own: &BTreeMap<usize, f64>,
-) -> Vec<Protrusion> {
-    let samples = &view.silhouettes.curves[c].samples;
-    let mut out: Vec<Protrusion> = Vec::new();
-    let mut last: Option<usize> = None;
-    for (&s, &h) in own {
-        let sample = &samples[s];
-        if carries_anchored_stroke(strokes, sample.pixel) {
-            continue;
-        }
-        let p = [sample.world[0], sample.world[1], sample.world[2] - h];
-        let continues = last.is_some_and(|l| l + 1 == s);
-        match out.last_mut() {
-            Some(run) if continues => {
-                run.h = run.h.max(h);
-                run.hidden_columns += 1;
-                run.lowered.push(p);
-            }
-            _ => out.push(Protrusion {
-                curve: c,
+        if !fallback.is_empty() {
+            let h = fallback.iter().fold(0.0f64, |a, p| a.max(p.1));
+            extra.push(Protrusion {
+                curve: usize::MAX,
                 h,
-                hidden_columns: 1,
-                lowered: vec![p],
-            }),
+                hidden_columns: fallback.len(),
+                lowered: fallback
+                    .iter()
+                    .map(|(p, _)| [p[0], p[1], p[2] - h])
+                    .collect(),
+            });
         }
-        last = Some(s);
     }
+    let mut out: Vec<Protrusion> = (0..n)
+        .filter(|&c| hidden[c] > 0)
+        .map(|c| {
+            let (x0, x1) = (range[c].0 - LOWERING_PAD_PX, range[c].1 + LOWERING_PAD_PX);
+            let lowered = view.silhouettes.curves[c]
+                .samples
+                .iter()
+                .filter(|s| s.pixel[0] >= x0 && s.pixel[0] <= x1)
+                .filter(|s| !carries_anchored_stroke(strokes, s.pixel))
+                .map(|s| [s.world[0], s.world[1], s.world[2] - need[c]])
+                .collect();
+            Protrusion {
+                curve: c,
+                h: need[c],
+                hidden_columns: hidden[c],
+                lowered,
+            }
+        })
+        .collect();
+    out.extend(extra);
     out
 }
 
@@ -276,33 +173,23 @@ fn raised_by_edit(view: &RenderedView, before: &RenderedView, sample: &Silhouett
 pub const ANCHORED_NEAR_PX: f64 = 3.0;
 
 /// What one stroke finds: the silhouette samples over it that hide it
-/// (curve, sample, lowering needed, column centre, raised by the edit)
-/// and the depth-buffer fallback points (column, CRS point, lowering
-/// needed, raised by the edit).
+/// (curve, lowering needed, column centre) and the depth-buffer fallback
+/// points (CRS point, lowering needed).
 struct StrokeHits {
-    samples: Vec<(usize, usize, f64, f64, bool)>,
-    fallback: Vec<(usize, [f64; 3], f64, bool)>,
+    samples: Vec<(usize, f64, f64)>,
+    fallback: Vec<([f64; 3], f64)>,
 }
 
 /// The protruding samples and fallback points over the columns of `g`.
-fn stroke_hits(
-    view: &RenderedView,
-    before: &RenderedView,
-    g: &StrokeCurve,
-    strokes: &[StrokeCurve],
-) -> StrokeHits {
+fn stroke_hits(view: &RenderedView, g: &StrokeCurve) -> StrokeHits {
     let mut samples = Vec::new();
-    let mut fallback = Vec::new();
-    let own_reach = view.cell_m() * std::f64::consts::SQRT_2;
+    // Depth-buffer fallback for this stroke: (CRS point, h).
+    let mut fallback: Vec<([f64; 3], f64)> = Vec::new();
     // Anchored columns lie on a silhouette of the unedited terrain that
     // nothing hid: what is above them stays.
     for (i, y, d) in g.free_columns(view.camera.width) {
         let x = i as f64 + 0.5;
         let above_ray = above_sight_line(view, x, y);
-        let alone = alone_in_column(g, strokes, x);
-        // Within the constraint reach of the curve (a cell's diagonal) a
-        // crest stands on the cells that carry the curve itself.
-        let own_front = |depth: f64| alone && d - depth <= own_reach;
         let mut found = false;
         for &(c, s) in &view.by_column[i] {
             let sample = &view.silhouettes.curves[c as usize].samples[s as usize];
@@ -312,14 +199,7 @@ fn stroke_hits(
             let h = above_ray(sample.local);
             if h.is_finite() && h > 0.0 {
                 if sample.pixel[1] < y - BELOW_STROKE_PX {
-                    let raised = own_front(sample.depth) && raised_by_edit(view, before, sample);
-                    if std::env::var_os("DEMSKETCH_DEBUG_HITS").is_some() {
-                        eprintln!(
-                            "hit {} x {x:.1} y {y:.1} d {d:.0} curve {c} sample y {:.1} depth {:.0} h {h:.1} raised {raised}",
-                            g.id, sample.pixel[1], sample.depth
-                        );
-                    }
-                    samples.push((c as usize, s as usize, h, x, raised));
+                    samples.push((c as usize, h, x));
                 }
                 found = true;
             }
@@ -339,25 +219,11 @@ fn stroke_hits(
         if let Some(hit) = view.depth.hit(&view.terrain, i, j) {
             let h = above_ray(hit.local);
             if h.is_finite() && h > 0.0 {
-                let was = f64::from(before.depth.depth_at(i, j));
-                let raised =
-                    own_front(hit.distance) && was > hit.distance * (1.0 + HIDDEN_MARGIN);
-                fallback.push((i, [hit.x, hit.y, hit.z], h, raised));
+                fallback.push(([hit.x, hit.y, hit.z], h));
             }
         }
     }
     StrokeHits { samples, fallback }
-}
-
-/// Whether no other stroke of the view (another source stroke) spans
-/// column `x`: where two strokes share a column their depth order decides
-/// what stands in front, and a crest over the lower one may be the
-/// other's landform.
-fn alone_in_column(g: &StrokeCurve, strokes: &[StrokeCurve], x: f64) -> bool {
-    strokes
-        .iter()
-        .filter(|o| o.source_id != g.source_id)
-        .all(|o| o.stroke.y_at(x).is_none())
 }
 
 /// Crests the edit raised over the anchored stretches of `strokes`

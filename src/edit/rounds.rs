@@ -513,7 +513,7 @@ impl Gathered {
         let mut changed = false;
         for (k, (v, after)) in views.iter().zip(rendered).enumerate() {
             if self.iterations[k] < opts.max_lowering_iterations {
-                changed |= self.lower_protruding(k, v, after, &curves[k]);
+                changed |= self.lower_protruding(k, after, &curves[k]);
             }
             if self.contour_rounds[k] < opts.max_contour_iterations {
                 changed |= self.fit_contours(k, v, after, &curves[k]);
@@ -524,14 +524,8 @@ impl Gathered {
 
     /// Section 6.2: the silhouettes of view `k` that protrude above its
     /// strokes, lowered by the paper's `h`. True when there were any.
-    fn lower_protruding(
-        &mut self,
-        k: usize,
-        view: &ViewState,
-        after: &RenderedView,
-        curves: &[StrokeCurve],
-    ) -> bool {
-        let protruding = find_protruding(after, &view.before, curves);
+    fn lower_protruding(&mut self, k: usize, after: &RenderedView, curves: &[StrokeCurve]) -> bool {
+        let protruding = find_protruding(after, curves);
         if protruding.is_empty() {
             return false;
         }
