@@ -8,7 +8,6 @@
 use super::*;
 use crate::edit::stretch_placement::AGREEMENT;
 use crate::sketch::PlacedPoint;
-use crate::sketch::ViewProjection;
 
 /// Refuse a stroke (without `depth_m`) whose end points both lie in empty
 /// sky in the view before the edit, with no terrain close under them
@@ -112,10 +111,8 @@ pub(super) fn place_demands(
     matched: &mut [crate::sketch::ViewMatch],
     options: &SketchOptions,
     traced: Option<&[TracedBoundaries]>,
-    max_d: Option<f64>,
 ) -> Demands {
     let mut d = Demands {
-        beyond_view: Vec::new(),
         curves: Vec::new(),
         completions: Vec::new(),
         fixed: Vec::new(),
@@ -162,15 +159,6 @@ pub(super) fn place_demands(
                 occluder,
                 sm,
             ));
-            let pulled = within_view_distance(&sv.projection, sm, max_d);
-            if pulled > 0 {
-                d.beyond_view.push(format!(
-                    "view \"{}\", stroke {}: {pulled} placed point(s) lay beyond --max-distance ({:.0} m), where the edit reads no terrain; they were put at that distance on their rays",
-                    v.spec.name,
-                    s.id,
-                    max_d.unwrap_or(0.0)
-                ));
-            }
             if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
                 for p in &sm.points {
                     if let Some(px) = p.pixel {
@@ -220,34 +208,6 @@ pub(super) fn place_demands(
             .extend(v.observer_cells(w, options.observer_radius_m));
     }
     d
-}
-
-/// Puts every placed point of `sm` that lies farther from the eye than
-/// `max_d` (the view distance, `--max-distance`) at that distance on its
-/// own ray; returns how many were moved. A view shows no terrain beyond
-/// its distance (the renders, the edit's and a re-edit's, stop there), so
-/// a silhouette drawn in it stands within it: the view distance bounds a
-/// stroke's depth as the terrain it is drawn over does. Points anchored on
-/// a silhouette of the view lie within it already; the rule catches the
-/// free stretches' drawing planes and bridges (and the completions beyond
-/// a stroke's ends) that reach past it (hold-out 4, NZ 1 km new hill: a
-/// later pass placed points 50 - 52 km out with `--max-distance` 50 km).
-pub(super) fn within_view_distance(
-    proj: &SceneProjection,
-    sm: &mut crate::sketch::StrokeMatch,
-    max_d: Option<f64>,
-) -> usize {
-    let Some(d) = max_d else { return 0 };
-    let mut moved = 0;
-    for p in &mut sm.points {
-        let Some(px) = p.pixel else { continue };
-        if p.source != PointSource::Silhouette && p.depth.is_finite() && p.depth > d {
-            p.depth = d;
-            p.world = proj.unproject(px, d);
-            moved += 1;
-        }
-    }
-    moved
 }
 
 /// Anchored cells within this many cells of a free stretch are not held.

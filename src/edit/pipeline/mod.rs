@@ -532,9 +532,6 @@ pub(super) struct Placed {
 
 /// What the placed strokes ask of the terrain.
 pub(super) struct Demands {
-    /// Notes on the strokes whose placement reached beyond the view
-    /// distance and was pulled back to it ([`within_view_distance`]).
-    pub(super) beyond_view: Vec<String>,
     /// Curve constraints: the stretches of placed strokes that do not lie
     /// on a silhouette already ([`super::on_silhouette`]), the strokes'
     /// own points only. They define the edit's influence.

@@ -482,13 +482,6 @@ pub(super) fn second_pass(
     }
     let mut out = first;
     let (f1, f2) = (score(&out), score(&second));
-    // A kept pass's placement is the report's: so are its notes on points
-    // pulled back to the view distance ([`within_view_distance`]).
-    for n in &second.notes {
-        if n.contains("beyond --max-distance") && !out.notes.contains(n) {
-            out.notes.push(format!("{} pass: {n}", ordinal(pass)));
-        }
-    }
     for (v1, v2) in out.views.iter_mut().zip(second.views) {
         for (s1, s2) in v1.strokes.iter_mut().zip(v2.strokes) {
             // The report states where the stroke now stands: this pass's

@@ -53,9 +53,7 @@ pub(super) fn match_strokes(
         &mut matched.views,
         options,
         edit.traced.as_deref().map(|t| &t[..]),
-        edit.max_d,
     );
-    notes.extend(demands.beyond_view.iter().cloned());
     notes.extend(depth_notes(views, &demands.strokes));
     let issues: Vec<Vec<Option<&'static str>>> = scene_views
         .iter()
