@@ -171,7 +171,7 @@ fn outline_under(before: &RenderedView, pixel: [f64; 2]) -> Option<(f64, f64)> {
     best
 }
 
-/// The outline a stroke (its `pixels`, left to right) rises out of and
+/// The outline a prepared stroke (left to right) rises out of and
 /// falls back into: both its ends lie within [`FIT_TOLERANCE_PX`] of the
 /// outline the view shows under them (a T-junction with it, tangential:
 /// within the fit's pixel), the stroke stands above that outline (within
@@ -179,30 +179,23 @@ fn outline_under(before: &RenderedView, pixel: [f64; 2]) -> Option<(f64, f64)> {
 /// somewhere. The outline is the topmost boundary under the stroke,
 /// whichever silhouette curves make it up (a skyline of several crests
 /// reads as one outline in the image).
-pub fn occluder_of(before: &RenderedView, pixels: &[[f64; 2]]) -> Option<Occluder> {
+pub fn occluder_of(before: &RenderedView, stroke: &Stroke) -> Option<Occluder> {
+    let pixels = &stroke.points;
     let (first, last) = (*pixels.first()?, *pixels.last()?);
     let mut rows = HashMap::new();
-    let mut stroke = HashMap::new();
+    let mut stroke_rows = HashMap::new();
     let mut rise = 0.0f64;
     // Every column the stroke crosses, at the stroke's row there (its
     // points may lie several columns apart).
     let (i0, i1) = (column(before, first[0])?, column(before, last[0])?);
-    for i in i0.min(i1)..=i0.max(i1) {
-        let x = (i as f64 + 0.5).clamp(first[0].min(last[0]), first[0].max(last[0]));
-        let k = pixels
-            .partition_point(|p| p[0] < x)
-            .clamp(1, pixels.len().max(2) - 1);
-        let (a, b) = (pixels[k - 1], pixels[k.min(pixels.len() - 1)]);
-        let t = if b[0] > a[0] {
-            (x - a[0]) / (b[0] - a[0])
-        } else {
-            0.0
-        };
-        let y = a[1] + t.clamp(0.0, 1.0) * (b[1] - a[1]);
+    for i in i0..=i1 {
+        let x = i as f64 + 0.5;
+        let y = stroke.y_at_clamped(x);
+        let x = x.clamp(first[0], last[0]);
         let (row, depth) = outline_under(before, [x, y])?;
         rise = rise.max(row - y);
         rows.insert(i, (row, depth));
-        stroke.insert(i, y);
+        stroke_rows.insert(i, y);
     }
     for p in pixels {
         let (row, _) = outline_under(before, *p)?;
@@ -216,7 +209,10 @@ pub fn occluder_of(before: &RenderedView, pixels: &[[f64; 2]]) -> Option<Occlude
     if !(on(first) && on(last) && rise > FIT_TOLERANCE_PX) {
         return None;
     }
-    Some(Occluder { rows, stroke })
+    Some(Occluder {
+        rows,
+        stroke: stroke_rows,
+    })
 }
 
 /// The median depth of a candidate's own (not extended) points.
@@ -278,7 +274,7 @@ pub fn match_behind_occluder(
     placed: &mut StrokeMatch,
 ) -> Option<f64> {
     let debug = std::env::var_os("DEMSKETCH_DEBUG").is_some();
-    let occ = occluder_of(before, &stroke.points)?;
+    let occ = occluder_of(before, stroke)?;
     let near_px = NEAR_IN_IMAGE_RAD * proj.focal_px();
     let occ_depth = occ.depth();
     let current = placed.candidate.and_then(|a| list.candidates.get(a));
