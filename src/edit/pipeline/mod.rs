@@ -506,7 +506,39 @@ struct Extracted<'a> {
     views: Vec<ViewState<'a>>,
     /// Per view: the heights of its window ([`ViewState::window`]).
     windows: Vec<HeightMap>,
+    ridges: RidgesOf,
+}
+
+/// A ridge network and the heights it was detected on
+/// ([`ridge_network`]): a later pass that reads the same heights (to the
+/// bit) takes it as it is.
+pub(super) struct RidgesOf {
+    map: HeightMap,
     ridges: RidgeNetwork,
+}
+
+impl RidgesOf {
+    /// Whether `map` is the heights these ridges were detected on, to the
+    /// bit (the same size, georeferencing and heights).
+    fn detected_on(&self, map: &HeightMap) -> bool {
+        let a = &self.map;
+        (a.width, a.height) == (map.width, map.height)
+            && a.geotransform == map.geotransform
+            && a.crs == map.crs
+            && a.data.len() == map.data.len()
+            && a.data
+                .iter()
+                .zip(&map.data)
+                .all(|(p, q)| p.to_bits() == q.to_bits())
+    }
+}
+
+/// What a pass rendered of the terrain it read: its views' whole renders
+/// and its ridge network. A later pass that reads the same terrain again
+/// (after a pass not kept, or dropped) takes them as they are.
+pub(super) struct Seen {
+    pub(super) renders: Vec<RenderedView>,
+    pub(super) ridges: RidgesOf,
 }
 
 /// The terrain features each view offers the strokes ([`scene_features`]).
