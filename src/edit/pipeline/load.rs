@@ -243,6 +243,7 @@ pub(super) fn render_and_extract<'a>(
     Ok(Extracted {
         views,
         windows: heights,
+        seen,
         ridges,
     })
 }
@@ -308,25 +309,19 @@ pub(super) fn scene_features<'v>(
 /// read for them (with their offsets in the DEM grid): one network, so that
 /// a ridge seen from two views is one feature; ridges beyond every view's
 /// field of view could match no stroke. `earlier`: the network a pass
-/// before detected, taken as it is where it was detected on the same
-/// heights ([`RidgesOf::detected_on`]).
+/// before detected, taken as it is where it was detected from the same
+/// windows and extents ([`RidgesOf::detected_from`]).
 pub(super) fn ridge_network(
     dem: &Dem,
     windows: &[(&HeightMap, (i64, i64))],
     seen: &[Window],
     earlier: Option<RidgesOf>,
-) -> Result<RidgesOf, EditError> {
+) -> Result<RidgeNetwork, EditError> {
+    if let Some(e) = earlier.filter(|e| e.detected_from(windows, seen)) {
+        return Ok(e.ridges);
+    }
     let Some(first) = seen.first() else {
-        return Ok(RidgesOf {
-            map: HeightMap {
-                width: 0,
-                height: 0,
-                data: Vec::new(),
-                geotransform: dem.geotransform,
-                crs: dem.crs.clone(),
-            },
-            ridges: RidgeNetwork::default(),
-        });
+        return Ok(RidgeNetwork::default());
     };
     let (mut c0, mut r0, mut c1, mut r1) = (first.col, first.row, first.col_end(), first.row_end());
     for w in seen {
@@ -358,13 +353,6 @@ pub(super) fn ridge_network(
         )),
         None => std::borrow::Cow::Owned(dem.read_height_map(union)?),
     };
-    if let Some(e) = earlier.filter(|e| e.detected_on(&map)) {
-        return Ok(e);
-    }
-    let ridges = detect_ridges(&map, &RidgeParams::default())
-        .map_err(|e| EditError::Internal(format!("ridges: {e}")))?;
-    Ok(RidgesOf {
-        map: map.into_owned(),
-        ridges,
-    })
+    detect_ridges(&map, &RidgeParams::default())
+        .map_err(|e| EditError::Internal(format!("ridges: {e}")))
 }

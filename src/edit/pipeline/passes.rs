@@ -301,8 +301,8 @@ fn later_passes(
 /// `earlier`: per view, the pass before's last render, which the views'
 /// renders take what they can from ([`render_and_extract`]; none for the
 /// first pass), and the ridges a pass before detected, taken where they
-/// were detected on the same heights ([`ridge_network`]). Also returns
-/// this pass's ridges.
+/// were detected from the same windows ([`ridge_network`]). Also returns
+/// this pass's ridges with its windows ([`RidgesOf`]).
 /// `later`: a pass after the first, which the run drops when it changes no
 /// cell ([`second_pass`]); such a pass stops as soon as that is known and
 /// gives no outcome (`None`; the first pass always gives one).
@@ -319,11 +319,15 @@ pub(super) fn edit_pass<'s>(
 ) -> Result<(Vec<ViewState<'s>>, Option<Outcome>, RidgesOf), EditError> {
     let t = Instant::now();
     let extracted = render_and_extract(edit, sketch, dem, scenes, prepared, earlier)?;
-    let views = extracted.views;
-    let ridges = extracted.ridges;
-    let features = scene_features(&views, &ridges.ridges, &sketch.options, edit.skyline);
+    let Extracted {
+        views,
+        windows,
+        seen,
+        ridges,
+    } = extracted;
+    let features = scene_features(&views, &ridges, &sketch.options, edit.skyline);
     timings.features = secs(t);
-    let found = (&views[..], &extracted.windows[..], &features);
+    let found = (&views[..], &windows[..], &features);
     let Some(outcome) = match_and_fit(
         edit,
         (sketch, dem, dem_name),
@@ -333,17 +337,21 @@ pub(super) fn edit_pass<'s>(
         later,
     )?
     else {
+        drop(features);
+        let ridges = RidgesOf::of(ridges, windows, seen, &views);
         return Ok((views, None, ridges));
     };
     if !(edit.skyline && skyline_left_unfitted(&outcome)) {
+        drop(features);
+        let ridges = RidgesOf::of(ridges, windows, seen, &views);
         return Ok((views, Some(outcome), ridges));
     }
     // A skyline match that leaves a stroke unfitted stands against the
     // match without the skyline (see `sketch::skyline`); the two are
     // compared whole (never dropped early).
-    let plain = scene_features(&views, &ridges.ridges, &sketch.options, false);
+    let plain = scene_features(&views, &ridges, &sketch.options, false);
     let mut scratch = Timings::default();
-    let found = (&views[..], &extracted.windows[..], &plain);
+    let found = (&views[..], &windows[..], &plain);
     let other = match_and_fit(
         edit,
         (sketch, dem, dem_name),
@@ -360,6 +368,8 @@ pub(super) fn edit_pass<'s>(
         _ => outcome,
     };
     timings.add(&scratch);
+    drop((features, plain));
+    let ridges = RidgesOf::of(ridges, windows, seen, &views);
     Ok((views, Some(outcome), ridges))
 }
 
@@ -423,9 +433,10 @@ pub(super) fn second_pass(
     // can from them where that is the terrain the pass reads (a DEM in
     // whole units of a metre).
     let mut earlier = std::mem::take(&mut first.renders);
-    let earlier_ridges = first.ridges.take();
+    let mut earlier_ridges = first.ridges.take();
     if seen.displacement != quantized(dem, &first.deformation).displacement {
         earlier.clear();
+        earlier_ridges = None;
     }
     let run_second = || -> Result<(Option<Outcome>, Seen), EditError> {
         let overlay = dem
