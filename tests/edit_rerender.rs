@@ -261,3 +261,54 @@ fn a_region_render_taken_from_a_whole_render_is_the_fresh_region_render() {
         );
     }
 }
+
+/// A later pass that reads the terrain a pass not kept (or dropped) read
+/// takes that pass's whole renders as they are
+/// (`RenderedView::is_whole_render_of`): the pass's whole render, taken
+/// from the earlier pass's last region render, is the fresh render of the
+/// same surface built again from the edited grid, to the bit; a region
+/// render, another surface or another camera is not taken.
+#[test]
+fn a_whole_render_of_a_surface_is_taken_for_the_same_surface_only() {
+    let (cam, scene) = zion_view();
+    let max_d = Some(ZION_VIEW_M);
+    let (w, h) = (scene.window.width, scene.window.height);
+    let before = RenderedView::from_terrain(scene.terrain.clone(), &cam).unwrap();
+    let base: &LocalTerrain = &before.terrain;
+    let lowered_by = |c: usize, r: usize| -> Option<f32> {
+        let v = scene.window.get(c, r)?;
+        Some(v - 2.0 * ((c + 5 * r) % 7) as f32)
+    };
+    let patched = base.with_heights((0, 0, w, h), &lowered_by);
+    let mut edited = scene.window.clone();
+    for r in 0..h {
+        for c in 0..w {
+            if let Some(v) = lowered_by(c, r) {
+                edited.data[r * w + c] = v;
+            }
+        }
+    }
+    // The pass not kept: its whole render, from the pass before's region
+    // render of the same surface.
+    let last = RenderedView::render_terrain_region(patched.clone(), &cam, &region(&cam)).unwrap();
+    let read = LocalTerrain::over(&edited, &scene.frame, max_d);
+    let whole = RenderedView::from_terrain_after(read, &cam, Some(&last)).unwrap();
+    // The next pass reads the same terrain, built again.
+    let again = LocalTerrain::over(&edited, &scene.frame, max_d);
+    assert!(whole.is_whole_render_of(&again, &cam));
+    let fresh = RenderedView::from_terrain(again, &cam).unwrap();
+    assert_same_render(&whole, &fresh, "taken whole render");
+    assert_eq!(whole.columns.samples, fresh.columns.samples, "columns");
+    assert_eq!(
+        whole.columns.candidates, fresh.columns.candidates,
+        "candidates"
+    );
+    assert_eq!(whole.columns.confined, fresh.columns.confined, "confined");
+
+    // Not taken: a region render, another surface, another camera.
+    assert!(!last.is_whole_render_of(&patched, &cam));
+    assert!(!before.is_whole_render_of(&patched, &cam));
+    let other = Camera::new(480, 240, 200.0, -1.0, 5.0, 60.0).unwrap();
+    assert!(!fresh.is_whole_render_of(&fresh.terrain, &other));
+    assert!(fresh.is_whole_render_of(&fresh.terrain, &cam));
+}

@@ -44,6 +44,10 @@ pub(super) struct Outcome {
     /// the silhouettes it refined already
     /// ([`super::rendered_view::RenderedView::from_terrain_after`]).
     pub(super) renders: Vec<super::rendered_view::RenderedView>,
+    /// The ridges a later pass may take as they are: those of the terrain
+    /// this outcome's last pass read, where that pass was not kept (the
+    /// next reads the same terrain; see [`super::pipeline`]'s `Seen`).
+    pub(super) ridges: Option<super::pipeline::RidgesOf>,
 }
 
 impl Outcome {
@@ -58,6 +62,16 @@ impl Outcome {
             matching: self.matching,
             corrections: self.corrections.clone(),
             renders: Vec::new(),
+            ridges: None,
+        }
+    }
+
+    /// Makes `seen` (what a pass not kept rendered of the terrain it read)
+    /// the renders and ridges the next pass takes from.
+    pub(super) fn take_seen(&mut self, seen: Option<super::pipeline::Seen>) {
+        if let Some(s) = seen {
+            self.renders = s.renders;
+            self.ridges = Some(s.ridges);
         }
     }
 }
@@ -98,8 +112,9 @@ pub(super) fn write_outputs(
         matching,
         corrections,
         renders,
+        ridges,
     } = outcome;
-    drop(renders);
+    drop((renders, ridges));
     edit.pb.set_message("writing corrected tiles");
     let t = Instant::now();
     let pictures = if opts.renders.is_some() {

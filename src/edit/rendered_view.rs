@@ -165,6 +165,15 @@ impl RenderedView {
         Self::from_terrain(terrain, camera)
     }
 
+    /// Whether this is a whole render (no [`StrokeRegion`]) of `terrain`'s
+    /// surface (to the bit, [`LocalTerrain::same_surface`]) with `camera`:
+    /// then it is what [`RenderedView::from_terrain`] would render of it,
+    /// to the bit (a later pass that reads the terrain the pass before
+    /// read takes that pass's render as it is).
+    pub fn is_whole_render_of(&self, terrain: &LocalTerrain, camera: &Camera) -> bool {
+        self.region.is_none() && self.camera == *camera && terrain.same_surface(&self.terrain)
+    }
+
     /// Render only `region` of the view (see [`StrokeRegion`] and
     /// [`DepthBuffer::render_rows`]): the depths there, and the silhouette
     /// samples it wants, are those of the whole view; a silhouette is cut

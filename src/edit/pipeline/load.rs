@@ -176,7 +176,7 @@ pub(super) fn render_and_extract<'a>(
     dem: &Dem,
     scenes: Vec<ViewScene>,
     prepared: Vec<Vec<Stroke>>,
-    earlier: Vec<RenderedView>,
+    (earlier, earlier_ridges): (Vec<RenderedView>, Option<RidgesOf>),
 ) -> Result<Extracted<'a>, EditError> {
     edit.pb
         .set_message("rendering views, silhouettes and ridges");
@@ -201,13 +201,20 @@ pub(super) fn render_and_extract<'a>(
         .zip(&terrains)
         .map(|(p, (t, _))| Window::new(p.1 .0 + t.col0 as i64, p.1 .1 + t.row0 as i64, t.nx, t.ny))
         .collect();
+    let mut earlier: Vec<Option<RenderedView>> = earlier.into_iter().map(Some).collect();
     let (ridges, befores) = rayon::join(
-        || ridge_network(dem, &windows, &seen),
+        || ridge_network(dem, &windows, &seen, earlier_ridges),
         || {
             terrains
                 .into_iter()
                 .enumerate()
-                .map(|(k, (t, c))| RenderedView::from_terrain_after(t, &c, earlier.get(k)))
+                .map(|(k, (t, c))| {
+                    match earlier.get_mut(k).and_then(Option::take) {
+                        // The pass before's whole render of this surface.
+                        Some(e) if e.is_whole_render_of(&t, &c) => Ok(e),
+                        e => RenderedView::from_terrain_after(t, &c, e.as_ref()),
+                    }
+                })
                 .collect::<Vec<_>>()
         },
     );
@@ -236,6 +243,7 @@ pub(super) fn render_and_extract<'a>(
     Ok(Extracted {
         views,
         windows: heights,
+        seen,
         ridges,
     })
 }
@@ -300,12 +308,18 @@ pub(super) fn scene_features<'v>(
 /// terrains' extents, given as windows in the DEM grid) within the windows
 /// read for them (with their offsets in the DEM grid): one network, so that
 /// a ridge seen from two views is one feature; ridges beyond every view's
-/// field of view could match no stroke.
+/// field of view could match no stroke. `earlier`: the network a pass
+/// before detected, taken as it is where it was detected from the same
+/// windows and extents ([`RidgesOf::detected_from`]).
 pub(super) fn ridge_network(
     dem: &Dem,
     windows: &[(&HeightMap, (i64, i64))],
     seen: &[Window],
+    earlier: Option<RidgesOf>,
 ) -> Result<RidgeNetwork, EditError> {
+    if let Some(e) = earlier.filter(|e| e.detected_from(windows, seen)) {
+        return Ok(e.ridges);
+    }
     let Some(first) = seen.first() else {
         return Ok(RidgeNetwork::default());
     };

@@ -506,7 +506,79 @@ struct Extracted<'a> {
     views: Vec<ViewState<'a>>,
     /// Per view: the heights of its window ([`ViewState::window`]).
     windows: Vec<HeightMap>,
+    /// Per view: what its terrain covers of the DEM grid.
+    seen: Vec<Window>,
     ridges: RidgeNetwork,
+}
+
+/// A ridge network and what it was detected from ([`ridge_network`]): the
+/// views' windows (their heights, at their offsets in the DEM grid) and
+/// what each view's terrain covers. A later pass that reads the same
+/// (to the bit) takes the network as it is. The windows are the pass's
+/// own, kept instead of dropped (no copy).
+pub(super) struct RidgesOf {
+    windows: Vec<(HeightMap, (i64, i64))>,
+    seen: Vec<Window>,
+    ridges: RidgeNetwork,
+}
+
+impl RidgesOf {
+    /// Whether `windows` and `seen` are what these ridges were detected
+    /// from, to the bit (the same windows, offsets, georeferencing and
+    /// heights, nodata included).
+    fn detected_from(&self, windows: &[(&HeightMap, (i64, i64))], seen: &[Window]) -> bool {
+        self.seen == seen
+            && self.windows.len() == windows.len()
+            && self
+                .windows
+                .iter()
+                .zip(windows)
+                .all(|((a, oa), (b, ob))| oa == ob && same_heights(a, b))
+    }
+}
+
+impl RidgesOf {
+    /// `ridges` with what they were detected from: the views' `windows`
+    /// (moved, not copied) at their offsets and their terrains' extents
+    /// `seen` ([`Extracted`]), for a later pass ([`Seen`]).
+    fn of(
+        ridges: RidgeNetwork,
+        windows: Vec<HeightMap>,
+        seen: Vec<Window>,
+        views: &[ViewState],
+    ) -> RidgesOf {
+        let windows = windows
+            .into_iter()
+            .zip(views)
+            .map(|(w, v)| (w, v.window_offset))
+            .collect();
+        RidgesOf {
+            windows,
+            seen,
+            ridges,
+        }
+    }
+}
+
+/// Whether two height maps are the same to the bit: size, georeferencing
+/// and every height (nodata included).
+fn same_heights(a: &HeightMap, b: &HeightMap) -> bool {
+    (a.width, a.height) == (b.width, b.height)
+        && a.geotransform == b.geotransform
+        && a.crs == b.crs
+        && a.data.len() == b.data.len()
+        && a.data
+            .iter()
+            .zip(&b.data)
+            .all(|(p, q)| p.to_bits() == q.to_bits())
+}
+
+/// What a pass rendered of the terrain it read: its views' whole renders
+/// and its ridge network. A later pass that reads the same terrain again
+/// (after a pass not kept, or dropped) takes them as they are.
+pub(super) struct Seen {
+    pub(super) renders: Vec<RenderedView>,
+    pub(super) ridges: RidgesOf,
 }
 
 /// The terrain features each view offers the strokes ([`scene_features`]).
@@ -669,7 +741,7 @@ pub(crate) fn edited_terrain(
 
 #[cfg(test)]
 mod tests {
-    use super::{stroke_curves, stroke_outcome};
+    use super::{stroke_curves, stroke_outcome, RidgesOf};
     use crate::deform::CurveConstraint;
     use crate::edit::fit::StrokeFit;
 
@@ -755,5 +827,60 @@ mod tests {
         let p = pts(4);
         let c = free_stretches(&p, &[1.0e3; 4], &[true; 4]);
         assert!(c.is_empty());
+    }
+
+    /// A later pass takes the ridges a pass before detected only where it
+    /// reads the very windows they were detected from (to the bit, nodata
+    /// included), at the same offsets, for the same extents.
+    #[test]
+    fn ridges_are_taken_only_for_the_same_heights() {
+        use crate::features::{detect_ridges, RidgeParams};
+        use crate::raster::{Crs, GeoTransform, HeightMap, Window};
+        let (w, h) = (40, 30);
+        let data: Vec<f32> = (0..w * h)
+            .map(|i| {
+                let (c, r) = ((i % w) as f32, (i / w) as f32);
+                if i == 7 {
+                    f32::NAN
+                } else {
+                    100.0 - (c - 20.0).abs() * 3.0 + r * 0.5
+                }
+            })
+            .collect();
+        let map = HeightMap {
+            width: w,
+            height: h,
+            data,
+            geotransform: GeoTransform([500_000.0, 30.0, 0.0, 4_000_000.0, 0.0, -30.0]),
+            crs: Crs {
+                epsg: None,
+                wkt: String::new(),
+                proj: None,
+                geographic: false,
+            },
+        };
+        let ridges = detect_ridges(&map, &RidgeParams::default()).unwrap();
+        let seen = vec![Window::new(3, 4, w - 2, h - 5)];
+        let earlier = RidgesOf {
+            windows: vec![(map.clone(), (2, 4))],
+            seen: seen.clone(),
+            ridges,
+        };
+        let same = map.clone();
+        assert!(earlier.detected_from(&[(&same, (2, 4))], &seen));
+        // Another offset, another view's extent, more views.
+        assert!(!earlier.detected_from(&[(&same, (2, 5))], &seen));
+        assert!(!earlier.detected_from(&[(&same, (2, 4))], &[Window::new(3, 4, w - 2, h - 6)]));
+        assert!(!earlier.detected_from(&[(&same, (2, 4)), (&same, (2, 4))], &seen));
+        // Other heights: one moved a millimetre, one row less, another
+        // georeferencing.
+        let mut moved = map.clone();
+        moved.data[w * 10 + 20] += 0.001;
+        assert!(!earlier.detected_from(&[(&moved, (2, 4))], &seen));
+        let cropped = map.crop(0, 0, w, h - 1);
+        assert!(!earlier.detected_from(&[(&cropped, (2, 4))], &seen));
+        let mut shifted = map.clone();
+        shifted.geotransform = GeoTransform([500_030.0, 30.0, 0.0, 4_000_000.0, 0.0, -30.0]);
+        assert!(!earlier.detected_from(&[(&shifted, (2, 4))], &seen));
     }
 }

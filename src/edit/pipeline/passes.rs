@@ -17,11 +17,11 @@ pub(super) fn all_passes<'s>(
     loaded: (Vec<ViewScene>, Vec<Vec<Stroke>>, Vec<String>),
     timings: &mut Timings,
 ) -> Result<(Vec<ViewState<'s>>, Outcome), EditError> {
-    let (views, outcome) = edit_pass(
+    let (views, outcome, _) = edit_pass(
         edit,
         (sketch, dem, dem_name),
         loaded,
-        Vec::new(),
+        (Vec::new(), None),
         timings,
         false,
     )?;
@@ -89,8 +89,8 @@ fn near_miss_passes(
     while pass < 1 + NEAR_MISS_PASSES && needs_second_pass(sketch, &outcome) {
         pass += 1;
         let before = outcome.without_renders();
-        let changed;
-        (outcome, changed) = second_pass(edit, dem, sketch_path, outcome, far, pass)?;
+        let (changed, seen);
+        (outcome, changed, seen) = second_pass(edit, dem, sketch_path, outcome, far, pass)?;
         if !changed {
             break;
         }
@@ -99,6 +99,8 @@ fn near_miss_passes(
             && near_earlier_change(views, &before, &changed))
         {
             outcome = before;
+            // The next pass reads the terrain this one read.
+            outcome.take_seen(seen);
             outcome.notes.push(format!(
                 "a {} pass placed the strokes' near misses again, but changed terrain beyond the influence distance of the strokes as placed, or of what the passes before changed: not kept",
                 ordinal(pass)
@@ -285,7 +287,7 @@ fn later_passes(
     while pass < last && needs_second_pass(sketch, &outcome) {
         pass += 1;
         let changed;
-        (outcome, changed) = second_pass(edit, dem, sketch_path, outcome, far, pass)?;
+        (outcome, changed, _) = second_pass(edit, dem, sketch_path, outcome, far, pass)?;
         if !changed {
             break;
         }
@@ -298,7 +300,9 @@ fn later_passes(
 /// and the strokes measured on the result. `timings` gets their times.
 /// `earlier`: per view, the pass before's last render, which the views'
 /// renders take what they can from ([`render_and_extract`]; none for the
-/// first pass).
+/// first pass), and the ridges a pass before detected, taken where they
+/// were detected from the same windows ([`ridge_network`]). Also returns
+/// this pass's ridges with its windows ([`RidgesOf`]).
 /// `later`: a pass after the first, which the run drops when it changes no
 /// cell ([`second_pass`]); such a pass stops as soon as that is known and
 /// gives no outcome (`None`; the first pass always gives one).
@@ -309,16 +313,21 @@ pub(super) fn edit_pass<'s>(
     edit: &Edit,
     (sketch, dem, dem_name): (&'s SketchFile, &Dem, &str),
     (scenes, prepared, notes): (Vec<ViewScene>, Vec<Vec<Stroke>>, Vec<String>),
-    earlier: Vec<RenderedView>,
+    earlier: (Vec<RenderedView>, Option<RidgesOf>),
     timings: &mut Timings,
     later: bool,
-) -> Result<(Vec<ViewState<'s>>, Option<Outcome>), EditError> {
+) -> Result<(Vec<ViewState<'s>>, Option<Outcome>, RidgesOf), EditError> {
     let t = Instant::now();
     let extracted = render_and_extract(edit, sketch, dem, scenes, prepared, earlier)?;
-    let views = extracted.views;
-    let features = scene_features(&views, &extracted.ridges, &sketch.options, edit.skyline);
+    let Extracted {
+        views,
+        windows,
+        seen,
+        ridges,
+    } = extracted;
+    let features = scene_features(&views, &ridges, &sketch.options, edit.skyline);
     timings.features = secs(t);
-    let found = (&views[..], &extracted.windows[..], &features);
+    let found = (&views[..], &windows[..], &features);
     let Some(outcome) = match_and_fit(
         edit,
         (sketch, dem, dem_name),
@@ -328,17 +337,21 @@ pub(super) fn edit_pass<'s>(
         later,
     )?
     else {
-        return Ok((views, None));
+        drop(features);
+        let ridges = RidgesOf::of(ridges, windows, seen, &views);
+        return Ok((views, None, ridges));
     };
     if !(edit.skyline && skyline_left_unfitted(&outcome)) {
-        return Ok((views, Some(outcome)));
+        drop(features);
+        let ridges = RidgesOf::of(ridges, windows, seen, &views);
+        return Ok((views, Some(outcome), ridges));
     }
     // A skyline match that leaves a stroke unfitted stands against the
     // match without the skyline (see `sketch::skyline`); the two are
     // compared whole (never dropped early).
-    let plain = scene_features(&views, &extracted.ridges, &sketch.options, false);
+    let plain = scene_features(&views, &ridges, &sketch.options, false);
     let mut scratch = Timings::default();
-    let found = (&views[..], &extracted.windows[..], &plain);
+    let found = (&views[..], &windows[..], &plain);
     let other = match_and_fit(
         edit,
         (sketch, dem, dem_name),
@@ -355,7 +368,9 @@ pub(super) fn edit_pass<'s>(
         _ => outcome,
     };
     timings.add(&scratch);
-    Ok((views, Some(outcome)))
+    drop((features, plain));
+    let ridges = RidgesOf::of(ridges, windows, seen, &views);
+    Ok((views, Some(outcome), ridges))
 }
 
 /// A second pass is made when the first changed the terrain but left a
@@ -391,7 +406,10 @@ pub(super) fn needs_second_pass(sketch: &SketchFile, first: &Outcome) -> bool {
 /// made). Returns the outcome and whether this pass was kept: when it was,
 /// the run makes another pass ([`MAX_PASSES`] in all at most), so that
 /// the edit stops only where a pass, as a re-edit of its output would,
-/// changes nothing.
+/// changes nothing. A pass not kept leaves in the outcome what it
+/// rendered of the terrain it read ([`Seen`]), which the next pass reads
+/// again where the DEM is in whole units of a metre; a kept pass returns
+/// it beside (the caller may yet drop the pass).
 pub(super) fn second_pass(
     edit: &Edit,
     dem: &Dem,
@@ -399,7 +417,7 @@ pub(super) fn second_pass(
     mut first: Outcome,
     far: &[FarLayers],
     pass: usize,
-) -> Result<(Outcome, bool), EditError> {
+) -> Result<(Outcome, bool, Option<Seen>), EditError> {
     edit.pb
         .set_message(format!("pass {pass} over the strokes left unfitted"));
     // What the pass reads: the terrain the passes before made, in whole
@@ -415,10 +433,12 @@ pub(super) fn second_pass(
     // can from them where that is the terrain the pass reads (a DEM in
     // whole units of a metre).
     let mut earlier = std::mem::take(&mut first.renders);
+    let mut earlier_ridges = first.ridges.take();
     if seen.displacement != quantized(dem, &first.deformation).displacement {
         earlier.clear();
+        earlier_ridges = None;
     }
-    let run_second = || -> Result<Option<Outcome>, EditError> {
+    let run_second = || -> Result<(Option<Outcome>, Seen), EditError> {
         let overlay = dem
             .reopened()?
             .with_overlay(seen.window, seen.edited().data);
@@ -431,27 +451,31 @@ pub(super) fn second_pass(
         } = load_views(edit, overlay, sketch_path, far)?;
         let dem_name = dem.path.display().to_string();
         let mut scratch = Timings::default();
-        let (_, second) = edit_pass(
+        let (views, second, ridges) = edit_pass(
             edit,
             (&sketch, &dem2, &dem_name),
             (scenes, prepared, notes),
-            earlier,
+            (earlier, earlier_ridges),
             &mut scratch,
             true,
         )?;
-        Ok(second)
+        let renders = views.into_iter().map(|v| v.before).collect();
+        Ok((second, Seen { renders, ridges }))
     };
     // The first pass stands on its own: a second that cannot run (a stroke
     // end no longer on terrain, say) leaves it as it is.
-    let second = match run_second() {
-        Ok(Some(o)) => o,
+    let (second, seen_by_pass) = match run_second() {
+        Ok((Some(o), s)) => (o, s),
         // A pass that changes no cell is dropped (below) whatever it
         // measured: it stopped as soon as that was known.
-        Ok(None) => return Ok((first, false)),
+        Ok((None, s)) => {
+            first.take_seen(Some(s));
+            return Ok((first, false, None));
+        }
         Err(e) => {
             let mut out = first;
             out.notes.push(format!("no {} pass: {e}", ordinal(pass)));
-            return Ok((out, false));
+            return Ok((out, false, None));
         }
     };
     let score = fit_score;
@@ -466,7 +490,8 @@ pub(super) fn second_pass(
         );
     }
     if score(&second) < score(&first) - 1e-9 || second.deformation.stats.changed_cells == 0 {
-        return Ok((first, false));
+        first.take_seen(Some(seen_by_pass));
+        return Ok((first, false, None));
     }
     // The change is added to the terrain the passes before made, as solved
     // (the write rounds the sum to the file's step once).
@@ -478,7 +503,8 @@ pub(super) fn second_pass(
         || find_spikes(&first.deformation).len(),
     );
     if added > before {
-        return Ok((first, false));
+        first.take_seen(Some(seen_by_pass));
+        return Ok((first, false, None));
     }
     let mut out = first;
     let (f1, f2) = (score(&out), score(&second));
@@ -509,7 +535,7 @@ pub(super) fn second_pass(
         if pass == 2 { "first" } else { "passes before" }
     ));
     out.deformation = total;
-    Ok((out, true))
+    Ok((out, true, Some(seen_by_pass)))
 }
 
 /// The most passes of one edit: the first and the later ones over the

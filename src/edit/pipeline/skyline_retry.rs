@@ -79,6 +79,7 @@ pub(super) fn match_and_fit(
         deformation: rounds.deformation,
         corrections,
         renders: rounds.rendered,
+        ridges: None,
     }))
 }
 
