@@ -106,69 +106,10 @@ pub struct ConstraintRaster {
     pub max_abs_delta: f64,
 }
 
-/// The displacement `M` of a terrain the edit rendered (`H + M`), on a
-/// window of the DEM grid, row-major: NaN on nodata, and exactly 0 beyond
-/// the window (a deformation changes nothing outside its window).
-#[derive(Debug, Clone, PartialEq)]
-pub struct Displacement {
-    pub window: crate::raster::Window,
-    pub values: Vec<f32>,
-}
-
-impl Displacement {
-    /// `M` of the whole DEM's cell (`col`, `row`): 0 beyond the window.
-    pub fn at(&self, col: i64, row: i64) -> f32 {
-        let (x, y) = (col - self.window.col, row - self.window.row);
-        if x < 0 || y < 0 || x as usize >= self.window.width || y as usize >= self.window.height {
-            return 0.0;
-        }
-        self.values[y as usize * self.window.width + x as usize]
-    }
-
-    /// `M` on the grid of `base`, the window `window` of the DEM (NaN where
-    /// `base` is nodata): what [`bilinear_valid`] reads.
-    fn on(&self, base: &HeightMap, window: crate::raster::Window) -> HeightMap {
-        let mut out = base.clone();
-        for (k, v) in out.data.iter_mut().enumerate() {
-            if v.is_nan() {
-                continue;
-            }
-            let (c, r) = ((k % window.width) as i64, (k / window.width) as i64);
-            *v = self.at(window.col + c, window.row + r);
-        }
-        out
-    }
-}
-
-/// A lowering curve's terrain (section 6.2 of Tassé et al.: a
-/// protruding silhouette `s` is *lowered* by `h`; it is never raised).
-/// The curve was found on the terrain `H' = H + M_ref`, `M_ref` the
-/// displacement of that terrain, and asks for its points `v` at `z_v =
-/// H'(v) - h_v`. Each cell `c` it decides (the band rule: the closest
-/// curve point `q*`) is lowered from that terrain by the curve's lowering
-/// there, `delta_c = M_ref(c) - max(h(q*), 0)`, with `h` interpolated
-/// linearly along the polyline between its vertices' `h_v = H'(v) - z_v`
-/// (`H'` bilinear): so it is never raised above `M_ref(c)`. The band rule
-/// alone copies `delta(q*) = z(q*) - H(q*)` to every cell centre within a
-/// cell of the curve; where `M_ref` falls steeply across the band (a
-/// lowered crest line on a coarse grid, the cell centres down the
-/// landform's front) that *raises* the centres in front of the curve by up
-/// to the drop of `M_ref` over a cell, and where the polyline joins points
-/// far apart (the depth-buffer points of several columns) it sets the
-/// cells under the straight line between them to that line's height, a
-/// trench no silhouette asked for. Lowering every cell of the bilinear
-/// stencil by `h` lowers the bilinear terrain at every curve point by `h`,
-/// whatever `M_ref`'s gradient. A vertex with no terrain under it gives no
-/// `h`; cells whose closest point is on such a segment take `min(delta(q*),
-/// M_ref(c))`.
-pub type Reference<'a> = Option<&'a Displacement>;
-
 /// A cell near a curve and the closest point of one segment to its centre.
 #[derive(Debug, Clone, Copy)]
 struct Candidate {
     cell: usize,
-    /// Index of the curve (in the list rasterised).
-    curve: u32,
     /// Squared distance centre to closest point, m^2.
     d2: f64,
     /// The cell is in the bilinear stencil of some point of the segment.
@@ -177,10 +118,6 @@ struct Candidate {
     qx: f64,
     qy: f64,
     z: f64,
-    /// The lowering at the closest point, interpolated along the segment
-    /// between its vertices' (a lowering curve's, [`Reference`]; NaN for
-    /// other curves, or where a vertex has no terrain under it).
-    lower: f64,
 }
 
 /// Rasterises `curves` (CRS coordinates) as displacement constraints on the
@@ -189,50 +126,7 @@ struct Candidate {
 /// outside the window are allowed: only cells inside it are constrained.
 /// Curves must have finite coordinates (the caller checks).
 pub fn rasterise(base: &HeightMap, curves: &[CurveConstraint], cell: CellSize) -> ConstraintRaster {
-    resolve(base, curve_candidates(base, curves, 0, &[], cell), &[])
-}
-
-/// [`rasterise`] where `references[k]` (when given) is the terrain the
-/// lowering curve `curves[k]` was found on ([`Reference`]): the cells that
-/// curve decides are lowered from that terrain by the curve's own
-/// lowering, never raised above it. `window`: the window of the DEM grid
-/// that `base` covers.
-pub fn rasterise_relative(
-    base: &HeightMap,
-    window: crate::raster::Window,
-    curves: &[CurveConstraint],
-    references: &[Reference],
-    cell: CellSize,
-) -> ConstraintRaster {
-    let grids = reference_grids(base, window, references);
-    resolve(
-        base,
-        curve_candidates(base, curves, 0, &grids, cell),
-        &grids,
-    )
-}
-
-/// The references of the curves on the grid of `base` (one grid per
-/// distinct reference, shared by the curves that name it).
-fn reference_grids(
-    base: &HeightMap,
-    window: crate::raster::Window,
-    references: &[Reference],
-) -> Vec<Option<std::rc::Rc<HeightMap>>> {
-    let mut made: Vec<(*const Displacement, std::rc::Rc<HeightMap>)> = Vec::new();
-    references
-        .iter()
-        .map(|r| {
-            let r = (*r)?;
-            let key = r as *const Displacement;
-            if let Some((_, g)) = made.iter().find(|(k, _)| *k == key) {
-                return Some(g.clone());
-            }
-            let g = std::rc::Rc::new(r.on(base, window));
-            made.push((key, g.clone()));
-            Some(g)
-        })
-        .collect()
+    resolve(base, curve_candidates(base, curves, cell))
 }
 
 /// [`rasterise`] of `curves`, and of `curves` followed by `extra`, with
@@ -246,35 +140,10 @@ pub fn rasterise_with(
     extra: &[CurveConstraint],
     cell: CellSize,
 ) -> (ConstraintRaster, ConstraintRaster) {
-    rasterise_with_relative(base, base_window(base), curves, &[], extra, cell)
-}
-
-/// [`rasterise_with`] with the references of `curves` ([`rasterise_relative`];
-/// the `extra` curves have none).
-pub fn rasterise_with_relative(
-    base: &HeightMap,
-    window: crate::raster::Window,
-    curves: &[CurveConstraint],
-    references: &[Reference],
-    extra: &[CurveConstraint],
-    cell: CellSize,
-) -> (ConstraintRaster, ConstraintRaster) {
-    let grids = reference_grids(base, window, references);
-    let own = curve_candidates(base, curves, 0, &grids, cell);
+    let own = curve_candidates(base, curves, cell);
     let mut all = own.clone();
-    all.extend(curve_candidates(base, extra, curves.len(), &grids, cell));
-    (resolve(base, own, &grids), resolve(base, all, &grids))
-}
-
-/// A window the size of `base` at the grid's origin (where no reference
-/// is read, its position does not matter).
-fn base_window(base: &HeightMap) -> crate::raster::Window {
-    crate::raster::Window {
-        col: 0,
-        row: 0,
-        width: base.width,
-        height: base.height,
-    }
+    all.extend(curve_candidates(base, extra, cell));
+    (resolve(base, own), resolve(base, all))
 }
 
 /// The candidate cells of `curves` on the grid of `base`, curve by curve
@@ -282,36 +151,27 @@ fn base_window(base: &HeightMap) -> crate::raster::Window {
 fn curve_candidates(
     base: &HeightMap,
     curves: &[CurveConstraint],
-    first: usize,
-    references: &[Option<std::rc::Rc<HeightMap>>],
     cell: CellSize,
 ) -> Vec<Candidate> {
     let (w, h) = (base.width, base.height);
     let mut cands: Vec<Candidate> = Vec::new();
-    for (k, curve) in curves.iter().enumerate() {
-        let id = (first + k) as u32;
-        let reference = references.get(first + k).and_then(|r| r.as_deref());
-        // Window pixel coordinates of the vertices, their heights and, on
-        // a lowering curve, how far each lies under the terrain it was
-        // found on (`H + M_ref`, bilinear).
-        let px: Vec<[f64; 4]> = curve
+    for curve in curves {
+        // Window pixel coordinates of the vertices.
+        let px: Vec<[f64; 3]> = curve
             .points
             .iter()
             .filter_map(|p| {
-                base.geotransform.crs_to_pixel(p[0], p[1]).map(|(x, y)| {
-                    let lower = reference
-                        .and_then(|m| Some(bilinear_valid(base, x, y)? + bilinear_valid(m, x, y)?))
-                        .map_or(f64::NAN, |t| t - p[2]);
-                    [x, y, p[2], lower]
-                })
+                base.geotransform
+                    .crs_to_pixel(p[0], p[1])
+                    .map(|(x, y)| [x, y, p[2]])
             })
             .collect();
         match px.len() {
             0 => {}
-            1 => segment_candidates(px[0], px[0], (w, h, id), cell, &mut cands),
+            1 => segment_candidates(px[0], px[0], w, h, cell, &mut cands),
             _ => {
                 for s in px.windows(2) {
-                    segment_candidates(s[0], s[1], (w, h, id), cell, &mut cands);
+                    segment_candidates(s[0], s[1], w, h, cell, &mut cands);
                 }
             }
         }
@@ -320,13 +180,8 @@ fn curve_candidates(
 }
 
 /// The constraints of the candidates `cands` (in curve order): per cell,
-/// the closest candidate, relative to its curve's reference when it has
-/// one (`references[curve]`, on the grid of `base`: [`Reference`]).
-fn resolve(
-    base: &HeightMap,
-    mut cands: Vec<Candidate>,
-    references: &[Option<std::rc::Rc<HeightMap>>],
-) -> ConstraintRaster {
+/// the closest candidate.
+fn resolve(base: &HeightMap, mut cands: Vec<Candidate>) -> ConstraintRaster {
     let (w, h) = (base.width, base.height);
     // Per cell, the closest candidate; the stable sort keeps curve order
     // among exact ties, and the first of a tie wins.
@@ -354,17 +209,7 @@ fn resolve(
         let Some(hq) = bilinear_valid(base, best.qx, best.qy) else {
             continue;
         };
-        let mut d = best.z - hq;
-        if let Some(Some(m)) = references.get(best.curve as usize) {
-            // A lowering curve's cell: lowered from its reference by the
-            // curve's lowering there, never raised.
-            let mc = m.data[best.cell] as f64;
-            d = if best.lower.is_finite() {
-                mc - best.lower.max(0.0)
-            } else {
-                d.min(mc)
-            };
-        }
+        let d = best.z - hq;
         if !d.is_finite() {
             continue;
         }
@@ -458,9 +303,10 @@ pub fn keep_within(cons: &mut ConstraintRaster, within: &[bool]) {
 /// segment is the closest over its pieces, and heights are interpolated along
 /// the whole segment so the pieces agree.
 fn segment_candidates(
-    a: [f64; 4],
-    b: [f64; 4],
-    (w, h, curve): (usize, usize, u32),
+    a: [f64; 3],
+    b: [f64; 3],
+    w: usize,
+    h: usize,
     cell: CellSize,
     out: &mut Vec<Candidate>,
 ) {
@@ -471,7 +317,7 @@ fn segment_candidates(
     // (Liang-Barsky clip to the grown window), so far-away points cost
     // nothing.
     let Some((ta, tb)) = clip_param(
-        [a[0], a[1], a[2]],
+        a,
         dxp,
         dyp,
         [
@@ -521,13 +367,11 @@ fn segment_candidates(
                 }
                 out.push(Candidate {
                     cell: row * w + col,
-                    curve,
                     d2,
-                    member: in_stencil([a[0], a[1], a[2]], dxp, dyp, t0, t1, cx, cy),
+                    member: in_stencil(a, dxp, dyp, t0, t1, cx, cy),
                     qx: a[0] + t * dxp,
                     qy: a[1] + t * dyp,
                     z: a[2] + t * (b[2] - a[2]),
-                    lower: a[3] + t * (b[3] - a[3]),
                 });
             }
         }

@@ -31,9 +31,7 @@ pub mod constraints;
 pub mod locality;
 pub mod multigrid;
 
-pub use constraints::{
-    CellConstraint, CellSize, ConstraintRaster, CurveConstraint, Displacement, Reference,
-};
+pub use constraints::{CellConstraint, CellSize, ConstraintRaster, CurveConstraint};
 
 use std::time::Instant;
 
@@ -382,29 +380,12 @@ pub fn deform_bounded(
     cells: &[CellConstraint],
     opts: &DeformOptions,
 ) -> Result<Deformation, DeformError> {
-    deform_relative(dem, (curves, &[]), bounded, cells, opts)
-}
-
-/// [`deform_bounded`] where some of the curves are lowering curves
-/// (section 6.2 of Tassé et al.): `references[k]`, when given, is the
-/// displacement of the terrain on which `curves[k]` was found and lowered
-/// ([`constraints::Reference`]); the cells such a curve decides are
-/// lowered from that terrain by the curve's own lowering and never raised
-/// above it. `references` may be shorter than `curves` (the rest have
-/// none).
-pub fn deform_relative(
-    dem: &Dem,
-    (curves, references): (&[CurveConstraint], &[Reference]),
-    bounded: &[CurveConstraint],
-    cells: &[CellConstraint],
-    opts: &DeformOptions,
-) -> Result<Deformation, DeformError> {
     let plan = plan(dem, curves, opts)?;
     check_bounded(bounded, curves.len())?;
     let t0 = Instant::now();
     let base = dem.read_height_map(plan.window)?;
     let t1 = Instant::now();
-    let (mut cons, inside) = constrain(&base, (curves, references), bounded, &plan);
+    let (mut cons, inside) = constrain(&base, curves, bounded, &plan);
     // Held and lowered cells, like the bounded curves, act only within the
     // curves' influence.
     constraints::apply_cells(&mut cons, &base, plan.window, cells, &inside);
@@ -481,20 +462,19 @@ pub fn deform_relative(
 /// constraints beyond it are dropped.
 fn constrain(
     base: &HeightMap,
-    (curves, references): (&[CurveConstraint], &[Reference]),
+    curves: &[CurveConstraint],
     bounded: &[CurveConstraint],
     plan: &DeformPlan,
 ) -> (ConstraintRaster, Vec<bool>) {
     let (cell, d) = (plan.cell, plan.influence_m);
     if bounded.is_empty() {
-        let own = constraints::rasterise_relative(base, plan.window, curves, references, cell);
+        let own = constraints::rasterise(base, curves, cell);
         let d2 = locality::squared_distance_to_constraints(&own, cell);
         let inside = locality::mask_of_distances(&d2, &own, cell, d);
         return (own, inside);
     }
     // (the curves' candidate cells found once for both rasters)
-    let (own, mut cons) =
-        constraints::rasterise_with_relative(base, plan.window, curves, references, bounded, cell);
+    let (own, mut cons) = constraints::rasterise_with(base, curves, bounded, cell);
     let d2 = locality::squared_distance_to_constraints(&own, cell);
     let inside = locality::mask_of_distances(&d2, &own, cell, d);
     let keep: Vec<bool> = (0..cons.delta.len())

@@ -27,9 +27,7 @@ use super::pipeline::{render_edited_after, Edit, Placed, Solver, ViewState};
 use super::rendered_view::{RenderedView, StrokeCurve, StrokeRegion};
 use super::spikes::flatten_spikes;
 use super::EditError;
-use std::sync::Arc;
-
-use crate::deform::{CellConstraint, CurveConstraint, Deformation, Displacement};
+use crate::deform::{CellConstraint, CurveConstraint, Deformation};
 
 /// A cell constraint counts as new when its height moved by more than this
 /// (metres).
@@ -243,9 +241,7 @@ fn run_rounds(
             (None, None) => unreachable!("a round's renders are kept"),
         };
         // A stopped round adds nothing: the last try below, or the end.
-        // (a round that is not stopped is the best so far: `rendered` is
-        // `deformation`'s render, the terrain its lowering curves lower)
-        let changed = !stopped && gathered.round(views, (rendered, &deformation), curves, opts);
+        let changed = !stopped && gathered.round(views, rendered, curves, opts);
         if !changed {
             match lower_raised_crests(
                 &mut raised_tried,
@@ -257,8 +253,7 @@ fn run_rounds(
             ) {
                 RaisedTry::Lower(next) => {
                     before_raised = best.as_ref().map(|b| (b.0, b.1.clone()));
-                    let on = best.as_ref().map(|b| reference_of(&b.1));
-                    gathered.restart(&best_made_by, next, on);
+                    gathered.restart(&best_made_by, next);
                     deformation = gathered.solve(solver)?;
                     stalled = 0;
                     continue;
@@ -464,10 +459,6 @@ fn adopt_rendered(
 /// how many rounds of each kind found something.
 struct Gathered {
     constraints: Vec<CurveConstraint>,
-    /// Per constraint: the displacement of the terrain a lowering curve
-    /// was found on (`None`: the user's curves), see
-    /// [`crate::deform::Reference`].
-    references: Vec<Option<Arc<Displacement>>>,
     /// How many of `constraints` are the user's.
     user_constraints: usize,
     cells: BTreeMap<(i64, i64), f64>,
@@ -487,7 +478,6 @@ impl Gathered {
     fn new(user: Vec<CurveConstraint>, views: usize) -> Gathered {
         Gathered {
             user_constraints: user.len(),
-            references: vec![None; user.len()],
             constraints: user,
             cells: BTreeMap::new(),
             iterations: vec![0; views],
@@ -516,15 +506,14 @@ impl Gathered {
     fn round(
         &mut self,
         views: &[ViewState],
-        (rendered, terrain): (&[RenderedView], &Deformation),
+        rendered: &[RenderedView],
         curves: &[Vec<StrokeCurve>],
         opts: &super::EditOptions,
     ) -> bool {
         let mut changed = false;
-        let on = reference_of(terrain);
         for (k, (v, after)) in views.iter().zip(rendered).enumerate() {
             if self.iterations[k] < opts.max_lowering_iterations {
-                changed |= self.lower_protruding(k, after, &curves[k], &on);
+                changed |= self.lower_protruding(k, after, &curves[k]);
             }
             if self.contour_rounds[k] < opts.max_contour_iterations {
                 changed |= self.fit_contours(k, v, after, &curves[k]);
@@ -535,13 +524,7 @@ impl Gathered {
 
     /// Section 6.2: the silhouettes of view `k` that protrude above its
     /// strokes, lowered by the paper's `h`. True when there were any.
-    fn lower_protruding(
-        &mut self,
-        k: usize,
-        after: &RenderedView,
-        curves: &[StrokeCurve],
-        on: &Arc<Displacement>,
-    ) -> bool {
+    fn lower_protruding(&mut self, k: usize, after: &RenderedView, curves: &[StrokeCurve]) -> bool {
         let protruding = find_protruding(after, curves);
         if protruding.is_empty() {
             return false;
@@ -564,7 +547,6 @@ impl Gathered {
                 self.constraints.push(CurveConstraint {
                     points: p.lowered.clone(),
                 });
-                self.references.push(Some(on.clone()));
             }
         }
         self.lowered[k] += protruding.len();
@@ -606,15 +588,8 @@ impl Gathered {
 
     /// Back to the constraints that made the best round's terrain
     /// (`made_by`), plus the lowered crests of `next`, counted per view.
-    /// `on`: the displacement of that terrain, which the crests lower.
-    fn restart(
-        &mut self,
-        made_by: &MadeBy,
-        next: Vec<Vec<Protrusion>>,
-        on: Option<Arc<Displacement>>,
-    ) {
+    fn restart(&mut self, made_by: &MadeBy, next: Vec<Vec<Protrusion>>) {
         self.constraints.truncate(made_by.0);
-        self.references.truncate(made_by.0);
         self.cells.clone_from(&made_by.1);
         for (k, protrusions) in next.into_iter().enumerate() {
             if protrusions.is_empty() {
@@ -622,10 +597,12 @@ impl Gathered {
             }
             self.lowered[k] += protrusions.len();
             self.iterations[k] += 1;
-            for p in protrusions.into_iter().filter(|p| !p.lowered.is_empty()) {
-                self.constraints.push(CurveConstraint { points: p.lowered });
-                self.references.push(on.clone());
-            }
+            self.constraints.extend(
+                protrusions
+                    .into_iter()
+                    .filter(|p| !p.lowered.is_empty())
+                    .map(|p| CurveConstraint { points: p.lowered }),
+            );
         }
     }
 
@@ -636,19 +613,8 @@ impl Gathered {
             .iter()
             .map(|(&(col, row), &height)| CellConstraint { col, row, height })
             .collect();
-        let references: Vec<crate::deform::Reference> =
-            self.references.iter().map(|r| r.as_deref()).collect();
-        solver.solve_relative(&self.constraints, &references, &cell_list)
+        solver.solve(&self.constraints, &cell_list)
     }
-}
-
-/// The displacement of `d`'s terrain, as a lowering curve found on it
-/// refers to it ([`crate::deform::Reference`]).
-fn reference_of(d: &Deformation) -> Arc<Displacement> {
-    Arc::new(Displacement {
-        window: d.window,
-        values: d.displacement.clone(),
-    })
 }
 
 /// Whether `a` and `b` give every view the same terrain: the same window,

@@ -77,7 +77,7 @@ use super::stretch_placement::{place_free_stretches, StretchPlacement};
 use super::tangent_rise::match_behind_occluder;
 use super::EditError;
 use crate::deform::{
-    deform_relative, CellConstraint, CurveConstraint, DeformError, DeformOptions, Deformation,
+    deform_bounded, CellConstraint, CurveConstraint, DeformError, DeformOptions, Deformation,
 };
 use crate::features::{detect_ridges, RidgeNetwork, RidgeParams};
 use crate::raster::{Dem, Destination, HeightMap, Window, WriteOptions};

@@ -229,19 +229,6 @@ impl Solver<'_> {
         curves: &[CurveConstraint],
         cells: &[CellConstraint],
     ) -> Result<Deformation, EditError> {
-        self.solve_relative(curves, &[], cells)
-    }
-
-    /// [`Solver::solve`] where `references[k]`, when given, is the
-    /// displacement of the terrain on which the lowering curve `curves[k]`
-    /// was found ([`crate::deform::Reference`]): its cells are lowered from
-    /// that terrain, never raised above it.
-    pub(in crate::edit) fn solve_relative(
-        &self,
-        curves: &[CurveConstraint],
-        references: &[crate::deform::Reference],
-        cells: &[CellConstraint],
-    ) -> Result<Deformation, EditError> {
         let err = |e: DeformError| match e {
             DeformError::Raster(r) => EditError::Raster(r),
             source => EditError::Deform {
@@ -253,13 +240,6 @@ impl Solver<'_> {
             return Deformation::none(self.dem, self.idle).map_err(err);
         }
         let all: Vec<CellConstraint> = cells.iter().chain(self.fixed).copied().collect();
-        deform_relative(
-            self.dem,
-            (curves, references),
-            self.bounded,
-            &all,
-            &self.opts,
-        )
-        .map_err(err)
+        deform_bounded(self.dem, curves, self.bounded, &all, &self.opts).map_err(err)
     }
 }
