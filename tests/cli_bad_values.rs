@@ -1,0 +1,271 @@
+//! Values from the user or a file that the commands used to take silently
+//! or report in two lines, each refused now with exit code 1, one line on
+//! stderr naming the flag or the file and the problem, no output created
+//! and the inputs untouched:
+//!
+//! - `--max-distance` that is not a positive finite number of metres (the
+//!   library reads such a distance as "no limit": `0` read the whole DEM,
+//!   and a batch could not record a NaN or infinite one), and a
+//!   `--refraction` that is not finite (every ray then missed the terrain:
+//!   "drawn in empty sky"), for `view`, `locate`, `edit` and `batch`;
+//! - a `--lon` outside [-180, 180] for `view` and `locate`, held to the
+//!   range of a sketch file's viewpoint (PROJ printed its own
+//!   `utm: Invalid longitude` line before the error);
+//! - a lon/lat GeoJSON position of `correct` outside [-180, 180] x
+//!   [-90, 90] (the same PROJ line);
+//! - a batch plan file whose settings `edit` would refuse as flags.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+
+use common::{demsketch, fixture};
+use serde_json::Value;
+
+const ZION: &str = "zion_srtm_utm12n.tif";
+
+fn s(p: &Path) -> String {
+    p.to_string_lossy().into_owned()
+}
+
+fn sketch() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/sketches/zion_dome.json")
+}
+
+/// Exit code 1, exactly one line on stderr, naming every `needles`.
+fn one_line_error(out: &std::process::Output, args: &[&str], needles: &[&str]) {
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{args:?}: exit 1: {err}");
+    assert_eq!(
+        err.trim_end().lines().count(),
+        1,
+        "{args:?}: one line: {err}"
+    );
+    for n in needles {
+        assert!(err.contains(n), "{args:?}: names {n}: {err}");
+    }
+}
+
+/// The bytes of the inputs a test must leave untouched.
+fn snapshot(paths: &[PathBuf]) -> Vec<Vec<u8>> {
+    paths
+        .iter()
+        .map(|p| std::fs::read(p).expect("input readable"))
+        .collect()
+}
+
+fn entries(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dir)
+        .expect("dir")
+        .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
+        .collect();
+    v.sort();
+    v
+}
+
+#[test]
+fn view_distance_and_refraction_flags_are_checked_before_any_work() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let dem = fixture(ZION);
+    let (d, k) = (s(&dem), s(&sketch()));
+    let inputs = [dem.clone(), sketch()];
+    let before = snapshot(&inputs);
+    let png = s(&dir.path().join("v.png"));
+    let tif = s(&dir.path().join("o.tif"));
+    let jobs = dir.path().join("jobs.txt");
+    std::fs::write(&jobs, format!("{k}\n")).expect("write manifest");
+    let jobs = s(&jobs);
+    let bout = s(&dir.path().join("b.tif"));
+    let plan = s(&dir.path().join("plan.json"));
+    let view = |flag: &'static str| -> Vec<String> {
+        let v = [
+            "view", &d, "--lon", "-112.9", "--lat", "37.4", "--out", &png, flag,
+        ];
+        v.iter().map(|x| x.to_string()).collect()
+    };
+    let locate = |flag: &'static str| -> Vec<String> {
+        let v = [
+            "locate", &d, "--lon", "-112.9", "--lat", "37.4", "--pixel", "800,450", flag,
+        ];
+        v.iter().map(|x| x.to_string()).collect()
+    };
+    let edit = |flag: &'static str| -> Vec<String> {
+        let v = ["edit", &d, "--sketch", &k, "--out", &tif, flag];
+        v.iter().map(|x| x.to_string()).collect()
+    };
+    let batch = |flag: &'static str| -> Vec<String> {
+        let v = ["batch", &d, "--jobs", &jobs, "--out", &bout, flag];
+        v.iter().map(|x| x.to_string()).collect()
+    };
+    let batch_plan = |flag: &'static str| -> Vec<String> {
+        let v = [
+            "batch", "plan", &d, "--jobs", &jobs, "--out", &bout, "--plan", &plan, flag,
+        ];
+        v.iter().map(|x| x.to_string()).collect()
+    };
+    let mut cases: Vec<(Vec<String>, &str)> = Vec::new();
+    for command in [
+        &view as &dyn Fn(&'static str) -> Vec<String>,
+        &locate,
+        &edit,
+        &batch,
+        &batch_plan,
+    ] {
+        for flag in [
+            "--max-distance=0",
+            "--max-distance=-5",
+            "--max-distance=nan",
+            "--max-distance=inf",
+        ] {
+            cases.push((command(flag), "--max-distance"));
+        }
+        for flag in ["--refraction=nan", "--refraction=inf", "--refraction=-inf"] {
+            cases.push((command(flag), "--refraction"));
+        }
+    }
+    for (args, needle) in &cases {
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        let out = demsketch(&args);
+        one_line_error(&out, &args, &[needle]);
+        assert!(out.stdout.is_empty(), "{args:?}: nothing on stdout");
+    }
+    assert_eq!(
+        entries(dir.path()),
+        vec!["jobs.txt".to_string()],
+        "nothing written"
+    );
+    assert_eq!(snapshot(&inputs), before, "inputs untouched");
+}
+
+#[test]
+fn a_longitude_off_the_globe_is_one_line_without_proj_talking() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let dem = fixture(ZION);
+    let before = snapshot(std::slice::from_ref(&dem));
+    let d = s(&dem);
+    let png = s(&dir.path().join("v.png"));
+    for lon in ["1e15", "200", "nan"] {
+        let lon_flag = format!("--lon={lon}");
+        let cases: [Vec<&str>; 2] = [
+            vec!["view", &d, &lon_flag, "--lat", "37.4", "--out", &png],
+            vec![
+                "locate", &d, &lon_flag, "--lat", "37.4", "--pixel", "800,450",
+            ],
+        ];
+        for args in cases {
+            let out = demsketch(&args);
+            one_line_error(&out, &args, &["viewpoint lon", "[-180, 180]"]);
+        }
+    }
+    let args = ["view", &d, "--lon", "-112.9", "--lat", "91", "--out", &png];
+    one_line_error(&demsketch(&args), &args, &["viewpoint lat 91", "[-90, 90]"]);
+    assert!(entries(dir.path()).is_empty(), "nothing written");
+    assert_eq!(
+        snapshot(std::slice::from_ref(&dem)),
+        before,
+        "DEM untouched"
+    );
+}
+
+#[test]
+fn a_geojson_position_off_the_globe_names_the_file_and_the_feature() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let dem = fixture("vinschgau_250m_utm32n.tif");
+    let features = dir.path().join("bad.geojson");
+    for (i, lon) in [1e15, -1e300, 190.0].into_iter().enumerate() {
+        let fc = serde_json::json!({
+            "type": "FeatureCollection",
+            "features": [{
+                "type": "Feature",
+                "properties": {"kind": "breakline", "id": "dyke"},
+                "geometry": {"type": "LineString", "coordinates": [
+                    [10.55, 46.70, 1500.0], [lon, 46.71, 1500.0]
+                ]}
+            }]
+        });
+        std::fs::write(&features, fc.to_string()).expect("write features");
+        let inputs = [dem.clone(), features.clone()];
+        let before = snapshot(&inputs);
+        let out_tif = dir.path().join(format!("o{i}.tif"));
+        let args = [
+            "correct",
+            &s(&dem),
+            "--features",
+            &s(&features),
+            "--out",
+            &s(&out_tif),
+        ];
+        let out = demsketch(&args);
+        one_line_error(
+            &out,
+            &args,
+            &[
+                "bad.geojson",
+                "\"dyke\"",
+                "is not a longitude in [-180, 180]",
+            ],
+        );
+        assert!(!out_tif.exists(), "nothing written");
+        assert_eq!(snapshot(&inputs), before, "inputs untouched");
+    }
+    assert_eq!(entries(dir.path()), vec!["bad.geojson".to_string()]);
+}
+
+#[test]
+fn a_plan_file_with_settings_edit_refuses_is_one_line_naming_it() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let dem = fixture(ZION);
+    let jobs = dir.path().join("jobs.txt");
+    std::fs::write(&jobs, format!("{}\n", s(&sketch()))).expect("write manifest");
+    let out = dir.path().join("b.tif");
+    let plan = dir.path().join("plan.json");
+    let made = demsketch(&[
+        "batch",
+        "plan",
+        &s(&dem),
+        "--jobs",
+        &s(&jobs),
+        "--out",
+        &s(&out),
+        "--plan",
+        &s(&plan),
+        "-q",
+    ]);
+    assert!(
+        made.status.success(),
+        "batch plan: {}",
+        String::from_utf8_lossy(&made.stderr)
+    );
+    let good: Value = serde_json::from_slice(&std::fs::read(&plan).expect("plan")).expect("json");
+    // (JSON has no NaN or infinity: any refraction a file holds is finite.)
+    let cases: [(&str, Value, &str); 4] = [
+        ("max_distance_m", Value::from(0.0), "max_distance_m 0"),
+        (
+            "max_distance_m",
+            Value::from(-1000.0),
+            "max_distance_m -1000",
+        ),
+        ("min_fit", Value::from(-0.5), "min_fit -0.5"),
+        ("pyramid_resampling", Value::from("sharpest"), "sharpest"),
+    ];
+    for (key, value, needle) in cases {
+        let mut bad = good.clone();
+        bad["settings"][key] = value;
+        std::fs::write(&plan, serde_json::to_string_pretty(&bad).expect("json"))
+            .expect("write plan");
+        let before = snapshot(&[dem.clone(), plan.clone()]);
+        for args in [
+            vec!["batch", "run", "--plan", &s(&plan), "--index", "0"],
+            vec!["batch", "finish", "--plan", &s(&plan)],
+        ] {
+            let o = demsketch(&args);
+            one_line_error(&o, &args, &["plan.json", "settings", needle]);
+        }
+        assert!(!out.exists(), "nothing written");
+        assert_eq!(
+            snapshot(&[dem.clone(), plan.clone()]),
+            before,
+            "inputs untouched"
+        );
+    }
+}
