@@ -12,7 +12,9 @@
 //!   range of a sketch file's viewpoint (PROJ printed its own
 //!   `utm: Invalid longitude` line before the error);
 //! - a lon/lat GeoJSON position of `correct` outside [-180, 180] x
-//!   [-90, 90] (the same PROJ line);
+//!   [-90, 90] (the same PROJ line), and one in a CRS the `crs` member
+//!   names that PROJ cannot convert: the error names the position, and
+//!   PROJ's own lines appear only with `--verbose`;
 //! - a batch plan file whose settings `edit` would refuse as flags.
 
 mod common;
@@ -236,6 +238,9 @@ fn a_plan_file_with_settings_edit_refuses_is_one_line_naming_it() {
         "batch plan: {}",
         String::from_utf8_lossy(&made.stderr)
     );
+    // (`batch plan` copies the DEM to OUT and keeps the plan beside it)
+    let planned = entries(dir.path());
+    let stored = dir.path().join(".b.tif.demsketch_batch").join("plan.json");
     let good: Value = serde_json::from_slice(&std::fs::read(&plan).expect("plan")).expect("json");
     // (JSON has no NaN or infinity: any refraction a file holds is finite.)
     let cases: [(&str, Value, &str); 4] = [
@@ -253,7 +258,8 @@ fn a_plan_file_with_settings_edit_refuses_is_one_line_naming_it() {
         bad["settings"][key] = value;
         std::fs::write(&plan, serde_json::to_string_pretty(&bad).expect("json"))
             .expect("write plan");
-        let before = snapshot(&[dem.clone(), plan.clone()]);
+        let inputs = [dem.clone(), plan.clone(), out.clone(), stored.clone()];
+        let before = snapshot(&inputs);
         for args in [
             vec!["batch", "run", "--plan", &s(&plan), "--index", "0"],
             vec!["batch", "finish", "--plan", &s(&plan)],
@@ -261,11 +267,85 @@ fn a_plan_file_with_settings_edit_refuses_is_one_line_naming_it() {
             let o = demsketch(&args);
             one_line_error(&o, &args, &["plan.json", "settings", needle]);
         }
-        assert!(!out.exists(), "nothing written");
         assert_eq!(
-            snapshot(&[dem.clone(), plan.clone()]),
-            before,
-            "inputs untouched"
+            entries(dir.path()),
+            planned,
+            "nothing written beside the plan"
         );
+        assert_eq!(snapshot(&inputs), before, "DEM, plan and OUT untouched");
     }
+}
+
+#[test]
+fn proj_speaks_only_with_verbose() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let dem = fixture("vinschgau_250m_utm32n.tif");
+    let features = dir.path().join("etrs.geojson");
+    // ETRS89 (EPSG:4258) positions, a longitude PROJ refuses for UTM.
+    let fc = serde_json::json!({
+        "type": "FeatureCollection",
+        "crs": {"type": "name", "properties": {"name": "urn:ogc:def:crs:EPSG::4258"}},
+        "features": [{
+            "type": "Feature",
+            "properties": {"kind": "breakline", "id": "dyke"},
+            "geometry": {"type": "LineString", "coordinates": [
+                [1e15, 46.70, 1500.0], [10.56, 46.71, 1500.0]
+            ]}
+        }]
+    });
+    std::fs::write(&features, fc.to_string()).expect("write features");
+    let out_tif = dir.path().join("o.tif");
+    let (d, f, o) = (s(&dem), s(&features), s(&out_tif));
+    let args = ["correct", &d, "--features", &f, "--out", &o];
+    let out = demsketch(&args);
+    one_line_error(
+        &out,
+        &args,
+        &["etrs.geojson", "\"dyke\"", "(1000000000000000, 46.7)"],
+    );
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!err.contains("Invalid longitude"), "PROJ quiet: {err}");
+    let args = ["-v", "correct", &d, "--features", &f, "--out", &o];
+    let out = demsketch(&args);
+    assert_eq!(out.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.lines().any(|l| l.starts_with("demsketch: PROJ: ")),
+        "--verbose shows PROJ's lines: {err}"
+    );
+    assert!(!out_tif.exists(), "nothing written");
+}
+
+#[test]
+fn the_library_refuses_the_same_edit_options() {
+    use demsketch::edit::{EditError, EditOptions};
+    use demsketch::raster::Destination;
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = dir.path().join("o.tif");
+    type Set = fn(&mut EditOptions);
+    let cases: [(Set, &str); 6] = [
+        (|o| o.max_distance_m = Some(0.0), "max_distance_m 0"),
+        (|o| o.max_distance_m = Some(f64::NAN), "max_distance_m NaN"),
+        (
+            |o| o.max_distance_m = Some(f64::INFINITY),
+            "max_distance_m inf",
+        ),
+        (|o| o.refraction = f64::NAN, "refraction NaN"),
+        (|o| o.min_fit = -1.0, "min_fit -1"),
+        (|o| o.min_fit = f64::NAN, "min_fit NaN"),
+    ];
+    for (set, needle) in cases {
+        let mut o = EditOptions::new(Destination::Path(out.clone()));
+        o.progress = false;
+        set(&mut o);
+        match demsketch::edit::run(&fixture(ZION), &sketch(), &o) {
+            Err(e @ EditError::Options(_)) => {
+                assert!(e.is_user_error(), "{e}");
+                let m = e.to_string();
+                assert!(m.contains(needle) && !m.contains('\n'), "{m}");
+            }
+            other => panic!("{needle}: {:?}", other.map(|_| ())),
+        }
+    }
+    assert!(entries(dir.path()).is_empty(), "nothing written");
 }

@@ -185,7 +185,9 @@ impl Transform {
             )),
             Transform::LonLat(g) => g.lonlat_to_crs(x, y).map_err(|e| e.to_string()),
             Transform::Proj(p) => {
-                let r = p.convert((x, y)).map_err(|e| e.to_string())?;
+                let r = p
+                    .convert((x, y))
+                    .map_err(|e| format!("no position in the DEM's CRS for ({x}, {y}): {e}"))?;
                 if r.0.is_finite() && r.1.is_finite() {
                     Ok(r)
                 } else {
