@@ -240,7 +240,9 @@ fn a_plan_file_with_settings_edit_refuses_is_one_line_naming_it() {
     );
     // (`batch plan` copies the DEM to OUT and keeps the plan beside it)
     let planned = entries(dir.path());
-    let stored = dir.path().join(".b.tif.demsketch_batch").join("plan.json");
+    let state = dir.path().join(".b.tif.demsketch_batch");
+    let kept = entries(&state);
+    let stored = state.join("plan.json");
     let good: Value = serde_json::from_slice(&std::fs::read(&plan).expect("plan")).expect("json");
     // (JSON has no NaN or infinity: any refraction a file holds is finite.)
     let cases: [(&str, Value, &str); 4] = [
@@ -271,6 +273,11 @@ fn a_plan_file_with_settings_edit_refuses_is_one_line_naming_it() {
             entries(dir.path()),
             planned,
             "nothing written beside the plan"
+        );
+        assert_eq!(
+            entries(&state),
+            kept,
+            "nothing written into the batch's state"
         );
         assert_eq!(snapshot(&inputs), before, "DEM, plan and OUT untouched");
     }
