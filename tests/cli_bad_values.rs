@@ -10,7 +10,9 @@
 //!   "drawn in empty sky"), for `view`, `locate`, `edit` and `batch`;
 //! - a `--lon` outside [-180, 180] for `view` and `locate`, held to the
 //!   range of a sketch file's viewpoint (PROJ printed its own
-//!   `utm: Invalid longitude` line before the error);
+//!   `utm: Invalid longitude` line before the error), and an eye height
+//!   outside a sketch's (0, 10,000] m or an altitude that is not finite
+//!   (a NaN was reported as "not a valid WGS84 position");
 //! - a lon/lat GeoJSON position of `correct` outside [-180, 180] x
 //!   [-90, 90] (the same PROJ line), and one in a CRS the `crs` member
 //!   names that PROJ cannot convert: the error names the position, and
@@ -140,7 +142,7 @@ fn view_distance_and_refraction_flags_are_checked_before_any_work() {
 }
 
 #[test]
-fn a_longitude_off_the_globe_is_one_line_without_proj_talking() {
+fn a_viewpoint_off_the_globe_or_the_ground_is_one_line_without_proj_talking() {
     let dir = tempfile::tempdir().expect("tempdir");
     let dem = fixture(ZION);
     let before = snapshot(std::slice::from_ref(&dem));
@@ -161,6 +163,40 @@ fn a_longitude_off_the_globe_is_one_line_without_proj_talking() {
     }
     let args = ["view", &d, "--lon", "-112.9", "--lat", "91", "--out", &png];
     one_line_error(&demsketch(&args), &args, &["viewpoint lat 91", "[-90, 90]"]);
+    for (flag, needle) in [
+        ("--eye-height=nan", "eye height NaN"),
+        ("--eye-height=0", "eye height 0"),
+        ("--eye-height=-3", "eye height -3"),
+        ("--eye-height=20000", "eye height 20000"),
+        ("--alt=nan", "altitude NaN"),
+        ("--alt=inf", "altitude inf"),
+    ] {
+        let cases: [Vec<&str>; 2] = [
+            vec![
+                "view",
+                &d,
+                "--lon=-112.9",
+                "--lat",
+                "37.4",
+                flag,
+                "--out",
+                &png,
+            ],
+            vec![
+                "locate",
+                &d,
+                "--lon=-112.9",
+                "--lat",
+                "37.4",
+                flag,
+                "--pixel",
+                "800,450",
+            ],
+        ];
+        for args in cases {
+            one_line_error(&demsketch(&args), &args, &[needle]);
+        }
+    }
     assert!(entries(dir.path()).is_empty(), "nothing written");
     assert_eq!(
         snapshot(std::slice::from_ref(&dem)),

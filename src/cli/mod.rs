@@ -216,6 +216,27 @@ pub(crate) fn check_lonlat(lon: f64, lat: f64) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The eye's height (`--eye-height`, or a sketch view's `eye_height_m`)
+/// and altitude (`--alt`, `alt_m`), held to a sketch file's ranges: a
+/// height in (0, 10,000] m above the ground, a finite altitude. (A NaN
+/// used to come back as "lon, lat: not a valid WGS84 position".)
+pub(crate) fn check_eye(eye_height: Option<f64>, alt: Option<f64>) -> anyhow::Result<()> {
+    let max = demsketch::sketch::MAX_EYE_HEIGHT_M;
+    if let Some(h) = eye_height {
+        if !(h.is_finite() && h > 0.0 && h <= max) {
+            anyhow::bail!(
+                "viewpoint eye height {h} m is not in (0, {max}] metres above the ground (for a higher eye give --alt)"
+            );
+        }
+    }
+    if let Some(a) = alt {
+        if !a.is_finite() {
+            anyhow::bail!("viewpoint altitude {a} is not a finite number of metres");
+        }
+    }
+    Ok(())
+}
+
 /// Parse a pair of numbers written `A<sep>B` (`1600x900`, `412.5,300`) for
 /// clap, naming the flag and the part that is wrong.
 pub(crate) fn parse_pair<T: std::str::FromStr>(
