@@ -17,7 +17,10 @@
 //!   [-90, 90] (the same PROJ line), and one in a CRS the `crs` member
 //!   names that PROJ cannot convert: the error names the position, and
 //!   PROJ's own lines appear only with `--verbose`;
-//! - a batch plan file whose settings `edit` would refuse as flags.
+//! - a batch plan file whose settings `edit` would refuse as flags;
+//! - `export gltf` of an area without data (nodata throughout), which
+//!   wrote a `.glb` with empty accessors and `null` bounds that glTF
+//!   does not allow.
 
 mod common;
 
@@ -391,4 +394,45 @@ fn the_library_refuses_the_same_edit_options() {
         }
     }
     assert!(entries(dir.path()).is_empty(), "nothing written");
+}
+
+#[test]
+fn a_mesh_of_an_area_without_data_is_refused() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    // A part of the Zion fixture, every cell set to the nodata value 0.
+    let dem = dir.path().join("nodata.tif");
+    common::gdal_translate(
+        &fixture(ZION),
+        &dem,
+        &[
+            "-srcwin",
+            "150",
+            "50",
+            "40",
+            "30",
+            "-scale",
+            "0",
+            "100000",
+            "0",
+            "0",
+            "-a_nodata",
+            "0",
+        ],
+    );
+    let before = snapshot(std::slice::from_ref(&dem));
+    let glb = dir.path().join("m.glb");
+    let args = ["export", "gltf", &s(&dem), "--out", &s(&glb)];
+    let out = demsketch(&args);
+    one_line_error(
+        &out,
+        &args,
+        &["nodata.tif", "no 2 x 2 block of cells with data"],
+    );
+    assert!(!glb.exists(), "nothing written");
+    assert_eq!(entries(dir.path()), vec!["nodata.tif".to_string()]);
+    assert_eq!(
+        snapshot(std::slice::from_ref(&dem)),
+        before,
+        "DEM untouched"
+    );
 }
