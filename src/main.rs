@@ -44,6 +44,7 @@ fn main() {
     // fails), not printed (shown with --verbose); SIGINT/SIGTERM remove
     // temporary files.
     cli::install_gdal_error_handler();
+    cli::install_proj_message_handler();
     demsketch::raster::atomic_file::install_signal_cleanup();
     // Bad flags are user errors (exit 1, as DESIGN.md says), not clap's
     // default 2, which demsketch keeps for internal errors.

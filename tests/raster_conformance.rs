@@ -56,13 +56,13 @@ fn check_against_gdal(path: &Path) {
     assert_eq!(ours.data.len(), w * h);
     let nd = gnodata.map(|n| dem.sample_type.quantize(n));
     let mut mismatches = 0;
-    for i in 0..w * h {
-        let gdal_nodata = gv[i].is_nan() || nd.is_some_and(|n| gv[i] == n);
+    for (i, &g) in gv.iter().enumerate().take(w * h) {
+        let gdal_nodata = g.is_nan() || nd.is_some_and(|n| g == n);
         if gdal_nodata {
             if ours.valid[i] {
                 mismatches += 1;
             }
-        } else if !ours.valid[i] || ours.data[i].to_bits() != gv[i].to_bits() {
+        } else if !ours.valid[i] || ours.data[i].to_bits() != g.to_bits() {
             mismatches += 1;
         }
     }

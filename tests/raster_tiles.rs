@@ -190,10 +190,11 @@ fn write_back_rewrites_only_the_four_touched_tiles() {
     // Values: rounded to the UInt16 grid, through GDAL.
     let edited = Dem::open(&out).expect("open output");
     let got = edited.read_window::<f64>(win).expect("read output");
-    for i in 0..got.data.len() {
+    assert_eq!(got.data.len(), new.len());
+    for (i, &n) in new.iter().enumerate() {
         assert_eq!(got.valid[i], old.valid[i]);
         if old.valid[i] {
-            assert_eq!(got.data[i], new[i].round().clamp(0.0, 65535.0), "cell {i}");
+            assert_eq!(got.data[i], n.round().clamp(0.0, 65535.0), "cell {i}");
         }
     }
     // Outside the window nothing changed.
@@ -273,10 +274,11 @@ fn write_back_in_place_and_single_file_with_overviews() {
         );
         let again = Dem::open(path).expect("reopen");
         let got = again.read_window::<f64>(win).expect("read");
-        for i in 0..got.data.len() {
+        assert_eq!(got.data.len(), new.len());
+        for (i, &n) in new.iter().enumerate() {
             assert_eq!(got.valid[i], old.valid[i], "nodata stays nodata");
             if old.valid[i] {
-                assert_eq!(got.data[i], (new[i] as f32) as f64);
+                assert_eq!(got.data[i], (n as f32) as f64);
             }
         }
         // No temporary files left behind.

@@ -221,8 +221,8 @@ fn identity(name: &str, lon: f64, lat: f64, heading: f64) {
             );
             // And back.
             let back = view.projection.dem_to_local(crs);
-            for i in 0..3 {
-                assert!((back[i] - p.world[i]).abs() < 1e-6);
+            for (b, w) in back.iter().zip(&p.world) {
+                assert!((b - w).abs() < 1e-6);
             }
         }
     }
@@ -265,8 +265,8 @@ fn scene_projection_agrees_with_the_renderer() {
             assert!((px[0] - s.pixel[0]).abs() < 1e-3 && (px[1] - s.pixel[1]).abs() < 1e-3);
             assert!((d - s.depth).abs() < 1e-6 * s.depth.max(1.0));
             let u = proj.unproject(s.pixel, s.depth);
-            for i in 0..3 {
-                assert!((u[i] - s.local[i]).abs() < 1e-5 * s.depth.max(1.0));
+            for (a, b) in u.iter().zip(&s.local) {
+                assert!((a - b).abs() < 1e-5 * s.depth.max(1.0));
             }
             // The projection's height is the cells' two triangles; the
             // view draws the bilinear patch, up to a quarter of the cells'

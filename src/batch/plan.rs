@@ -76,6 +76,37 @@ impl BatchSettings {
         o
     }
 
+    /// The settings a plan file may hold: those `demsketch edit` accepts
+    /// for its flags (a view distance that is a positive number of metres,
+    /// a finite refraction coefficient, a `min_fit` that is a non-negative
+    /// number, a known pyramid resampling). A plan file is input like any other: a hand-edited one
+    /// with `"max_distance_m": 0` would otherwise read the whole DEM.
+    pub fn check(&self) -> Result<(), String> {
+        let d = self.max_distance_m;
+        if !(d.is_finite() && d > 0.0) {
+            return Err(format!(
+                "settings: max_distance_m {d} is not a positive number of metres"
+            ));
+        }
+        if !self.refraction.is_finite() {
+            return Err(format!(
+                "settings: refraction {} is not a finite number",
+                self.refraction
+            ));
+        }
+        if !(self.min_fit.is_finite() && self.min_fit >= 0.0) {
+            return Err(format!(
+                "settings: min_fit {} is not a non-negative number",
+                self.min_fit
+            ));
+        }
+        if let Some(r) = &self.pyramid_resampling {
+            crate::raster::pyramid::parse_resampling(r)
+                .map_err(|e| format!("settings: pyramid_resampling: {e}"))?;
+        }
+        Ok(())
+    }
+
     /// The view distance the footprints use (`None`: the whole DEM).
     pub fn max_d(&self) -> Option<f64> {
         Some(self.max_distance_m).filter(|d| d.is_finite() && *d > 0.0)
@@ -304,6 +335,7 @@ impl Plan {
                 plan.format
             )));
         }
+        plan.settings.check().map_err(bad)?;
         plan.check().map_err(bad)?;
         Ok(plan)
     }

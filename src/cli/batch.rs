@@ -82,8 +82,11 @@ pub struct EditFlags {
 }
 
 impl EditFlags {
-    fn settings(&self) -> BatchSettings {
-        BatchSettings {
+    /// The flags as the batch's settings, once `--max-distance` and
+    /// `--refraction` are checked as `edit` checks them.
+    fn settings(&self) -> anyhow::Result<BatchSettings> {
+        super::check_view_flags(Some(self.max_distance), self.refraction)?;
+        Ok(BatchSettings {
             max_distance_m: self.max_distance,
             refraction: self.refraction,
             max_lowering_iterations: self.max_lowering_iterations,
@@ -91,7 +94,7 @@ impl EditFlags {
             min_fit: self.min_fit,
             allow_partial: self.allow_partial,
             pyramid_resampling: self.pyramid_resampling.clone(),
-        }
+        })
     }
 }
 
@@ -188,7 +191,7 @@ pub fn run(args: BatchArgs) -> anyhow::Result<()> {
 
 /// Read the manifest and the DEM and plan the batch (nothing written).
 fn make_plan(dem: &Path, jobs: &Path, out: &Path, flags: &EditFlags) -> anyhow::Result<Plan> {
-    steps::make_plan(dem, jobs, out, flags.settings()).map_err(cli_err)
+    steps::make_plan(dem, jobs, out, flags.settings()?).map_err(cli_err)
 }
 
 /// Copy the DEM to OUT, the plan with it.
@@ -357,7 +360,7 @@ fn whole(args: BatchArgs) -> anyhow::Result<()> {
 
 /// `demsketch batch plan`.
 fn plan(a: PlanArgs) -> anyhow::Result<()> {
-    let plan = steps::plan_to_file(&a.dem, &a.jobs, &a.out, &a.plan, a.flags.settings())
+    let plan = steps::plan_to_file(&a.dem, &a.jobs, &a.out, &a.plan, a.flags.settings()?)
         .map_err(cli_err)?;
     if !super::quiet() {
         eprintln!(

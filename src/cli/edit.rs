@@ -170,6 +170,7 @@ pub(super) fn parse_min_fit(s: &str) -> Result<f64, String> {
 /// ([`demsketch::edit::guard`]), run the edit, then print its summary or
 /// its report.
 pub fn run(args: EditArgs) -> anyhow::Result<()> {
+    super::check_view_flags(Some(args.max_distance), args.refraction)?;
     let destination = destination_of(&args)?;
     let opts = options_of(&args, destination);
     // The lock, recovery of a killed edit and the output checks

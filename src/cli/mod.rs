@@ -68,6 +68,22 @@ pub fn install_gdal_error_handler() {
     });
 }
 
+/// PROJ's messages, like GDAL's, never reach the terminal on their own: the
+/// failing call's error is reported once, in one line naming the file; with
+/// `--verbose` they are shown, one line each.
+pub fn install_proj_message_handler() {
+    demsketch::view::route_proj_messages(|message| {
+        if verbose() {
+            use std::io::Write;
+            let _ = writeln!(
+                std::io::stderr(),
+                "demsketch: PROJ: {}",
+                message.trim_end().replace('\n', " ")
+            );
+        }
+    });
+}
+
 /// Rewrite GDAL-style `-of X` and `-co X` into the `--of` and `--co` flags
 /// clap knows (GDAL's utilities spell them with one dash).
 pub fn gdal_style_args(args: impl Iterator<Item = std::ffi::OsString>) -> Vec<std::ffi::OsString> {
@@ -165,6 +181,60 @@ pub fn print_stdout(text: &str) -> std::io::Result<()> {
     out.write_all(text.as_bytes())?;
     out.write_all(b"\n")?;
     out.flush()
+}
+
+/// `--max-distance` and `--refraction` as given: a view distance is a
+/// positive number of metres, the refraction coefficient k a finite number.
+/// Anything else is refused in one line before any work: the library reads
+/// a view distance that is not finite and positive as "no limit" (a typo
+/// such as `--max-distance 0` would read the whole DEM, and a NaN or
+/// infinite distance cannot be written into a batch's records), and a k
+/// that is not finite drops every ray of the view into empty sky.
+pub(crate) fn check_view_flags(max_distance: Option<f64>, refraction: f64) -> anyhow::Result<()> {
+    if let Some(d) = max_distance {
+        if !(d.is_finite() && d > 0.0) {
+            anyhow::bail!("--max-distance {d} must be a finite positive number of metres");
+        }
+    }
+    if !refraction.is_finite() {
+        anyhow::bail!(
+            "--refraction {refraction} must be a finite number (the coefficient k, 1/7 by default)"
+        );
+    }
+    Ok(())
+}
+
+/// A viewpoint given on the command line (`--lon`, `--lat`), held to the
+/// same ranges as a sketch file's viewpoint before PROJ sees it.
+pub(crate) fn check_lonlat(lon: f64, lat: f64) -> anyhow::Result<()> {
+    if !(lon.is_finite() && (-180.0..=180.0).contains(&lon)) {
+        anyhow::bail!("viewpoint lon {lon} is not in [-180, 180]");
+    }
+    if !(lat.is_finite() && (-90.0..=90.0).contains(&lat)) {
+        anyhow::bail!("viewpoint lat {lat} is not in [-90, 90]");
+    }
+    Ok(())
+}
+
+/// The eye's height (`--eye-height`, or a sketch view's `eye_height_m`)
+/// and altitude (`--alt`, `alt_m`), held to a sketch file's ranges: a
+/// height in (0, 10,000] m above the ground, a finite altitude. (A NaN
+/// used to come back as "lon, lat: not a valid WGS84 position".)
+pub(crate) fn check_eye(eye_height: Option<f64>, alt: Option<f64>) -> anyhow::Result<()> {
+    let max = demsketch::sketch::MAX_EYE_HEIGHT_M;
+    if let Some(h) = eye_height {
+        if !(h.is_finite() && h > 0.0 && h <= max) {
+            anyhow::bail!(
+                "viewpoint eye height {h} m is not in (0, {max}] metres above the ground (for a higher eye give --alt)"
+            );
+        }
+    }
+    if let Some(a) = alt {
+        if !a.is_finite() {
+            anyhow::bail!("viewpoint altitude {a} is not a finite number of metres");
+        }
+    }
+    Ok(())
 }
 
 /// Parse a pair of numbers written `A<sep>B` (`1600x900`, `412.5,300`) for

@@ -50,12 +50,7 @@ pub struct ServeArgs {
 }
 
 pub fn run(args: ServeArgs) -> anyhow::Result<()> {
-    if !(args.max_distance.is_finite() && args.max_distance > 0.0) {
-        anyhow::bail!(
-            "--max-distance {} must be a positive number of metres",
-            args.max_distance
-        );
-    }
+    super::check_view_flags(Some(args.max_distance), 1.0 / 7.0)?;
     if !(args.min_fit.is_finite() && args.min_fit >= 0.0) {
         anyhow::bail!("--min-fit {} is not a non-negative number", args.min_fit);
     }

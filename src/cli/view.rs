@@ -130,6 +130,9 @@ impl CameraFlags {
         let (Some(lon), Some(lat)) = (self.lon, self.lat) else {
             anyhow::bail!("give the viewpoint as --lon X --lat Y (or --sketch FILE)");
         };
+        super::check_lonlat(lon, lat)?;
+        super::check_eye(self.eye_height, self.alt)?;
+        super::check_view_flags(self.max_distance, self.refraction)?;
         let height = match (self.alt, self.eye_height) {
             (Some(a), _) => EyeHeight::Absolute(a),
             (None, h) => EyeHeight::AboveSurface(h.unwrap_or(1.7)),

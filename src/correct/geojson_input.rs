@@ -179,9 +179,15 @@ impl Transform {
     fn apply(&self, x: f64, y: f64) -> Result<(f64, f64), String> {
         match self {
             Transform::Identity => Ok((x, y)),
+            // RFC 7946 positions: longitude, latitude in degrees.
+            Transform::LonLat(_) if !(x.abs() <= 180.0 && y.abs() <= 90.0) => Err(format!(
+                "position ({x}, {y}) is not a longitude in [-180, 180] and a latitude in [-90, 90]"
+            )),
             Transform::LonLat(g) => g.lonlat_to_crs(x, y).map_err(|e| e.to_string()),
             Transform::Proj(p) => {
-                let r = p.convert((x, y)).map_err(|e| e.to_string())?;
+                let r = p
+                    .convert((x, y))
+                    .map_err(|e| format!("no position in the DEM's CRS for ({x}, {y}): {e}"))?;
                 if r.0.is_finite() && r.1.is_finite() {
                     Ok(r)
                 } else {

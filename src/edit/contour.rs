@@ -143,9 +143,12 @@ pub fn contour_constraints(
 /// stroke then looks only at the vertices over its own columns instead of
 /// projecting the whole terrain again.
 struct ProjectedVertices {
-    /// `(c, r, local point, distance, pixel)`, sorted by pixel x.
-    vertices: Vec<(usize, usize, [f64; 3], f64, [f64; 2])>,
+    /// Sorted by pixel x.
+    vertices: Vec<ProjectedVertex>,
 }
+
+/// A vertex of [`ProjectedVertices`]: `(c, r, local point, distance, pixel)`.
+type ProjectedVertex = (usize, usize, [f64; 3], f64, [f64; 2]);
 
 impl ProjectedVertices {
     fn new(view: &RenderedView, strokes: &[&StrokeCurve]) -> ProjectedVertices {
@@ -188,7 +191,7 @@ impl ProjectedVertices {
     }
 
     /// The vertices whose image x lies in `[x0, x1]`, in row-major order.
-    fn over_columns(&self, x0: f64, x1: f64) -> Vec<(usize, usize, [f64; 3], f64, [f64; 2])> {
+    fn over_columns(&self, x0: f64, x1: f64) -> Vec<ProjectedVertex> {
         let v = &self.vertices;
         let a = v.partition_point(|q| q.4[0] < x0);
         let b = v.partition_point(|q| q.4[0] <= x1);

@@ -82,6 +82,9 @@ pub enum EditError {
     },
     #[error("{path}: cannot write: {message}")]
     Write { path: String, message: String },
+    /// An option the caller gave is out of its range (nothing read).
+    #[error("edit options: {0}")]
+    Options(String),
     /// A failure of the program rather than of the input.
     #[error("internal error: {0}")]
     Internal(String),

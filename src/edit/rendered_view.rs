@@ -79,11 +79,11 @@ impl StrokeRegion {
             }
             let first = x0.floor().max(0.0) as usize;
             let end = (x1.ceil().max(0.0) as usize).min(width);
-            for i in first..end {
+            for (i, rows) in stroke_rows.iter_mut().enumerate().take(end).skip(first) {
                 let x = (i as f64 + 0.5).clamp(x0, x1);
                 if let Some(y) = s.stroke.y_at(x) {
                     put(x, y);
-                    stroke_rows[i].push(y as f32);
+                    rows.push(y as f32);
                 }
             }
         }

@@ -1450,6 +1450,10 @@ impl Surface {
     }
 }
 
+/// What [`place_on_end_surface`] gives: per pixel, the world point and its
+/// depth; and whether both ends stood on terrain.
+pub type EndSurfacePlacement = (Vec<([f64; 3], f64)>, bool);
+
 /// Where a whole stroke of `pixels` goes when it is placed as Gain et al.
 /// (2009, section 3.1) place a silhouette stroke: on the vertical surface
 /// through the terrain points under its two end pixels (the first terrain
@@ -1464,7 +1468,7 @@ pub fn place_on_end_surface(
     proj: &SceneProjection,
     pixels: &[[f64; 2]],
     observer_radius_m: f64,
-) -> Option<(Vec<([f64; 3], f64)>, bool)> {
+) -> Option<EndSurfacePlacement> {
     let bound = |px: [f64; 2]| {
         let (local, depth) = ground_under_end(before, px)?;
         (depth > observer_radius_m).then_some(Bound {

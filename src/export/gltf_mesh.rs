@@ -124,6 +124,16 @@ pub fn export_gltf(
         }
     }
     let indices = triangles(&index, nc, nr);
+    if indices.is_empty() {
+        // (glTF has no empty accessor: every count is at least 1, and the
+        // positions' min and max would be infinite)
+        return Err(ExportError::Input {
+            path: dem_path.display().to_string(),
+            message: format!(
+                "the area has no 2 x 2 block of cells with data at --step {step}: no mesh to write"
+            ),
+        });
+    }
     let normals = vertex_normals(&positions, &indices);
     let mesh = Mesh {
         positions,

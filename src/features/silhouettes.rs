@@ -385,6 +385,13 @@ fn column_depths(db: &DepthBuffer, x0: usize, x1: usize) -> Vec<(f32, f32)> {
     out
 }
 
+/// The candidates [`column_samples`] takes from an earlier extraction
+/// instead of refining them ([`Reuse::Candidates`]), when there is one.
+type Taking<'a> = Option<(
+    &'a ColumnSamples,
+    &'a (dyn Fn(usize, usize, f32) -> bool + Sync),
+)>;
+
 /// Candidates and refined samples of one image column (those `taking`
 /// names taken from the earlier extraction instead, see
 /// [`Reuse::Candidates`]), and whether its refinement stayed within
@@ -397,7 +404,7 @@ fn column_samples(
     x: usize,
     col: &[(f32, f32)],
     wanted: &(dyn Fn(usize, usize, f32) -> bool + Sync),
-    taking: Option<(&ColumnSamples, &(dyn Fn(usize, usize, f32) -> bool + Sync))>,
+    taking: Taking<'_>,
 ) -> Column {
     let h = db.height;
     let mut out = Vec::new();

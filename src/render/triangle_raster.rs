@@ -629,6 +629,9 @@ impl<'a> BoxProjector<'a> {
         let m = self.m;
         // corner j + 4 l: column c[j & 1], row r[j >> 1], height [lo, hi][l]
         let mut corners = [[0.0; 3]; 8];
+        // (k is the axis: it indexes the corners' coordinates and the
+        // matrix's rows in step)
+        #[allow(clippy::needless_range_loop)]
         for k in 0..3 {
             let zg = [lo as f64 * m.gz[k], hi as f64 * m.gz[k]];
             for j in 0..4 {
@@ -847,8 +850,7 @@ fn render_strip(
             drawn1 = drawn1.max((bx1 - ctx.x0) as usize + 1);
         }
         // Only those columns can have changed (a block draws inside its box).
-        for k in drawn0..drawn1 {
-            let yt = &mut ytop[k];
+        for (k, yt) in ytop.iter_mut().enumerate().take(drawn1).skip(drawn0) {
             while *yt > 0 && cols.id(k, *yt as usize - 1) != SKY {
                 *yt -= 1;
             }

@@ -476,6 +476,9 @@ fn cost_integrals(cpoints: &[CandidatePoint], hfp: &[f64], hf: &[f64]) -> CostIn
     }
 }
 
+/// A point [`extend`] adds: ((pixel, depth), world).
+type ExtendedPoint = (([f64; 2], f64), [f64; 3]);
+
 /// Extends a feature from its end `end` (with `prev` the point before it)
 /// until its projection reaches pixel column `target`. Returns the added
 /// points, from the end outwards, as ((pixel, depth), world).
@@ -486,7 +489,7 @@ fn extend(
     end_pd: ([f64; 2], f64),
     target: f64,
     step_px: f64,
-) -> Vec<(([f64; 2], f64), [f64; 3])> {
+) -> Vec<ExtendedPoint> {
     let x_end = end_pd.0[0];
     let dir = sub(end, prev);
     let dlen = crate::sketch::projection::norm(dir);

@@ -96,11 +96,11 @@ pub fn place_with_depths(
     // Interior gaps: interpolate depth.
     for w in known.windows(2) {
         let (a, b) = (w[0], w[1]);
-        for i in a + 1..b {
+        for (i, slot) in out.iter_mut().enumerate().take(b).skip(a + 1) {
             let t = (i - a) as f64 / (b - a) as f64;
             let d = depths[a].unwrap_or(1.0) * (1.0 - t) + depths[b].unwrap_or(1.0) * t;
             let px = stroke.points[i];
-            out[i] = Some(PlacedPoint {
+            *slot = Some(PlacedPoint {
                 pixel: Some(px),
                 world: proj.unproject(px, d),
                 depth: d,
@@ -131,8 +131,8 @@ pub fn place_with_depths(
     if last + 1 < n {
         let anchor = out[last].unwrap_or_else(unreachable_point);
         let inner = out[last.saturating_sub(1).max(first)].unwrap_or(anchor);
-        for i in last + 1..n {
-            out[i] = Some(follow(&anchor, &inner, stroke.points[i]));
+        for (slot, &px) in out.iter_mut().zip(&stroke.points).skip(last + 1) {
+            *slot = Some(follow(&anchor, &inner, px));
         }
     }
     out.into_iter().flatten().collect()

@@ -78,6 +78,45 @@ thread_local! {
         const { std::cell::RefCell::new(Vec::new()) };
 }
 
+/// Where PROJ's own messages go ([`route_proj_messages`]).
+static PROJ_ECHO: std::sync::OnceLock<fn(&str)> = std::sync::OnceLock::new();
+
+extern "C" fn proj_message(
+    _app_data: *mut std::os::raw::c_void,
+    _level: std::os::raw::c_int,
+    message: *const std::os::raw::c_char,
+) {
+    if message.is_null() {
+        return;
+    }
+    // SAFETY: PROJ passes a NUL-terminated string that lives for the call.
+    let text = unsafe { std::ffi::CStr::from_ptr(message) }.to_string_lossy();
+    if let Some(echo) = PROJ_ECHO.get() {
+        // Never unwind into PROJ's C code.
+        let _ = std::panic::catch_unwind(|| echo(&text));
+    }
+}
+
+/// Send PROJ's own messages (`utm: Invalid longitude`, printed on stderr
+/// by default beside the one-line error the failing call comes back with)
+/// to `echo` instead; the first call decides `echo`. PROJ gives every
+/// context it creates afterwards a copy of its default context's logger
+/// (`proj_context_create`), so this is called once, before any
+/// transformation is made (the command line does it at start, as it does
+/// for GDAL's messages).
+pub fn route_proj_messages(echo: fn(&str)) {
+    let _ = PROJ_ECHO.set(echo);
+    // SAFETY: a null context is PROJ's default context; the function
+    // pointer is 'static and takes what PROJ_LOG_FUNCTION says.
+    unsafe {
+        proj_sys::proj_log_func(
+            std::ptr::null_mut(),
+            std::ptr::null_mut(),
+            Some(proj_message),
+        );
+    }
+}
+
 /// The transformation from WGS84 lon/lat to the CRS `def`, made once per
 /// thread and CRS: opening PROJ's database and searching it for the
 /// operation costs a few milliseconds, which a batch of edits (or of views)

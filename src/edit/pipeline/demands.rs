@@ -333,14 +333,14 @@ fn stretch_pieces(points: &[[f64; 3]], depths: &[f64], anchored: &[bool]) -> Vec
         let lo = if a > 0 && joined(a - 1, a) { a - 1 } else { a };
         let hi = if b < n && joined(b - 1, b) { b } else { b - 1 };
         let mut piece: Vec<usize> = Vec::new();
-        for k in lo..=hi {
+        for (k, p) in points.iter().enumerate().take(hi + 1).skip(lo) {
             if k > lo && !joined(k - 1, k) {
                 if piece.len() >= 2 {
                     out.push(std::mem::take(&mut piece));
                 }
                 piece.clear();
             }
-            if finite(&points[k]) {
+            if finite(p) {
                 piece.push(k);
             }
         }

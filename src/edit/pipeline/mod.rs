@@ -177,6 +177,7 @@ pub fn run(
     opts: &EditOptions,
 ) -> Result<EditReport, EditError> {
     // (the outputs' directories before the DEM, as always)
+    check_view_options(opts)?;
     check_output_paths(opts)?;
     run_opened(Dem::open(dem_path)?, dem_path, sketch_path, opts)
 }
@@ -230,6 +231,7 @@ pub fn run_opened(
         return rayon::join(|| run_opened(dem, dem_path, sketch_path, opts), || ()).0;
     }
     let t_all = Instant::now();
+    check_view_options(opts)?;
     check_output_paths(opts)?;
     let first = run_within(
         dem,

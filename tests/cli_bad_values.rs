@@ -1,0 +1,438 @@
+//! Values from the user or a file that the commands used to take silently
+//! or report in two lines, each refused now with exit code 1, one line on
+//! stderr naming the flag or the file and the problem, no output created
+//! and the inputs untouched:
+//!
+//! - `--max-distance` that is not a positive finite number of metres (the
+//!   library reads such a distance as "no limit": `0` read the whole DEM,
+//!   and a batch could not record a NaN or infinite one), and a
+//!   `--refraction` that is not finite (every ray then missed the terrain:
+//!   "drawn in empty sky"), for `view`, `locate`, `edit` and `batch`;
+//! - a `--lon` outside [-180, 180] for `view` and `locate`, held to the
+//!   range of a sketch file's viewpoint (PROJ printed its own
+//!   `utm: Invalid longitude` line before the error), and an eye height
+//!   outside a sketch's (0, 10,000] m or an altitude that is not finite
+//!   (a NaN was reported as "not a valid WGS84 position");
+//! - a lon/lat GeoJSON position of `correct` outside [-180, 180] x
+//!   [-90, 90] (the same PROJ line), and one in a CRS the `crs` member
+//!   names that PROJ cannot convert: the error names the position, and
+//!   PROJ's own lines appear only with `--verbose`;
+//! - a batch plan file whose settings `edit` would refuse as flags;
+//! - `export gltf` of an area without data (nodata throughout), which
+//!   wrote a `.glb` with empty accessors and `null` bounds that glTF
+//!   does not allow.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+
+use common::{demsketch, fixture};
+use serde_json::Value;
+
+const ZION: &str = "zion_srtm_utm12n.tif";
+
+fn s(p: &Path) -> String {
+    p.to_string_lossy().into_owned()
+}
+
+fn sketch() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/sketches/zion_dome.json")
+}
+
+/// Exit code 1, exactly one line on stderr, naming every `needles`.
+fn one_line_error(out: &std::process::Output, args: &[&str], needles: &[&str]) {
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{args:?}: exit 1: {err}");
+    assert_eq!(
+        err.trim_end().lines().count(),
+        1,
+        "{args:?}: one line: {err}"
+    );
+    for n in needles {
+        assert!(err.contains(n), "{args:?}: names {n}: {err}");
+    }
+}
+
+/// The bytes of the inputs a test must leave untouched.
+fn snapshot(paths: &[PathBuf]) -> Vec<Vec<u8>> {
+    paths
+        .iter()
+        .map(|p| std::fs::read(p).expect("input readable"))
+        .collect()
+}
+
+fn entries(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dir)
+        .expect("dir")
+        .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
+        .collect();
+    v.sort();
+    v
+}
+
+#[test]
+fn view_distance_and_refraction_flags_are_checked_before_any_work() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let dem = fixture(ZION);
+    let (d, k) = (s(&dem), s(&sketch()));
+    let inputs = [dem.clone(), sketch()];
+    let before = snapshot(&inputs);
+    let png = s(&dir.path().join("v.png"));
+    let tif = s(&dir.path().join("o.tif"));
+    let jobs = dir.path().join("jobs.txt");
+    std::fs::write(&jobs, format!("{k}\n")).expect("write manifest");
+    let jobs = s(&jobs);
+    let bout = s(&dir.path().join("b.tif"));
+    let plan = s(&dir.path().join("plan.json"));
+    let view = |flag: &'static str| -> Vec<String> {
+        let v = [
+            "view", &d, "--lon", "-112.9", "--lat", "37.4", "--out", &png, flag,
+        ];
+        v.iter().map(|x| x.to_string()).collect()
+    };
+    let locate = |flag: &'static str| -> Vec<String> {
+        let v = [
+            "locate", &d, "--lon", "-112.9", "--lat", "37.4", "--pixel", "800,450", flag,
+        ];
+        v.iter().map(|x| x.to_string()).collect()
+    };
+    let edit = |flag: &'static str| -> Vec<String> {
+        let v = ["edit", &d, "--sketch", &k, "--out", &tif, flag];
+        v.iter().map(|x| x.to_string()).collect()
+    };
+    let batch = |flag: &'static str| -> Vec<String> {
+        let v = ["batch", &d, "--jobs", &jobs, "--out", &bout, flag];
+        v.iter().map(|x| x.to_string()).collect()
+    };
+    let batch_plan = |flag: &'static str| -> Vec<String> {
+        let v = [
+            "batch", "plan", &d, "--jobs", &jobs, "--out", &bout, "--plan", &plan, flag,
+        ];
+        v.iter().map(|x| x.to_string()).collect()
+    };
+    let mut cases: Vec<(Vec<String>, &str)> = Vec::new();
+    for command in [
+        &view as &dyn Fn(&'static str) -> Vec<String>,
+        &locate,
+        &edit,
+        &batch,
+        &batch_plan,
+    ] {
+        for flag in [
+            "--max-distance=0",
+            "--max-distance=-5",
+            "--max-distance=nan",
+            "--max-distance=inf",
+        ] {
+            cases.push((command(flag), "--max-distance"));
+        }
+        for flag in ["--refraction=nan", "--refraction=inf", "--refraction=-inf"] {
+            cases.push((command(flag), "--refraction"));
+        }
+    }
+    for (args, needle) in &cases {
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        let out = demsketch(&args);
+        one_line_error(&out, &args, &[needle]);
+        assert!(out.stdout.is_empty(), "{args:?}: nothing on stdout");
+    }
+    assert_eq!(
+        entries(dir.path()),
+        vec!["jobs.txt".to_string()],
+        "nothing written"
+    );
+    assert_eq!(snapshot(&inputs), before, "inputs untouched");
+}
+
+#[test]
+fn a_viewpoint_off_the_globe_or_the_ground_is_one_line_without_proj_talking() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let dem = fixture(ZION);
+    let before = snapshot(std::slice::from_ref(&dem));
+    let d = s(&dem);
+    let png = s(&dir.path().join("v.png"));
+    for lon in ["1e15", "200", "nan"] {
+        let lon_flag = format!("--lon={lon}");
+        let cases: [Vec<&str>; 2] = [
+            vec!["view", &d, &lon_flag, "--lat", "37.4", "--out", &png],
+            vec![
+                "locate", &d, &lon_flag, "--lat", "37.4", "--pixel", "800,450",
+            ],
+        ];
+        for args in cases {
+            let out = demsketch(&args);
+            one_line_error(&out, &args, &["viewpoint lon", "[-180, 180]"]);
+        }
+    }
+    let args = ["view", &d, "--lon", "-112.9", "--lat", "91", "--out", &png];
+    one_line_error(&demsketch(&args), &args, &["viewpoint lat 91", "[-90, 90]"]);
+    for (flag, needle) in [
+        ("--eye-height=nan", "eye height NaN"),
+        ("--eye-height=0", "eye height 0"),
+        ("--eye-height=-3", "eye height -3"),
+        ("--eye-height=20000", "eye height 20000"),
+        ("--alt=nan", "altitude NaN"),
+        ("--alt=inf", "altitude inf"),
+    ] {
+        let cases: [Vec<&str>; 2] = [
+            vec![
+                "view",
+                &d,
+                "--lon=-112.9",
+                "--lat",
+                "37.4",
+                flag,
+                "--out",
+                &png,
+            ],
+            vec![
+                "locate",
+                &d,
+                "--lon=-112.9",
+                "--lat",
+                "37.4",
+                flag,
+                "--pixel",
+                "800,450",
+            ],
+        ];
+        for args in cases {
+            one_line_error(&demsketch(&args), &args, &[needle]);
+        }
+    }
+    assert!(entries(dir.path()).is_empty(), "nothing written");
+    assert_eq!(
+        snapshot(std::slice::from_ref(&dem)),
+        before,
+        "DEM untouched"
+    );
+}
+
+#[test]
+fn a_geojson_position_off_the_globe_names_the_file_and_the_feature() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let dem = fixture("vinschgau_250m_utm32n.tif");
+    let features = dir.path().join("bad.geojson");
+    for (i, lon) in [1e15, -1e300, 190.0].into_iter().enumerate() {
+        let fc = serde_json::json!({
+            "type": "FeatureCollection",
+            "features": [{
+                "type": "Feature",
+                "properties": {"kind": "breakline", "id": "dyke"},
+                "geometry": {"type": "LineString", "coordinates": [
+                    [10.55, 46.70, 1500.0], [lon, 46.71, 1500.0]
+                ]}
+            }]
+        });
+        std::fs::write(&features, fc.to_string()).expect("write features");
+        let inputs = [dem.clone(), features.clone()];
+        let before = snapshot(&inputs);
+        let out_tif = dir.path().join(format!("o{i}.tif"));
+        let args = [
+            "correct",
+            &s(&dem),
+            "--features",
+            &s(&features),
+            "--out",
+            &s(&out_tif),
+        ];
+        let out = demsketch(&args);
+        one_line_error(
+            &out,
+            &args,
+            &[
+                "bad.geojson",
+                "\"dyke\"",
+                "is not a longitude in [-180, 180]",
+            ],
+        );
+        assert!(!out_tif.exists(), "nothing written");
+        assert_eq!(snapshot(&inputs), before, "inputs untouched");
+    }
+    assert_eq!(entries(dir.path()), vec!["bad.geojson".to_string()]);
+}
+
+#[test]
+fn a_plan_file_with_settings_edit_refuses_is_one_line_naming_it() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let dem = fixture(ZION);
+    let jobs = dir.path().join("jobs.txt");
+    std::fs::write(&jobs, format!("{}\n", s(&sketch()))).expect("write manifest");
+    let out = dir.path().join("b.tif");
+    let plan = dir.path().join("plan.json");
+    let made = demsketch(&[
+        "batch",
+        "plan",
+        &s(&dem),
+        "--jobs",
+        &s(&jobs),
+        "--out",
+        &s(&out),
+        "--plan",
+        &s(&plan),
+        "-q",
+    ]);
+    assert!(
+        made.status.success(),
+        "batch plan: {}",
+        String::from_utf8_lossy(&made.stderr)
+    );
+    // (`batch plan` copies the DEM to OUT and keeps the plan beside it)
+    let planned = entries(dir.path());
+    let state = dir.path().join(".b.tif.demsketch_batch");
+    let kept = entries(&state);
+    let stored = state.join("plan.json");
+    let good: Value = serde_json::from_slice(&std::fs::read(&plan).expect("plan")).expect("json");
+    // (JSON has no NaN or infinity: any refraction a file holds is finite.)
+    let cases: [(&str, Value, &str); 4] = [
+        ("max_distance_m", Value::from(0.0), "max_distance_m 0"),
+        (
+            "max_distance_m",
+            Value::from(-1000.0),
+            "max_distance_m -1000",
+        ),
+        ("min_fit", Value::from(-0.5), "min_fit -0.5"),
+        ("pyramid_resampling", Value::from("sharpest"), "sharpest"),
+    ];
+    for (key, value, needle) in cases {
+        let mut bad = good.clone();
+        bad["settings"][key] = value;
+        std::fs::write(&plan, serde_json::to_string_pretty(&bad).expect("json"))
+            .expect("write plan");
+        let inputs = [dem.clone(), plan.clone(), out.clone(), stored.clone()];
+        let before = snapshot(&inputs);
+        for args in [
+            vec!["batch", "run", "--plan", &s(&plan), "--index", "0"],
+            vec!["batch", "finish", "--plan", &s(&plan)],
+        ] {
+            let o = demsketch(&args);
+            one_line_error(&o, &args, &["plan.json", "settings", needle]);
+        }
+        assert_eq!(
+            entries(dir.path()),
+            planned,
+            "nothing written beside the plan"
+        );
+        assert_eq!(
+            entries(&state),
+            kept,
+            "nothing written into the batch's state"
+        );
+        assert_eq!(snapshot(&inputs), before, "DEM, plan and OUT untouched");
+    }
+}
+
+#[test]
+fn proj_speaks_only_with_verbose() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let dem = fixture("vinschgau_250m_utm32n.tif");
+    let features = dir.path().join("etrs.geojson");
+    // ETRS89 (EPSG:4258) positions, a longitude PROJ refuses for UTM.
+    let fc = serde_json::json!({
+        "type": "FeatureCollection",
+        "crs": {"type": "name", "properties": {"name": "urn:ogc:def:crs:EPSG::4258"}},
+        "features": [{
+            "type": "Feature",
+            "properties": {"kind": "breakline", "id": "dyke"},
+            "geometry": {"type": "LineString", "coordinates": [
+                [1e15, 46.70, 1500.0], [10.56, 46.71, 1500.0]
+            ]}
+        }]
+    });
+    std::fs::write(&features, fc.to_string()).expect("write features");
+    let out_tif = dir.path().join("o.tif");
+    let (d, f, o) = (s(&dem), s(&features), s(&out_tif));
+    let args = ["correct", &d, "--features", &f, "--out", &o];
+    let out = demsketch(&args);
+    one_line_error(
+        &out,
+        &args,
+        &["etrs.geojson", "\"dyke\"", "(1000000000000000, 46.7)"],
+    );
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!err.contains("Invalid longitude"), "PROJ quiet: {err}");
+    let args = ["-v", "correct", &d, "--features", &f, "--out", &o];
+    let out = demsketch(&args);
+    assert_eq!(out.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.lines().any(|l| l.starts_with("demsketch: PROJ: ")),
+        "--verbose shows PROJ's lines: {err}"
+    );
+    assert!(!out_tif.exists(), "nothing written");
+}
+
+#[test]
+fn the_library_refuses_the_same_edit_options() {
+    use demsketch::edit::{EditError, EditOptions};
+    use demsketch::raster::Destination;
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = dir.path().join("o.tif");
+    type Set = fn(&mut EditOptions);
+    let cases: [(Set, &str); 6] = [
+        (|o| o.max_distance_m = Some(0.0), "max_distance_m 0"),
+        (|o| o.max_distance_m = Some(f64::NAN), "max_distance_m NaN"),
+        (
+            |o| o.max_distance_m = Some(f64::INFINITY),
+            "max_distance_m inf",
+        ),
+        (|o| o.refraction = f64::NAN, "refraction NaN"),
+        (|o| o.min_fit = -1.0, "min_fit -1"),
+        (|o| o.min_fit = f64::NAN, "min_fit NaN"),
+    ];
+    for (set, needle) in cases {
+        let mut o = EditOptions::new(Destination::Path(out.clone()));
+        o.progress = false;
+        set(&mut o);
+        match demsketch::edit::run(&fixture(ZION), &sketch(), &o) {
+            Err(e @ EditError::Options(_)) => {
+                assert!(e.is_user_error(), "{e}");
+                let m = e.to_string();
+                assert!(m.contains(needle) && !m.contains('\n'), "{m}");
+            }
+            other => panic!("{needle}: {:?}", other.map(|_| ())),
+        }
+    }
+    assert!(entries(dir.path()).is_empty(), "nothing written");
+}
+
+#[test]
+fn a_mesh_of_an_area_without_data_is_refused() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    // A part of the Zion fixture, every cell set to the nodata value 0.
+    let dem = dir.path().join("nodata.tif");
+    common::gdal_translate(
+        &fixture(ZION),
+        &dem,
+        &[
+            "-srcwin",
+            "150",
+            "50",
+            "40",
+            "30",
+            "-scale",
+            "0",
+            "100000",
+            "0",
+            "0",
+            "-a_nodata",
+            "0",
+        ],
+    );
+    let before = snapshot(std::slice::from_ref(&dem));
+    let glb = dir.path().join("m.glb");
+    let args = ["export", "gltf", &s(&dem), "--out", &s(&glb)];
+    let out = demsketch(&args);
+    one_line_error(
+        &out,
+        &args,
+        &["nodata.tif", "no 2 x 2 block of cells with data"],
+    );
+    assert!(!glb.exists(), "nothing written");
+    assert_eq!(entries(dir.path()), vec!["nodata.tif".to_string()]);
+    assert_eq!(
+        snapshot(std::slice::from_ref(&dem)),
+        before,
+        "DEM untouched"
+    );
+}
