@@ -515,7 +515,14 @@ fn an_eye_below_the_ground_is_refused_by_view_and_locate_as_by_edit() {
         ("--lon=1e308", "viewpoint lon 1e308 is not in [-180, 180]"),
         ("--max-distance=-1e308", "--max-distance -1e308 must be"),
     ] {
-        let args = ["locate", &d, "--lon=-112.9", "--lat=37.4", flag, "--pixel=8,8"];
+        let args = [
+            "locate",
+            &d,
+            "--lon=-112.9",
+            "--lat=37.4",
+            flag,
+            "--pixel=8,8",
+        ];
         let args: Vec<&str> = if flag.starts_with("--lon") {
             args.into_iter().filter(|a| *a != "--lon=-112.9").collect()
         } else {
@@ -588,7 +595,11 @@ fn every_sketch_number_is_held_to_its_range() {
             "\"lon\": 1e308",
             "views[0].viewpoint.lon 1e308 is not in [-180, 180]",
         ),
-        ("\"lat\": 37.40", "\"lat\": -91", "views[0].viewpoint.lat -91"),
+        (
+            "\"lat\": 37.40",
+            "\"lat\": -91",
+            "views[0].viewpoint.lat -91",
+        ),
         (
             "[930.0, 257.0]",
             "[1e300, 257.0]",
@@ -597,7 +608,7 @@ fn every_sketch_number_is_held_to_its_range() {
         (
             dome,
             "\"id\": \"dome\", \"depth_m\": 1e12,",
-            "views[0].strokes[0].depth_m 1e12..1e12 is not a distance in (0, 1e6] metres",
+            "views[0].strokes[0].depth_m 1e12..1e12 is not a distance in (0, 1000000] metres",
         ),
         (
             dome,
@@ -617,14 +628,18 @@ fn every_sketch_number_is_held_to_its_range() {
         (
             opt,
             "\"weights\": {\"sampling\": 1e300}",
-            "options.weights.sampling 1e300 is not in [0, 1e6]",
+            "options.weights.sampling 1e300 is not in [0, 1000000]",
         ),
         (
             opt,
             "\"resample_px\": 1e-300",
             "options.resample_px 1e-300 is not in [0.1, 65535] pixels",
         ),
-        (opt, "\"t_junction_px\": 1e300", "options.t_junction_px 1e300"),
+        (
+            opt,
+            "\"t_junction_px\": 1e300",
+            "options.t_junction_px 1e300",
+        ),
         (
             opt,
             "\"completion_step_m\": 1e-300",

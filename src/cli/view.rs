@@ -362,11 +362,11 @@ fn resolve_view(args: &ViewArgs) -> anyhow::Result<ResolvedView> {
     r.strokes = v.strokes.iter().map(|s| s.points.clone()).collect();
     r.view_index = view_index;
     if f.alt.is_none() {
-        let name = v.name.clone().unwrap_or_else(|| (view_index + 1).to_string());
-        r.alt_label = format!(
-            "{}: view \"{name}\": viewpoint alt_m",
-            path.display()
-        );
+        let name = v
+            .name
+            .clone()
+            .unwrap_or_else(|| (view_index + 1).to_string());
+        r.alt_label = format!("{}: view \"{name}\": viewpoint alt_m", path.display());
     }
     Ok(r)
 }

@@ -46,7 +46,8 @@ pub struct ViewRequest {
 
 /// The camera of `spec`, refused when its image is too large.
 pub fn camera_of(spec: &CameraSpec) -> Result<Camera, ServeError> {
-    spec.check_ranges("camera").map_err(ServeError::BadRequest)?;
+    spec.check_ranges("camera")
+        .map_err(ServeError::BadRequest)?;
     if spec.width == 0
         || spec.height == 0
         || spec.width > MAX_SIDE_PX

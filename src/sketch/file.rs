@@ -563,13 +563,7 @@ impl CameraSpec {
 
 /// `{path} {v} is not in {range}{unit}` unless `ok(v)` (NaN and infinities
 /// fail every range); `v` is printed compactly ([`Num`]).
-fn check_range(
-    path: &str,
-    v: f64,
-    ok: bool,
-    range: &str,
-    unit: &str,
-) -> Result<(), String> {
+fn check_range(path: &str, v: f64, ok: bool, range: &str, unit: &str) -> Result<(), String> {
     if v.is_finite() && ok {
         Ok(())
     } else {
@@ -592,9 +586,7 @@ fn validate_viewpoint(v: &ViewpointSpec, at: &str) -> Result<(), String> {
     check_closed(&format!("{at}.lon"), v.lon, -180.0, 180.0, "")?;
     check_closed(&format!("{at}.lat"), v.lat, -90.0, 90.0, "")?;
     if v.eye_height_m.is_some() && v.alt_m.is_some() {
-        return Err(format!(
-            "{at} gives both eye_height_m and alt_m; give one"
-        ));
+        return Err(format!("{at} gives both eye_height_m and alt_m; give one"));
     }
     if let Some(h) = v.eye_height_m {
         check_range(
@@ -619,8 +611,20 @@ fn validate_camera(c: &CameraSpec, at: &str) -> Result<(), String> {
         360.0,
         " degrees",
     )?;
-    check_closed(&format!("{at}.pitch_deg"), c.pitch_deg, -90.0, 90.0, " degrees")?;
-    check_closed(&format!("{at}.roll_deg"), c.roll_deg, -180.0, 180.0, " degrees")?;
+    check_closed(
+        &format!("{at}.pitch_deg"),
+        c.pitch_deg,
+        -90.0,
+        90.0,
+        " degrees",
+    )?;
+    check_closed(
+        &format!("{at}.roll_deg"),
+        c.roll_deg,
+        -180.0,
+        180.0,
+        " degrees",
+    )?;
     check_range(
         &format!("{at}.hfov_deg"),
         c.hfov_deg,
