@@ -38,6 +38,7 @@ pub mod deform;
 pub mod edit;
 pub mod export;
 pub mod features;
+pub mod num;
 pub mod raster;
 pub mod render;
 pub mod serve;

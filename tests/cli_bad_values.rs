@@ -436,3 +436,276 @@ fn a_mesh_of_an_area_without_data_is_refused() {
         "DEM untouched"
     );
 }
+
+/// The zion_dome sketch with `from` replaced by `to`, written into `dir`.
+fn sketch_with(dir: &Path, name: &str, from: &str, to: &str) -> PathBuf {
+    let text = std::fs::read_to_string(sketch()).expect("read sketch");
+    assert!(text.contains(from), "{from} in the sketch");
+    let p = dir.join(name);
+    std::fs::write(&p, text.replacen(from, to, 1)).expect("write sketch");
+    p
+}
+
+/// An absolute eye at or below the ground at the viewpoint (the surface
+/// the renderer draws there), which `edit` refuses, is refused by `view`
+/// and `locate` too, in the edit's words, naming `--alt` or the sketch
+/// view's `alt_m`; an altitude outside a sketch's [-11,000, 20,000] m is
+/// refused before the DEM is read, printed compactly.
+#[test]
+fn an_eye_below_the_ground_is_refused_by_view_and_locate_as_by_edit() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let work = tempfile::tempdir().expect("tempdir");
+    let dem = fixture(ZION);
+    let below = sketch_with(
+        work.path(),
+        "below.json",
+        "\"eye_height_m\": 1.7",
+        "\"alt_m\": 10.0",
+    );
+    let inputs = [dem.clone(), below.clone()];
+    let before = snapshot(&inputs);
+    let (d, b) = (s(&dem), s(&below));
+    let png = s(&dir.path().join("v.png"));
+    let tif = s(&dir.path().join("o.tif"));
+    let flags = ["--lon=-112.9", "--lat=37.4", "--alt=10"];
+    let view: Vec<&str> = ["view", &d]
+        .into_iter()
+        .chain(flags)
+        .chain(["--out", &png])
+        .collect();
+    let locate: Vec<&str> = ["locate", &d]
+        .into_iter()
+        .chain(flags)
+        .chain(["--pixel", "800,450"])
+        .collect();
+    for args in [&view, &locate] {
+        one_line_error(
+            &demsketch(args),
+            args,
+            &[
+                "viewpoint --alt 10 is not above the ground (",
+                "m) at the viewpoint",
+            ],
+        );
+    }
+    let from_sketch = ["view", &d, "--sketch", &b, "--out", &png];
+    let edit = ["edit", &d, "--sketch", &b, "--out", &tif];
+    for args in [&from_sketch[..], &edit[..]] {
+        one_line_error(
+            &demsketch(args),
+            args,
+            &[
+                "below.json",
+                "view \"kolob-south\": viewpoint alt_m 10 is not above the ground (",
+                "m) at the viewpoint",
+            ],
+        );
+    }
+    for (alt, needle) in [
+        (
+            "--alt=1e308",
+            "viewpoint altitude 1e308 is not in [-11000, 20000] metres",
+        ),
+        ("--alt=-20000", "viewpoint altitude -20000 is not in"),
+    ] {
+        let args = ["view", &d, "--lon=-112.9", "--lat=37.4", alt, "--out", &png];
+        one_line_error(&demsketch(&args), &args, &[needle]);
+    }
+    for (flag, needle) in [
+        ("--lon=1e308", "viewpoint lon 1e308 is not in [-180, 180]"),
+        ("--max-distance=-1e308", "--max-distance -1e308 must be"),
+    ] {
+        let args = [
+            "locate",
+            &d,
+            "--lon=-112.9",
+            "--lat=37.4",
+            flag,
+            "--pixel=8,8",
+        ];
+        let args: Vec<&str> = if flag.starts_with("--lon") {
+            args.into_iter().filter(|a| *a != "--lon=-112.9").collect()
+        } else {
+            args.to_vec()
+        };
+        one_line_error(&demsketch(&args), &args, &[needle]);
+    }
+    assert!(entries(dir.path()).is_empty(), "nothing written");
+    assert_eq!(snapshot(&inputs), before, "inputs untouched");
+}
+
+/// Every number of the sketch format is held to its documented range at
+/// parse time; the message names the file, the view and the field's path
+/// (`views[0].camera.heading_deg`), and prints an absurd value compactly.
+#[test]
+fn every_sketch_number_is_held_to_its_range() {
+    use demsketch::sketch::SketchFile;
+    let text = std::fs::read_to_string(sketch()).expect("read sketch");
+    assert!(SketchFile::from_json_str(&text, "s.json").is_ok());
+    let opt = "\"influence_m\": 1500.0";
+    let dome = "\"id\": \"dome\",";
+    let cases: [(&str, &str, &str); 21] = [
+        (
+            "\"heading_deg\": 200.0",
+            "\"heading_deg\": 1e300",
+            "views[0].camera.heading_deg 1e300 is not in [-360, 360] degrees",
+        ),
+        (
+            "\"heading_deg\": 200.0",
+            "\"heading_deg\": -361",
+            "views[0].camera.heading_deg -361",
+        ),
+        (
+            "\"pitch_deg\": -1.0",
+            "\"pitch_deg\": 91",
+            "views[0].camera.pitch_deg 91 is not in [-90, 90]",
+        ),
+        (
+            "\"roll_deg\": 0.0",
+            "\"roll_deg\": 1e12",
+            "views[0].camera.roll_deg 1e12 is not in [-180, 180]",
+        ),
+        (
+            "\"hfov_deg\": 35.0",
+            "\"hfov_deg\": 180",
+            "views[0].camera.hfov_deg 180 is not in (0, 180)",
+        ),
+        (
+            "\"width\": 1200",
+            "\"width\": 70000",
+            "views[0].camera.width 70000 is not in [1, 65535]",
+        ),
+        (
+            "\"height\": 600",
+            "\"height\": 0",
+            "views[0].camera.height 0 is not in [1, 65535]",
+        ),
+        (
+            "\"eye_height_m\": 1.7",
+            "\"eye_height_m\": 1e300",
+            "views[0].viewpoint.eye_height_m 1e300 is not in (0, 10000]",
+        ),
+        (
+            "\"eye_height_m\": 1.7",
+            "\"alt_m\": 1e300",
+            "views[0].viewpoint.alt_m 1e300 is not in [-11000, 20000] metres",
+        ),
+        (
+            "\"lon\": -112.90",
+            "\"lon\": 1e308",
+            "views[0].viewpoint.lon 1e308 is not in [-180, 180]",
+        ),
+        (
+            "\"lat\": 37.40",
+            "\"lat\": -91",
+            "views[0].viewpoint.lat -91",
+        ),
+        (
+            "[930.0, 257.0]",
+            "[1e300, 257.0]",
+            "(1e300, 257) lies outside the 1200x600 image",
+        ),
+        (
+            dome,
+            "\"id\": \"dome\", \"depth_m\": 1e12,",
+            "views[0].strokes[0].depth_m 1e12..1e12 is not a distance in (0, 1000000] metres",
+        ),
+        (
+            dome,
+            "\"id\": \"dome\", \"depth_m\": [3000, 2000],",
+            "views[0].strokes[0].depth_m 3000..2000",
+        ),
+        (
+            opt,
+            "\"influence_m\": 1e300",
+            "options.influence_m 1e300 is not in (0, 50000] metres",
+        ),
+        (
+            opt,
+            "\"observer_radius_m\": 1e300",
+            "options.observer_radius_m 1e300",
+        ),
+        (
+            opt,
+            "\"weights\": {\"sampling\": 1e300}",
+            "options.weights.sampling 1e300 is not in [0, 1000000]",
+        ),
+        (
+            opt,
+            "\"resample_px\": 1e-300",
+            "options.resample_px 1e-300 is not in [0.1, 65535] pixels",
+        ),
+        (
+            opt,
+            "\"t_junction_px\": 1e300",
+            "options.t_junction_px 1e300",
+        ),
+        (
+            opt,
+            "\"completion_step_m\": 1e-300",
+            "options.completion_step_m 1e-300 is not in [0.1, 100000] metres",
+        ),
+        (
+            opt,
+            "\"fallback_depth_ratio\": 1e300",
+            "options.fallback_depth_ratio 1e300 is not in (1, 100]",
+        ),
+    ];
+    for (from, to, needle) in cases {
+        assert!(text.contains(from), "{from}");
+        let bad = text.replacen(from, to, 1);
+        let m = match SketchFile::from_json_str(&bad, "s.json") {
+            Err(e) => e.to_string(),
+            Ok(_) => panic!("{to}: accepted"),
+        };
+        assert!(m.starts_with("s.json: "), "{m}");
+        assert!(m.contains(needle), "{to}: names {needle}: {m}");
+        assert!(m.len() < 250 && !m.contains('\n'), "{to}: compact: {m}");
+    }
+    for more in [
+        "\"completion_max_m\": 1e300",
+        "\"fold_back_tolerance_px\": -1",
+        "\"min_coverage\": 0",
+        "\"max_candidates\": 0",
+        "\"node_budget\": 0",
+    ] {
+        let field = more.split('"').nth(1).expect("field");
+        let bad = text.replacen(opt, more, 1);
+        let m = SketchFile::from_json_str(&bad, "s.json")
+            .expect_err(more)
+            .to_string();
+        assert!(m.contains(&format!("options.{field}")), "{m}");
+    }
+}
+
+/// `edit` refuses an absurd sketch number in one line naming the field,
+/// writing nothing (the number printed compactly, not in 301 digits).
+#[test]
+fn edit_names_the_field_of_an_absurd_sketch_number() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let work = tempfile::tempdir().expect("tempdir");
+    let dem = fixture(ZION);
+    let bad = sketch_with(
+        work.path(),
+        "far.json",
+        "\"heading_deg\": 200.0",
+        "\"heading_deg\": 1e300",
+    );
+    let inputs = [dem.clone(), bad.clone()];
+    let before = snapshot(&inputs);
+    let tif = s(&dir.path().join("o.tif"));
+    let (d, b) = (s(&dem), s(&bad));
+    let args = ["edit", &d, "--sketch", &b, "--out", &tif];
+    let out = demsketch(&args);
+    one_line_error(
+        &out,
+        &args,
+        &[
+            "far.json",
+            "views[0].camera.heading_deg 1e300 is not in [-360, 360]",
+        ],
+    );
+    assert!(String::from_utf8_lossy(&out.stderr).len() < 300);
+    assert!(entries(dir.path()).is_empty(), "nothing written");
+    assert_eq!(snapshot(&inputs), before, "inputs untouched");
+}

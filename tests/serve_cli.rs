@@ -196,6 +196,29 @@ fn get(server: &Server, path: &str) -> (u32, Vec<u8>) {
     (status, body)
 }
 
+/// `POST path` with a JSON body: status and body (HTTP/1.1, one request).
+fn post(server: &Server, path: &str, body: &str) -> (u32, String) {
+    use std::io::{Read, Write};
+    let mut s = std::net::TcpStream::connect(&server.addr).expect("connect");
+    write!(
+        s,
+        "POST {path} HTTP/1.1\r\nHost: {}\r\nContent-Type: application/json\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}",
+        server.addr,
+        body.len()
+    )
+    .expect("send");
+    let mut raw = Vec::new();
+    s.read_to_end(&mut raw).expect("read");
+    let text = String::from_utf8_lossy(&raw).to_string();
+    let status = text
+        .split_whitespace()
+        .nth(1)
+        .and_then(|s| s.parse().ok())
+        .expect("status");
+    let body = text.split("\r\n\r\n").nth(1).unwrap_or("").to_string();
+    (status, body)
+}
+
 /// RGBA pixels of a PNG.
 fn decode_rgba(png_bytes: &[u8]) -> (usize, usize, Vec<u8>) {
     let mut reader = png::Decoder::new(std::io::Cursor::new(png_bytes))
@@ -278,4 +301,42 @@ fn large_underlay_opens_fast_through_its_overviews() {
     let mean = diff as f64 / (3 * both.max(1)) as f64;
     eprintln!("{w} x {h}: mean channel difference {mean:.2} over {both} pixels");
     assert!(mean < 6.0, "mean channel difference {mean:.2}");
+}
+
+/// A view or locate request whose absolute eye (`alt_m`) is at or below
+/// the ground at the viewpoint is answered 422 with the edit's one-line
+/// message, and an absurd camera number 400 naming the field; the server
+/// goes on answering.
+#[test]
+fn an_eye_below_the_ground_is_a_4xx_and_the_server_goes_on() {
+    let dem = fixture("zion_srtm_utm12n.tif");
+    let (server, _) = serve(&[dem.to_str().expect("utf-8")]);
+    let req = |viewpoint: &str, heading: &str, pixel: &str| {
+        format!(
+            r#"{{"viewpoint": {viewpoint}, "camera": {{"heading_deg": {heading}, "hfov_deg": 40, "width": 320, "height": 180}}{pixel}}}"#
+        )
+    };
+    let below = r#"{"lon": -112.9, "lat": 37.4, "alt_m": 10}"#;
+    for (path, pixel) in [
+        ("/api/render", ""),
+        ("/api/locate", r#", "pixel": [160, 90]"#),
+    ] {
+        let (status, body) = post(&server, path, &req(below, "200", pixel));
+        assert_eq!(status, 422, "{path}: {body}");
+        assert!(
+            body.contains("viewpoint alt_m 10 is not above the ground (")
+                && body.contains("m) at the viewpoint")
+                && !body.contains('\n'),
+            "{path}: {body}"
+        );
+    }
+    let above = r#"{"lon": -112.9, "lat": 37.4, "eye_height_m": 1.7}"#;
+    let (status, body) = post(&server, "/api/render", &req(above, "1e300", ""));
+    assert_eq!(status, 400, "{body}");
+    assert!(
+        body.contains("camera.heading_deg 1e300 is not in [-360, 360]"),
+        "{body}"
+    );
+    let (status, _) = post(&server, "/api/render", &req(above, "200", ""));
+    assert_eq!(status, 200, "the server goes on");
 }

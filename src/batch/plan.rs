@@ -85,7 +85,8 @@ impl BatchSettings {
         let d = self.max_distance_m;
         if !(d.is_finite() && d > 0.0) {
             return Err(format!(
-                "settings: max_distance_m {d} is not a positive number of metres"
+                "settings: max_distance_m {} is not a positive number of metres",
+                crate::num::Num(d)
             ));
         }
         if !self.refraction.is_finite() {
@@ -97,7 +98,7 @@ impl BatchSettings {
         if !(self.min_fit.is_finite() && self.min_fit >= 0.0) {
             return Err(format!(
                 "settings: min_fit {} is not a non-negative number",
-                self.min_fit
+                crate::num::Num(self.min_fit)
             ));
         }
         if let Some(r) = &self.pyramid_resampling {

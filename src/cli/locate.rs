@@ -36,6 +36,7 @@ pub fn run(args: LocateArgs) -> anyhow::Result<()> {
         args.camera.max_distance,
         args.camera.refraction,
     )?;
+    view.check_above_ground(scene.frame.ground)?;
     match locate(&scene.terrain, &view.camera, &scene.georef, x, y)? {
         Some(loc) => {
             super::print_stdout(&serde_json::to_string(&loc)?)?;

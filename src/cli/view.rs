@@ -122,6 +122,17 @@ pub struct ResolvedView {
     /// The view's index in the sketch file (0 without one): silhouette
     /// feature ids carry it, as in an edit's report.
     pub view_index: usize,
+    /// What gave an absolute eye, for the message that refuses one below
+    /// the ground: `viewpoint --alt`, or the sketch view's `alt_m`.
+    pub alt_label: String,
+}
+
+impl ResolvedView {
+    /// Refuses an absolute eye at or below the ground the renderer draws
+    /// at the viewpoint, as `edit` does.
+    pub fn check_above_ground(&self, ground: f64) -> anyhow::Result<()> {
+        super::check_above_ground(&self.alt_label, self.viewpoint.height, ground)
+    }
 }
 
 impl CameraFlags {
@@ -151,6 +162,7 @@ impl CameraFlags {
             camera,
             strokes: Vec::new(),
             view_index: 0,
+            alt_label: "viewpoint --alt".into(),
         })
     }
 }
@@ -349,6 +361,13 @@ fn resolve_view(args: &ViewArgs) -> anyhow::Result<ResolvedView> {
     let mut r = flags.resolve()?;
     r.strokes = v.strokes.iter().map(|s| s.points.clone()).collect();
     r.view_index = view_index;
+    if f.alt.is_none() {
+        let name = v
+            .name
+            .clone()
+            .unwrap_or_else(|| (view_index + 1).to_string());
+        r.alt_label = format!("{}: view \"{name}\": viewpoint alt_m", path.display());
+    }
     Ok(r)
 }
 
@@ -433,6 +452,7 @@ pub fn run(args: ViewArgs) -> anyhow::Result<()> {
     // apart, reading the DEM in bands outward from the eye
     // ([`viewshed_from_file`]), so that --viewshed changes none of them.
     let scene = open_scene(&args, &dem, &view)?;
+    view.check_above_ground(scene.frame.ground)?;
     super::timing("load", t_all.elapsed().as_secs_f64());
     let t = Instant::now();
     let overlays = overlays_of(&args, &view);

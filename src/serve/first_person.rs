@@ -46,6 +46,8 @@ pub struct ViewRequest {
 
 /// The camera of `spec`, refused when its image is too large.
 pub fn camera_of(spec: &CameraSpec) -> Result<Camera, ServeError> {
+    spec.check_ranges("camera")
+        .map_err(ServeError::BadRequest)?;
     if spec.width == 0
         || spec.height == 0
         || spec.width > MAX_SIDE_PX
@@ -104,6 +106,8 @@ impl AppState {
                 "viewpoint: lon/lat must be numbers".into(),
             ));
         }
+        vp.check_ranges("viewpoint")
+            .map_err(ServeError::BadRequest)?;
         let height = match vp.height() {
             crate::sketch::EyeHeightSpec::AboveSurface(h) => EyeHeight::AboveSurface(h),
             crate::sketch::EyeHeightSpec::Absolute(a) => EyeHeight::Absolute(a),
@@ -120,6 +124,11 @@ impl AppState {
             self.config.refraction,
         )
         .map_err(|e| ServeError::Unprocessable(e.to_string()))?;
+        if let Some(problem) =
+            crate::view::below_ground_problem("viewpoint alt_m", height, scene.frame.ground)
+        {
+            return Err(ServeError::Unprocessable(problem));
+        }
         let Scene {
             window,
             window_offset,

@@ -26,6 +26,7 @@
 //! # }
 //! ```
 
+use crate::num::Num;
 use serde::{Deserialize, Serialize};
 use std::collections::HashSet;
 use std::path::Path;
@@ -235,6 +236,31 @@ pub const MAX_EYE_HEIGHT_M: f64 = 10_000.0;
 pub const MAX_INFLUENCE_M: f64 = 50_000.0;
 /// Largest `observer_radius_m` accepted, metres.
 pub const MAX_OBSERVER_RADIUS_M: f64 = 10_000.0;
+/// Lowest `alt_m` accepted, metres: below the deepest point of the Earth's
+/// surface (-10,935 m).
+pub const MIN_ALT_M: f64 = -11_000.0;
+/// Highest `alt_m` accepted, metres: above the highest ground (8,849 m)
+/// plus the highest eye height ([`MAX_EYE_HEIGHT_M`]).
+pub const MAX_ALT_M: f64 = 20_000.0;
+/// Largest image side (`width`, `height`) accepted, pixels: what the
+/// camera model takes ([`crate::view::Camera::new`]).
+pub const MAX_IMAGE_SIDE_PX: u32 = 65_535;
+/// Largest `depth_m` accepted, metres: no terrain seen from an eye at most
+/// [`MAX_ALT_M`] high lies farther (the eye's horizon, about 505 km, plus
+/// the highest ground's, about 336 km).
+pub const MAX_DEPTH_M: f64 = 1_000_000.0;
+/// Largest cost weight accepted (the paper uses 1 for all; the weights
+/// only matter relative to each other).
+pub const MAX_WEIGHT: f64 = 1e6;
+/// Finest `resample_px` accepted, pixels: strokes are drawn to a pixel, a
+/// finer step adds samples, not shape.
+pub const MIN_RESAMPLE_PX: f64 = 0.1;
+/// Largest `fallback_depth_ratio` accepted.
+pub const MAX_FALLBACK_DEPTH_RATIO: f64 = 100.0;
+/// Finest `completion_step_m` accepted, metres.
+pub const MIN_COMPLETION_STEP_M: f64 = 0.1;
+/// Largest `completion_step_m` and `completion_max_m` accepted, metres.
+pub const MAX_COMPLETION_M: f64 = 100_000.0;
 
 /// Weights w1..w4 of the four matching cost terms (section 5.2.1); the paper
 /// uses 1 for all.
@@ -437,8 +463,11 @@ impl SketchFile {
             if !names.insert(view.name.as_str()) {
                 return Err(err(vloc, "view name is used twice".into()));
             }
-            validate_viewpoint(&view.viewpoint).map_err(|p| err(vloc.clone(), p))?;
-            validate_camera(&view.camera).map_err(|p| err(vloc.clone(), p))?;
+            let at = format!("views[{vi}]");
+            validate_viewpoint(&view.viewpoint, &format!("{at}.viewpoint"))
+                .map_err(|p| err(vloc.clone(), p))?;
+            validate_camera(&view.camera, &format!("{at}.camera"))
+                .map_err(|p| err(vloc.clone(), p))?;
             let (w, h) = (view.camera.width as f64, view.camera.height as f64);
             let mut ids = HashSet::new();
             for (si, stroke) in view.strokes.iter().enumerate() {
@@ -468,18 +497,25 @@ impl SketchFile {
                             ploc,
                             format!(
                                 "({}, {}) lies outside the {}x{} image",
-                                p[0], p[1], view.camera.width, view.camera.height
+                                Num(p[0]),
+                                Num(p[1]),
+                                view.camera.width,
+                                view.camera.height
                             ),
                         ));
                     }
                 }
                 if let Some(d) = stroke.depth_m {
                     let [near, far] = d.range();
-                    if !(near.is_finite() && far.is_finite() && near > 0.0 && far >= near) {
+                    let ok = |v: f64| v.is_finite() && v > 0.0 && v <= MAX_DEPTH_M;
+                    if !(ok(near) && ok(far) && far >= near) {
                         return Err(err(
                             sloc,
                             format!(
-                                "depth_m {near}..{far} is not a positive distance (or a [near, far] range with near <= far)"
+                                "views[{vi}].strokes[{si}].depth_m {}..{} is not a distance in (0, {}] metres (or a [near, far] range of them with near <= far)",
+                                Num(near),
+                                Num(far),
+                                Num(MAX_DEPTH_M)
                             ),
                         ));
                     }
@@ -509,77 +545,121 @@ fn strip_position(msg: &str) -> String {
     }
 }
 
-fn validate_viewpoint(v: &ViewpointSpec) -> Result<(), String> {
-    if !v.lon.is_finite() || !(-180.0..=180.0).contains(&v.lon) {
-        return Err(format!("viewpoint lon {} is not in [-180, 180]", v.lon));
+impl ViewpointSpec {
+    /// The sketch format's ranges (lon, lat, `eye_height_m`, `alt_m`; one
+    /// of the last two): the problem, naming the field as `at.FIELD`.
+    pub fn check_ranges(&self, at: &str) -> Result<(), String> {
+        validate_viewpoint(self, at)
     }
-    if !v.lat.is_finite() || !(-90.0..=90.0).contains(&v.lat) {
-        return Err(format!("viewpoint lat {} is not in [-90, 90]", v.lat));
+}
+
+impl CameraSpec {
+    /// The sketch format's ranges (heading, pitch, roll, field of view,
+    /// image size): the problem, naming the field as `at.FIELD`.
+    pub fn check_ranges(&self, at: &str) -> Result<(), String> {
+        validate_camera(self, at)
     }
+}
+
+/// `{path} {v} is not in {range}{unit}` unless `ok(v)` (NaN and infinities
+/// fail every range); `v` is printed compactly ([`Num`]).
+fn check_range(path: &str, v: f64, ok: bool, range: &str, unit: &str) -> Result<(), String> {
+    if v.is_finite() && ok {
+        Ok(())
+    } else {
+        Err(format!("{path} {} is not in {range}{unit}", Num(v)))
+    }
+}
+
+/// `v` within the closed range `[lo, hi]`, named `path`.
+fn check_closed(path: &str, v: f64, lo: f64, hi: f64, unit: &str) -> Result<(), String> {
+    check_range(
+        path,
+        v,
+        (lo..=hi).contains(&v),
+        &format!("[{}, {}]", Num(lo), Num(hi)),
+        unit,
+    )
+}
+
+fn validate_viewpoint(v: &ViewpointSpec, at: &str) -> Result<(), String> {
+    check_closed(&format!("{at}.lon"), v.lon, -180.0, 180.0, "")?;
+    check_closed(&format!("{at}.lat"), v.lat, -90.0, 90.0, "")?;
     if v.eye_height_m.is_some() && v.alt_m.is_some() {
-        return Err("viewpoint gives both eye_height_m and alt_m; give one".into());
+        return Err(format!("{at} gives both eye_height_m and alt_m; give one"));
     }
     if let Some(h) = v.eye_height_m {
-        if !h.is_finite() {
-            return Err("viewpoint eye_height_m is not a finite number".into());
-        }
-        if !(h > 0.0 && h <= MAX_EYE_HEIGHT_M) {
-            return Err(format!(
-                "viewpoint eye_height_m {h} is not in (0, {MAX_EYE_HEIGHT_M}] metres above the ground (for a higher eye give alt_m)"
-            ));
-        }
+        check_range(
+            &format!("{at}.eye_height_m"),
+            h,
+            h > 0.0 && h <= MAX_EYE_HEIGHT_M,
+            &format!("(0, {}]", Num(MAX_EYE_HEIGHT_M)),
+            " metres above the ground (for a higher eye give alt_m)",
+        )?;
     }
     if let Some(a) = v.alt_m {
-        if !a.is_finite() {
-            return Err("viewpoint alt_m is not a finite number".into());
-        }
+        check_closed(&format!("{at}.alt_m"), a, MIN_ALT_M, MAX_ALT_M, " metres")?;
     }
     Ok(())
 }
 
-fn validate_camera(c: &CameraSpec) -> Result<(), String> {
-    for (name, v) in [
-        ("heading_deg", c.heading_deg),
-        ("pitch_deg", c.pitch_deg),
-        ("roll_deg", c.roll_deg),
-        ("hfov_deg", c.hfov_deg),
-    ] {
-        if !v.is_finite() {
-            return Err(format!("camera {name} is not a finite number"));
+fn validate_camera(c: &CameraSpec, at: &str) -> Result<(), String> {
+    check_closed(
+        &format!("{at}.heading_deg"),
+        c.heading_deg,
+        -360.0,
+        360.0,
+        " degrees",
+    )?;
+    check_closed(
+        &format!("{at}.pitch_deg"),
+        c.pitch_deg,
+        -90.0,
+        90.0,
+        " degrees",
+    )?;
+    check_closed(
+        &format!("{at}.roll_deg"),
+        c.roll_deg,
+        -180.0,
+        180.0,
+        " degrees",
+    )?;
+    check_range(
+        &format!("{at}.hfov_deg"),
+        c.hfov_deg,
+        c.hfov_deg > 0.0 && c.hfov_deg < 180.0,
+        "(0, 180)",
+        " degrees",
+    )?;
+    for (name, n) in [("width", c.width), ("height", c.height)] {
+        if !(1..=MAX_IMAGE_SIDE_PX).contains(&n) {
+            return Err(format!(
+                "{at}.{name} {n} is not in [1, {MAX_IMAGE_SIDE_PX}] pixels"
+            ));
         }
-    }
-    if !(c.hfov_deg > 0.0 && c.hfov_deg < 180.0) {
-        return Err(format!("camera hfov_deg {} is not in (0, 180)", c.hfov_deg));
-    }
-    if !(-90.0..=90.0).contains(&c.pitch_deg) {
-        return Err(format!(
-            "camera pitch_deg {} is not in [-90, 90]",
-            c.pitch_deg
-        ));
-    }
-    if c.width == 0 || c.height == 0 {
-        return Err(format!("camera size {}x{} is empty", c.width, c.height));
     }
     Ok(())
 }
 
 fn validate_options(o: &SketchOptions) -> Result<(), String> {
     if let Some(r) = o.influence_m {
-        if !(r.is_finite() && r > 0.0) {
-            return Err(format!("influence_m {r} is not a positive number"));
-        }
-        if r > MAX_INFLUENCE_M {
-            return Err(format!(
-                "influence_m {r} exceeds the maximum of {MAX_INFLUENCE_M} m"
-            ));
-        }
+        check_range(
+            "options.influence_m",
+            r,
+            r > 0.0 && r <= MAX_INFLUENCE_M,
+            &format!("(0, {}]", Num(MAX_INFLUENCE_M)),
+            " metres",
+        )?;
     }
     if let Some(r) = o.observer_radius_m {
-        if !(r.is_finite() && (0.0..=MAX_OBSERVER_RADIUS_M).contains(&r)) {
-            return Err(format!(
-                "observer_radius_m {r} is not in [0, {MAX_OBSERVER_RADIUS_M}] metres"
-            ));
-        }
+        check_closed(
+            "options.observer_radius_m",
+            r,
+            0.0,
+            MAX_OBSERVER_RADIUS_M,
+            " metres",
+        )?;
     }
     let w = &o.weights;
     for (name, v) in [
@@ -588,38 +668,64 @@ fn validate_options(o: &SketchOptions) -> Result<(), String> {
         ("sampling", w.sampling),
         ("extension", w.extension),
     ] {
-        if !(v.is_finite() && v >= 0.0) {
-            return Err(format!("weight {name} = {v} is not a non-negative number"));
-        }
+        check_closed(&format!("options.weights.{name}"), v, 0.0, MAX_WEIGHT, "")?;
     }
-    for (name, v) in [
-        ("t_junction_px", o.t_junction_px),
-        ("resample_px", o.resample_px),
-        ("fallback_depth_ratio", o.fallback_depth_ratio),
-        ("completion_step_m", o.completion_step_m),
-    ] {
-        if !(v.is_finite() && v > 0.0) {
-            return Err(format!("{name} = {v} is not a positive number"));
-        }
-    }
-    if !(o.fold_back_tolerance_px.is_finite() && o.fold_back_tolerance_px >= 0.0) {
-        return Err("fold_back_tolerance_px is not a non-negative number".into());
-    }
-    if !(o.completion_max_m.is_finite() && o.completion_max_m >= 0.0) {
-        return Err("completion_max_m is not a non-negative number".into());
-    }
-    if !(o.min_coverage > 0.0 && o.min_coverage <= 1.0) {
-        return Err(format!("min_coverage {} is not in (0, 1]", o.min_coverage));
-    }
+    let side = MAX_IMAGE_SIDE_PX as f64;
+    check_range(
+        "options.t_junction_px",
+        o.t_junction_px,
+        o.t_junction_px > 0.0 && o.t_junction_px <= side,
+        &format!("(0, {}]", Num(side)),
+        " pixels",
+    )?;
+    check_closed(
+        "options.resample_px",
+        o.resample_px,
+        MIN_RESAMPLE_PX,
+        side,
+        " pixels",
+    )?;
+    check_closed(
+        "options.fold_back_tolerance_px",
+        o.fold_back_tolerance_px,
+        0.0,
+        side,
+        " pixels",
+    )?;
+    check_range(
+        "options.min_coverage",
+        o.min_coverage,
+        o.min_coverage > 0.0 && o.min_coverage <= 1.0,
+        "(0, 1]",
+        "",
+    )?;
     if o.max_candidates == 0 {
-        return Err("max_candidates must be at least 1".into());
+        return Err("options.max_candidates must be at least 1".into());
     }
     if o.node_budget == 0 {
-        return Err("node_budget must be at least 1".into());
+        return Err("options.node_budget must be at least 1".into());
     }
-    if o.fallback_depth_ratio <= 1.0 {
-        return Err("fallback_depth_ratio must be greater than 1".into());
-    }
+    check_range(
+        "options.fallback_depth_ratio",
+        o.fallback_depth_ratio,
+        o.fallback_depth_ratio > 1.0 && o.fallback_depth_ratio <= MAX_FALLBACK_DEPTH_RATIO,
+        &format!("(1, {}]", Num(MAX_FALLBACK_DEPTH_RATIO)),
+        "",
+    )?;
+    check_closed(
+        "options.completion_step_m",
+        o.completion_step_m,
+        MIN_COMPLETION_STEP_M,
+        MAX_COMPLETION_M,
+        " metres",
+    )?;
+    check_closed(
+        "options.completion_max_m",
+        o.completion_max_m,
+        0.0,
+        MAX_COMPLETION_M,
+        " metres",
+    )?;
     Ok(())
 }
 

@@ -17,7 +17,9 @@ mod viewpoint;
 pub(crate) use camera::{cross, dot};
 pub use camera::{Camera, CameraModel};
 pub use curvature::Curvature;
-pub use viewpoint::{route_proj_messages, EyeHeight, Georef, LocalFrame, Viewpoint};
+pub use viewpoint::{
+    below_ground_problem, route_proj_messages, EyeHeight, Georef, LocalFrame, Viewpoint,
+};
 
 /// Errors of resolving a viewpoint or camera against a DEM. Messages are one
 /// line naming the DEM or viewpoint and the problem.

@@ -328,6 +328,22 @@ impl Georef {
     }
 }
 
+/// The problem with an absolute eye (`height`: `alt_m`, `--alt`) at or
+/// below `ground`, the surface the renderer draws at the viewpoint
+/// ([`LocalFrame::ground`]), as `edit`, `view`, `locate` and `serve`
+/// refuse it: `"{what} {alt} is not above the ground ({ground} m) at the
+/// viewpoint"`. `None` for an eye above the ground or given as a height
+/// above it.
+pub fn below_ground_problem(what: &str, height: EyeHeight, ground: f64) -> Option<String> {
+    match height {
+        EyeHeight::Absolute(a) if a <= ground => Some(format!(
+            "{what} {} is not above the ground ({ground:.2} m) at the viewpoint",
+            crate::num::Num(a)
+        )),
+        _ => None,
+    }
+}
+
 /// An absolute eye (`alt_m`) is at least this far above the surface the
 /// renderer draws, metres.
 pub const MIN_EYE_CLEARANCE_M: f64 = 0.5;

@@ -58,16 +58,13 @@ pub(super) fn load_views(
             edit.exact_cells,
         )
         .map_err(view_err)?;
-        if let EyeHeightSpec::Absolute(a) = v.viewpoint.height() {
-            if a <= scene.frame.ground {
-                return Err(EditError::Unusable {
-                    sketch: sketch_name.clone(),
-                    message: format!(
-                        "view \"{}\": viewpoint alt_m {a} is not above the ground ({:.2} m) at the viewpoint",
-                        v.name, scene.frame.ground
-                    ),
-                });
-            }
+        if let Some(problem) =
+            crate::view::below_ground_problem("viewpoint alt_m", vp.height, scene.frame.ground)
+        {
+            return Err(EditError::Unusable {
+                sketch: sketch_name.clone(),
+                message: format!("view \"{}\": {problem}", v.name),
+            });
         }
         let eye_ground = eye_ground(
             &dem,

@@ -83,8 +83,8 @@ use crate::features::{detect_ridges, RidgeNetwork, RidgeParams};
 use crate::raster::{Dem, Destination, HeightMap, Window, WriteOptions};
 use crate::render::{FarLayers, Scene};
 use crate::sketch::{
-    match_sketch, EyeHeightSpec, PointSource, SceneProjection, SceneView, SketchFile, SketchMatch,
-    SketchOptions, Stroke, ViewFeatureOptions, ViewInput, ViewSpec,
+    match_sketch, PointSource, SceneProjection, SceneView, SketchFile, SketchMatch, SketchOptions,
+    Stroke, ViewFeatureOptions, ViewInput, ViewSpec,
 };
 use crate::view::{Camera, LocalFrame};
 

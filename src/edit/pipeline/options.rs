@@ -132,7 +132,8 @@ pub(super) fn check_view_options(opts: &EditOptions) -> Result<(), EditError> {
     if let Some(d) = opts.max_distance_m {
         if !(d.is_finite() && d > 0.0) {
             return Err(EditError::Options(format!(
-                "max_distance_m {d} must be a finite positive number of metres (None: the whole DEM)"
+                "max_distance_m {} must be a finite positive number of metres (None: the whole DEM)",
+                crate::num::Num(d)
             )));
         }
     }
@@ -145,7 +146,7 @@ pub(super) fn check_view_options(opts: &EditOptions) -> Result<(), EditError> {
     if !(opts.min_fit.is_finite() && opts.min_fit >= 0.0) {
         return Err(EditError::Options(format!(
             "min_fit {} must be a non-negative number",
-            opts.min_fit
+            crate::num::Num(opts.min_fit)
         )));
     }
     Ok(())
