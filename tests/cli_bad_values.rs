@@ -709,3 +709,43 @@ fn edit_names_the_field_of_an_absurd_sketch_number() {
     assert!(entries(dir.path()).is_empty(), "nothing written");
     assert_eq!(snapshot(&inputs), before, "inputs untouched");
 }
+
+/// `view --sketch` holds the sketch's camera to the same ranges as `edit`
+/// (it reads only the fields it needs, leniently, but not absurd ones):
+/// exit 1, one line naming the file and the field's path, nothing written.
+#[test]
+fn view_holds_a_sketch_camera_to_the_edit_ranges() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let work = tempfile::tempdir().expect("tempdir");
+    let dem = fixture(ZION);
+    let d = s(&dem);
+    let png = s(&dir.path().join("v.png"));
+    for (name, from, to, needle) in [
+        (
+            "heading.json",
+            "\"heading_deg\": 200.0",
+            "\"heading_deg\": 1e300",
+            "views[0].camera.heading_deg 1e300 is not in [-360, 360] degrees",
+        ),
+        (
+            "roll.json",
+            "\"roll_deg\": 0.0",
+            "\"roll_deg\": 1e12",
+            "views[0].camera.roll_deg 1e12 is not in [-180, 180]",
+        ),
+        (
+            "width.json",
+            "\"width\": 1200",
+            "\"width\": 70000",
+            "views[0].camera.width 70000 is not in [1, 65535]",
+        ),
+    ] {
+        let bad = sketch_with(work.path(), name, from, to);
+        let before = snapshot(std::slice::from_ref(&bad));
+        let b = s(&bad);
+        let args = ["view", &d, "--sketch", &b, "--out", &png];
+        one_line_error(&demsketch(&args), &args, &[name, needle]);
+        assert_eq!(snapshot(&[bad]), before, "sketch untouched");
+    }
+    assert!(entries(dir.path()).is_empty(), "nothing written");
+}

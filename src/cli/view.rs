@@ -21,6 +21,7 @@ use demsketch::render::{
     depth_for_file, draw_polyline, eye_frame, shade, viewshed_exact, viewshed_from_file,
     visible_polylines, write_png, DepthBuffer, Scene, ShadeOptions, DEPTH_NODATA,
 };
+use demsketch::sketch::CameraSpec;
 use demsketch::view::{Camera, EyeHeight, Viewpoint};
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
@@ -107,6 +108,24 @@ struct SketchCamera {
     hfov_deg: Option<f64>,
     width: Option<usize>,
     height: Option<usize>,
+}
+
+impl SketchCamera {
+    /// Holds the fields the sketch gives to the sketch format's ranges
+    /// ([`CameraSpec::check_ranges`], as `edit` reads them), naming the
+    /// field as `at.FIELD`; a field the sketch leaves out is not checked.
+    fn check_ranges(&self, at: &str) -> Result<(), String> {
+        let side = |n: Option<usize>| n.map(|n| u32::try_from(n).unwrap_or(u32::MAX));
+        let spec = CameraSpec {
+            heading_deg: self.heading_deg.unwrap_or(0.0),
+            pitch_deg: self.pitch_deg.unwrap_or(0.0),
+            roll_deg: self.roll_deg.unwrap_or(0.0),
+            hfov_deg: self.hfov_deg.unwrap_or(60.0),
+            width: side(self.width).unwrap_or(1),
+            height: side(self.height).unwrap_or(1),
+        };
+        spec.check_ranges(at)
+    }
 }
 
 #[derive(Deserialize, Debug, Clone)]
@@ -336,6 +355,9 @@ fn resolve_view(args: &ViewArgs) -> anyhow::Result<ResolvedView> {
         None => 0,
     };
     let v = &file.views[view_index];
+    v.camera
+        .check_ranges(&format!("views[{view_index}].camera"))
+        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
     let f = &args.camera;
     let mut flags = CameraFlags {
         lon: f.lon.or(Some(v.viewpoint.lon)),
