@@ -184,30 +184,6 @@ pub fn print_stdout(text: &str) -> std::io::Result<()> {
     out.flush()
 }
 
-/// `--max-distance` and `--refraction` as given: a view distance is a
-/// positive number of metres, the refraction coefficient k a finite number.
-/// Anything else is refused in one line before any work: the library reads
-/// a view distance that is not finite and positive as "no limit" (a typo
-/// such as `--max-distance 0` would read the whole DEM, and a NaN or
-/// infinite distance cannot be written into a batch's records), and a k
-/// that is not finite drops every ray of the view into empty sky.
-pub(crate) fn check_view_flags(max_distance: Option<f64>, refraction: f64) -> anyhow::Result<()> {
-    if let Some(d) = max_distance {
-        if !(d.is_finite() && d > 0.0) {
-            anyhow::bail!(
-                "--max-distance {} must be a finite positive number of metres",
-                Num(d)
-            );
-        }
-    }
-    if !refraction.is_finite() {
-        anyhow::bail!(
-            "--refraction {refraction} must be a finite number (the coefficient k, 1/7 by default)"
-        );
-    }
-    Ok(())
-}
-
 /// A viewpoint given on the command line (`--lon`, `--lat`), held to the
 /// same ranges as a sketch file's viewpoint before PROJ sees it.
 pub(crate) fn check_lonlat(lon: f64, lat: f64) -> anyhow::Result<()> {

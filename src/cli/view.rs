@@ -22,7 +22,7 @@ use demsketch::render::{
     visible_polylines, write_png, DepthBuffer, Scene, ShadeOptions, DEPTH_NODATA,
 };
 use demsketch::sketch::CameraSpec;
-use demsketch::view::{Camera, EyeHeight, Viewpoint};
+use demsketch::view::{check_view_settings, Camera, EyeHeight, SettingNames, Viewpoint};
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -162,7 +162,7 @@ impl CameraFlags {
         };
         super::check_lonlat(lon, lat)?;
         super::check_eye(self.eye_height, self.alt)?;
-        super::check_view_flags(self.max_distance, self.refraction)?;
+        check_view_settings(self.max_distance, self.refraction, SettingNames::Flags)?;
         let height = match (self.alt, self.eye_height) {
             (Some(a), _) => EyeHeight::Absolute(a),
             (None, h) => EyeHeight::AboveSurface(h.unwrap_or(1.7)),
