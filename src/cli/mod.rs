@@ -12,7 +12,6 @@ pub mod view;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use clap::{Parser, Subcommand};
-use demsketch::num::Num;
 
 /// Correct real digital elevation models (GeoTIFF, tile directories, VRT) by
 /// sketching the silhouettes the terrain should show from a viewpoint.
@@ -182,51 +181,6 @@ pub fn print_stdout(text: &str) -> std::io::Result<()> {
     out.write_all(text.as_bytes())?;
     out.write_all(b"\n")?;
     out.flush()
-}
-
-/// A viewpoint given on the command line (`--lon`, `--lat`), held to the
-/// same ranges as a sketch file's viewpoint before PROJ sees it.
-pub(crate) fn check_lonlat(lon: f64, lat: f64) -> anyhow::Result<()> {
-    if !(lon.is_finite() && (-180.0..=180.0).contains(&lon)) {
-        anyhow::bail!("viewpoint lon {} is not in [-180, 180]", Num(lon));
-    }
-    if !(lat.is_finite() && (-90.0..=90.0).contains(&lat)) {
-        anyhow::bail!("viewpoint lat {} is not in [-90, 90]", Num(lat));
-    }
-    Ok(())
-}
-
-/// The eye's height (`--eye-height`, or a sketch view's `eye_height_m`)
-/// and altitude (`--alt`, `alt_m`), held to a sketch file's ranges: a
-/// height in (0, 10,000] m above the ground, an altitude in [-11,000,
-/// 20,000] m. (A NaN used to come back as "lon, lat: not a valid WGS84
-/// position".) Whether the altitude is above the ground is known once the
-/// DEM is read: [`check_above_ground`].
-pub(crate) fn check_eye(eye_height: Option<f64>, alt: Option<f64>) -> anyhow::Result<()> {
-    use demsketch::sketch::{MAX_ALT_M, MAX_EYE_HEIGHT_M, MIN_ALT_M};
-    if let Some(h) = eye_height {
-        if !(h.is_finite() && h > 0.0 && h <= MAX_EYE_HEIGHT_M) {
-            anyhow::bail!(
-                "viewpoint eye height {} m is not in (0, {}] metres above the ground (for a higher eye give --alt)",
-                Num(h),
-                Num(MAX_EYE_HEIGHT_M)
-            );
-        }
-    }
-    if let Some(a) = alt {
-        if !a.is_finite() {
-            anyhow::bail!("viewpoint altitude {a} is not a finite number of metres");
-        }
-        if !(MIN_ALT_M..=MAX_ALT_M).contains(&a) {
-            anyhow::bail!(
-                "viewpoint altitude {} is not in [{}, {}] metres",
-                Num(a),
-                Num(MIN_ALT_M),
-                Num(MAX_ALT_M)
-            );
-        }
-    }
-    Ok(())
 }
 
 /// An absolute eye (`what`: `--alt` or a sketch view's `alt_m`) at or

@@ -21,7 +21,7 @@ use demsketch::render::{
     depth_for_file, draw_polyline, eye_frame, shade, viewshed_exact, viewshed_from_file,
     visible_polylines, write_png, DepthBuffer, Scene, ShadeOptions, DEPTH_NODATA,
 };
-use demsketch::sketch::CameraSpec;
+use demsketch::sketch::{CameraSpec, ViewpointSpec};
 use demsketch::view::{check_view_settings, Camera, EyeHeight, SettingNames, Viewpoint};
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
@@ -160,8 +160,15 @@ impl CameraFlags {
         let (Some(lon), Some(lat)) = (self.lon, self.lat) else {
             anyhow::bail!("give the viewpoint as --lon X --lat Y (or --sketch FILE)");
         };
-        super::check_lonlat(lon, lat)?;
-        super::check_eye(self.eye_height, self.alt)?;
+        // The sketch format's viewpoint ranges, before PROJ sees it.
+        ViewpointSpec {
+            lon,
+            lat,
+            eye_height_m: self.eye_height,
+            alt_m: self.alt,
+        }
+        .check_flag_ranges()
+        .map_err(anyhow::Error::msg)?;
         check_view_settings(self.max_distance, self.refraction, SettingNames::Flags)?;
         let height = match (self.alt, self.eye_height) {
             (Some(a), _) => EyeHeight::Absolute(a),

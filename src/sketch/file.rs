@@ -464,8 +464,11 @@ impl SketchFile {
                 return Err(err(vloc, "view name is used twice".into()));
             }
             let at = format!("views[{vi}]");
-            validate_viewpoint(&view.viewpoint, &format!("{at}.viewpoint"))
-                .map_err(|p| err(vloc.clone(), p))?;
+            validate_viewpoint(
+                &view.viewpoint,
+                ViewpointNames::Path(&format!("{at}.viewpoint")),
+            )
+            .map_err(|p| err(vloc.clone(), p))?;
             validate_camera(&view.camera, &format!("{at}.camera"))
                 .map_err(|p| err(vloc.clone(), p))?;
             let (w, h) = (view.camera.width as f64, view.camera.height as f64);
@@ -549,7 +552,48 @@ impl ViewpointSpec {
     /// The sketch format's ranges (lon, lat, `eye_height_m`, `alt_m`; one
     /// of the last two): the problem, naming the field as `at.FIELD`.
     pub fn check_ranges(&self, at: &str) -> Result<(), String> {
-        validate_viewpoint(self, at)
+        validate_viewpoint(self, ViewpointNames::Path(at))
+    }
+
+    /// The same ranges for a viewpoint given on the command line (`--lon`,
+    /// `--lat`, `--eye-height`, `--alt`), named in its words: `viewpoint
+    /// lon 200 is not in [-180, 180]`, `viewpoint eye height 0 is not in
+    /// (0, 10000] metres above the ground (for a higher eye give --alt)`,
+    /// `viewpoint altitude NaN is not in [-11000, 20000] metres`.
+    pub fn check_flag_ranges(&self) -> Result<(), String> {
+        validate_viewpoint(self, ViewpointNames::Flags)
+    }
+}
+
+/// How a message names a viewpoint's fields.
+#[derive(Debug, Clone, Copy)]
+enum ViewpointNames<'a> {
+    /// Their path in the sketch format: `at.lon`, `at.eye_height_m`.
+    Path(&'a str),
+    /// The command line's words: `viewpoint lon`, `viewpoint eye height`,
+    /// `viewpoint altitude`.
+    Flags,
+}
+
+impl ViewpointNames<'_> {
+    /// The name of `field` (`lon`, `lat`, `eye_height_m`, `alt_m`).
+    fn of(self, field: &str) -> String {
+        match self {
+            ViewpointNames::Path(at) => format!("{at}.{field}"),
+            ViewpointNames::Flags => match field {
+                "eye_height_m" => "viewpoint eye height".into(),
+                "alt_m" => "viewpoint altitude".into(),
+                f => format!("viewpoint {f}"),
+            },
+        }
+    }
+
+    /// How a higher eye than `eye_height_m` allows is given.
+    fn alt(self) -> &'static str {
+        match self {
+            ViewpointNames::Path(_) => "alt_m",
+            ViewpointNames::Flags => "--alt",
+        }
     }
 }
 
@@ -582,23 +626,32 @@ fn check_closed(path: &str, v: f64, lo: f64, hi: f64, unit: &str) -> Result<(), 
     )
 }
 
-fn validate_viewpoint(v: &ViewpointSpec, at: &str) -> Result<(), String> {
-    check_closed(&format!("{at}.lon"), v.lon, -180.0, 180.0, "")?;
-    check_closed(&format!("{at}.lat"), v.lat, -90.0, 90.0, "")?;
+/// The viewpoint's ranges, the one rule for a sketch's viewpoint, the
+/// browser app's and the command line's.
+fn validate_viewpoint(v: &ViewpointSpec, names: ViewpointNames) -> Result<(), String> {
+    check_closed(&names.of("lon"), v.lon, -180.0, 180.0, "")?;
+    check_closed(&names.of("lat"), v.lat, -90.0, 90.0, "")?;
     if v.eye_height_m.is_some() && v.alt_m.is_some() {
+        let at = match names {
+            ViewpointNames::Path(at) => at,
+            ViewpointNames::Flags => "viewpoint",
+        };
         return Err(format!("{at} gives both eye_height_m and alt_m; give one"));
     }
     if let Some(h) = v.eye_height_m {
         check_range(
-            &format!("{at}.eye_height_m"),
+            &names.of("eye_height_m"),
             h,
             h > 0.0 && h <= MAX_EYE_HEIGHT_M,
             &format!("(0, {}]", Num(MAX_EYE_HEIGHT_M)),
-            " metres above the ground (for a higher eye give alt_m)",
+            &format!(
+                " metres above the ground (for a higher eye give {})",
+                names.alt()
+            ),
         )?;
     }
     if let Some(a) = v.alt_m {
-        check_closed(&format!("{at}.alt_m"), a, MIN_ALT_M, MAX_ALT_M, " metres")?;
+        check_closed(&names.of("alt_m"), a, MIN_ALT_M, MAX_ALT_M, " metres")?;
     }
     Ok(())
 }
