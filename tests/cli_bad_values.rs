@@ -544,7 +544,7 @@ fn every_sketch_number_is_held_to_its_range() {
     assert!(SketchFile::from_json_str(&text, "s.json").is_ok());
     let opt = "\"influence_m\": 1500.0";
     let dome = "\"id\": \"dome\",";
-    let cases: [(&str, &str, &str); 21] = [
+    let cases: [(&str, &str, &str); 23] = [
         (
             "\"heading_deg\": 200.0",
             "\"heading_deg\": 1e300",
@@ -650,6 +650,16 @@ fn every_sketch_number_is_held_to_its_range() {
             "\"fallback_depth_ratio\": 1e300",
             "options.fallback_depth_ratio 1e300 is not in (1, 100]",
         ),
+        (
+            opt,
+            "\"max_candidates\": 1001",
+            "options.max_candidates 1001 is not in [1, 1000]",
+        ),
+        (
+            opt,
+            "\"node_budget\": 1000000000000",
+            "options.node_budget 1000000000000 is not in [1, 10000000]",
+        ),
     ];
     for (from, to, needle) in cases {
         assert!(text.contains(from), "{from}");
@@ -668,6 +678,8 @@ fn every_sketch_number_is_held_to_its_range() {
         "\"min_coverage\": 0",
         "\"max_candidates\": 0",
         "\"node_budget\": 0",
+        "\"max_candidates\": 1001",
+        "\"node_budget\": 1000000000000",
     ] {
         let field = more.split('"').nth(1).expect("field");
         let bad = text.replacen(opt, more, 1);

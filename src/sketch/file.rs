@@ -257,6 +257,18 @@ pub const MAX_WEIGHT: f64 = 1e6;
 pub const MIN_RESAMPLE_PX: f64 = 0.1;
 /// Largest `fallback_depth_ratio` accepted.
 pub const MAX_FALLBACK_DEPTH_RATIO: f64 = 100.0;
+/// Longest priority list accepted (`max_candidates`; default 32): a list
+/// holds at most one candidate per feature of the view, and the matching's
+/// forward checking keeps, for every candidate it tries, a row of bits over
+/// every candidate of the strokes behind (time and memory grow with the
+/// square of the candidates in all lists: 100 strokes of 1,000 are rows of
+/// 100,000 bits each), so a longer list only adds cost where it matters.
+pub const MAX_CANDIDATES: usize = 1_000;
+/// Largest `node_budget` accepted (default 20,000,
+/// [`super::branch_and_bound::DEFAULT_NODE_BUDGET`]): 500 times the
+/// default, far beyond what real sketches search, while a typo such as
+/// 1e12 nodes would keep the search running for hours.
+pub const MAX_NODE_BUDGET: u64 = 10_000_000;
 /// Finest `completion_step_m` accepted, metres.
 pub const MIN_COMPLETION_STEP_M: f64 = 0.1;
 /// Largest `completion_step_m` and `completion_max_m` accepted, metres.
@@ -752,11 +764,17 @@ fn validate_options(o: &SketchOptions) -> Result<(), String> {
         "(0, 1]",
         "",
     )?;
-    if o.max_candidates == 0 {
-        return Err("options.max_candidates must be at least 1".into());
+    if !(1..=MAX_CANDIDATES).contains(&o.max_candidates) {
+        return Err(format!(
+            "options.max_candidates {} is not in [1, {MAX_CANDIDATES}]",
+            o.max_candidates
+        ));
     }
-    if o.node_budget == 0 {
-        return Err("options.node_budget must be at least 1".into());
+    if !(1..=MAX_NODE_BUDGET).contains(&o.node_budget) {
+        return Err(format!(
+            "options.node_budget {} is not in [1, {MAX_NODE_BUDGET}]",
+            o.node_budget
+        ));
     }
     check_range(
         "options.fallback_depth_ratio",
