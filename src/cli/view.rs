@@ -20,8 +20,8 @@ use demsketch::render::{
     depth_for_file, draw_polyline, eye_frame, shade, viewshed_exact, viewshed_from_file,
     visible_polylines, write_png, DepthBuffer, Scene, ShadeOptions, DEPTH_NODATA,
 };
-use demsketch::sketch::{SketchFile, ViewpointSpec};
-use demsketch::view::{check_view_settings, Camera, EyeHeight, SettingNames, Viewpoint};
+use demsketch::sketch::{CameraSpec, SketchFile, ViewpointSpec};
+use demsketch::view::{check_view_settings, Camera, SettingNames, Viewpoint};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -100,31 +100,28 @@ impl CameraFlags {
         let (Some(lon), Some(lat)) = (self.lon, self.lat) else {
             anyhow::bail!("give the viewpoint as --lon X --lat Y (or --sketch FILE)");
         };
-        // The sketch format's viewpoint ranges, before PROJ sees it.
-        ViewpointSpec {
+        // The sketch format's viewpoint ranges, before PROJ sees it, and
+        // its defaults.
+        let vp = ViewpointSpec {
             lon,
             lat,
             eye_height_m: self.eye_height,
             alt_m: self.alt,
-        }
-        .check_flag_ranges()
-        .map_err(anyhow::Error::msg)?;
-        check_view_settings(self.max_distance, self.refraction, SettingNames::Flags)?;
-        let height = match (self.alt, self.eye_height) {
-            (Some(a), _) => EyeHeight::Absolute(a),
-            (None, h) => EyeHeight::AboveSurface(h.unwrap_or(1.7)),
         };
-        let (w, h) = self.size.unwrap_or((1600, 900));
+        vp.check_flag_ranges().map_err(anyhow::Error::msg)?;
+        check_view_settings(self.max_distance, self.refraction, SettingNames::Flags)?;
+        let d = CameraSpec::default();
+        let (w, h) = self.size.unwrap_or((d.width as usize, d.height as usize));
         let camera = Camera::new(
             w,
             h,
-            self.heading.unwrap_or(0.0),
-            self.pitch.unwrap_or(0.0),
-            self.roll.unwrap_or(0.0),
-            self.hfov.unwrap_or(60.0),
+            self.heading.unwrap_or(d.heading_deg),
+            self.pitch.unwrap_or(d.pitch_deg),
+            self.roll.unwrap_or(d.roll_deg),
+            self.hfov.unwrap_or(d.hfov_deg),
         )?;
         Ok(ResolvedView {
-            viewpoint: Viewpoint { lon, lat, height },
+            viewpoint: vp.resolved(),
             camera,
             strokes: Vec::new(),
             view_index: 0,

@@ -188,6 +188,21 @@ pub struct CameraSpec {
     pub height: u32,
 }
 
+impl Default for CameraSpec {
+    /// The defaults of a sketch's camera, and of the command line's camera
+    /// flags: heading, pitch and roll 0, 60 degrees across, 1600 x 900.
+    fn default() -> Self {
+        CameraSpec {
+            heading_deg: 0.0,
+            pitch_deg: 0.0,
+            roll_deg: 0.0,
+            hfov_deg: default_hfov(),
+            width: default_width(),
+            height: default_height(),
+        }
+    }
+}
+
 fn default_hfov() -> f64 {
     60.0
 }
@@ -567,6 +582,18 @@ impl ViewpointSpec {
         validate_viewpoint(self, ViewpointNames::Path(at))
     }
 
+    /// The viewpoint, its eye height resolved ([`ViewpointSpec::height`]).
+    pub fn resolved(&self) -> crate::view::Viewpoint {
+        crate::view::Viewpoint {
+            lon: self.lon,
+            lat: self.lat,
+            height: match self.height() {
+                EyeHeightSpec::AboveSurface(h) => crate::view::EyeHeight::AboveSurface(h),
+                EyeHeightSpec::Absolute(a) => crate::view::EyeHeight::Absolute(a),
+            },
+        }
+    }
+
     /// The same ranges for a viewpoint given on the command line (`--lon`,
     /// `--lat`, `--eye-height`, `--alt`), named in its words: `viewpoint
     /// lon 200 is not in [-180, 180]`, `viewpoint eye height 0 is not in
@@ -803,14 +830,7 @@ fn validate_options(o: &SketchOptions) -> Result<(), String> {
 impl ViewSpec {
     /// The viewpoint of this view, its eye height resolved.
     pub fn eye(&self) -> crate::view::Viewpoint {
-        crate::view::Viewpoint {
-            lon: self.viewpoint.lon,
-            lat: self.viewpoint.lat,
-            height: match self.viewpoint.height() {
-                EyeHeightSpec::AboveSurface(h) => crate::view::EyeHeight::AboveSurface(h),
-                EyeHeightSpec::Absolute(a) => crate::view::EyeHeight::Absolute(a),
-            },
-        }
+        self.viewpoint.resolved()
     }
 
     /// The camera of this view.
