@@ -544,7 +544,7 @@ fn every_sketch_number_is_held_to_its_range() {
     assert!(SketchFile::from_json_str(&text, "s.json").is_ok());
     let opt = "\"influence_m\": 1500.0";
     let dome = "\"id\": \"dome\",";
-    let cases: [(&str, &str, &str); 21] = [
+    let cases: [(&str, &str, &str); 23] = [
         (
             "\"heading_deg\": 200.0",
             "\"heading_deg\": 1e300",
@@ -650,6 +650,16 @@ fn every_sketch_number_is_held_to_its_range() {
             "\"fallback_depth_ratio\": 1e300",
             "options.fallback_depth_ratio 1e300 is not in (1, 100]",
         ),
+        (
+            opt,
+            "\"max_candidates\": 1001",
+            "options.max_candidates 1001 is not in [1, 1000]",
+        ),
+        (
+            opt,
+            "\"node_budget\": 1000000000000",
+            "options.node_budget 1000000000000 is not in [1, 10000000]",
+        ),
     ];
     for (from, to, needle) in cases {
         assert!(text.contains(from), "{from}");
@@ -668,6 +678,8 @@ fn every_sketch_number_is_held_to_its_range() {
         "\"min_coverage\": 0",
         "\"max_candidates\": 0",
         "\"node_budget\": 0",
+        "\"max_candidates\": 1001",
+        "\"node_budget\": 1000000000000",
     ] {
         let field = more.split('"').nth(1).expect("field");
         let bad = text.replacen(opt, more, 1);
@@ -711,8 +723,8 @@ fn edit_names_the_field_of_an_absurd_sketch_number() {
 }
 
 /// `view --sketch` holds the sketch's camera to the same ranges as `edit`
-/// (it reads only the fields it needs, leniently, but not absurd ones):
-/// exit 1, one line naming the file and the field's path, nothing written.
+/// (it reads the sketch through the same parser): exit 1, one line naming
+/// the file and the field's path, nothing written.
 #[test]
 fn view_holds_a_sketch_camera_to_the_edit_ranges() {
     let dir = tempfile::tempdir().expect("tempdir");
@@ -748,4 +760,50 @@ fn view_holds_a_sketch_camera_to_the_edit_ranges() {
         assert_eq!(snapshot(&[bad]), before, "sketch untouched");
     }
     assert!(entries(dir.path()).is_empty(), "nothing written");
+}
+
+/// `view --sketch` reads the sketch as `edit` does (`SketchFile`): a
+/// sketch `edit` refuses anywhere (another view's viewpoint, a stroke, the
+/// options, a view without a camera) is refused by `view` in the same one
+/// line, and the sketch `edit` reads is drawn.
+#[test]
+fn view_reads_the_sketch_as_edit_does() {
+    use demsketch::sketch::SketchFile;
+    let dir = tempfile::tempdir().expect("tempdir");
+    let work = tempfile::tempdir().expect("tempdir");
+    let dem = fixture(ZION);
+    let d = s(&dem);
+    let png = dir.path().join("v.png");
+    for (name, from, to) in [
+        ("lon.json", "\"lon\": -112.90", "\"lon\": 1e308"),
+        ("point.json", "[930.0, 257.0]", "[1e300, 257.0]"),
+        (
+            "options.json",
+            "\"influence_m\": 1500.0",
+            "\"resample_px\": 1e-300",
+        ),
+        ("camera.json", "\"camera\":", "\"lens\":"),
+    ] {
+        let bad = sketch_with(work.path(), name, from, to);
+        let edit_says = SketchFile::from_path(&bad).expect_err(name).to_string();
+        let b = s(&bad);
+        let args = ["view", &d, "--sketch", &b, "--out", &s(&png)];
+        let out = demsketch(&args);
+        one_line_error(&out, &args, &[name]);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            err.contains(&edit_says),
+            "{name}: as edit: {edit_says}: {err}"
+        );
+    }
+    assert!(entries(dir.path()).is_empty(), "nothing written");
+    let k = s(&sketch());
+    let args = ["view", &d, "--sketch", &k, "--out", &s(&png), "-q"];
+    let out = demsketch(&args);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(png.exists());
 }

@@ -256,7 +256,7 @@ fn user_errors_are_one_line_with_exit_1() {
     let sketch = dir.path().join("s.json");
     std::fs::write(
         &sketch,
-        r#"{"views": [{"name": "a", "viewpoint": {"lon": -113.0463, "lat": 37.3225}}]}"#,
+        r#"{"views": [{"name": "a", "viewpoint": {"lon": -113.0463, "lat": 37.3225}, "camera": {}}]}"#,
     )
     .unwrap();
     let sketch = sketch.to_string_lossy().into_owned();

@@ -82,19 +82,12 @@ impl BatchSettings {
     /// number, a known pyramid resampling). A plan file is input like any other: a hand-edited one
     /// with `"max_distance_m": 0` would otherwise read the whole DEM.
     pub fn check(&self) -> Result<(), String> {
-        let d = self.max_distance_m;
-        if !(d.is_finite() && d > 0.0) {
-            return Err(format!(
-                "settings: max_distance_m {} is not a positive number of metres",
-                crate::num::Num(d)
-            ));
-        }
-        if !self.refraction.is_finite() {
-            return Err(format!(
-                "settings: refraction {} is not a finite number",
-                self.refraction
-            ));
-        }
+        crate::view::check_view_settings(
+            Some(self.max_distance_m),
+            self.refraction,
+            crate::view::SettingNames::Fields,
+        )
+        .map_err(|e| format!("settings: {e}"))?;
         if !(self.min_fit.is_finite() && self.min_fit >= 0.0) {
             return Err(format!(
                 "settings: min_fit {} is not a non-negative number",

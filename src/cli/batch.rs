@@ -12,6 +12,7 @@ use demsketch::batch::record::Status;
 use demsketch::batch::run::{check_stored_plan, clean_output, count_done, lock_output};
 use demsketch::batch::{finish, run_all, steps, BatchError, BatchSettings, Plan, Summary};
 use demsketch::raster::journal;
+use demsketch::view::{check_view_settings, SettingNames};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 use super::{BelowMinFit, InternalError};
@@ -85,7 +86,11 @@ impl EditFlags {
     /// The flags as the batch's settings, once `--max-distance` and
     /// `--refraction` are checked as `edit` checks them.
     fn settings(&self) -> anyhow::Result<BatchSettings> {
-        super::check_view_flags(Some(self.max_distance), self.refraction)?;
+        check_view_settings(
+            Some(self.max_distance),
+            self.refraction,
+            SettingNames::Flags,
+        )?;
         Ok(BatchSettings {
             max_distance_m: self.max_distance,
             refraction: self.refraction,

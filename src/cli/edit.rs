@@ -15,6 +15,7 @@
 use anyhow::Context;
 use demsketch::edit::{run_opened, EditError, EditOptions, EditReport};
 use demsketch::raster::Destination;
+use demsketch::view::{check_view_settings, SettingNames};
 use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::time::Duration;
@@ -170,7 +171,11 @@ pub(super) fn parse_min_fit(s: &str) -> Result<f64, String> {
 /// ([`demsketch::edit::guard`]), run the edit, then print its summary or
 /// its report.
 pub fn run(args: EditArgs) -> anyhow::Result<()> {
-    super::check_view_flags(Some(args.max_distance), args.refraction)?;
+    check_view_settings(
+        Some(args.max_distance),
+        args.refraction,
+        SettingNames::Flags,
+    )?;
     let destination = destination_of(&args)?;
     let opts = options_of(&args, destination);
     // The lock, recovery of a killed edit and the output checks

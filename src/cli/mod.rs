@@ -12,7 +12,6 @@ pub mod view;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use clap::{Parser, Subcommand};
-use demsketch::num::Num;
 
 /// Correct real digital elevation models (GeoTIFF, tile directories, VRT) by
 /// sketching the silhouettes the terrain should show from a viewpoint.
@@ -182,75 +181,6 @@ pub fn print_stdout(text: &str) -> std::io::Result<()> {
     out.write_all(text.as_bytes())?;
     out.write_all(b"\n")?;
     out.flush()
-}
-
-/// `--max-distance` and `--refraction` as given: a view distance is a
-/// positive number of metres, the refraction coefficient k a finite number.
-/// Anything else is refused in one line before any work: the library reads
-/// a view distance that is not finite and positive as "no limit" (a typo
-/// such as `--max-distance 0` would read the whole DEM, and a NaN or
-/// infinite distance cannot be written into a batch's records), and a k
-/// that is not finite drops every ray of the view into empty sky.
-pub(crate) fn check_view_flags(max_distance: Option<f64>, refraction: f64) -> anyhow::Result<()> {
-    if let Some(d) = max_distance {
-        if !(d.is_finite() && d > 0.0) {
-            anyhow::bail!(
-                "--max-distance {} must be a finite positive number of metres",
-                Num(d)
-            );
-        }
-    }
-    if !refraction.is_finite() {
-        anyhow::bail!(
-            "--refraction {refraction} must be a finite number (the coefficient k, 1/7 by default)"
-        );
-    }
-    Ok(())
-}
-
-/// A viewpoint given on the command line (`--lon`, `--lat`), held to the
-/// same ranges as a sketch file's viewpoint before PROJ sees it.
-pub(crate) fn check_lonlat(lon: f64, lat: f64) -> anyhow::Result<()> {
-    if !(lon.is_finite() && (-180.0..=180.0).contains(&lon)) {
-        anyhow::bail!("viewpoint lon {} is not in [-180, 180]", Num(lon));
-    }
-    if !(lat.is_finite() && (-90.0..=90.0).contains(&lat)) {
-        anyhow::bail!("viewpoint lat {} is not in [-90, 90]", Num(lat));
-    }
-    Ok(())
-}
-
-/// The eye's height (`--eye-height`, or a sketch view's `eye_height_m`)
-/// and altitude (`--alt`, `alt_m`), held to a sketch file's ranges: a
-/// height in (0, 10,000] m above the ground, an altitude in [-11,000,
-/// 20,000] m. (A NaN used to come back as "lon, lat: not a valid WGS84
-/// position".) Whether the altitude is above the ground is known once the
-/// DEM is read: [`check_above_ground`].
-pub(crate) fn check_eye(eye_height: Option<f64>, alt: Option<f64>) -> anyhow::Result<()> {
-    use demsketch::sketch::{MAX_ALT_M, MAX_EYE_HEIGHT_M, MIN_ALT_M};
-    if let Some(h) = eye_height {
-        if !(h.is_finite() && h > 0.0 && h <= MAX_EYE_HEIGHT_M) {
-            anyhow::bail!(
-                "viewpoint eye height {} m is not in (0, {}] metres above the ground (for a higher eye give --alt)",
-                Num(h),
-                Num(MAX_EYE_HEIGHT_M)
-            );
-        }
-    }
-    if let Some(a) = alt {
-        if !a.is_finite() {
-            anyhow::bail!("viewpoint altitude {a} is not a finite number of metres");
-        }
-        if !(MIN_ALT_M..=MAX_ALT_M).contains(&a) {
-            anyhow::bail!(
-                "viewpoint altitude {} is not in [{}, {}] metres",
-                Num(a),
-                Num(MIN_ALT_M),
-                Num(MAX_ALT_M)
-            );
-        }
-    }
-    Ok(())
 }
 
 /// An absolute eye (`what`: `--alt` or a sketch view's `alt_m`) at or

@@ -6,6 +6,7 @@ use std::net::{IpAddr, SocketAddr};
 use std::path::PathBuf;
 
 use demsketch::serve::{serve_blocking, ServeConfig, ServeError};
+use demsketch::view::{check_view_settings, SettingNames};
 
 use super::InternalError;
 
@@ -50,7 +51,7 @@ pub struct ServeArgs {
 }
 
 pub fn run(args: ServeArgs) -> anyhow::Result<()> {
-    super::check_view_flags(Some(args.max_distance), 1.0 / 7.0)?;
+    check_view_settings(Some(args.max_distance), 1.0 / 7.0, SettingNames::Flags)?;
     if !(args.min_fit.is_finite() && args.min_fit >= 0.0) {
         anyhow::bail!("--min-fit {} is not a non-negative number", args.min_fit);
     }

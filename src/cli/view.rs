@@ -6,7 +6,6 @@
 //! optionally the depth buffer, the viewshed and the features as GeoJSON.
 //! Also defines the camera flags shared with `locate`.
 
-use anyhow::Context;
 use demsketch::features::geojson::{
     feature_collection_of_view, to_lonlat_with_georef, write_geojson,
 };
@@ -21,9 +20,8 @@ use demsketch::render::{
     depth_for_file, draw_polyline, eye_frame, shade, viewshed_exact, viewshed_from_file,
     visible_polylines, write_png, DepthBuffer, Scene, ShadeOptions, DEPTH_NODATA,
 };
-use demsketch::sketch::CameraSpec;
-use demsketch::view::{Camera, EyeHeight, Viewpoint};
-use serde::Deserialize;
+use demsketch::sketch::{CameraSpec, SketchFile, ViewpointSpec};
+use demsketch::view::{check_view_settings, Camera, SettingNames, Viewpoint};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -75,64 +73,6 @@ fn parse_size(s: &str) -> Result<(usize, usize), String> {
     )
 }
 
-/// The view of a sketch file (DESIGN.md "Sketch file"), as far as `view` needs it.
-#[derive(Deserialize, Debug, Clone)]
-struct SketchFile {
-    views: Vec<SketchView>,
-}
-
-#[derive(Deserialize, Debug, Clone)]
-struct SketchView {
-    #[serde(default)]
-    name: Option<String>,
-    viewpoint: SketchViewpoint,
-    #[serde(default)]
-    camera: SketchCamera,
-    #[serde(default)]
-    strokes: Vec<SketchStroke>,
-}
-
-#[derive(Deserialize, Debug, Clone)]
-struct SketchViewpoint {
-    lon: f64,
-    lat: f64,
-    eye_height_m: Option<f64>,
-    alt_m: Option<f64>,
-}
-
-#[derive(Deserialize, Debug, Clone, Default)]
-struct SketchCamera {
-    heading_deg: Option<f64>,
-    pitch_deg: Option<f64>,
-    roll_deg: Option<f64>,
-    hfov_deg: Option<f64>,
-    width: Option<usize>,
-    height: Option<usize>,
-}
-
-impl SketchCamera {
-    /// Holds the fields the sketch gives to the sketch format's ranges
-    /// ([`CameraSpec::check_ranges`], as `edit` reads them), naming the
-    /// field as `at.FIELD`; a field the sketch leaves out is not checked.
-    fn check_ranges(&self, at: &str) -> Result<(), String> {
-        let side = |n: Option<usize>| n.map(|n| u32::try_from(n).unwrap_or(u32::MAX));
-        let spec = CameraSpec {
-            heading_deg: self.heading_deg.unwrap_or(0.0),
-            pitch_deg: self.pitch_deg.unwrap_or(0.0),
-            roll_deg: self.roll_deg.unwrap_or(0.0),
-            hfov_deg: self.hfov_deg.unwrap_or(60.0),
-            width: side(self.width).unwrap_or(1),
-            height: side(self.height).unwrap_or(1),
-        };
-        spec.check_ranges(at)
-    }
-}
-
-#[derive(Deserialize, Debug, Clone)]
-struct SketchStroke {
-    points: Vec<[f64; 2]>,
-}
-
 /// A fully specified view: viewpoint, camera, strokes to overlay.
 pub struct ResolvedView {
     pub viewpoint: Viewpoint,
@@ -160,24 +100,28 @@ impl CameraFlags {
         let (Some(lon), Some(lat)) = (self.lon, self.lat) else {
             anyhow::bail!("give the viewpoint as --lon X --lat Y (or --sketch FILE)");
         };
-        super::check_lonlat(lon, lat)?;
-        super::check_eye(self.eye_height, self.alt)?;
-        super::check_view_flags(self.max_distance, self.refraction)?;
-        let height = match (self.alt, self.eye_height) {
-            (Some(a), _) => EyeHeight::Absolute(a),
-            (None, h) => EyeHeight::AboveSurface(h.unwrap_or(1.7)),
+        // The sketch format's viewpoint ranges, before PROJ sees it, and
+        // its defaults.
+        let vp = ViewpointSpec {
+            lon,
+            lat,
+            eye_height_m: self.eye_height,
+            alt_m: self.alt,
         };
-        let (w, h) = self.size.unwrap_or((1600, 900));
+        vp.check_flag_ranges().map_err(anyhow::Error::msg)?;
+        check_view_settings(self.max_distance, self.refraction, SettingNames::Flags)?;
+        let d = CameraSpec::default();
+        let (w, h) = self.size.unwrap_or((d.width as usize, d.height as usize));
         let camera = Camera::new(
             w,
             h,
-            self.heading.unwrap_or(0.0),
-            self.pitch.unwrap_or(0.0),
-            self.roll.unwrap_or(0.0),
-            self.hfov.unwrap_or(60.0),
+            self.heading.unwrap_or(d.heading_deg),
+            self.pitch.unwrap_or(d.pitch_deg),
+            self.roll.unwrap_or(d.roll_deg),
+            self.hfov.unwrap_or(d.hfov_deg),
         )?;
         Ok(ResolvedView {
-            viewpoint: Viewpoint { lon, lat, height },
+            viewpoint: vp.resolved(),
             camera,
             strokes: Vec::new(),
             view_index: 0,
@@ -341,54 +285,45 @@ fn resolve_view(args: &ViewArgs) -> anyhow::Result<ResolvedView> {
     let Some(path) = &args.sketch else {
         return args.camera.resolve();
     };
-    let text = std::fs::read_to_string(path)
-        .with_context(|| format!("{}: cannot read sketch file", path.display()))?;
-    let file: SketchFile = serde_json::from_str(&text)
-        .map_err(|e| anyhow::anyhow!("{}: not a sketch file: {e}", path.display()))?;
+    // The sketch as `edit` reads it: the same parser and the same ranges
+    // (one line naming the file, the view and the field's path).
+    let file = SketchFile::from_path(path)?;
     let view_index = match &args.view {
         Some(name) => file
             .views
             .iter()
-            .position(|v| v.name.as_deref() == Some(name.as_str()))
+            .position(|v| v.name == *name)
             .ok_or_else(|| anyhow::anyhow!("{}: no view named '{name}'", path.display()))?,
-        None if file.views.is_empty() => anyhow::bail!("{}: no views", path.display()),
+        // (a sketch has at least one view)
         None => 0,
     };
     let v = &file.views[view_index];
-    v.camera
-        .check_ranges(&format!("views[{view_index}].camera"))
-        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    let (vp, c) = (&v.viewpoint, &v.camera);
     let f = &args.camera;
-    let mut flags = CameraFlags {
-        lon: f.lon.or(Some(v.viewpoint.lon)),
-        lat: f.lat.or(Some(v.viewpoint.lat)),
-        eye_height: f.eye_height.or(v.viewpoint.eye_height_m),
-        alt: f.alt.or(v.viewpoint.alt_m),
-        heading: f.heading.or(v.camera.heading_deg),
-        pitch: f.pitch.or(v.camera.pitch_deg),
-        roll: f.roll.or(v.camera.roll_deg),
-        hfov: f.hfov.or(v.camera.hfov_deg),
-        size: f.size,
+    // An eye the flags give replaces the sketch's, however either gives it.
+    let (eye_height, alt) = if f.eye_height.is_some() || f.alt.is_some() {
+        (f.eye_height, f.alt)
+    } else {
+        (vp.eye_height_m, vp.alt_m)
+    };
+    let flags = CameraFlags {
+        lon: f.lon.or(Some(vp.lon)),
+        lat: f.lat.or(Some(vp.lat)),
+        eye_height,
+        alt,
+        heading: f.heading.or(Some(c.heading_deg)),
+        pitch: f.pitch.or(Some(c.pitch_deg)),
+        roll: f.roll.or(Some(c.roll_deg)),
+        hfov: f.hfov.or(Some(c.hfov_deg)),
+        size: f.size.or(Some((c.width as usize, c.height as usize))),
         max_distance: f.max_distance,
         refraction: f.refraction,
     };
-    if flags.size.is_none() {
-        if let (Some(w), Some(h)) = (v.camera.width, v.camera.height) {
-            flags.size = Some((w, h));
-        }
-    }
-    if f.eye_height.is_some() {
-        flags.alt = None;
-    }
     let mut r = flags.resolve()?;
     r.strokes = v.strokes.iter().map(|s| s.points.clone()).collect();
     r.view_index = view_index;
     if f.alt.is_none() {
-        let name = v
-            .name
-            .clone()
-            .unwrap_or_else(|| (view_index + 1).to_string());
-        r.alt_label = format!("{}: view \"{name}\": viewpoint alt_m", path.display());
+        r.alt_label = format!("{}: view \"{}\": viewpoint alt_m", path.display(), v.name);
     }
     Ok(r)
 }

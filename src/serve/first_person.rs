@@ -21,7 +21,7 @@ use crate::render::{
     ShadeOptions,
 };
 use crate::sketch::{CameraSpec, ViewpointSpec};
-use crate::view::{Camera, EyeHeight, Viewpoint};
+use crate::view::Camera;
 
 /// Largest image side and pixel count a view may ask for.
 pub const MAX_SIDE_PX: u32 = 4096;
@@ -44,7 +44,9 @@ pub struct ViewRequest {
     pub pixel: Option<[f64; 2]>,
 }
 
-/// The camera of `spec`, refused when its image is too large.
+/// The camera of `spec`, held to the sketch format's ranges
+/// ([`CameraSpec::check_ranges`]: finite angles, sides of at least 1 px)
+/// and refused when its image is larger than the app draws.
 pub fn camera_of(spec: &CameraSpec) -> Result<Camera, ServeError> {
     spec.check_ranges("camera")
         .map_err(ServeError::BadRequest)?;
@@ -58,18 +60,6 @@ pub fn camera_of(spec: &CameraSpec) -> Result<Camera, ServeError> {
             "camera: image {} x {} is outside 1..{MAX_SIDE_PX} px a side or over {MAX_PIXELS} pixels",
             spec.width, spec.height
         )));
-    }
-    for (name, v) in [
-        ("heading_deg", spec.heading_deg),
-        ("pitch_deg", spec.pitch_deg),
-        ("roll_deg", spec.roll_deg),
-        ("hfov_deg", spec.hfov_deg),
-    ] {
-        if !v.is_finite() {
-            return Err(ServeError::BadRequest(format!(
-                "camera: {name} is not a number"
-            )));
-        }
     }
     Camera::new(
         spec.width as usize,
@@ -101,22 +91,10 @@ impl AppState {
                 return Ok(s.clone());
             }
         }
-        if !(vp.lon.is_finite() && vp.lat.is_finite()) {
-            return Err(ServeError::BadRequest(
-                "viewpoint: lon/lat must be numbers".into(),
-            ));
-        }
         vp.check_ranges("viewpoint")
             .map_err(ServeError::BadRequest)?;
-        let height = match vp.height() {
-            crate::sketch::EyeHeightSpec::AboveSurface(h) => EyeHeight::AboveSurface(h),
-            crate::sketch::EyeHeightSpec::Absolute(a) => EyeHeight::Absolute(a),
-        };
-        let viewpoint = Viewpoint {
-            lon: vp.lon,
-            lat: vp.lat,
-            height,
-        };
+        let viewpoint = vp.resolved();
+        let height = viewpoint.height;
         let scene = Scene::open(
             &self.dem,
             &viewpoint,

@@ -188,6 +188,21 @@ pub struct CameraSpec {
     pub height: u32,
 }
 
+impl Default for CameraSpec {
+    /// The defaults of a sketch's camera, and of the command line's camera
+    /// flags: heading, pitch and roll 0, 60 degrees across, 1600 x 900.
+    fn default() -> Self {
+        CameraSpec {
+            heading_deg: 0.0,
+            pitch_deg: 0.0,
+            roll_deg: 0.0,
+            hfov_deg: default_hfov(),
+            width: default_width(),
+            height: default_height(),
+        }
+    }
+}
+
 fn default_hfov() -> f64 {
     60.0
 }
@@ -257,6 +272,18 @@ pub const MAX_WEIGHT: f64 = 1e6;
 pub const MIN_RESAMPLE_PX: f64 = 0.1;
 /// Largest `fallback_depth_ratio` accepted.
 pub const MAX_FALLBACK_DEPTH_RATIO: f64 = 100.0;
+/// Longest priority list accepted (`max_candidates`; default 32): a list
+/// holds at most one candidate per feature of the view, and the matching's
+/// forward checking keeps, for every candidate it tries, a row of bits over
+/// every candidate of the strokes behind (time and memory grow with the
+/// square of the candidates in all lists: 100 strokes of 1,000 are rows of
+/// 100,000 bits each), so a longer list only adds cost where it matters.
+pub const MAX_CANDIDATES: usize = 1_000;
+/// Largest `node_budget` accepted (default 20,000,
+/// [`super::branch_and_bound::DEFAULT_NODE_BUDGET`]): 500 times the
+/// default, far beyond what real sketches search, while a typo such as
+/// 1e12 nodes would keep the search running for hours.
+pub const MAX_NODE_BUDGET: u64 = 10_000_000;
 /// Finest `completion_step_m` accepted, metres.
 pub const MIN_COMPLETION_STEP_M: f64 = 0.1;
 /// Largest `completion_step_m` and `completion_max_m` accepted, metres.
@@ -464,8 +491,11 @@ impl SketchFile {
                 return Err(err(vloc, "view name is used twice".into()));
             }
             let at = format!("views[{vi}]");
-            validate_viewpoint(&view.viewpoint, &format!("{at}.viewpoint"))
-                .map_err(|p| err(vloc.clone(), p))?;
+            validate_viewpoint(
+                &view.viewpoint,
+                ViewpointNames::Path(&format!("{at}.viewpoint")),
+            )
+            .map_err(|p| err(vloc.clone(), p))?;
             validate_camera(&view.camera, &format!("{at}.camera"))
                 .map_err(|p| err(vloc.clone(), p))?;
             let (w, h) = (view.camera.width as f64, view.camera.height as f64);
@@ -549,7 +579,60 @@ impl ViewpointSpec {
     /// The sketch format's ranges (lon, lat, `eye_height_m`, `alt_m`; one
     /// of the last two): the problem, naming the field as `at.FIELD`.
     pub fn check_ranges(&self, at: &str) -> Result<(), String> {
-        validate_viewpoint(self, at)
+        validate_viewpoint(self, ViewpointNames::Path(at))
+    }
+
+    /// The viewpoint, its eye height resolved ([`ViewpointSpec::height`]).
+    pub fn resolved(&self) -> crate::view::Viewpoint {
+        crate::view::Viewpoint {
+            lon: self.lon,
+            lat: self.lat,
+            height: match self.height() {
+                EyeHeightSpec::AboveSurface(h) => crate::view::EyeHeight::AboveSurface(h),
+                EyeHeightSpec::Absolute(a) => crate::view::EyeHeight::Absolute(a),
+            },
+        }
+    }
+
+    /// The same ranges for a viewpoint given on the command line (`--lon`,
+    /// `--lat`, `--eye-height`, `--alt`), named in its words: `viewpoint
+    /// lon 200 is not in [-180, 180]`, `viewpoint eye height 0 is not in
+    /// (0, 10000] metres above the ground (for a higher eye give --alt)`,
+    /// `viewpoint altitude NaN is not in [-11000, 20000] metres`.
+    pub fn check_flag_ranges(&self) -> Result<(), String> {
+        validate_viewpoint(self, ViewpointNames::Flags)
+    }
+}
+
+/// How a message names a viewpoint's fields.
+#[derive(Debug, Clone, Copy)]
+enum ViewpointNames<'a> {
+    /// Their path in the sketch format: `at.lon`, `at.eye_height_m`.
+    Path(&'a str),
+    /// The command line's words: `viewpoint lon`, `viewpoint eye height`,
+    /// `viewpoint altitude`.
+    Flags,
+}
+
+impl ViewpointNames<'_> {
+    /// The name of `field` (`lon`, `lat`, `eye_height_m`, `alt_m`).
+    fn of(self, field: &str) -> String {
+        match self {
+            ViewpointNames::Path(at) => format!("{at}.{field}"),
+            ViewpointNames::Flags => match field {
+                "eye_height_m" => "viewpoint eye height".into(),
+                "alt_m" => "viewpoint altitude".into(),
+                f => format!("viewpoint {f}"),
+            },
+        }
+    }
+
+    /// How a higher eye than `eye_height_m` allows is given.
+    fn alt(self) -> &'static str {
+        match self {
+            ViewpointNames::Path(_) => "alt_m",
+            ViewpointNames::Flags => "--alt",
+        }
     }
 }
 
@@ -582,23 +665,32 @@ fn check_closed(path: &str, v: f64, lo: f64, hi: f64, unit: &str) -> Result<(), 
     )
 }
 
-fn validate_viewpoint(v: &ViewpointSpec, at: &str) -> Result<(), String> {
-    check_closed(&format!("{at}.lon"), v.lon, -180.0, 180.0, "")?;
-    check_closed(&format!("{at}.lat"), v.lat, -90.0, 90.0, "")?;
+/// The viewpoint's ranges, the one rule for a sketch's viewpoint, the
+/// browser app's and the command line's.
+fn validate_viewpoint(v: &ViewpointSpec, names: ViewpointNames) -> Result<(), String> {
+    check_closed(&names.of("lon"), v.lon, -180.0, 180.0, "")?;
+    check_closed(&names.of("lat"), v.lat, -90.0, 90.0, "")?;
     if v.eye_height_m.is_some() && v.alt_m.is_some() {
+        let at = match names {
+            ViewpointNames::Path(at) => at,
+            ViewpointNames::Flags => "viewpoint",
+        };
         return Err(format!("{at} gives both eye_height_m and alt_m; give one"));
     }
     if let Some(h) = v.eye_height_m {
         check_range(
-            &format!("{at}.eye_height_m"),
+            &names.of("eye_height_m"),
             h,
             h > 0.0 && h <= MAX_EYE_HEIGHT_M,
             &format!("(0, {}]", Num(MAX_EYE_HEIGHT_M)),
-            " metres above the ground (for a higher eye give alt_m)",
+            &format!(
+                " metres above the ground (for a higher eye give {})",
+                names.alt()
+            ),
         )?;
     }
     if let Some(a) = v.alt_m {
-        check_closed(&format!("{at}.alt_m"), a, MIN_ALT_M, MAX_ALT_M, " metres")?;
+        check_closed(&names.of("alt_m"), a, MIN_ALT_M, MAX_ALT_M, " metres")?;
     }
     Ok(())
 }
@@ -699,11 +791,17 @@ fn validate_options(o: &SketchOptions) -> Result<(), String> {
         "(0, 1]",
         "",
     )?;
-    if o.max_candidates == 0 {
-        return Err("options.max_candidates must be at least 1".into());
+    if !(1..=MAX_CANDIDATES).contains(&o.max_candidates) {
+        return Err(format!(
+            "options.max_candidates {} is not in [1, {MAX_CANDIDATES}]",
+            o.max_candidates
+        ));
     }
-    if o.node_budget == 0 {
-        return Err("options.node_budget must be at least 1".into());
+    if !(1..=MAX_NODE_BUDGET).contains(&o.node_budget) {
+        return Err(format!(
+            "options.node_budget {} is not in [1, {MAX_NODE_BUDGET}]",
+            o.node_budget
+        ));
     }
     check_range(
         "options.fallback_depth_ratio",
@@ -732,14 +830,7 @@ fn validate_options(o: &SketchOptions) -> Result<(), String> {
 impl ViewSpec {
     /// The viewpoint of this view, its eye height resolved.
     pub fn eye(&self) -> crate::view::Viewpoint {
-        crate::view::Viewpoint {
-            lon: self.viewpoint.lon,
-            lat: self.viewpoint.lat,
-            height: match self.viewpoint.height() {
-                EyeHeightSpec::AboveSurface(h) => crate::view::EyeHeight::AboveSurface(h),
-                EyeHeightSpec::Absolute(a) => crate::view::EyeHeight::Absolute(a),
-            },
-        }
+        self.viewpoint.resolved()
     }
 
     /// The camera of this view.

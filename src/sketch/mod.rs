@@ -51,9 +51,10 @@ pub use depth_order::{
 pub use fallback::{embed_on_plane, embed_unmatched, fallback_depths, terrain_touching_point};
 pub use file::{
     CameraSpec, CostWeights, DepthSpec, EyeHeightSpec, FoldBackPolicy, SketchError, SketchFile,
-    SketchOptions, StrokeSpec, ViewSpec, ViewpointSpec, MAX_ALT_M, MAX_COMPLETION_M, MAX_DEPTH_M,
-    MAX_EYE_HEIGHT_M, MAX_FALLBACK_DEPTH_RATIO, MAX_IMAGE_SIDE_PX, MAX_INFLUENCE_M,
-    MAX_OBSERVER_RADIUS_M, MAX_WEIGHT, MIN_ALT_M, MIN_COMPLETION_STEP_M, MIN_RESAMPLE_PX,
+    SketchOptions, StrokeSpec, ViewSpec, ViewpointSpec, MAX_ALT_M, MAX_CANDIDATES,
+    MAX_COMPLETION_M, MAX_DEPTH_M, MAX_EYE_HEIGHT_M, MAX_FALLBACK_DEPTH_RATIO, MAX_IMAGE_SIDE_PX,
+    MAX_INFLUENCE_M, MAX_NODE_BUDGET, MAX_OBSERVER_RADIUS_M, MAX_WEIGHT, MIN_ALT_M,
+    MIN_COMPLETION_STEP_M, MIN_RESAMPLE_PX,
 };
 pub use multi_view::{
     check_intersections, match_sketch, match_view, occludes_across_views, occludes_within_view,

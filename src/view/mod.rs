@@ -12,11 +12,13 @@
 
 mod camera;
 mod curvature;
+mod settings;
 mod viewpoint;
 
 pub(crate) use camera::{cross, dot};
 pub use camera::{Camera, CameraModel};
 pub use curvature::Curvature;
+pub use settings::{check_view_settings, SettingNames, ViewSettingError};
 pub use viewpoint::{
     below_ground_problem, route_proj_messages, EyeHeight, Georef, LocalFrame, Viewpoint,
 };

@@ -537,9 +537,7 @@ impl RidgesOf {
                 .zip(windows)
                 .all(|((a, oa), (b, ob))| oa == ob && same_heights(a, b))
     }
-}
 
-impl RidgesOf {
     /// `ridges` with what they were detected from: the views' `windows`
     /// (moved, not copied) at their offsets and their terrains' extents
     /// `seen` ([`Extracted`]), for a later pass ([`Seen`]).

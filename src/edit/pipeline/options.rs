@@ -122,27 +122,17 @@ pub const DEFAULT_MIN_FIT: f64 = 0.9;
 /// (at least two cells; the sketch's `observer_radius_m` overrides it).
 pub const OBSERVER_RADIUS_M: f64 = 100.0;
 
-/// Fail early, before any work, on a view distance that is not a finite
-/// positive number of metres (`None` says "the whole DEM") or a refraction
-/// coefficient that is not finite: values a caller passes on from its user
-/// (the command line checks its flags the same way first). Later stages
-/// would read a NaN, infinite or non-positive distance as "no limit", and
-/// a k that is not finite drops every ray into empty sky.
+/// Fail early, before any work, on a view distance or refraction
+/// coefficient out of range ([`crate::view::check_view_settings`], the
+/// rule the command line checks its flags by) or a `min_fit` that is not
+/// a non-negative number: values a caller passes on from its user.
 pub(super) fn check_view_options(opts: &EditOptions) -> Result<(), EditError> {
-    if let Some(d) = opts.max_distance_m {
-        if !(d.is_finite() && d > 0.0) {
-            return Err(EditError::Options(format!(
-                "max_distance_m {} must be a finite positive number of metres (None: the whole DEM)",
-                crate::num::Num(d)
-            )));
-        }
-    }
-    if !opts.refraction.is_finite() {
-        return Err(EditError::Options(format!(
-            "refraction {} must be a finite number",
-            opts.refraction
-        )));
-    }
+    crate::view::check_view_settings(
+        opts.max_distance_m,
+        opts.refraction,
+        crate::view::SettingNames::Options,
+    )
+    .map_err(|e| EditError::Options(e.to_string()))?;
     if !(opts.min_fit.is_finite() && opts.min_fit >= 0.0) {
         return Err(EditError::Options(format!(
             "min_fit {} must be a non-negative number",
