@@ -12,7 +12,7 @@ use demsketch::batch::record::Status;
 use demsketch::batch::run::{check_stored_plan, clean_output, count_done, lock_output};
 use demsketch::batch::{finish, run_all, steps, BatchError, BatchSettings, Plan, Summary};
 use demsketch::raster::journal;
-use demsketch::view::{check_view_settings, SettingNames};
+use demsketch::view::{check_min_fit, check_view_settings, SettingNames};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
 use super::{BelowMinFit, InternalError};
@@ -69,7 +69,7 @@ pub struct EditFlags {
     #[arg(long, default_value_t = 6)]
     pub max_contour_iterations: usize,
     /// Least fitted share of every stroke for an edit to be written.
-    #[arg(long, default_value_t = demsketch::edit::DEFAULT_MIN_FIT, value_parser = super::edit::parse_min_fit)]
+    #[arg(long, default_value_t = demsketch::edit::DEFAULT_MIN_FIT, allow_hyphen_values = true)]
     pub min_fit: f64,
     /// Write an edit even when a stroke's fit is below --min-fit.
     #[arg(long)]
@@ -83,14 +83,15 @@ pub struct EditFlags {
 }
 
 impl EditFlags {
-    /// The flags as the batch's settings, once `--max-distance` and
-    /// `--refraction` are checked as `edit` checks them.
+    /// The flags as the batch's settings, once `--max-distance`,
+    /// `--refraction` and `--min-fit` are checked as `edit` checks them.
     fn settings(&self) -> anyhow::Result<BatchSettings> {
         check_view_settings(
             Some(self.max_distance),
             self.refraction,
             SettingNames::Flags,
         )?;
+        check_min_fit(self.min_fit, SettingNames::Flags)?;
         Ok(BatchSettings {
             max_distance_m: self.max_distance,
             refraction: self.refraction,

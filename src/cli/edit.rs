@@ -15,7 +15,7 @@
 use anyhow::Context;
 use demsketch::edit::{run_opened, EditError, EditOptions, EditReport};
 use demsketch::raster::Destination;
-use demsketch::view::{check_view_settings, SettingNames};
+use demsketch::view::{check_min_fit, check_view_settings, SettingNames};
 use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::time::Duration;
@@ -85,7 +85,7 @@ pub struct EditArgs {
     /// Least share of a stroke's pixel columns that must be fitted (the
     /// report's fit.fitted_fraction) for the edit to be written; below it
     /// the DEM is not written and the exit code is 3. Above 1: never written.
-    #[arg(long, default_value_t = demsketch::edit::DEFAULT_MIN_FIT, value_parser = parse_min_fit)]
+    #[arg(long, default_value_t = demsketch::edit::DEFAULT_MIN_FIT, allow_hyphen_values = true)]
     pub min_fit: f64,
     /// Write the edit even when a stroke's fit is below --min-fit (the
     /// report still marks those strokes "partial" or "unfitted").
@@ -156,17 +156,6 @@ fn parse_lock_timeout(s: &str) -> Result<f64, String> {
     Ok(v)
 }
 
-pub(super) fn parse_min_fit(s: &str) -> Result<f64, String> {
-    let v: f64 = s
-        .trim()
-        .parse()
-        .map_err(|_| format!("--min-fit '{s}' is not a number"))?;
-    if !(v.is_finite() && v >= 0.0) {
-        return Err(format!("--min-fit {v} is not a non-negative number"));
-    }
-    Ok(v)
-}
-
 /// `demsketch edit`: check the outputs, take the lock and open the DEM
 /// ([`demsketch::edit::guard`]), run the edit, then print its summary or
 /// its report.
@@ -176,6 +165,7 @@ pub fn run(args: EditArgs) -> anyhow::Result<()> {
         args.refraction,
         SettingNames::Flags,
     )?;
+    check_min_fit(args.min_fit, SettingNames::Flags)?;
     let destination = destination_of(&args)?;
     let opts = options_of(&args, destination);
     // The lock, recovery of a killed edit and the output checks
