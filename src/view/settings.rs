@@ -13,7 +13,11 @@
 //! assert_eq!(e.to_string(), "--max-distance 0 must be a finite positive number of metres");
 //! let e = check_view_settings(None, f64::NAN, SettingNames::Options).unwrap_err();
 //! assert_eq!(e.to_string(), "refraction NaN must be a finite number");
-//! assert_eq!(demsketch::view::distance_limit(Some(0.0)), None);
+//! use demsketch::view::distance_limit;
+//! assert_eq!(distance_limit(Some(20_000.0)), Some(20_000.0));
+//! for no_limit in [None, Some(0.0), Some(-5.0), Some(f64::NAN), Some(f64::INFINITY)] {
+//!     assert_eq!(distance_limit(no_limit), None);
+//! }
 //! let e = demsketch::view::check_min_fit(-1.0, SettingNames::Flags).unwrap_err();
 //! assert_eq!(e.to_string(), "--min-fit -1 must be a number >= 0 (a share of a stroke's columns; above 1: never written)");
 //! ```
