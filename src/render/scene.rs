@@ -4,7 +4,7 @@
 //! visibility use. This is the one entry point the command line (and the
 //! edit pipeline) needs to go from "DEM + lon/lat" to something to render.
 
-use super::far_layers::FarLayers;
+use super::far_layers::{FarLayers, FarRing};
 use super::level_of_detail::LodPlan;
 use super::{LocalTerrain, RenderError};
 use crate::raster::{Dem, HeightMap, Window};
@@ -42,10 +42,14 @@ impl FarRingsToRead {
     /// `terrain` (the scene's exact terrain) with the rings read from
     /// `dem` (the DEM the scene was opened on) as its far layers.
     pub fn add_to(&self, terrain: LocalTerrain, dem: &Dem) -> Result<LocalTerrain, RenderError> {
-        let rings = self
-            .lod
-            .build_rings(dem, &self.frame_abs, &self.camera, self.origin)?;
-        Ok(terrain.with_far_layers(rings))
+        Ok(terrain.with_far_layers(self.read(dem)?))
+    }
+
+    /// The rings read from `dem`, to join the scene's exact terrain
+    /// ([`LocalTerrain::with_far_layers`]).
+    pub fn read(&self, dem: &Dem) -> Result<Vec<FarRing>, RenderError> {
+        self.lod
+            .build_rings(dem, &self.frame_abs, &self.camera, self.origin)
     }
 }
 

@@ -204,7 +204,8 @@ pub(super) fn render_and_extract<'a>(
     let mut earlier: Vec<Option<RenderedView>> = earlier.into_iter().map(Some).collect();
     // A view's far rings still to be read are read first on the renders'
     // side (they need the exact terrain's ids only, not its render), so
-    // that their reading, not the renders alone, runs beside the ridges'.
+    // that their reading, not the renders alone, runs beside the ridges'
+    // detection (and beside the exact terrain's cast index).
     let view_err = |k: usize, source: crate::render::RenderError| EditError::View {
         sketch: edit.sketch_name.clone(),
         view: sketch.views[k].name.clone(),
@@ -218,7 +219,13 @@ pub(super) fn render_and_extract<'a>(
                 .enumerate()
                 .map(|(k, (t, c, rings))| {
                     let t = match rings {
-                        Some(r) => r.add_to(t, dem).map_err(|e| view_err(k, e))?,
+                        // (beside the exact terrain's cast index, which
+                        // the render builds beside it otherwise: it is
+                        // of the terrain's own grid, no far layer's)
+                        Some(r) => {
+                            let (rings, ()) = rayon::join(|| r.read(dem), || t.build_cast_index());
+                            t.with_far_layers(rings.map_err(|e| view_err(k, e))?)
+                        }
                         None => t,
                     };
                     let name = &sketch.views[k].name;
