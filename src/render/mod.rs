@@ -32,7 +32,7 @@ pub use far_layers::{FarLayers, FarRing};
 pub use level_of_detail::{LodPlan, LOD_MIN_NEAR_M};
 pub use locate::{locate, project_point, Located};
 pub use overlay::visible_polylines;
-pub use scene::Scene;
+pub use scene::{FarRingsToRead, Scene};
 pub use shaded_image::{
     depth_for_file, draw_polyline, shade, shade_into, write_depth_tiff, write_png, ShadeOptions,
     DEPTH_NODATA,

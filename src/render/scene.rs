@@ -4,7 +4,7 @@
 //! visibility use. This is the one entry point the command line (and the
 //! edit pipeline) needs to go from "DEM + lon/lat" to something to render.
 
-use super::far_layers::FarLayers;
+use super::far_layers::{FarLayers, FarRing};
 use super::level_of_detail::LodPlan;
 use super::{LocalTerrain, RenderError};
 use crate::raster::{Dem, HeightMap, Window};
@@ -23,6 +23,34 @@ struct WedgePlan {
     /// The frame on the square's grid, resolved with any ground (for
     /// planning: its cells and eye, not its heights).
     probe: LocalFrame,
+}
+
+/// The far rings of a level-of-detail scene, planned and not yet read
+/// ([`Scene::open_wedge_lod_deferred`]): what [`LodPlan::build_rings`]
+/// takes besides the DEM.
+#[derive(Clone)]
+pub struct FarRingsToRead {
+    lod: LodPlan,
+    /// The view's frame on the whole DEM's grid.
+    frame_abs: LocalFrame,
+    camera: crate::view::Camera,
+    /// The cell of the DEM where the exact terrain's window starts.
+    origin: (i64, i64),
+}
+
+impl FarRingsToRead {
+    /// `terrain` (the scene's exact terrain) with the rings read from
+    /// `dem` (the DEM the scene was opened on) as its far layers.
+    pub fn add_to(&self, terrain: LocalTerrain, dem: &Dem) -> Result<LocalTerrain, RenderError> {
+        Ok(terrain.with_far_layers(self.read(dem)?))
+    }
+
+    /// The rings read from `dem`, to join the scene's exact terrain
+    /// ([`LocalTerrain::with_far_layers`]).
+    pub fn read(&self, dem: &Dem) -> Result<Vec<FarRing>, RenderError> {
+        self.lod
+            .build_rings(dem, &self.frame_abs, &self.camera, self.origin)
+    }
 }
 
 /// A viewpoint resolved on a DEM, with the terrain around it.
@@ -138,9 +166,46 @@ impl Scene {
         reuse: Option<&FarLayers>,
         exact_cells: Option<f64>,
     ) -> Result<Scene, RenderError> {
+        let (scene, rings) =
+            Self::open_lod(dem, vp, max_distance, k, camera, reuse, exact_cells, |_| {
+                None
+            })?;
+        scene.with_rings(dem, rings)
+    }
+
+    /// [`Scene::open_wedge_lod_within`] with the far rings not yet read:
+    /// the scene's terrain without the far layers it is to have, and what
+    /// reads them ([`FarRingsToRead`]; `None` where it has none to read,
+    /// or took `reuse`'s). [`Scene::with_rings`] then makes
+    /// [`Scene::open_wedge_lod_within`]'s scene, bit for bit: the caller
+    /// may read the rings beside other work (an edit reads them while it
+    /// detects the ridges of the exact terrain).
+    #[allow(clippy::too_many_arguments)]
+    pub fn open_wedge_lod_deferred(
+        dem: &Dem,
+        vp: &Viewpoint,
+        max_distance: Option<f64>,
+        k: f64,
+        camera: &crate::view::Camera,
+        reuse: Option<&FarLayers>,
+        exact_cells: Option<f64>,
+    ) -> Result<(Scene, Option<FarRingsToRead>), RenderError> {
         Self::open_lod(dem, vp, max_distance, k, camera, reuse, exact_cells, |_| {
             None
         })
+    }
+
+    /// This scene with `rings` read from `dem` as its terrain's far layers
+    /// (none: as it is).
+    pub fn with_rings(
+        mut self,
+        dem: &Dem,
+        rings: Option<FarRingsToRead>,
+    ) -> Result<Scene, RenderError> {
+        if let Some(r) = rings {
+            self.terrain = r.add_to(self.terrain, dem)?;
+        }
+        Ok(self)
     }
 
     /// Like [`Scene::open_wedge_lod`] for a picture (`demsketch view`):
@@ -156,9 +221,11 @@ impl Scene {
         k: f64,
         camera: &crate::view::Camera,
     ) -> Result<Scene, RenderError> {
-        Self::open_lod(dem, vp, max_distance, k, camera, None, None, |plan| {
-            Some(farthest_corner_m(plan))
-        })
+        let (scene, rings) =
+            Self::open_lod(dem, vp, max_distance, k, camera, None, None, |plan| {
+                Some(farthest_corner_m(plan))
+            })?;
+        scene.with_rings(dem, rings)
     }
 
     /// [`Scene::open_wedge_lod`] and [`Scene::open_view_lod`]: the rings
@@ -174,29 +241,30 @@ impl Scene {
         reuse: Option<&FarLayers>,
         exact_cells: Option<f64>,
         unbounded_reach: impl Fn(&WedgePlan) -> Option<f64>,
-    ) -> Result<Scene, RenderError> {
+    ) -> Result<(Scene, Option<FarRingsToRead>), RenderError> {
         let max_d = crate::view::distance_limit(max_distance);
         let plan = Self::wedge_plan(dem, vp, max_d, k, camera)?;
         let reach = max_d.or_else(|| unbounded_reach(&plan));
         match LodPlan::new_within(&plan.probe, camera, reach, exact_cells) {
-            Some(lod) => Self::open_planned_lod(dem, vp, max_d, k, camera, &lod, reuse),
-            None => Self::open_wedge(dem, vp, max_distance, k, camera),
+            Some(lod) => Self::open_planned_lod(dem, vp, max_d, k, camera, lod, reuse),
+            None => Ok((Self::open_wedge(dem, vp, max_distance, k, camera)?, None)),
         }
     }
 
     /// The scene of a level-of-detail plan: the wedge's box read at the
     /// DEM's resolution out to the plan's exact reach (on the square of
     /// `max_d` around the eye, the whole DEM for `None`), the rings beyond
-    /// as the terrain's far layers (`reuse`'s where they serve).
+    /// as the terrain's far layers (`reuse`'s where they serve; else
+    /// returned to be read, [`FarRingsToRead`]).
     fn open_planned_lod(
         dem: &Dem,
         vp: &Viewpoint,
         max_d: Option<f64>,
         k: f64,
         camera: &crate::view::Camera,
-        lod: &LodPlan,
+        lod: LodPlan,
         reuse: Option<&FarLayers>,
-    ) -> Result<Scene, RenderError> {
+    ) -> Result<(Scene, Option<FarRingsToRead>), RenderError> {
         let plan = Self::wedge_plan_within(dem, vp, max_d, Some(lod.near_m), k, camera)?;
         let (window, frame, georef, win) = Self::read_wedge(dem, vp, k, plan)?;
         let mut frame_abs = frame;
@@ -206,23 +274,27 @@ impl Scene {
         );
         let near = LocalTerrain::over(&window, &frame, Some(lod.near_m));
         let ks: Vec<usize> = lod.rings.iter().map(|r| r.0).collect();
-        let terrain = match reuse.filter(|r| r.serve(&frame, &frame_abs, &ks, dem.overlay_window()))
-        {
-            Some(layers) => near.with_shared_far_layers(layers),
-            None => near.with_far_layers(lod.build_rings(
-                dem,
-                &frame_abs,
-                camera,
-                (win.col, win.row),
-            )?),
-        };
-        Ok(Scene {
+        let (terrain, rings) =
+            match reuse.filter(|r| r.serve(&frame, &frame_abs, &ks, dem.overlay_window())) {
+                Some(layers) => (near.with_shared_far_layers(layers), None),
+                None => (
+                    near,
+                    Some(FarRingsToRead {
+                        lod,
+                        frame_abs,
+                        camera: *camera,
+                        origin: (win.col, win.row),
+                    }),
+                ),
+            };
+        let scene = Scene {
             window,
             window_offset: (win.col, win.row),
             georef,
             frame,
             terrain,
-        })
+        };
+        Ok((scene, rings))
     }
 
     /// Read a wedge's box and resolve the eye on it: the heights, the
@@ -428,4 +500,52 @@ fn farthest_corner_m(plan: &WedgePlan) -> f64 {
             e.hypot(n)
         })
         .fold(0.0, f64::max)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::render::DepthBuffer;
+    use crate::view::Camera;
+
+    /// A scene opened with its far rings deferred, then read
+    /// ([`Scene::with_rings`]), is the scene opened at once: the same far
+    /// layers and the same render, to the bit; a view within the exact
+    /// reach has no ring to read.
+    #[test]
+    fn rings_read_later_give_the_scene_opened_at_once() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("fixtures")
+            .join("zion_srtm_utm12n.tif");
+        let dem = Dem::open(&path).unwrap();
+        let (x, y) = dem.geotransform.pixel_to_crs(210.5, 440.5);
+        let georef = Georef::for_crs(&dem.crs, "zion").unwrap();
+        let (lon, lat) = georef.crs_to_lonlat(x, y).unwrap();
+        let vp = Viewpoint::above_surface(lon, lat, 1500.0);
+        let cam = Camera::new(160, 90, 0.0, -2.0, 0.0, 90.0).unwrap();
+        let k = 1.0 / 7.0;
+        let at_once =
+            Scene::open_wedge_lod_within(&dem, &vp, Some(40_000.0), k, &cam, None, None).unwrap();
+        let (deferred, rings) =
+            Scene::open_wedge_lod_deferred(&dem, &vp, Some(40_000.0), k, &cam, None, None).unwrap();
+        assert!(rings.is_some());
+        assert!(deferred.terrain.far_layer_sizes().is_empty());
+        let later = deferred.with_rings(&dem, rings).unwrap();
+        assert!(!at_once.terrain.far_layer_sizes().is_empty());
+        assert_eq!(
+            at_once.terrain.far_layer_sizes(),
+            later.terrain.far_layer_sizes()
+        );
+        let (a, b) = (
+            DepthBuffer::render(&at_once.terrain, &cam),
+            DepthBuffer::render(&later.terrain, &cam),
+        );
+        assert_eq!(a.triangle, b.triangle);
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&a.depth), bits(&b.depth));
+        // Within the exact reach: nothing deferred.
+        let (_, none) =
+            Scene::open_wedge_lod_deferred(&dem, &vp, Some(5_000.0), k, &cam, None, None).unwrap();
+        assert!(none.is_none());
+    }
 }

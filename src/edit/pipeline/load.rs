@@ -48,7 +48,8 @@ pub(super) fn load_views(
             source: Box::new(source),
         };
         let camera = v.pinhole().map_err(|e| view_err(e.into()))?;
-        let scene = Scene::open_wedge_lod_within(
+        // (the far rings are read later, beside the ridges' detection)
+        let (scene, rings) = Scene::open_wedge_lod_deferred(
             &dem,
             &vp,
             edit.max_d,
@@ -74,7 +75,7 @@ pub(super) fn load_views(
             sketch.options.observer_radius_m,
         )
         .map_err(view_err)?;
-        scenes.push((scene, camera, eye_ground));
+        scenes.push((scene, camera, eye_ground, rings));
     }
     Ok(Loaded {
         sketch,
@@ -181,7 +182,7 @@ pub(super) fn render_and_extract<'a>(
     // side, each also parallel inside.
     let mut parts = Vec::new();
     let mut terrains = Vec::new();
-    for (scene, camera, eye_ground) in scenes {
+    for (scene, camera, eye_ground, rings) in scenes {
         let Scene {
             window,
             window_offset,
@@ -190,26 +191,50 @@ pub(super) fn render_and_extract<'a>(
             ..
         } = scene;
         parts.push((window, window_offset, frame, camera, eye_ground));
-        terrains.push((terrain, camera));
+        terrains.push((terrain, camera, rings));
     }
     let windows: Vec<(&HeightMap, (i64, i64))> = parts.iter().map(|p| (&p.0, p.1)).collect();
     let seen: Vec<Window> = parts
         .iter()
         .zip(&terrains)
-        .map(|(p, (t, _))| Window::new(p.1 .0 + t.col0 as i64, p.1 .1 + t.row0 as i64, t.nx, t.ny))
+        .map(|(p, (t, _, _))| {
+            Window::new(p.1 .0 + t.col0 as i64, p.1 .1 + t.row0 as i64, t.nx, t.ny)
+        })
         .collect();
     let mut earlier: Vec<Option<RenderedView>> = earlier.into_iter().map(Some).collect();
+    // A view's far rings still to be read are read first on the renders'
+    // side (they need the exact terrain's ids only, not its render), so
+    // that their reading, not the renders alone, runs beside the ridges'
+    // detection (and beside the exact terrain's cast index).
+    let view_err = |k: usize, source: crate::render::RenderError| EditError::View {
+        sketch: edit.sketch_name.clone(),
+        view: sketch.views[k].name.clone(),
+        source: Box::new(source),
+    };
     let (ridges, befores) = rayon::join(
         || ridge_network(dem, &windows, &seen, earlier_ridges),
         || {
             terrains
                 .into_iter()
                 .enumerate()
-                .map(|(k, (t, c))| {
+                .map(|(k, (t, c, rings))| {
+                    let t = match rings {
+                        // (beside the exact terrain's cast index, which
+                        // the render builds beside it otherwise: it is
+                        // of the terrain's own grid, no far layer's)
+                        Some(r) => {
+                            let (rings, ()) = rayon::join(|| r.read(dem), || t.build_cast_index());
+                            t.with_far_layers(rings.map_err(|e| view_err(k, e))?)
+                        }
+                        None => t,
+                    };
+                    let name = &sketch.views[k].name;
+                    let internal =
+                        |e| EditError::Internal(format!("view \"{name}\": features: {e}"));
                     match earlier.get_mut(k).and_then(Option::take) {
                         // The pass before's whole render of this surface.
                         Some(e) if e.is_whole_render_of(&t, &c) => Ok(e),
-                        e => RenderedView::from_terrain_after(t, &c, e.as_ref()),
+                        e => RenderedView::from_terrain_after(t, &c, e.as_ref()).map_err(internal),
                     }
                 })
                 .collect::<Vec<_>>()
@@ -221,8 +246,7 @@ pub(super) fn render_and_extract<'a>(
     for (((v, (window, window_offset, frame, camera, eye_ground)), strokes), before) in
         sketch.views.iter().zip(parts).zip(prepared).zip(befores)
     {
-        let before = before
-            .map_err(|e| EditError::Internal(format!("view \"{}\": features: {e}", v.name)))?;
+        let before = before?;
         views.push(ViewState {
             spec: v,
             window_offset,

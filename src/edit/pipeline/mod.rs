@@ -81,7 +81,7 @@ use crate::deform::{
 };
 use crate::features::{detect_ridges, RidgeNetwork, RidgeParams};
 use crate::raster::{Dem, Destination, HeightMap, Window, WriteOptions};
-use crate::render::{FarLayers, Scene};
+use crate::render::{FarLayers, FarRingsToRead, Scene};
 use crate::sketch::{
     match_sketch, PointSource, SceneProjection, SceneView, SketchFile, SketchMatch, SketchOptions,
     Stroke, ViewFeatureOptions, ViewInput, ViewSpec,
@@ -487,7 +487,10 @@ pub(super) struct EyeGround {
 
 /// Per view: the DEM around its viewpoint, its camera and the ground
 /// around its eye.
-type ViewScene = (Scene, Camera, EyeGround);
+/// A view's scene, camera and fixed ground, and its far rings where they
+/// are still to be read ([`Scene::open_wedge_lod_deferred`]: read beside
+/// the ridges' detection, [`render_and_extract`]).
+type ViewScene = (Scene, Camera, EyeGround, Option<FarRingsToRead>);
 
 /// The inputs of an edit, read and checked ([`load_views`]).
 struct Loaded {
