@@ -20,7 +20,14 @@
 //! - a batch plan file whose settings `edit` would refuse as flags;
 //! - `export gltf` of an area without data (nodata throughout), which
 //!   wrote a `.glb` with empty accessors and `null` bounds that glTF
-//!   does not allow.
+//!   does not allow;
+//! - the rules of one library function each, in its one wording, for
+//!   every command (and the library): `--min-fit` / `min_fit`
+//!   (`demsketch::view::check_min_fit`), `export --min-dz`
+//!   (`change_mask::check_min_dz`), `export gltf --bounds`
+//!   (`gltf_mesh::parse_bounds`: lon/lat ranges too), `locate --pixel`
+//!   (`Camera::check_pixel`) and `view --target-height`
+//!   (`render::check_target_height`).
 
 mod common;
 
@@ -806,4 +813,311 @@ fn view_reads_the_sketch_as_edit_does() {
         String::from_utf8_lossy(&out.stderr)
     );
     assert!(png.exists());
+}
+
+/// `--min-fit` is one rule (`demsketch::view::check_min_fit`) in one
+/// wording for `edit`, `batch`, `batch plan` and `serve`, a plan file's
+/// `min_fit` and the library's `EditOptions::min_fit`: a number >= 0
+/// (above 1: never written, a documented use).
+#[test]
+fn min_fit_is_one_rule_in_one_wording() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let dem = fixture(ZION);
+    let (d, k) = (s(&dem), s(&sketch()));
+    let inputs = [dem.clone(), sketch()];
+    let before = snapshot(&inputs);
+    let jobs = dir.path().join("jobs.txt");
+    std::fs::write(&jobs, format!("{k}\n")).expect("write manifest");
+    let jobs = s(&jobs);
+    let (tif, bout, plan) = (
+        s(&dir.path().join("o.tif")),
+        s(&dir.path().join("b.tif")),
+        s(&dir.path().join("plan.json")),
+    );
+    for (flag, value) in [
+        ("--min-fit=-1", "-1"),
+        ("--min-fit=nan", "NaN"),
+        ("--min-fit=-inf", "-inf"),
+    ] {
+        let wording = format!(
+            "--min-fit {value} must be a number >= 0 (a share of a stroke's columns; above 1: never written)"
+        );
+        for args in [
+            vec!["edit", &d, "--sketch", &k, "--out", &tif, flag],
+            vec!["batch", &d, "--jobs", &jobs, "--out", &bout, flag],
+            vec![
+                "batch", "plan", &d, "--jobs", &jobs, "--out", &bout, "--plan", &plan, flag,
+            ],
+            vec!["serve", &d, "--port", "0", flag],
+        ] {
+            let out = demsketch(&args);
+            one_line_error(&out, &args, &[&format!("demsketch: {wording}")]);
+            assert!(out.stdout.is_empty(), "{args:?}: nothing on stdout");
+        }
+    }
+    // `--min-fit -1` (a space, not `=`) is the flag's value too.
+    let args = ["edit", &d, "--sketch", &k, "--out", &tif, "--min-fit", "-1"];
+    one_line_error(
+        &demsketch(&args),
+        &args,
+        &["--min-fit -1 must be a number >= 0"],
+    );
+    assert_eq!(
+        entries(dir.path()),
+        vec!["jobs.txt".to_string()],
+        "nothing written"
+    );
+    assert_eq!(snapshot(&inputs), before, "inputs untouched");
+    // The library's options, in the same words with the field's name.
+    let mut o = demsketch::edit::EditOptions::new(demsketch::raster::Destination::Path(
+        dir.path().join("o.tif"),
+    ));
+    o.progress = false;
+    o.min_fit = -0.5;
+    let e = demsketch::edit::run(&dem, &sketch(), &o).expect_err("min_fit -0.5 refused");
+    assert_eq!(
+        e.to_string(),
+        "edit options: min_fit -0.5 must be a number >= 0 (a share of a stroke's columns; above 1: never written)"
+    );
+    assert_eq!(
+        entries(dir.path()),
+        vec!["jobs.txt".to_string()],
+        "nothing written"
+    );
+}
+
+/// `export tiles|geojson --min-dz` is the library's rule
+/// (`change_mask::check_min_dz`, which `change_mask::read` and `from_dz`
+/// apply), checked before anything is read.
+#[test]
+fn export_min_dz_is_the_library_rule() {
+    use demsketch::export::{change_mask, ExportError};
+    let dir = tempfile::tempdir().expect("tempdir");
+    let dem = fixture(ZION);
+    let d = s(&dem);
+    let before = snapshot(std::slice::from_ref(&dem));
+    // (a report that does not exist: the flag is refused before it is read)
+    let report = s(&dir.path().join("missing-report.json"));
+    let (tiles, gj) = (
+        s(&dir.path().join("tiles")),
+        s(&dir.path().join("e.geojson")),
+    );
+    for (flag, value) in [
+        ("--min-dz=-1", "-1"),
+        ("--min-dz=nan", "NaN"),
+        ("--min-dz=inf", "inf"),
+    ] {
+        let wording = format!("--min-dz {value} must be a number of metres >= 0");
+        for args in [
+            vec![
+                "export",
+                "tiles",
+                &d,
+                "--encoding",
+                "terrarium",
+                "--zoom",
+                "8",
+                "--out",
+                &tiles,
+                flag,
+            ],
+            vec![
+                "export",
+                "tiles",
+                &d,
+                "--encoding",
+                "terrarium",
+                "--zoom",
+                "8",
+                "--out",
+                &tiles,
+                "--changed",
+                &d,
+                flag,
+            ],
+            vec![
+                "export", "geojson", &d, "--report", &report, "--out", &gj, flag,
+            ],
+        ] {
+            let out = demsketch(&args);
+            one_line_error(&out, &args, &[&format!("demsketch: {wording}")]);
+        }
+    }
+    let args = [
+        "export", "geojson", &d, "--report", &report, "--out", &gj, "--min-dz", "-0.5",
+    ];
+    one_line_error(&demsketch(&args), &args, &["--min-dz -0.5 must be"]);
+    assert!(entries(dir.path()).is_empty(), "nothing written");
+    assert_eq!(
+        snapshot(std::slice::from_ref(&dem)),
+        before,
+        "DEM untouched"
+    );
+    // The library checks it itself, before reading the raster.
+    let missing = dir.path().join("missing-dz.tif");
+    for f in [
+        change_mask::from_dz(&missing, -1.0).map(|_| ()),
+        change_mask::check_min_dz(f64::NAN).map_err(ExportError::from),
+    ] {
+        match f {
+            Err(e @ ExportError::MinDz(_)) => {
+                assert!(e.is_user_error());
+                assert!(e.to_string().starts_with("--min-dz "), "{e}");
+            }
+            other => panic!("{other:?}"),
+        }
+    }
+    assert!(change_mask::check_min_dz(0.0).is_ok() && change_mask::check_min_dz(2.5).is_ok());
+}
+
+/// `export gltf --bounds` is the library's rule
+/// (`gltf_mesh::parse_bounds` / `check_bounds`, which `export_gltf`
+/// applies): four numbers, west < east, south < north, longitudes in
+/// [-180, 180], latitudes in [-90, 90] (degrees, as documented); one line
+/// naming the flag, nothing written.
+#[test]
+fn export_bounds_are_the_library_rule_with_lon_lat_ranges() {
+    use demsketch::export::{gltf_mesh, ExportError};
+    let dir = tempfile::tempdir().expect("tempdir");
+    let dem = fixture(ZION);
+    let d = s(&dem);
+    let before = snapshot(std::slice::from_ref(&dem));
+    let glb = s(&dir.path().join("m.glb"));
+    let range = "need west < east and south < north, longitudes in [-180, 180] and latitudes in [-90, 90] degrees";
+    let cases: [(&str, String); 9] = [
+        (
+            "1,2,3",
+            "--bounds '1,2,3' must be four numbers WEST,SOUTH,EAST,NORTH (degrees)".into(),
+        ),
+        (
+            "1,2,3,4,5",
+            "--bounds '1,2,3,4,5' must be four numbers".into(),
+        ),
+        ("a,2,3,4", "--bounds 'a,2,3,4' must be four numbers".into()),
+        (
+            "-113,37.2,-112.9,nan",
+            format!("--bounds -113,37.2,-112.9,NaN: {range}"),
+        ),
+        (
+            "-112.9,37.2,-113.1,37.4",
+            format!("--bounds -112.9,37.2,-113.1,37.4: {range}"),
+        ),
+        (
+            "-113.1,37.4,-112.9,37.2",
+            format!("--bounds -113.1,37.4,-112.9,37.2: {range}"),
+        ),
+        (
+            "-190,37.2,-112.9,37.4",
+            format!("--bounds -190,37.2,-112.9,37.4: {range}"),
+        ),
+        ("170,0,190,1", format!("--bounds 170,0,190,1: {range}")),
+        (
+            "-113.1,-95,-112.9,37.4",
+            format!("--bounds -113.1,-95,-112.9,37.4: {range}"),
+        ),
+    ];
+    for (b, wording) in &cases {
+        for args in [
+            vec!["export", "gltf", &d, "--bounds", b, "--out", &glb],
+            vec![
+                "export",
+                "gltf",
+                &d,
+                &format!("--bounds={b}"),
+                "--out",
+                &glb,
+            ],
+        ] {
+            let out = demsketch(&args);
+            one_line_error(&out, &args, &[&format!("demsketch: {wording}")]);
+        }
+    }
+    assert!(entries(dir.path()).is_empty(), "nothing written");
+    assert_eq!(
+        snapshot(std::slice::from_ref(&dem)),
+        before,
+        "DEM untouched"
+    );
+    // The library: the whole globe is an area; export_gltf refuses a bad
+    // one before it opens the DEM (a DEM that does not exist here).
+    assert!(gltf_mesh::check_bounds([-180.0, -90.0, 180.0, 90.0]).is_ok());
+    let opts = gltf_mesh::MeshOptions {
+        bounds_lonlat: Some([10.0, 0.0, 5.0, 1.0]),
+        step: 1,
+        max_vertices: 1000,
+    };
+    match gltf_mesh::export_gltf(&dir.path().join("no.tif"), Path::new("m.glb"), &opts) {
+        Err(e @ ExportError::Bounds(_)) => {
+            assert!(e.is_user_error() && e.to_string().contains(range))
+        }
+        other => panic!("{:?}", other.map(|_| ())),
+    }
+}
+
+/// `locate --pixel` outside the image is refused by the library's rule
+/// (`Camera::check_pixel`, which `render::locate` applies too) before
+/// the DEM is read; `view --target-height` that is not finite by the
+/// viewshed's (`render::check_target_height`, which
+/// `viewshed_from_file` applies too).
+#[test]
+fn locate_pixel_and_view_target_height_are_the_library_rules() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let dem = fixture(ZION);
+    let d = s(&dem);
+    let before = snapshot(std::slice::from_ref(&dem));
+    for (pixel, shown) in [
+        ("1e300,5", "1e300,5"),
+        ("-1,450", "-1,450"),
+        ("800,900.5", "800,900.5"),
+        ("nan,5", "NaN,5"),
+    ] {
+        let args = [
+            "locate", &d, "--lon", "-112.9", "--lat", "37.4", "--size", "1600x900", "--pixel",
+            pixel,
+        ];
+        let out = demsketch(&args);
+        one_line_error(
+            &out,
+            &args,
+            &[&format!(
+                "demsketch: pixel {shown} lies outside the 1600x900 image"
+            )],
+        );
+        assert!(out.stdout.is_empty(), "{args:?}: nothing on stdout");
+    }
+    let (png, vs) = (s(&dir.path().join("v.png")), s(&dir.path().join("vs.tif")));
+    for (flag, value) in [
+        ("--target-height=nan", "NaN"),
+        ("--target-height=inf", "inf"),
+        ("--target-height=-inf", "-inf"),
+    ] {
+        let args = [
+            "view",
+            &d,
+            "--lon",
+            "-112.9",
+            "--lat",
+            "37.4",
+            "--out",
+            &png,
+            "--viewshed",
+            &vs,
+            flag,
+        ];
+        one_line_error(
+            &demsketch(&args),
+            &args,
+            &[&format!(
+                "demsketch: --target-height {value} must be a finite number of metres"
+            )],
+        );
+    }
+    assert!(entries(dir.path()).is_empty(), "nothing written");
+    assert_eq!(
+        snapshot(std::slice::from_ref(&dem)),
+        before,
+        "DEM untouched"
+    );
+    assert!(demsketch::render::check_target_height(-2.0).is_ok());
+    assert!(demsketch::render::check_target_height(f64::NAN).is_err());
 }

@@ -340,3 +340,40 @@ fn an_eye_below_the_ground_is_a_4xx_and_the_server_goes_on() {
     let (status, _) = post(&server, "/api/render", &req(above, "200", ""));
     assert_eq!(status, 200, "the server goes on");
 }
+
+/// A locate request whose pixel lies outside the image is answered 400
+/// with the line `demsketch locate` prints (`Camera::check_pixel`, one
+/// rule for both), and the server goes on answering.
+#[test]
+fn a_locate_pixel_outside_the_image_is_a_400_and_the_server_goes_on() {
+    let dem = fixture("zion_srtm_utm12n.tif");
+    let (server, _) = serve(&[dem.to_str().expect("utf-8")]);
+    let req = |pixel: &str| {
+        format!(
+            r#"{{"viewpoint": {{"lon": -112.9, "lat": 37.4, "eye_height_m": 1.7}}, "camera": {{"heading_deg": 200, "hfov_deg": 40, "width": 320, "height": 180}}, "pixel": {pixel}}}"#
+        )
+    };
+    for (pixel, line) in [
+        (
+            "[1e300, 5]",
+            "locate: pixel 1e300,5 lies outside the 320x180 image",
+        ),
+        (
+            "[-1, 90]",
+            "locate: pixel -1,90 lies outside the 320x180 image",
+        ),
+        (
+            "[160, 181]",
+            "locate: pixel 160,181 lies outside the 320x180 image",
+        ),
+    ] {
+        let (status, body) = post(&server, "/api/locate", &req(pixel));
+        assert_eq!(status, 400, "{pixel}: {body}");
+        assert!(
+            body.contains(line) && !body.contains('\n'),
+            "{pixel}: {body}"
+        );
+    }
+    let (status, body) = post(&server, "/api/locate", &req("[160, 90]"));
+    assert_eq!(status, 200, "the server goes on: {body}");
+}

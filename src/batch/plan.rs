@@ -78,8 +78,8 @@ impl BatchSettings {
 
     /// The settings a plan file may hold: those `demsketch edit` accepts
     /// for its flags (a view distance that is a positive number of metres,
-    /// a finite refraction coefficient, a `min_fit` that is a non-negative
-    /// number, a known pyramid resampling). A plan file is input like any other: a hand-edited one
+    /// a finite refraction coefficient, a `min_fit` that is a number >= 0
+    /// ([`crate::view::check_min_fit`]), a known pyramid resampling). A plan file is input like any other: a hand-edited one
     /// with `"max_distance_m": 0` would otherwise read the whole DEM.
     pub fn check(&self) -> Result<(), String> {
         crate::view::check_view_settings(
@@ -88,12 +88,8 @@ impl BatchSettings {
             crate::view::SettingNames::Fields,
         )
         .map_err(|e| format!("settings: {e}"))?;
-        if !(self.min_fit.is_finite() && self.min_fit >= 0.0) {
-            return Err(format!(
-                "settings: min_fit {} is not a non-negative number",
-                crate::num::Num(self.min_fit)
-            ));
-        }
+        crate::view::check_min_fit(self.min_fit, crate::view::SettingNames::Fields)
+            .map_err(|e| format!("settings: {e}"))?;
         if let Some(r) = &self.pyramid_resampling {
             crate::raster::pyramid::parse_resampling(r)
                 .map_err(|e| format!("settings: pyramid_resampling: {e}"))?;
@@ -103,7 +99,7 @@ impl BatchSettings {
 
     /// The view distance the footprints use (`None`: the whole DEM).
     pub fn max_d(&self) -> Option<f64> {
-        Some(self.max_distance_m).filter(|d| d.is_finite() && *d > 0.0)
+        crate::view::distance_limit(Some(self.max_distance_m))
     }
 }
 

@@ -12,9 +12,9 @@ use demsketch::batch::record::Status;
 use demsketch::batch::run::{check_stored_plan, clean_output, count_done, lock_output};
 use demsketch::batch::{finish, run_all, steps, BatchError, BatchSettings, Plan, Summary};
 use demsketch::raster::journal;
-use demsketch::view::{check_view_settings, SettingNames};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
+use super::edit::EditFlags;
 use super::{BelowMinFit, InternalError};
 
 /// Shown by `demsketch batch --help`.
@@ -54,26 +54,12 @@ Exit codes:
   2  an internal error
   3  an edit's fit was below --min-fit: it wrote nothing, the others did";
 
+/// The flags of a batch: those every edit runs with (`edit`'s, one
+/// group) and the pyramid's resampling.
 #[derive(clap::Args, Debug, Clone)]
-pub struct EditFlags {
-    /// Only the DEM within this distance of each viewpoint is read, metres.
-    #[arg(long, default_value_t = 50_000.0)]
-    pub max_distance: f64,
-    /// Refraction coefficient k.
-    #[arg(long, default_value_t = 1.0 / 7.0)]
-    pub refraction: f64,
-    /// Most re-solves per view while lowering protruding silhouettes.
-    #[arg(long, default_value_t = 4)]
-    pub max_lowering_iterations: usize,
-    /// Most re-solves per view while fitting the strokes' contours.
-    #[arg(long, default_value_t = 6)]
-    pub max_contour_iterations: usize,
-    /// Least fitted share of every stroke for an edit to be written.
-    #[arg(long, default_value_t = demsketch::edit::DEFAULT_MIN_FIT, value_parser = super::edit::parse_min_fit)]
-    pub min_fit: f64,
-    /// Write an edit even when a stroke's fit is below --min-fit.
-    #[arg(long)]
-    pub allow_partial: bool,
+pub struct BatchFlags {
+    #[command(flatten)]
+    pub edit: EditFlags,
     /// Resampling of a tile directory's pyramid (subdirectories 1, 2, ... as
     /// `gdal_retile.py -levels` makes), refreshed once at the end of the
     /// batch: the `-r` it was built with (near, bilinear, cubic,
@@ -82,22 +68,19 @@ pub struct EditFlags {
     pub pyramid_resampling: Option<String>,
 }
 
-impl EditFlags {
-    /// The flags as the batch's settings, once `--max-distance` and
-    /// `--refraction` are checked as `edit` checks them.
+impl BatchFlags {
+    /// The flags as the batch's settings, once `--max-distance`,
+    /// `--refraction` and `--min-fit` are checked as `edit` checks them.
     fn settings(&self) -> anyhow::Result<BatchSettings> {
-        check_view_settings(
-            Some(self.max_distance),
-            self.refraction,
-            SettingNames::Flags,
-        )?;
+        let e = &self.edit;
+        e.check()?;
         Ok(BatchSettings {
-            max_distance_m: self.max_distance,
-            refraction: self.refraction,
-            max_lowering_iterations: self.max_lowering_iterations,
-            max_contour_iterations: self.max_contour_iterations,
-            min_fit: self.min_fit,
-            allow_partial: self.allow_partial,
+            max_distance_m: e.max_distance,
+            refraction: e.refraction,
+            max_lowering_iterations: e.max_lowering_iterations,
+            max_contour_iterations: e.max_contour_iterations,
+            min_fit: e.min_fit,
+            allow_partial: e.allow_partial,
             pyramid_resampling: self.pyramid_resampling.clone(),
         })
     }
@@ -122,7 +105,7 @@ pub struct BatchArgs {
     #[arg(long)]
     pub resume: bool,
     #[command(flatten)]
-    pub flags: EditFlags,
+    pub flags: BatchFlags,
     /// Seconds to wait for another demsketch edit of OUT to finish.
     #[arg(long, default_value_t = 300.0)]
     pub lock_timeout: f64,
@@ -152,7 +135,7 @@ pub struct PlanArgs {
     #[arg(long)]
     pub plan: PathBuf,
     #[command(flatten)]
-    pub flags: EditFlags,
+    pub flags: BatchFlags,
 }
 
 #[derive(clap::Args, Debug)]
@@ -195,7 +178,7 @@ pub fn run(args: BatchArgs) -> anyhow::Result<()> {
 }
 
 /// Read the manifest and the DEM and plan the batch (nothing written).
-fn make_plan(dem: &Path, jobs: &Path, out: &Path, flags: &EditFlags) -> anyhow::Result<Plan> {
+fn make_plan(dem: &Path, jobs: &Path, out: &Path, flags: &BatchFlags) -> anyhow::Result<Plan> {
     steps::make_plan(dem, jobs, out, flags.settings()?).map_err(cli_err)
 }
 

@@ -7,13 +7,13 @@
 
 use anyhow::Context;
 use demsketch::correct::{run as run_correct, CorrectOptions};
-use demsketch::raster::Destination;
 use std::path::PathBuf;
 use std::time::Duration;
 
 use demsketch::raster::edit_lock::{lock_dir, EditLock};
 use demsketch::raster::journal;
 
+use super::edit::OutputFlags;
 use super::InternalError;
 
 /// Shown by `--help`.
@@ -53,17 +53,8 @@ pub struct CorrectArgs {
     /// noise_region features name (its strokes are not matched as an edit).
     #[arg(long, value_name = "SKETCH.json")]
     pub sketch: Option<PathBuf>,
-    /// Corrected GeoTIFF (single-file DEM) or directory receiving the full
-    /// tile set (tile directory).
-    #[arg(
-        long,
-        required_unless_present = "in_place",
-        conflicts_with = "in_place"
-    )]
-    pub out: Option<PathBuf>,
-    /// Rewrite the changed tiles of the input in place (atomically).
-    #[arg(long)]
-    pub in_place: bool,
+    #[command(flatten)]
+    pub output: OutputFlags,
     /// Write the report (JSON) here.
     #[arg(long)]
     pub report: Option<PathBuf>,
@@ -89,12 +80,8 @@ pub struct CorrectArgs {
 }
 
 pub fn run(args: CorrectArgs) -> anyhow::Result<()> {
-    let destination = match (&args.out, args.in_place) {
-        (_, true) => Destination::InPlace,
-        (Some(p), false) => Destination::Path(p.clone()),
-        (None, false) => anyhow::bail!("give --out OUT or --in-place"),
-    };
-    if let Some(out) = &args.out {
+    let destination = args.output.destination()?;
+    if let Some(out) = &args.output.out {
         if !args.dem.is_dir() {
             demsketch::raster::output_format::output_driver(out, None)
                 .map_err(|m| anyhow::anyhow!(m))?;

@@ -15,7 +15,7 @@
 use anyhow::Context;
 use demsketch::edit::{run_opened, EditError, EditOptions, EditReport};
 use demsketch::raster::Destination;
-use demsketch::view::{check_view_settings, SettingNames};
+use demsketch::view::{check_min_fit, check_view_settings, SettingNames};
 use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::time::Duration;
@@ -52,45 +52,16 @@ pub struct EditArgs {
     /// Sketch file (JSON: views, each with a viewpoint, a camera and strokes in pixels; `options`; see docs/user_guide.md, sections 2 and 3).
     #[arg(long)]
     pub sketch: PathBuf,
-    /// Corrected GeoTIFF (single-file DEM) or directory receiving the full
-    /// tile set (tile directory).
-    #[arg(
-        long,
-        required_unless_present = "in_place",
-        conflicts_with = "in_place"
-    )]
-    pub out: Option<PathBuf>,
-    /// Rewrite the changed tiles of the input in place (atomically).
-    #[arg(long)]
-    pub in_place: bool,
+    #[command(flatten)]
+    pub output: OutputFlags,
     /// Write the edit report (JSON) here.
     #[arg(long)]
     pub report: Option<PathBuf>,
     /// Write before/after views and a height-change map (PNG) into this directory.
     #[arg(long)]
     pub renders: Option<PathBuf>,
-    /// Only the DEM within this distance of each viewpoint is read, metres.
-    #[arg(long, default_value_t = 50_000.0)]
-    pub max_distance: f64,
-    /// Refraction coefficient k (apparent drop (1 - k) d^2 / 2R).
-    #[arg(long, default_value_t = 1.0 / 7.0)]
-    pub refraction: f64,
-    /// Most re-solves per view while lowering protruding silhouettes.
-    #[arg(long, default_value_t = 4)]
-    pub max_lowering_iterations: usize,
-    /// Most re-solves per view while making the strokes the terrain's
-    /// occluding contours (0: the paper's constraints and lowering only).
-    #[arg(long, default_value_t = 6)]
-    pub max_contour_iterations: usize,
-    /// Least share of a stroke's pixel columns that must be fitted (the
-    /// report's fit.fitted_fraction) for the edit to be written; below it
-    /// the DEM is not written and the exit code is 3. Above 1: never written.
-    #[arg(long, default_value_t = demsketch::edit::DEFAULT_MIN_FIT, value_parser = parse_min_fit)]
-    pub min_fit: f64,
-    /// Write the edit even when a stroke's fit is below --min-fit (the
-    /// report still marks those strokes "partial" or "unfitted").
-    #[arg(long)]
-    pub allow_partial: bool,
+    #[command(flatten)]
+    pub flags: EditFlags,
     /// Compute the edit, write the report and pictures, never the DEM; the
     /// exit code is the one a real run would give (0 or 3).
     #[arg(long)]
@@ -135,6 +106,87 @@ pub struct EditArgs {
     pub lock_timeout: f64,
 }
 
+/// Where an edit or a correction writes: `--out` or `--in-place` (the
+/// flags of `edit` and `correct`).
+#[derive(clap::Args, Debug, Clone)]
+pub struct OutputFlags {
+    /// Corrected GeoTIFF (single-file DEM) or directory receiving the full
+    /// tile set (tile directory).
+    #[arg(
+        long,
+        required_unless_present = "in_place",
+        conflicts_with = "in_place"
+    )]
+    pub out: Option<PathBuf>,
+    /// Rewrite the changed tiles of the input in place (atomically).
+    #[arg(long)]
+    pub in_place: bool,
+}
+
+impl OutputFlags {
+    /// The destination the flags name (clap requires one of the two).
+    pub fn destination(&self) -> anyhow::Result<Destination> {
+        Ok(match (&self.out, self.in_place) {
+            (_, true) => Destination::InPlace,
+            (Some(p), false) => Destination::Path(p.clone()),
+            (None, false) => anyhow::bail!("give --out OUT or --in-place"),
+        })
+    }
+}
+
+/// The flags every edit runs with, `edit`'s and `batch`'s (a batch runs
+/// each edit as `edit --in-place` with the same flags).
+#[derive(clap::Args, Debug, Clone)]
+pub struct EditFlags {
+    /// Only the DEM within this distance of each viewpoint is read, metres.
+    #[arg(long, default_value_t = 50_000.0, allow_hyphen_values = true)]
+    pub max_distance: f64,
+    /// Refraction coefficient k (apparent drop (1 - k) d^2 / 2R).
+    #[arg(long, default_value_t = 1.0 / 7.0, allow_hyphen_values = true)]
+    pub refraction: f64,
+    /// Most re-solves per view while lowering protruding silhouettes.
+    #[arg(long, default_value_t = 4)]
+    pub max_lowering_iterations: usize,
+    /// Most re-solves per view while making the strokes the terrain's
+    /// occluding contours (0: the paper's constraints and lowering only).
+    #[arg(long, default_value_t = 6)]
+    pub max_contour_iterations: usize,
+    /// Least share of a stroke's pixel columns that must be fitted (the
+    /// report's fit.fitted_fraction), a number >= 0, for an edit to be
+    /// written; below it the edit writes no DEM and the exit code is 3.
+    /// Above 1: never written.
+    #[arg(long, default_value_t = demsketch::edit::DEFAULT_MIN_FIT, allow_hyphen_values = true)]
+    pub min_fit: f64,
+    /// Write the edit even when a stroke's fit is below --min-fit (the
+    /// report still marks those strokes "partial" or "unfitted").
+    #[arg(long)]
+    pub allow_partial: bool,
+}
+
+impl EditFlags {
+    /// The library's rules for `--max-distance`, `--refraction` and
+    /// `--min-fit`, before any work.
+    pub fn check(&self) -> anyhow::Result<()> {
+        check_view_settings(
+            Some(self.max_distance),
+            self.refraction,
+            SettingNames::Flags,
+        )?;
+        check_min_fit(self.min_fit, SettingNames::Flags)?;
+        Ok(())
+    }
+
+    /// Set the options the flags give.
+    pub fn apply(&self, opts: &mut EditOptions) {
+        opts.max_distance_m = Some(self.max_distance);
+        opts.refraction = self.refraction;
+        opts.max_lowering_iterations = self.max_lowering_iterations;
+        opts.max_contour_iterations = self.max_contour_iterations;
+        opts.min_fit = self.min_fit;
+        opts.allow_partial = self.allow_partial;
+    }
+}
+
 fn parse_overview_resampling(s: &str) -> Result<String, String> {
     demsketch::raster::overviews::parse_resampling(s).map(str::to_string)
 }
@@ -156,26 +208,11 @@ fn parse_lock_timeout(s: &str) -> Result<f64, String> {
     Ok(v)
 }
 
-pub(super) fn parse_min_fit(s: &str) -> Result<f64, String> {
-    let v: f64 = s
-        .trim()
-        .parse()
-        .map_err(|_| format!("--min-fit '{s}' is not a number"))?;
-    if !(v.is_finite() && v >= 0.0) {
-        return Err(format!("--min-fit {v} is not a non-negative number"));
-    }
-    Ok(v)
-}
-
 /// `demsketch edit`: check the outputs, take the lock and open the DEM
 /// ([`demsketch::edit::guard`]), run the edit, then print its summary or
 /// its report.
 pub fn run(args: EditArgs) -> anyhow::Result<()> {
-    check_view_settings(
-        Some(args.max_distance),
-        args.refraction,
-        SettingNames::Flags,
-    )?;
+    args.flags.check()?;
     let destination = destination_of(&args)?;
     let opts = options_of(&args, destination);
     // The lock, recovery of a killed edit and the output checks
@@ -222,12 +259,8 @@ pub fn run(args: EditArgs) -> anyhow::Result<()> {
 /// the outputs' formats and creation options can be written, before any
 /// work.
 fn destination_of(args: &EditArgs) -> anyhow::Result<Destination> {
-    let destination = match (&args.out, args.in_place) {
-        (_, true) => Destination::InPlace,
-        (Some(p), false) => Destination::Path(p.clone()),
-        (None, false) => anyhow::bail!("give --out OUT or --in-place"),
-    };
-    if let Some(out) = &args.out {
+    let destination = args.output.destination()?;
+    if let Some(out) = &args.output.out {
         if !args.dem.is_dir() {
             demsketch::raster::output_format::output_driver(out, args.format.as_deref())
                 .map_err(|m| anyhow::anyhow!(m))?;
@@ -263,13 +296,8 @@ fn options_of(args: &EditArgs, destination: Destination) -> EditOptions {
     opts.dz = args.dz.clone();
     opts.report = args.report.clone();
     opts.renders = args.renders.clone();
-    opts.max_distance_m = Some(args.max_distance);
-    opts.refraction = args.refraction;
-    opts.max_lowering_iterations = args.max_lowering_iterations;
-    opts.max_contour_iterations = args.max_contour_iterations;
+    args.flags.apply(&mut opts);
     opts.progress = std::io::stderr().is_terminal() && !super::quiet();
-    opts.min_fit = args.min_fit;
-    opts.allow_partial = args.allow_partial;
     opts.dry_run = args.dry_run;
     opts
 }

@@ -95,8 +95,9 @@ pub struct TilesArgs {
     /// Only the tiles an edit changed: its --dz raster or its --report JSON.
     #[arg(long, value_name = "DZ.tif|REPORT.json")]
     pub changed: Option<PathBuf>,
-    /// With a --changed dz raster: cells with |dz| above this are changed, metres.
-    #[arg(long, default_value_t = 0.0)]
+    /// With a --changed dz raster: cells with |dz| above this are changed,
+    /// metres (>= 0).
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
     pub min_dz: f64,
     /// Refuse to start past this many tiles.
     #[arg(long, default_value_t = 1_000_000)]
@@ -134,8 +135,8 @@ pub struct GeojsonArgs {
     /// its cells with |dz| > --min-dz (default: the report's window).
     #[arg(long, value_name = "DZ.tif")]
     pub dz: Option<PathBuf>,
-    /// Cells with |dz| above this are changed, metres.
-    #[arg(long, default_value_t = 0.0)]
+    /// Cells with |dz| above this are changed, metres (>= 0).
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
     pub min_dz: f64,
     /// The GeoJSON file to write.
     #[arg(long)]
@@ -172,9 +173,11 @@ pub struct GltfArgs {
     /// The binary glTF (.glb) to write.
     #[arg(long)]
     pub out: PathBuf,
-    /// Area as lon/lat WEST,SOUTH,EAST,NORTH [default: the whole DEM].
-    #[arg(long, value_parser = parse_bounds, allow_hyphen_values = true)]
-    pub bounds: Option<[f64; 4]>,
+    /// Area as lon/lat WEST,SOUTH,EAST,NORTH in degrees, west < east,
+    /// south < north, longitudes in [-180, 180], latitudes in [-90, 90]
+    /// [default: the whole DEM].
+    #[arg(long, allow_hyphen_values = true, value_name = "W,S,E,N")]
+    pub bounds: Option<String>,
     /// Take every STEP-th cell in each direction.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..))]
     pub step: u32,
@@ -184,25 +187,6 @@ pub struct GltfArgs {
     /// Print what was written as JSON on stdout.
     #[arg(long)]
     pub json: bool,
-}
-
-fn parse_bounds(s: &str) -> Result<[f64; 4], String> {
-    let v: Vec<f64> = s
-        .split(',')
-        .map(|p| p.trim().parse::<f64>())
-        .collect::<Result<_, _>>()
-        .map_err(|_| format!("--bounds '{s}' must be four numbers WEST,SOUTH,EAST,NORTH"))?;
-    if v.len() != 4 || v.iter().any(|x| !x.is_finite()) {
-        return Err(format!(
-            "--bounds '{s}' must be four numbers WEST,SOUTH,EAST,NORTH"
-        ));
-    }
-    if !(v[0] < v[2] && v[1] < v[3]) || v[1] < -90.0 || v[3] > 90.0 {
-        return Err(format!(
-            "--bounds '{s}': need west < east, south < north, latitudes within +-90"
-        ));
-    }
-    Ok([v[0], v[1], v[2], v[3]])
 }
 
 fn parse_datetime(s: &str) -> Result<String, String> {
@@ -239,9 +223,7 @@ fn lift(e: ExportError) -> anyhow::Error {
 }
 
 fn tiles(a: TilesArgs) -> anyhow::Result<()> {
-    if !(a.min_dz.is_finite() && a.min_dz >= 0.0) {
-        anyhow::bail!("--min-dz {} must be a number >= 0", a.min_dz);
-    }
+    change_mask::check_min_dz(a.min_dz)?;
     let changed = match &a.changed {
         Some(p) => {
             let dem = Dem::open(&a.dem)?;
@@ -297,9 +279,7 @@ fn cog_cmd(a: CogArgs) -> anyhow::Result<()> {
 }
 
 fn geojson(a: GeojsonArgs) -> anyhow::Result<()> {
-    if !(a.min_dz.is_finite() && a.min_dz >= 0.0) {
-        anyhow::bail!("--min-dz {} must be a number >= 0", a.min_dz);
-    }
+    change_mask::check_min_dz(a.min_dz)?;
     let dem = Dem::open(&a.dem)?;
     let report = edit_report::read(&a.report).map_err(lift)?;
     let mask = match &a.dz {
@@ -356,8 +336,13 @@ fn stac(a: StacArgs) -> anyhow::Result<()> {
 }
 
 fn gltf(a: GltfArgs) -> anyhow::Result<()> {
+    let bounds = a
+        .bounds
+        .as_deref()
+        .map(gltf_mesh::parse_bounds)
+        .transpose()?;
     let opts = gltf_mesh::MeshOptions {
-        bounds_lonlat: a.bounds,
+        bounds_lonlat: bounds,
         step: a.step as usize,
         max_vertices: a.max_vertices,
     };

@@ -25,10 +25,7 @@ fn parse_pixel(s: &str) -> Result<(f64, f64), String> {
 pub fn run(args: LocateArgs) -> anyhow::Result<()> {
     let view = args.camera.resolve()?;
     let (x, y) = args.pixel;
-    let (w, h) = (view.camera.width as f64, view.camera.height as f64);
-    if !(x >= 0.0 && y >= 0.0 && x <= w && y <= h) {
-        anyhow::bail!("pixel {x},{y} lies outside the {w}x{h} image");
-    }
+    view.camera.check_pixel(x, y)?;
     let dem = Dem::open(&args.dem)?;
     let scene = Scene::open(
         &dem,

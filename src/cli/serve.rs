@@ -6,7 +6,7 @@ use std::net::{IpAddr, SocketAddr};
 use std::path::PathBuf;
 
 use demsketch::serve::{serve_blocking, ServeConfig, ServeError};
-use demsketch::view::{check_view_settings, SettingNames};
+use demsketch::view::{check_min_fit, check_view_settings, SettingNames};
 
 use super::InternalError;
 
@@ -52,9 +52,7 @@ pub struct ServeArgs {
 
 pub fn run(args: ServeArgs) -> anyhow::Result<()> {
     check_view_settings(Some(args.max_distance), 1.0 / 7.0, SettingNames::Flags)?;
-    if !(args.min_fit.is_finite() && args.min_fit >= 0.0) {
-        anyhow::bail!("--min-fit {} is not a non-negative number", args.min_fit);
-    }
+    check_min_fit(args.min_fit, SettingNames::Flags)?;
     let mut config = ServeConfig::new(args.dem.clone(), args.out.clone());
     config.max_distance_m = args.max_distance;
     config.min_fit = args.min_fit;

@@ -189,8 +189,9 @@ pub struct ViewArgs {
     /// like gdal_viewshed; cells beyond --max-distance are 0).
     #[arg(long)]
     pub viewshed: Option<PathBuf>,
-    /// Target height above the surface for the viewshed, metres.
-    #[arg(long, default_value_t = 0.0)]
+    /// Target height above the surface for the viewshed, metres (a finite
+    /// number; negative: below the surface).
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
     pub target_height: f64,
     /// Compute --viewshed with one exact line of sight per cell instead of
     /// horizon propagation (tens of times slower; the propagation agrees
@@ -394,9 +395,7 @@ pub fn run(args: ViewArgs) -> anyhow::Result<()> {
     let t_all = Instant::now();
     check_outputs(&args)?;
     let view = resolve_view(&args)?;
-    if let Some(t) = Some(args.target_height).filter(|t| !t.is_finite()) {
-        anyhow::bail!("--target-height {t} must be a finite number of metres");
-    }
+    demsketch::render::check_target_height(args.target_height)?;
     // Each cell is read once: decoded blocks are not cached.
     let dem = Dem::open(&args.dem)?.without_block_cache();
     check_view_outputs(&args, &dem)?;
@@ -598,10 +597,7 @@ fn stage_viewshed(
     scene: &Scene,
     view: &ResolvedView,
 ) -> anyhow::Result<()> {
-    let max_d = args
-        .camera
-        .max_distance
-        .filter(|d| d.is_finite() && *d > 0.0);
+    let max_d = demsketch::view::distance_limit(args.camera.max_distance);
     let window = Scene::window_of(
         dem,
         &scene.georef,

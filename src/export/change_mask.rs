@@ -57,10 +57,27 @@ impl ChangeMask {
     }
 }
 
+/// A `min_dz` (`--min-dz`) that is not a number of metres >= 0 (one line).
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+#[error("--min-dz {} must be a number of metres >= 0", crate::num::Num(*.0))]
+pub struct MinDzError(pub f64);
+
+/// The threshold of a changed cell, |dz| > `min_dz`, is a finite number of
+/// metres >= 0 (0: every cell the edit moved). [`read`] and [`from_dz`]
+/// check it; a caller with a flag checks it before any work.
+pub fn check_min_dz(min_dz: f64) -> Result<(), MinDzError> {
+    if min_dz.is_finite() && min_dz >= 0.0 {
+        Ok(())
+    } else {
+        Err(MinDzError(min_dz))
+    }
+}
+
 /// Read the mask from `path`: a `.json` edit report (its deformation
 /// window on `dem`'s grid) or a height-change raster (cells with
-/// |dz| > `min_dz`).
+/// |dz| > `min_dz`, [`check_min_dz`]).
 pub fn read(path: &Path, dem: &Dem, min_dz: f64) -> Result<ChangeMask, ExportError> {
+    check_min_dz(min_dz)?;
     let is_json = path
         .extension()
         .and_then(|e| e.to_str())
@@ -72,8 +89,9 @@ pub fn read(path: &Path, dem: &Dem, min_dz: f64) -> Result<ChangeMask, ExportErr
     }
 }
 
-/// The cells of a dz raster whose |dz| exceeds `min_dz`.
+/// The cells of a dz raster whose |dz| exceeds `min_dz` ([`check_min_dz`]).
 pub fn from_dz(path: &Path, min_dz: f64) -> Result<ChangeMask, ExportError> {
+    check_min_dz(min_dz)?;
     let dz = Dem::open(path)?;
     let map = dz.read_height_map(dz.full_window())?;
     let mut max_abs: f64 = 0.0;

@@ -23,10 +23,63 @@ use super::ExportError;
 use crate::raster::atomic_file::{write_bytes_verified, StagedOutputs};
 use crate::raster::{Dem, Window};
 
+/// `--bounds` that is not an area in longitude and latitude (one line).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum BoundsError {
+    #[error("--bounds '{0}' must be four numbers WEST,SOUTH,EAST,NORTH (degrees)")]
+    NotFourNumbers(String),
+    #[error(
+        "--bounds {}: need west < east and south < north, longitudes in [-180, 180] and latitudes in [-90, 90] degrees",
+        show_bounds(.0)
+    )]
+    OutOfRange([f64; 4]),
+}
+
+fn show_bounds(b: &[f64; 4]) -> String {
+    b.map(|v| crate::num::Num(v).to_string()).join(",")
+}
+
+/// `--bounds W,S,E,N` as four numbers, held to [`check_bounds`].
+///
+/// ```
+/// use demsketch::export::gltf_mesh::parse_bounds;
+/// assert_eq!(parse_bounds("-113.1,37.2,-112.9,37.4").unwrap(), [-113.1, 37.2, -112.9, 37.4]);
+/// assert!(parse_bounds("1,2,3").is_err());
+/// assert!(parse_bounds("170,0,190,1").is_err());
+/// ```
+pub fn parse_bounds(s: &str) -> Result<[f64; 4], BoundsError> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|p| p.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .map_err(|_| BoundsError::NotFourNumbers(s.to_string()))?;
+    let b: [f64; 4] = v
+        .try_into()
+        .map_err(|_| BoundsError::NotFourNumbers(s.to_string()))?;
+    check_bounds(b)?;
+    Ok(b)
+}
+
+/// An area `[west, south, east, north]` in WGS84 degrees: west < east and
+/// south < north (an area across the antimeridian is not supported),
+/// longitudes in [-180, 180], latitudes in [-90, 90]. [`export_gltf`]
+/// checks it before any work.
+pub fn check_bounds(b: [f64; 4]) -> Result<(), BoundsError> {
+    let [w, s, e, n] = b;
+    let lon = |x: f64| (-180.0..=180.0).contains(&x);
+    let lat = |y: f64| (-90.0..=90.0).contains(&y);
+    if w < e && s < n && lon(w) && lon(e) && lat(s) && lat(n) {
+        Ok(())
+    } else {
+        Err(BoundsError::OutOfRange(b))
+    }
+}
+
 /// What to mesh.
 #[derive(Debug, Clone)]
 pub struct MeshOptions {
-    /// Area as lon/lat `[west, south, east, north]` (default: the whole DEM).
+    /// Area as lon/lat `[west, south, east, north]` (default: the whole
+    /// DEM), held to [`check_bounds`].
     pub bounds_lonlat: Option<[f64; 4]>,
     /// Take every `step`-th cell in each direction.
     pub step: usize,
@@ -64,6 +117,9 @@ pub fn export_gltf(
     out: &Path,
     opts: &MeshOptions,
 ) -> Result<MeshReport, ExportError> {
+    if let Some(b) = opts.bounds_lonlat {
+        check_bounds(b)?;
+    }
     let dem = Dem::open(dem_path)?;
     let win = area_window(&dem, opts.bounds_lonlat)?;
     let step = opts.step.max(1);
@@ -183,11 +239,6 @@ fn area_window(dem: &Dem, b: Option<[f64; 4]>) -> Result<Window, ExportError> {
         path: dem.path.display().to_string(),
         message: m,
     };
-    if !(b[0] < b[2] && b[1] < b[3]) {
-        return Err(bad(format!(
-            "--bounds {b:?}: west < east and south < north are needed"
-        )));
-    }
     let from_ll = proj::Proj::new_known_crs("EPSG:4326", &dem.crs.proj_definition(), None)
         .map_err(|e| bad(format!("its CRS is unknown to PROJ: {e}")))?;
     let mut c = [
@@ -212,7 +263,12 @@ fn area_window(dem: &Dem, b: Option<[f64; 4]>) -> Result<Window, ExportError> {
     }
     dem.window_for_bounds(c)
         .filter(|w| !w.is_empty())
-        .ok_or_else(|| bad(format!("--bounds {b:?} does not overlap the DEM")))
+        .ok_or_else(|| {
+            bad(format!(
+                "--bounds {} does not overlap the DEM",
+                show_bounds(&b)
+            ))
+        })
 }
 
 /// Two counter-clockwise (seen from above) triangles per grid square whose

@@ -42,6 +42,12 @@ pub use tile_encoding::Encoding;
 pub enum ExportError {
     #[error(transparent)]
     Raster(#[from] crate::raster::RasterError),
+    /// `--min-dz` out of its range ([`change_mask::check_min_dz`]).
+    #[error(transparent)]
+    MinDz(#[from] change_mask::MinDzError),
+    /// `--bounds` unusable ([`gltf_mesh::parse_bounds`]).
+    #[error(transparent)]
+    Bounds(#[from] gltf_mesh::BoundsError),
     /// An input (DEM, report, dz raster, flag value) is unusable.
     #[error("{path}: {message}")]
     Input { path: String, message: String },

@@ -73,7 +73,7 @@ impl LodPlan {
     /// DEM whose cells `frame` resolves; `None` when the view needs none
     /// (its maximum distance within the exact reach, or not finite).
     pub fn new(frame: &LocalFrame, camera: &Camera, max_d: Option<f64>) -> Option<LodPlan> {
-        let max_d = super::scene::usable_distance(max_d)?;
+        let max_d = crate::view::distance_limit(max_d)?;
         let p = frame.p;
         // the longer side of a cell: a coarse cell spans at most a pixel
         // along both
@@ -127,7 +127,7 @@ impl LodPlan {
         else {
             return plan;
         };
-        let max_d = super::scene::usable_distance(max_d)?;
+        let max_d = crate::view::distance_limit(max_d)?;
         // (no cut where it would leave the exact terrain most of its reach)
         let reach = plan.as_ref().map_or(max_d, |p| p.near_m.min(max_d));
         if reach <= MIN_CUT * r || !(frame_cell_m(frame) * camera.focal_px).is_finite() {

@@ -26,7 +26,8 @@ pub struct Located {
 }
 
 /// The terrain point shown at pixel coordinates `(x, y)` of `camera`; `None`
-/// when the pixel shows sky.
+/// when the pixel shows sky. A pixel outside the image is an error
+/// ([`Camera::check_pixel`]; callers check it before any work too).
 pub fn locate(
     terrain: &LocalTerrain,
     camera: &Camera,
@@ -34,6 +35,7 @@ pub fn locate(
     x: f64,
     y: f64,
 ) -> Result<Option<Located>, ViewError> {
+    camera.check_pixel(x, y)?;
     let Some(h): Option<TerrainHit> = pick(terrain, camera, x, y) else {
         return Ok(None);
     };

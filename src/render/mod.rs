@@ -43,8 +43,9 @@ pub use terrain::{LocalTerrain, RayHit};
 pub use triangle_raster::PATCH_TOLERANCE_PX;
 pub use vertex_heights::VertexHeights;
 pub use viewshed::{
-    eye_frame, viewshed, viewshed_exact, viewshed_from_dem, viewshed_from_file, viewshed_rays,
-    write_viewshed_tiff, write_viewshed_tiff_with, Viewshed, VIEWSHED_TIFF_OPTIONS,
+    check_target_height, eye_frame, viewshed, viewshed_exact, viewshed_from_dem,
+    viewshed_from_file, viewshed_rays, write_viewshed_tiff, write_viewshed_tiff_with,
+    TargetHeightError, Viewshed, VIEWSHED_TIFF_OPTIONS,
 };
 
 /// Errors of rendering and writing views. One line naming the file and the problem.
@@ -56,4 +57,6 @@ pub enum RenderError {
     Raster(#[from] crate::raster::RasterError),
     #[error("{path}: cannot write: {message}")]
     Write { path: String, message: String },
+    #[error(transparent)]
+    TargetHeight(#[from] TargetHeightError),
 }

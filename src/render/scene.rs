@@ -105,7 +105,7 @@ impl Scene {
         k: f64,
         camera: &crate::view::Camera,
     ) -> Result<Scene, RenderError> {
-        let max_d = usable_distance(max_distance);
+        let max_d = crate::view::distance_limit(max_distance);
         let plan = Self::wedge_plan(dem, vp, max_d, k, camera)?;
         let (window, frame, georef, win) = Self::read_wedge(dem, vp, k, plan)?;
         let terrain = LocalTerrain::over(&window, &frame, max_d);
@@ -127,7 +127,7 @@ impl Scene {
         k: f64,
         camera: &crate::view::Camera,
     ) -> Result<Window, RenderError> {
-        let max_d = usable_distance(max_distance);
+        let max_d = crate::view::distance_limit(max_distance);
         Ok(Self::wedge_plan(dem, vp, max_d, k, camera)?.win)
     }
 
@@ -242,7 +242,7 @@ impl Scene {
         exact_cells: Option<f64>,
         unbounded_reach: impl Fn(&WedgePlan) -> Option<f64>,
     ) -> Result<(Scene, Option<FarRingsToRead>), RenderError> {
-        let max_d = usable_distance(max_distance);
+        let max_d = crate::view::distance_limit(max_distance);
         let plan = Self::wedge_plan(dem, vp, max_d, k, camera)?;
         let reach = max_d.or_else(|| unbounded_reach(&plan));
         match LodPlan::new_within(&plan.probe, camera, reach, exact_cells) {
@@ -335,7 +335,7 @@ impl Scene {
         k: f64,
         camera: &crate::view::Camera,
     ) -> Result<(Window, u64), RenderError> {
-        let max_d = usable_distance(max_distance);
+        let max_d = crate::view::distance_limit(max_distance);
         let plan = Self::wedge_plan(dem, vp, max_d, k, camera)?;
         let Some(lod) = LodPlan::new(&plan.probe, camera, max_d) else {
             return Ok((plan.win, 0));
@@ -423,7 +423,7 @@ impl Scene {
         if !(px >= 0.0 && py >= 0.0 && px < dem.width as f64 && py < dem.height as f64) {
             return Err(outside().into());
         }
-        Ok(match usable_distance(max_distance) {
+        Ok(match crate::view::distance_limit(max_distance) {
             None => dem.full_window(),
             Some(r) => {
                 let m = georef.metric_matrix(lon, lat)?;
@@ -450,7 +450,7 @@ impl Scene {
     ) -> Result<Scene, RenderError> {
         let name = dem.path.display().to_string();
         let georef = Georef::for_crs(&dem.crs, &name)?;
-        let max_d = usable_distance(max_distance);
+        let max_d = crate::view::distance_limit(max_distance);
         let win = Self::window_of(dem, &georef, vp.lon, vp.lat, max_d)?;
         let window = dem.read_height_map(win)?;
         let frame = georef.local_frame(vp, &window, k)?;
@@ -486,12 +486,6 @@ impl Scene {
             terrain,
         })
     }
-}
-
-/// A maximum view distance that limits anything: finite and positive
-/// (`None`, zero, negative or non-finite: no limit).
-pub(crate) fn usable_distance(max_distance: Option<f64>) -> Option<f64> {
-    max_distance.filter(|d| d.is_finite() && *d > 0.0)
 }
 
 /// The distance, metres, from the eye to the farthest corner of a wedge's

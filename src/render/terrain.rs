@@ -126,7 +126,7 @@ impl LocalTerrain {
     /// has the same vertices, with the same bits, as
     /// [`LocalTerrain::in_view`] on the whole grid.
     pub fn over(dem: &HeightMap, frame: &LocalFrame, max_distance: Option<f64>) -> Self {
-        let max_d = max_distance.filter(|d| *d > 0.0).unwrap_or(f64::INFINITY);
+        let max_d = crate::view::distance_limit(max_distance).unwrap_or(f64::INFINITY);
         Self::build_over(dem, frame, max_d, (0, 0, dem.width, dem.height), 0.0)
     }
 
@@ -160,7 +160,7 @@ impl LocalTerrain {
         max_distance: Option<f64>,
         camera: Option<&crate::view::Camera>,
     ) -> (usize, usize, usize, usize) {
-        let max_d = max_distance.filter(|d| *d > 0.0).unwrap_or(f64::INFINITY);
+        let max_d = crate::view::distance_limit(max_distance).unwrap_or(f64::INFINITY);
         extent(size, frame, max_d, camera)
     }
 
@@ -170,7 +170,7 @@ impl LocalTerrain {
         max_distance: Option<f64>,
         camera: Option<&crate::view::Camera>,
     ) -> Self {
-        let max_d = max_distance.filter(|d| *d > 0.0).unwrap_or(f64::INFINITY);
+        let max_d = crate::view::distance_limit(max_distance).unwrap_or(f64::INFINITY);
         let cells = extent((dem.width, dem.height), frame, max_d, camera);
         Self::build_over(dem, frame, max_d, cells, 0.0)
     }

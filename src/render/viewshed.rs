@@ -195,6 +195,26 @@ pub fn viewshed(terrain: &LocalTerrain, dem: &HeightMap, target_height: f64) -> 
     infallible(prop.run(dem.width, dem.height, &dem.geotransform, &dem.crs))
 }
 
+/// A target height (`--target-height`) that is not a finite number of
+/// metres (one line).
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+#[error("--target-height {} must be a finite number of metres", crate::num::Num(*.0))]
+pub struct TargetHeightError(pub f64);
+
+/// The height above the surface at which a cell is looked for is a finite
+/// number of metres (negative: below the surface; a NaN or infinite one
+/// would leave every line of sight undecided). [`viewshed_from_file`]
+/// checks it; the viewsheds that cannot fail ([`viewshed`],
+/// [`viewshed_from_dem`], [`viewshed_rays`], [`viewshed_exact`]) take it
+/// checked: a caller with a flag checks it before any work.
+pub fn check_target_height(target_height: f64) -> Result<(), TargetHeightError> {
+    if target_height.is_finite() {
+        Ok(())
+    } else {
+        Err(TargetHeightError(target_height))
+    }
+}
+
 /// [`viewshed`] straight from the DEM: the same answer as
 /// `viewshed(&LocalTerrain::new(dem, frame, max_distance), dem,
 /// target_height)`, bit for bit, without building the terrain (its
@@ -213,7 +233,7 @@ pub fn viewshed_from_dem(
     max_distance: Option<f64>,
     target_height: f64,
 ) -> Viewshed {
-    let max_d = max_distance.filter(|d| *d > 0.0).unwrap_or(f64::INFINITY);
+    let max_d = crate::view::distance_limit(max_distance).unwrap_or(f64::INFINITY);
     let (c0, r0, c1, r1) =
         LocalTerrain::extent_in((dem.width, dem.height), frame, max_distance, None);
     let nx = c1.saturating_sub(c0).max(1);
@@ -241,7 +261,8 @@ pub fn viewshed_from_dem(
 /// the DEM read whole, bit for bit; `frame` is on `dem`'s grid (see
 /// [`eye_frame`]). Open `dem` with [`Dem::without_block_cache`]: the bands
 /// are read once, and a cache would keep their blocks. Fails when a band
-/// cannot be read.
+/// cannot be read, or on a target height that is not finite
+/// ([`check_target_height`]).
 ///
 /// ```no_run
 /// # use demsketch::render::{eye_frame, viewshed_from_file};
@@ -258,7 +279,8 @@ pub fn viewshed_from_file(
     max_distance: Option<f64>,
     target_height: f64,
 ) -> Result<Viewshed, RenderError> {
-    let max_d = max_distance.filter(|d| *d > 0.0).unwrap_or(f64::INFINITY);
+    check_target_height(target_height)?;
+    let max_d = crate::view::distance_limit(max_distance).unwrap_or(f64::INFINITY);
     let (c0, r0, c1, r1) =
         LocalTerrain::extent_in((dem.width, dem.height), frame, max_distance, None);
     let nx = c1.saturating_sub(c0).max(1);

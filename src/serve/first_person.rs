@@ -268,12 +268,10 @@ pub fn locate_pixel(state: &AppState, req: &ViewRequest) -> Result<serde_json::V
             "locate: give \"pixel\": [x, y]".into(),
         ));
     };
-    if !(x.is_finite() && y.is_finite()) {
-        return Err(ServeError::BadRequest(
-            "locate: pixel is not a number".into(),
-        ));
-    }
     let camera = camera_of(&req.camera)?;
+    camera
+        .check_pixel(x, y)
+        .map_err(|e| ServeError::BadRequest(format!("locate: {e}")))?;
     let scene = state.scene_for(&req.viewpoint)?;
     let hit = state.with_georef(|g| {
         locate(&scene.terrain, &camera, g, x, y)

@@ -47,7 +47,46 @@ pub struct Camera {
 /// (an upper estimate).
 const BYTES_PER_PIXEL: u64 = 64;
 
+/// Pixel coordinates outside a camera's image, or not numbers (one line).
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+#[error(
+    "pixel {},{} lies outside the {width}x{height} image",
+    crate::num::Num(*x),
+    crate::num::Num(*y)
+)]
+pub struct PixelOutside {
+    pub x: f64,
+    pub y: f64,
+    pub width: usize,
+    pub height: usize,
+}
+
 impl Camera {
+    /// Pixel coordinates `(x, y)` lie on the image: `0 <= x <= width`,
+    /// `0 <= y <= height` (origin top-left, pixel centres at +0.5; the far
+    /// edges are the last pixels' edges). `locate` ([`crate::render::locate`])
+    /// checks its pixel so, for the command line and the browser app alike.
+    ///
+    /// ```
+    /// let c = demsketch::view::Camera::new(800, 450, 0.0, 0.0, 0.0, 60.0).unwrap();
+    /// assert!(c.check_pixel(400.5, 225.5).is_ok());
+    /// let e = c.check_pixel(900.0, f64::NAN).unwrap_err();
+    /// assert_eq!(e.to_string(), "pixel 900,NaN lies outside the 800x450 image");
+    /// ```
+    pub fn check_pixel(&self, x: f64, y: f64) -> Result<(), PixelOutside> {
+        let (w, h) = (self.width as f64, self.height as f64);
+        if x >= 0.0 && y >= 0.0 && x <= w && y <= h {
+            Ok(())
+        } else {
+            Err(PixelOutside {
+                x,
+                y,
+                width: self.width,
+                height: self.height,
+            })
+        }
+    }
+
     /// A camera; errors on an empty image or a field of view outside (0, 180).
     pub fn new(
         width: usize,

@@ -16,9 +16,11 @@ mod settings;
 mod viewpoint;
 
 pub(crate) use camera::{cross, dot};
-pub use camera::{Camera, CameraModel};
+pub use camera::{Camera, CameraModel, PixelOutside};
 pub use curvature::Curvature;
-pub use settings::{check_view_settings, SettingNames, ViewSettingError};
+pub use settings::{
+    check_min_fit, check_view_settings, distance_limit, MinFitError, SettingNames, ViewSettingError,
+};
 pub use viewpoint::{
     below_ground_problem, route_proj_messages, EyeHeight, Georef, LocalFrame, Viewpoint,
 };
@@ -37,4 +39,6 @@ pub enum ViewError {
     BadViewpoint { lon: f64, lat: f64 },
     #[error("camera: {0}")]
     BadCamera(String),
+    #[error(transparent)]
+    Pixel(#[from] PixelOutside),
 }

@@ -280,7 +280,7 @@ fn run_within(
     let edit = Edit {
         opts,
         sketch_name: sketch_path.display().to_string(),
-        max_d: opts.max_distance_m.filter(|d| d.is_finite() && *d > 0.0),
+        max_d: crate::view::distance_limit(opts.max_distance_m),
         pb: progress_bar(opts),
         skyline: true,
         exact_cells,

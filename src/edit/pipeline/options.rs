@@ -125,7 +125,8 @@ pub const OBSERVER_RADIUS_M: f64 = 100.0;
 /// Fail early, before any work, on a view distance or refraction
 /// coefficient out of range ([`crate::view::check_view_settings`], the
 /// rule the command line checks its flags by) or a `min_fit` that is not
-/// a non-negative number: values a caller passes on from its user.
+/// a number >= 0 ([`crate::view::check_min_fit`], the same): values a
+/// caller passes on from its user.
 pub(super) fn check_view_options(opts: &EditOptions) -> Result<(), EditError> {
     crate::view::check_view_settings(
         opts.max_distance_m,
@@ -133,13 +134,8 @@ pub(super) fn check_view_options(opts: &EditOptions) -> Result<(), EditError> {
         crate::view::SettingNames::Options,
     )
     .map_err(|e| EditError::Options(e.to_string()))?;
-    if !(opts.min_fit.is_finite() && opts.min_fit >= 0.0) {
-        return Err(EditError::Options(format!(
-            "min_fit {} must be a non-negative number",
-            crate::num::Num(opts.min_fit)
-        )));
-    }
-    Ok(())
+    crate::view::check_min_fit(opts.min_fit, crate::view::SettingNames::Options)
+        .map_err(|e| EditError::Options(e.to_string()))
 }
 
 /// Fail early, before any work, when an output cannot be written: its
