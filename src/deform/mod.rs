@@ -58,14 +58,6 @@ pub struct DeformOptions {
     /// Largest affected window, in cells. Default 2^25 (about 5800 x 5800;
     /// a solve needs about 40 bytes per cell).
     pub max_window_cells: usize,
-    /// The eye (DEM CRS x, y) of the one view the curves were drawn in:
-    /// a curve that raises the terrain changes the ground *in front of it*
-    /// (nearer the eye) only over its landform's own footprint
-    /// ([`footprint_reach`]: half the curve's horizontal length, Gain et
-    /// al. 2009, section 3.1), while behind it, where the landform is
-    /// hidden, it reaches the influence distance. `None` (the default):
-    /// every curve reaches the influence distance all round.
-    pub footprint_eye: Option<[f64; 2]>,
 }
 
 impl Default for DeformOptions {
@@ -76,7 +68,6 @@ impl Default for DeformOptions {
             screening: 0.0,
             max_cycles: 100,
             max_window_cells: 1 << 25,
-            footprint_eye: None,
         }
     }
 }
@@ -394,7 +385,7 @@ pub fn deform_bounded(
     let t0 = Instant::now();
     let base = dem.read_height_map(plan.window)?;
     let t1 = Instant::now();
-    let (mut cons, inside) = constrain(&base, curves, bounded, &plan, opts.footprint_eye);
+    let (mut cons, inside) = constrain(&base, curves, bounded, &plan);
     // Held and lowered cells, like the bounded curves, act only within the
     // curves' influence.
     constraints::apply_cells(&mut cons, &base, plan.window, cells, &inside);
@@ -468,243 +459,34 @@ pub fn deform_bounded(
 
 /// The constraints of `curves` and `bounded` on the window `base` of
 /// `plan`, and the influence mask of `curves` alone; the bounded curves'
-/// constraints beyond it are dropped. With `footprint`, each curve's part
-/// of the mask reaches its own [`footprint_reach`] instead of the
-/// influence distance (the mask is the union of the curves' parts, so it
-/// never grows).
+/// constraints beyond it are dropped.
 fn constrain(
     base: &HeightMap,
     curves: &[CurveConstraint],
     bounded: &[CurveConstraint],
     plan: &DeformPlan,
-    footprint_eye: Option<[f64; 2]>,
 ) -> (ConstraintRaster, Vec<bool>) {
     let (cell, d) = (plan.cell, plan.influence_m);
-    let (own, mut cons) = if bounded.is_empty() {
+    if bounded.is_empty() {
         let own = constraints::rasterise(base, curves, cell);
-        (own, None)
-    } else {
-        // (the curves' candidate cells found once for both rasters)
-        let (own, cons) = constraints::rasterise_with(base, curves, bounded, cell);
-        (own, Some(cons))
-    };
-    let room = if let Some(eye) = footprint_eye {
-        footprint_room(base, curves, &own, cell, d, eye)
-    } else {
         let d2 = locality::squared_distance_to_constraints(&own, cell);
-        d2.iter()
-            .map(|&v| locality::room_to_edge(v, cell, d))
-            .collect()
-    };
-    let inside: Vec<bool> = room
-        .iter()
-        .zip(&own.constrained)
-        .map(|(&r, &k)| k || r >= 0.0)
-        .collect();
-    let Some(mut cons) = cons.take() else {
+        let inside = locality::mask_of_distances(&d2, &own, cell, d);
         return (own, inside);
-    };
+    }
+    // (the curves' candidate cells found once for both rasters)
+    let (own, mut cons) = constraints::rasterise_with(base, curves, bounded, cell);
+    let d2 = locality::squared_distance_to_constraints(&own, cell);
+    let inside = locality::mask_of_distances(&d2, &own, cell, d);
     let keep: Vec<bool> = (0..cons.delta.len())
         .map(|i| {
             own.constrained[i]
-                || (inside[i] && cons.delta[i].abs() as f64 <= BOUNDED_FALL * room[i])
+                || (inside[i]
+                    && cons.delta[i].abs() as f64
+                        <= BOUNDED_FALL * locality::room_to_edge(d2[i], cell, d))
         })
         .collect();
     constraints::keep_within(&mut cons, &keep);
     (cons, inside)
-}
-
-/// A curve's landform reaches at least this many cells beyond the
-/// constraint reach (so that its constrained cells have free ground
-/// around them to fall back on).
-pub const FOOTPRINT_MIN_CELLS: f64 = 2.0;
-
-/// How far a curve's change reaches with [`DeformOptions::footprint`]:
-/// half its horizontal length (Gain et al. 2009, section 3.1: a
-/// silhouette's landform has a footprint as deep as its shoulders are
-/// long, a circle for a single summit, a capsule for a chain), at least
-/// its largest `|delta|` over [`BOUNDED_FALL`] plus the constraint reach
-/// (the terrain comes back to its own height at a mean slope of at most
-/// 45 degrees) and [`FOOTPRINT_MIN_CELLS`] cells beyond the constraint
-/// reach; at most the influence distance `d`.
-pub fn footprint_reach(length_m: f64, max_abs_delta: f64, cell: CellSize, d: f64) -> f64 {
-    let r = cell.constraint_reach();
-    (0.5 * length_m)
-        .max(max_abs_delta / BOUNDED_FALL + r)
-        .max(r + FOOTPRINT_MIN_CELLS * cell.hx.max(cell.hy))
-        .min(d)
-}
-
-/// Horizontal length in metres of a curve given in the CRS of `base`.
-fn curve_length_m(base: &HeightMap, c: &CurveConstraint, cell: CellSize) -> f64 {
-    let g = base.geotransform.0;
-    let (mx, my) = (cell.hx / g[1].abs(), cell.hy / g[5].abs());
-    c.points
-        .windows(2)
-        .map(|w| ((w[1][0] - w[0][0]) * mx).hypot((w[1][1] - w[0][1]) * my))
-        .sum()
-}
-
-/// Per cell of the window, how far inside the edge of its nearest
-/// curve's reach it lies (the largest [`locality::room_to_edge`] over the
-/// curves). The cells nearer the eye than a raising curve that is a
-/// summit ([`is_summit`]; its largest `delta` is a raise), within its span
-/// of directions, are its landform's visible face: there every raising
-/// curve reaches only its own [`footprint_reach`]. Everywhere else, and
-/// for the other curves everywhere, the reach is the influence distance
-/// `d` (a tangent on rising ground keeps the diffusion in front of it).
-fn footprint_room(
-    base: &HeightMap,
-    curves: &[CurveConstraint],
-    own: &ConstraintRaster,
-    cell: CellSize,
-    d: f64,
-    eye: [f64; 2],
-) -> Vec<f64> {
-    let n = own.delta.len();
-    let (w, g) = (base.width, base.geotransform.0);
-    let (mx, my) = (cell.hx / g[1].abs(), cell.hy / g[5].abs());
-    // metres east / north of the eye (local plane of the CRS, scaled)
-    let metres = |x: f64, y: f64| [(x - eye[0]) * mx, (y - eye[1]) * my];
-    let cells: Vec<[f64; 2]> = (0..n)
-        .map(|i| {
-            let (c, r) = ((i % w) as f64 + 0.5, (i / w) as f64 + 0.5);
-            metres(g[0] + c * g[1] + r * g[2], g[3] + c * g[4] + r * g[5])
-        })
-        .collect();
-    let mut face = vec![false; n];
-    // (each raising curve's distance transform is made again in the second
-    // pass, so that only one is held at a time)
-    let mut raising: Vec<(&CurveConstraint, f64)> = Vec::new();
-    let mut at_d: Vec<CurveConstraint> = Vec::new();
-    for c in curves {
-        let one = constraints::rasterise(base, std::slice::from_ref(c), cell);
-        let (lo, hi) = one
-            .delta
-            .iter()
-            .zip(&one.constrained)
-            .filter(|(_, &k)| k)
-            .fold((0f32, 0f32), |(lo, hi), (&v, _)| (lo.min(v), hi.max(v)));
-        let reach = footprint_reach(curve_length_m(base, c, cell), one.max_abs_delta, cell, d);
-        if one.count == 0 || hi <= -lo || reach >= d {
-            at_d.push(c.clone());
-            continue;
-        }
-        raising.push((c, reach));
-        if !is_summit(base, c, reach, eye, cell) {
-            continue;
-        }
-        // the curve's distance from the eye by direction (angles about the
-        // direction of its first point, so no wrap inside its span)
-        let pts: Vec<[f64; 2]> = c.points.iter().map(|p| metres(p[0], p[1])).collect();
-        let a0 = pts[0][1].atan2(pts[0][0]);
-        let ang = |q: [f64; 2]| {
-            let a = q[1].atan2(q[0]) - a0;
-            (a + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI
-        };
-        let mut by_angle: Vec<(f64, f64)> =
-            pts.iter().map(|&q| (ang(q), q[0].hypot(q[1]))).collect();
-        by_angle.sort_by(|a, b| a.0.total_cmp(&b.0));
-        let (first, last) = (by_angle[0].0, by_angle[by_angle.len() - 1].0);
-        for (f, &q) in face.iter_mut().zip(&cells) {
-            let a = ang(q);
-            if *f || a < first || a > last {
-                continue;
-            }
-            let k = by_angle
-                .partition_point(|p| p.0 < a)
-                .clamp(1, by_angle.len() - 1);
-            let (p, r) = (by_angle[k - 1], by_angle[k]);
-            let t = if r.0 > p.0 {
-                (a - p.0) / (r.0 - p.0)
-            } else {
-                0.0
-            };
-            *f = q[0].hypot(q[1]) < p.1 + t * (r.1 - p.1);
-        }
-    }
-    let mut room = vec![f64::NEG_INFINITY; n];
-    for &(c, reach) in &raising {
-        let one = constraints::rasterise(base, std::slice::from_ref(c), cell);
-        let d2 = locality::squared_distance_to_constraints(&one, cell);
-        for ((r, &v), &f) in room.iter_mut().zip(&d2).zip(&face) {
-            if v.is_finite() {
-                *r = r.max(locality::room_to_edge(v, cell, if f { reach } else { d }));
-            }
-        }
-    }
-    if !at_d.is_empty() {
-        let all = constraints::rasterise(base, &at_d, cell);
-        let d2 = locality::squared_distance_to_constraints(&all, cell);
-        for (r, &v) in room.iter_mut().zip(&d2) {
-            *r = r.max(locality::room_to_edge(v, cell, d));
-        }
-    }
-    room
-}
-
-/// Share of a raising curve's points that must be summits for its front
-/// to be held to its footprint: most of them.
-pub const SUMMIT_SHARE: f64 = 0.5;
-
-/// Whether the raising curve `c` is drawn on a *summit* of the terrain
-/// `base` it is placed on: at most of its points (at least
-/// [`SUMMIT_SHARE`]), the terrain behind the point along its sight line
-/// from `eye`, out to `reach` metres, stays below the point's own height
-/// before the raise (`base` under the point). A silhouette is placed on a
-/// feature of the terrain (Tassé et al. 2014, section 6.1); where that
-/// feature is a crest, the landform the stroke outlines ends at it and
-/// its extent is its footprint (Gain et al. 2009, section 3.1). Where the
-/// ground goes on rising behind the point, the outline is a tangent on a
-/// slope and the landform's top lies behind it: its front face is not the
-/// footprint's edge, and the diffusion is left as it is.
-/// `DS_SUMMIT=raised` compares with the raised height instead.
-fn is_summit(
-    base: &HeightMap,
-    c: &CurveConstraint,
-    reach: f64,
-    eye: [f64; 2],
-    cell: CellSize,
-) -> bool {
-    let gt = &base.geotransform;
-    let g = gt.0;
-    let (mx, my) = (cell.hx / g[1].abs(), cell.hy / g[5].abs());
-    let step = cell.hx.min(cell.hy);
-    let raised = std::env::var("DS_SUMMIT").is_ok_and(|v| v == "raised");
-    let height = |x: f64, y: f64| {
-        gt.crs_to_pixel(x, y)
-            .and_then(|(px, py)| constraints::bilinear_valid(base, px, py))
-    };
-    let (mut tested, mut summits) = (0usize, 0usize);
-    for p in &c.points {
-        let Some(h0) = height(p[0], p[1]) else {
-            continue;
-        };
-        let top = if raised { p[2] } else { h0 };
-        let q = [(p[0] - eye[0]) * mx, (p[1] - eye[1]) * my];
-        let r = q[0].hypot(q[1]);
-        if r <= 0.0 {
-            continue;
-        }
-        let u = [q[0] / r, q[1] / r];
-        tested += 1;
-        let n = (reach / step).ceil().max(1.0) as usize;
-        let falls = (1..=n).all(|k| {
-            let s = k as f64 * step;
-            let (x, y) = (p[0] + s * u[0] / mx, p[1] + s * u[1] / my);
-            height(x, y).is_none_or(|h| h < top)
-        });
-        summits += falls as usize;
-    }
-    let yes = tested > 0 && summits as f64 >= SUMMIT_SHARE * tested as f64;
-    if std::env::var_os("DEMSKETCH_DEBUG").is_some() {
-        eprintln!(
-            "footprint: raising curve of {} points, reach {reach:.0} m, summit at {summits} of {tested}: {}",
-            c.points.len(),
-            if yes { "footprint in front" } else { "tangent, influence all round" }
-        );
-    }
-    yes
 }
 
 /// A bounded curve holds a cell only where the terrain can come back to

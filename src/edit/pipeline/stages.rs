@@ -144,16 +144,6 @@ pub(super) fn deform<'a>(
         dem_name,
         opts: DeformOptions {
             influence_m: options.influence_m,
-            footprint_eye: (views.len() == 1 && std::env::var_os("DS_NOFOOT").is_none()).then(
-                || {
-                    let v = &views[0];
-                    let (ex, ey) = v.frame.eye_pixel;
-                    let (x, y) = dem
-                        .geotransform
-                        .pixel_to_crs(v.window_offset.0 as f64 + ex, v.window_offset.1 as f64 + ey);
-                    [x, y]
-                },
-            ),
             ..DeformOptions::default()
         },
         fixed: &placed.demands.fixed,
