@@ -60,6 +60,7 @@ impl ViewState<'_> {
             col,
             row,
             height: h as f64,
+            upper: false,
         })
     }
 
