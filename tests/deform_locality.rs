@@ -439,7 +439,6 @@ fn held_and_lowered_cells_never_widen_the_influence() {
             col: w.col + c as i64,
             row: w.row + r as i64,
             height,
-            upper: false,
         });
     }
     let d = deform_with_cells(&dem, std::slice::from_ref(&curve), &cells, &opts).unwrap();

@@ -71,11 +71,6 @@ pub struct CellConstraint {
     pub col: i64,
     pub row: i64,
     pub height: f64,
-    /// `height` is an upper bound, not a prescribed height: the edited
-    /// terrain is at most `height` there and otherwise free (an obstacle,
-    /// [`super::multigrid::solve_below`]); see [`upper_bounds`].
-    #[serde(default)]
-    pub upper: bool,
 }
 
 /// Size of one grid cell in metres: `hx` along a row (between columns), `hy`
@@ -249,7 +244,7 @@ pub fn apply_cells(
     cells: &[CellConstraint],
     within: &[bool],
 ) {
-    for c in cells.iter().filter(|c| !c.upper) {
+    for c in cells {
         let (x, y) = (c.col - window.col, c.row - window.row);
         if x < 0 || y < 0 || x as usize >= cons.width || y as usize >= cons.height {
             continue;
@@ -270,41 +265,6 @@ pub fn apply_cells(
         cons.delta[k] = d as f32;
         cons.max_abs_delta = cons.max_abs_delta.max(d.abs());
     }
-}
-
-/// The upper bounds of the cells of `cells` marked [`CellConstraint::upper`]
-/// as displacements (`height - H`, NaN where a cell is unbounded), on the
-/// window `window` of the DEM whose heights are `base`: only on cells
-/// within the curves' influence (`within`), valid and not constrained by
-/// `cons` (a prescribed height wins over a bound). Where a cell is bounded
-/// twice the lower bound holds. `None` when no cell is bounded.
-pub fn upper_bounds(
-    cons: &ConstraintRaster,
-    base: &HeightMap,
-    window: crate::raster::Window,
-    cells: &[CellConstraint],
-    within: &[bool],
-) -> Option<Vec<f32>> {
-    let mut out: Option<Vec<f32>> = None;
-    for c in cells.iter().filter(|c| c.upper) {
-        let (x, y) = (c.col - window.col, c.row - window.row);
-        if x < 0 || y < 0 || x as usize >= cons.width || y as usize >= cons.height {
-            continue;
-        }
-        let k = y as usize * cons.width + x as usize;
-        let h = base.data[k];
-        let d = c.height - h as f64;
-        if !within[k] || cons.constrained[k] || h.is_nan() || !d.is_finite() {
-            continue;
-        }
-        let u = out.get_or_insert_with(|| vec![f32::NAN; cons.delta.len()]);
-        u[k] = if u[k].is_nan() {
-            d as f32
-        } else {
-            u[k].min(d as f32)
-        };
-    }
-    out
 }
 
 /// Drops the constraints of `cons` on cells outside `within` (within an

@@ -347,8 +347,7 @@ pub fn deform(
 }
 
 /// [`deform`] with, in addition to the curves, heights prescribed on single
-/// DEM cells ([`CellConstraint`]): such a cell is held at its height (one
-/// marked [`CellConstraint::upper`] at most at it, an obstacle),
+/// DEM cells ([`CellConstraint`]): such a cell is held at its height,
 /// whatever the curves ask there (see [`constraints::apply_cells`]). The
 /// affected window and the influence are the curves' alone; cells beyond
 /// the curves' influence distance, or on nodata, are ignored (they stay
@@ -390,7 +389,6 @@ pub fn deform_bounded(
     // Held and lowered cells, like the bounded curves, act only within the
     // curves' influence.
     constraints::apply_cells(&mut cons, &base, plan.window, cells, &inside);
-    let upper = constraints::upper_bounds(&cons, &base, plan.window, cells, &inside);
     if cons.count == 0 {
         return Err(DeformError::NothingConstrained {
             path: dem.path.clone(),
@@ -415,31 +413,15 @@ pub fn deform_bounded(
         screening: opts.screening,
         ..MultigridOptions::default()
     };
-    let solved = match &upper {
-        None => multigrid::solve(
-            plan.window.width,
-            plan.window.height,
-            plan.cell.hx,
-            plan.cell.hy,
-            &fixed,
-            &mut values,
-            &mg,
-        )?,
-        Some(upper) => {
-            multigrid::solve_below(
-                plan.window.width,
-                plan.window.height,
-                plan.cell.hx,
-                plan.cell.hy,
-                &fixed,
-                &mut values,
-                upper,
-                BOUND_SLACK_M,
-                &mg,
-            )?
-            .0
-        }
-    };
+    let solved = multigrid::solve(
+        plan.window.width,
+        plan.window.height,
+        plan.cell.hx,
+        plan.cell.hy,
+        &fixed,
+        &mut values,
+        &mg,
+    )?;
     let t3 = Instant::now();
     let mut changed_cells = 0;
     let mut max_abs = 0f64;
@@ -506,13 +488,6 @@ fn constrain(
     constraints::keep_within(&mut cons, &keep);
     (cons, inside)
 }
-
-/// How far (metres) a bounded cell ([`CellConstraint::upper`]) may pass its
-/// bound, and its neighbours' mean fall under it while it is held there,
-/// before the obstacle solve ([`multigrid::solve_below`]) frees or holds
-/// it again: well above the solver's tolerance on displacements of metres,
-/// well under what a render shows.
-pub const BOUND_SLACK_M: f64 = 1e-3;
 
 /// A bounded curve holds a cell only where the terrain can come back to
 /// its own height before the edge of the influence at a mean slope of at

@@ -278,11 +278,6 @@ struct Vertex {
     /// may lie above it): [`FRONT_BELOW_PX`] in front of the curve, where
     /// the terrain must not cover the stroke, else `-VERTEX_ABOVE_PX`.
     clear: f64,
-    /// Put on the stroke's sight surface (a carrier, or a vertex an earlier
-    /// round constrained, on the stroke): its height is prescribed. Any
-    /// other vertex moved only comes down, to keep under the line of
-    /// sight, which bounds it from above and no more.
-    carried: bool,
 }
 
 /// The cell constraints of one stroke.
@@ -321,7 +316,6 @@ fn stroke_constraints(
             let v = &mut verts[k];
             if carrier && ((v.x >= xs0 && v.x <= xs1) || cut_end(v.x)) {
                 v.y = carry(v.x) + v.clear.max(0.0);
-                v.carried = true;
             }
             return;
         }
@@ -342,8 +336,7 @@ fn stroke_constraints(
         } else {
             -VERTEX_ABOVE_PX
         };
-        let carried = (on_stroke || cut_end(px[0])) && (carrier || constrained(col, row));
-        let y = if carried {
+        let y = if (on_stroke || cut_end(px[0])) && (carrier || constrained(col, row)) {
             carry(px[0]) + clear.max(0.0)
         } else if px[1] < stroke_y + clear {
             stroke_y + clear.max(0.0)
@@ -359,7 +352,6 @@ fn stroke_constraints(
             y0: px[1],
             y,
             clear,
-            carried,
         });
     };
     // The neighbourhood in depth (row-major, as the relaxation sweeps).
@@ -449,15 +441,10 @@ fn stroke_constraints(
         let (_, _, h) = t.frame.local_to_crs([v.p[0], v.p[1], z]);
         if h.is_finite() && (z - v.p[2]).abs() > CELL_EPS_M {
             let (col, row) = dem_cell(v.c, v.r);
-            // (a vertex in front of the curve moved down, to keep under
-            // the line of sight, is bounded from above: the diffusion may
-            // take it lower. One at or behind the curve brought onto the
-            // stroke makes the contour there, and is held.)
             out.push(CellConstraint {
                 col,
                 row,
                 height: h,
-                upper: !v.carried && v.clear > 0.0 && v.y > v.y0,
             });
         }
     }

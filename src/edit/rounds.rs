@@ -461,7 +461,7 @@ struct Gathered {
     constraints: Vec<CurveConstraint>,
     /// How many of `constraints` are the user's.
     user_constraints: usize,
-    cells: BTreeMap<(i64, i64), (f64, bool)>,
+    cells: BTreeMap<(i64, i64), f64>,
     /// Per view: lowering rounds that found protruding silhouettes.
     iterations: Vec<usize>,
     /// Per view: protruding silhouettes lowered, over all rounds.
@@ -472,7 +472,7 @@ struct Gathered {
 
 /// The constraints that made a round's terrain: the curve list's length
 /// then (it only grows) and the contour cells.
-type MadeBy = (usize, BTreeMap<(i64, i64), (f64, bool)>);
+type MadeBy = (usize, BTreeMap<(i64, i64), f64>);
 
 impl Gathered {
     fn new(user: Vec<CurveConstraint>, views: usize) -> Gathered {
@@ -565,22 +565,20 @@ impl Gathered {
         after: &RenderedView,
         curves: &[StrokeCurve],
     ) -> bool {
-        let mut round: BTreeMap<(i64, i64), (f64, bool)> = BTreeMap::new();
+        let mut round: BTreeMap<(i64, i64), f64> = BTreeMap::new();
         let cells = &self.cells;
         let known = |col: i64, row: i64| cells.contains_key(&(col, row));
         for c in contour_constraints(after, curves, view.window_offset, &known) {
-            // (a cell any stroke prescribes is prescribed)
-            let h = round.entry((c.col, c.row)).or_insert((c.height, c.upper));
-            *h = (h.0.min(c.height), h.1 && c.upper);
+            let h = round.entry((c.col, c.row)).or_insert(c.height);
+            *h = h.min(c.height);
         }
         let mut moved = false;
-        for (&(col, row), &(height, upper)) in &round {
+        for (&(col, row), &height) in &round {
             if debug() {
-                let kind = if upper { " (at most)" } else { "" };
-                eprintln!("contour cell: col {col} row {row} height {height:.1}{kind}");
+                eprintln!("contour cell: col {col} row {row} height {height:.1}");
             }
-            let old = self.cells.insert((col, row), (height, upper));
-            moved |= old.is_none_or(|(h, _)| (h - height).abs() > CELL_CHANGE_M);
+            let old = self.cells.insert((col, row), height);
+            moved |= old.is_none_or(|h| (h - height).abs() > CELL_CHANGE_M);
         }
         if moved {
             self.contour_rounds[k] += 1;
@@ -613,12 +611,7 @@ impl Gathered {
         let cell_list: Vec<CellConstraint> = self
             .cells
             .iter()
-            .map(|(&(col, row), &(height, upper))| CellConstraint {
-                col,
-                row,
-                height,
-                upper,
-            })
+            .map(|(&(col, row), &height)| CellConstraint { col, row, height })
             .collect();
         solver.solve(&self.constraints, &cell_list)
     }

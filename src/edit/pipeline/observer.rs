@@ -60,7 +60,6 @@ impl ViewState<'_> {
             col,
             row,
             height: h as f64,
-            upper: false,
         })
     }
 
