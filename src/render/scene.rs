@@ -167,9 +167,7 @@ impl Scene {
         exact_cells: Option<f64>,
     ) -> Result<Scene, RenderError> {
         let (scene, rings) =
-            Self::open_lod(dem, vp, max_distance, k, camera, reuse, exact_cells, |_| {
-                None
-            })?;
+            Self::open_wedge_lod_deferred(dem, vp, max_distance, k, camera, reuse, exact_cells)?;
         scene.with_rings(dem, rings)
     }
 
