@@ -77,3 +77,33 @@ fn the_reported_curve_lies_on_the_written_terrain() {
     let far = s["match"]["depth_m"][1].as_f64().expect("depth");
     assert!(far > 40_000.0, "placed out to {far:.0} m");
 }
+
+/// On a DEM in degrees the placed curve keeps a millimetre's precision on
+/// the ground: it used to be rounded to 0.001 in the CRS's units, which on
+/// a geographic CRS is a thousandth of a degree (about 100 m here), so
+/// consecutive points fell on one spot and the curve `export geojson`
+/// draws jumped by a cell at a time. The sketch is the hold-out 1 case
+/// "Texas peak raised, dense style" (EPSG:4326, 90 m cells).
+#[test]
+fn the_placed_curve_keeps_its_precision_in_degrees() {
+    let case = edit_fidelity_case(
+        "texas_srtm90m_tiled_int16.tif",
+        "holdout1_texas_peak_raised_dense.json",
+    );
+    let s = &case.report["views"][0]["strokes"][0];
+    let curve: Vec<(f64, f64)> = s["placed_curve"]
+        .as_array()
+        .expect("placed curve")
+        .iter()
+        .map(|p| (p[0].as_f64().expect("x"), p[1].as_f64().expect("y")))
+        .collect();
+    assert!(curve.len() > 10, "{} points", curve.len());
+    // Consecutive points of a dense stroke lie metres apart, not on one
+    // rounded spot.
+    let distinct = curve.windows(2).filter(|w| w[0] != w[1]).count();
+    assert!(
+        distinct * 10 >= (curve.len() - 1) * 9,
+        "{distinct} of {} consecutive pairs differ",
+        curve.len() - 1
+    );
+}

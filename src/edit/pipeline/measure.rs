@@ -74,14 +74,38 @@ pub(super) fn measure_strokes(
 }
 
 /// A placed stroke's points in the DEM's CRS (absolute heights), for the
-/// report: the finite ones, rounded to the millimetre.
+/// report: the finite ones, rounded to about a millimetre on the ground
+/// ([`millimetre_decimals`]: in degrees on a geographic CRS, not to a
+/// thousandth of a degree).
 pub(super) fn placed_curve(sv: &SceneView, sm: &crate::sketch::StrokeMatch) -> Vec<[f64; 3]> {
-    sv.projection
-        .placed_to_dem(&sm.points)
+    let points = sv.projection.placed_to_dem(&sm.points);
+    let xy = millimetre_decimals(&sv.projection, sm.points.first().map(|p| p.world));
+    let round = |v: f64, decimals: i32| {
+        let f = 10f64.powi(decimals);
+        (v * f).round() / f
+    };
+    points
         .into_iter()
         .filter(|p| p.iter().all(|v| v.is_finite()))
-        .map(|p| p.map(|v| (v * 1000.0).round() / 1000.0))
+        .map(|p| [round(p[0], xy), round(p[1], xy), round(p[2], 3)])
         .collect()
+}
+
+/// Decimals of the DEM's CRS units that resolve a millimetre on the ground
+/// near `at` (a world-frame point; 3 for metres, 8 for degrees), from the
+/// CRS distance of a metre east and north of it.
+fn millimetre_decimals(projection: &SceneProjection, at: Option<[f64; 3]>) -> i32 {
+    let Some(p) = at else { return 3 };
+    let o = projection.local_to_dem(p);
+    let e = projection.local_to_dem([p[0] + 1.0, p[1], p[2]]);
+    let n = projection.local_to_dem([p[0], p[1] + 1.0, p[2]]);
+    let per_m = (e[0] - o[0])
+        .hypot(e[1] - o[1])
+        .min((n[0] - o[0]).hypot(n[1] - o[1]));
+    if !(per_m.is_finite() && per_m > 0.0) {
+        return 3;
+    }
+    (-(per_m * 1e-3).log10()).ceil().clamp(3.0, 12.0) as i32
 }
 
 /// Why a placed stroke cannot be fitted whatever the deformation does, if
