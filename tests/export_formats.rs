@@ -456,6 +456,99 @@ fn validate_stac(item: &Path) {
 }
 
 /// GDAL's COG validator (python3-gdal's samples), where installed.
+/// On a DEM in degrees (the Texas fixture, EPSG:4326) the GeoJSON's change
+/// footprint is in longitude, latitude order like its placed curves (RFC
+/// 7946): GDAL 3 reads EPSG:4326 latitude first unless told otherwise, and
+/// the footprint used to come out swapped (latitude 32.7 as x). Its box is
+/// the box of the dz raster's changed cells, read with GDAL.
+#[test]
+fn geojson_of_an_edit_in_degrees_is_lon_lat() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let dem = fixture("texas_srtm90m_tiled_int16.tif");
+    let (fixed, report, dz) = (
+        dir.path().join("fixed.tif"),
+        dir.path().join("report.json"),
+        dir.path().join("dz.tif"),
+    );
+    let sketch = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data/holdout1_texas_peak_raised_dense.json");
+    ok(&demsketch(&[
+        "edit",
+        &s(&dem),
+        "--sketch",
+        &s(&sketch),
+        "--out",
+        &s(&fixed),
+        "--report",
+        &s(&report),
+        "--dz",
+        &s(&dz),
+        "--allow-partial",
+        "-q",
+    ]));
+    let gj = dir.path().join("edit.geojson");
+    ok(&demsketch(&[
+        "export",
+        "geojson",
+        &s(&fixed),
+        "--report",
+        &s(&report),
+        "--dz",
+        &s(&dz),
+        "--out",
+        &s(&gj),
+        "-q",
+    ]));
+    let fc: Value = serde_json::from_slice(&std::fs::read(&gj).expect("geojson")).expect("JSON");
+    let fp = fc["features"]
+        .as_array()
+        .expect("features")
+        .iter()
+        .find(|f| f["properties"]["kind"] == "change_footprint")
+        .expect("a footprint");
+    let (mut w, mut so, mut ea, mut n) = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);
+    for poly in fp["geometry"]["coordinates"].as_array().expect("polygons") {
+        for ring in poly.as_array().expect("rings") {
+            for c in ring.as_array().expect("ring") {
+                let (x, y) = (c[0].as_f64().expect("x"), c[1].as_f64().expect("y"));
+                (w, so, ea, n) = (w.min(x), so.min(y), ea.max(x), n.max(y));
+            }
+        }
+    }
+    // The changed cells' box from the dz raster (cell edges, degrees).
+    let info = gdalinfo(&dz);
+    let gt: Vec<f64> = info["geoTransform"]
+        .as_array()
+        .expect("geotransform")
+        .iter()
+        .map(|v| v.as_f64().expect("number"))
+        .collect();
+    let (width, _, v, nd) = gdal_values(&dz);
+    let (mut cw, mut cs, mut ce, mut cn) = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);
+    for (k, &z) in v.iter().enumerate() {
+        if Some(z) == nd || z == 0.0 {
+            continue;
+        }
+        let (i, j) = ((k % width) as f64, (k / width) as f64);
+        cw = cw.min(gt[0] + i * gt[1]);
+        ce = ce.max(gt[0] + (i + 1.0) * gt[1]);
+        cn = cn.max(gt[3] + j * gt[5]);
+        cs = cs.min(gt[3] + (j + 1.0) * gt[5]);
+    }
+    assert!(cw < ce, "the edit changed cells");
+    for (got, want, what) in [
+        (w, cw, "west"),
+        (ea, ce, "east"),
+        (so, cs, "south"),
+        (n, cn, "north"),
+    ] {
+        assert!(
+            (got - want).abs() < 1e-6,
+            "footprint {what} {got} against the changed cells' {want}"
+        );
+    }
+}
+
 fn cog_validator() -> Option<PathBuf> {
     [
         "/usr/lib/python3/dist-packages/osgeo_utils/samples/validate_cloud_optimized_geotiff.py",

@@ -19,12 +19,15 @@ pub fn footprint_lonlat(mask: &ChangeMask) -> Result<Option<Value>, ExportError>
         return Ok(None);
     }
     let gerr = |e: gdal::errors::GdalError| ExportError::Internal(format!("footprint: {e}"));
-    let srs = gdal::spatial_ref::SpatialRef::from_definition(&mask.crs.gdal_definition()).map_err(
-        |e| ExportError::Input {
+    let mut srs = gdal::spatial_ref::SpatialRef::from_definition(&mask.crs.gdal_definition())
+        .map_err(|e| ExportError::Input {
             path: mask.source.clone(),
             message: format!("its CRS is unknown to GDAL: {e}"),
-        },
-    )?;
+        })?;
+    // The polygons' coordinates are the geotransform's (x east, y north):
+    // on a geographic CRS, GDAL 3's authority order (latitude first) would
+    // read them swapped.
+    srs.set_axis_mapping_strategy(gdal::spatial_ref::AxisMappingStrategy::TraditionalGisOrder);
     // The mask as a Byte raster in memory (1 changed; 0, skipped, else).
     let mem = gdal::DriverManager::get_driver_by_name("MEM").map_err(gerr)?;
     let mut ds = mem
