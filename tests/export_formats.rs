@@ -221,17 +221,25 @@ struct Edited {
 }
 
 fn edit_zion() -> Edited {
+    edit_fixture(
+        "zion_srtm_utm12n.tif",
+        &Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/sketches/zion_dome.json"),
+    )
+}
+
+/// The fixture `dem` edited with `sketch` (written whatever its fit), with
+/// its report and dz raster, in a temporary directory.
+fn edit_fixture(dem: &str, sketch: &Path) -> Edited {
     let dir = tempfile::tempdir().expect("tempdir");
-    let dem = fixture("zion_srtm_utm12n.tif");
+    let dem = fixture(dem);
     let fixed = dir.path().join("fixed.tif");
     let report = dir.path().join("report.json");
     let dz = dir.path().join("dz.tif");
-    let sketch = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/sketches/zion_dome.json");
     ok(&demsketch(&[
         "edit",
         &s(&dem),
         "--sketch",
-        &s(&sketch),
+        &s(sketch),
         "--out",
         &s(&fixed),
         "--report",
@@ -463,30 +471,13 @@ fn validate_stac(item: &Path) {
 /// the box of the dz raster's changed cells, read with GDAL.
 #[test]
 fn geojson_of_an_edit_in_degrees_is_lon_lat() {
-    let dir = tempfile::tempdir().expect("tempdir");
-    let dem = fixture("texas_srtm90m_tiled_int16.tif");
-    let (fixed, report, dz) = (
-        dir.path().join("fixed.tif"),
-        dir.path().join("report.json"),
-        dir.path().join("dz.tif"),
+    let e = edit_fixture(
+        "texas_srtm90m_tiled_int16.tif",
+        &Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("tests/data/holdout1_texas_peak_raised_dense.json"),
     );
-    let sketch = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("tests/data/holdout1_texas_peak_raised_dense.json");
-    ok(&demsketch(&[
-        "edit",
-        &s(&dem),
-        "--sketch",
-        &s(&sketch),
-        "--out",
-        &s(&fixed),
-        "--report",
-        &s(&report),
-        "--dz",
-        &s(&dz),
-        "--allow-partial",
-        "-q",
-    ]));
-    let gj = dir.path().join("edit.geojson");
+    let (fixed, report, dz) = (&e.fixed, &e.report, &e.dz);
+    let gj = e.dir.path().join("edit.geojson");
     ok(&demsketch(&[
         "export",
         "geojson",
