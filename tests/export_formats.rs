@@ -481,11 +481,11 @@ fn geojson_of_an_edit_in_degrees_is_lon_lat() {
     ok(&demsketch(&[
         "export",
         "geojson",
-        &s(&fixed),
+        &s(fixed),
         "--report",
-        &s(&report),
+        &s(report),
         "--dz",
-        &s(&dz),
+        &s(dz),
         "--out",
         &s(&gj),
         "-q",
@@ -507,14 +507,14 @@ fn geojson_of_an_edit_in_degrees_is_lon_lat() {
         }
     }
     // The changed cells' box from the dz raster (cell edges, degrees).
-    let info = gdalinfo(&dz);
+    let info = gdalinfo(dz);
     let gt: Vec<f64> = info["geoTransform"]
         .as_array()
         .expect("geotransform")
         .iter()
         .map(|v| v.as_f64().expect("number"))
         .collect();
-    let (width, _, v, nd) = gdal_values(&dz);
+    let (width, _, v, nd) = gdal_values(dz);
     let (mut cw, mut cs, mut ce, mut cn) = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);
     for (k, &z) in v.iter().enumerate() {
         if Some(z) == nd || z == 0.0 {
